@@ -1,0 +1,127 @@
+"""Configuration shared by the three OCP formulations: cost weights, contact model, node references.
+
+Cost convention (crocoddyl's): a term with weight ``c`` and diagonal activation ``Q`` costs
+``c · ½ · Σ Q_i r_i²``. Running costs are multiplied by the node's Δt (as crocoddyl's Euler
+integrator does); the terminal node keeps only the state terms, not multiplied by Δt.
+
+Force convention: λ is the force the environment exerts on the robot at the contact point, in N.
+In the paper's 1-D setting it is the component along the world z axis of the frame centred at the
+contact point with world-aligned axes (pinocchio ``LOCAL_WORLD_ALIGNED``); pushing down on a
+horizontal table gives λ > 0. The controllers never know the table's true tilt.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import pinocchio as pin
+
+from ffmpc_core.errors import ConfigError
+
+FORMULATIONS = ("classical", "torque_feedback", "force_feedback")
+_FRAME_TYPES = {
+    "LOCAL_WORLD_ALIGNED": pin.ReferenceFrame.LOCAL_WORLD_ALIGNED,
+    "LOCAL": pin.ReferenceFrame.LOCAL,
+}
+
+
+def _diag(values, n: int, name: str) -> np.ndarray:
+    arr = np.broadcast_to(np.asarray(values, dtype=float), (n,)).copy()
+    if np.any(arr < 0) or not np.all(np.isfinite(arr)):
+        raise ConfigError(f"{name} must be finite and non-negative, got {arr}")
+    return arr
+
+
+@dataclass(frozen=True)
+class CostWeights:
+    """Weights of the common cost ℓ0 (eq 25.1–25.6) and of the formulation-specific terms.
+
+    Each ``c_*`` is a scalar weight; each ``*_diag`` is the diagonal of the activation ``Q_i``
+    (a scalar broadcasts to every entry).
+    """
+
+    posture: float = 1e-2  # c1 on ‖q − q̄‖², 1/rad² (eq 25.1)
+    posture_diag: tuple[float, ...] | float = 1.0
+    joint_velocity: float = 1e-2  # c2 on ‖q̇‖², s²/rad² (eq 25.2)
+    joint_velocity_diag: tuple[float, ...] | float = 1.0
+    torque: float = 1e-4  # c3 on ‖τ − τ_g(q, λ)‖², 1/(N·m)² (eq 25.3)
+    torque_diag: tuple[float, ...] | float = 1.0
+    ee_position: float = 1e2  # c4 on ‖p(q) − p̄(t)‖², 1/m² (eq 25.4); per node from the task
+    ee_position_diag: tuple[float, ...] | float = 1.0
+    ee_velocity: float = 1.0  # c5 on ‖ṗ(q, q̇)‖² (linear, world-aligned), s²/m² (eq 25.5)
+    ee_velocity_diag: tuple[float, ...] | float = 1.0
+    force: float = 1e-2  # c6 on ‖λ − λ̄(t)‖², 1/N² (eq 25.6); per node from the task
+    force_diag: tuple[float, ...] | float = 1.0
+    lowpass_input: float = 1e-4  # c_w on ‖w − τ_g(q, λ)‖², 1/(N·m)² (eq 28, torque-feedback)
+    force_rate: float = 1e-6  # c_λ on ‖λ̇‖², s²/N² (eq 29, force-feedback)
+
+    def diag(self, name: str, n: int) -> np.ndarray:
+        """The activation diagonal of term ``name`` (e.g. ``"posture"``) as an array of size n."""
+        return _diag(getattr(self, f"{name}_diag"), n, f"{name}_diag")
+
+    def with_(self, **changes) -> CostWeights:
+        return replace(self, **changes)
+
+
+@dataclass(frozen=True)
+class ContactConfig:
+    """The contact model the OCP assumes at the robot's ``contact`` frame.
+
+    Attributes:
+        dimension: 1 (normal force only, the paper's polishing setting) or 3.
+        frame_type: ``"LOCAL_WORLD_ALIGNED"`` (origin at the contact point, world axes; the paper's
+            setting) or ``"LOCAL"`` (the contact frame's own axes).
+        normal_axis: for 1-D contact, the axis (0=x, 1=y, 2=z) of that frame carrying the force.
+        stiffness: K of the visco-elastic model (eq 16), N/m, scalar or one per force axis.
+        damping: B of the visco-elastic model (eq 16), N·s/m, scalar or one per force axis.
+    """
+
+    dimension: int = 1
+    frame_type: str = "LOCAL_WORLD_ALIGNED"
+    normal_axis: int = 2
+    stiffness: float | tuple[float, ...] = 1e3
+    damping: float | tuple[float, ...] = 1e2
+
+    def __post_init__(self) -> None:
+        if self.dimension not in (1, 3):
+            raise ConfigError(f"contact dimension must be 1 or 3, got {self.dimension}")
+        if self.frame_type not in _FRAME_TYPES:
+            raise ConfigError(f"frame_type must be one of {tuple(_FRAME_TYPES)}")
+        if self.normal_axis not in (0, 1, 2):
+            raise ConfigError("normal_axis must be 0, 1 or 2")
+        self.stiffness_vector()
+        self.damping_vector()
+
+    @property
+    def pin_frame(self) -> pin.ReferenceFrame:
+        return _FRAME_TYPES[self.frame_type]
+
+    def stiffness_vector(self) -> np.ndarray:
+        """K as a vector of size ``dimension``, N/m."""
+        return _diag(self.stiffness, self.dimension, "stiffness")
+
+    def damping_vector(self) -> np.ndarray:
+        """B as a vector of size ``dimension``, N·s/m."""
+        return _diag(self.damping, self.dimension, "damping")
+
+
+@dataclass
+class NodeReference:
+    """What the task asks of one OCP node (one instant of the horizon).
+
+    Attributes:
+        ee_position: p̄(t), desired contact-frame position, m, world frame.
+        force: λ̄(t), desired contact force, N, ``dimension`` entries (see module docstring).
+        ee_position_weight: c4 for this node (the task phases change it).
+        force_weight: c6 for this node.
+        in_contact: whether the model of this node has the contact (rigid for classical and
+            torque-feedback; visco-elastic for force-feedback, whose K and B are zeroed otherwise).
+    """
+
+    ee_position: np.ndarray
+    force: np.ndarray
+    ee_position_weight: float
+    force_weight: float
+    in_contact: bool
+    posture: np.ndarray | None = field(default=None)  # q̄ (rad); None keeps the model's own

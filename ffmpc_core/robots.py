@@ -1,0 +1,189 @@
+"""Robot models: kinematics/dynamics, the contact (tool) frame and the limits, in one place.
+
+Two 7-DoF torque-controlled arms are supported:
+
+* ``"iiwa"`` — the KUKA LBR iiwa URDF shipped with ``pybullet_data`` (``kuka_iiwa/model.urdf``).
+  Its URDF carries placeholder limits (300 N·m, 10 rad/s on every joint); we replace them with the
+  manufacturer's LBR iiwa 7 R800 data sheet values, which match the URDF's link masses.
+  The URDF ends at the flange (``lbr_iiwa_link_7``); we add a ``contact`` frame for the polishing
+  tool: 0.10 m along the flange z axis, rotated by -45° about z (the F/T sensor's mounting).
+* ``"panda"`` — the Franka Emika Panda of ``example-robot-data``; the two finger joints are locked
+  (closed) to get a 7-DoF arm, and the ``contact`` frame is ``panda_hand_tcp``.
+
+Both contact frames have non-identity placements on purpose: derivatives are tested with them.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+
+from ffmpc_core.errors import ConfigError, ModelError
+
+#: LBR iiwa 7 R800 data sheet: maximum joint torques (N·m) and speeds (deg/s).
+IIWA7_TORQUE_LIMIT = np.array([176.0, 176.0, 110.0, 110.0, 110.0, 40.0, 40.0])
+IIWA7_VELOCITY_LIMIT = np.deg2rad([98.0, 98.0, 100.0, 130.0, 140.0, 180.0, 180.0])
+
+#: The contact frame of every robot model is called so.
+CONTACT_FRAME = "contact"
+
+
+@dataclass(frozen=True)
+class RobotModel:
+    """An immutable robot description; create pinocchio data with :meth:`create_data`.
+
+    Attributes:
+        name: ``"iiwa"`` or ``"panda"``.
+        model: pinocchio model (fixed base, ``nq == nv == 7``).
+        contact_frame_id: id in ``model.frames`` of the contact/tool frame (``"contact"``).
+        joint_names: actuated joint names, in the order of q, v and τ.
+        torque_limit: maximum absolute joint torque, N·m.
+        velocity_limit: maximum absolute joint velocity, rad/s.
+        position_lower, position_upper: joint position limits, rad.
+        q_nominal: a posture with the tool pointing down above a table, rad.
+        urdf_path: URDF file the model was built from (the simulator loads the same file).
+        flange_frame: name of the parent link of the contact frame (where PyBullet attaches tools).
+        tool_placement: placement of the contact frame in the flange frame.
+    """
+
+    name: str
+    model: pin.Model
+    contact_frame_id: int
+    joint_names: tuple[str, ...]
+    torque_limit: np.ndarray
+    velocity_limit: np.ndarray
+    position_lower: np.ndarray
+    position_upper: np.ndarray
+    q_nominal: np.ndarray
+    urdf_path: str
+    flange_frame: str
+    tool_placement: pin.SE3 = field(repr=False)
+
+    @property
+    def nq(self) -> int:
+        return self.model.nq
+
+    @property
+    def nv(self) -> int:
+        return self.model.nv
+
+    def create_data(self) -> pin.Data:
+        """A fresh pinocchio workspace for this model."""
+        return self.model.createData()
+
+    def contact_placement(self, q: np.ndarray, data: pin.Data | None = None) -> pin.SE3:
+        """World placement of the contact frame at configuration ``q`` (m, world frame)."""
+        data = data if data is not None else self.create_data()
+        pin.framesForwardKinematics(self.model, data, q)
+        return data.oMf[self.contact_frame_id].copy()
+
+    def gravity(self, q: np.ndarray, data: pin.Data | None = None) -> np.ndarray:
+        """Gravity torque g(q), N·m."""
+        data = data if data is not None else self.create_data()
+        return pin.computeGeneralizedGravity(self.model, data, q).copy()
+
+    def clip_torque(self, tau: np.ndarray) -> np.ndarray:
+        """Saturate a torque to the joint torque limits (N·m); NaN becomes 0."""
+        tau = np.nan_to_num(np.asarray(tau, dtype=float), nan=0.0, posinf=0.0, neginf=0.0)
+        return np.clip(tau, -self.torque_limit, self.torque_limit)
+
+
+def _iiwa_urdf_path() -> str:
+    import pybullet_data  # data-only package: no simulator is imported
+
+    return os.path.join(pybullet_data.getDataPath(), "kuka_iiwa", "model.urdf")
+
+
+def _add_contact_frame(model: pin.Model, parent_frame: str, placement: pin.SE3) -> int:
+    parent_id = model.getFrameId(parent_frame)
+    parent = model.frames[parent_id]
+    frame = pin.Frame(
+        CONTACT_FRAME,
+        parent.parentJoint,
+        parent_id,
+        parent.placement * placement,
+        pin.FrameType.OP_FRAME,
+    )
+    return model.addFrame(frame)
+
+
+def _load_iiwa() -> RobotModel:
+    urdf = _iiwa_urdf_path()
+    model = pin.buildModelFromUrdf(urdf)
+    tool = pin.SE3(pin.utils.rotate("z", -np.pi / 4), np.array([0.0, 0.0, 0.10]))
+    fid = _add_contact_frame(model, "lbr_iiwa_link_7", tool)
+    model.effortLimit = IIWA7_TORQUE_LIMIT.copy()
+    model.velocityLimit = IIWA7_VELOCITY_LIMIT.copy()
+    names = tuple(model.names[1:])
+    return RobotModel(
+        name="iiwa",
+        model=model,
+        contact_frame_id=fid,
+        joint_names=names,
+        torque_limit=IIWA7_TORQUE_LIMIT.copy(),
+        velocity_limit=IIWA7_VELOCITY_LIMIT.copy(),
+        position_lower=model.lowerPositionLimit.copy(),
+        position_upper=model.upperPositionLimit.copy(),
+        q_nominal=np.array([0.0, 0.6, 0.0, -1.5, 0.0, 1.04, 0.0]),
+        urdf_path=urdf,
+        flange_frame="lbr_iiwa_link_7",
+        tool_placement=tool,
+    )
+
+
+def _load_panda() -> RobotModel:
+    import example_robot_data as erd
+
+    robot = erd.load("panda")
+    full = robot.model
+    finger_ids = [full.getJointId(n) for n in ("panda_finger_joint1", "panda_finger_joint2")]
+    q_full = robot.q0.copy()
+    q_full[-2:] = 0.0
+    model = pin.buildReducedModel(full, finger_ids, q_full)
+    hand_tcp = model.getFrameId("panda_hand_tcp")
+    parent = model.frames[hand_tcp]
+    # The TCP frame is the contact frame; register it under the common name too.
+    fid = model.addFrame(
+        pin.Frame(
+            CONTACT_FRAME,
+            parent.parentJoint,
+            hand_tcp,
+            parent.placement,
+            pin.FrameType.OP_FRAME,
+        )
+    )
+    flange_id = model.getFrameId("panda_link8")
+    tool = model.frames[flange_id].placement.inverse() * parent.placement
+    return RobotModel(
+        name="panda",
+        model=model,
+        contact_frame_id=fid,
+        joint_names=tuple(model.names[1:]),
+        torque_limit=model.effortLimit.copy(),
+        velocity_limit=model.velocityLimit.copy(),
+        position_lower=model.lowerPositionLimit.copy(),
+        position_upper=model.upperPositionLimit.copy(),
+        q_nominal=np.array([0.0, -0.785398, 0.0, -2.356194, 0.0, 1.570796, 0.785398]),
+        urdf_path=robot.urdf,
+        flange_frame="panda_link8",
+        tool_placement=tool,
+    )
+
+
+_LOADERS = {"iiwa": _load_iiwa, "panda": _load_panda}
+ROBOT_NAMES = tuple(_LOADERS)
+
+
+def load_robot(name: str) -> RobotModel:
+    """Load a robot model by name (``"iiwa"`` or ``"panda"``)."""
+    try:
+        loader = _LOADERS[name]
+    except KeyError:
+        raise ConfigError(f"unknown robot {name!r}; choose one of {ROBOT_NAMES}") from None
+    robot = loader()
+    if robot.nq != robot.nv or robot.nv != 7:
+        raise ModelError(f"{name}: expected a 7-DoF fixed-base arm, got nq={robot.nq}")
+    return robot
