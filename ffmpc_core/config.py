@@ -125,3 +125,6 @@ class NodeReference:
     force_weight: float
     in_contact: bool
     posture: np.ndarray | None = field(default=None)  # q̄ (rad); None keeps the model's own
+    #: Q4 for this node (3 entries, world axes); None keeps CostWeights.ee_position_diag. Tasks
+    #: zero the normal (z) entry in contact so the normal direction belongs to the force task.
+    ee_position_diag: np.ndarray | None = field(default=None)

@@ -1,0 +1,283 @@
+"""Model-predictive controllers for the three formulations (paper III-C, IV, V).
+
+One class, :class:`ModelPredictiveController`, runs any formulation: the formulation only decides
+the state x, the nodes of the shooting problem and the torque to send. The controller has the shape
+``reset()`` / ``step(measurement, t) -> MpcCommand`` and never reads a clock: t is given.
+
+Every ``step``:
+
+1. builds x̂ from the measurement: (q, v) classical, (q, v, τ̂) torque-feedback, (q, v, λ̂)
+   force-feedback (eq 5, 10, 19);
+2. asks the task schedule for the references of every node at t + kΔt and updates the nodes in
+   place (phase switches replace a node's model only when its contact status changes);
+3. warm-starts from the previous solution shifted by the elapsed time (linear interpolation
+   along the horizon, first state replaced by x̂);
+4. solves with ``mim_solvers.SolverSQP`` (filter line search, ≤ 8 iterations, KKT tolerance 1e-4,
+   paper VII-A4);
+5. returns the torque to send (u₀* for classical and force-feedback; eq 15's interpolation for
+   torque-feedback), the local feedback gain, the prediction and solver statistics.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import crocoddyl  # noqa: F401  (must be imported before mim_solvers: it loads boost)
+import mim_solvers
+import numpy as np
+
+from ffmpc_core.config import FORMULATIONS, ContactConfig, CostWeights, NodeReference
+from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.robots import RobotModel
+
+
+class OcpNode(Protocol):
+    """What the MPC needs of one node of any formulation."""
+
+    model: crocoddyl.ActionModelAbstract
+
+    def set_reference(self, ref: NodeReference) -> bool:
+        """Update the node in place; True when ``model`` is now a different object."""
+
+
+class Schedule(Protocol):
+    def reference(self, t: float, dimension: int = 1) -> NodeReference: ...
+
+
+@dataclass(frozen=True)
+class MpcConfig:
+    """Parameters of one MPC (paper VI-B3 and VII-A4 defaults).
+
+    Attributes:
+        formulation: ``"classical"``, ``"torque_feedback"`` or ``"force_feedback"``.
+        horizon: number of OCP nodes N (paper: 5).
+        dt: OCP node duration Δt, s (paper: 3 ms).
+        period: re-planning period of the MPC, s (paper: 500 Hz → 2 ms).
+        contact: the contact model the OCP assumes (K, B used by force-feedback only).
+        weights: cost weights (eq 25, 28, 29).
+        cutoff_frequency: low-pass actuation cut-off f_c, Hz (torque-feedback; paper: 50 Hz).
+        max_iterations: SQP iterations per solve (paper: 8).
+        kkt_tolerance: SQP termination tolerance on the KKT residual (paper: 1e-4).
+        q_reference: posture q̄ of eq 25.1, rad (None: the robot's nominal posture).
+    """
+
+    formulation: str = "force_feedback"
+    horizon: int = 5
+    dt: float = 0.003
+    period: float = 0.002
+    contact: ContactConfig = field(default_factory=ContactConfig)
+    weights: CostWeights = field(default_factory=CostWeights)
+    cutoff_frequency: float = 50.0
+    max_iterations: int = 8
+    kkt_tolerance: float = 1e-4
+    q_reference: tuple[float, ...] | None = None
+
+    def __post_init__(self) -> None:
+        if self.formulation not in FORMULATIONS:
+            raise ConfigError(f"formulation must be one of {FORMULATIONS}, got {self.formulation!r}")
+        if self.horizon < 1 or self.dt <= 0 or self.period <= 0:
+            raise ConfigError("horizon must be >= 1 and dt, period > 0")
+        if self.cutoff_frequency <= 0 or self.max_iterations < 1 or self.kkt_tolerance <= 0:
+            raise ConfigError("cutoff_frequency, max_iterations, kkt_tolerance must be > 0")
+
+
+@dataclass
+class MpcMeasurement:
+    """What the MPC reads. q rad, v rad/s (joint order of the robot model); force N, in the
+    contact configuration's frame and dimension (force-feedback); torque N·m, the measured joint
+    torque τ̂ (torque-feedback)."""
+
+    q: np.ndarray
+    v: np.ndarray
+    force: np.ndarray | None = None
+    torque: np.ndarray | None = None
+
+
+@dataclass
+class MpcCommand:
+    """The MPC's output.
+
+    Attributes:
+        torque: joint torque to send now, N·m (saturated to the robot's limits).
+        state: the state x̂ the solve started from (and ``feedback_gain`` refers to).
+        feedback_gain: G (nv × ndx) such that ``torque + G @ (x − state)`` is the locally optimal
+            torque at a nearby state x (from the first Riccati gain; crocoddyl's u = u* − K·Δx,
+            so G = −K, chained through eq 15 for torque-feedback).
+        xs, us: predicted states and controls over the horizon.
+        iterations, kkt: SQP iterations used and final KKT residual.
+        solve_time: wall time of the solve, s (statistics only; never used for control).
+        converged: whether the KKT tolerance was reached within ``max_iterations``.
+    """
+
+    torque: np.ndarray
+    state: np.ndarray
+    feedback_gain: np.ndarray
+    xs: np.ndarray
+    us: np.ndarray
+    iterations: int
+    kkt: float
+    solve_time: float
+    converged: bool
+
+
+def _node_factory(robot: RobotModel, config: MpcConfig, q_ref) -> Callable[[bool], OcpNode]:
+    """A function terminal -> node for the configured formulation."""
+    args = (robot, config.contact, config.weights, config.dt)
+    if config.formulation == "classical":
+        from ffmpc_core.rigid_contact import make_rigid_contact_node
+
+        return lambda terminal: make_rigid_contact_node(*args, terminal, q_reference=q_ref)
+    if config.formulation == "torque_feedback":
+        from ffmpc_core.lowpass import make_lowpass_node
+
+        return lambda terminal: make_lowpass_node(
+            *args, terminal, config.cutoff_frequency, q_reference=q_ref
+        )
+    from ffmpc_core.soft_contact import make_soft_contact_node
+
+    return lambda terminal: make_soft_contact_node(*args, terminal, q_reference=q_ref)
+
+
+class ModelPredictiveController:
+    """Receding-horizon controller around one of the three OCP formulations.
+
+    Args:
+        robot: robot model (its contact frame carries the contact).
+        config: MPC parameters.
+        schedule: task schedule giving each node's reference at a time t.
+    """
+
+    def __init__(self, robot: RobotModel, config: MpcConfig, schedule: Schedule) -> None:
+        self.robot = robot
+        self.config = config
+        self.schedule = schedule
+        nv = robot.nv
+        self.nc = config.contact.dimension
+        q_ref = robot.q_nominal if config.q_reference is None else np.asarray(config.q_reference)
+        make = _node_factory(robot, config, q_ref)
+        self.nodes: list[OcpNode] = [make(False) for _ in range(config.horizon)]
+        self.terminal_node: OcpNode = make(True)
+        self.nx = {"classical": 2 * nv, "torque_feedback": 3 * nv, "force_feedback": 2 * nv + self.nc}[
+            config.formulation
+        ]
+        self._x0 = np.zeros(self.nx)
+        self._x0[:nv] = q_ref
+        self.problem = crocoddyl.ShootingProblem(
+            self._x0, [n.model for n in self.nodes], self.terminal_node.model
+        )
+        self.solver = mim_solvers.SolverSQP(self.problem)
+        self.solver.use_filter_line_search = True
+        self.solver.termination_tolerance = config.kkt_tolerance
+        self.solver.with_callbacks = False
+        self._epsilon = min(1.0, config.period / config.dt)  # eq 15
+        self._alpha = float(np.exp(-2.0 * np.pi * config.cutoff_frequency * config.dt))  # eq 13
+        self.reset()
+
+    # -- controller shape -------------------------------------------------------------------
+    def reset(self) -> None:
+        """Forget the warm start; the next step starts from a static guess."""
+        self._prev_t: float | None = None
+        self._prev_xs: np.ndarray | None = None
+        self._prev_us: np.ndarray | None = None
+
+    def set_contact_parameters(self, stiffness, damping) -> None:
+        """Change the force-feedback model's K (N/m) and B (N·s/m) in place, for every node."""
+        if self.config.formulation != "force_feedback":
+            raise ConfigError("only the force-feedback formulation has a visco-elastic contact")
+        for node in (*self.nodes, self.terminal_node):
+            node.set_contact_parameters(stiffness, damping)
+
+    def state_from(self, meas: MpcMeasurement) -> np.ndarray:
+        """The OCP state x̂ of a measurement (eq 5, 10, 19), validated."""
+        nv = self.robot.nv
+        parts = [self._vector(meas.q, nv, "q"), self._vector(meas.v, nv, "v")]
+        if self.config.formulation == "torque_feedback":
+            parts.append(self._vector(meas.torque, nv, "torque"))
+        elif self.config.formulation == "force_feedback":
+            parts.append(self._vector(meas.force, self.nc, "force"))
+        return np.concatenate(parts)
+
+    def step(self, meas: MpcMeasurement, t: float) -> MpcCommand:
+        """Solve the OCP from the measured state at time t (s) and return the command."""
+        x0 = self.state_from(meas)
+        self._update_references(t)
+        self.problem.x0 = x0
+        xs, us = self._warm_start(x0, t)
+        start = time.perf_counter()
+        converged = self.solver.solve(xs, us, self.config.max_iterations, False)
+        solve_time = time.perf_counter() - start
+        xs_opt = np.array(self.solver.xs)
+        us_opt = np.array(self.solver.us)
+        self._prev_t, self._prev_xs, self._prev_us = t, xs_opt, us_opt
+        torque, gain = self._command(x0, us_opt[0], np.array(self.solver.K[0]))
+        return MpcCommand(
+            torque=self.robot.clip_torque(torque),
+            state=x0,
+            feedback_gain=gain,
+            xs=xs_opt,
+            us=us_opt,
+            iterations=int(self.solver.iter),
+            kkt=float(self.solver.KKT),
+            solve_time=solve_time,
+            converged=bool(converged),
+        )
+
+    # -- internals ---------------------------------------------------------------------------
+    @staticmethod
+    def _vector(value, n: int, name: str) -> np.ndarray:
+        if value is None:
+            raise InputError(f"measurement has no {name}")
+        arr = np.asarray(value, dtype=float).reshape(-1)
+        if arr.shape != (n,):
+            raise InputError(f"measurement {name} has {arr.size} entries, expected {n}")
+        if not np.all(np.isfinite(arr)):
+            raise InputError(f"measurement {name} is not finite: {arr}")
+        return arr
+
+    def _update_references(self, t: float) -> None:
+        dt = self.config.dt
+        for k, node in enumerate(self.nodes):
+            if node.set_reference(self.schedule.reference(t + k * dt, self.nc)):
+                self.problem.updateModel(k, node.model)
+        horizon_end = t + len(self.nodes) * dt
+        if self.terminal_node.set_reference(self.schedule.reference(horizon_end, self.nc)):
+            self.problem.updateModel(len(self.nodes), self.terminal_node.model)
+
+    def _warm_start(self, x0: np.ndarray, t: float) -> tuple[list, list]:
+        """Previous solution shifted by the elapsed time (in node units), x₀ replaced by x̂."""
+        n = self.config.horizon
+        if self._prev_xs is None:
+            gravity = self.robot.gravity(x0[: self.robot.nq])
+            xs = [x0.copy() for _ in range(n + 1)]
+            u0 = gravity if self.config.formulation != "torque_feedback" else x0[-self.robot.nv :]
+            return xs, [u0.copy() for _ in range(n)]
+        shift = (t - self._prev_t) / self.config.dt
+        grid = np.arange(n + 1) + shift
+        xs_arr = _interp_rows(self._prev_xs, grid)
+        us_arr = _interp_rows(self._prev_us, grid[:n])
+        xs_arr[0] = x0
+        return list(xs_arr), list(us_arr)
+
+    def _command(self, x0: np.ndarray, u0: np.ndarray, K0: np.ndarray):
+        nv = self.robot.nv
+        if self.config.formulation != "torque_feedback":
+            return u0, -K0
+        # eq 15: τ̃ = τ₀ + ε(τ₁* − τ₀) with τ₁* = ατ₀ + (1 − α)w₀* (eq 13).
+        tau0 = x0[2 * nv :]
+        gain_w = self._epsilon * (1.0 - self._alpha)
+        torque = tau0 + gain_w * (u0 - tau0)
+        gain = -gain_w * K0
+        gain[:, 2 * nv :] += (1.0 - gain_w) * np.eye(nv)
+        return torque, gain
+
+
+def _interp_rows(rows: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """Rows of ``rows`` linearly interpolated at fractional indices ``grid`` (held at the ends)."""
+    idx = np.clip(grid, 0.0, rows.shape[0] - 1.0)
+    lo = np.floor(idx).astype(int)
+    hi = np.minimum(lo + 1, rows.shape[0] - 1)
+    frac = (idx - lo)[:, None]
+    return (1.0 - frac) * rows[lo] + frac * rows[hi]

@@ -1,0 +1,213 @@
+"""Time-based task schedules: what each OCP node should track at a given time (paper VI-A3).
+
+A schedule maps a time t (s, simulated) to a :class:`~ffmpc_core.config.NodeReference`. The MPC
+asks it for every node of its horizon (t, t + Δt, …), so references and phase switches are
+previewed. Schedules are pure functions of t: no clock, no state.
+
+Two tasks of the force-feedback paper:
+
+* :class:`PolishingTask` (VI-A, VII-C): stand still, reach the table, ramp the normal force to
+  50 N, draw a 14 cm-diameter circle at 3 rad/s (or 6 rad/s) while pushing, stop.
+* :class:`ForceSquareTask` (VII-B, Experiment 1): press on the table and track a square-wave normal
+  force reference. The paper's Fig. 4 is not in our copy of the text, so the levels and period are
+  parameters (defaults: 20 N / 50 N, 2 s period); the figure's exact values are not claimed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ffmpc_core.config import NodeReference
+from ffmpc_core.errors import ConfigError
+
+
+def min_jerk(s: float) -> float:
+    """Minimum-jerk blend 10s³ − 15s⁴ + 6s⁵ of a phase s clipped to [0, 1]."""
+    s = min(max(s, 0.0), 1.0)
+    return s * s * s * (10.0 + s * (-15.0 + 6.0 * s))
+
+
+@dataclass(frozen=True)
+class PhaseWeights:
+    """Per-phase scalars of the time-varying cost terms: c4 (end-effector position), c6 (force)."""
+
+    free_ee_position: float = 1e3
+    contact_ee_position: float = 1e3
+    force: float = 1e-2
+
+
+@dataclass(frozen=True)
+class PolishingTask:
+    """The polishing task of the paper (VI-A, VII-C), phases with fixed durations (s).
+
+    Attributes:
+        start_position: contact-frame position at t = 0, m, world frame.
+        contact_position: where the controller believes the table surface is under the tool, m,
+            world frame (the table's real tilt is unknown to it); the circle starts here.
+        normal_force: target normal force λ̄ during polishing, N (paper: 50 N).
+        circle_radius: m (paper: 0.07 m, i.e. 14 cm diameter).
+        angular_velocity: rad/s along the circle (paper: 3 rad/s; fast variant 6 rad/s).
+        still, reach, force_ramp, circle, stop: phase durations, s. ``circle`` defaults to two
+            turns at the nominal angular velocity.
+        weights: per-phase c4 and c6.
+        ee_z_weight_in_contact: activation of the z (normal) axis of the position cost while in
+            contact; 0 leaves the normal direction to the force task (the paper's pure sliding).
+    """
+
+    start_position: np.ndarray
+    contact_position: np.ndarray
+    normal_force: float = 50.0
+    circle_radius: float = 0.07
+    angular_velocity: float = 3.0
+    still: float = 0.1
+    reach: float = 0.4
+    force_ramp: float = 0.5
+    circle: float = 4.0 * np.pi / 3.0
+    stop: float = 0.3
+    weights: PhaseWeights = PhaseWeights()
+    ee_z_weight_in_contact: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("still", "reach", "force_ramp", "circle", "stop"):
+            if getattr(self, name) < 0:
+                raise ConfigError(f"phase duration {name} must be >= 0")
+        if self.circle_radius < 0 or self.normal_force < 0:
+            raise ConfigError("circle_radius and normal_force must be >= 0")
+
+    @property
+    def contact_time(self) -> float:
+        """Time at which the OCP switches to the contact model, s."""
+        return self.still + self.reach
+
+    @property
+    def circle_start(self) -> float:
+        return self.contact_time + self.force_ramp
+
+    @property
+    def circle_end(self) -> float:
+        return self.circle_start + self.circle
+
+    @property
+    def duration(self) -> float:
+        return self.circle_end + self.stop
+
+    def circle_center(self) -> np.ndarray:
+        """Centre of the circle, m, world frame: the circle starts at ``contact_position``."""
+        return np.asarray(self.contact_position, float) - np.array([self.circle_radius, 0, 0])
+
+    def ee_position(self, t: float) -> np.ndarray:
+        """Desired contact-frame position p̄(t), m, world frame."""
+        start = np.asarray(self.start_position, float)
+        contact = np.asarray(self.contact_position, float)
+        if t < self.still:
+            return start.copy()
+        if t < self.contact_time:
+            s = min_jerk((t - self.still) / max(self.reach, 1e-9))
+            return start + s * (contact - start)
+        if t < self.circle_start:
+            return contact.copy()
+        angle = self.angular_velocity * (min(t, self.circle_end) - self.circle_start)
+        c = self.circle_center()
+        return c + self.circle_radius * np.array([np.cos(angle), np.sin(angle), 0.0])
+
+    def force(self, t: float) -> float:
+        """Desired normal force λ̄(t), N (positive: the table pushes the tool up)."""
+        if t < self.contact_time:
+            return 0.0
+        ramp = (t - self.contact_time) / max(self.force_ramp, 1e-9)
+        return self.normal_force * min_jerk(ramp)
+
+    def in_contact(self, t: float) -> bool:
+        return t >= self.contact_time
+
+    def reference(self, t: float, dimension: int = 1) -> NodeReference:
+        """The node reference at time t for a contact model with ``dimension`` force entries."""
+        contact = self.in_contact(t)
+        force = np.zeros(dimension)
+        force[-1] = self.force(t)  # 1-D: the normal; 3-D (x, y, z): the z entry
+        w = self.weights
+        return NodeReference(
+            ee_position=self.ee_position(t),
+            force=force,
+            ee_position_weight=w.contact_ee_position if contact else w.free_ee_position,
+            force_weight=w.force if contact else 0.0,
+            in_contact=contact,
+            ee_position_diag=np.array([1.0, 1.0, self.ee_z_weight_in_contact if contact else 1.0]),
+        )
+
+    def in_circle(self, t: np.ndarray) -> np.ndarray:
+        """Mask of times inside the circle phase (where the paper's metrics are computed)."""
+        t = np.asarray(t)
+        return (t >= self.circle_start) & (t <= self.circle_end)
+
+
+@dataclass(frozen=True)
+class ForceSquareTask:
+    """Experiment 1 (VII-B): hold the tool on the table and track a square normal-force signal.
+
+    The tool reaches ``contact_position``, the force ramps to ``low_force``, then alternates
+    between ``high_force`` and ``low_force`` every half ``period`` for ``cycles`` periods.
+    """
+
+    start_position: np.ndarray
+    contact_position: np.ndarray
+    low_force: float = 20.0
+    high_force: float = 50.0
+    period: float = 2.0
+    cycles: int = 2
+    still: float = 0.1
+    reach: float = 0.4
+    force_ramp: float = 0.5
+    weights: PhaseWeights = PhaseWeights()
+
+    @property
+    def contact_time(self) -> float:
+        return self.still + self.reach
+
+    @property
+    def square_start(self) -> float:
+        return self.contact_time + self.force_ramp
+
+    @property
+    def duration(self) -> float:
+        return self.square_start + self.period * self.cycles
+
+    def ee_position(self, t: float) -> np.ndarray:
+        start = np.asarray(self.start_position, float)
+        contact = np.asarray(self.contact_position, float)
+        if t < self.still:
+            return start.copy()
+        s = min_jerk((t - self.still) / max(self.reach, 1e-9))
+        return start + s * (contact - start)
+
+    def force(self, t: float) -> float:
+        if t < self.contact_time:
+            return 0.0
+        if t < self.square_start:
+            return self.low_force * min_jerk((t - self.contact_time) / max(self.force_ramp, 1e-9))
+        phase = ((t - self.square_start) % self.period) / self.period
+        return self.high_force if phase < 0.5 else self.low_force
+
+    def in_contact(self, t: float) -> bool:
+        return t >= self.contact_time
+
+    def reference(self, t: float, dimension: int = 1) -> NodeReference:
+        contact = self.in_contact(t)
+        force = np.zeros(dimension)
+        force[-1] = self.force(t)
+        w = self.weights
+        return NodeReference(
+            ee_position=self.ee_position(t),
+            force=force,
+            ee_position_weight=w.contact_ee_position if contact else w.free_ee_position,
+            force_weight=w.force if contact else 0.0,
+            in_contact=contact,
+            ee_position_diag=np.array([1.0, 1.0, 0.0 if contact else 1.0]),
+        )
+
+    def in_circle(self, t: np.ndarray) -> np.ndarray:
+        """Mask of the evaluation window (the square signal), for the shared metrics code."""
+        t = np.asarray(t)
+        return (t >= self.square_start) & (t <= self.duration)
