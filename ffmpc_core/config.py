@@ -27,7 +27,10 @@ _FRAME_TYPES = {
 
 
 def _diag(values, n: int, name: str) -> np.ndarray:
-    arr = np.broadcast_to(np.asarray(values, dtype=float), (n,)).copy()
+    try:
+        arr = np.broadcast_to(np.asarray(values, dtype=float), (n,)).copy()
+    except ValueError:
+        raise ConfigError(f"{name} must be a scalar or have {n} entries, got {values!r}") from None
     if np.any(arr < 0) or not np.all(np.isfinite(arr)):
         raise ConfigError(f"{name} must be finite and non-negative, got {arr}")
     return arr

@@ -1,0 +1,361 @@
+"""Torque-feedback MPC formulation (Kleff et al. 2024, Sec. IV): low-pass actuation.
+
+State x = (q, v, τ) (rad, rad/s, N·m), control u = w (unfiltered torque, N·m); the actuation is
+the first-order filter τ̇ = ω_c·(w − τ) (eq 9), ω_c = 2π·f_c. The rigid contact model of the
+classical formulation is unchanged, but it is driven by the *filtered* torque τ of the state, so
+the contact force λ^r(x) depends on the state only (eq 10b).
+
+Crocoddyl 3.2.1 has no low-pass-filter integrator and its ``IntegratedActionModelEuler`` assumes
+a tangent of size 2·nv, so :class:`IntegratedActionModelLPF` is a Python
+``crocoddyl.ActionModelAbstract`` on a ``StateVector(3·nv)`` (valid because the arms have
+nq == nv: their configuration space is Euclidean). It wraps a differential model of
+:mod:`ffmpc_core.rigid_contact` (contact or free dynamics, cost ℓ0) whose control is τ.
+
+Discrete dynamics (eq 14a): q̈ from the differential model at (q, v, τ); semi-implicit Euler
+v⁺ = v + Δt·q̈, q⁺ = q + Δt·v⁺; the filter under zero-order hold τ⁺ = α·τ + (1 − α)·w with
+α = exp(−ω_c·Δt) (eq 13).
+
+Running cost: Δt·[ℓ0(q, v, τ) + c_w·½·‖w − τ_g(q, λ^r)‖²] (eq 28, Q_w = I: ``CostWeights`` has
+no diagonal for it), with τ_g = g(q) − J(q)ᵀλ^r the same gravity-under-contact torque as in
+eq 25.3. Terminal cost: the state terms of ℓ0 on (q, v) (no Δt factor, no τ term), as in the
+classical formulation. All first derivatives are exact (chain rule through the differential
+model's Fx, Fu and its cost derivatives: ℓ0's derivatives w.r.t. its control become derivatives
+w.r.t. the τ part of the state). Hessians are crocoddyl's Gauss-Newton ones, mapped the same way.
+"""
+
+from __future__ import annotations
+
+import math
+
+import crocoddyl
+import numpy as np
+
+from ffmpc_core.config import ContactConfig, CostWeights, NodeReference
+from ffmpc_core.errors import ConfigError, InputError, ModelError
+from ffmpc_core.rigid_contact import (
+    COST_TORQUE,
+    DEFAULT_BAUMGARTE_VELOCITY_GAIN,
+    CommonCostHandles,
+    check_node_reference,
+    make_differential_model,
+    rigid_contact_force,
+)
+from ffmpc_core.robots import RobotModel
+
+#: The paper's cut-off frequency of the actuation model (Sec. VI-B.3), Hz.
+PAPER_CUTOFF_FREQUENCY = 50.0
+
+
+def lowpass_alpha(cutoff_frequency: float, dt: float) -> float:
+    """α = exp(−ω_c·Δt), ω_c = 2π·f_c (eq 13): the filter's memory per step (dimensionless).
+
+    Args:
+        cutoff_frequency: f_c in Hz, in [0, ∞]; ∞ gives α = 0 (no filtering, pure one-step delay
+            τ_{k+1} = w_k, footnote 2) and 0 gives α = 1 (w blocked). The paper notes that in
+            practice f_c should stay below the Nyquist frequency 1/(2·Δt); this is not enforced.
+        dt: Δt in s, > 0.
+    """
+    if math.isnan(cutoff_frequency) or cutoff_frequency < 0:
+        raise ConfigError(f"cutoff_frequency must be in [0, inf] Hz, got {cutoff_frequency}")
+    if not math.isfinite(dt) or dt <= 0:
+        raise ConfigError(f"dt must be > 0 s, got {dt}")
+    return math.exp(-2.0 * math.pi * cutoff_frequency * dt)
+
+
+def lowpass_filter_step(tau: np.ndarray, w: np.ndarray, alpha: float) -> np.ndarray:
+    """τ_{k+1} = α·τ_k + (1 − α)·w_k (eq 13): the filter of eq 9 under zero-order hold, N·m."""
+    return alpha * tau + (1.0 - alpha) * w
+
+
+class IntegratedActionModelLPF(crocoddyl.ActionModelAbstract):
+    """Eq 13–14 and eq 28 as a crocoddyl action model on x = (q, v, τ), u = w.
+
+    Args:
+        differential: a differential model of :mod:`ffmpc_core.rigid_contact` (control τ, cost
+            ℓ0). A running one must have the ``torque`` cost (eq 25.3), whose residual
+            τ − τ_g(q, λ^r) gives τ_g and its derivatives for the c_w term.
+        dt: Δt, s.
+        cutoff_frequency: f_c, Hz (see :func:`lowpass_alpha`).
+        lowpass_input_weight: c_w of eq 28, 1/(N·m)².
+
+    Called as ``calc(data, x)`` (a terminal node) it evaluates the differential model's cost on
+    (q, v) only and leaves x unchanged, as crocoddyl's own integrators do.
+    """
+
+    def __init__(
+        self,
+        differential: crocoddyl.DifferentialActionModelAbstract,
+        dt: float,
+        cutoff_frequency: float,
+        lowpass_input_weight: float = 0.0,
+    ) -> None:
+        nv = differential.state.nv
+        if differential.state.nq != nv:
+            raise ModelError("the low-pass model needs nq == nv (Euclidean configuration space)")
+        if differential.nu != nv:
+            raise ModelError(f"the differential model must be fully actuated (nu={nv})")
+        if not math.isfinite(lowpass_input_weight) or lowpass_input_weight < 0:
+            raise ConfigError(f"lowpass_input_weight must be >= 0, got {lowpass_input_weight}")
+        super().__init__(crocoddyl.StateVector(3 * nv), nv)
+        self.differential = differential
+        self.dt = float(dt)
+        self.cutoff_frequency = float(cutoff_frequency)
+        self.alpha = lowpass_alpha(cutoff_frequency, dt)
+        self.lowpass_input_weight = float(lowpass_input_weight)
+        self.nv = nv
+        self._eye = np.eye(nv)
+        self._dtau_next_dx = np.zeros((nv, 3 * nv))
+        self._dtau_next_dx[:, 2 * nv :] = self.alpha * self._eye
+        self._dx_next_du = np.zeros((3 * nv, nv))
+        self._dx_next_du[2 * nv :] = (1.0 - self.alpha) * self._eye
+        self._luu = (self.lowpass_input_weight * self.dt) * self._eye
+
+    def createData(self) -> IntegratedActionDataLPF:  # noqa: N802 (crocoddyl API)
+        return IntegratedActionDataLPF(self)
+
+    def calc(self, data: IntegratedActionDataLPF, x: np.ndarray, u: np.ndarray | None = None):
+        nv, dt = self.nv, self.dt
+        dd = data.differential
+        if u is None:
+            self.differential.calc(dd, x[: 2 * nv])
+            data.xnext[:] = x
+            data.cost = dd.cost
+            return
+        tau = x[2 * nv :]
+        self.differential.calc(dd, x[: 2 * nv], tau)
+        v_next = x[nv : 2 * nv] + dt * dd.xout
+        xnext = data.xnext
+        xnext[:nv] = x[:nv] + dt * v_next
+        xnext[nv : 2 * nv] = v_next
+        xnext[2 * nv :] = lowpass_filter_step(tau, u, self.alpha)
+        r_w = data.lowpass_residual
+        r_w[:] = u - self._gravity_torque(data, tau)
+        data.cost = dt * (dd.cost + 0.5 * self.lowpass_input_weight * float(r_w @ r_w))
+
+    def _gravity_torque(self, data: IntegratedActionDataLPF, tau: np.ndarray) -> np.ndarray:
+        """τ_g(q, λ^r(x)) = τ − r_torque after the differential calc, N·m."""
+        if data.torque_residual is None:
+            raise ModelError("a running low-pass model needs the 'torque' cost (eq 25.3)")
+        return tau - data.torque_residual.r
+
+    def calcDiff(self, data: IntegratedActionDataLPF, x: np.ndarray, u: np.ndarray | None = None):  # noqa: N802
+        nv, dt = self.nv, self.dt
+        dd = data.differential
+        if u is None:  # terminal: x⁺ = x, cost ℓ0(q, v)
+            self.differential.calcDiff(dd, x[: 2 * nv])
+            data.Fx[:, :] = np.eye(3 * nv)
+            data.Fu[:, :] = 0.0
+            data.Lx[:] = 0.0
+            data.Lx[: 2 * nv] = dd.Lx
+            data.Lxx[:, :] = 0.0
+            data.Lxx[: 2 * nv, : 2 * nv] = dd.Lxx
+            return
+        tau = x[2 * nv :]
+        self.differential.calcDiff(dd, x[: 2 * nv], tau)
+        n2 = 2 * nv
+        # v⁺ = v + Δt·q̈(q, v, τ); q⁺ = q + Δt·v⁺; τ⁺ = α·τ + (1 − α)·w
+        dv_next = np.concatenate((dd.Fx, dd.Fu), axis=1)
+        dv_next *= dt
+        dv_next[:, nv:n2] += self._eye
+        dq_next = dt * dv_next
+        dq_next[:, :nv] += self._eye
+        Fx = data.Fx
+        Fx[:nv] = dq_next
+        Fx[nv:n2] = dv_next
+        Fx[n2:] = self._dtau_next_dx
+        data.Fu[:, :] = self._dx_next_du
+
+        # ℓ0 with u = τ (its control derivatives are τ-state derivatives), then eq 28:
+        # r_w = w − τ_g(q, λ^r(q, v, τ)), ∂τ_g/∂(q, v) = −R_x, ∂τ_g/∂τ = I − R_u.
+        cw = self.lowpass_input_weight
+        residual = data.torque_residual
+        if residual is None:
+            raise ModelError("a running low-pass model needs the 'torque' cost (eq 25.3)")
+        r_w = u - tau + residual.r
+        dtau_g = data.dtau_g_dx
+        dtau_g[:, :n2] = residual.Rx
+        dtau_g[:, n2:] = residual.Ru
+        dtau_g *= -1.0
+        dtau_g[:, n2:] += self._eye
+        hess = data.hessian
+        hess[:n2, :n2] = dd.Lxx
+        lxu = dd.Lxu
+        hess[:n2, n2:] = lxu
+        hess[n2:, :n2] = lxu.T
+        hess[n2:, n2:] = dd.Luu
+        hess += cw * (dtau_g.T @ dtau_g)
+        hess *= dt
+        data.Lxx[:, :] = hess
+        grad = np.concatenate((dd.Lx, dd.Lu))
+        grad -= cw * (dtau_g.T @ r_w)
+        grad *= dt
+        data.Lx[:] = grad
+        data.Lxu[:, :] = (-cw * dt) * dtau_g.T
+        data.Lu[:] = (cw * dt) * r_w
+        data.Luu[:, :] = self._luu
+
+
+class IntegratedActionDataLPF(crocoddyl.ActionDataAbstract):
+    """Workspace of :class:`IntegratedActionModelLPF`.
+
+    Attributes:
+        differential: the differential model's data (holds q̈, λ^r, ℓ0 after calc).
+        torque_residual: that data's eq 25.3 residual data (None for a terminal model).
+        lowpass_residual: w − τ_g of eq 28 after calc, N·m.
+    """
+
+    def __init__(self, model: IntegratedActionModelLPF) -> None:
+        super().__init__(model)
+        nv = model.nv
+        self.differential = model.differential.createData()
+        costs = self.differential.costs.costs
+        self.torque_residual = costs[COST_TORQUE].residual if COST_TORQUE in costs else None
+        self.lowpass_residual = np.zeros(nv)
+        self.dtau_g_dx = np.zeros((nv, 3 * nv))
+        self.hessian = np.zeros((3 * nv, 3 * nv))
+
+
+class LowPassNode:
+    """One node of the torque-feedback OCP (Sec. IV-C) with switchable contact.
+
+    Attributes:
+        model: the :class:`IntegratedActionModelLPF` to put in the ``ShootingProblem``.
+        in_contact: whether ``model`` has the rigid contact (always False when terminal).
+        terminal: terminal node (state terms of ℓ0 on (q, v) only).
+        dt: Δt, s. cutoff_frequency: f_c, Hz. alpha: α of eq 13.
+        contact: the contact configuration.
+    """
+
+    def __init__(
+        self,
+        robot: RobotModel,
+        contact: ContactConfig,
+        weights: CostWeights,
+        dt: float,
+        terminal: bool,
+        cutoff_frequency: float,
+        q_reference: np.ndarray | None,
+        in_contact: bool,
+        baumgarte_velocity_gain: float,
+    ) -> None:
+        self.robot = robot
+        self.contact = contact
+        self.dt = float(dt)
+        self.terminal = bool(terminal)
+        self.cutoff_frequency = float(cutoff_frequency)
+        self.alpha = lowpass_alpha(cutoff_frequency, dt)
+        self._models: dict[bool, IntegratedActionModelLPF] = {}
+        self._handles: list[CommonCostHandles] = []
+        for status in (False,) if self.terminal else (False, True):
+            dam = make_differential_model(
+                robot,
+                contact,
+                weights,
+                in_contact=status,
+                terminal=self.terminal,
+                q_reference=q_reference,
+                baumgarte_velocity_gain=baumgarte_velocity_gain,
+            )
+            self._models[status] = IntegratedActionModelLPF(
+                dam, self.dt, cutoff_frequency, weights.lowpass_input
+            )
+            self._handles.append(CommonCostHandles(dam, robot.nv))
+        self.in_contact = bool(in_contact) and not self.terminal
+        self.model = self._models[self.in_contact]
+
+    def set_reference(self, ref: NodeReference) -> bool:
+        """Update p̄, λ̄, c4, c6 (and q̄) in place and select contact/free dynamics.
+
+        Returns True iff ``model`` is now a different object (then the caller must call
+        ``problem.updateModel(k, node.model)``). A terminal node never switches.
+        """
+        check_node_reference(ref, self.contact, self.robot.nq)
+        for handles in self._handles:
+            handles.apply(ref)
+        if self.terminal:
+            return False
+        status = bool(ref.in_contact)
+        if status == self.in_contact:
+            return False
+        self.in_contact = status
+        self.model = self._models[status]
+        return True
+
+    def contact_force(self, data: IntegratedActionDataLPF) -> np.ndarray:
+        """λ^r(x) of this node (eq 14b) from ``data`` (created by ``model``) after calc, N."""
+        return rigid_contact_force(data.differential, self.contact)
+
+
+def make_lowpass_node(
+    robot: RobotModel,
+    contact: ContactConfig,
+    weights: CostWeights,
+    dt: float,
+    terminal: bool,
+    cutoff_frequency: float,
+    q_reference: np.ndarray | None = None,
+    *,
+    in_contact: bool = False,
+    baumgarte_velocity_gain: float = DEFAULT_BAUMGARTE_VELOCITY_GAIN,
+) -> LowPassNode:
+    """Build a node of the torque-feedback OCP (eq 10–14, cost eq 28).
+
+    Args:
+        robot, contact, weights, q_reference, in_contact, baumgarte_velocity_gain: as for
+            :func:`ffmpc_core.rigid_contact.make_rigid_contact_node` (c_w = weights.lowpass_input).
+        dt: Δt, s.
+        terminal: terminal node.
+        cutoff_frequency: f_c of the actuation filter, Hz (paper: 50 Hz).
+    """
+    if not math.isfinite(dt) or dt <= 0:
+        raise ConfigError(f"dt must be > 0 s, got {dt}")
+    return LowPassNode(
+        robot,
+        contact,
+        weights,
+        dt,
+        terminal,
+        cutoff_frequency,
+        q_reference,
+        in_contact,
+        baumgarte_velocity_gain,
+    )
+
+
+def interpolation_epsilon(replanning_period: float, dt: float) -> float:
+    """ε of eq 15: the MPC re-planning period over the OCP step Δt, clipped to [0, 1].
+
+    The paper says "the ratio between the OCP sampling step Δt and the MPC re-planning step";
+    we read it as the fraction of the first OCP interval that has elapsed when the next plan
+    arrives, T_mpc/Δt, because the stated purpose is to avoid sending τ₁*, which "may lie too far
+    in the future when the OCP sampling frequency is lower than the MPC re-planning frequency"
+    (T_mpc < Δt, so ε < 1 interpolates; the literal Δt/T_mpc would be > 1 and extrapolate). The
+    authors' code (``force-feedback`` repository) also uses ``dt_mpc / dt_ocp``. Clipped to 1
+    when T_mpc ≥ Δt (τ₁* is then sent as is). Both arguments in s.
+    """
+    if not math.isfinite(replanning_period) or replanning_period <= 0:
+        raise ConfigError(f"replanning_period must be > 0 s, got {replanning_period}")
+    if not math.isfinite(dt) or dt <= 0:
+        raise ConfigError(f"dt must be > 0 s, got {dt}")
+    return min(1.0, replanning_period / dt)
+
+
+def interpolate_torque(
+    measured_torque: np.ndarray, predicted_torque: np.ndarray, epsilon: float
+) -> np.ndarray:
+    """τ̃ = τ₀* + ε·(τ₁* − τ₀*) (eq 15), the joint torque sent to the robot, N·m.
+
+    Args:
+        measured_torque: τ₀* = τ̂, the measured joint torque the OCP started from, N·m.
+        predicted_torque: τ₁*, the optimal *filtered* torque of the next node, N·m.
+        epsilon: ε in [0, 1], see :func:`interpolation_epsilon`.
+    """
+    tau0 = np.asarray(measured_torque, dtype=float)
+    tau1 = np.asarray(predicted_torque, dtype=float)
+    if tau0.ndim != 1 or tau0.shape != tau1.shape:
+        raise InputError(f"torque shapes differ or are not vectors: {tau0.shape} vs {tau1.shape}")
+    if not (np.all(np.isfinite(tau0)) and np.all(np.isfinite(tau1))):
+        raise InputError("torques must be finite")
+    if not (0.0 <= epsilon <= 1.0):  # also rejects NaN
+        raise InputError(f"epsilon must be in [0, 1], got {epsilon}")
+    return tau0 + epsilon * (tau1 - tau0)

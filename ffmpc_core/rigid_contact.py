@@ -1,0 +1,504 @@
+"""Classical MPC formulation (Kleff et al. 2024, Sec. III-C): rigid contact, x = (q, v), u = τ.
+
+The continuous dynamics (eq 5–6) are the primal solution of the KKT system of Gauss' principle
+(eq 3–4); the contact force λ^r(x, u) is its dual (eq 5b). Crocoddyl's
+``DifferentialActionModelContactFwdDynamics`` solves exactly that system; its
+``IntegratedActionModelEuler`` is the semi-implicit Euler scheme of eq 8
+(v⁺ = v + Δt·q̈, q⁺ = q ⊕ Δt·v⁺, running cost × Δt).
+
+Contact model (``ContactConfig``), at the robot's ``contact`` frame:
+
+* 1-D: crocoddyl ``ContactModel1D``; the force axis is ``normal_axis`` of the frame
+  (``LOCAL_WORLD_ALIGNED``: world axes at the contact point — the paper's setting, Sec. VI-A;
+  ``LOCAL``: the contact frame's own axes). Crocoddyl reads the axis from a rotation R with
+  Rᵀ·e_z = axis (:func:`contact_axis_rotation`).
+* 3-D: crocoddyl ``ContactModel3D`` in the same frame type.
+
+λ is the force the environment exerts on the robot, in N, in that frame (along the axis for 1-D):
+pushing down on a horizontal table gives λ > 0 (see :mod:`ffmpc_core.config`).
+
+**Baumgarte stabilisation.** The rigid constraint (3b) is imposed as
+J·q̈ + J̇·q̇ = −K_d·J·q̇ (position gain 0, velocity gain K_d, crocoddyl gains ``[0, K_d]``).
+No position gain on purpose: a position term pulls the contact point towards a fixed anchor, and
+the controller does not know the table's height and tilt exactly (Sec. VI-B), so the anchor would
+be wrong and the model would predict a spurious force to "correct" a position error that is not
+there. The velocity term only says "the normal velocity dies out": when the measured state
+has a normal velocity (sliding along an unknown tilt, sensing noise) the prediction decelerates it
+with time constant 1/K_d instead of letting it drift through the surface for the whole horizon.
+Default K_d = 50 s⁻¹ (crocoddyl's own examples use ``[0, 50]``): time constant 20 ms, about the
+horizon of the paper (5 nodes × 3 ms), and K_d·Δt = 0.15 ≪ 1, so the discrete decay is smooth.
+
+**Costs** ℓ0 (eq 25, = eq 27 for this formulation), crocoddyl convention c·½·Σ Q_i r_i²:
+
+=================  ========================================================================
+``posture``        eq 25.1, ``ResidualModelState`` (q part), weight c1
+``joint_velocity`` eq 25.2, ``ResidualModelState`` (v part), weight c2
+``torque``         eq 25.3, τ − τ_g(q, λ) with τ_g = g(q) − J(q)ᵀλ (running only)
+``ee_position``    eq 25.4, ``ResidualModelFrameTranslation`` of the contact frame, weight c4
+``ee_velocity``    eq 25.5, linear velocity of the contact point in world axes, weight c5
+``force``          eq 25.6 / 7, ``ResidualModelContactForce`` (running, in contact only), c6
+=================  ========================================================================
+
+Terminal nodes keep the state terms only (posture, joint_velocity, ee_position, ee_velocity).
+
+Two crocoddyl 3.2.1 built-ins are *not* used because they are wrong (measured against finite
+differences in ``tests/test_rigid_contact.py``):
+
+* ``ResidualModelContactControlGrav`` copies the contact ``fext`` vector when its data is created
+  (``fext = d->contacts->fext``), so it never sees the contact force: it computes τ − g(q), not
+  τ − g(q) + Jᵀλ. :class:`ResidualModelContactGravityTorque` replaces it, with the exact
+  derivatives (through ∂λ^r/∂x, ∂λ^r/∂u and the world-fixed force direction).
+* ``ResidualModelFrameVelocity`` in ``LOCAL_WORLD_ALIGNED`` takes pinocchio's LWA velocity
+  derivatives, which are not the derivatives of the world-aligned vector (26 % off).
+  For an isotropic Q5 we use the ``LOCAL`` residual instead (same norm, exact derivatives, C++);
+  otherwise :class:`ResidualModelFrameLinearVelocityWorld` (Python, exact).
+
+**Switching contact on/off.** A running node owns two prebuilt action models (in contact and
+free). :meth:`RigidContactNode.set_reference` points ``model`` at the right one and returns True
+when it changed, so the caller does ``problem.updateModel(k, node.model)`` — crocoddyl then
+creates fresh data for the node. Toggling crocoddyl's ``changeContactStatus`` on one model was
+not chosen: it would keep the force cost (and its residual data bound to the contact data)
+evaluating a deactivated contact, with data created before the toggle — behaviour crocoddyl does
+not document — whereas two prebuilt models cost nothing per MPC cycle and a switch (a task-phase
+change) just allocates one node's data.
+"""
+
+from __future__ import annotations
+
+import crocoddyl
+import numpy as np
+import pinocchio as pin
+
+from ffmpc_core.config import ContactConfig, CostWeights, NodeReference
+from ffmpc_core.errors import ConfigError, InputError, ModelError
+from ffmpc_core.robots import RobotModel
+
+#: Default Baumgarte velocity gain K_d, 1/s (see module docstring).
+DEFAULT_BAUMGARTE_VELOCITY_GAIN = 50.0
+
+#: Name of the contact in crocoddyl's ``ContactModelMultiple``.
+CONTACT_NAME = "contact"
+
+#: Names of the cost terms of ℓ0 (eq 25.1–25.6) in crocoddyl's ``CostModelSum``.
+COST_POSTURE = "posture"
+COST_JOINT_VELOCITY = "joint_velocity"
+COST_TORQUE = "torque"
+COST_EE_POSITION = "ee_position"
+COST_EE_VELOCITY = "ee_velocity"
+COST_FORCE = "force"
+
+
+def contact_axis_rotation(normal_axis: int) -> np.ndarray:
+    """Rotation R given to crocoddyl's ``ContactModel1D`` so that its force axis Rᵀ·e_z is axis
+    ``normal_axis`` (0=x, 1=y, 2=z) of the contact's frame (dimensionless 3×3)."""
+    if normal_axis not in (0, 1, 2):
+        raise ConfigError(f"normal_axis must be 0, 1 or 2, got {normal_axis}")
+    axis = np.eye(3)[normal_axis]
+    return pin.Quaternion.FromTwoVectors(axis, np.array([0.0, 0.0, 1.0])).matrix()
+
+
+def make_contact_model(
+    state: crocoddyl.StateMultibody,
+    frame_id: int,
+    contact: ContactConfig,
+    nu: int,
+    baumgarte_velocity_gain: float = DEFAULT_BAUMGARTE_VELOCITY_GAIN,
+) -> crocoddyl.ContactModelMultiple:
+    """The rigid contact of eq 3b at frame ``frame_id``, with Baumgarte gains ``[0, K_d]`` (1/s)."""
+    if not np.isfinite(baumgarte_velocity_gain) or baumgarte_velocity_gain < 0:
+        raise ConfigError(f"baumgarte_velocity_gain must be >= 0, got {baumgarte_velocity_gain}")
+    gains = np.array([0.0, float(baumgarte_velocity_gain)])
+    if contact.dimension == 1:
+        rotation = contact_axis_rotation(contact.normal_axis)
+        model = crocoddyl.ContactModel1D(
+            state, frame_id, 0.0, contact.pin_frame, rotation, nu, gains
+        )
+    else:
+        model = crocoddyl.ContactModel3D(state, frame_id, np.zeros(3), contact.pin_frame, nu, gains)
+    contacts = crocoddyl.ContactModelMultiple(state, nu)
+    contacts.addContact(CONTACT_NAME, model)
+    return contacts
+
+
+class ResidualModelContactGravityTorque(crocoddyl.ResidualModelAbstract):
+    """Eq 25.3 in contact: r = τ − τ_g(q, λ^r(x, u)), τ_g(q, λ) = g(q) − J(q)ᵀλ, N·m.
+
+    λ^r is the rigid contact force of the same node (dual of eq 4), read from the contact data of
+    the differential model after its calc; the derivatives are exact:
+    ∂r/∂q = −∂τ_g/∂q|_λ + Jᵀ·∂λ^r/∂q, ∂r/∂v = Jᵀ·∂λ^r/∂v, ∂r/∂u = I + Jᵀ·∂λ^r/∂u, where the
+    force is held fixed in its own frame (world axes for ``LOCAL_WORLD_ALIGNED``). Only for a
+    ``DifferentialActionModelContactFwdDynamics`` built with ``enable_force=True``.
+    """
+
+    def __init__(self, state: crocoddyl.StateMultibody, nu: int, world_aligned: bool) -> None:
+        super().__init__(state, state.nv, nu, True, True, True)
+        self._pin_model = state.pinocchio
+        self._nq = state.nq
+        self._nv = state.nv
+        self._world_aligned = bool(world_aligned)
+        self._eye = np.eye(nu)
+
+    def createData(self, collector):  # noqa: N802 (crocoddyl API)
+        return ResidualDataContactGravityTorque(self, collector)
+
+    def calc(self, data, x, u=None) -> None:
+        q = x[: self._nq]
+        if u is None:  # no control, no force: r = −g(q) (crocoddyl's convention for calc(x))
+            data.r[:] = -pin.computeGeneralizedGravity(self._pin_model, data.pin_data, q)
+            return
+        data.r[:] = u - pin.computeStaticTorque(self._pin_model, data.pin_data, q, data.fext)
+
+    def calcDiff(self, data, x, u=None) -> None:  # noqa: N802 (crocoddyl API)
+        q = x[: self._nq]
+        nv = self._nv
+        if u is None:
+            data.Rx[:, :nv] = -pin.computeGeneralizedGravityDerivatives(
+                self._pin_model, data.pin_data, q
+            )
+            data.Rx[:, nv:] = 0.0
+            return
+        # ∂τ_g/∂q with the force fixed in its joint frame, then the world-fixed correction.
+        dtau_g_dq = pin.computeStaticTorqueDerivatives(self._pin_model, data.pin_data, q, data.fext)
+        contact = data.contact
+        if self._world_aligned:
+            dtau_g_dq += contact.dtau_dq
+        if data.nc == 1:  # eigenpy hands 1-row matrices over as 1-D arrays
+            jt_df_dx = np.outer(contact.Jc, contact.df_dx)
+            jt_df_du = np.outer(contact.Jc, contact.df_du)
+        else:
+            jac_t = contact.Jc.T
+            jt_df_dx = jac_t @ contact.df_dx
+            jt_df_du = jac_t @ contact.df_du
+        jt_df_dx[:, :nv] -= dtau_g_dq
+        jt_df_du += self._eye
+        data.Rx[:, :] = jt_df_dx
+        data.Ru[:, :] = jt_df_du
+
+
+class ResidualDataContactGravityTorque(crocoddyl.ResidualDataAbstract):
+    """Workspace of :class:`ResidualModelContactGravityTorque` (private pinocchio data)."""
+
+    def __init__(self, model: ResidualModelContactGravityTorque, collector) -> None:
+        super().__init__(model, collector)
+        contacts = collector.contacts
+        self.fext = contacts.fext  # reference to the live vector, updated by the DAM
+        self.contact = contacts.contacts[CONTACT_NAME]
+        self.nc = int(np.size(contacts.a0))
+        self.pin_data = model._pin_model.createData()
+
+
+class ResidualModelFrameLinearVelocityWorld(crocoddyl.ResidualModelAbstract):
+    """Eq 25.5: ṗ(q, q̇), linear velocity of the frame origin in world axes
+    (pinocchio ``LOCAL_WORLD_ALIGNED``), m/s, with exact derivatives.
+
+    With ṗ = R·v_l (R = world rotation of the frame, v_l its LOCAL linear velocity):
+    ∂ṗ/∂q = R·(∂v_l/∂q − [v_l]×·J_ω), ∂ṗ/∂v = R·J_v (LOCAL Jacobian blocks J_v, J_ω).
+    """
+
+    def __init__(self, state: crocoddyl.StateMultibody, frame_id: int, nu: int) -> None:
+        super().__init__(state, 3, nu, True, True, False)
+        self._pin_model = state.pinocchio
+        self._frame_id = int(frame_id)
+        self._nq = state.nq
+        self._nv = state.nv
+        self._zero_a = np.zeros(state.nv)
+
+    def createData(self, collector):  # noqa: N802 (crocoddyl API)
+        return ResidualDataFrameLinearVelocityWorld(self, collector)
+
+    def calc(self, data, x, u=None) -> None:
+        # The differential model has run forward kinematics with (q, v) in the shared data.
+        data.r[:] = pin.getFrameVelocity(
+            self._pin_model, data.shared_pin, self._frame_id, pin.LOCAL_WORLD_ALIGNED
+        ).linear
+
+    def calcDiff(self, data, x, u=None) -> None:  # noqa: N802 (crocoddyl API)
+        model, pd, fid, nv = self._pin_model, data.pin_data, self._frame_id, self._nv
+        q, v = x[: self._nq], x[self._nq :]
+        pin.computeForwardKinematicsDerivatives(model, pd, q, v, self._zero_a)
+        dv_dq, dv_dv = pin.getFrameVelocityDerivatives(model, pd, fid, pin.LOCAL)
+        rotation = pin.updateFramePlacement(model, pd, fid).rotation
+        v_local = pin.getFrameVelocity(model, pd, fid, pin.LOCAL).linear
+        data.Rx[:, :nv] = rotation @ (dv_dq[:3] - pin.skew(v_local) @ dv_dv[3:])
+        data.Rx[:, nv:] = rotation @ dv_dv[:3]
+
+
+class ResidualDataFrameLinearVelocityWorld(crocoddyl.ResidualDataAbstract):
+    """Workspace of :class:`ResidualModelFrameLinearVelocityWorld` (private pinocchio data)."""
+
+    def __init__(self, model: ResidualModelFrameLinearVelocityWorld, collector) -> None:
+        super().__init__(model, collector)
+        self.shared_pin = collector.pinocchio
+        self.pin_data = model._pin_model.createData()
+
+
+def _quad(weights: np.ndarray) -> crocoddyl.ActivationModelWeightedQuad:
+    return crocoddyl.ActivationModelWeightedQuad(np.asarray(weights, dtype=float))
+
+
+def make_costs(
+    state: crocoddyl.StateMultibody,
+    robot: RobotModel,
+    contact: ContactConfig,
+    weights: CostWeights,
+    *,
+    in_contact: bool,
+    terminal: bool,
+    q_reference: np.ndarray,
+) -> crocoddyl.CostModelSum:
+    """The cost ℓ0 of eq 25 (running) or its state terms (terminal), see the module docstring.
+
+    The references start at p̄ = p(q̄), λ̄ = 0; the weights at ``weights`` (c4, c6 are then set
+    per node by :meth:`CommonCostHandles.apply`).
+    """
+    nv, nu, fid = state.nv, state.nv, robot.contact_frame_id
+    costs = crocoddyl.CostModelSum(state, nu)
+    x_reference = np.concatenate([q_reference, np.zeros(nv)])
+    zeros = np.zeros(nv)
+
+    posture = crocoddyl.ResidualModelState(state, x_reference, nu)
+    act = _quad(np.concatenate([weights.diag("posture", nv), zeros]))
+    costs.addCost(COST_POSTURE, crocoddyl.CostModelResidual(state, act, posture), weights.posture)
+
+    velocity = crocoddyl.ResidualModelState(state, x_reference, nu)
+    act = _quad(np.concatenate([zeros, weights.diag("joint_velocity", nv)]))
+    costs.addCost(
+        COST_JOINT_VELOCITY,
+        crocoddyl.CostModelResidual(state, act, velocity),
+        weights.joint_velocity,
+    )
+
+    p_reference = robot.contact_placement(q_reference).translation
+    ee = crocoddyl.ResidualModelFrameTranslation(state, fid, p_reference, nu)
+    act = _quad(weights.diag("ee_position", 3))
+    costs.addCost(
+        COST_EE_POSITION, crocoddyl.CostModelResidual(state, act, ee), weights.ee_position
+    )
+
+    q5 = weights.diag("ee_velocity", 3)
+    if np.all(q5 == q5[0]):  # isotropic: ‖R·v_l‖ = ‖v_l‖, use crocoddyl's exact LOCAL residual
+        ee_vel = crocoddyl.ResidualModelFrameVelocity(state, fid, pin.Motion.Zero(), pin.LOCAL, nu)
+        act = _quad(np.concatenate([q5, np.zeros(3)]))
+    else:
+        ee_vel = ResidualModelFrameLinearVelocityWorld(state, fid, nu)
+        act = _quad(q5)
+    costs.addCost(
+        COST_EE_VELOCITY, crocoddyl.CostModelResidual(state, act, ee_vel), weights.ee_velocity
+    )
+
+    if terminal:
+        return costs
+
+    if in_contact:
+        world_aligned = contact.pin_frame == pin.LOCAL_WORLD_ALIGNED
+        torque = ResidualModelContactGravityTorque(state, nu, world_aligned)
+    else:
+        torque = crocoddyl.ResidualModelControlGrav(state, nu)
+    act = _quad(weights.diag("torque", nv))
+    costs.addCost(COST_TORQUE, crocoddyl.CostModelResidual(state, act, torque), weights.torque)
+
+    if in_contact:
+        nc = contact.dimension
+        force = crocoddyl.ResidualModelContactForce(state, fid, pin.Force.Zero(), nc, nu, True)
+        act = _quad(weights.diag("force", nc))
+        costs.addCost(COST_FORCE, crocoddyl.CostModelResidual(state, act, force), weights.force)
+    return costs
+
+
+def make_differential_model(
+    robot: RobotModel,
+    contact: ContactConfig,
+    weights: CostWeights,
+    *,
+    in_contact: bool,
+    terminal: bool,
+    q_reference: np.ndarray | None = None,
+    baumgarte_velocity_gain: float = DEFAULT_BAUMGARTE_VELOCITY_GAIN,
+) -> crocoddyl.DifferentialActionModelAbstract:
+    """Continuous dynamics (eq 5–6; free dynamics when not in contact) with the cost ℓ0.
+
+    Control: joint torque τ, N·m (full actuation). A terminal model has the state terms only
+    and free dynamics (a terminal node has no dynamics).
+    """
+    q_reference = _check_posture(robot, robot.q_nominal if q_reference is None else q_reference)
+    state = crocoddyl.StateMultibody(robot.model)
+    actuation = crocoddyl.ActuationModelFull(state)
+    in_contact = bool(in_contact) and not terminal
+    costs = make_costs(
+        state,
+        robot,
+        contact,
+        weights,
+        in_contact=in_contact,
+        terminal=terminal,
+        q_reference=q_reference,
+    )
+    if not in_contact:
+        return crocoddyl.DifferentialActionModelFreeFwdDynamics(state, actuation, costs)
+    contacts = make_contact_model(
+        state, robot.contact_frame_id, contact, actuation.nu, baumgarte_velocity_gain
+    )
+    return crocoddyl.DifferentialActionModelContactFwdDynamics(
+        state, actuation, contacts, costs, 0.0, True
+    )
+
+
+def _check_posture(robot: RobotModel, q: np.ndarray) -> np.ndarray:
+    q = np.asarray(q, dtype=float)
+    if q.shape != (robot.nq,) or not np.all(np.isfinite(q)):
+        raise InputError(f"posture reference must be {robot.nq} finite values (rad), got {q!r}")
+    return q.copy()
+
+
+def check_node_reference(ref: NodeReference, contact: ContactConfig, nq: int) -> None:
+    """Raise :class:`InputError` unless ``ref`` has the right sizes and finite, valid values."""
+    p = np.asarray(ref.ee_position, dtype=float)
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise InputError(f"ee_position must be 3 finite values (m), got {ref.ee_position!r}")
+    f = np.asarray(ref.force, dtype=float)
+    if f.shape != (contact.dimension,) or not np.all(np.isfinite(f)):
+        raise InputError(f"force must be {contact.dimension} finite values (N), got {ref.force!r}")
+    for name in ("ee_position_weight", "force_weight"):
+        w = getattr(ref, name)
+        if not np.isfinite(w) or w < 0:
+            raise InputError(f"{name} must be finite and >= 0, got {w!r}")
+    if ref.posture is not None:
+        q = np.asarray(ref.posture, dtype=float)
+        if q.shape != (nq,) or not np.all(np.isfinite(q)):
+            raise InputError(f"posture must be {nq} finite values (rad), got {ref.posture!r}")
+
+
+class CommonCostHandles:
+    """Handles on the per-node references of ℓ0 in one differential model: p̄, c4, λ̄, c6, q̄."""
+
+    def __init__(self, differential: crocoddyl.DifferentialActionModelAbstract, nv: int) -> None:
+        costs = differential.costs.costs
+        self._nv = nv
+        self._posture = costs[COST_POSTURE].cost.residual
+        self._ee_item = costs[COST_EE_POSITION]
+        self._ee_residual = self._ee_item.cost.residual
+        self._force_item = costs[COST_FORCE] if COST_FORCE in costs else None
+        self._force_residual = None if self._force_item is None else self._force_item.cost.residual
+
+    def apply(self, ref: NodeReference) -> None:
+        """Copy the references of ``ref`` into the cost model (in place; validated before)."""
+        self._ee_residual.reference = np.asarray(ref.ee_position, dtype=float)
+        self._ee_item.weight = float(ref.ee_position_weight)
+        if self._force_item is not None:
+            f = np.asarray(ref.force, dtype=float)
+            linear = np.array([0.0, 0.0, f[0]]) if f.size == 1 else f
+            self._force_residual.reference = pin.Force(linear, np.zeros(3))
+            self._force_item.weight = float(ref.force_weight)
+        if ref.posture is not None:
+            self._posture.reference = np.concatenate(
+                [np.asarray(ref.posture, dtype=float), np.zeros(self._nv)]
+            )
+
+
+def rigid_contact_force(
+    differential_data: crocoddyl.DifferentialActionDataAbstract, contact: ContactConfig
+) -> np.ndarray:
+    """λ^r(x, u) of eq 5b (the dual of eq 4) after the differential model's calc, N.
+
+    In the contact's frame (along its axis for 1-D); zeros for free dynamics.
+    """
+    if isinstance(differential_data, crocoddyl.DifferentialActionDataContactFwdDynamics):
+        return np.array(differential_data.pinocchio.lambda_c, dtype=float).reshape(
+            contact.dimension
+        )
+    if isinstance(differential_data, crocoddyl.DifferentialActionDataFreeFwdDynamics):
+        return np.zeros(contact.dimension)
+    raise ModelError(f"not a rigid-contact or free differential data: {type(differential_data)}")
+
+
+class RigidContactNode:
+    """One node of the classical OCP (Sec. III-C) with switchable contact.
+
+    Attributes:
+        model: the crocoddyl action model to put in the ``ShootingProblem`` (an
+            ``IntegratedActionModelEuler``, eq 8).
+        in_contact: whether ``model`` has the rigid contact (always False for a terminal node,
+            which has no dynamics).
+        terminal: whether this is the terminal node (state costs only, not × Δt).
+        dt: integration step Δt, s.
+        contact: the contact configuration.
+    """
+
+    def __init__(
+        self,
+        robot: RobotModel,
+        contact: ContactConfig,
+        weights: CostWeights,
+        dt: float,
+        terminal: bool,
+        q_reference: np.ndarray | None,
+        in_contact: bool,
+        baumgarte_velocity_gain: float,
+    ) -> None:
+        if not np.isfinite(dt) or dt <= 0:
+            raise ConfigError(f"dt must be > 0 s, got {dt}")
+        self.robot = robot
+        self.contact = contact
+        self.dt = float(dt)
+        self.terminal = bool(terminal)
+        kwargs = dict(q_reference=q_reference, baumgarte_velocity_gain=baumgarte_velocity_gain)
+        self._models: dict[bool, crocoddyl.IntegratedActionModelEuler] = {}
+        self._handles: list[CommonCostHandles] = []
+        for status in (False,) if self.terminal else (False, True):
+            dam = make_differential_model(
+                robot, contact, weights, in_contact=status, terminal=self.terminal, **kwargs
+            )
+            self._models[status] = crocoddyl.IntegratedActionModelEuler(dam, self.dt)
+            self._handles.append(CommonCostHandles(dam, robot.nv))
+        self.in_contact = bool(in_contact) and not self.terminal
+        self.model = self._models[self.in_contact]
+
+    def set_reference(self, ref: NodeReference) -> bool:
+        """Update p̄, λ̄, c4, c6 (and q̄) in place and select contact/free dynamics.
+
+        Returns True iff ``model`` is now a different object: the caller must then call
+        ``problem.updateModel(k, node.model)``. A terminal node never switches.
+        """
+        check_node_reference(ref, self.contact, self.robot.nq)
+        for handles in self._handles:
+            handles.apply(ref)
+        if self.terminal:
+            return False
+        status = bool(ref.in_contact)
+        if status == self.in_contact:
+            return False
+        self.in_contact = status
+        self.model = self._models[status]
+        return True
+
+    def contact_force(self, data: crocoddyl.ActionDataAbstract) -> np.ndarray:
+        """λ^r of this node (eq 8b) from ``data`` (created by ``model``) after calc, N."""
+        return rigid_contact_force(data.differential, self.contact)
+
+
+def make_rigid_contact_node(
+    robot: RobotModel,
+    contact: ContactConfig,
+    weights: CostWeights,
+    dt: float,
+    terminal: bool,
+    q_reference: np.ndarray | None = None,
+    *,
+    in_contact: bool = False,
+    baumgarte_velocity_gain: float = DEFAULT_BAUMGARTE_VELOCITY_GAIN,
+) -> RigidContactNode:
+    """Build a node of the classical OCP (eq 5–8, cost eq 27); see :class:`RigidContactNode`.
+
+    Args:
+        robot: the arm; the contact is at its ``contact`` frame.
+        contact: 1-D/3-D, frame type and axis (stiffness/damping are not used here).
+        weights: c1…c6 and Q1…Q6 of eq 25.
+        dt: Δt of the semi-implicit Euler step (eq 8), s.
+        terminal: terminal node (state terms only, no Δt factor).
+        q_reference: q̄ of eq 25.1, rad (default: ``robot.q_nominal``).
+        in_contact: initial dynamics (switch later with ``set_reference``).
+        baumgarte_velocity_gain: K_d, 1/s (module docstring).
+    """
+    return RigidContactNode(
+        robot, contact, weights, dt, terminal, q_reference, in_contact, baumgarte_velocity_gain
+    )
