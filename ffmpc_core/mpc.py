@@ -77,7 +77,9 @@ class MpcConfig:
 
     def __post_init__(self) -> None:
         if self.formulation not in FORMULATIONS:
-            raise ConfigError(f"formulation must be one of {FORMULATIONS}, got {self.formulation!r}")
+            raise ConfigError(
+                f"formulation must be one of {FORMULATIONS}, got {self.formulation!r}"
+            )
         if self.horizon < 1 or self.dt <= 0 or self.period <= 0:
             raise ConfigError("horizon must be >= 1 and dt, period > 0")
         if self.cutoff_frequency <= 0 or self.max_iterations < 1 or self.kkt_tolerance <= 0:
@@ -160,9 +162,11 @@ class ModelPredictiveController:
         make = _node_factory(robot, config, q_ref)
         self.nodes: list[OcpNode] = [make(False) for _ in range(config.horizon)]
         self.terminal_node: OcpNode = make(True)
-        self.nx = {"classical": 2 * nv, "torque_feedback": 3 * nv, "force_feedback": 2 * nv + self.nc}[
-            config.formulation
-        ]
+        self.nx = {
+            "classical": 2 * nv,
+            "torque_feedback": 3 * nv,
+            "force_feedback": 2 * nv + self.nc,
+        }[config.formulation]
         self._x0 = np.zeros(self.nx)
         self._x0[:nv] = q_ref
         self.problem = crocoddyl.ShootingProblem(

@@ -16,7 +16,11 @@ def _cmd_check(args: argparse.Namespace) -> int:
     import numpy as np
 
     from ffmpc_core.robots import ROBOT_NAMES, load_robot
-    from ffmpc_core.selfcheck import check_crocoddyl_dynamics, installed_versions, version_mismatches
+    from ffmpc_core.selfcheck import (
+        check_crocoddyl_dynamics,
+        installed_versions,
+        version_mismatches,
+    )
 
     print("installed versions:")
     for name, version in installed_versions().items():

@@ -6,7 +6,11 @@ import pytest
 
 from ffmpc_core.errors import SelfCheckError
 from ffmpc_core.robots import ROBOT_NAMES, load_robot
-from ffmpc_core.selfcheck import check_crocoddyl_dynamics, require_sound_dynamics, version_mismatches
+from ffmpc_core.selfcheck import (
+    check_crocoddyl_dynamics,
+    require_sound_dynamics,
+    version_mismatches,
+)
 from ffmpc_ros.cli import main
 
 
