@@ -1,0 +1,168 @@
+"""Low-level joint torque PID with feed-forward (paper VI-B2, eq 33, Fig. 2).
+
+    τ^m(t) = τ^d(t − δo) − K_P·e(t) − K_I·∫₀ᵗ e(s) ds − K_D·de/dt,  e = τ̂ − τ^d(· − δo)
+
+τ^d is the MPC's desired torque, δo the delay of the OCP resolution (5 ms: 5 cycles at 1 kHz,
+10 at 2 kHz; see :func:`ffmpc_core.sensing.delay_cycles`), τ̂ the measured joint torque (the
+output of the actuation model, eq 31) and τ^m the motor torque sent to the actuation model.
+
+Readings of the paper's equation:
+
+* (33c) integrates over time: the integral state is Σ e·Δt (N·m·s), and anti-windup clamps
+  the integral term to ``|K_I·∫e| ≤ integral_limit`` (N·m) per joint.
+* (33d) reads ``−K_D·τ̂(t)``, which is not a derivative term; we use ``−K_D·dτ̂/dt`` by a
+  backward difference of the measured torque (0 at the first call). τ^d is piecewise
+  constant, so this equals the derivative of the error between MPC updates without the kick
+  a jump of τ^d would give.
+* ``enabled=False`` is the paper's "without PID" study: τ^m(t) = τ^d(t − δo), no feedback.
+
+Default gains (``TorquePidGains.default``): K_P = 0.5, K_I = 100 s⁻¹, K_D = 0. With the
+actuation delay δs = 1 cycle the loop is e_{k+1} = −a·K_P·e_k − a·K_I·Δt·Σe + d; the P part alone
+is stable for a·K_P < 1, i.e. K_P < 0.83 for a ≤ 1.2; with K_I·Δt = 0.1 the closed-loop poles
+are 0.93 and −0.65 (a = 1.2) or 0.94 and −0.42 (a = 0.8): the error settles in ~15 ms. K_D = 0
+because τ̂ carries the torque noise (σ_τ ≈ 1 N·m) and a difference quotient at 1 kHz
+multiplies it by ~1400 s⁻¹. The integral limit defaults to 30 % of the torque limit, enough to
+cancel a 20 % gain error plus the 2 N·m offset.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.sensing import DelayLine
+
+
+def _per_joint(value, nv: int, name: str) -> np.ndarray:
+    try:
+        arr = np.broadcast_to(np.asarray(value, dtype=float), (nv,)).copy()
+    except ValueError:
+        raise ConfigError(f"{name} must be a scalar or have {nv} entries, got {value!r}") from None
+    if np.any(arr < 0.0) or not np.all(np.isfinite(arr)):
+        raise ConfigError(f"{name} must be finite and >= 0, got {arr}")
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class TorquePidGains:
+    """Per-joint gains of eq 33 (arrays of size nv).
+
+    Attributes:
+        kp: K_P, dimensionless.  ki: K_I, 1/s.  kd: K_D, s.
+        integral_limit: bound on |K_I·∫e ds| per joint, N·m (anti-windup).
+    """
+
+    kp: np.ndarray
+    ki: np.ndarray
+    kd: np.ndarray
+    integral_limit: np.ndarray
+
+    def __post_init__(self) -> None:
+        nv = int(np.size(self.kp))
+        if nv == 0 or np.ndim(self.kp) != 1:
+            raise ConfigError("kp must be a non-empty 1-D array (one entry per joint)")
+        for name in ("kp", "ki", "kd", "integral_limit"):
+            object.__setattr__(self, name, _per_joint(getattr(self, name), nv, name))
+
+    @property
+    def nv(self) -> int:
+        return int(self.kp.size)
+
+    @classmethod
+    def default(
+        cls,
+        torque_limit: np.ndarray,
+        kp: float = 0.5,
+        ki: float = 100.0,
+        kd: float = 0.0,
+        integral_fraction: float = 0.3,
+    ) -> TorquePidGains:
+        """The gains of the module docstring; integral limit = fraction × torque limit (N·m)."""
+        limit = np.asarray(torque_limit, dtype=float)
+        if limit.ndim != 1 or limit.size == 0 or np.any(limit <= 0.0):
+            raise ConfigError(f"torque_limit must be positive per joint, got {torque_limit!r}")
+        nv = limit.size
+        return cls(
+            kp=np.full(nv, kp),
+            ki=np.full(nv, ki),
+            kd=np.full(nv, kd),
+            integral_limit=integral_fraction * limit,
+        )
+
+
+class TorquePid:
+    """Eq 33 as a controller: ``reset()``, ``step(τ̂, τ^d, t) -> τ^m``, once per cycle.
+
+    Args:
+        gains: per-joint gains.
+        dt: the cycle, s (the first call integrates over dt; later calls over the actual Δt).
+        delay_cycles: δo in cycles (5 at 1 kHz for the paper's 5 ms).
+        enabled: False → τ^m = τ^d(t − δo) (the paper's "without PID").
+    """
+
+    def __init__(
+        self, gains: TorquePidGains, dt: float, delay_cycles: int = 5, enabled: bool = True
+    ) -> None:
+        if not (math.isfinite(dt) and dt > 0.0):
+            raise ConfigError(f"dt must be > 0, got {dt}")
+        self.gains = gains
+        self.dt = float(dt)
+        self.enabled = bool(enabled)
+        nv = gains.nv
+        self._desired = DelayLine(delay_cycles, nv)
+        # Anti-windup bound on the integral state ∫e ds (N·m·s); inf where K_I = 0.
+        with np.errstate(divide="ignore"):
+            self._integral_bound = np.where(
+                gains.ki > 0.0,
+                gains.integral_limit / np.where(gains.ki > 0.0, gains.ki, 1.0),
+                np.inf,
+            )
+        self._integral = np.zeros(nv)
+        self._previous_measured = np.zeros(nv)
+        self._t_previous: float | None = None
+
+    @property
+    def delay_cycles(self) -> int:
+        return self._desired.delay
+
+    @property
+    def integral(self) -> np.ndarray:
+        """The integral state ∫(τ̂ − τ^d(· − δo)) ds, N·m·s (a copy)."""
+        return self._integral.copy()
+
+    def reset(self) -> None:
+        """Zero the integral, forget the derivative and the δo history."""
+        self._desired.reset()
+        self._integral[:] = 0.0
+        self._t_previous = None
+
+    def _check(self, value, name: str) -> np.ndarray:
+        arr = np.asarray(value, dtype=float)
+        if arr.shape != (self.gains.nv,) or not np.all(np.isfinite(arr)):
+            raise InputError(f"{name} must be {self.gains.nv} finite numbers, got {value!r}")
+        return arr
+
+    def step(self, measured_torque: np.ndarray, desired_torque: np.ndarray, t: float) -> np.ndarray:
+        """Motor torque τ^m(t), N·m, from τ̂(t) (N·m), this cycle's τ^d (N·m) and t (s)."""
+        measured = self._check(measured_torque, "measured_torque")
+        desired = self._check(desired_torque, "desired_torque")
+        if not math.isfinite(t) or (self._t_previous is not None and t <= self._t_previous):
+            raise InputError(f"t must be finite and increasing, got {t} after {self._t_previous}")
+        delayed = self._desired.step(desired)
+        first = self._t_previous is None
+        h = self.dt if first else t - self._t_previous
+        self._t_previous = float(t)
+        derivative = np.zeros_like(measured) if first else (measured - self._previous_measured) / h
+        self._previous_measured[:] = measured
+        if not self.enabled:
+            return delayed
+        g = self.gains
+        error = measured - delayed
+        self._integral = np.clip(
+            self._integral + error * h, -self._integral_bound, self._integral_bound
+        )
+        return delayed - g.kp * error - g.ki * self._integral - g.kd * derivative

@@ -1,0 +1,191 @@
+"""Sensing model of the simulation study (paper VI-B2, eq 30 and 32) and an exact delay line.
+
+Delays are counted in cycles, i.e. calls of ``step``: a delay of k cycles returns, at call n, the
+sample given at call n − k, exactly (k = 0 is no delay). Call the sensing model once per
+simulation cycle to get the paper's δs = 1 simulation cycle.
+
+Noise parameters are STANDARD DEVIATIONS: ν ~ N(0, σ²) with σ in the signal's unit (the paper
+calls σ_q, σ_q̇ "variances" but writes ν_λ ~ N(0, σ_λ²); we read every σ as a standard
+deviation). Every random number comes from the ``numpy.random.Generator`` handed in; the draws
+happen in a fixed order (q, then q̇, then λ) so the same seed gives the same streams.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ffmpc_core.errors import ConfigError, InputError
+
+
+def delay_cycles(delay: float, cycle: float) -> int:
+    """A delay in seconds as a whole number of cycles of ``cycle`` seconds (e.g. 5 ms at 1 kHz
+    → 5); ConfigError if it is not a whole number (to 1e-9 relative)."""
+    if not (math.isfinite(delay) and math.isfinite(cycle)) or delay < 0.0 or cycle <= 0.0:
+        raise ConfigError(f"need delay >= 0 and cycle > 0, got {delay}, {cycle}")
+    cycles = delay / cycle
+    k = round(cycles)
+    if abs(cycles - k) > 1e-9 * max(1.0, cycles):
+        raise ConfigError(f"delay {delay} s is not a whole number of {cycle} s cycles")
+    return int(k)
+
+
+def _as_std(value, size: int, name: str) -> np.ndarray:
+    try:
+        arr = np.broadcast_to(np.asarray(value, dtype=float), (size,)).copy()
+    except ValueError:
+        raise ConfigError(
+            f"{name} must be a scalar or have {size} entries, got {value!r}"
+        ) from None
+    if np.any(arr < 0.0) or not np.all(np.isfinite(arr)):
+        raise ConfigError(f"{name} must be finite and >= 0, got {value!r}")
+    return arr
+
+
+class DelayLine:
+    """Delays a fixed-shape signal by exactly ``delay`` cycles (calls of :meth:`step`).
+
+    Until ``delay`` samples have been seen, the output is the initial value given to
+    :meth:`reset` or, by default, the first sample (a sensor reads the initial state).
+    The buffer is preallocated; :meth:`step` returns a fresh array.
+    """
+
+    def __init__(self, delay: int, shape: int | tuple[int, ...] = ()):
+        if isinstance(delay, bool) or int(delay) != delay or delay < 0:
+            raise ConfigError(f"delay must be a whole number of cycles >= 0, got {delay!r}")
+        self.delay = int(delay)
+        self.shape = (shape,) if isinstance(shape, int) else tuple(shape)
+        self._buffer = np.zeros((self.delay + 1, *self.shape))
+        self._oldest = 0
+        self._primed = False
+
+    def reset(self, initial: np.ndarray | float | None = None) -> None:
+        """Forget the history; the first ``delay`` outputs will be ``initial`` (default: the
+        first sample)."""
+        self._oldest = 0
+        self._primed = initial is not None
+        if initial is not None:
+            self._buffer[:] = self._check(initial, "initial")
+
+    def _check(self, value, name: str) -> np.ndarray:
+        arr = np.asarray(value, dtype=float)
+        if arr.shape != self.shape or not np.all(np.isfinite(arr)):
+            raise InputError(f"{name} must be finite with shape {self.shape}, got {value!r}")
+        return arr
+
+    def step(self, sample: np.ndarray | float) -> np.ndarray:
+        """Push ``sample`` and return the sample pushed ``delay`` calls ago."""
+        sample = self._check(sample, "sample")
+        if not self._primed:
+            self._buffer[:] = sample
+            self._primed = True
+        # The slot written now is the one read: with delay + 1 slots, the slot after the newest
+        # holds the sample written delay calls ago.
+        newest = self._oldest
+        self._buffer[newest] = sample
+        self._oldest = (newest + 1) % (self.delay + 1)
+        return self._buffer[self._oldest].copy()
+
+
+def joint_state_measurement(
+    q_delayed: np.ndarray,
+    v_delayed: np.ndarray,
+    position_noise_std: np.ndarray,
+    velocity_noise_std: np.ndarray,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Eq 30: q̂(t) = q(t − δs) + ν_q, q̇̂(t) = q̇(t − δs) + ν_q̇.
+
+    Args:
+        q_delayed: q(t − δs), rad.  v_delayed: q̇(t − δs), rad/s.
+        position_noise_std: σ_q, rad (per joint).  velocity_noise_std: σ_q̇, rad/s.
+        rng: draws ν_q first, then ν_q̇.
+    Returns: (q̂ in rad, q̇̂ in rad/s).
+    """
+    q_hat = q_delayed + position_noise_std * rng.standard_normal(q_delayed.shape)
+    v_hat = v_delayed + velocity_noise_std * rng.standard_normal(v_delayed.shape)
+    return q_hat, v_hat
+
+
+def force_measurement(
+    force_delayed: np.ndarray, force_noise_std: np.ndarray, rng: np.random.Generator
+) -> np.ndarray:
+    """Eq 32: λ̂(t) = λ(t − δs) + ν_λ, ν_λ ~ N(0, σ_λ²); N, in the frame λ is given in."""
+    return force_delayed + force_noise_std * rng.standard_normal(force_delayed.shape)
+
+
+@dataclass(frozen=True)
+class SensingParams:
+    """Parameters of the sensing model (paper VI-B2).
+
+    Attributes:
+        delay_cycles: δs in cycles of :meth:`SensingModel.step` (paper: 1 simulation cycle).
+        position_noise_std: σ_q, rad (paper: 1e-3).
+        velocity_noise_std: σ_q̇, rad/s (paper: 1e-3).
+        force_noise_std: σ_λ, N. The paper gives no value; we take 0.5 N, 1 % of its 50 N
+            force reference (the same fraction as σ_τ of the torque limits).
+    """
+
+    delay_cycles: int = 1
+    position_noise_std: float | tuple[float, ...] = 1e-3
+    velocity_noise_std: float | tuple[float, ...] = 1e-3
+    force_noise_std: float | tuple[float, ...] = 0.5
+
+    def __post_init__(self) -> None:
+        if isinstance(self.delay_cycles, bool) or int(self.delay_cycles) != self.delay_cycles:
+            raise ConfigError(f"delay_cycles must be an integer, got {self.delay_cycles!r}")
+        if self.delay_cycles < 0:
+            raise ConfigError("delay_cycles must be >= 0")
+        for name in ("position_noise_std", "velocity_noise_std", "force_noise_std"):
+            arr = np.asarray(getattr(self, name), dtype=float)
+            if arr.ndim > 1 or np.any(arr < 0.0) or not np.all(np.isfinite(arr)):
+                raise ConfigError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}")
+
+
+class SensingModel:
+    """Delays and noises the true joint state and contact force (eq 30, 32).
+
+    ``step(q, v, force)`` is called once per cycle with the simulator's true values and
+    returns the measurements (q̂, q̇̂, λ̂). ``force_dim`` = 0 senses no force (λ̂ is empty).
+    """
+
+    def __init__(
+        self, params: SensingParams, nv: int, force_dim: int, rng: np.random.Generator
+    ) -> None:
+        if nv <= 0 or force_dim < 0:
+            raise ConfigError(f"need nv > 0 and force_dim >= 0, got {nv}, {force_dim}")
+        if not isinstance(rng, np.random.Generator):
+            raise ConfigError("rng must be a numpy.random.Generator")
+        self.params = params
+        self.nv = nv
+        self.force_dim = force_dim
+        self.rng = rng
+        self.position_noise_std = _as_std(params.position_noise_std, nv, "position_noise_std")
+        self.velocity_noise_std = _as_std(params.velocity_noise_std, nv, "velocity_noise_std")
+        self.force_noise_std = _as_std(params.force_noise_std, force_dim, "force_noise_std")
+        k = params.delay_cycles
+        self._q = DelayLine(k, nv)
+        self._v = DelayLine(k, nv)
+        self._force = DelayLine(k, force_dim)
+
+    def reset(self) -> None:
+        """Forget the history (the next sample fills the delay lines)."""
+        for line in (self._q, self._v, self._force):
+            line.reset()
+
+    def step(
+        self, q: np.ndarray, v: np.ndarray, force: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Measurements (q̂ rad, q̇̂ rad/s, λ̂ N) from the true (q, q̇, λ) of this cycle."""
+        force = np.zeros(0) if force is None and self.force_dim == 0 else force
+        if force is None:
+            raise InputError(f"a force of size {self.force_dim} is required")
+        q_d = self._q.step(q)
+        v_d = self._v.step(v)
+        f_d = self._force.step(force)
+        q_hat, v_hat = joint_state_measurement(
+            q_d, v_d, self.position_noise_std, self.velocity_noise_std, self.rng
+        )
+        return q_hat, v_hat, force_measurement(f_d, self.force_noise_std, self.rng)
