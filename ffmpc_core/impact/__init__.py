@@ -1,0 +1,78 @@
+"""Safe maximal impacts on soft contacts (Dehio & Kheddar 2020): the math core.
+
+Modules:
+    deformation: eq 3–8 (deformation dynamics, effective mass, discretisation, acceleration map).
+    limits: eq 1, 2, 9–11 (joint limits mapped to the contact space).
+    planner: eq 12–14 (penetration QP, maximal pre-impact velocity, with OSQP).
+    learner: eq 15–21 (batch and recursive least squares, exploration reference).
+    control: Sec. IV-C (the controller: approach at the maximal safe speed, then admittance).
+    task_space: a task-space inverse-dynamics law from the Cartesian command to joint torques.
+
+Sign convention of the package: the deformation ``z`` and the pressing force ``f`` are positive
+along the unit motion direction ``d`` (world frame); see :mod:`.deformation`.
+"""
+
+from ffmpc_core.impact.control import (
+    AdmittanceForceController,
+    CartesianCommand,
+    ImpactController,
+    ImpactControllerConfig,
+    ImpactMeasurement,
+)
+from ffmpc_core.impact.deformation import (
+    DeformationDynamics,
+    SoftMaterial,
+    acceleration_map,
+    continuous_deformation_dynamics,
+    deformation_dynamics,
+    deformation_force,
+    discretize_deformation_dynamics,
+    effective_mass,
+    simulate_deformation,
+)
+from ffmpc_core.impact.learner import (
+    ContactEstimate,
+    RecursiveContactLearner,
+    exploration_reference,
+    fit_stiffness_damping,
+)
+from ffmpc_core.impact.limits import (
+    PANDA_ACCELERATION_LIMIT,
+    ContactSpaceBounds,
+    ContactSpaceMapper,
+    JointLimits,
+    joint_limits,
+)
+from ffmpc_core.impact.planner import ImpactPlanner, PenetrationPlan, PlannerConfig
+from ffmpc_core.impact.task_space import TaskSpaceGains, TaskSpaceInverseDynamics
+
+__all__ = [
+    "PANDA_ACCELERATION_LIMIT",
+    "AdmittanceForceController",
+    "CartesianCommand",
+    "ContactEstimate",
+    "ContactSpaceBounds",
+    "ContactSpaceMapper",
+    "DeformationDynamics",
+    "ImpactController",
+    "ImpactControllerConfig",
+    "ImpactMeasurement",
+    "ImpactPlanner",
+    "JointLimits",
+    "PenetrationPlan",
+    "PlannerConfig",
+    "RecursiveContactLearner",
+    "SoftMaterial",
+    "TaskSpaceGains",
+    "TaskSpaceInverseDynamics",
+    "acceleration_map",
+    "continuous_deformation_dynamics",
+    "deformation_dynamics",
+    "deformation_force",
+    "discretize_deformation_dynamics",
+    "effective_mass",
+    "exploration_reference",
+    "fit_stiffness_damping",
+    "joint_limits",
+    "simulate_deformation",
+]

@@ -1,0 +1,296 @@
+"""The impact control scheme (Dehio & Kheddar 2020, Sec. IV-C, Fig. 2) as a controller object.
+
+Every cycle before contact, the controller expects the impact at the next step along the motion
+direction ``d`` (unit, world frame), maps the joint limits to the contact space (eq 9–11),
+solves eq 14 for the maximal safe pre-impact velocity and commands the end-effector to track it
+(ramped up at the contact-space acceleration bound). When the measured pressing force reaches the
+contact threshold (2 N in the paper) it switches, for good, to an admittance force controller that
+regulates the force to the target (60 N in the paper).
+
+The output is a Cartesian command for the contact frame (world frame). Mapping it to joint
+torques is robot-specific and lives in :mod:`ffmpc_core.impact.task_space`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+
+from ffmpc_core.errors import ConfigError, InputError, SolverError
+from ffmpc_core.impact.deformation import SoftMaterial, deformation_dynamics, unit_direction
+from ffmpc_core.impact.learner import RecursiveContactLearner
+from ffmpc_core.impact.limits import ContactSpaceMapper, JointLimits
+from ffmpc_core.impact.planner import ImpactPlanner, PenetrationPlan, PlannerConfig
+from ffmpc_core.robots import RobotModel
+
+__all__ = [
+    "APPROACH",
+    "CONTACT",
+    "AdmittanceForceController",
+    "CartesianCommand",
+    "ImpactController",
+    "ImpactControllerConfig",
+    "ImpactMeasurement",
+]
+
+APPROACH = "approach"
+CONTACT = "contact"
+
+
+@dataclass(frozen=True)
+class AdmittanceForceController:
+    """Admittance force control along ``d`` (the task of Bouyarmane et al. 2019, ref. [31]).
+
+    The reference velocity (m/s) follows ``v ← γ v + (1 − γ) clip(G (f_des − f), ±v_max)``:
+    admittance ``G`` (m/(N·s)), filter ``γ`` per step of ``nominal_dt`` (s), ``v_max`` (m/s).
+    The position reference is the integral of ``v``. ``f`` is the measured pressing force (N).
+    """
+
+    admittance: float = 2e-3
+    max_velocity: float = 0.1
+    velocity_filter: float = 0.8
+    nominal_dt: float = 1e-3
+
+    def __post_init__(self) -> None:
+        if not (self.admittance > 0 and self.max_velocity > 0 and self.nominal_dt > 0):
+            raise ConfigError("admittance, max_velocity and nominal_dt must be positive")
+        if not 0.0 <= self.velocity_filter < 1.0:
+            raise ConfigError("velocity_filter must be in [0, 1)")
+
+    def velocity(self, previous: float, force: float, target_force: float, dt: float) -> float:
+        """One update of the reference velocity (m/s) over ``dt`` s."""
+        raw = float(
+            np.clip(self.admittance * (target_force - force), -self.max_velocity, self.max_velocity)
+        )
+        gamma = self.velocity_filter ** (dt / self.nominal_dt) if dt > 0 else 1.0
+        return gamma * previous + (1.0 - gamma) * raw
+
+
+@dataclass(frozen=True)
+class ImpactControllerConfig:
+    """Parameters of the control scheme.
+
+    Attributes:
+        direction: unit motion direction, world frame (e.g. ``[0, 0, -1]`` = downwards).
+        material: stiffness (N/m), damping (N·s/m) and maximal penetration z̄ (m) used for
+            planning (e.g. from :class:`RecursiveContactLearner`).
+        target_force: force to regulate after contact, N (paper: 60).
+        contact_threshold: pressing force that declares the contact, N (paper: 2).
+        planner: eq 12–14 parameters (paper: h = 20, Δt = 25 ms).
+        n_directions: eq 10 weight directions (vertices).
+        max_approach_velocity: optional cap on the approach speed, m/s (inf = none).
+        admittance: the post-contact force controller.
+        learn_online: update the recursive learner during contact (Sec. V-B).
+    """
+
+    direction: np.ndarray
+    material: SoftMaterial
+    target_force: float = 60.0
+    contact_threshold: float = 2.0
+    planner: PlannerConfig = field(default_factory=PlannerConfig)
+    n_directions: int = 8
+    max_approach_velocity: float = np.inf
+    admittance: AdmittanceForceController = field(default_factory=AdmittanceForceController)
+    learn_online: bool = True
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "direction", unit_direction(self.direction))
+        if not (np.isfinite(self.target_force) and self.target_force > 0):
+            raise ConfigError("target_force must be positive (N)")
+        if not (
+            np.isfinite(self.contact_threshold) and 0 < self.contact_threshold < self.target_force
+        ):
+            raise ConfigError("contact_threshold must be in (0, target_force) (N)")
+        if not self.max_approach_velocity > 0:
+            raise ConfigError("max_approach_velocity must be positive (m/s)")
+
+
+@dataclass(frozen=True)
+class ImpactMeasurement:
+    """What the controller reads each cycle.
+
+    Attributes:
+        q: joint positions, rad. v: joint velocities, rad/s.
+        force: 3-vector, N, world frame: the force the environment exerts on the robot at the
+            contact frame (pressing along ``d`` gives ``force ≈ −f d``).
+    """
+
+    q: np.ndarray
+    v: np.ndarray
+    force: np.ndarray
+
+
+@dataclass(frozen=True)
+class CartesianCommand:
+    """Reference for the contact frame, world frame.
+
+    Attributes:
+        phase: ``"approach"`` or ``"contact"``.
+        position: m. velocity: m/s. acceleration: feed-forward, m/s². rotation: 3×3 (hold).
+        pre_impact_velocity: the eq 14 bound of this cycle (m/s; NaN after contact).
+        force: measured pressing force along ``d``, N. target_force: N.
+        plan: the eq 14 plan of this cycle (None after contact or when the solve failed).
+    """
+
+    phase: str
+    position: np.ndarray
+    velocity: np.ndarray
+    acceleration: np.ndarray
+    rotation: np.ndarray
+    pre_impact_velocity: float
+    force: float
+    target_force: float
+    plan: PenetrationPlan | None = None
+
+
+class ImpactController:
+    """Fig. 2 as ``reset()`` / ``step(measurement, t) -> CartesianCommand``; reads no clock.
+
+    Args:
+        robot: robot model (its ``contact`` frame is the end-effector).
+        limits: eq 1 joint limits.
+        config: see :class:`ImpactControllerConfig`.
+    """
+
+    def __init__(
+        self, robot: RobotModel, limits: JointLimits, config: ImpactControllerConfig
+    ) -> None:
+        self.robot = robot
+        self.limits = limits
+        self.config = config
+        self.mapper = ContactSpaceMapper(robot, limits, config.direction, config.n_directions)
+        self.planner = ImpactPlanner(config.planner)
+        self.learner = RecursiveContactLearner()
+        self._data = robot.create_data()
+        self.reset()
+
+    def reset(self) -> None:
+        """Back to the approach phase; the next step takes the current pose as the hold pose."""
+        self.phase = APPROACH
+        self.material = self.config.material
+        self._t_prev: float | None = None
+        self._v_ref = 0.0
+        self._hold_position: np.ndarray | None = None
+        self._hold_rotation: np.ndarray | None = None
+        self._x_ref = 0.0
+        self._contact_position: np.ndarray | None = None
+        self.contact_time: float | None = None
+        self.contact_velocity: float | None = None
+        self.solver_failures = 0
+        self.learner.reset()
+
+    def _frame_state(
+        self, q: np.ndarray, v: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        model, data, fid = self.robot.model, self._data, self.robot.contact_frame_id
+        pin.forwardKinematics(model, data, q, v)
+        pin.updateFramePlacements(model, data)
+        oMf = data.oMf[fid]
+        vel = pin.getFrameVelocity(model, data, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+        return oMf.translation.copy(), oMf.rotation.copy(), vel.linear.copy()
+
+    def _validate(self, m: ImpactMeasurement, t: float) -> tuple[np.ndarray, ...]:
+        n = self.robot.nv
+        q = np.asarray(m.q, dtype=float)
+        v = np.asarray(m.v, dtype=float)
+        f = np.asarray(m.force, dtype=float)
+        if q.shape != (n,) or v.shape != (n,) or f.shape != (3,):
+            raise InputError(f"measurement needs q, v of size {n} and a 3-vector force")
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v)) and np.all(np.isfinite(f))):
+            raise InputError("measurement contains NaN/Inf")
+        if not np.isfinite(t) or (self._t_prev is not None and t < self._t_prev):
+            raise InputError(f"time must be finite and non-decreasing, got {t}")
+        return q, v, f
+
+    def step(self, measurement: ImpactMeasurement, t: float) -> CartesianCommand:
+        """One control cycle at time ``t`` (s)."""
+        q, v, f_world = self._validate(measurement, t)
+        cfg = self.config
+        d = cfg.direction
+        dt = 0.0 if self._t_prev is None else t - self._t_prev
+        self._t_prev = t
+        p, R, pdot = self._frame_state(q, v)
+        if self._hold_position is None:
+            self._hold_position, self._hold_rotation = p.copy(), R.copy()
+        along = float(d @ (p - self._hold_position))
+        speed = float(d @ pdot)
+        force = float(-d @ f_world)
+
+        if self.phase == APPROACH and force >= cfg.contact_threshold:
+            self.phase = CONTACT
+            self.contact_time = t
+            self.contact_velocity = speed
+            self._contact_position = p.copy()
+            self._x_ref = along
+            self._v_ref = speed
+        if self.phase == CONTACT:
+            return self._contact_step(p, pdot, along, speed, force, dt)
+        return self._approach_step(q, v, along, speed, force, dt)
+
+    def _approach_step(
+        self, q: np.ndarray, v: np.ndarray, along: float, speed: float, force: float, dt: float
+    ) -> CartesianCommand:
+        cfg = self.config
+        plan = None
+        try:
+            bounds = self.mapper.update(q, v)
+            dyn = deformation_dynamics(
+                self.material.stiffness,
+                self.material.damping,
+                bounds.effective_mass,
+                cfg.planner.dt,
+            )
+            plan = self.planner.max_pre_impact_velocity(dyn, bounds, self.material)
+            bound = max(plan.pre_impact_velocity, 0.0)
+            acc_lo, acc_hi = bounds.acceleration_range(0.0)
+        except SolverError:
+            # No certified bound this cycle: command rest (the safe side) and count it.
+            self.solver_failures += 1
+            bound, acc_lo, acc_hi = 0.0, 0.0, 0.0
+        target = min(bound, cfg.max_approach_velocity)
+        previous = self._v_ref
+        ramped = previous + max(acc_hi, 0.0) * dt
+        self._v_ref = max(min(target, ramped), 0.0)
+        acc_ff = 0.0 if dt <= 0 else (self._v_ref - previous) / dt
+        acc_ff = float(np.clip(acc_ff, min(acc_lo, 0.0), max(acc_hi, 0.0)))
+        d = cfg.direction
+        return CartesianCommand(
+            phase=APPROACH,
+            position=self._hold_position + along * d,
+            velocity=self._v_ref * d,
+            acceleration=acc_ff * d,
+            rotation=self._hold_rotation.copy(),
+            pre_impact_velocity=bound,
+            force=force,
+            target_force=cfg.target_force,
+            plan=plan,
+        )
+
+    def _contact_step(
+        self,
+        p: np.ndarray,
+        pdot: np.ndarray,
+        along: float,
+        speed: float,
+        force: float,
+        dt: float,
+    ) -> CartesianCommand:
+        cfg = self.config
+        d = cfg.direction
+        self._v_ref = cfg.admittance.velocity(self._v_ref, force, cfg.target_force, dt)
+        self._x_ref += self._v_ref * dt
+        if cfg.learn_online:
+            z = float(d @ (p - self._contact_position))
+            self.learner.update(z, speed, force)
+        return CartesianCommand(
+            phase=CONTACT,
+            position=self._hold_position + self._x_ref * d,
+            velocity=self._v_ref * d,
+            acceleration=np.zeros(3),
+            rotation=self._hold_rotation.copy(),
+            pre_impact_velocity=float("nan"),
+            force=force,
+            target_force=cfg.target_force,
+        )

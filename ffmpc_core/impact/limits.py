@@ -1,0 +1,513 @@
+"""Joint-space limits mapped to the contact space (Dehio & Kheddar 2020, Sec. III-B, eq 1, 2, 9–11).
+
+Frames and units: the motion direction ``d`` is a unit vector in the world frame; the Jacobian is
+the contact frame's, in pinocchio's ``LOCAL_WORLD_ALIGNED`` frame (6×n: linear m/rad on top,
+angular rad/rad below). Contact-space quantities are scalars along ``d``: deformation rate ż
+(m/s), acceleration z̈ (m/s²) and the pressing force f ≥ 0 (N, the force the robot exerts on the
+material along ``d``; the material pushes the robot with ``−f·d``).
+
+Two implementations of each LP are provided on purpose:
+
+* the named functions :func:`deformation_velocity_bounds` (eq 9) and
+  :func:`acceleration_force_vertices` (eq 10) solve with HiGHS (``scipy.optimize.linprog``): a
+  clear reference, ~1 ms per LP;
+* :class:`ContactSpaceMapper` builds one OSQP instance per LP once and updates it in place each
+  control cycle (the hot path), with polishing so that LP solutions are exact vertices.
+
+Both take their data from the same builders (:func:`velocity_lp_data`, :func:`vertex_lp_data`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import osqp
+import pinocchio as pin
+import scipy.sparse as sp
+from scipy.optimize import linprog
+from scipy.spatial import ConvexHull, QhullError
+
+from ffmpc_core.errors import ConfigError, InputError, SolverError
+from ffmpc_core.impact.deformation import effective_mass_from, unit_direction
+from ffmpc_core.robots import RobotModel
+
+__all__ = [
+    "PANDA_ACCELERATION_LIMIT",
+    "ContactSpaceBounds",
+    "ContactSpaceMapper",
+    "JointLimits",
+    "acceleration_force_vertices",
+    "deformation_velocity_bounds",
+    "halfplanes_from_vertices",
+    "joint_limits",
+    "motion_basis",
+    "position_aware_velocity_limits",
+    "split_jacobian",
+    "velocity_lp_data",
+    "vertex_directions",
+    "vertex_lp_data",
+]
+
+#: Franka Emika Panda data sheet ("Robot and interface specifications", limits in joint space):
+#: maximum joint accelerations q̈_max, rad/s². (Torque 87/12 N·m and velocity 2.175/2.61 rad/s
+#: limits come from the URDF via :class:`RobotModel` and match the same sheet.)
+PANDA_ACCELERATION_LIMIT = np.array([15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0])
+
+_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+_OSQP_LP_SETTINGS = dict(
+    verbose=False,
+    polishing=True,
+    polish_refine_iter=5,
+    eps_abs=1e-6,
+    eps_rel=1e-6,
+    max_iter=4000,
+    warm_starting=True,
+)
+
+
+@dataclass(frozen=True)
+class JointLimits:
+    """Symmetric joint limits of eq 1b–1e (one entry per joint).
+
+    Attributes:
+        position_lower, position_upper: q̲, q̄ (rad).
+        velocity: |q̇| ≤ velocity (rad/s).
+        acceleration: |q̈| ≤ acceleration (rad/s²).
+        torque: |τ| ≤ torque (N·m).
+    """
+
+    position_lower: np.ndarray
+    position_upper: np.ndarray
+    velocity: np.ndarray
+    acceleration: np.ndarray
+    torque: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = np.asarray(self.velocity).size
+        for name in ("position_lower", "position_upper", "velocity", "acceleration", "torque"):
+            arr = np.asarray(getattr(self, name), dtype=float)
+            if arr.shape != (n,) or not np.all(np.isfinite(arr)):
+                raise ConfigError(f"JointLimits.{name} must be a finite vector of size {n}")
+            object.__setattr__(self, name, arr.copy())
+        if np.any(self.velocity <= 0) or np.any(self.acceleration <= 0) or np.any(self.torque <= 0):
+            raise ConfigError("velocity, acceleration and torque limits must be positive")
+        if np.any(self.position_lower >= self.position_upper):
+            raise ConfigError("position_lower must be below position_upper")
+
+
+def joint_limits(robot: RobotModel, acceleration_limit: np.ndarray | None = None) -> JointLimits:
+    """Eq 1b–1e limits of ``robot``: positions, velocities and torques from the model.
+
+    Acceleration limits are not in the URDF: for the Panda the data-sheet values
+    :data:`PANDA_ACCELERATION_LIMIT` are used by default; any other robot needs
+    ``acceleration_limit`` (rad/s²) explicitly (no invented default).
+    """
+    if acceleration_limit is None:
+        if robot.name != "panda":
+            raise ConfigError(
+                f"no data-sheet joint acceleration limits for {robot.name!r}: "
+                "pass acceleration_limit"
+            )
+        acceleration_limit = PANDA_ACCELERATION_LIMIT
+    return JointLimits(
+        position_lower=robot.position_lower,
+        position_upper=robot.position_upper,
+        velocity=robot.velocity_limit,
+        acceleration=np.asarray(acceleration_limit, dtype=float),
+        torque=robot.torque_limit,
+    )
+
+
+def motion_basis(direction: np.ndarray) -> np.ndarray:
+    """Eq 2: orthonormal 6×6 basis ``O = [o1, o2..6]`` with ``o1 = [d; 0]``.
+
+    ``o2, o3`` complete ``d`` to an orthonormal basis of the linear velocities (world frame) and
+    ``o4..6`` are the angular axes, so ``O`` is orthogonal (``Oᵀ O = I``).
+    """
+    d = unit_direction(direction)
+    # Householder reflection mapping e1 to d: an orthogonal matrix whose first column is d.
+    e1 = np.array([1.0, 0.0, 0.0])
+    w = e1 - d
+    nw = float(w @ w)
+    H = np.eye(3) if nw < 1e-24 else np.eye(3) - 2.0 * np.outer(w, w) / nw
+    basis = np.zeros((6, 6))
+    basis[:3, :3] = H
+    basis[3:, 3:] = np.eye(3)
+    return basis
+
+
+def split_jacobian(jacobian: np.ndarray, basis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eq 2: ``J_A = o1ᵀ J`` (n,) along the motion and ``J_B = o2..6ᵀ J`` (5×n)."""
+    JO = basis.T @ jacobian
+    return JO[0].copy(), JO[1:].copy()
+
+
+def position_aware_velocity_limits(
+    q: np.ndarray, limits: JointLimits
+) -> tuple[np.ndarray, np.ndarray]:
+    """Joint velocity bounds (rad/s) combining eq 1c with the position limits eq 1b.
+
+    The paper lists eq 1b but does not say how it enters the contact-space mapping. We bound the
+    velocity by the speed from which the joint can still brake before its position limit at its
+    acceleration limit: ``q̇ ≤ min(q̇_max, sqrt(2 q̈_max (q̄ − q)))`` and symmetrically below.
+    """
+    up = np.sqrt(2.0 * limits.acceleration * np.maximum(limits.position_upper - q, 0.0))
+    lo = np.sqrt(2.0 * limits.acceleration * np.maximum(q - limits.position_lower, 0.0))
+    return -np.minimum(limits.velocity, lo), np.minimum(limits.velocity, up)
+
+
+@dataclass(frozen=True)
+class VelocityLP:
+    """Data of eq 9 (variables q̇, rad/s): ``min c·q̇`` s.t. ``J_B q̇ = 0``, ``lower ≤ q̇ ≤ upper``."""
+
+    J_A: np.ndarray
+    J_B: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+
+
+def velocity_lp_data(
+    J_A: np.ndarray, J_B: np.ndarray, lower: np.ndarray, upper: np.ndarray
+) -> VelocityLP:
+    """Eq 9 data; ``lower/upper`` are joint velocity bounds (rad/s)."""
+    return VelocityLP(J_A=J_A, J_B=J_B, lower=lower, upper=upper)
+
+
+def _highs_velocity(lp: VelocityLP, sign: float) -> float:
+    """One eq 9 LP by HiGHS: ``min sign·J_A q̇`` → the extreme ż (m/s)."""
+    res = linprog(
+        sign * lp.J_A,
+        A_eq=lp.J_B,
+        b_eq=np.zeros(lp.J_B.shape[0]),
+        bounds=list(zip(lp.lower, lp.upper, strict=True)),
+        method="highs",
+    )
+    if res.status != 0:
+        raise SolverError(f"eq 9 velocity LP failed: {res.message}")
+    return float(lp.J_A @ res.x)
+
+
+def deformation_velocity_bounds(lp: VelocityLP) -> tuple[float, float]:
+    """Eq 9 by HiGHS: ``(ż̲, ż̄)`` (m/s), the extreme end-effector speeds along ``d`` with zero
+    velocity in the five other task directions and joint velocities within bounds."""
+    return _highs_velocity(lp, 1.0), _highs_velocity(lp, -1.0)
+
+
+@dataclass(frozen=True)
+class VertexLP:
+    """Data of eq 10 with variables ``x = [q̈ (rad/s²), z̈ (m/s²), f (N)]``.
+
+    ``A_eq x = b_eq``: ``J_B q̈ = −J̇_B q̇`` and ``J_A q̈ − z̈ = −J̇_A q̇`` (the paper prints
+    ``J q̇_cur`` on the right-hand side; the task acceleration is ``J q̈ + J̇ q̇``).
+    ``lower ≤ A_in x ≤ upper``: ``q̲̈ ≤ q̈ ≤ q̄̈``; ``τ̲ − h ≤ M q̈ + J_Aᵀ f ≤ τ̄ − h``; ``0 ≤ f``.
+    """
+
+    A_eq: np.ndarray
+    b_eq: np.ndarray
+    A_in: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+
+
+def vertex_lp_data(
+    J_A: np.ndarray,
+    J_B: np.ndarray,
+    drift_A: float,
+    drift_B: np.ndarray,
+    inertia: np.ndarray,
+    nonlinear_effects: np.ndarray,
+    limits: JointLimits,
+) -> VertexLP:
+    """Eq 10 data. ``drift_A = J̇_A q̇`` (m/s²), ``drift_B = J̇_B q̇`` (5,), ``inertia`` = M
+    (kg·m²), ``nonlinear_effects`` = h (N·m, gravity + Coriolis at the current state)."""
+    n = J_A.size
+    A_eq = np.zeros((J_B.shape[0] + 1, n + 2))
+    A_eq[:-1, :n] = J_B
+    A_eq[-1, :n] = J_A
+    A_eq[-1, n] = -1.0
+    b_eq = np.concatenate([-drift_B, [-drift_A]])
+    A_in = np.zeros((2 * n + 1, n + 2))
+    A_in[:n, :n] = np.eye(n)
+    A_in[n : 2 * n, :n] = inertia
+    A_in[n : 2 * n, n + 1] = J_A
+    A_in[2 * n, n + 1] = 1.0
+    lower = np.concatenate([-limits.acceleration, -limits.torque - nonlinear_effects, [0.0]])
+    upper = np.concatenate([limits.acceleration, limits.torque - nonlinear_effects, [np.inf]])
+    return VertexLP(A_eq=A_eq, b_eq=b_eq, A_in=A_in, lower=lower, upper=upper)
+
+
+def vertex_directions(n_directions: int, effective_mass: float) -> np.ndarray:
+    """Weights ``(ω_z̈, ω_f)`` of eq 10 (to be *maximised*), one row per direction.
+
+    Directions are equally spaced angles in the plane ``(z̈, f/Λ)`` (both m/s²; Λ in kg), which
+    makes the polygon roughly isotropic, offset by half a step from the axes: the polytope has
+    edges parallel to the axes (``f = 0``, joint-acceleration-limited ``z̈``), and an axis-aligned
+    weight would make the LP optimum a whole edge (non-unique), which ADMM solves poorly.
+    """
+    if n_directions < 3:
+        raise ConfigError("need at least 3 vertex directions for a polygon")
+    theta = 2.0 * np.pi * (np.arange(n_directions) + 0.5) / n_directions
+    return np.column_stack([np.cos(theta), np.sin(theta) / effective_mass])
+
+
+def _highs_vertex(lp: VertexLP, weight: np.ndarray) -> np.ndarray:
+    """One eq 10 LP by HiGHS: the ``(z̈, f)`` (m/s², N) maximising ``weight·(z̈, f)``."""
+    n = lp.A_eq.shape[1] - 2
+    A_ub = np.vstack([lp.A_in, -lp.A_in])
+    b_ub = np.concatenate([lp.upper, -lp.lower])
+    keep = np.isfinite(b_ub)
+    c = np.zeros(n + 2)
+    c[n:] = -np.asarray(weight, dtype=float)
+    res = linprog(
+        c,
+        A_ub=A_ub[keep],
+        b_ub=b_ub[keep],
+        A_eq=lp.A_eq,
+        b_eq=lp.b_eq,
+        bounds=[(None, None)] * (n + 2),
+        method="highs",
+    )
+    if res.status != 0:
+        raise SolverError(f"eq 10 vertex LP failed: {res.message}")
+    return res.x[n:].copy()
+
+
+def acceleration_force_vertices(lp: VertexLP, weights: np.ndarray) -> np.ndarray:
+    """Eq 10 by HiGHS: one vertex ``(z̈, f)`` (m/s², N) per weight row, maximising ``ω·(z̈, f)``."""
+    return np.array([_highs_vertex(lp, w) for w in weights])
+
+
+def halfplanes_from_vertices(
+    vertices: np.ndarray, effective_mass: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Eq 11: half-plane form ``P [z̈; f] ≤ p`` of the convex hull of ``vertices`` (z̈ m/s², f N).
+
+    The hull is computed (scipy/Qhull) in the scaled plane ``(z̈, f/Λ)``; each row of ``P`` is a
+    unit normal there, so ``P`` has units [1, 1/kg] and ``p`` m/s². The hull of LP vertices is an
+    inner approximation of the true polytope: constraints built from it are conservative.
+    Raises :class:`SolverError` if the vertices do not span a polygon.
+    """
+    scaled = np.column_stack([vertices[:, 0], vertices[:, 1] / effective_mass])
+    try:
+        hull = ConvexHull(scaled)
+    except (QhullError, ValueError) as exc:
+        raise SolverError(f"eq 11: acceleration/force polytope is degenerate: {exc}") from exc
+    eq = hull.equations
+    P = np.column_stack([eq[:, 0], eq[:, 1] / effective_mass])
+    return P, -eq[:, 2]
+
+
+@dataclass(frozen=True)
+class ContactSpaceBounds:
+    """Contact-space bounds at one robot state (Sec. III-B).
+
+    Attributes:
+        velocity_lower, velocity_upper: ż̲ ≤ ż ≤ ż̄ (m/s), eq 9.
+        halfplane_normals: P (k×2, [1, 1/kg]) and halfplane_offsets: p (k,, m/s²) of eq 11.
+        vertices: the eq 10 vertices (N×2: z̈ m/s², f N).
+        effective_mass: Λ (kg) along the motion direction (footnote 1).
+        direction: the unit motion direction (world frame).
+    """
+
+    velocity_lower: float
+    velocity_upper: float
+    halfplane_normals: np.ndarray
+    halfplane_offsets: np.ndarray
+    vertices: np.ndarray
+    effective_mass: float
+    direction: np.ndarray
+
+    def acceleration_range(self, force: float = 0.0) -> tuple[float, float]:
+        """Range of z̈ (m/s²) allowed by eq 11 at the pressing force ``force`` (N)."""
+        a, b = self.halfplane_normals[:, 0], self.halfplane_normals[:, 1]
+        rhs = self.halfplane_offsets - b * force
+        with np.errstate(divide="ignore"):
+            hi = np.min(np.where(a > 1e-12, rhs / np.where(a > 1e-12, a, 1.0), np.inf))
+            lo = np.max(np.where(a < -1e-12, rhs / np.where(a < -1e-12, a, 1.0), -np.inf))
+        return float(lo), float(hi)
+
+
+class _SparsePattern:
+    """A fixed CSC sparsity pattern with a map from a dense matrix to its data array."""
+
+    def __init__(self, mask: np.ndarray) -> None:
+        self.matrix = sp.csc_matrix(mask.astype(float))
+        self.matrix.sort_indices()
+        cols = np.repeat(np.arange(mask.shape[1]), np.diff(self.matrix.indptr))
+        self.index = (self.matrix.indices.copy(), cols)
+
+    def values(self, dense: np.ndarray) -> np.ndarray:
+        return dense[self.index]
+
+
+class ContactSpaceMapper:
+    """Hot-path mapping of joint limits to contact-space bounds (eq 9–11), built once.
+
+    Every LP has its own OSQP instance (two for eq 9, one per weight direction for eq 10), set up
+    once with a fixed sparsity pattern and updated in place each control cycle, so that each keeps
+    its own warm start (its previous-cycle primal/dual solution) and step size ρ. OSQP solves the
+    LPs with polishing, which returns the exact vertex when it succeeds; an LP whose OSQP solve or
+    polish fails is re-solved by HiGHS (counted in :attr:`stats`), so a bound is never the output
+    of an unconverged ADMM run. Pinocchio workspaces are preallocated.
+
+    Args:
+        robot: the robot model (contact frame = end-effector).
+        limits: eq 1 joint limits.
+        direction: unit motion direction, world frame.
+        n_directions: number of eq 10 weight directions (vertices), ≥ 3 (the paper used 6).
+    """
+
+    def __init__(
+        self,
+        robot: RobotModel,
+        limits: JointLimits,
+        direction: np.ndarray,
+        n_directions: int = 8,
+    ) -> None:
+        if limits.velocity.size != robot.nv:
+            raise ConfigError(f"limits are for {limits.velocity.size} joints, robot has {robot.nv}")
+        self.robot = robot
+        self.limits = limits
+        self.n_directions = int(n_directions)
+        vertex_directions(self.n_directions, 1.0)  # validates the count
+        self._data = robot.create_data()
+        self.set_direction(direction)
+        n = robot.nv
+        self._n = n
+        # eq 9: variables q̇ (n); rows [J_B; I].
+        vel_mask = np.vstack([np.ones((5, n)), np.eye(n)])
+        self._vel_pattern = _SparsePattern(vel_mask)
+        self._vel = [self._lp_solver(n, self._vel_pattern, 5 + n) for _ in range(2)]
+        # eq 10: variables [q̈ (n), z̈, f]; rows [J_B 0 0; J_A −1 0; I 0 0; M 0 J_Aᵀ; 0 0 1].
+        vmask = np.zeros((6 + 2 * n + 1, n + 2))
+        vmask[:6, :n] = 1.0
+        vmask[5, n] = 1.0
+        vmask[6 : 6 + n, :n] = np.eye(n)
+        vmask[6 + n : 6 + 2 * n, :n] = 1.0
+        vmask[6 + n : 6 + 2 * n, n + 1] = 1.0
+        vmask[6 + 2 * n, n + 1] = 1.0
+        self._vtx_pattern = _SparsePattern(vmask)
+        self._vtx = [
+            self._lp_solver(n + 2, self._vtx_pattern, vmask.shape[0])
+            for _ in range(self.n_directions)
+        ]
+        self._A_vel = np.zeros(vel_mask.shape)
+        self._A_vel[5:] = np.eye(n)
+        self._A_vtx = np.zeros(vmask.shape)
+        self._vtx_cost = np.zeros(n + 2)
+        self.stats = {"lp_solves": 0, "highs_fallbacks": 0}
+
+    @staticmethod
+    def _lp_solver(n_var: int, pattern: _SparsePattern, n_rows: int) -> osqp.OSQP:
+        solver = osqp.OSQP()
+        solver.setup(
+            sp.csc_matrix((n_var, n_var)),
+            np.zeros(n_var),
+            pattern.matrix,
+            np.zeros(n_rows),
+            np.zeros(n_rows),
+            **_OSQP_LP_SETTINGS,
+        )
+        return solver
+
+    def set_direction(self, direction: np.ndarray) -> None:
+        """Change the unit motion direction (world frame); the solvers are kept."""
+        self.direction = unit_direction(direction)
+        self.basis = motion_basis(self.direction)
+
+    def kinematics(self, q: np.ndarray, v: np.ndarray) -> dict[str, np.ndarray | float]:
+        """Pinocchio quantities at (q rad, v rad/s): J_A, J_B, drifts J̇q̇ (m/s², rad/s²),
+        M (kg·m²), h (N·m) and the effective mass Λ (kg)."""
+        model, data, fid = self.robot.model, self._data, self.robot.contact_frame_id
+        pin.forwardKinematics(model, data, q, v, np.zeros(model.nv))
+        pin.computeJointJacobians(model, data, q)
+        pin.updateFramePlacements(model, data)
+        J = pin.getFrameJacobian(model, data, fid, _LWA)
+        acc = pin.getFrameClassicalAcceleration(model, data, fid, _LWA)
+        drift = self.basis.T @ np.concatenate([acc.linear, acc.angular])
+        J_A, J_B = split_jacobian(J, self.basis)
+        M = pin.crba(model, data, q)
+        M = np.triu(M) + np.triu(M, 1).T
+        h = pin.nonLinearEffects(model, data, q, v).copy()
+        Minv = pin.computeMinverse(model, data, q)
+        return {
+            "J_A": J_A,
+            "J_B": J_B,
+            "drift_A": float(drift[0]),
+            "drift_B": drift[1:],
+            "M": M,
+            "h": h,
+            "effective_mass": effective_mass_from(J_A, Minv),
+        }
+
+    def _osqp(self, solver: osqp.OSQP, cost: np.ndarray) -> np.ndarray | None:
+        """Solve one LP; ``None`` if OSQP or its polish did not succeed."""
+        self.stats["lp_solves"] += 1
+        solver.update(q=cost)
+        res = solver.solve(raise_error=False)
+        if res.info.status_val != osqp.SolverStatus.OSQP_SOLVED or res.info.status_polish != 1:
+            self.stats["highs_fallbacks"] += 1
+            return None
+        return res.x
+
+    def velocity_bounds(
+        self, J_A: np.ndarray, J_B: np.ndarray, q: np.ndarray
+    ) -> tuple[float, float]:
+        """Eq 9 at joint positions ``q`` (rad): ``(ż̲, ż̄)`` in m/s."""
+        lower, upper = position_aware_velocity_limits(q, self.limits)
+        self._A_vel[:5] = J_B
+        Ax = self._vel_pattern.values(self._A_vel)
+        lo = np.concatenate([np.zeros(5), lower])
+        up = np.concatenate([np.zeros(5), upper])
+        out = []
+        for solver, sign in zip(self._vel, (1.0, -1.0), strict=True):
+            solver.update(Ax=Ax, l=lo, u=up)
+            x = self._osqp(solver, sign * J_A)
+            if x is None:
+                out.append(_highs_velocity(velocity_lp_data(J_A, J_B, lower, upper), sign))
+            else:
+                out.append(float(J_A @ x))
+        return out[0], out[1]
+
+    def vertices(self, lp: VertexLP, weights: np.ndarray) -> np.ndarray:
+        """Eq 10: the vertices ``(z̈, f)`` (m/s², N), one per weight row (maximised)."""
+        n = self._n
+        self._A_vtx[:6] = lp.A_eq
+        self._A_vtx[6:] = lp.A_in
+        Ax = self._vtx_pattern.values(self._A_vtx)
+        lo = np.concatenate([lp.b_eq, lp.lower])
+        up = np.concatenate([lp.b_eq, lp.upper])
+        out = np.empty((len(weights), 2))
+        for k, (solver, w) in enumerate(zip(self._vtx, weights, strict=True)):
+            solver.update(Ax=Ax, l=lo, u=up)
+            self._vtx_cost[n:] = -w
+            x = self._osqp(solver, self._vtx_cost)
+            out[k] = _highs_vertex(lp, w) if x is None else x[n:]
+        return out
+
+    def update(self, q: np.ndarray, v: np.ndarray) -> ContactSpaceBounds:
+        """Contact-space bounds at joint positions ``q`` (rad) and velocities ``v`` (rad/s)."""
+        n = self._n
+        q = np.asarray(q, dtype=float)
+        v = np.asarray(v, dtype=float)
+        if q.shape != (n,) or v.shape != (n,) or not np.all(np.isfinite(q) & np.isfinite(v)):
+            raise InputError(f"q and v must be finite vectors of size {n}")
+        kin = self.kinematics(q, v)
+        J_A, J_B = kin["J_A"], kin["J_B"]
+        lam = float(kin["effective_mass"])
+        zdot_lower, zdot_upper = self.velocity_bounds(J_A, J_B, q)
+        lp = vertex_lp_data(
+            J_A, J_B, kin["drift_A"], kin["drift_B"], kin["M"], kin["h"], self.limits
+        )
+        vertices = self.vertices(lp, vertex_directions(self.n_directions, lam))
+        P, p = halfplanes_from_vertices(vertices, lam)
+        return ContactSpaceBounds(
+            velocity_lower=zdot_lower,
+            velocity_upper=zdot_upper,
+            halfplane_normals=P,
+            halfplane_offsets=p,
+            vertices=vertices,
+            effective_mass=lam,
+            direction=self.direction.copy(),
+        )
