@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 import crocoddyl  # noqa: F401  (must be imported before mim_solvers: it loads boost)
@@ -62,6 +62,11 @@ class MpcConfig:
         max_iterations: SQP iterations per solve (paper: 8).
         kkt_tolerance: SQP termination tolerance on the KKT residual (paper: 1e-4).
         q_reference: posture q̄ of eq 25.1, rad (None: the robot's nominal posture).
+        command_delay: known delay between the measurement and the moment the command acts,
+            s (the paper's δo = 5 ms). With a delay, the MPC predicts the state at t + δo by
+            integrating its own model with the commands already sent (a Smith predictor) and
+            solves from there; 0 = the plain scheme (solve from the measured state).
+        prediction_step: integration step of that prediction, s.
     """
 
     formulation: str = "force_feedback"
@@ -74,6 +79,8 @@ class MpcConfig:
     max_iterations: int = 8
     kkt_tolerance: float = 1e-4
     q_reference: tuple[float, ...] | None = None
+    command_delay: float = 0.0
+    prediction_step: float = 0.001
 
     def __post_init__(self) -> None:
         if self.formulation not in FORMULATIONS:
@@ -82,6 +89,8 @@ class MpcConfig:
             )
         if self.horizon < 1 or self.dt <= 0 or self.period <= 0:
             raise ConfigError("horizon must be >= 1 and dt, period > 0")
+        if not 0.0 <= self.command_delay < self.horizon * self.dt or self.prediction_step <= 0:
+            raise ConfigError("command_delay must be in [0, horizon·dt), prediction_step > 0")
         if self.cutoff_frequency <= 0 or self.max_iterations < 1 or self.kkt_tolerance <= 0:
             raise ConfigError("cutoff_frequency, max_iterations, kkt_tolerance must be > 0")
 
@@ -169,16 +178,39 @@ class ModelPredictiveController:
         }[config.formulation]
         self._x0 = np.zeros(self.nx)
         self._x0[:nv] = q_ref
+        self._make_problem()
+        self._predictor = None
+        if config.command_delay > 0.0:
+            # Torque-feedback: what acts during the delay is the torque τ̃ already sent, so (q, v)
+            # are predicted with the rigid-contact dynamics driven by τ̃ and τ becomes the last τ̃.
+            pred_form = "classical" if config.formulation == "torque_feedback" else None
+            pred_cfg = replace(
+                config,
+                dt=config.prediction_step,
+                command_delay=0.0,
+                formulation=pred_form or config.formulation,
+            )
+            self._predictor = _node_factory(robot, pred_cfg, q_ref)(False)
+            self._predictor_data = self._predictor.model.createData()
+        self._epsilon = min(1.0, config.period / config.dt)  # eq 15
+        self._alpha = float(np.exp(-2.0 * np.pi * config.cutoff_frequency * config.dt))  # eq 13
+        self.reset()
+
+    def _make_problem(self) -> None:
+        """(Re)build the shooting problem and its SQP solver from the nodes' current models.
+
+        Called at construction and when a node's model object changes (a contact switch, a few
+        times per task). ``problem.updateModel`` + a solver kept across it crashes with
+        mim_solvers 0.3.0 (the solver caches node data), so both are rebuilt; the warm start is
+        passed explicitly to every solve and survives.
+        """
         self.problem = crocoddyl.ShootingProblem(
             self._x0, [n.model for n in self.nodes], self.terminal_node.model
         )
         self.solver = mim_solvers.SolverSQP(self.problem)
         self.solver.use_filter_line_search = True
-        self.solver.termination_tolerance = config.kkt_tolerance
+        self.solver.termination_tolerance = self.config.kkt_tolerance
         self.solver.with_callbacks = False
-        self._epsilon = min(1.0, config.period / config.dt)  # eq 15
-        self._alpha = float(np.exp(-2.0 * np.pi * config.cutoff_frequency * config.dt))  # eq 13
-        self.reset()
 
     # -- controller shape -------------------------------------------------------------------
     def reset(self) -> None:
@@ -186,6 +218,7 @@ class ModelPredictiveController:
         self._prev_t: float | None = None
         self._prev_xs: np.ndarray | None = None
         self._prev_us: np.ndarray | None = None
+        self._sent: list[tuple[float, np.ndarray]] = []  # (time, model control) in flight
 
     def set_contact_parameters(self, stiffness, damping) -> None:
         """Change the force-feedback model's K (N/m) and B (N·s/m) in place, for every node."""
@@ -206,8 +239,8 @@ class ModelPredictiveController:
 
     def step(self, meas: MpcMeasurement, t: float) -> MpcCommand:
         """Solve the OCP from the measured state at time t (s) and return the command."""
-        x0 = self.state_from(meas)
-        self._update_references(t)
+        x0 = self.predict(self.state_from(meas), t)
+        self._update_references(t + self.config.command_delay)
         self.problem.x0 = x0
         xs, us = self._warm_start(x0, t)
         start = time.perf_counter()
@@ -216,7 +249,10 @@ class ModelPredictiveController:
         xs_opt = np.array(self.solver.xs)
         us_opt = np.array(self.solver.us)
         self._prev_t, self._prev_xs, self._prev_us = t, xs_opt, us_opt
-        torque, gain = self._command(x0, us_opt[0], np.array(self.solver.K[0]))
+        torque, gain = self._command(x0, xs_opt, us_opt)
+        if self._predictor is not None:
+            sent = torque if self.config.formulation == "torque_feedback" else us_opt[0]
+            self._sent.append((t, sent.copy()))
         return MpcCommand(
             torque=self.robot.clip_torque(torque),
             state=x0,
@@ -228,6 +264,33 @@ class ModelPredictiveController:
             solve_time=solve_time,
             converged=bool(converged),
         )
+
+    def predict(self, x: np.ndarray, t: float) -> np.ndarray:
+        """The state at t + command_delay: x (measured at t) integrated with the model controls
+        sent during [t − δo, t), which act on the robot during [t, t + δo). Identity without
+        a command delay or before any command was sent."""
+        if self._predictor is None or not self._sent:
+            return x
+        delay, h = self.config.command_delay, self.config.prediction_step
+        self._sent = [(ts, u) for ts, u in self._sent if ts > t - delay - self.config.period]
+        steps = int(round(delay / h))
+        nv = self.robot.nv
+        torque_feedback = self.config.formulation == "torque_feedback"
+        x_full, x = x, (x[: 2 * nv].copy() if torque_feedback else x.copy())
+        for i in range(steps):
+            s = t - delay + i * h  # the command acting at t + i·h was sent at s
+            u = self._sent[0][1]
+            for ts, us in self._sent:
+                if ts <= s + 1e-12:
+                    u = us
+            ref = self.schedule.reference(t + i * h, self.nc)
+            if self._predictor.set_reference(ref):
+                self._predictor_data = self._predictor.model.createData()
+            self._predictor.model.calc(self._predictor_data, x, u)
+            x = np.array(self._predictor_data.xnext)
+        if torque_feedback:
+            return np.concatenate([x, self._sent[-1][1] if self._sent else x_full[2 * nv :]])
+        return x
 
     # -- internals ---------------------------------------------------------------------------
     @staticmethod
@@ -243,12 +306,13 @@ class ModelPredictiveController:
 
     def _update_references(self, t: float) -> None:
         dt = self.config.dt
+        changed = False
         for k, node in enumerate(self.nodes):
-            if node.set_reference(self.schedule.reference(t + k * dt, self.nc)):
-                self.problem.updateModel(k, node.model)
+            changed |= node.set_reference(self.schedule.reference(t + k * dt, self.nc))
         horizon_end = t + len(self.nodes) * dt
-        if self.terminal_node.set_reference(self.schedule.reference(horizon_end, self.nc)):
-            self.problem.updateModel(len(self.nodes), self.terminal_node.model)
+        changed |= self.terminal_node.set_reference(self.schedule.reference(horizon_end, self.nc))
+        if changed:
+            self._make_problem()
 
     def _warm_start(self, x0: np.ndarray, t: float) -> tuple[list, list]:
         """Previous solution shifted by the elapsed time (in node units), x₀ replaced by x̂."""
@@ -265,8 +329,10 @@ class ModelPredictiveController:
         xs_arr[0] = x0
         return list(xs_arr), list(us_arr)
 
-    def _command(self, x0: np.ndarray, u0: np.ndarray, K0: np.ndarray):
+    def _command(self, x0: np.ndarray, xs: np.ndarray, us: np.ndarray):
         nv = self.robot.nv
+        K0 = np.array(self.solver.K[0])
+        u0 = us[0]
         if self.config.formulation != "torque_feedback":
             return u0, -K0
         # eq 15: τ̃ = τ₀ + ε(τ₁* − τ₀) with τ₁* = ατ₀ + (1 − α)w₀* (eq 13).
