@@ -189,3 +189,30 @@ class SensingModel:
             q_d, v_d, self.position_noise_std, self.velocity_noise_std, self.rng
         )
         return q_hat, v_hat, force_measurement(f_d, self.force_noise_std, self.rng)
+
+
+class ForceSensingModel:
+    """Eq 32 alone: the force/torque sensor's delay δs (cycles) and noise σ_λ (N).
+
+    The joint and force sensors are separate devices (and separate ROS nodes), so each has its
+    own generator; ``step(force)`` once per cycle returns λ̂.
+    """
+
+    def __init__(
+        self, delay: int, force_noise_std, force_dim: int, rng: np.random.Generator
+    ) -> None:
+        if force_dim <= 0:
+            raise ConfigError(f"force_dim must be > 0, got {force_dim}")
+        if not isinstance(rng, np.random.Generator):
+            raise ConfigError("rng must be a numpy.random.Generator")
+        self.force_dim = force_dim
+        self.rng = rng
+        self.force_noise_std = _as_std(force_noise_std, force_dim, "force_noise_std")
+        self._force = DelayLine(delay, force_dim)
+
+    def reset(self) -> None:
+        self._force.reset()
+
+    def step(self, force: np.ndarray) -> np.ndarray:
+        """λ̂ (N) from this cycle's true force λ (N), same frame."""
+        return force_measurement(self._force.step(force), self.force_noise_std, self.rng)

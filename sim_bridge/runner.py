@@ -31,7 +31,7 @@ from ffmpc_core.mpc import ModelPredictiveController, MpcConfig, MpcMeasurement
 from ffmpc_core.pid import TorquePid, TorquePidGains
 from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_core.scenario import Scenario
-from ffmpc_core.sensing import SensingModel, SensingParams
+from ffmpc_core.sensing import ForceSensingModel, SensingModel, SensingParams
 from ffmpc_core.tasks import ForceSquareTask, PhaseWeights, PolishingTask
 from sim_bridge.plant import Plant, PlantConfig, TableConfig
 
@@ -78,6 +78,12 @@ class RunResult:
             "solve_time_median_s": self.solve_time_median,
             "iterations_median": self.iterations_median,
         }
+
+
+def spawn_generators(seed: int) -> list[np.random.Generator]:
+    """The run's generators, in this order: draws (tilt, bias), joint sensor, force sensor,
+    actuation. Each device (and its ROS node) owns one; same seed → same streams."""
+    return np.random.default_rng(seed).spawn(4)
 
 
 def build_task(scenario: Scenario, robot: RobotModel):
@@ -188,8 +194,8 @@ def run_scenario(scenario: Scenario, duration: float | None = None) -> RunResult
     """
     wall_start = time.perf_counter()
     robot = load_robot(scenario.robot)
-    rng = np.random.default_rng(scenario.seed)
-    draw_rng, sense_rng, act_rng = rng.spawn(3)
+    # One generator per device, spawned in a fixed order; the ROS nodes spawn the same ones.
+    draw_rng, joint_rng, force_rng, act_rng = spawn_generators(scenario.seed)
     draws = draw_run(scenario, robot, draw_rng)
     task = build_task(scenario, robot)
     duration = task.duration if duration is None else duration
@@ -203,18 +209,18 @@ def run_scenario(scenario: Scenario, duration: float | None = None) -> RunResult
     nv = robot.nv
 
     js, fs = scenario.joint_sensor, scenario.ft_sensor
-    if js.delay_cycles != fs.delay_cycles:
-        raise ConfigError("the runner models one sensing delay δs for joints and force")
-    sensing = SensingModel(
+    joint_sensing = SensingModel(
         SensingParams(
             delay_cycles=js.delay_cycles,
             position_noise_std=js.position_noise_std,
             velocity_noise_std=js.velocity_noise_std,
-            force_noise_std=fs.force_noise_std,
         ),
         nv,
-        contact.dimension,
-        sense_rng,
+        0,
+        joint_rng,
+    )
+    force_sensing = ForceSensingModel(
+        fs.delay_cycles, fs.force_noise_std, contact.dimension, force_rng
     )
     p = scenario.plant
     actuation = ActuationModel(
@@ -266,7 +272,8 @@ def run_scenario(scenario: Scenario, duration: float | None = None) -> RunResult
             if k == push_at:
                 plant.apply_external_push(np.array(p.push_force), push_steps)
             s = plant.state()
-            q_hat, v_hat, f_hat = sensing.step(s.q, s.v, measured_force(s.wrench_world, contact))
+            q_hat, v_hat, _ = joint_sensing.step(s.q, s.v)
+            f_hat = force_sensing.step(measured_force(s.wrench_world, contact))
             meas = MpcMeasurement(q=q_hat, v=v_hat, force=f_hat, torque=tau_hat)
             if k % every == 0:
                 command = mpc.step(meas, t)
