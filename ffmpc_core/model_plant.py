@@ -131,6 +131,7 @@ def run_model_closed_loop(
     duration: float,
     plant_dt: float = 1e-3,
     q0: np.ndarray | None = None,
+    node_factory=None,
 ) -> ClosedLoopLog:
     """Run an MPC against its own formulation's dynamics for ``duration`` s; return the log.
 
@@ -145,7 +146,7 @@ def run_model_closed_loop(
         robot, mpc_config.formulation, mpc_config.contact, plant_dt, mpc_config.cutoff_frequency
     )
     plant.reset(robot.q_nominal if q0 is None else q0)
-    mpc = ModelPredictiveController(robot, mpc_config, schedule)
+    mpc = ModelPredictiveController(robot, mpc_config, schedule, node_factory=node_factory)
     data = robot.create_data()
     log = ClosedLoopLog()
     command: MpcCommand | None = None

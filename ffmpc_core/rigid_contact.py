@@ -245,11 +245,16 @@ def make_costs(
     in_contact: bool,
     terminal: bool,
     q_reference: np.ndarray,
+    builtin_residuals: bool = False,
 ) -> crocoddyl.CostModelSum:
     """The cost ℓ0 of eq 25 (running) or its state terms (terminal), see the module docstring.
 
     The references start at p̄ = p(q̄), λ̄ = 0; the weights at ``weights`` (c4, c6 are then set
     per node by :meth:`CommonCostHandles.apply`).
+
+    ``builtin_residuals=True`` uses crocoddyl's own ``ResidualModelContactControlGrav`` for eq 25.3
+    in contact: all-C++, but in crocoddyl 3.2.1 it ignores the contact force (τ − g(q)). It
+    exists only as the speed reference of ``ffmpc bench mpc``; never control with it.
     """
     nv, nu, fid = state.nv, state.nv, robot.contact_frame_id
     costs = crocoddyl.CostModelSum(state, nu)
@@ -289,7 +294,9 @@ def make_costs(
     if terminal:
         return costs
 
-    if in_contact:
+    if in_contact and builtin_residuals:
+        torque = crocoddyl.ResidualModelContactControlGrav(state, nu)
+    elif in_contact:
         world_aligned = contact.pin_frame == pin.LOCAL_WORLD_ALIGNED
         torque = ResidualModelContactGravityTorque(state, nu, world_aligned)
     else:
@@ -314,6 +321,7 @@ def make_differential_model(
     terminal: bool,
     q_reference: np.ndarray | None = None,
     baumgarte_velocity_gain: float = DEFAULT_BAUMGARTE_VELOCITY_GAIN,
+    builtin_residuals: bool = False,
 ) -> crocoddyl.DifferentialActionModelAbstract:
     """Continuous dynamics (eq 5–6; free dynamics when not in contact) with the cost ℓ0.
 
@@ -332,6 +340,7 @@ def make_differential_model(
         in_contact=in_contact,
         terminal=terminal,
         q_reference=q_reference,
+        builtin_residuals=builtin_residuals,
     )
     if not in_contact:
         return crocoddyl.DifferentialActionModelFreeFwdDynamics(state, actuation, costs)
@@ -434,6 +443,7 @@ class RigidContactNode:
         q_reference: np.ndarray | None,
         in_contact: bool,
         baumgarte_velocity_gain: float,
+        builtin_residuals: bool = False,
     ) -> None:
         if not np.isfinite(dt) or dt <= 0:
             raise ConfigError(f"dt must be > 0 s, got {dt}")
@@ -441,7 +451,11 @@ class RigidContactNode:
         self.contact = contact
         self.dt = float(dt)
         self.terminal = bool(terminal)
-        kwargs = dict(q_reference=q_reference, baumgarte_velocity_gain=baumgarte_velocity_gain)
+        kwargs = dict(
+            q_reference=q_reference,
+            baumgarte_velocity_gain=baumgarte_velocity_gain,
+            builtin_residuals=builtin_residuals,
+        )
         self._models: dict[bool, crocoddyl.IntegratedActionModelEuler] = {}
         self._handles: list[CommonCostHandles] = []
         for status in (False,) if self.terminal else (False, True):
@@ -486,6 +500,7 @@ def make_rigid_contact_node(
     *,
     in_contact: bool = False,
     baumgarte_velocity_gain: float = DEFAULT_BAUMGARTE_VELOCITY_GAIN,
+    builtin_residuals: bool = False,
 ) -> RigidContactNode:
     """Build a node of the classical OCP (eq 5–8, cost eq 27); see :class:`RigidContactNode`.
 
@@ -498,7 +513,16 @@ def make_rigid_contact_node(
         q_reference: q̄ of eq 25.1, rad (default: ``robot.q_nominal``).
         in_contact: initial dynamics (switch later with ``set_reference``).
         baumgarte_velocity_gain: K_d, 1/s (module docstring).
+        builtin_residuals: benchmark reference only (see :func:`make_costs`).
     """
     return RigidContactNode(
-        robot, contact, weights, dt, terminal, q_reference, in_contact, baumgarte_velocity_gain
+        robot,
+        contact,
+        weights,
+        dt,
+        terminal,
+        q_reference,
+        in_contact,
+        baumgarte_velocity_gain,
+        builtin_residuals,
     )

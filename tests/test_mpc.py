@@ -1,0 +1,170 @@
+"""The MPC object: closed loop on its own dynamics, feedback gain, delay predictor."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from ffmpc_core.config import FORMULATIONS
+from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.model_plant import ModelPlant, run_model_closed_loop
+from ffmpc_core.mpc import ModelPredictiveController, MpcConfig, MpcMeasurement, _interp_rows
+from ffmpc_core.robots import load_robot
+from ffmpc_core.tasks import PhaseWeights, PolishingTask
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("iiwa")
+
+
+def press_task(robot, circle=0.0):
+    """Contact from t = 0, force ramped to 50 N in 0.3 s, then held (optionally circling)."""
+    p0 = robot.contact_placement(robot.q_nominal).translation
+    return PolishingTask(
+        p0,
+        p0,
+        still=0.0,
+        reach=0.0,
+        force_ramp=0.3,
+        circle=circle,
+        stop=0.5,
+        weights=PhaseWeights(force=3.0),
+    )
+
+
+# Tolerances on the held force, from the perfect-model closed loop. Classical and torque-feedback
+# track to round-off: their rigid-contact force is an algebraic output the optimum sets exactly.
+# Force-feedback holds a small steady offset (measured 0.15 N): λ is a state moved only through
+# K·ṗ + B·p̈, so within a 15 ms horizon the force cost c6 balances the velocity and posture
+# terms; 1 N (2 % of the target) bounds it with margin, and a force that stalls (34 N with the
+# untuned c6 = 1e-2) fails.
+HOLD_TOLERANCE = {"classical": 0.05, "torque_feedback": 0.05, "force_feedback": 1.0}
+
+
+@pytest.mark.parametrize("formulation", FORMULATIONS)
+def test_reaches_and_holds_50_newtons_on_its_own_dynamics(robot, formulation):
+    task = press_task(robot)
+    log = run_model_closed_loop(robot, MpcConfig(formulation=formulation), task, task.duration)
+    a = log.arrays()
+    held = a["t"] > task.duration - 0.3
+    force = a["force"][held, -1]
+    assert np.all(np.abs(force - 50.0) < HOLD_TOLERANCE[formulation]), (force.min(), force.max())
+    assert a["force"][0, -1] < 1.0  # it really had to build the force up
+    assert max(a["iterations"]) <= 8
+
+
+@pytest.mark.parametrize("formulation", ["classical", "force_feedback"])
+def test_feedback_gain_matches_finite_differences_of_the_policy(robot, formulation):
+    """τ(x̂ + δx) ≈ τ(x̂) + G·δx: G is the derivative of the MPC policy along the directions in
+    which the dynamics are linear (v, λ; measured error 0.1–0.2 %). Along q the Riccati gain of
+    a Gauss-Newton solver omits the dynamics' second-order terms (measured 30 % off for
+    force-feedback along q2), so q-directions are only required to be within 50 %."""
+    task = press_task(robot)
+    config = MpcConfig(formulation=formulation, max_iterations=100, kkt_tolerance=1e-12)
+    mpc = ModelPredictiveController(robot, config, task)
+    base = MpcMeasurement(q=robot.q_nominal, v=np.zeros(7), force=np.array([20.0]))
+    t = 0.2
+    cmd = mpc.step(base, t)
+    assert cmd.converged
+    nx = cmd.state.size
+    directions = {"v3": (10, 1e-2), "q2": (1, 0.5)}
+    if formulation == "force_feedback":
+        directions["force"] = (14, 1e-2)
+    eps = 1e-5
+    for name, (index, tolerance) in directions.items():
+        direction = np.eye(nx)[index]
+        torques = []
+        for sign in (1.0, -1.0):
+            x = cmd.state + sign * eps * direction
+            meas = MpcMeasurement(q=x[:7], v=x[7:14], force=x[14:] if nx > 14 else None)
+            mpc.reset()
+            torques.append(mpc.step(meas, t).torque)
+        numeric = (torques[0] - torques[1]) / (2 * eps)
+        analytic = cmd.feedback_gain @ direction
+        error = np.linalg.norm(numeric - analytic) / np.linalg.norm(numeric)
+        assert error < tolerance, (name, error)
+
+
+def test_torque_feedback_command_is_eq15(robot):
+    task = press_task(robot)
+    config = MpcConfig(formulation="torque_feedback")
+    mpc = ModelPredictiveController(robot, config, task)
+    q = robot.q_nominal
+    tau = robot.gravity(q) + 1.0
+    cmd = mpc.step(MpcMeasurement(q=q, v=np.zeros(7), torque=tau), 0.1)
+    alpha = np.exp(-2 * np.pi * config.cutoff_frequency * config.dt)
+    epsilon = config.period / config.dt
+    tau1 = alpha * tau + (1 - alpha) * cmd.us[0]
+    np.testing.assert_allclose(cmd.torque, robot.clip_torque(tau + epsilon * (tau1 - tau)))
+    # the gain maps a torque-state deviation through the interpolation
+    np.testing.assert_allclose(cmd.feedback_gain.shape, (7, 21))
+
+
+@pytest.mark.parametrize("formulation", FORMULATIONS)
+def test_delay_predictor_integrates_the_commands_in_flight(robot, formulation):
+    """With δo = 4 ms the MPC solves from x(t + δo), predicted with the commands sent in
+    [t − δo, t): the prediction equals a rollout of the model plant with those commands."""
+    task = press_task(robot)
+    config = MpcConfig(formulation=formulation, command_delay=0.004, prediction_step=0.001)
+    mpc = ModelPredictiveController(robot, config, task)
+    q0 = robot.q_nominal
+    v0 = np.full(7, 0.05)
+    meas = MpcMeasurement(q=q0, v=v0, force=np.array([5.0]), torque=robot.gravity(q0))
+    x0 = mpc.state_from(meas)
+    assert np.array_equal(mpc.predict(x0, 0.0), x0)  # nothing sent yet: nothing to predict
+    sent = []
+    for k in range(3):  # commands at t = 0, 2, 4 ms
+        cmd = mpc.step(meas, 0.002 * k)
+        sent.append(cmd.torque if formulation == "torque_feedback" else cmd.us[0])
+    t = 0.006
+    predicted = mpc.predict(x0, t)
+    # commands acting during [6, 10) ms were sent at 2, 2, 4, 4 ms (zero-order hold)
+    plant_form = "classical" if formulation == "torque_feedback" else formulation
+    plant = ModelPlant(robot, plant_form, config.contact, dt=0.001)
+    plant.x[:] = x0[: plant.x.size]
+    for i, u in enumerate([sent[1], sent[1], sent[2], sent[2]]):
+        plant.step(u, task.in_contact(t + i * 0.001))
+    expected = plant.x.copy()
+    if formulation == "torque_feedback":
+        expected = np.concatenate([expected, sent[2]])
+    np.testing.assert_allclose(predicted, expected, atol=1e-12)
+    assert np.linalg.norm(predicted[:14] - x0[:14]) > 1e-6  # the delay really changes x
+
+
+def test_warm_start_shift_interpolates():
+    rows = np.arange(12.0).reshape(6, 2)
+    out = _interp_rows(rows, np.array([0.5, 1.0, 4.75, 7.0]))
+    np.testing.assert_allclose(out, [[1, 2], [2, 3], [9.5, 10.5], [10, 11]])
+
+
+def test_force_feedback_contact_parameters_change_live(robot):
+    task = press_task(robot)
+    mpc = ModelPredictiveController(robot, MpcConfig(formulation="force_feedback"), task)
+    meas = MpcMeasurement(q=robot.q_nominal, v=np.zeros(7), force=np.array([10.0]))
+    soft = mpc.step(meas, 0.1).torque
+    mpc.set_contact_parameters(5e3, 2e2)
+    mpc.reset()
+    stiff = mpc.step(meas, 0.1).torque
+    assert np.linalg.norm(stiff - soft) > 1e-3
+    with pytest.raises(ConfigError):
+        ModelPredictiveController(
+            robot, MpcConfig(formulation="classical"), task
+        ).set_contact_parameters(1e3, 1e2)
+
+
+def test_bad_measurements_are_rejected(robot):
+    mpc = ModelPredictiveController(robot, MpcConfig(), press_task(robot))
+    good = dict(q=robot.q_nominal, v=np.zeros(7), force=np.array([1.0]))
+    for bad in (
+        dict(q=np.full(7, np.nan)),
+        dict(v=np.zeros(6)),
+        dict(force=None),
+        dict(force=np.array([np.inf])),
+    ):
+        with pytest.raises(InputError):
+            mpc.step(MpcMeasurement(**{**good, **bad}), 0.0)
+    with pytest.raises(ConfigError):
+        MpcConfig(formulation="rigid")
+    with pytest.raises(ConfigError):
+        replace(MpcConfig(), command_delay=1.0)
