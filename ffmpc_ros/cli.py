@@ -49,7 +49,7 @@ def _cmd_bench_mpc(args: argparse.Namespace) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from ffmpc_core.demo import run_demo
+    from sim_bridge.demo import run_demo
 
     return run_demo(seed=args.seed)
 
@@ -74,8 +74,9 @@ def build_parser() -> argparse.ArgumentParser:
     demo = sub.add_parser(
         "demo",
         help="run the main demo",
-        description="Run the main demo: the three MPC formulations press the iiwa's tool on a "
-        "table and hold 50 N, in closed loop with each OCP's own dynamics; prints the result.",
+        description="Run the main demo: the three MPC formulations hold 50 N in closed loop with "
+        "their own dynamics, then the force-feedback MPC polishes in PyBullet with the paper's "
+        "imperfections; prints forces, solve times and the study's metrics.",
     )
     demo.add_argument("--seed", type=int, default=0)
     demo.set_defaults(func=_cmd_demo)
