@@ -18,6 +18,7 @@ $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	$(BIN)/python -m ffmpc_ros.ament  # ros2 run layout (editable installs skip data-files)
 	$(BIN)/ffmpc check
 	touch $(STAMP)
 

@@ -284,7 +284,8 @@ class ModelPredictiveController:
         if self._predictor is None or not self._sent:
             return x
         delay, h = self.config.command_delay, self.config.prediction_step
-        self._sent = [(ts, u) for ts, u in self._sent if ts > t - delay - self.config.period]
+        recent = [(ts, u) for ts, u in self._sent if ts > t - delay - self.config.period]
+        self._sent = recent or self._sent[-1:]  # irregular solves (real time): newest still acts
         steps = int(round(delay / h))
         nv = self.robot.nv
         torque_feedback = self.config.formulation == "torque_feedback"

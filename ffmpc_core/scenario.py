@@ -95,6 +95,11 @@ class JointSensorSection:
 class ForceSensorSection:
     delay_cycles: int = 1
     force_noise_std: float = 0.5
+    # Outputs of the F/T sensor node beside the eq-32 measurement (the runner does not use them):
+    filter_cutoff_frequency: float = 20.0  # Hz, first-order low-pass of the filtered wrench
+    contact_on_force: float = 5.0  # N, filtered normal force that starts a contact
+    contact_off_force: float = 2.0  # N, filtered normal force that ends it (hysteresis)
+    tare_samples: int = 50  # measurements averaged by the tare service
 
 
 @dataclass(frozen=True)
@@ -133,6 +138,11 @@ class PidSection:
     kd: float = 0.0
     integral_fraction: float = 0.3
     delay_cycles: int = 5  # δo = 5 ms at 1 kHz
+    # Low-level loop around the PID (ffmpc_core.lowlevel); inactive while the MPC is on time.
+    stale_timeout: float = 0.004  # s without a new MPC command → safe hold (2 MPC periods)
+    blend_duration: float = 0.1  # s, hold → MPC torque blend (minimum jerk)
+    hold_frequency: float = 2.0  # Hz, natural frequency of the inertia-scaled hold PD
+    hold_damping_ratio: float = 1.0
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,85 @@
+"""Speed of the ROS 2 node graph: real-time factor in lockstep (multi-process and
+single-process, against the ROS-free runner on the same scenario) and the sensor-to-torque
+latency in real-time mode.
+
+Real-time factor = simulated time / wall time of the stepping (from the plant's first step to
+its last; start-up excluded, reported apart). Sensor-to-torque latency = wall time from the
+plant publishing the state of cycle k to the plant receiving the motor torque of cycle k
+(through joint sensor → [MPC] → PID), measured by the plant node.
+
+    python benchmarks/bench_graph.py [--formulation classical] [--duration 1.0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import time
+
+from ffmpc_core.scenario import load_scenario
+from ffmpc_ros.bringup import run_graph
+from sim_bridge.runner import run_scenario
+
+
+def _latency(status: dict) -> str:
+    ms = {k: 1e3 * status[f"latency_{k}"] for k in ("mean", "p50", "p99", "max")}
+    return (
+        f"latency mean {ms['mean']:.2f} ms, p50 {ms['p50']:.2f} ms, p99 {ms['p99']:.2f} ms, "
+        f"max {ms['max']:.2f} ms over {status['latency_count']:.0f} commands"
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenario", default="polishing")
+    parser.add_argument("--formulation", default="classical")
+    parser.add_argument("--duration", type=float, default=1.0, help="simulated s (lockstep)")
+    parser.add_argument("--rt-duration", type=float, default=1.0, help="simulated s (real time)")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    scenario = load_scenario(
+        args.scenario, {"mpc.formulation": args.formulation, "seed": args.seed}
+    )
+    print(
+        f"bench_graph: {args.scenario}, {args.formulation}, seed {args.seed}; "
+        f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores"
+    )
+    start = time.perf_counter()
+    runner = run_scenario(scenario, duration=args.duration)
+    wall = time.perf_counter() - start
+    print(
+        f"runner (ROS-free)        : {args.duration:.2f} s simulated in {wall:.2f} s "
+        f"-> real-time factor {args.duration / wall:.3f}"
+    )
+    for single in (False, True):
+        result = run_graph(scenario, duration=args.duration, single_process=single)
+        same = (result.metrics_true, result.metrics_measured) == (
+            runner.metrics_true,
+            runner.metrics_measured,
+        )
+        label = "single-process" if single else "multi-process "
+        print(
+            f"graph lockstep {label}: {args.duration:.2f} s simulated in {result.wall_time:.2f} s "
+            f"-> real-time factor {result.real_time_factor:.3f} (start-up "
+            f"{result.startup_time:.1f} s); metrics equal to the runner: {same}"
+        )
+        print(f"    {_latency(result.plant_status)}")
+    for single in (False, True):
+        result = run_graph(
+            scenario, duration=args.rt_duration, single_process=single, lockstep=False
+        )
+        status = result.plant_status
+        label = "single-process" if single else "multi-process "
+        print(
+            f"graph real time {label}: {status['steps']:.0f} steps in {status['wall_time']:.2f} s "
+            f"wall, deadline misses {status['deadline_misses']:.0f} "
+            f"({100 * status['deadline_misses'] / max(status['steps'], 1):.1f} %)"
+        )
+        print(f"    sensor-to-torque {_latency(status)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

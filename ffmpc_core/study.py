@@ -1,0 +1,305 @@
+"""The simulation study's building blocks, shared by the ROS-free runner and the ROS nodes.
+
+Every device of the study (the random draws, the joint sensor, the force sensor, the actuation)
+owns one ``numpy.random.Generator`` spawned from the scenario seed in a fixed order
+(:func:`spawn_generators`), and every object of the loop is built from a
+:class:`~ffmpc_core.scenario.Scenario` by one function here. ``sim_bridge.runner`` and the nodes of
+``ffmpc_ros``/``sim_bridge.node`` call the same functions, so both paths run the same numbers.
+
+:class:`StudyLog` and :func:`study_metrics` are the one place where a run's time series become
+the paper's metrics (eq 34–35, Tables II–IV), for the runner and for the ROS graph alike.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from ffmpc_core.actuation import ActuationModel, ActuationParams
+from ffmpc_core.config import ContactConfig
+from ffmpc_core.errors import ConfigError
+from ffmpc_core.lowlevel import LowLevelConfig, LowLevelController
+from ffmpc_core.metrics import PolishingMetrics, polishing_metrics
+from ffmpc_core.mpc import MpcConfig
+from ffmpc_core.pid import TorquePid, TorquePidGains
+from ffmpc_core.robots import RobotModel
+from ffmpc_core.scenario import Scenario
+from ffmpc_core.sensing import ForceSensingModel, SensingModel, SensingParams
+from ffmpc_core.tasks import ForceSquareTask, PhaseWeights, PolishingTask
+
+#: The devices owning a generator, in spawn order (see :func:`spawn_generators`).
+DEVICES = ("draws", "joint_sensor", "force_sensor", "actuation")
+
+
+@dataclass(frozen=True)
+class RunDraws:
+    """The random quantities of one run, drawn from the scenario seed (reported with results)."""
+
+    tilt_angle: float  # rad
+    actuation_gain: tuple[float, ...]
+    actuation_offset: tuple[float, ...]  # N·m
+
+
+def spawn_generators(seed: int) -> list[np.random.Generator]:
+    """The run's generators, in this order: draws (tilt, bias), joint sensor, force sensor,
+    actuation. Each device (and its ROS node) owns one; same seed → same streams."""
+    return np.random.default_rng(seed).spawn(len(DEVICES))
+
+
+def device_generator(seed: int, device: str) -> np.random.Generator:
+    """The generator of one device (one of :data:`DEVICES`), from :func:`spawn_generators`."""
+    if device not in DEVICES:
+        raise ConfigError(f"unknown device {device!r}; devices: {DEVICES}")
+    return spawn_generators(seed)[DEVICES.index(device)]
+
+
+def steps_per_mpc_period(scenario: Scenario) -> int:
+    """mpc.period in plant steps (ConfigError unless a whole number >= 1)."""
+    every = scenario.mpc.period / scenario.plant.time_step
+    if abs(every - round(every)) > 1e-9 or round(every) < 1:
+        raise ConfigError("mpc.period must be a whole number of plant steps")
+    return int(round(every))
+
+
+def build_task(scenario: Scenario, robot: RobotModel):
+    """The task schedule and the believed table point for a scenario.
+
+    The tool starts at ``robot.q_nominal``; the controller believes the table is horizontal,
+    ``task.start_height`` below the start position, and the circle starts right below it.
+    """
+    task = scenario.task
+    start = robot.contact_placement(robot.q_nominal).translation.copy()
+    contact = start - np.array([0.0, 0.0, task.start_height])
+    mpc = scenario.mpc
+    weights = PhaseWeights(
+        free_ee_position=mpc.phase_weight("ee_position_phase", PhaseWeights.free_ee_position),
+        contact_ee_position=mpc.phase_weight("ee_position_phase", 1e3),
+        force=mpc.phase_weight("force_phase", PhaseWeights.force),
+    )
+    common = dict(
+        start_position=start,
+        contact_position=contact,
+        still=task.still,
+        reach=task.reach,
+        force_ramp=task.force_ramp,
+        weights=weights,
+    )
+    if task.name == "polishing":
+        circle = task.circles * 2.0 * np.pi / task.angular_velocity
+        return PolishingTask(
+            normal_force=task.normal_force,
+            circle_radius=task.circle_radius,
+            angular_velocity=task.angular_velocity,
+            circle=circle,
+            stop=task.stop,
+            **common,
+        )
+    return ForceSquareTask(
+        low_force=task.low_force,
+        high_force=task.high_force,
+        period=task.square_period,
+        cycles=task.square_cycles,
+        **common,
+    )
+
+
+def draw_run(scenario: Scenario, robot: RobotModel, rng: np.random.Generator) -> RunDraws:
+    """Table tilt θ and actuation bias (a, b) of a run (paper VI-C: random per run)."""
+    plant = scenario.plant
+    tilt = np.deg2rad(plant.table_tilt_deg)
+    if plant.random_tilt_deg > 0:
+        tilt = np.deg2rad(rng.uniform(-plant.random_tilt_deg, plant.random_tilt_deg))
+    if plant.actuation_random_bias:
+        params = ActuationParams.with_random_bias(rng, robot.torque_limit)
+        gain, offset = params.gain, params.offset
+    else:
+        gain, offset = np.ones(robot.nv), np.zeros(robot.nv)
+    return RunDraws(float(tilt), tuple(map(float, gain)), tuple(map(float, offset)))
+
+
+def mpc_config(scenario: Scenario) -> MpcConfig:
+    """The MPC's parameters; with ``mpc.delay_compensation`` it plans for t + δo."""
+    m = scenario.mpc
+    return MpcConfig(
+        formulation=m.formulation,
+        horizon=m.horizon,
+        dt=m.dt,
+        period=m.period,
+        contact=m.contact,
+        weights=m.cost_weights(),
+        cutoff_frequency=m.cutoff_frequency,
+        max_iterations=m.max_iterations,
+        kkt_tolerance=m.kkt_tolerance,
+        command_delay=scenario.pid.delay_cycles * scenario.plant.time_step
+        if m.delay_compensation
+        else 0.0,
+    )
+
+
+def measured_force(wrench_world: np.ndarray, contact: ContactConfig) -> np.ndarray:
+    """The MPC's force from the tool wrench (world axes): 1-D → the world-z component
+    (LOCAL_WORLD_ALIGNED normal, config.py's convention), 3-D → the world force."""
+    if contact.frame_type != "LOCAL_WORLD_ALIGNED":
+        raise ConfigError("the study feeds world-aligned forces; use LOCAL_WORLD_ALIGNED")
+    if contact.dimension == 1:
+        return wrench_world[contact.normal_axis : contact.normal_axis + 1].copy()
+    return wrench_world[:3].copy()
+
+
+def joint_sensing_model(scenario: Scenario, nv: int, rng: np.random.Generator) -> SensingModel:
+    """Eq 30: the joint sensor (δs, σ_q, σ_q̇ of the ``joint_sensor`` section)."""
+    js = scenario.joint_sensor
+    params = SensingParams(
+        delay_cycles=js.delay_cycles,
+        position_noise_std=js.position_noise_std,
+        velocity_noise_std=js.velocity_noise_std,
+    )
+    return SensingModel(params, nv, 0, rng)
+
+
+def force_sensing_model(scenario: Scenario, rng: np.random.Generator) -> ForceSensingModel:
+    """Eq 32: the force sensor (δs, σ_λ of ``ft_sensor``), sized by the MPC's contact."""
+    fs = scenario.ft_sensor
+    dim = scenario.mpc.contact.dimension
+    return ForceSensingModel(fs.delay_cycles, fs.force_noise_std, dim, rng)
+
+
+def actuation_model(
+    scenario: Scenario, robot: RobotModel, draws: RunDraws, rng: np.random.Generator
+) -> ActuationModel:
+    """Eq 31 with the run's drawn bias (a, b) and the ``plant`` section's noise and friction."""
+    p = scenario.plant
+    return ActuationModel(
+        ActuationParams(
+            gain=np.array(draws.actuation_gain),
+            offset=np.array(draws.actuation_offset),
+            torque_noise_std=p.actuation_noise_fraction * robot.torque_limit,
+            delay_cycles=p.actuation_delay_cycles,
+            static_friction=p.static_friction,
+            viscous_friction=p.viscous_friction,
+            friction_velocity=p.friction_velocity,
+        ),
+        rng,
+    )
+
+
+def torque_pid(scenario: Scenario, robot: RobotModel) -> TorquePid:
+    """Eq 33 with the ``pid`` section's gains and δo."""
+    c = scenario.pid
+    gains = TorquePidGains.default(robot.torque_limit, c.kp, c.ki, c.kd, c.integral_fraction)
+    return TorquePid(
+        gains, scenario.plant.time_step, delay_cycles=c.delay_cycles, enabled=c.enabled
+    )
+
+
+def lowlevel_config(scenario: Scenario) -> LowLevelConfig:
+    """The low-level loop's parameters (``pid`` section, and the MPC's formulation/feedback)."""
+    c, m = scenario.pid, scenario.mpc
+    return LowLevelConfig(
+        formulation=m.formulation,
+        force_dimension=m.contact.dimension,
+        riccati_feedback=m.riccati_feedback,
+        stale_timeout=c.stale_timeout,
+        mpc_period=m.period,
+        blend_duration=c.blend_duration,
+        hold_frequency=c.hold_frequency,
+        hold_damping_ratio=c.hold_damping_ratio,
+    )
+
+
+def lowlevel_controller(scenario: Scenario, robot: RobotModel) -> LowLevelController:
+    """The low-level loop (hold/blend/track/fallback) around the scenario's torque PID."""
+    return LowLevelController(robot, lowlevel_config(scenario), torque_pid(scenario, robot))
+
+
+class StudyLog:
+    """The time series of one run, one row per plant cycle k (t = k·time_step).
+
+    Arrays: t (s); ee_position, ee_reference (m, world); force_true (N, along the true table
+    normal), force_measured (N, last entry of λ̂), force_reference (N); tau_desired τ^d,
+    tau_measured τ̂ (the actuation output of the cycle), tau_motor τ^m (N·m).
+    """
+
+    FIELDS = (
+        "t",
+        "ee_position",
+        "ee_reference",
+        "force_true",
+        "force_measured",
+        "force_reference",
+        "tau_desired",
+        "tau_measured",
+        "tau_motor",
+    )
+
+    def __init__(self, steps: int, robot: RobotModel, task) -> None:
+        if steps < 1:
+            raise ConfigError(f"a run needs at least one cycle, got {steps}")
+        nv = robot.nv
+        self.steps = steps
+        self.robot = robot
+        self.task = task
+        self._data = robot.create_data()
+        self.arrays: dict[str, np.ndarray] = {
+            "t": np.zeros(steps),
+            "ee_position": np.zeros((steps, 3)),
+            "ee_reference": np.zeros((steps, 3)),
+            "force_true": np.zeros(steps),
+            "force_measured": np.zeros(steps),
+            "force_reference": np.zeros(steps),
+            "tau_desired": np.zeros((steps, nv)),
+            "tau_measured": np.zeros((steps, nv)),
+            "tau_motor": np.zeros((steps, nv)),
+        }
+
+    def record(
+        self,
+        k: int,
+        t: float,
+        q_true: np.ndarray,
+        force_true: float,
+        force_measured: float,
+        tau_desired: np.ndarray,
+        tau_measured: np.ndarray,
+        tau_motor: np.ndarray,
+    ) -> None:
+        """Row k: the contact-frame position from the TRUE q (pinocchio FK), the references of
+        the task at t, and the given signals."""
+        log, robot = self.arrays, self.robot
+        pin.framesForwardKinematics(robot.model, self._data, q_true)
+        log["t"][k] = t
+        log["ee_position"][k] = self._data.oMf[robot.contact_frame_id].translation
+        log["ee_reference"][k] = self.task.ee_position(t)
+        log["force_true"][k] = force_true
+        log["force_measured"][k] = force_measured
+        log["force_reference"][k] = self.task.force(t)
+        log["tau_desired"][k] = tau_desired
+        log["tau_measured"][k] = tau_measured
+        log["tau_motor"][k] = tau_motor
+
+
+def study_metrics(
+    log: dict[str, np.ndarray], task, table_normal: np.ndarray
+) -> tuple[PolishingMetrics, PolishingMetrics]:
+    """The metrics from the TRUE and from the MEASURED normal force, over the task's evaluation
+    window (the circle; the whole run if the run ends before it)."""
+    window = task.in_circle(log["t"])
+    start, end = (log["t"][window][[0, -1]]) if window.any() else (None, None)
+
+    def metrics(force: np.ndarray) -> PolishingMetrics:
+        return polishing_metrics(
+            log["t"],
+            log["ee_position"],
+            log["ee_reference"],
+            table_normal,
+            force,
+            log["force_reference"],
+            desired_torque=log["tau_desired"],
+            measured_torque=log["tau_measured"],
+            start=start,
+            end=end,
+        )
+
+    return metrics(log["force_true"]), metrics(log["force_measured"])

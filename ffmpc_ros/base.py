@@ -1,0 +1,215 @@
+"""What every ffmpc node shares: parameters from the scenario, simulated-time stamps, input
+validation with one throttled log line per kind of rejection, and the executable's ``main``.
+
+Time. Every stamp of the graph is a plant cycle: t_k = k·``plant.time_step`` (the plant publishes
+the state of cycle k with stamp t_k, and everything computed from it carries the same stamp).
+Nodes turn a stamp back into the cycle index k and compute t as ``k * time_step``, exactly as
+the ROS-free runner does, so both paths hand bit-identical times to the controllers.
+
+Rejections. A message is rejected when it is malformed (NaN/Inf, wrong length, unknown or
+missing joint names, wrong frame_id), off the cycle grid, not newer than the last accepted one
+from the same topic (out of order or duplicate), or older than ``max_input_age`` on the node's
+simulated clock (stale). A rejected message changes nothing; the node logs one warning per kind
+of rejection and per :data:`LOG_THROTTLE` seconds (wall time), and counts every rejection in
+:attr:`StudyNode.rejected`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from collections import Counter
+from collections.abc import Callable, Sequence
+
+import numpy as np
+import rclpy
+from builtin_interfaces.msg import Time as TimeMsg
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from ffmpc_core.errors import InputError
+from ffmpc_core.scenario import Scenario
+from ffmpc_ros.params import NODE_SPECS, declare_node_parameters, scenario_from_parameters
+from ffmpc_ros.topics import WRENCH_FRAME
+
+#: Minimum wall time between two log lines of the same kind of rejection, s.
+LOG_THROTTLE = 2.0
+#: A stamp farther than this from the cycle grid is rejected, ns.
+GRID_TOLERANCE_NS = 1000
+
+
+class StudyNode(Node):
+    """An rclpy node that runs part of a scenario (see the module docstring).
+
+    Args:
+        spec: key of :data:`ffmpc_ros.params.NODE_SPECS` (also the default node name).
+        context: the rclpy context (tests make their own).
+        parameter_overrides: parameter values (what ``ffmpc run`` passes); with ``ros2 run``
+            they come from ``--params-file``.
+        node_name: a different node name.
+        cli_args: ROS arguments of this node only (``["--ros-args", "--params-file", f]``).
+    """
+
+    def __init__(
+        self,
+        spec: str,
+        *,
+        context=None,
+        parameter_overrides: Sequence[Parameter] | None = None,
+        node_name: str | None = None,
+        cli_args: Sequence[str] | None = None,
+    ) -> None:
+        overrides = [p for p in (parameter_overrides or []) if p.name != "use_sim_time"]
+        overrides.append(Parameter("use_sim_time", value=True))
+        super().__init__(
+            node_name or spec,
+            context=context,
+            parameter_overrides=overrides,
+            cli_args=list(cli_args) if cli_args is not None else None,
+        )
+        self.spec = NODE_SPECS[spec]
+        self.params = declare_node_parameters(self, self.spec)
+        self.scenario: Scenario = scenario_from_parameters(self.spec, self.params, self.get_name())
+        self.time_step = self.scenario.plant.time_step
+        self.step_ns = int(round(self.time_step * 1e9))
+        self.rejected: Counter[str] = Counter()
+        self.log_lines: Counter[str] = Counter()
+        self._last_log: dict[str, float] = {}
+        self._last_cycle: dict[str, int] = {}
+        self.max_input_age = float(self.params.get("max_input_age", math.inf))
+
+    # -- time ------------------------------------------------------------------------------
+    def cycle_of(self, stamp: TimeMsg) -> int | None:
+        """The cycle k of a stamp, or None when it is off the grid or negative."""
+        ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+        k = int(round(ns / self.step_ns))
+        if ns < 0 or abs(ns - k * self.step_ns) > GRID_TOLERANCE_NS:
+            return None
+        return k
+
+    def cycle_of_time(self, t: float) -> int | None:
+        """The cycle k of a time t = k·time_step (s), or None when t is off the grid."""
+        if not math.isfinite(t) or t < 0:
+            return None
+        k = int(round(t / self.time_step))
+        return k if abs(t - k * self.time_step) <= 1e-6 * self.time_step else None
+
+    def stamp_of(self, k: int) -> TimeMsg:
+        """The stamp of cycle k (t_k = k·time_step)."""
+        sec, nanosec = divmod(k * self.step_ns, 1_000_000_000)
+        return TimeMsg(sec=int(sec), nanosec=int(nanosec))
+
+    def t_of(self, k: int) -> float:
+        """t_k = k·time_step, s (the runner's float, bit for bit)."""
+        return k * self.time_step
+
+    # -- rejections --------------------------------------------------------------------------
+    def reject(self, kind: str, message: str) -> None:
+        """Count a rejection and log it (at most one line per kind per LOG_THROTTLE s)."""
+        self.rejected[kind] += 1
+        now = time.monotonic()
+        last = self._last_log.get(kind)
+        if last is None or now - last >= LOG_THROTTLE:
+            self._last_log[kind] = now
+            self.log_lines[kind] += 1
+            try:
+                self.get_logger().warning(
+                    f"rejected {kind}: {message} ({self.rejected[kind]} so far; output kept safe)"
+                )
+            except Exception:  # noqa: BLE001  (shutting down: the logger's context is gone)
+                pass
+
+    def check_stamp(self, topic: str, stamp: TimeMsg) -> int | None:
+        """The cycle of an input's stamp if it is on the grid, newer than the last accepted one
+        from ``topic`` and not stale; otherwise reject it and return None. Call
+        :meth:`accept_cycle` once the whole message is accepted."""
+        k = self.cycle_of(stamp)
+        if k is None:
+            self.reject(f"{topic}:stamp", f"stamp {stamp.sec}.{stamp.nanosec:09d} off the grid")
+            return None
+        last = self._last_cycle.get(topic)
+        if last is not None and k <= last:
+            self.reject(f"{topic}:order", f"cycle {k} is not after the last accepted {last}")
+            return None
+        now_ns = self.get_clock().now().nanoseconds
+        age = (now_ns - k * self.step_ns) * 1e-9
+        if now_ns > 0 and age > self.max_input_age:
+            self.reject(f"{topic}:stale", f"stamp {k * self.time_step:.6f} s is {age:.4f} s old")
+            return None
+        return k
+
+    def accept_cycle(self, topic: str, k: int) -> None:
+        self._last_cycle[topic] = k
+
+    def vector(self, values, n: int, name: str) -> np.ndarray:
+        """A float array of n finite values (InputError otherwise)."""
+        arr = np.asarray(values, dtype=float)
+        if arr.shape != (n,):
+            raise InputError(f"{name} has {arr.size} values, expected {n}")
+        if not np.all(np.isfinite(arr)):
+            raise InputError(f"{name} is not finite: {arr}")
+        return arr
+
+    def joint_arrays(
+        self, msg, joint_names: Sequence[str], fields: Sequence[str]
+    ) -> list[np.ndarray]:
+        """The requested JointState fields in the robot's joint order (any order of names is
+        accepted); InputError on unknown, missing or repeated names and bad values."""
+        names = list(msg.name)
+        if len(names) != len(set(names)) or set(names) != set(joint_names):
+            unknown = sorted(set(names) - set(joint_names))
+            missing = sorted(set(joint_names) - set(names))
+            raise InputError(f"joint names: unknown {unknown}, missing {missing}")
+        order = [names.index(n) for n in joint_names]
+        out = []
+        for f in fields:
+            raw = np.asarray(getattr(msg, f), dtype=float)
+            if raw.shape != (len(names),):
+                raise InputError(f"{f} has {raw.size} values for {len(names)} joints")
+            out.append(self.vector(raw[order], len(joint_names), f))
+        return out
+
+    def wrench_array(self, msg) -> np.ndarray:
+        """[f; m] of a WrenchStamped in :data:`WRENCH_FRAME` (InputError otherwise)."""
+        if msg.header.frame_id != WRENCH_FRAME:
+            raise InputError(f"frame_id {msg.header.frame_id!r}, expected {WRENCH_FRAME!r}")
+        f, m = msg.wrench.force, msg.wrench.torque
+        return self.vector([f.x, f.y, f.z, m.x, m.y, m.z], 6, "wrench")
+
+    def finished(self) -> bool:
+        """True when the node has nothing left to do (its executable may exit)."""
+        return False
+
+
+def run_node(factory: Callable[..., StudyNode], description: str, argv=None) -> int:
+    """``main`` of a node executable: ``--help``, then spin until shutdown (Ctrl-C)."""
+    argv = list(sys.argv if argv is None else argv)
+    user_args = rclpy.utilities.remove_ros_args(argv)[1:]
+    parser = argparse.ArgumentParser(
+        prog=argv[0].rsplit("/", 1)[-1],
+        description=description,
+        epilog="ROS arguments: --ros-args --params-file SCENARIO.yaml [-p name:=value] "
+        "(scenario files: ffmpc_core/scenarios/; see msgs_notes/).",
+    )
+    parser.parse_args(user_args)
+    rclpy.init(args=argv)
+    node = None
+    try:
+        node = factory()
+        from rclpy.experimental import EventsExecutor
+
+        executor = EventsExecutor()
+        executor.add_node(node)
+        while rclpy.ok() and not node.finished():
+            executor.spin_once(timeout_sec=0.1)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return 0

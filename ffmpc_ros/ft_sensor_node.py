@@ -1,0 +1,130 @@
+"""The force/torque-sensor node: eq 32's delay and noise, a tare, a low-pass filter and contact
+detection with hysteresis.
+
+Subscribes ``/plant/wrench`` (the true wrench on the tool, frame ``contact_world_aligned``) and
+publishes, with the same stamp:
+
+* ``/ft_sensor/wrench`` — λ̂ = λ(t − δs) + ν_λ − tare offset (eq 32; ffmpc_core.sensing, the
+  generator of the ``force_sensor`` device). The sensor measures the axes of the MPC's contact
+  model: 1-D → the ``normal_axis`` component (a one-axis load cell), 3-D → the three forces;
+  the components it does not measure are published as 0. This is what the MPC reads.
+* ``/ft_sensor/wrench_filtered`` — the same through a first-order low-pass filter of cut-off
+  ``filter_cutoff_frequency`` (y ← y + α(λ̂ − y), α = 1 − exp(−2π·f_c·Δt); 0 Hz: no filter).
+* ``/ft_sensor/in_contact`` — std_msgs/Bool: true once the filtered normal force exceeds
+  ``contact_on_force``, false again once it falls below ``contact_off_force`` (hysteresis).
+
+Service ``/ft_sensor/tare`` (std_srvs/Trigger): the offset becomes the mean of the last
+``tare_samples`` measurements; refused while in contact or before any measurement.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+from geometry_msgs.msg import WrenchStamped
+from std_msgs.msg import Bool
+from std_srvs.srv import Trigger
+
+from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.study import device_generator, force_sensing_model, measured_force
+from ffmpc_ros import topics
+from ffmpc_ros.base import StudyNode, run_node
+
+
+class FtSensorNode(StudyNode):
+    """Eq 32 plus tare, filter and contact detection (see the module docstring)."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__("ft_sensor", **kwargs)
+        s = self.scenario
+        fs = s.ft_sensor
+        if fs.contact_off_force > fs.contact_on_force:
+            raise ConfigError("contact_off_force must not exceed contact_on_force")
+        self.contact = s.mpc.contact
+        self.model = force_sensing_model(s, device_generator(s.seed, "force_sensor"))
+        dim = self.contact.dimension
+        self.axes = [self.contact.normal_axis] if dim == 1 else [0, 1, 2]
+        self.normal_index = 0 if dim == 1 else self.contact.normal_axis
+        fc = fs.filter_cutoff_frequency
+        self.alpha = 1.0 - math.exp(-2.0 * math.pi * fc * self.time_step) if fc > 0 else 1.0
+        self.offset = np.zeros(dim)
+        self.filtered: np.ndarray | None = None
+        self.in_contact = False
+        self._recent: deque[np.ndarray] = deque(maxlen=fs.tare_samples)
+        qos = topics.publisher_qos()
+        self.pub_wrench = self.create_publisher(WrenchStamped, topics.SENSED_WRENCH, qos)
+        self.pub_filtered = self.create_publisher(WrenchStamped, topics.FILTERED_WRENCH, qos)
+        self.pub_contact = self.create_publisher(Bool, topics.IN_CONTACT, qos)
+        self.create_subscription(
+            WrenchStamped, topics.PLANT_WRENCH, self.on_wrench, topics.subscriber_qos(True)
+        )
+        self.create_service(Trigger, topics.TARE_SERVICE, self.on_tare)
+        self.published = 0
+
+    def _message(self, stamp, force: np.ndarray) -> WrenchStamped:
+        out = WrenchStamped()
+        out.header.stamp = stamp
+        out.header.frame_id = topics.WRENCH_FRAME
+        full = [0.0, 0.0, 0.0]
+        for axis, value in zip(self.axes, force, strict=True):
+            full[axis] = float(value)
+        out.wrench.force.x, out.wrench.force.y, out.wrench.force.z = full
+        return out
+
+    def on_wrench(self, msg: WrenchStamped) -> None:
+        topic = topics.PLANT_WRENCH
+        k = self.check_stamp(topic, msg.header.stamp)
+        if k is None:
+            return
+        try:
+            wrench = self.wrench_array(msg)
+        except InputError as exc:
+            self.reject(f"{topic}:value", str(exc))
+            return
+        self.accept_cycle(topic, k)
+        raw = self.model.step(measured_force(wrench, self.contact))
+        self._recent.append(raw)
+        measured = raw - self.offset
+        if self.filtered is None:
+            self.filtered = measured.copy()
+        else:
+            self.filtered += self.alpha * (measured - self.filtered)
+        normal = self.filtered[self.normal_index]
+        fs = self.scenario.ft_sensor
+        if self.in_contact and normal < fs.contact_off_force:
+            self.in_contact = False
+        elif not self.in_contact and normal > fs.contact_on_force:
+            self.in_contact = True
+        self.pub_wrench.publish(self._message(msg.header.stamp, measured))
+        self.pub_filtered.publish(self._message(msg.header.stamp, self.filtered))
+        self.pub_contact.publish(Bool(data=self.in_contact))
+        self.published += 1
+
+    def on_tare(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        if self.in_contact:
+            response.success = False
+            response.message = "refused: the sensor is in contact"
+        elif not self._recent:
+            response.success = False
+            response.message = "refused: no measurement yet"
+        else:
+            previous, self.offset = self.offset, np.mean(np.array(self._recent), axis=0)
+            if self.filtered is not None:
+                self.filtered += previous - self.offset
+            response.success = True
+            response.message = (
+                f"offset {np.array2string(self.offset, precision=4)} N "
+                f"from {len(self._recent)} samples"
+            )
+        self.get_logger().info(f"tare: {response.message}")
+        return response
+
+
+def main(argv=None) -> int:
+    return run_node(FtSensorNode, __doc__.splitlines()[0], argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,70 @@
+"""The joint-sensor node: eq 30's delay and noise on the plant's true joint state.
+
+Subscribes ``/plant/joint_states`` (true q, q̇ and the applied torque τ̂), publishes
+``/joint_sensor/joint_states`` with the same stamp: q̂ = q(t − δs) + ν_q, q̇̂ = q̇(t − δs) + ν_q̇
+(ffmpc_core.sensing.SensingModel, the generator of the ``joint_sensor`` device), and the effort
+τ̂ passed through undelayed (the joint torque sensor is part of the actuation model, eq 31).
+"""
+
+from __future__ import annotations
+
+from sensor_msgs.msg import JointState
+
+from ffmpc_core.errors import InputError
+from ffmpc_core.robots import load_robot
+from ffmpc_core.study import device_generator, joint_sensing_model
+from ffmpc_ros import topics
+from ffmpc_ros.base import StudyNode, run_node
+
+
+class JointSensorNode(StudyNode):
+    """Eq 30 on every plant joint state (one cycle per message)."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__("joint_sensor", **kwargs)
+        s = self.scenario
+        self.robot = load_robot(s.robot)
+        self.joint_names = list(self.robot.joint_names)
+        self.model = joint_sensing_model(s, self.robot.nv, device_generator(s.seed, "joint_sensor"))
+        lockstep = True  # the sensor processes every sample it gets
+        self.publisher = self.create_publisher(
+            JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos()
+        )
+        self.create_subscription(
+            JointState,
+            topics.PLANT_JOINT_STATES,
+            self.on_joint_state,
+            topics.subscriber_qos(lockstep),
+        )
+        self.published = 0
+
+    def on_joint_state(self, msg: JointState) -> None:
+        topic = topics.PLANT_JOINT_STATES
+        k = self.check_stamp(topic, msg.header.stamp)
+        if k is None:
+            return
+        try:
+            q, v, effort = self.joint_arrays(
+                msg, self.joint_names, ("position", "velocity", "effort")
+            )
+        except InputError as exc:
+            self.reject(f"{topic}:value", str(exc))
+            return
+        self.accept_cycle(topic, k)
+        q_hat, v_hat, _ = self.model.step(q, v)
+        out = JointState()
+        out.header.stamp = msg.header.stamp
+        out.name = self.joint_names
+        out.position = q_hat.tolist()
+        out.velocity = v_hat.tolist()
+        out.effort = effort.tolist()
+        self.publisher.publish(out)
+        self.published += 1
+
+
+def main(argv=None) -> int:
+    return run_node(JointSensorNode, __doc__.splitlines()[0], argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

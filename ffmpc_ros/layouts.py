@@ -1,0 +1,187 @@
+"""The layouts of every ``std_msgs/Float64MultiArray`` payload of the graph (the one code copy).
+
+``msgs_notes/`` documents the same layouts for humans; ``tests/test_ros_layouts.py`` checks that
+the notes and this module agree field by field.
+
+Convention (all layouts): the array is 1-D; ``layout.dim`` has exactly one entry whose ``label``
+is the layout's name and version (e.g. ``"ffmpc/mpc_command/1"``), ``size`` and ``stride`` the
+number of elements, ``data_offset`` 0. Receivers check the label, the total length and that
+every element is finite. Sizes may depend on the robot's number of joints ``nv`` and on the
+MPC's state dimension ``nx`` (2·nv classical, 3·nv torque-feedback, 2·nv + nc force-feedback);
+``nv`` and ``nx`` are then carried in the array itself, so a receiver can check them.
+Matrices are row-major.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+
+from ffmpc_core.errors import InputError
+
+
+@dataclass(frozen=True)
+class Field:
+    """One field of a layout: its name, its size (an int, or an expression of nv and nx such as
+    ``"nv*nx"``), its unit and its meaning."""
+
+    name: str
+    size: int | str
+    unit: str
+    meaning: str
+
+    def length(self, nv: int = 0, nx: int = 0) -> int:
+        if isinstance(self.size, int):
+            return self.size
+        symbols = {"nv": nv, "nx": nx}
+        n = 1
+        for factor in self.size.split("*"):  # a product of integers and symbols
+            n *= symbols[factor] if factor in symbols else int(factor)
+        return n
+
+
+@dataclass(frozen=True)
+class ArrayLayout:
+    """A named, versioned sequence of fields packed into a Float64MultiArray."""
+
+    name: str
+    version: int
+    fields: tuple[Field, ...]
+
+    @property
+    def label(self) -> str:
+        return f"ffmpc/{self.name}/{self.version}"
+
+    def length(self, nv: int = 0, nx: int = 0) -> int:
+        return sum(f.length(nv, nx) for f in self.fields)
+
+    def slices(self, nv: int = 0, nx: int = 0) -> dict[str, slice]:
+        out, start = {}, 0
+        for f in self.fields:
+            n = f.length(nv, nx)
+            out[f.name] = slice(start, start + n)
+            start += n
+        return out
+
+    def pack(self, values: dict, nv: int = 0, nx: int = 0) -> Float64MultiArray:
+        """A message from {field: value} with every field (scalars or arrays, row-major)."""
+        missing = {f.name for f in self.fields} - set(values)
+        extra = set(values) - {f.name for f in self.fields}
+        if missing or extra:
+            raise InputError(f"{self.label}: missing {sorted(missing)}, unknown {sorted(extra)}")
+        data = np.empty(self.length(nv, nx))
+        for name, sl in self.slices(nv, nx).items():
+            value = np.asarray(values[name], dtype=float).reshape(-1)
+            if value.size != sl.stop - sl.start:
+                raise InputError(f"{self.label}.{name}: {value.size} values, expected a slice")
+            data[sl] = value
+        msg = Float64MultiArray()
+        msg.layout.dim = [MultiArrayDimension(label=self.label, size=data.size, stride=data.size)]
+        msg.layout.data_offset = 0
+        msg.data = data.tolist()
+        return msg
+
+    def unpack(self, msg: Float64MultiArray, nv: int = 0, nx: int | None = None) -> dict:
+        """The fields of a message (scalars as float, others as arrays); InputError when the
+        label, the length or a value is wrong. With ``nx=None`` nx is read from the ``nx``
+        field (layouts that carry it; 0 for the others)."""
+        dims = msg.layout.dim
+        if len(dims) != 1 or dims[0].label != self.label or msg.layout.data_offset != 0:
+            got = [d.label for d in dims]
+            raise InputError(f"expected a {self.label} array, got layout {got}")
+        data = np.asarray(msg.data, dtype=float)
+        names = [f.name for f in self.fields]
+        if nx is None and "nx" not in names:
+            nx = 0
+        elif nx is None:
+            index = names.index("nx")
+            if data.size <= index or not math.isfinite(data[index]):
+                raise InputError(f"{self.label}: no valid nx field")
+            nx = int(data[index])
+        expected = self.length(nv, nx)
+        if data.size != expected or dims[0].size != data.size:
+            raise InputError(f"{self.label}: {data.size} elements, expected {expected}")
+        if not np.all(np.isfinite(data)):
+            raise InputError(f"{self.label}: non-finite element(s)")
+        out = {}
+        for f, (name, sl) in zip(self.fields, self.slices(nv, nx).items(), strict=True):
+            out[name] = float(data[sl][0]) if f.size == 1 else data[sl].copy()
+        return out
+
+
+#: /mpc/command — one MPC solution (MpcCommand), published by the MPC node after each solve.
+MPC_COMMAND = ArrayLayout(
+    "mpc_command",
+    1,
+    (
+        Field("t", 1, "s", "simulated time of the measurement the solve started from"),
+        Field("nv", 1, "-", "number of joints (7)"),
+        Field("nx", 1, "-", "OCP state dimension: 2nv classical, 3nv torque-fb, 2nv+nc force-fb"),
+        Field("sequence", 1, "-", "solve counter, 0 for the first solve"),
+        Field("iterations", 1, "-", "SQP iterations used"),
+        Field("kkt", 1, "-", "final KKT residual"),
+        Field("solve_time", 1, "s", "wall time of the solve (statistics only)"),
+        Field("converged", 1, "-", "1 if the KKT tolerance was reached, else 0"),
+        Field("torque", "nv", "N·m", "torque to send now (saturated), joint order of joint_names"),
+        Field("state", "nx", "rad, rad/s, N·m or N", "x̂ the solve started from (Δx reference)"),
+        Field(
+            "feedback_gain",
+            "nv*nx",
+            "N·m per state unit",
+            "G, nv×nx row-major: torque + G·(x − state) is the local optimum at x",
+        ),
+    ),
+)
+
+#: /plant/truth — ground truth of the simulator that no controller reads (metrics only).
+PLANT_TRUTH = ArrayLayout(
+    "plant_truth",
+    1,
+    (
+        Field("t", 1, "s", "simulated time of the state"),
+        Field("normal_force", 1, "N", "table force on the tool along the TRUE table normal"),
+        Field("in_contact", 1, "-", "1 if a tool contact point carries a positive normal force"),
+        Field("robot_collision", 1, "-", "1 if a robot link other than the tool touches anything"),
+        Field("table_normal", 3, "-", "unit normal of the table top, world frame"),
+        Field("contact_position", 3, "m", "origin of the contact frame, world frame (PyBullet)"),
+    ),
+)
+
+#: /plant/status — progress and timing of the plant node.
+PLANT_STATUS = ArrayLayout(
+    "plant_status",
+    1,
+    (
+        Field("t", 1, "s", "simulated time"),
+        Field("steps", 1, "-", "plant steps done"),
+        Field("done", 1, "-", "1 once the run's last step is done"),
+        Field("lockstep", 1, "-", "1 lockstep, 0 real time"),
+        Field("deadline_misses", 1, "-", "real time: steps taken without that step's command"),
+        Field("latency_count", 1, "-", "commands whose sensor-to-torque latency was measured"),
+        Field("latency_mean", 1, "s", "mean wall time from publishing a state to its command"),
+        Field("latency_p50", 1, "s", "median of that latency"),
+        Field("latency_p99", 1, "s", "99th percentile of that latency"),
+        Field("latency_max", 1, "s", "maximum of that latency"),
+        Field("wall_time", 1, "s", "wall time since the first step"),
+    ),
+)
+
+#: /pid/status — the low-level loop's state each cycle.
+LOWLEVEL_STATUS = ArrayLayout(
+    "lowlevel_status",
+    1,
+    (
+        Field("t", 1, "s", "simulated time of the cycle"),
+        Field("mode", 1, "-", "0 hold, 1 blend, 2 track, 3 fallback (LowLevelMode)"),
+        Field("command_age", 1, "s", "age of the newest MPC command (1e9 when there is none)"),
+        Field("blend", 1, "-", "weight of the MPC torque in [0, 1]"),
+        Field("rejected", 1, "-", "inputs rejected by the node so far"),
+    ),
+)
+
+LAYOUTS: dict[str, ArrayLayout] = {
+    layout.name: layout for layout in (MPC_COMMAND, PLANT_TRUTH, PLANT_STATUS, LOWLEVEL_STATUS)
+}

@@ -1,0 +1,213 @@
+"""The metrics node: records the run from the topics and computes the study's metrics with the
+same code as the ROS-free runner (``ffmpc_core.study.StudyLog`` and ``study_metrics``).
+
+Row k of the log takes: the TRUE q of ``/plant/joint_states`` at t_k (end-effector position by
+pinocchio), the normal force of ``/plant/truth`` at t_k, the last measured force entry of
+``/ft_sensor/wrench`` at t_k, τ^d and τ^m of ``/pid/desired_torque`` and ``/pid/motor_torque``
+at t_k, and τ̂ of cycle k — the effort of ``/plant/joint_states`` at t_{k+1}. Once every cycle of
+the run is in, it publishes the metrics as JSON on ``/metrics/summary`` (transient local).
+
+Real time (``lockstep: false``): the PID may skip cycles, so once the plant's last state is in
+and ``FINISH_GRACE`` (wall s) has passed, a missing value of a cycle is the previous cycle's
+(the motors hold their last command; before the first command, the start torque and no
+measured force); the summary counts these ``filled`` values.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+
+import numpy as np
+from geometry_msgs.msg import WrenchStamped
+from rclpy.clock import Clock, ClockType
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool, Float64MultiArray, String
+
+from ffmpc_core.errors import InputError
+from ffmpc_core.metrics import PolishingMetrics
+from ffmpc_core.robots import load_robot
+from ffmpc_core.study import StudyLog, build_task, study_metrics
+from ffmpc_ros import layouts, topics
+from ffmpc_ros.base import StudyNode, run_node
+
+_LOGGED = ("force_true", "force_measured", "tau_desired", "tau_measured", "tau_motor")
+FINISH_GRACE = 0.5  # real time: wall s after the last state before finishing, s
+_PARTS = ("q", "force_true", "force_measured", "tau_desired", "tau_measured", "tau_motor")
+
+
+class MetricsNode(StudyNode):
+    """Recorder + metrics (see the module docstring)."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__("metrics", **kwargs)
+        s = self.scenario
+        self.robot = load_robot(s.robot)
+        self.joint_names = list(self.robot.joint_names)
+        self.task = build_task(s, self.robot)
+        duration = float(self.params["duration"]) or self.task.duration
+        self.steps = int(round(duration / self.time_step))
+        self.log = StudyLog(self.steps, self.robot, self.task)
+        contact = s.mpc.contact
+        self.axes = [contact.normal_axis] if contact.dimension == 1 else [0, 1, 2]
+        self._rows: dict[int, dict] = {}
+        self.recorded = 0
+        self.table_normal: np.ndarray | None = None
+        self.metrics: tuple[PolishingMetrics, PolishingMetrics] | None = None
+        self.lockstep = bool(self.params["lockstep"])
+        self.filled = 0
+        self._recorded = np.zeros(self.steps, dtype=bool)
+        self._q = np.zeros((self.steps, self.robot.nv))
+        self._last_state_at: float | None = None
+        self.pub_summary = self.create_publisher(
+            String, topics.METRICS_SUMMARY, topics.publisher_qos()
+        )
+        self.pub_ready = self.create_publisher(Bool, topics.METRICS_READY, topics.publisher_qos())
+        qos = topics.subscriber_qos(True)
+        self._subs = [
+            self.create_subscription(
+                JointState, topics.PLANT_JOINT_STATES, self.on_plant_joints, qos
+            ),
+            self.create_subscription(Float64MultiArray, topics.PLANT_TRUTH, self.on_truth, qos),
+            self.create_subscription(WrenchStamped, topics.SENSED_WRENCH, self.on_wrench, qos),
+            self.create_subscription(JointState, topics.DESIRED_TORQUE, self.on_desired, qos),
+            self.create_subscription(JointState, topics.MOTOR_TORQUE, self.on_motor, qos),
+        ]
+        self.ready = False
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self._ready_timer = self.create_timer(0.02, self._check_ready, clock=steady)
+        if not self.lockstep:
+            self.create_timer(0.1, self._check_finish, clock=steady)
+
+    def _check_finish(self) -> None:
+        """Real time: finish with the cycles that are in, once the last state is old enough."""
+        if self.metrics is not None or self._last_state_at is None or self.table_normal is None:
+            return
+        if time.monotonic() - self._last_state_at < FINISH_GRACE:
+            return
+        # Before the first controller output the motors hold the start torque (the plant's
+        # initial τ^m) and no force has been measured.
+        start = self.robot.gravity(self.robot.q_nominal)
+        previous: dict = {"force_measured": 0.0, "tau_desired": start, "tau_motor": start}
+        for k in range(self.steps):
+            if self._recorded[k]:
+                previous = {name: self.log.arrays[name][k] for name in _LOGGED}
+                previous["q"] = self._q[k]
+                continue
+            row = self._rows.pop(k, {})
+            for part in _PARTS:
+                if part not in row:
+                    if part not in previous:  # the plant's own data is never skipped
+                        self.reject("incomplete", f"cycle {k} has no {part}; no metrics")
+                        self._last_state_at = None
+                        return
+                    row[part] = previous[part]
+                    self.filled += 1
+            self._record(k, row)
+            previous = row
+        self._finish()
+
+    def _check_ready(self) -> None:
+        """Announce on /metrics/ready once every recorded topic has a matched publisher (the
+        plant waits for it when ``wait_for_metrics`` is set, so no cycle is missed)."""
+        if all(sub.get_publisher_count() > 0 for sub in self._subs):
+            self._ready_timer.cancel()
+            self.ready = True
+            self.pub_ready.publish(Bool(data=True))
+
+    def _put(self, k: int | None, part: str, value) -> None:
+        if k is None or not 0 <= k < self.steps or self.metrics is not None:
+            return
+        row = self._rows.setdefault(k, {})
+        row[part] = value
+        if len(row) == len(_PARTS):
+            del self._rows[k]
+            self._record(k, row)
+            if self.recorded == self.steps and self.table_normal is not None:
+                self._finish()
+
+    def _record(self, k: int, row: dict) -> None:
+        self._q[k] = row["q"]
+        self.log.record(
+            k,
+            self.t_of(k),
+            row["q"],
+            row["force_true"],
+            row["force_measured"],
+            row["tau_desired"],
+            row["tau_measured"],
+            row["tau_motor"],
+        )
+        self._recorded[k] = True
+        self.recorded += 1
+
+    def _joints(self, msg: JointState, fields: tuple[str, ...]):
+        try:
+            return self.joint_arrays(msg, self.joint_names, fields)
+        except InputError as exc:
+            self.reject("joint_state", str(exc))
+            return None
+
+    def on_plant_joints(self, msg: JointState) -> None:
+        k = self.cycle_of(msg.header.stamp)
+        arrays = self._joints(msg, ("position", "effort"))
+        if k is None or arrays is None:
+            return
+        q, effort = arrays
+        if k == self.steps and not self.lockstep:
+            self._last_state_at = time.monotonic()
+        self._put(k, "q", q)
+        if k >= 1:
+            self._put(k - 1, "tau_measured", effort)
+
+    def on_truth(self, msg: Float64MultiArray) -> None:
+        try:
+            truth = layouts.PLANT_TRUTH.unpack(msg)
+        except InputError as exc:
+            self.reject("truth", str(exc))
+            return
+        self.table_normal = truth["table_normal"]
+        self._put(self.cycle_of_time(truth["t"]), "force_true", truth["normal_force"])
+
+    def on_wrench(self, msg: WrenchStamped) -> None:
+        try:
+            wrench = self.wrench_array(msg)
+        except InputError as exc:
+            self.reject("wrench", str(exc))
+            return
+        self._put(self.cycle_of(msg.header.stamp), "force_measured", wrench[self.axes[-1]])
+
+    def on_desired(self, msg: JointState) -> None:
+        arrays = self._joints(msg, ("effort",))
+        if arrays is not None:
+            self._put(self.cycle_of(msg.header.stamp), "tau_desired", arrays[0])
+
+    def on_motor(self, msg: JointState) -> None:
+        arrays = self._joints(msg, ("effort",))
+        if arrays is not None:
+            self._put(self.cycle_of(msg.header.stamp), "tau_motor", arrays[0])
+
+    def _finish(self) -> None:
+        self.metrics = study_metrics(self.log.arrays, self.task, self.table_normal)
+        true, measured = self.metrics
+        summary = {
+            "formulation": self.scenario.mpc.formulation,
+            "seed": self.scenario.seed,
+            "cycles": self.steps,
+            "filled": self.filled,
+            "metrics_true": true.to_dict(),
+            "metrics_measured": measured.to_dict(),
+        }
+        self.pub_summary.publish(String(data=json.dumps(summary)))
+        self.get_logger().info(f"metrics: {json.dumps(summary)}")
+
+    def finished(self) -> bool:
+        return self.metrics is not None
+
+
+def main(argv=None) -> int:
+    return run_node(MetricsNode, __doc__.splitlines()[0], argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

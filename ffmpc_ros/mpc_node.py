@@ -1,0 +1,131 @@
+"""The MPC node: one of the three OCP formulations (parameter ``formulation``) in receding horizon.
+
+Subscribes ``/joint_sensor/joint_states`` (q̂, q̇̂, τ̂) and, for force-feedback,
+``/ft_sensor/wrench`` (λ̂); publishes ``/mpc/command`` (layout ``mpc_command``, ffmpc_ros.layouts).
+
+It solves at cycle k once it has the measurements OF cycle k (joint state, and the wrench with
+the same stamp for force-feedback) and at least ``period`` has passed since the last solve: in
+lockstep that is every ``period / time_step`` cycles from k = 0, as the ROS-free runner does; in
+real time it is the first complete cycle after each period. The command carries the
+measurement's time t_k; the solver's wall time is reported but never used for control.
+"""
+
+from __future__ import annotations
+
+from geometry_msgs.msg import WrenchStamped
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+
+from ffmpc_core.errors import FfmpcError, InputError
+from ffmpc_core.mpc import ModelPredictiveController, MpcMeasurement
+from ffmpc_core.robots import load_robot
+from ffmpc_core.study import build_task, measured_force, mpc_config, steps_per_mpc_period
+from ffmpc_ros import layouts, topics
+from ffmpc_ros.base import StudyNode, run_node
+
+_KEEP = 20  # cycles of unmatched measurements kept
+
+
+class MpcNode(StudyNode):
+    """ModelPredictiveController on topics (see the module docstring)."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__("mpc", **kwargs)
+        s = self.scenario
+        self.robot = load_robot(s.robot)
+        self.joint_names = list(self.robot.joint_names)
+        self.config = mpc_config(s)
+        self.mpc = ModelPredictiveController(self.robot, self.config, build_task(s, self.robot))
+        self.every = steps_per_mpc_period(s)
+        self.needs_force = self.config.formulation == "force_feedback"
+        self._joints: dict[int, tuple] = {}
+        self._forces: dict[int, object] = {}
+        self._last_solve: int | None = None
+        self.sequence = 0
+        self.solve_times: list[float] = []
+        self.publisher = self.create_publisher(
+            Float64MultiArray, topics.MPC_COMMAND, topics.publisher_qos()
+        )
+        qos = topics.subscriber_qos(True)
+        self.create_subscription(JointState, topics.SENSED_JOINT_STATES, self.on_joints, qos)
+        if self.needs_force:
+            self.create_subscription(WrenchStamped, topics.SENSED_WRENCH, self.on_wrench, qos)
+
+    def on_joints(self, msg: JointState) -> None:
+        topic = topics.SENSED_JOINT_STATES
+        k = self.check_stamp(topic, msg.header.stamp)
+        if k is None:
+            return
+        try:
+            arrays = self.joint_arrays(msg, self.joint_names, ("position", "velocity", "effort"))
+        except InputError as exc:
+            self.reject(f"{topic}:value", str(exc))
+            return
+        self.accept_cycle(topic, k)
+        self._joints[k] = tuple(arrays)
+        self._try_solve(k)
+
+    def on_wrench(self, msg: WrenchStamped) -> None:
+        topic = topics.SENSED_WRENCH
+        k = self.check_stamp(topic, msg.header.stamp)
+        if k is None:
+            return
+        try:
+            force = measured_force(self.wrench_array(msg), self.config.contact)
+        except InputError as exc:
+            self.reject(f"{topic}:value", str(exc))
+            return
+        self.accept_cycle(topic, k)
+        self._forces[k] = force
+        self._try_solve(k)
+
+    def _due(self, k: int) -> bool:
+        return self._last_solve is None or k - self._last_solve >= self.every
+
+    def _try_solve(self, k: int) -> None:
+        for store in (self._joints, self._forces):
+            for old in [c for c in store if c < k - _KEEP]:
+                del store[old]
+        if not self._due(k) or k not in self._joints:
+            return
+        if self.needs_force and k not in self._forces:
+            return
+        q, v, tau = self._joints.pop(k)
+        force = self._forces.pop(k, None)
+        t = self.t_of(k)
+        try:
+            command = self.mpc.step(MpcMeasurement(q=q, v=v, force=force, torque=tau), t)
+        except FfmpcError as exc:
+            self.reject("solve", f"cycle {k}: {exc}")
+            return
+        self._last_solve = k
+        self.solve_times.append(command.solve_time)
+        nv = self.robot.nv
+        self.publisher.publish(
+            layouts.MPC_COMMAND.pack(
+                {
+                    "t": t,
+                    "nv": nv,
+                    "nx": self.mpc.nx,
+                    "sequence": self.sequence,
+                    "iterations": command.iterations,
+                    "kkt": command.kkt,
+                    "solve_time": command.solve_time,
+                    "converged": float(command.converged),
+                    "torque": command.torque,
+                    "state": command.state,
+                    "feedback_gain": command.feedback_gain,
+                },
+                nv,
+                self.mpc.nx,
+            )
+        )
+        self.sequence += 1
+
+
+def main(argv=None) -> int:
+    return run_node(MpcNode, __doc__.splitlines()[0], argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

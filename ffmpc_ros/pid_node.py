@@ -1,0 +1,211 @@
+"""The low-level torque node: hold / blend / track / fallback and the torque PID of eq 33.
+
+Subscribes ``/joint_sensor/joint_states`` (q̂, q̇̂, τ̂), ``/mpc/command`` and, when the Riccati
+feedback of force-feedback needs λ̂, ``/ft_sensor/wrench``. For every measured cycle k it runs
+``ffmpc_core.lowlevel.LowLevelController`` (the same class as the ROS-free runner) and
+publishes, stamped t_k:
+
+* ``/pid/motor_torque`` — τ^m (JointState effort, N·m, saturated to the torque limits);
+* ``/pid/desired_torque`` — τ^d, the torque the PID tracks (N·m, saturated);
+* ``/pid/status`` — layout ``lowlevel_status`` (mode, command age, blend weight, rejections).
+
+Lockstep: on the cycles where the MPC solves (k a multiple of ``mpc.period / time_step``) the
+node waits for the command of that cycle before stepping, as the runner does; if none comes
+within ``lockstep_timeout`` (wall time, s) it goes on without it (the stale-command fallback then
+takes over). Real time: every cycle is stepped at once with the newest command.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+from geometry_msgs.msg import WrenchStamped
+from rclpy.clock import Clock, ClockType
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+
+from ffmpc_core.errors import InputError
+from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement
+from ffmpc_core.robots import load_robot
+from ffmpc_core.study import lowlevel_controller, measured_force, steps_per_mpc_period
+from ffmpc_ros import layouts, topics
+from ffmpc_ros.base import StudyNode, run_node
+
+_KEEP = 50  # cycles of pending inputs kept
+
+
+class PidNode(StudyNode):
+    """LowLevelController on topics (see the module docstring)."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__("pid", **kwargs)
+        s = self.scenario
+        self.robot = load_robot(s.robot)
+        self.joint_names = list(self.robot.joint_names)
+        self.lowlevel = lowlevel_controller(s, self.robot)
+        self.every = steps_per_mpc_period(s)
+        self.lockstep = bool(self.params["lockstep"])
+        self.lockstep_timeout = float(self.params["lockstep_timeout"])
+        self.needs_force = s.mpc.riccati_feedback and s.mpc.formulation == "force_feedback"
+        self._joints: dict[int, tuple] = {}
+        self._forces: dict[int, np.ndarray] = {}
+        self._commands: dict[int, LowLevelCommand] = {}
+        self._last_step: int | None = None
+        self._waiting_since: float | None = None
+        self._skip_wait: set[int] = set()
+        self.last_output = None
+        qos = topics.publisher_qos()
+        self.pub_motor = self.create_publisher(JointState, topics.MOTOR_TORQUE, qos)
+        self.pub_desired = self.create_publisher(JointState, topics.DESIRED_TORQUE, qos)
+        self.pub_status = self.create_publisher(Float64MultiArray, topics.LOWLEVEL_STATUS, qos)
+        sub_qos = topics.subscriber_qos(self.lockstep)
+        self.create_subscription(JointState, topics.SENSED_JOINT_STATES, self.on_joints, sub_qos)
+        self.create_subscription(Float64MultiArray, topics.MPC_COMMAND, self.on_command, sub_qos)
+        if self.needs_force:
+            self.create_subscription(WrenchStamped, topics.SENSED_WRENCH, self.on_wrench, sub_qos)
+        if self.lockstep:
+            self.create_timer(0.05, self._check_wait, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    # -- inputs ------------------------------------------------------------------------------
+    def on_joints(self, msg: JointState) -> None:
+        topic = topics.SENSED_JOINT_STATES
+        k = self.check_stamp(topic, msg.header.stamp)
+        if k is None:
+            return
+        try:
+            arrays = self.joint_arrays(msg, self.joint_names, ("position", "velocity", "effort"))
+        except InputError as exc:
+            self.reject(f"{topic}:value", str(exc))
+            return
+        self.accept_cycle(topic, k)
+        self._joints[k] = tuple(arrays)
+        self._advance()
+
+    def on_wrench(self, msg: WrenchStamped) -> None:
+        topic = topics.SENSED_WRENCH
+        k = self.check_stamp(topic, msg.header.stamp)
+        if k is None:
+            return
+        try:
+            force = measured_force(self.wrench_array(msg), self.scenario.mpc.contact)
+        except InputError as exc:
+            self.reject(f"{topic}:value", str(exc))
+            return
+        self.accept_cycle(topic, k)
+        self._forces[k] = force
+        self._advance()
+
+    def on_command(self, msg: Float64MultiArray) -> None:
+        topic = topics.MPC_COMMAND
+        try:
+            fields = layouts.MPC_COMMAND.unpack(msg, self.robot.nv)
+            if int(fields["nv"]) != self.robot.nv or int(fields["nx"]) != self.lowlevel.nx:
+                raise InputError(
+                    f"command for nv={fields['nv']:.0f}, nx={fields['nx']:.0f}; "
+                    f"this loop has nv={self.robot.nv}, nx={self.lowlevel.nx}"
+                )
+        except InputError as exc:
+            self.reject(f"{topic}:value", str(exc))
+            return
+        k = self.cycle_of_time(fields["t"])
+        if k is None:
+            self.reject(f"{topic}:stamp", f"command time {fields['t']} s off the grid")
+            return
+        last = self._last_cycle.get(topic)
+        if last is not None and k <= last:
+            self.reject(f"{topic}:order", f"command of cycle {k} is not after {last}")
+            return
+        gain = fields["feedback_gain"].reshape(self.robot.nv, self.lowlevel.nx)
+        self.accept_cycle(topic, k)
+        self._commands[k] = LowLevelCommand(fields["torque"], fields["state"], gain)
+        self._advance()
+
+    # -- the loop ----------------------------------------------------------------------------
+    def _next_cycle(self) -> int | None:
+        pending = sorted(self._joints)
+        return pending[0] if pending else None
+
+    def _ready(self, k: int) -> bool:
+        if self.needs_force and k not in self._forces:
+            return False
+        if not self.lockstep or k % self.every != 0 or k in self._commands:
+            return True
+        if k in self._skip_wait:
+            return True
+        if self._waiting_since is None and self.lowlevel.command_time > -math.inf:
+            # the timeout counts only once the MPC has been heard from (it may start slowly)
+            self._waiting_since = time.monotonic()
+        return False
+
+    def _check_wait(self) -> None:
+        """Lockstep: stop waiting for a command that does not come (wall-time timeout)."""
+        if self._waiting_since is None:
+            return
+        if time.monotonic() - self._waiting_since > self.lockstep_timeout:
+            k = self._next_cycle()
+            if k is not None:
+                self.reject("lockstep", f"no MPC command for cycle {k}; going on without it")
+                self._skip_wait.add(k)
+            self._waiting_since = None
+            self._advance()
+
+    def _advance(self) -> None:
+        """Step every pending cycle whose inputs are complete, in order."""
+        while True:
+            k = self._next_cycle()
+            if k is None or not self._ready(k):
+                return
+            self._waiting_since = None
+            self._skip_wait.discard(k)
+            q, v, tau = self._joints.pop(k)
+            force = self._forces.pop(k, None)
+            for kc in sorted(c for c in self._commands if c <= k):
+                try:
+                    self.lowlevel.set_command(self._commands.pop(kc), self.t_of(kc))
+                except InputError as exc:
+                    self.reject(f"{topics.MPC_COMMAND}:value", str(exc))
+            self._step(k, LowLevelMeasurement(q, v, tau, force))
+            for store in (self._joints, self._forces, self._commands):
+                for old in [c for c in store if c < k - _KEEP]:
+                    del store[old]
+
+    def _step(self, k: int, meas: LowLevelMeasurement) -> None:
+        try:
+            out = self.lowlevel.step(meas, self.t_of(k))
+        except InputError as exc:
+            self.reject("step", f"cycle {k}: {exc}")
+            return
+        self._last_step = k
+        self.last_output = out
+        stamp = self.stamp_of(k)
+        for pub, value in (
+            (self.pub_motor, out.motor_torque),
+            (self.pub_desired, out.desired_torque),
+        ):
+            msg = JointState()
+            msg.header.stamp = stamp
+            msg.name = self.joint_names
+            msg.effort = value.tolist()
+            pub.publish(msg)
+        age = out.command_age if np.isfinite(out.command_age) else 1e9
+        self.pub_status.publish(
+            layouts.LOWLEVEL_STATUS.pack(
+                {
+                    "t": self.t_of(k),
+                    "mode": float(out.mode),
+                    "command_age": age,
+                    "blend": out.blend,
+                    "rejected": float(sum(self.rejected.values())),
+                }
+            )
+        )
+
+
+def main(argv=None) -> int:
+    return run_node(PidNode, __doc__.splitlines()[0], argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,89 @@
+"""Topic names, message types, frames and QoS of the node graph (``msgs_notes/topics.md``).
+
+QoS. The control chain of the study (plant → sensors → MPC → PID → plant) must lose nothing in
+lockstep, whatever the start order of the processes:
+
+* every data topic is published RELIABLE + TRANSIENT_LOCAL with a history of
+  :data:`PUBLISHER_DEPTH` samples, so a node that starts late still receives the samples it
+  missed, and a slow recorder (the metrics node) can lag without losing any;
+* subscribers keep :data:`PUBLISHER_DEPTH` samples in lockstep (every sample is processed) and
+  only the newest in real time (``KEEP_LAST(1)``: a late sample is worthless);
+* ``/clock`` is RELIABLE + VOLATILE, depth 1 (rclpy's time source subscribes BEST_EFFORT).
+"""
+
+from __future__ import annotations
+
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+CLOCK = "/clock"
+PLANT_JOINT_STATES = "/plant/joint_states"
+PLANT_WRENCH = "/plant/wrench"
+PLANT_TRUTH = "/plant/truth"
+PLANT_STATUS = "/plant/status"
+SENSED_JOINT_STATES = "/joint_sensor/joint_states"
+SENSED_WRENCH = "/ft_sensor/wrench"
+FILTERED_WRENCH = "/ft_sensor/wrench_filtered"
+IN_CONTACT = "/ft_sensor/in_contact"
+TARE_SERVICE = "/ft_sensor/tare"
+MPC_COMMAND = "/mpc/command"
+MOTOR_TORQUE = "/pid/motor_torque"
+DESIRED_TORQUE = "/pid/desired_torque"
+LOWLEVEL_STATUS = "/pid/status"
+METRICS_SUMMARY = "/metrics/summary"
+METRICS_READY = "/metrics/ready"
+
+#: The frame of every wrench: origin at the robot's ``contact`` frame, axes of ``world``
+#: (pinocchio's LOCAL_WORLD_ALIGNED); the moment is about the contact frame origin.
+WRENCH_FRAME = "contact_world_aligned"
+
+#: (topic, ROS type, publisher node) of every topic; the notes list the same rows.
+TOPICS: tuple[tuple[str, str, str], ...] = (
+    (CLOCK, "rosgraph_msgs/msg/Clock", "plant"),
+    (PLANT_JOINT_STATES, "sensor_msgs/msg/JointState", "plant"),
+    (PLANT_WRENCH, "geometry_msgs/msg/WrenchStamped", "plant"),
+    (PLANT_TRUTH, "std_msgs/msg/Float64MultiArray", "plant"),
+    (PLANT_STATUS, "std_msgs/msg/Float64MultiArray", "plant"),
+    (SENSED_JOINT_STATES, "sensor_msgs/msg/JointState", "joint_sensor"),
+    (SENSED_WRENCH, "geometry_msgs/msg/WrenchStamped", "ft_sensor"),
+    (FILTERED_WRENCH, "geometry_msgs/msg/WrenchStamped", "ft_sensor"),
+    (IN_CONTACT, "std_msgs/msg/Bool", "ft_sensor"),
+    (MPC_COMMAND, "std_msgs/msg/Float64MultiArray", "mpc"),
+    (MOTOR_TORQUE, "sensor_msgs/msg/JointState", "pid"),
+    (DESIRED_TORQUE, "sensor_msgs/msg/JointState", "pid"),
+    (LOWLEVEL_STATUS, "std_msgs/msg/Float64MultiArray", "pid"),
+    (METRICS_SUMMARY, "std_msgs/msg/String", "metrics"),
+    (METRICS_READY, "std_msgs/msg/Bool", "metrics"),
+)
+
+#: History kept by every data publisher (and by lockstep subscribers), samples.
+PUBLISHER_DEPTH = 100
+
+
+def publisher_qos() -> QoSProfile:
+    """Data topics: RELIABLE, TRANSIENT_LOCAL, KEEP_LAST(PUBLISHER_DEPTH)."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=PUBLISHER_DEPTH,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
+
+
+def subscriber_qos(lockstep: bool) -> QoSProfile:
+    """Data topics: as the publisher; depth 1 in real time (only the newest sample matters)."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=PUBLISHER_DEPTH if lockstep else 1,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
+
+
+def clock_qos() -> QoSProfile:
+    """/clock: RELIABLE, VOLATILE, KEEP_LAST(1)."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=1,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.VOLATILE,
+    )

@@ -1,0 +1,244 @@
+"""The plant node: the PyBullet robot stand-in, the motor side (eq 31) and the simulated clock.
+
+Publishes, for every cycle k, stamped t_k = k·time_step:
+
+* ``/clock`` — t_k (every node runs on this simulated time);
+* ``/plant/joint_states`` — the TRUE q (rad) and q̇ (rad/s) at t_k, and as effort the joint
+  torque τ̂ (N·m) applied over the step that ended at t_k (eq 31: what the joint torque sensors
+  measure; the simulator applies it saturated to the torque limits). At t_0 it is the gravity
+  torque the motors hold the robot with;
+* ``/plant/wrench`` — the true contact wrench the environment exerts on the tool, frame
+  ``contact_world_aligned`` (N, N·m);
+* ``/plant/truth`` (layout ``plant_truth``) and ``/plant/status`` (layout ``plant_status``,
+  every 100 cycles and at the end).
+
+Subscribes ``/pid/motor_torque``: τ^m of cycle k (saturated to the torque limits here too) goes
+through the actuation model (eq 31, the ``actuation`` generator: τ̂ = a·τ^m(t − δs) + b −
+friction + ν_τ) and the plant steps to t_{k+1}.
+
+Lockstep (default): the plant steps only once the motor torque of the current cycle has arrived,
+so a run does not depend on the CPU speed. Real time (``lockstep: false``): the plant steps on
+a wall-clock timer of period time_step with the newest motor torque; a step taken without the
+torque of its own cycle is a deadline miss. The sensor-to-torque latency (wall time from
+publishing the state of cycle k to receiving its motor torque) is measured in both modes.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from geometry_msgs.msg import WrenchStamped
+from rclpy.clock import Clock, ClockType
+from rosgraph_msgs.msg import Clock as ClockMsg
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool, Float64MultiArray
+
+from ffmpc_core.errors import InputError
+from ffmpc_core.robots import load_robot
+from ffmpc_core.study import actuation_model, build_task, device_generator, draw_run
+from ffmpc_ros import layouts, topics
+from ffmpc_ros.base import StudyNode, run_node
+from sim_bridge.plant import Plant
+from sim_bridge.runner import plant_config
+
+STATUS_EVERY = 100  # cycles between two /plant/status messages
+
+
+class PlantNode(StudyNode):
+    """The simulated robot on topics (see the module docstring)."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__("plant", **kwargs)
+        s = self.scenario
+        robot = self.robot = load_robot(s.robot)
+        self.joint_names = list(robot.joint_names)
+        self.draws = draw_run(s, robot, device_generator(s.seed, "draws"))
+        self.task = build_task(s, robot)
+        self.actuation = actuation_model(
+            s, robot, self.draws, device_generator(s.seed, "actuation")
+        )
+        self.plant = Plant(robot, plant_config(s, self.task, self.draws.tilt_angle))
+        self.plant.reset(robot.q_nominal)
+        duration = float(self.params["duration"]) or self.task.duration
+        self.steps = int(round(duration / self.time_step))
+        p = s.plant
+        self.push_at = int(round(p.push_time / self.time_step)) if p.push_enabled else -1
+        self.push_steps = int(round(p.push_duration / self.time_step))
+        self.lockstep = bool(self.params["lockstep"])
+        self.k = 0
+        self.tau_hat = robot.gravity(robot.q_nominal)  # the motors hold the robot at start
+        self.motor_torque = self.tau_hat.copy()  # real time: used until a command arrives
+        self._motor_cycle = -1  # cycle of self.motor_torque
+        self.deadline_misses = 0
+        self.latencies: list[float] = []
+        self._published_at: dict[int, float] = {}
+        self._wall_start: float | None = None
+        self.state = self.plant.state()
+
+        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
+        qos = topics.publisher_qos()
+        self.pub_clock = self.create_publisher(ClockMsg, topics.CLOCK, topics.clock_qos())
+        self.pub_joints = self.create_publisher(JointState, topics.PLANT_JOINT_STATES, qos)
+        self.pub_wrench = self.create_publisher(WrenchStamped, topics.PLANT_WRENCH, qos)
+        self.pub_truth = self.create_publisher(Float64MultiArray, topics.PLANT_TRUTH, qos)
+        self.pub_status = self.create_publisher(Float64MultiArray, topics.PLANT_STATUS, qos)
+        self.create_subscription(
+            JointState, topics.MOTOR_TORQUE, self.on_motor, topics.subscriber_qos(self.lockstep)
+        )
+        self.metrics_ready = False
+        if self.params["wait_for_metrics"]:
+            self.create_subscription(
+                Bool, topics.METRICS_READY, self._on_metrics_ready, topics.subscriber_qos(True)
+            )
+        self._created = time.monotonic()
+        self.started = False
+        self._start_timer = self.create_timer(0.01, self._try_start, clock=self._steady)
+
+    def _try_start(self) -> None:
+        """Start once ``start_subscribers`` nodes read the joint states and ``start_delay``
+        (wall time) has passed: lockstep publishes the state of cycle 0, real time starts the
+        wall-clock timer."""
+        wanted = int(self.params["start_subscribers"])
+        if self.pub_joints.get_subscription_count() < wanted:
+            return
+        if self.params["wait_for_metrics"] and not self.metrics_ready:
+            return
+        if time.monotonic() - self._created < float(self.params["start_delay"]):
+            return
+        self._start_timer.cancel()
+        self.started = True
+        if self.lockstep:
+            self.publish_state()
+        else:
+            self._timer = self.create_timer(self.time_step, self.on_tick, clock=self._steady)
+
+    def _on_metrics_ready(self, msg: Bool) -> None:
+        self.metrics_ready = self.metrics_ready or bool(msg.data)
+
+    # -- publishing -----------------------------------------------------------------------------
+    def publish_state(self) -> None:
+        """Publish the state of cycle self.k (clock first)."""
+        k, s = self.k, self.state
+        stamp = self.stamp_of(k)
+        self.pub_clock.publish(ClockMsg(clock=stamp))
+        joints = JointState()
+        joints.header.stamp = stamp
+        joints.name = self.joint_names
+        joints.position = s.q.tolist()
+        joints.velocity = s.v.tolist()
+        joints.effort = np.asarray(self.tau_hat, dtype=float).tolist()
+        wrench = WrenchStamped()
+        wrench.header.stamp = stamp
+        wrench.header.frame_id = topics.WRENCH_FRAME
+        f, m = s.wrench_world[:3], s.wrench_world[3:]
+        wrench.wrench.force.x, wrench.wrench.force.y, wrench.wrench.force.z = map(float, f)
+        wrench.wrench.torque.x, wrench.wrench.torque.y, wrench.wrench.torque.z = map(float, m)
+        truth = layouts.PLANT_TRUTH.pack(
+            {
+                "t": self.t_of(k),
+                "normal_force": s.normal_force,
+                "in_contact": float(s.in_contact),
+                "robot_collision": float(s.robot_collision),
+                "table_normal": self.plant.table_normal,
+                "contact_position": s.contact_frame_position,
+            }
+        )
+        self._published_at[k] = time.perf_counter()
+        self.pub_joints.publish(joints)
+        self.pub_wrench.publish(wrench)
+        self.pub_truth.publish(truth)
+        if k % STATUS_EVERY == 0 or self.done:
+            self.publish_status()
+
+    def publish_status(self) -> None:
+        lat = np.array(self.latencies) if self.latencies else np.zeros(1)
+        count = len(self.latencies)
+        self.pub_status.publish(
+            layouts.PLANT_STATUS.pack(
+                {
+                    "t": self.t_of(self.k),
+                    "steps": self.k,
+                    "done": float(self.done),
+                    "lockstep": float(self.lockstep),
+                    "deadline_misses": self.deadline_misses,
+                    "latency_count": count,
+                    "latency_mean": float(lat.mean()),
+                    "latency_p50": float(np.percentile(lat, 50)),
+                    "latency_p99": float(np.percentile(lat, 99)),
+                    "latency_max": float(lat.max()),
+                    "wall_time": time.perf_counter() - (self._wall_start or time.perf_counter()),
+                }
+            )
+        )
+
+    @property
+    def done(self) -> bool:
+        return self.k >= self.steps
+
+    def finished(self) -> bool:
+        return False  # keeps serving its transient-local history until shut down
+
+    # -- stepping -------------------------------------------------------------------------------
+    def on_motor(self, msg: JointState) -> None:
+        topic = topics.MOTOR_TORQUE
+        k = self.check_stamp(topic, msg.header.stamp)
+        if k is None:
+            return
+        if self.lockstep and k != self.k:
+            self.reject(f"{topic}:cycle", f"motor torque of cycle {k} while at cycle {self.k}")
+            return
+        try:
+            (tau,) = self.joint_arrays(msg, self.joint_names, ("effort",))
+        except InputError as exc:
+            self.reject(f"{topic}:value", str(exc))
+            return
+        self.accept_cycle(topic, k)
+        sent = self._published_at.pop(k, None)
+        if sent is not None:
+            self.latencies.append(time.perf_counter() - sent)
+        self.motor_torque = self.robot.clip_torque(tau)
+        self._motor_cycle = k
+        if self.lockstep and not self.done:
+            self.step_plant()
+
+    def on_tick(self) -> None:
+        """Real time: one step per wall-clock period, with the newest motor torque."""
+        if self.done:
+            self._timer.cancel()
+            return
+        if self._wall_start is None:
+            self.publish_state()  # the first state; its command is due at the next tick
+            self._wall_start = time.perf_counter()
+            return
+        if self._motor_cycle != self.k:
+            self.deadline_misses += 1
+        self.step_plant()
+
+    def step_plant(self) -> None:
+        """Cycle k: actuation (eq 31) of τ^m, one physics step, publish cycle k + 1."""
+        if self._wall_start is None:
+            self._wall_start = time.perf_counter()
+        if self.k == self.push_at:
+            self.plant.apply_external_push(
+                np.array(self.scenario.plant.push_force), self.push_steps
+            )
+        self.tau_hat = self.actuation.step(self.motor_torque, self.state.v)
+        self.plant.step(self.tau_hat)
+        for old in [c for c in self._published_at if c < self.k - 1000]:
+            del self._published_at[old]
+        self.k += 1
+        self.state = self.plant.state()
+        self.publish_state()
+
+    def destroy_node(self) -> None:
+        self.plant.close()
+        super().destroy_node()
+
+
+def main(argv=None) -> int:
+    return run_node(PlantNode, __doc__.splitlines()[0], argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,180 @@
+"""The MPC and PID nodes alone: the same numbers as the ROS-free objects, lockstep waiting,
+stale-command fallback, and bad input rejected with the output kept safe."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import WrenchStamped
+from ros_helpers import RosHarness, joint_state, overrides, recorder, wrench
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+
+from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement, LowLevelMode
+from ffmpc_core.mpc import ModelPredictiveController, MpcMeasurement
+from ffmpc_core.robots import load_robot
+from ffmpc_core.scenario import load_scenario
+from ffmpc_core.study import build_task, lowlevel_controller, mpc_config
+from ffmpc_ros import layouts, topics
+from ffmpc_ros.mpc_node import MpcNode
+from ffmpc_ros.pid_node import PidNode
+
+
+@pytest.fixture
+def ros():
+    harness = RosHarness()
+    yield harness
+    harness.close()
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("iiwa")
+
+
+def _measurements(robot, n, seed=0):
+    rng = np.random.default_rng(seed)
+    q = robot.q_nominal + 0.01 * rng.standard_normal((n, 7))
+    v = 0.05 * rng.standard_normal((n, 7))
+    tau = robot.gravity(robot.q_nominal) + rng.standard_normal((n, 7))
+    force = np.abs(rng.normal(5.0, 1.0, n))
+    return q, v, tau, force
+
+
+def test_mpc_node_solves_every_period_with_the_runner_numbers(ros, robot):
+    """Force-feedback: a solve at k = 0, 2, 4 once the joint state AND the wrench of that cycle
+    are in (whatever their arrival order), bit-identical to ModelPredictiveController."""
+    scenario = load_scenario("polishing")
+    node = ros.add(MpcNode(context=ros.context, parameter_overrides=overrides("mpc", scenario)))
+    probe = ros.probe()
+    out = recorder(probe, Float64MultiArray, topics.MPC_COMMAND)
+    pub_j = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
+    pub_w = probe.create_publisher(WrenchStamped, topics.SENSED_WRENCH, topics.publisher_qos())
+    q, v, tau, force = _measurements(robot, 6)
+    for k in range(6):
+        if k % 2:  # wrench first on odd cycles
+            pub_w.publish(wrench(node, k, (0.0, 0.0, force[k])))
+            ros.spin_for(0.01)
+        pub_j.publish(joint_state(node, k, q[k], v[k], tau[k]))
+        if k == 2:
+            ros.spin_for(0.05)
+            assert len(out) == 1  # cycle 2 waits for its wrench
+        if k % 2 == 0:
+            pub_w.publish(wrench(node, k, (0.0, 0.0, force[k])))
+    assert ros.spin_until(lambda: len(out) == 3, timeout=30)
+    mpc = ModelPredictiveController(robot, mpc_config(scenario), build_task(scenario, robot))
+    for i, k in enumerate((0, 2, 4)):
+        meas = MpcMeasurement(q=q[k], v=v[k], force=force[k : k + 1], torque=tau[k])
+        expected = mpc.step(meas, k * 1e-3)
+        got = layouts.MPC_COMMAND.unpack(out[i], 7)
+        assert got["t"] == k * 1e-3 and got["sequence"] == i and got["nx"] == 15
+        np.testing.assert_array_equal(got["torque"], expected.torque)
+        np.testing.assert_array_equal(got["state"], expected.state)
+        np.testing.assert_array_equal(got["feedback_gain"].reshape(7, 15), expected.feedback_gain)
+    # Bad input: no solve from a NaN state, a wrench in the wrong frame, unknown joints.
+    pub_j.publish(joint_state(node, 6, [np.nan] * 7, v[0], tau[0]))
+    pub_w.publish(wrench(node, 6, (0.0, 0.0, 1.0), frame="tool"))
+    pub_j.publish(joint_state(node, 7, q[0], v[0], tau[0], [f"j{i}" for i in range(7)]))
+    assert ros.spin_until(lambda: node.rejected.total() == 3)
+    ros.spin_for(0.05)
+    assert len(out) == 3
+
+
+def _pid(ros, scenario, lockstep=True):
+    node = ros.add(
+        PidNode(
+            context=ros.context,
+            parameter_overrides=overrides("pid", scenario, lockstep=lockstep),
+        )
+    )
+    probe = ros.probe()
+    pub_j = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
+    pub_c = probe.create_publisher(Float64MultiArray, topics.MPC_COMMAND, topics.publisher_qos())
+    motor = recorder(probe, JointState, topics.MOTOR_TORQUE)
+    desired = recorder(probe, JointState, topics.DESIRED_TORQUE)
+    status = recorder(probe, Float64MultiArray, topics.LOWLEVEL_STATUS)
+    return node, pub_j, pub_c, motor, desired, status
+
+
+def _command_msg(k, torque, nx=14, gain=None, nv=7):
+    values = {
+        "t": k * 1e-3,
+        "nv": nv,
+        "nx": nx,
+        "sequence": k // 2,
+        "iterations": 1,
+        "kkt": 0.0,
+        "solve_time": 0.0,
+        "converged": 1.0,
+        "torque": torque,
+        "state": np.zeros(nx),
+        "feedback_gain": np.zeros((nv, nx)) if gain is None else gain,
+    }
+    return layouts.MPC_COMMAND.pack(values, nv, nx)
+
+
+def test_pid_node_waits_for_the_command_in_lockstep_and_matches_the_core(ros, robot):
+    scenario = load_scenario("polishing", {"mpc.formulation": "classical"})
+    node, pub_j, pub_c, motor, desired, _ = _pid(ros, scenario)
+    q, v, tau, _ = _measurements(robot, 8, seed=1)
+    torques = robot.gravity(robot.q_nominal) + np.random.default_rng(2).normal(0, 3, (8, 7))
+    reference = lowlevel_controller(scenario, robot)
+    for k in range(8):
+        pub_j.publish(joint_state(node, k, q[k], v[k], tau[k]))
+        if k % 2 == 0:
+            ros.spin_for(0.03)
+            assert len(motor) == k  # an MPC cycle: waits for the command of cycle k
+            pub_c.publish(_command_msg(k, torques[k]))
+            command = LowLevelCommand(torques[k], np.zeros(14), np.zeros((7, 14)))
+            reference.set_command(command, k * 1e-3)
+        assert ros.spin_until(lambda k=k: len(motor) == len(desired) == k + 1)
+        out = reference.step(LowLevelMeasurement(q[k], v[k], tau[k]), k * 1e-3)
+        assert node.cycle_of(motor[k].header.stamp) == k
+        np.testing.assert_array_equal(motor[k].effort, out.motor_torque)
+        np.testing.assert_array_equal(desired[k].effort, out.desired_torque)
+    assert node.lowlevel.mode == LowLevelMode.TRACK
+
+
+def test_pid_node_falls_back_to_hold_when_the_mpc_goes_stale(ros, robot):
+    """Real-time mode: commands every 2 cycles until t = 20 ms, then none: the PID tracks until
+    the command is 4 ms (two MPC periods) old and holds from the next cycle on."""
+    scenario = load_scenario("polishing", {"mpc.formulation": "classical"})
+    node, pub_j, pub_c, motor, _, status = _pid(ros, scenario, lockstep=False)
+    q, v, tau, _ = _measurements(robot, 40, seed=3)
+    gravity = robot.gravity(robot.q_nominal)
+    for k in range(40):
+        if k % 2 == 0 and k <= 20:
+            pub_c.publish(_command_msg(k, gravity))
+            ros.spin_for(0.005)
+        pub_j.publish(joint_state(node, k, q[k], v[k], tau[k]))
+        assert ros.spin_until(lambda k=k: len(status) == k + 1)
+    modes = [layouts.LOWLEVEL_STATUS.unpack(s)["mode"] for s in status]
+    ages = [layouts.LOWLEVEL_STATUS.unpack(s)["command_age"] for s in status]
+    assert all(m == LowLevelMode.TRACK for m in modes[:25])
+    assert modes[25] == LowLevelMode.FALLBACK and ages[25] == pytest.approx(0.005)
+    assert all(m == LowLevelMode.FALLBACK for m in modes[25:])
+    assert all(np.all(np.abs(m.effort) <= robot.torque_limit) for m in motor)
+
+
+def test_pid_node_rejects_bad_commands_and_saturates(ros, robot):
+    scenario = load_scenario("polishing", {"mpc.formulation": "classical"})
+    node, pub_j, pub_c, motor, desired, _ = _pid(ros, scenario)  # lockstep: every sample read
+    q, v, tau, _ = _measurements(robot, 4, seed=4)
+    good = _command_msg(0, np.full(7, 1e4))  # far beyond the limits: saturated, not rejected
+    nan = _command_msg(2, np.full(7, np.nan))
+    wrong_nx = _command_msg(2, np.zeros(7), nx=21)  # a torque-feedback command
+    wrong_nv = _command_msg(2, np.zeros(6), nv=6)
+    wrong_label = Float64MultiArray(data=list(good.data))
+    off_grid = _command_msg(2, np.zeros(7))
+    off_grid.data[0] = 0.0025
+    for msg in (good, nan, wrong_nx, wrong_nv, wrong_label, off_grid):
+        pub_c.publish(msg)
+    assert ros.spin_until(lambda: node.rejected.total() == 5)
+    topic = topics.MPC_COMMAND
+    assert node.rejected[f"{topic}:value"] == 4 and node.rejected[f"{topic}:stamp"] == 1
+    assert node.log_lines[f"{topic}:value"] == 1
+    pub_j.publish(joint_state(node, 0, q[0], v[0], tau[0]))
+    pub_j.publish(joint_state(node, 1, q[1], v[1], tau[1][:3], list(node.joint_names)))
+    assert ros.spin_until(lambda: len(motor) == len(desired) == 1 and node.rejected.total() == 6)
+    np.testing.assert_array_equal(desired[0].effort, robot.torque_limit)
+    assert np.all(np.abs(motor[0].effort) <= robot.torque_limit)

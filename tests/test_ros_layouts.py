@@ -1,0 +1,106 @@
+"""msgs_notes/ is the contract: its tables must agree with ffmpc_ros/layouts.py and topics.py,
+and the layouts must pack, unpack and reject exactly as documented."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from std_msgs.msg import Float64MultiArray
+
+from ffmpc_core.errors import InputError
+from ffmpc_ros import layouts, topics
+
+NOTES = Path(__file__).resolve().parents[1] / "msgs_notes"
+
+
+def _table_rows(text: str) -> list[list[str]]:
+    rows = []
+    for line in text.splitlines():
+        if line.startswith("|") and not re.match(r"^\|\s*-", line):
+            rows.append([c.strip().strip("`") for c in line.strip().strip("|").split("|")])
+    return rows
+
+
+def _layout_sections() -> dict[str, tuple[int, str, list[list[str]]]]:
+    text = (NOTES / "layouts.md").read_text(encoding="utf-8")
+    sections = {}
+    for match in re.finditer(
+        r"^## (\w+) \(version (\d+)\) — `([^`]+)`\n(.*?)(?=^## |\Z)", text, re.M | re.S
+    ):
+        name, version, topic, body = match.groups()
+        rows = _table_rows(body)
+        assert rows[0] == ["field", "size", "unit", "meaning"], f"{name}: table header"
+        sections[name] = (int(version), topic, rows[1:])
+    return sections
+
+
+def test_every_layout_is_documented_field_by_field():
+    sections = _layout_sections()
+    assert set(sections) == set(layouts.LAYOUTS)
+    topic_of = {
+        "mpc_command": topics.MPC_COMMAND,
+        "plant_truth": topics.PLANT_TRUTH,
+        "plant_status": topics.PLANT_STATUS,
+        "lowlevel_status": topics.LOWLEVEL_STATUS,
+    }
+    for name, layout in layouts.LAYOUTS.items():
+        version, topic, rows = sections[name]
+        assert version == layout.version and topic == topic_of[name]
+        documented = [(r[0], r[1], r[2], r[3]) for r in rows]
+        in_code = [(f.name, str(f.size), f.unit, f.meaning) for f in layout.fields]
+        assert documented == in_code, f"msgs_notes/layouts.md disagrees with layouts.{name}"
+
+
+def test_every_topic_is_documented_with_its_type_and_publisher():
+    rows = _table_rows((NOTES / "topics.md").read_text(encoding="utf-8"))
+    topic_rows = [r for r in rows if r[0].startswith("/") and len(r) == 7]
+    documented = {(r[0], r[1], r[2]) for r in topic_rows}
+    assert documented == set(topics.TOPICS)
+    assert len(topic_rows) == len(topics.TOPICS)
+    assert any(r[0] == topics.TARE_SERVICE and r[1] == "std_srvs/srv/Trigger" for r in rows)
+    readme = (NOTES / "README.md").read_text(encoding="utf-8")
+    assert topics.WRENCH_FRAME in readme and str(topics.PUBLISHER_DEPTH) in readme
+
+
+def test_mpc_command_round_trip_and_sizes():
+    nv, nx = 7, 15
+    rng = np.random.default_rng(0)
+    values = {
+        "t": 0.004,
+        "nv": nv,
+        "nx": nx,
+        "sequence": 2,
+        "iterations": 3,
+        "kkt": 1e-5,
+        "solve_time": 0.001,
+        "converged": 1.0,
+        "torque": rng.normal(size=nv),
+        "state": rng.normal(size=nx),
+        "feedback_gain": rng.normal(size=(nv, nx)),
+    }
+    msg = layouts.MPC_COMMAND.pack(values, nv, nx)
+    assert len(msg.data) == 8 + nv + nx + nv * nx == layouts.MPC_COMMAND.length(nv, nx)
+    assert msg.layout.dim[0].label == "ffmpc/mpc_command/1"
+    out = layouts.MPC_COMMAND.unpack(msg, nv)  # nx read from the array
+    assert out["t"] == 0.004 and out["nx"] == nx
+    np.testing.assert_array_equal(out["feedback_gain"].reshape(nv, nx), values["feedback_gain"])
+    np.testing.assert_array_equal(out["state"], values["state"])
+
+
+def test_layouts_reject_wrong_label_length_and_non_finite():
+    values = {f.name: np.zeros(f.length()) for f in layouts.LOWLEVEL_STATUS.fields}
+    msg = layouts.LOWLEVEL_STATUS.pack(values)
+    layouts.LOWLEVEL_STATUS.unpack(msg)
+    with pytest.raises(InputError, match="expected a ffmpc/plant_truth/1"):
+        layouts.PLANT_TRUTH.unpack(msg)
+    short = Float64MultiArray(layout=msg.layout, data=list(msg.data)[:-1])
+    with pytest.raises(InputError, match="elements"):
+        layouts.LOWLEVEL_STATUS.unpack(short)
+    bad = Float64MultiArray(layout=msg.layout, data=[float("nan")] + list(msg.data)[1:])
+    with pytest.raises(InputError, match="non-finite"):
+        layouts.LOWLEVEL_STATUS.unpack(bad)
+    with pytest.raises(InputError, match="missing"):
+        layouts.LOWLEVEL_STATUS.pack({"t": 0.0})

@@ -1,0 +1,111 @@
+"""Node parameters: declared read-only with descriptions and ranges, loaded from the scenario
+files (ROS 2 parameter-file format) into the same Scenario the ROS-free runner reads."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import pytest
+from rcl_interfaces.msg import ParameterType
+from rclpy.exceptions import InvalidParameterValueException
+from ros_helpers import RosHarness, overrides
+
+from ffmpc_core.config import FORMULATIONS
+from ffmpc_core.scenario import SCENARIO_DIR, load_scenario, resolve_scenario_path
+from ffmpc_ros.joint_sensor_node import JointSensorNode
+from ffmpc_ros.mpc_node import MpcNode
+from ffmpc_ros.params import NODE_SPECS, node_parameter_values, scenario_from_parameters
+from sim_bridge.node import PlantNode
+
+NUMERIC = (ParameterType.PARAMETER_DOUBLE, ParameterType.PARAMETER_INTEGER)
+
+
+@pytest.fixture
+def ros():
+    harness = RosHarness()
+    yield harness
+    harness.close()
+
+
+def _params_file_args(name="polishing"):
+    return ["--ros-args", "--params-file", str(resolve_scenario_path(name))]
+
+
+def test_nodes_load_the_scenario_file_into_the_runner_scenario(ros):
+    """`--params-file polishing.yaml`: each node's sections equal load_scenario's (the file sets
+    random_tilt_deg 6 for the plant, force_phase 3 for the force-feedback MPC, seed and task for
+    all)."""
+    reference = load_scenario("polishing")
+    mpc = ros.add(MpcNode(context=ros.context, cli_args=_params_file_args()))
+    plant = ros.add(PlantNode(context=ros.context, cli_args=_params_file_args()))
+    got = mpc.scenario.mpc
+    assert replace(got, weights={}) == replace(reference.mpc, weights={})
+    for form in FORMULATIONS:  # the node holds every weight; the values are the file's
+        assert got.cost_weights(form) == reference.mpc.cost_weights(form)
+        for phase, default in (("force_phase", 1e-2), ("ee_position_phase", 1e3)):
+            assert got.phase_weight(phase, -1, form) == reference.mpc.phase_weight(
+                phase, default, form
+            )
+    assert mpc.scenario.task == reference.task
+    assert mpc.scenario.mpc.phase_weight("force_phase", 0.0) == 3.0
+    assert plant.scenario.plant == reference.plant and plant.scenario.seed == reference.seed
+    assert plant.scenario.plant.random_tilt_deg == 6.0
+    assert mpc.get_parameter("use_sim_time").value is True
+
+
+def test_every_parameter_has_a_description_and_numbers_a_range(ros):
+    node = ros.add(
+        JointSensorNode(context=ros.context, parameter_overrides=overrides("joint_sensor"))
+    )
+    mpc = ros.add(MpcNode(context=ros.context, parameter_overrides=overrides("mpc")))
+    for n in (node, mpc):
+        names = [p for p in n.params]
+        assert len(names) > 5
+        for desc in n.describe_parameters(names):
+            assert desc.description, desc.name
+            assert desc.read_only, desc.name
+            if desc.type in NUMERIC and not desc.dynamic_typing:
+                assert desc.floating_point_range or desc.integer_range, desc.name
+    assert set(NODE_SPECS) == {"plant", "joint_sensor", "ft_sensor", "mpc", "pid", "metrics"}
+
+
+def test_out_of_range_and_invalid_values_are_refused_at_start(ros):
+    scenario = load_scenario("polishing")
+    bad = [p for p in overrides("joint_sensor", scenario) if p.name != "position_noise_std"]
+    from rclpy.parameter import Parameter
+
+    bad.append(Parameter("position_noise_std", value=-1.0))
+    with pytest.raises(InvalidParameterValueException):
+        JointSensorNode(context=ros.context, parameter_overrides=bad)
+    wrong = [p for p in overrides("mpc", scenario) if p.name != "formulation"]
+    wrong.append(Parameter("formulation", value="rigid"))
+    with pytest.raises(ValueError, match="formulation"):
+        MpcNode(context=ros.context, parameter_overrides=wrong)
+
+
+@pytest.mark.parametrize("name", sorted(p.stem for p in SCENARIO_DIR.glob("*.yaml")))
+def test_every_shipped_scenario_reaches_every_node_unchanged(name):
+    """node parameters → Scenario gives back each node's sections of every shipped scenario."""
+    scenario = load_scenario(name)
+    sections = {
+        "plant": ("plant", "task", "seed", "robot"),
+        "joint_sensor": ("joint_sensor", "seed", "robot"),
+        "ft_sensor": ("ft_sensor", "seed"),
+        "mpc": ("task", "robot"),
+        "pid": ("pid",),
+        "metrics": ("task", "robot", "seed"),
+    }
+    for node, names in sections.items():
+        spec = NODE_SPECS[node]
+        values = node_parameter_values(node, scenario)
+        got = scenario_from_parameters(spec, values, node)
+        for section in names:
+            assert getattr(got, section) == getattr(scenario, section), (node, section)
+        assert got.plant.time_step == scenario.plant.time_step
+    mpc = scenario_from_parameters(NODE_SPECS["mpc"], node_parameter_values("mpc", scenario), "m")
+    assert replace(mpc.mpc, weights={}) == replace(scenario.mpc, weights={})
+    assert mpc.mpc.cost_weights() == scenario.mpc.cost_weights()
+    assert mpc.pid.delay_cycles == scenario.pid.delay_cycles
+    pid = scenario_from_parameters(NODE_SPECS["pid"], node_parameter_values("pid", scenario), "p")
+    assert pid.mpc.period == scenario.mpc.period
+    assert pid.mpc.riccati_feedback == scenario.mpc.riccati_feedback
