@@ -11,6 +11,10 @@ Two tasks of the force-feedback paper:
 * :class:`ForceSquareTask` (VII-B, Experiment 1): press on the table and track a square-wave normal
   force reference. The paper's Fig. 4 is not in our copy of the text, so the levels and period are
   parameters (defaults: 20 N / 50 N, 2 s period); the figure's exact values are not claimed.
+
+And one for the impact study (Dehio & Kheddar 2020, Sec. VI, after the contact):
+
+* :class:`PressTask`: hold the tool where it touched and press with a constant force.
 """
 
 from __future__ import annotations
@@ -211,3 +215,47 @@ class ForceSquareTask:
         """Mask of the evaluation window (the square signal), for the shared metrics code."""
         t = np.asarray(t)
         return (t >= self.square_start) & (t <= self.duration)
+
+
+@dataclass(frozen=True)
+class PressTask:
+    """Press with a constant target force where the tool is (the impact study's handover).
+
+    From the moment of contact on, every node is in contact, the end-effector position is held
+    in the two directions tangent to the world z axis (``ee_position_diag`` = (1, 1, 0): the
+    normal direction belongs to the force task) and the force reference is ``force``.
+
+    Attributes:
+        position: contact-frame position to hold, m, world frame (its z is not tracked).
+        force: λ̄, N: the world-z component of the force on the tool (pressing down: > 0).
+        weights: c4 (``contact_ee_position``) and c6 (``force``) of the nodes.
+    """
+
+    position: np.ndarray
+    force: float = 60.0
+    weights: PhaseWeights = PhaseWeights()
+
+    def __post_init__(self) -> None:
+        p = np.asarray(self.position, dtype=float)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise ConfigError("PressTask.position must be 3 finite numbers (m)")
+        if not (np.isfinite(self.force) and self.force >= 0):
+            raise ConfigError("PressTask.force must be finite and >= 0 (N)")
+
+    def ee_position(self, t: float) -> np.ndarray:
+        return np.asarray(self.position, dtype=float).copy()
+
+    def in_contact(self, t: float) -> bool:
+        return True
+
+    def reference(self, t: float, dimension: int = 1) -> NodeReference:
+        force = np.zeros(dimension)
+        force[-1] = self.force
+        return NodeReference(
+            ee_position=self.ee_position(t),
+            force=force,
+            ee_position_weight=self.weights.contact_ee_position,
+            force_weight=self.weights.force,
+            in_contact=True,
+            ee_position_diag=np.array([1.0, 1.0, 0.0]),
+        )

@@ -83,6 +83,10 @@ class ImpactControllerConfig:
         max_approach_velocity: optional cap on the approach speed, m/s (inf = none).
         admittance: the post-contact force controller.
         learn_online: update the recursive learner during contact (Sec. V-B).
+        replan_period: how often the approach re-maps the limits and re-solves eq 14, s. 0 (the
+            default) = every cycle, as in the paper (1 kHz); a positive period reuses the last
+            bound in between (for slow machines: the bound is an upper bound that changes with
+            the configuration only).
     """
 
     direction: np.ndarray
@@ -94,6 +98,7 @@ class ImpactControllerConfig:
     max_approach_velocity: float = np.inf
     admittance: AdmittanceForceController = field(default_factory=AdmittanceForceController)
     learn_online: bool = True
+    replan_period: float = 0.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "direction", unit_direction(self.direction))
@@ -105,6 +110,8 @@ class ImpactControllerConfig:
             raise ConfigError("contact_threshold must be in (0, target_force) (N)")
         if not self.max_approach_velocity > 0:
             raise ConfigError("max_approach_velocity must be positive (m/s)")
+        if not (np.isfinite(self.replan_period) and self.replan_period >= 0):
+            raise ConfigError("replan_period must be finite and ≥ 0 (s)")
 
 
 @dataclass(frozen=True)
@@ -179,6 +186,7 @@ class ImpactController:
         self.contact_time: float | None = None
         self.contact_velocity: float | None = None
         self.solver_failures = 0
+        self._last_plan: tuple[float, float, float, float, PenetrationPlan | None] | None = None
         self.learner.reset()
 
     def _frame_state(
@@ -227,12 +235,23 @@ class ImpactController:
             self._v_ref = speed
         if self.phase == CONTACT:
             return self._contact_step(p, pdot, along, speed, force, dt)
-        return self._approach_step(q, v, along, speed, force, dt)
+        return self._approach_step(q, v, along, speed, force, dt, t)
 
     def _approach_step(
-        self, q: np.ndarray, v: np.ndarray, along: float, speed: float, force: float, dt: float
+        self,
+        q: np.ndarray,
+        v: np.ndarray,
+        along: float,
+        speed: float,
+        force: float,
+        dt: float,
+        t: float,
     ) -> CartesianCommand:
         cfg = self.config
+        last = self._last_plan
+        if last is not None and t - last[0] < cfg.replan_period - 1e-9:
+            _, bound, acc_lo, acc_hi, plan = last
+            return self._approach_command(along, force, dt, bound, acc_lo, acc_hi, plan)
         plan = None
         try:
             bounds = self.mapper.update(q, v)
@@ -249,6 +268,21 @@ class ImpactController:
             # No certified bound this cycle: command rest (the safe side) and count it.
             self.solver_failures += 1
             bound, acc_lo, acc_hi = 0.0, 0.0, 0.0
+        self._last_plan = (t, bound, acc_lo, acc_hi, plan)
+        return self._approach_command(along, force, dt, bound, acc_lo, acc_hi, plan)
+
+    def _approach_command(
+        self,
+        along: float,
+        force: float,
+        dt: float,
+        bound: float,
+        acc_lo: float,
+        acc_hi: float,
+        plan: PenetrationPlan | None,
+    ) -> CartesianCommand:
+        """Track the bound ``bound`` (m/s), ramped at the contact-space acceleration bound."""
+        cfg = self.config
         target = min(bound, cfg.max_approach_velocity)
         previous = self._v_ref
         ramped = previous + max(acc_hi, 0.0) * dt

@@ -1,0 +1,803 @@
+"""The contact learner's exploration routine (Dehio & Kheddar 2020, Sec. V and VI) in PyBullet.
+
+``ffmpc study explore``: the Panda explores a soft object whose TRUE stiffness and damping are
+set in PyBullet, and the recursive learner (eq 19–21) recovers them online.
+
+Set-up (reused from :mod:`sim_bridge.impact_study`): the object is a fixed 0.16 m cube
+(:class:`~sim_bridge.impact_study.DiceConfig`, Bullet mass 0) touched by the plant's spherical
+tool at one contact point, so the force is exactly the box's ``k·depth + d·rate``: the values
+the learner must find are the ones set in PyBullet. The tool starts ``start_clearance`` above
+the top face in :func:`~sim_bridge.impact_study.start_configuration` (tool pointing down).
+The tool sphere has a 4 cm radius (:data:`TOOL_RADIUS`, the plant's default is 1 cm) so that
+its centre stays above the surface for any z ≤ z̄ ≤ 3 cm. Measured with the 1 cm sphere: once
+its centre was below the surface (z = 11–11.7 mm), Bullet's persistent contact manifold held a
+second contact point for 7 steps, doubling the force (+11 N) and biasing β̂ by +26 % (foam, one
+sine period and one 0.2 m/s impact). The run logs the number of contact points per step
+(``log["contact_points"]``); with the 4 cm sphere it never exceeded 1 in any run. The paper's
+end-effector is a flat disc 0.13 m across: a larger sphere is also closer to it.
+
+Procedure:
+
+1. **Guarded approach** at ``approach_speed`` until the measured force reaches
+   ``contact_threshold``. The surface is the contact-frame position at the LAST FORCE-FREE
+   sample before that (see "How z is measured").
+2. **Exploration motion**: :func:`~ffmpc_core.impact.learner.exploration_reference`, a
+   sinusoidal penetration within the elastic bound z̄ (amplitude 0.6 z̄), then impacts at
+   0.15–0.35 m/s that stop at 0.6 z̄, tracked along ``d = (0, 0, −1)`` by the task-space
+   inverse-dynamics law with the measured contact wrench compensated
+   (:class:`~ffmpc_core.impact.task_space.TaskSpaceInverseDynamics`) inside the joint-limit QP
+   (:class:`~ffmpc_core.impact.task_space.JointLimitGuard`, ``limit_margin`` × the data-sheet
+   limits, the five directions other than d weighted 100×, as in the impact study).
+3. **Learning**: every control cycle in contact, ``(z, ż, f)`` goes to
+   :class:`~ffmpc_core.impact.learner.RecursiveContactLearner`; the estimate with its standard
+   errors is taken after the sinusoid and after each impact (when the tool is out again).
+
+How z is measured (our choice): from forward kinematics, ``z = dᵀ (p − p_s)`` with ``p`` the
+contact-frame position and ``p_s`` the position at the last force-free sample of the guarded
+approach (the paper's "reference position that coincides with the soft material's initial
+contact position", Sec. III-A; Sec. V: "the contact state is recorded via forward kinematics").
+``ż = dᵀ J q̇``. Why not PyBullet's contact distance: (a) a robot has no such signal, and
+(b) measured: Bullet reports the distance found by the collision detection at the START of the
+step, while the force is that of the END-of-step state (its soft contact is implicit), so the
+distance lags by one step, ``z_bullet ≈ z − ż Δt``, and the fit attributes ``α Δt`` to the
+damping: +15 % on the dice (α Δt = 3 N·s/m on β = 20 N·s/m), see :attr:`ExplorationRun.
+alternatives`. Why not the box's nominal top face: Bullet's effective surface lies 10 µm
+inside it (the same 10 µm as the plant's measured "0.2 % deeper" static push). The FK surface
+is found by the contact itself, so it sees Bullet's effective surface, and its error is one
+step of approach at most: ``0 ≤ z_measured − z_true < approach_speed · Δt`` (5 µm by default),
+whose effect on the estimate is bounded by :func:`surface_offset_bias` (the "z" part of the
+confidence printed). The force is the simulator's, noise-free (as in the impact study): with a
+noisy force sensor the surface can only be found at a threshold of several σ, and that offset
+(threshold / α: 0.7 mm for 2 N on the dice, ≈ −5 % on α̂) would dominate; eq 3 has no
+intercept to absorb it. Not modelled here.
+
+Which samples are fed: every sample with a positive force (the simulated force is exact, so a
+positive force means contact; Bullet's contact cannot pull, so samples where α z + β ż < 0
+during a fast retreat carry zero force and are not in the linear regime) EXCEPT the first one
+of each contact episode. Measured: in the step in which the tool crosses the surface, Bullet's
+speculative contact acts only from the crossing on, and the reported force is eq 3's force
+times the fraction of the step spent in contact (``≈ z / (ż Δt)``): up to 5 N short at a
+0.3 m/s impact on the dice. Those few samples sit at the largest ż and bias β̂ by ≈ −0.8 % on the
+dice; a second learner fed with them as well (the plain "while in contact" rule) is kept for
+comparison (:attr:`Checkpoint.with_onset`). All other samples fit eq 3 to 0.3 mN rms.
+
+Joint limits: before the learner is confident, the guard is told the force an impact during the
+next step could add uncompensated, ``(β_p + α_p Δt) max(ż, 0)`` from a prior (the stiffest
+material expected); afterwards the learned model predicts the next force increase,
+``α̂ (z + ż Δt) + β̂ ż − f`` (:func:`predicted_force_increase`), with the friction force of a
+sticking contact added (:func:`sticking_contact_force`). Violations are counted against
+the full data-sheet limits (:func:`~sim_bridge.impact_study.count_limit_violations`).
+
+Signs: ``d = (0, 0, −1)``; ``f`` is the world-z component of the force the object exerts on the
+tool (N, > 0 when pressing); ``z`` > 0 inside the object (m), ``ż`` > 0 moving in (m/s).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import pinocchio as pin
+import pybullet as pb
+
+from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.impact.control import CartesianCommand
+from ffmpc_core.impact.learner import (
+    ContactEstimate,
+    ExplorationReference,
+    RecursiveContactLearner,
+    exploration_reference,
+    fit_stiffness_damping,
+    stack_data,
+)
+from ffmpc_core.impact.limits import joint_limits, motion_basis
+from ffmpc_core.impact.task_space import (
+    JointLimitGuard,
+    JointLimitGuardConfig,
+    TaskSpaceGains,
+    TaskSpaceInverseDynamics,
+)
+from ffmpc_core.robots import RobotModel, load_robot
+from sim_bridge.impact_study import (
+    DiceConfig,
+    LimitViolations,
+    count_limit_violations,
+    start_configuration,
+)
+from sim_bridge.plant import Plant, PlantConfig, ToolConfig
+
+__all__ = [
+    "MATERIALS",
+    "Checkpoint",
+    "ExplorationConfig",
+    "ExplorationRun",
+    "Material",
+    "format_checkpoints",
+    "format_summary",
+    "measured_deformation",
+    "predicted_force_increase",
+    "run_exploration",
+    "run_exploration_study",
+    "sticking_contact_force",
+    "surface_offset_bias",
+]
+
+DOWN = np.array([0.0, 0.0, -1.0])
+#: Radius of the spherical tool, m: larger than any z̄ (3 cm), see the module docstring.
+TOOL_RADIUS = 0.04
+_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
+
+@dataclass(frozen=True)
+class Material:
+    """A soft object to explore: the truth set in PyBullet.
+
+    Attributes:
+        name: label. stiffness: α, N/m. damping: β, N·s/m.
+        max_penetration: z̄, m: the elastic-domain bound (eq 12) the exploration stays within.
+        impact_velocities: the pre-impact velocities of its exploration, m/s (paper: five in
+            0.15–0.35). The impacts stop at 0.6 z̄ by tracking a constant deceleration
+            ``v² / (1.2 z̄)``; at the object's place the Panda tracks ≈ 3.5 m/s² downwards
+            within 0.9 of its joint limits, so a thin (small z̄) material gets the lower ones.
+        note: why these numbers.
+    """
+
+    name: str
+    stiffness: float
+    damping: float
+    max_penetration: float
+    impact_velocities: tuple[float, ...] = (0.15, 0.2, 0.25, 0.3, 0.35)
+    note: str = ""
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.stiffness) and self.stiffness > 0):
+            raise ConfigError(f"Material.stiffness must be positive, got {self.stiffness}")
+        if not (np.isfinite(self.damping) and self.damping >= 0):
+            raise ConfigError(f"Material.damping must be >= 0, got {self.damping}")
+        v = np.asarray(self.impact_velocities, dtype=float)
+        if v.ndim != 1 or not np.all(np.isfinite(v)) or np.any(v <= 0):
+            raise ConfigError("Material.impact_velocities must be positive numbers (m/s)")
+        if not (np.isfinite(self.max_penetration) and 0 < self.max_penetration <= 0.03):
+            raise ConfigError(
+                "Material.max_penetration must be in (0, 0.03] m: the Panda hand's underside is "
+                f"3.4 cm above the tool tip, got {self.max_penetration}"
+            )
+
+    def dice(self) -> DiceConfig:
+        """The PyBullet object (the impact study's fixed cube) with this material."""
+        return DiceConfig(
+            stiffness=self.stiffness,
+            damping=self.damping,
+            max_penetration=self.max_penetration,
+        )
+
+
+#: The three materials of the study. Effective mass of the Panda along d at the object ≈ 3 kg
+#: (the damping ratios ζ = β / (2 √(α m)) below use it).
+MATERIALS: dict[str, Material] = {
+    "foam": Material(
+        "foam",
+        stiffness=800.0,
+        damping=8.0,
+        max_penetration=0.03,
+        note="a soft polyurethane cushion: 14 N at the sinusoid's 18 mm (a 0.16 m block at 11 % "
+        "strain), ζ ≈ 0.08",
+    ),
+    "dice": Material(
+        "dice",
+        stiffness=3000.0,
+        damping=20.0,
+        max_penetration=0.03,
+        note="the impact study's dice (the paper's 0.16 m soft dice): 54 N at 18 mm, ζ ≈ 0.1",
+    ),
+    "rubber": Material(
+        "rubber",
+        stiffness=8000.0,
+        damping=60.0,
+        max_penetration=0.015,
+        impact_velocities=(0.15, 0.2, 0.25),
+        note="a stiffer rubber pad, 2.7× the dice: 72 N at the sinusoid's 9 mm, ζ ≈ 0.2; "
+        "z̄ = 1.5 cm keeps the force within the Panda's torques, and the impacts to 0.25 m/s "
+        "(3.5 m/s² to stop in 9 mm)",
+    ),
+}
+
+
+@dataclass(frozen=True)
+class ExplorationConfig:
+    """One exploration run.
+
+    Attributes:
+        material: the object (truth in PyBullet).
+        start_clearance: tool height above the top face at the start, m.
+        approach_speed: guarded-approach speed, m/s (bounds the surface error: speed · Δt).
+        contact_threshold: force that ends the guarded approach, N (paper: 2).
+        max_approach_time: s; ConfigError if no contact by then.
+        sine_frequency, sine_cycles: the sinusoidal penetration (Hz, periods; amplitude 0.6 z̄).
+        impact_velocities: pre-impact velocities, m/s; None = the material's.
+        impact_height: the impacts start from rest this far above the surface, m.
+        dwell: s at the stop depth after each impact.
+        time_step: plant step = control period, s (paper: 1 kHz).
+        limit_margin: fraction of the data-sheet acceleration and velocity limits the guard uses.
+        lateral_weight: weight of the 5 directions other than d in the guard's QP.
+        gains: task-space PD gains (1/s², 1/s).
+        prior_stiffness, prior_damping: what the guard assumes for an impact before the
+            learner is confident (N/m, N·s/m): the stiffest material expected.
+        learner_min_samples, learner_max_relative_std: when the learner is confident enough to
+            predict the next force for the guard (samples; relative standard error).
+    """
+
+    material: Material = field(default_factory=lambda: MATERIALS["dice"])
+    start_clearance: float = 0.003
+    approach_speed: float = 0.005
+    contact_threshold: float = 2.0
+    max_approach_time: float = 3.0
+    sine_frequency: float = 1.0
+    sine_cycles: int = 4
+    impact_velocities: tuple[float, ...] | None = None
+    impact_height: float = 0.05
+    dwell: float = 0.3
+    time_step: float = 1e-3
+    limit_margin: float = 0.9
+    lateral_weight: float = 100.0
+    gains: TaskSpaceGains = field(default_factory=TaskSpaceGains)
+    prior_stiffness: float = 2e4
+    prior_damping: float = 100.0
+    learner_min_samples: int = 50
+    learner_max_relative_std: float = 0.05
+
+    def __post_init__(self) -> None:
+        positive = (
+            "start_clearance",
+            "approach_speed",
+            "contact_threshold",
+            "max_approach_time",
+            "sine_frequency",
+            "impact_height",
+            "time_step",
+            "limit_margin",
+            "lateral_weight",
+            "prior_stiffness",
+            "learner_max_relative_std",
+        )
+        for name in positive:
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ConfigError(f"ExplorationConfig.{name} must be positive, got {value}")
+        if self.limit_margin > 1.0:
+            raise ConfigError("limit_margin must be <= 1")
+        if not (np.isfinite(self.prior_damping) and self.prior_damping >= 0):
+            raise ConfigError("prior_damping must be >= 0")
+        if not (np.isfinite(self.dwell) and self.dwell >= 0):
+            raise ConfigError("dwell must be >= 0")
+        if int(self.sine_cycles) != self.sine_cycles or self.sine_cycles < 1:
+            raise ConfigError("sine_cycles must be an integer >= 1")
+        if int(self.learner_min_samples) != self.learner_min_samples or (
+            self.learner_min_samples < 3
+        ):
+            raise ConfigError("learner_min_samples must be an integer >= 3")
+        if self.impact_velocities is not None:
+            v = np.asarray(self.impact_velocities, dtype=float)
+            if v.ndim != 1 or not np.all(np.isfinite(v)) or np.any(v <= 0):
+                raise ConfigError("impact_velocities must be positive numbers (m/s)")
+
+    @property
+    def velocities(self) -> np.ndarray:
+        """The pre-impact velocities of this run, m/s."""
+        v = self.impact_velocities
+        return np.asarray(self.material.impact_velocities if v is None else v, dtype=float)
+
+    def reference(self) -> ExplorationReference:
+        """The exploration motion relative to the surface (``exploration_reference``)."""
+        return exploration_reference(
+            self.material.max_penetration,
+            dt=self.time_step,
+            sine_frequency=self.sine_frequency,
+            sine_cycles=self.sine_cycles,
+            impact_velocities=self.velocities,
+            approach_height=self.impact_height,
+            dwell=self.dwell,
+        )
+
+
+def measured_deformation(
+    position: np.ndarray, surface: np.ndarray, direction: np.ndarray = DOWN
+) -> float:
+    """Sec. III-A: deformation ``z = dᵀ (p − p_s)`` (m) of the contact-frame position ``p``
+    relative to the initial contact position ``p_s`` along the unit motion direction ``d``
+    (world frame); z > 0 inside the material."""
+    return float(np.asarray(direction) @ (np.asarray(position) - np.asarray(surface)))
+
+
+def predicted_force_increase(
+    stiffness: float,
+    damping: float,
+    deformation: float,
+    deformation_rate: float,
+    force: float,
+    dt: float,
+) -> float:
+    """Eq 3 one step ahead: how much the pressing force may grow during the next step (N),
+    ``max(α (z + ż Δt) + β ż − f, 0)`` if the tool is inside the material at the end of the
+    step (``z + ż Δt > 0``), else 0. α N/m, β N·s/m, z m, ż m/s, f N (the force compensated
+    now), Δt s. It is the force the task-space law cannot compensate in time, handed to the
+    joint-limit guard as ``impact_force``."""
+    z_next = deformation + deformation_rate * dt
+    if z_next <= 0.0:
+        return 0.0
+    return max(stiffness * z_next + damping * deformation_rate - force, 0.0)
+
+
+def sticking_contact_force(
+    normal_force: float,
+    inverse_inertia: np.ndarray,
+    friction: float,
+    direction: np.ndarray = DOWN,
+) -> np.ndarray:
+    """The force (N, world frame, on the robot) of a contact that pushes back by
+    ``normal_force`` (N) against the motion direction ``d`` and sticks.
+
+    A normal force alone would also accelerate the contact point sideways (the arm's inverse
+    operational-space inertia ``A = J_lin M⁻¹ J_linᵀ`` (m/(N·s²)) couples the directions);
+    a sticking contact prevents that with a tangential friction force: with ``n = −d`` and a
+    tangent basis ``T``, ``F = f_n n + T F_t`` where ``(Tᵀ A T) F_t = −Tᵀ A n f_n``, clipped to
+    the friction cone ``|F_t| ≤ μ f_n``. Measured at the impacts: the friction force is ~28 %
+    of the normal force, and its joint accelerations (0.16 of joint 2's limit on the rubber)
+    are what the guard must also expect from an impact.
+    """
+    A = np.asarray(inverse_inertia, dtype=float)
+    if A.shape != (3, 3) or not np.all(np.isfinite(A)):
+        raise InputError("inverse_inertia must be a finite 3×3 matrix")
+    if not (np.isfinite(normal_force) and normal_force >= 0 and friction >= 0):
+        raise InputError("normal_force and friction must be finite and >= 0")
+    basis = motion_basis(direction)[:3, :3]  # columns: d and two tangents
+    n, T = -basis[:, 0], basis[:, 1:]
+    tangential = -np.linalg.solve(T.T @ A @ T, T.T @ A @ n) * normal_force
+    norm = float(np.linalg.norm(tangential))
+    if norm > friction * normal_force:
+        tangential *= friction * normal_force / norm
+    return normal_force * n + T @ tangential
+
+
+def surface_offset_bias(
+    stiffness: float, second_moment: np.ndarray, first_moment: np.ndarray, offset: float
+) -> np.ndarray:
+    """Effect on eq 17/21's ``Ê = [α̂, β̂]`` of a constant error ``ε`` (m) in the measured
+    deformation (``z_measured = z_true + ε``, e.g. the surface found one step late):
+
+        f = α z_true + β ż = α z_measured + β ż − α ε   ⇒   Ê − E = −α ε (S Sᵀ)⁻¹ Σ s
+
+    Args:
+        stiffness: α, N/m (the estimate is fine: the bias is a small correction).
+        second_moment: ``S Sᵀ`` (2×2; m², m²/s, m²/s²) of the samples fed.
+        first_moment: ``Σ s = [Σ z, Σ ż]`` (m, m/s).
+        offset: ε, m.
+    Returns: ``[Δα, Δβ]`` (N/m, N·s/m).
+    """
+    G = np.asarray(second_moment, dtype=float)
+    m = np.asarray(first_moment, dtype=float)
+    if G.shape != (2, 2) or m.shape != (2,):
+        raise InputError("second_moment must be 2×2 and first_moment 2 numbers")
+    return -float(stiffness) * float(offset) * np.linalg.solve(G, m)
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    """The learner's state at one point of the exploration.
+
+    Attributes:
+        label: "sinusoid" or "impact k".
+        time: s. estimate: the learner fed without the contact-onset samples.
+        z_bias_bound: ``|Δα|, |Δβ|`` bound (N/m, N·s/m) from the surface error (see
+            :func:`surface_offset_bias` with ε = ``approach_speed·Δt``).
+        with_onset: the estimate of the learner fed every in-contact sample, onsets included.
+        pre_impact_velocity: speed along d at the last force-free sample before the impact,
+            m/s (NaN for the sinusoid). peak_penetration: largest z of the phase, m.
+    """
+
+    label: str
+    time: float
+    estimate: ContactEstimate
+    z_bias_bound: tuple[float, float]
+    with_onset: ContactEstimate
+    pre_impact_velocity: float
+    peak_penetration: float
+
+    def relative_errors(self, material: Material) -> tuple[float, float]:
+        """``(α̂/α − 1, β̂/β − 1)`` (NaN for β when β = 0)."""
+        e = self.estimate
+        rd = e.damping / material.damping - 1.0 if material.damping > 0 else float("nan")
+        return e.stiffness / material.stiffness - 1.0, rd
+
+    def interval(self, sigmas: float = 2.0) -> tuple[float, float]:
+        """Half-widths of the confidence intervals (N/m, N·s/m): ``sigmas`` standard errors
+        (the learner's, statistical) plus the surface-error bound."""
+        e = self.estimate
+        return (
+            sigmas * e.stiffness_std + self.z_bias_bound[0],
+            sigmas * e.damping_std + self.z_bias_bound[1],
+        )
+
+    def covers(self, material: Material, sigmas: float = 2.0) -> bool:
+        """Whether the interval of :meth:`interval` contains the truth (both parameters)."""
+        wa, wb = self.interval(sigmas)
+        e = self.estimate
+        return (
+            abs(e.stiffness - material.stiffness) <= wa and abs(e.damping - material.damping) <= wb
+        )
+
+
+@dataclass
+class ExplorationRun:
+    """One exploration's results.
+
+    Attributes:
+        material: the truth.
+        surface_height: the surface found by the guarded approach (world z, m);
+            surface_offset: ``surface_height − nominal top face`` (m).
+        checkpoints: after the sinusoid and after each impact.
+        alternatives: eq 17 (batch) on the same samples with other z measurements: "nominal top"
+            (z from the box's nominal top face) and "bullet distance" (PyBullet's contact
+            distance), each ``(α̂, β̂)``.
+        peak_penetration: largest z of the run, m. max_tracking_error: largest |z − z_ref|, m.
+        violations: against the data-sheet limits. guard_stats: the guard's counters.
+        onset_samples: contact episodes' first samples (not fed to the main learner).
+        wall_time: s. log: time series (t, z, zd, force, z_ref, phase, fed, onset, ...).
+    """
+
+    material: Material
+    surface_height: float
+    surface_offset: float
+    checkpoints: list[Checkpoint]
+    alternatives: dict[str, tuple[float, float]]
+    peak_penetration: float
+    max_tracking_error: float
+    violations: LimitViolations
+    guard_stats: dict[str, int]
+    onset_samples: int
+    wall_time: float
+    log: dict[str, np.ndarray] = field(repr=False)
+
+    @property
+    def final(self) -> Checkpoint:
+        return self.checkpoints[-1]
+
+
+def _confident(est: ContactEstimate, cfg: ExplorationConfig) -> bool:
+    return (
+        est.samples >= cfg.learner_min_samples
+        and est.stiffness > 0
+        and est.damping >= 0
+        and est.stiffness_std <= cfg.learner_max_relative_std * est.stiffness
+        and est.damping_std <= cfg.learner_max_relative_std * max(est.damping, 1e-9)
+    )
+
+
+def _tool_contact(plant: Plant, body: int) -> tuple[float, int]:
+    """PyBullet's contact distance of the tool on ``body`` as a depth (m, > 0 inside; NaN
+    without a contact point) and the number of contact points."""
+    points = pb.getContactPoints(
+        bodyA=plant.body, bodyB=body, linkIndexA=plant.tool_link, physicsClientId=plant.client_id
+    )
+    depth = -min(p[8] for p in points) if points else float("nan")
+    return depth, len(points)
+
+
+def run_exploration(
+    config: ExplorationConfig | None = None,
+    robot: RobotModel | None = None,
+    progress: bool = False,
+) -> ExplorationRun:
+    """One exploration (module docstring), in lockstep simulated time. With ``progress`` the
+    estimate is printed at each checkpoint."""
+    cfg = config if config is not None else ExplorationConfig()
+    wall = time.perf_counter()
+    robot = robot if robot is not None else load_robot("panda")
+    model, fid = robot.model, robot.contact_frame_id
+    data = robot.create_data()
+    mat = cfg.material
+    obj = mat.dice()
+    top = obj.top_height
+    x0, y0 = obj.position_xy
+    q0 = start_configuration(robot, np.array([x0, y0, top + cfg.start_clearance]))
+    limits = joint_limits(robot)
+    dt = cfg.time_step
+    w = cfg.lateral_weight
+    guard = JointLimitGuard(
+        robot,
+        limits,
+        JointLimitGuardConfig(dt=dt, margin=cfg.limit_margin, task_weights=(w, w, 1.0, w, w, w)),
+    )
+    law = TaskSpaceInverseDynamics(robot, cfg.gains, guard=guard)
+    ref = cfg.reference()
+    n_approach = int(round(cfg.max_approach_time / dt))
+    n_max = n_approach + ref.time.size
+    learner = RecursiveContactLearner()
+    with_onset = RecursiveContactLearner()
+    sum_s = np.zeros(2)  # Σ [z, ż] of the samples fed to `learner` (for surface_offset_bias)
+    z_error = cfg.approach_speed * dt  # bound on z_measured − z_true, m
+
+    log = {
+        name: np.full(n_max, np.nan)
+        for name in ("t", "z", "zd", "force", "z_ref", "depth_nominal", "depth_bullet")
+    }
+    log["phase"] = np.full(n_max, -1, dtype=int)  # -1 = guarded approach
+    log["fed"] = np.zeros(n_max, dtype=bool)
+    log["onset"] = np.zeros(n_max, dtype=bool)
+    log["contact_points"] = np.zeros(n_max, dtype=int)
+    qs = np.zeros((n_max + 1, robot.nq))
+    vs = np.zeros((n_max + 1, robot.nv))
+    taus = np.zeros((n_max, robot.nv))
+    checkpoints: list[Checkpoint] = []
+
+    surface: np.ndarray | None = None
+    last_free: np.ndarray | None = None
+    k_start: int | None = None
+    was_in_contact = False
+    pending = 0  # next checkpoint: phase 0 = sinusoid, k = impact k
+    phase_peak = 0.0
+    touch_speed = float("nan")
+    plant_cfg = PlantConfig(
+        time_step=dt, table=None, soft_boxes=(obj.box(),), tool=ToolConfig(radius=TOOL_RADIUS)
+    )
+    friction = obj.lateral_friction * plant_cfg.tool.lateral_friction  # Bullet multiplies
+    with Plant(robot, plant_cfg) as plant:
+        plant.reset(q0)
+        box = plant.soft_boxes[0]
+        hold = robot.contact_placement(q0)
+        hold_xy, rotation = hold.translation[:2].copy(), hold.rotation.copy()
+        k = 0
+        while k < n_max:
+            t = k * dt
+            s = plant.state()
+            q, v = s.q, s.v
+            qs[k], vs[k] = q, v
+            force = float(s.wrench_world[2])
+            pin.forwardKinematics(model, data, q, v)
+            pin.updateFramePlacements(model, data)
+            p = data.oMf[fid].translation.copy()
+            speed = float(DOWN @ pin.getFrameVelocity(model, data, fid, _LWA).linear)
+            in_contact = force > 0.0
+            log["t"][k] = t
+            log["force"][k] = force
+            log["zd"][k] = speed
+            log["depth_nominal"][k] = top - p[2]
+            log["depth_bullet"][k], log["contact_points"][k] = _tool_contact(plant, box)
+
+            if surface is None:  # 1. guarded approach
+                if not in_contact:
+                    last_free = p.copy()
+                if force >= cfg.contact_threshold:
+                    if last_free is None:
+                        raise ConfigError("in contact at the start: increase start_clearance")
+                    surface = last_free
+                    k_start = k
+                elif k >= n_approach:
+                    raise ConfigError(
+                        f"no contact within {cfg.max_approach_time} s of guarded approach"
+                    )
+            z = measured_deformation(p, surface if surface is not None else last_free)
+            log["z"][k] = z
+
+            if surface is None:
+                z_ref = -cfg.start_clearance + cfg.approach_speed * t
+                zd_ref, zdd_ref, phase = cfg.approach_speed, 0.0, -1
+                target_z = top + cfg.start_clearance - cfg.approach_speed * t
+            else:
+                i = k - k_start
+                if i >= ref.time.size:
+                    break
+                z_ref = float(ref.deformation[i])
+                zd_ref = float(ref.deformation_rate[i])
+                zdd_ref = float(ref.deformation_acceleration[i])
+                phase = int(ref.phase[i])
+                target_z = surface[2] - z_ref
+            log["z_ref"][k] = z_ref
+            log["phase"][k] = phase
+
+            # 3. learning (eq 19–20): every in-contact sample but the first of an episode.
+            if surface is not None and in_contact:
+                with_onset.update(z, speed, force)
+                if was_in_contact:
+                    learner.update(z, speed, force)
+                    sum_s += (z, speed)
+                    log["fed"][k] = True
+                else:
+                    log["onset"][k] = True
+                    if phase >= 1 and pending == phase:
+                        touch_speed = float(log["zd"][k - 1])
+            was_in_contact = in_contact
+            if phase >= 0:
+                phase_peak = max(phase_peak, z)
+            # a checkpoint once the phase's contact is over (reference back above the surface)
+            if phase > pending and z_ref < 0.0:
+                checkpoints.append(
+                    _checkpoint(
+                        pending, t, learner, with_onset, sum_s, z_error, touch_speed, phase_peak
+                    )
+                )
+                if progress:
+                    print(_format_checkpoint_line(checkpoints[-1], mat), flush=True)
+                pending += 1
+                phase_peak, touch_speed = 0.0, float("nan")
+
+            # 2. tracking, with the force the next step may add handed to the guard
+            est = _safe_estimate(learner)
+            if est is not None and _confident(est, cfg):
+                push = predicted_force_increase(est.stiffness, est.damping, z, speed, force, dt)
+            else:
+                push = (
+                    0.0
+                    if in_contact
+                    else max(speed, 0.0) * (cfg.prior_damping + cfg.prior_stiffness * dt)
+                )
+            command = CartesianCommand(
+                phase="explore",
+                position=np.array([hold_xy[0], hold_xy[1], target_z]),
+                velocity=zd_ref * DOWN,
+                acceleration=zdd_ref * DOWN,
+                rotation=rotation,
+                pre_impact_velocity=float("nan"),
+                force=force,
+                target_force=0.0,
+            )
+            impact = None
+            if push > 0.0:
+                pin.computeJointJacobians(model, data, q)
+                J = pin.getFrameJacobian(model, data, fid, _LWA)[:3]
+                M = pin.crba(model, data, q)
+                M = np.triu(M) + np.triu(M, 1).T
+                impact = sticking_contact_force(push, J @ np.linalg.solve(M, J.T), friction)
+            tau = law.torque(command, q, v, s.wrench_world, impact_force=impact)
+            taus[k] = tau
+            plant.step(tau)
+            k += 1
+        s = plant.state()
+        qs[k], vs[k] = s.q, s.v
+    if surface is None:
+        raise ConfigError("the exploration never found the surface")
+    checkpoints.append(
+        _checkpoint(pending, k * dt, learner, with_onset, sum_s, z_error, touch_speed, phase_peak)
+    )
+    if progress:
+        print(_format_checkpoint_line(checkpoints[-1], mat), flush=True)
+    log = {name: series[:k] for name, series in log.items()}
+    # q̈ realised over each step, as a fraction of the data-sheet limit (worst joint)
+    log["acceleration_ratio"] = np.max(
+        np.abs(np.diff(vs[: k + 1], axis=0)) / dt / limits.acceleration, axis=1
+    )
+    fed = log["fed"]
+    alternatives = {}
+    for name in ("nominal top", "bullet distance"):
+        depth = log["depth_nominal" if name == "nominal top" else "depth_bullet"][fed]
+        S, F = stack_data(depth, log["zd"][fed], log["force"][fed])
+        alternatives[name] = tuple(float(x) for x in fit_stiffness_damping(S, F))
+    explored = log["phase"] >= 0
+    return ExplorationRun(
+        material=mat,
+        surface_height=float(surface[2]),
+        surface_offset=float(surface[2] - top),
+        checkpoints=checkpoints,
+        alternatives=alternatives,
+        peak_penetration=float(np.max(log["z"][explored])),
+        max_tracking_error=float(np.max(np.abs(log["z"] - log["z_ref"])[explored])),
+        violations=count_limit_violations(qs[: k + 1], vs[: k + 1], taus[:k], dt, limits),
+        guard_stats=dict(guard.stats),
+        onset_samples=int(np.count_nonzero(log["onset"])),
+        wall_time=time.perf_counter() - wall,
+        log=log,
+    )
+
+
+def _safe_estimate(learner: RecursiveContactLearner) -> ContactEstimate | None:
+    if learner.samples < 3:
+        return None
+    try:
+        return learner.estimate()
+    except InputError:  # (S Sᵀ) still singular
+        return None
+
+
+def _checkpoint(
+    phase: int,
+    t: float,
+    learner: RecursiveContactLearner,
+    with_onset: RecursiveContactLearner,
+    sum_s: np.ndarray,
+    z_error: float,
+    touch_speed: float,
+    peak: float,
+) -> Checkpoint:
+    est = learner.estimate()
+    bias = np.abs(surface_offset_bias(est.stiffness, learner.SSt, sum_s, z_error))
+    return Checkpoint(
+        label="sinusoid" if phase == 0 else f"impact {phase}",
+        time=float(t),
+        estimate=est,
+        z_bias_bound=(float(bias[0]), float(bias[1])),
+        with_onset=with_onset.estimate(),
+        pre_impact_velocity=float(touch_speed),
+        peak_penetration=float(peak),
+    )
+
+
+def _format_checkpoint_line(c: Checkpoint, material: Material) -> str:
+    e = c.estimate
+    ea, eb = c.relative_errors(material)
+    wa, wb = c.interval()
+    v = "" if not np.isfinite(c.pre_impact_velocity) else f" at {c.pre_impact_velocity:.3f} m/s"
+    return (
+        f"  {material.name} after {c.label}{v}: α̂ = {e.stiffness:.2f} ± {wa:.2f} N/m "
+        f"({100 * ea:+.3f} %), β̂ = {e.damping:.3f} ± {wb:.3f} N·s/m ({100 * eb:+.3f} %), "
+        f"{e.samples} samples"
+    )
+
+
+def format_checkpoints(run: ExplorationRun) -> str:
+    """One material's checkpoints as a Markdown table."""
+    m = run.material
+    lines = [
+        f"{m.name}: truth α = {m.stiffness:g} N/m, β = {m.damping:g} N·s/m, "
+        f"z̄ = {1e3 * m.max_penetration:g} mm ({m.note})",
+        "",
+        "| after | pre-impact v (m/s) | peak z (mm) | samples | α̂ (N/m) | ± 2se + z-bound "
+        "| α error | β̂ (N·s/m) | ± 2se + z-bound | β error | covers | β error with onsets |",
+        "|" + "---|" * 12,
+    ]
+    for c in run.checkpoints:
+        e = c.estimate
+        ea, eb = c.relative_errors(m)
+        wa, wb = c.interval()
+        eb_on = c.with_onset.damping / m.damping - 1.0 if m.damping > 0 else float("nan")
+        v = "—" if not np.isfinite(c.pre_impact_velocity) else f"{c.pre_impact_velocity:.3f}"
+        lines.append(
+            f"| {c.label} | {v} | {1e3 * c.peak_penetration:.2f} | {e.samples} "
+            f"| {e.stiffness:.2f} | {wa:.3f} | {100 * ea:+.4f} % | {e.damping:.4f} | {wb:.4f} "
+            f"| {100 * eb:+.4f} % | {'yes' if c.covers(m) else 'NO'} | {100 * eb_on:+.3f} % |"
+        )
+    return "\n".join(lines)
+
+
+def format_summary(runs: list[ExplorationRun]) -> str:
+    """The final relative errors of every material, and the alternatives' errors."""
+    lines = [
+        "| material | α (N/m) | β (N·s/m) | α̂ error | β̂ error | β̂ error with onsets "
+        "| α̂, β̂ errors with z from the nominal top | ... from Bullet's contact distance "
+        "| surface offset (µm) | peak z / z̄ | violations | wall (s) |",
+        "|" + "---|" * 12,
+    ]
+    for r in runs:
+        m, c = r.material, r.final
+        ea, eb = c.relative_errors(m)
+        eb_on = c.with_onset.damping / m.damping - 1.0
+        alt = []
+        for name in ("nominal top", "bullet distance"):
+            a, b = r.alternatives[name]
+            alt.append(f"{100 * (a / m.stiffness - 1):+.3f} %, {100 * (b / m.damping - 1):+.2f} %")
+        lines.append(
+            f"| {m.name} | {m.stiffness:g} | {m.damping:g} | {100 * ea:+.4f} % | {100 * eb:+.4f} % "
+            f"| {100 * eb_on:+.3f} % | {alt[0]} | {alt[1]} | {1e6 * r.surface_offset:+.1f} "
+            f"| {r.peak_penetration / m.max_penetration:.2f} | {r.violations.total} "
+            f"| {r.wall_time:.1f} |"
+        )
+    return "\n".join(lines)
+
+
+def run_exploration_study(
+    materials: tuple[str, ...] = ("foam", "dice", "rubber"),
+    base: ExplorationConfig | None = None,
+    progress: bool = True,
+) -> list[ExplorationRun]:
+    """Run the exploration on each named material of :data:`MATERIALS` (same settings)."""
+    unknown = [name for name in materials if name not in MATERIALS]
+    if unknown:
+        raise ConfigError(f"unknown materials {unknown}; choose from {sorted(MATERIALS)}")
+    cfg = base if base is not None else ExplorationConfig()
+    robot = load_robot("panda")
+    runs = []
+    for name in materials:
+        if progress:
+            print(f"exploring {name} ...", flush=True)
+        runs.append(run_exploration(replace(cfg, material=MATERIALS[name]), robot, progress))
+    return runs

@@ -1,0 +1,986 @@
+"""The safe-maximal-impact experiment of Dehio & Kheddar 2020 (Sec. VI, Fig. 4) in PyBullet.
+
+Setup (``ffmpc study impact``):
+
+* The Panda (torque-controlled, 1 kHz, the plant of :mod:`sim_bridge.plant`) holds its spherical
+  tool pointing down, ``approach_height`` (0.46 m, as in the paper) above the top face of a soft
+  dice: a 0.16 m cube whose TRUE contact stiffness and damping are set in PyBullet. The dice is
+  FIXED (a static body: Bullet's mass 0; the paper's dice weighs 0.1 kg and rests on a table).
+  Fixing it makes the tool–dice contact the only compliance: the spherical tool makes one
+  contact point, so the force is the box's nominal ``k·depth + d·rate`` (Bullet applies stiffness
+  per contact point; a dice resting on a table would add its 4-point support, 4× stiffer, in
+  series, and its own 0.1 kg mode). The values the learner must find are then exactly the ones
+  set in PyBullet.
+* Material (our choice; the paper's Fig. 3 values are not in our copy of the text): stiffness
+  3000 N/m and damping 20 N·s/m — a foam dice that takes 60 N at 2 cm (12.5 % strain) with a
+  lightly damped response (damping ratio ≈ 0.08 with the Panda's ≈ 5 kg effective mass). The
+  maximal penetration z̄ = 3 cm (the elastic-domain constraint of eq 12) is also set by the
+  robot: the Panda hand's underside is 3.4 cm above the tool tip, deeper than that the hand
+  would hit the dice.
+* The planner (eq 12–14) starts from a PRIOR material, softer than the truth (2400 N/m,
+  15 N·s/m, as from a data sheet): the robot has not touched the dice yet. The RLS learner
+  (eq 19–21) is fed from the first contact on and its estimate goes to the force-feedback MPC.
+
+Runs (approach × regulation):
+
+* approach ``maximal``: :class:`~ffmpc_core.impact.control.ImpactController` (Sec. IV-C): every
+  cycle (or every ``replan_period``) map the joint limits to the contact space (eq 9–11), solve
+  eq 14 for the maximal safe pre-impact velocity and track it; contact is declared at 2 N.
+* approach ``baseline`` (the paper's comparison): the contact location as a static target. A
+  critically damped second-order reference (natural frequency ω, 5 rad/s) towards a point
+  ``baseline_target_depth`` (5 mm) below the dice's top face, its acceleration saturated at the
+  contact-space acceleration bound of eq 10–11, tracked by the same task-space law. Both
+  approaches start at that acceleration bound; the baseline, knowing where the dice is, then
+  runs faster in free space than the maximal one, whose speed is capped everywhere by the
+  pre-impact bound (the impact may come at any step), and brakes. It arrives with a near-zero
+  velocity (the target is a bit inside the dice so that the force does reach the 2 N
+  threshold; a target exactly on the surface is approached asymptotically, never detected).
+* regulation ``admittance`` (the paper): after contact the admittance force controller of
+  :class:`~ffmpc_core.impact.control.AdmittanceForceController` drives the position reference to
+  60 N (inside ImpactController for the maximal approach; the same update law for the baseline).
+* regulation ``ff_mpc`` (beyond the paper): the force-feedback MPC
+  (:class:`~ffmpc_core.mpc.ModelPredictiveController`, visco-elastic contact in the state) with
+  the task "press 60 N where you are" (:class:`~ffmpc_core.tasks.PressTask`). It takes over
+  once the impact is absorbed: in contact, when the tool moves into the dice no faster than the
+  admittance controller's own speed limit (0.1 m/s; for the baseline that is at the contact).
+  Until then the controller of the admittance run brakes as eq 14 planned: the planner's
+  certificate (z ≤ z̄) assumes that braking, and an MPC with a force cost handed the full impact
+  speed keeps pressing while the force is still below 60 N (we measured 46 mm of penetration
+  and the hand hitting the dice with a 15 ms horizon, 34 mm with 200 ms). Its contact stiffness
+  and damping are the learner's live estimate (``set_contact_parameters`` every MPC period)
+  once the estimate is trustworthy (≥ 20 samples, standard errors ≤ 5 %), the prior before.
+  MPC: 10 nodes of 20 ms (a 0.2 s horizon, the time scale of the dice–arm oscillation, ≈ 4 Hz;
+  the polishing paper's 5 × 3 ms cannot see an impact through) re-solved every 4 ms; posture
+  weight 1 and joint-velocity weight 0.1 (the defaults 0.01 let the redundant arm roll about the
+  point contact, the cost has no orientation term). The torque goes through the joint-limit
+  guard with only the normal force compensated (the one the MPC models) and the contact
+  point's tangential acceleration held at zero: the tool sticks on the foam, and compensating
+  the measured friction force would push it sideways until it slips.
+
+Joint limits (eq 1b–1e). Every torque sent goes through
+:class:`~ffmpc_core.impact.task_space.JointLimitGuard`: a QP that keeps the joint accelerations
+within the limits (also against an impact in the next step before contact), the velocities
+within the limits over one step and the torques within theirs. The planner and the guard use the
+same "control limits" (``limit_margin`` × the data-sheet acceleration and velocity limits), the
+margin absorbing what a torque sent at the start of a step cannot know (the change of the
+contact force during the step). Before contact the guard also bounds q̈ + Δq̈_impact, with
+Δq̈ = M⁻¹ J_linᵀ F_imp the joint acceleration the impact force F_imp ≈ (β + α Δt) ż (prior
+material, current speed) would add during the step in which the tool touches. The task-space
+law weighs the five directions other than the motion 100× the motion direction (eq 2: ẋ_B = 0):
+when a limit is active, the motion direction gives way (a tangential acceleration would change
+the sticking friction force unannounced). Violations are counted against the full data-sheet
+limits: q̈ is the finite difference of consecutive simulated joint velocities,
+``(q̇[k+1] − q̇[k]) / Δt``, the acceleration actually realised over step k.
+
+Signs: ``d = (0, 0, −1)``; the force ``f`` is the world-z component of the force the dice exerts
+on the tool (N, > 0 when pressing), which is also the force-feedback MPC's λ.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import time
+from dataclasses import asdict, dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from ffmpc_core.config import ContactConfig, CostWeights
+from ffmpc_core.errors import ConfigError, InputError, SolverError
+from ffmpc_core.impact.control import (
+    CONTACT,
+    AdmittanceForceController,
+    CartesianCommand,
+    ImpactController,
+    ImpactControllerConfig,
+    ImpactMeasurement,
+)
+from ffmpc_core.impact.deformation import SoftMaterial
+from ffmpc_core.impact.learner import RecursiveContactLearner
+from ffmpc_core.impact.limits import ContactSpaceMapper, JointLimits, joint_limits
+from ffmpc_core.impact.planner import PlannerConfig
+from ffmpc_core.impact.task_space import (
+    JointLimitGuard,
+    JointLimitGuardConfig,
+    TaskSpaceInverseDynamics,
+)
+from ffmpc_core.mpc import ModelPredictiveController, MpcConfig, MpcMeasurement
+from ffmpc_core.robots import RobotModel, load_robot
+from ffmpc_core.tasks import PhaseWeights, PressTask
+from sim_bridge.plant import Plant, PlantConfig, SoftBoxConfig
+
+__all__ = [
+    "APPROACHES",
+    "REGULATIONS",
+    "DEFAULT_RUNS",
+    "DiceConfig",
+    "ImpactRun",
+    "ImpactStudyResult",
+    "ImpactStudyConfig",
+    "LimitViolations",
+    "count_limit_violations",
+    "default_out_dir",
+    "format_table",
+    "plot_runs",
+    "run_impact",
+    "run_impact_study",
+    "start_configuration",
+    "time_to_steady_force",
+]
+
+APPROACHES = ("maximal", "baseline")
+REGULATIONS = ("admittance", "ff_mpc")
+DOWN = np.array([0.0, 0.0, -1.0])
+#: Directions of the contact point held by friction once the tool sticks on the dice.
+_UP = np.array([0.0, 0.0, 1.0])
+_LATERAL = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
+
+@dataclass(frozen=True)
+class DiceConfig:
+    """The soft dice: what PyBullet simulates (the truth) and where it is.
+
+    Attributes:
+        stiffness: contact stiffness set in PyBullet, N/m (one contact point with the tool).
+        damping: contact damping set in PyBullet, N·s/m.
+        size: edge length, m (paper: 0.16).
+        mass: kg (paper: 0.1); recorded only: the dice is static (fixed) in the simulation.
+        position_xy: centre of the dice in the horizontal plane, m, world frame.
+        top_height: height of the top face, m, world frame.
+        max_penetration: z̄, m, the elastic-domain bound the planner keeps.
+        lateral_friction: Coulomb friction of the dice (the tool's is 1; Bullet multiplies).
+    """
+
+    stiffness: float = 3000.0
+    damping: float = 20.0
+    size: float = 0.16
+    mass: float = 0.1
+    position_xy: tuple[float, float] = (0.6, 0.0)
+    top_height: float = 0.08
+    max_penetration: float = 0.03
+    lateral_friction: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in ("stiffness", "size", "max_penetration"):
+            if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise ConfigError(f"DiceConfig.{name} must be positive")
+        if not (np.isfinite(self.damping) and self.damping >= 0):
+            raise ConfigError("DiceConfig.damping must be >= 0")
+        if self.max_penetration >= self.size:
+            raise ConfigError("max_penetration must be smaller than the dice")
+
+    def box(self) -> SoftBoxConfig:
+        """The PyBullet box (static: mass 0)."""
+        x, y = self.position_xy
+        return SoftBoxConfig(
+            position=(float(x), float(y), self.top_height - 0.5 * self.size),
+            stiffness=self.stiffness,
+            damping=self.damping,
+            size=(self.size, self.size, self.size),
+            mass=0.0,
+            lateral_friction=self.lateral_friction,
+        )
+
+
+@dataclass(frozen=True)
+class ImpactStudyConfig:
+    """Everything one run is built from (defaults: the experiment of the module docstring).
+
+    Attributes:
+        dice: the true soft object.
+        prior_stiffness, prior_damping: the material the planner and the MPC start from, N/m
+            and N·s/m (the learner replaces them for the MPC once it is confident).
+        approach_height: tool height above the dice's top face at the start, m (paper: 0.46).
+        target_force: N (paper: 60). contact_threshold: N (paper: 2).
+        duration: simulated time of each run, s.
+        time_step: plant step = control period, s (paper: 1 kHz).
+        replan_period: how often eq 9–14 are re-solved during the maximal approach, s
+            (0 = every cycle as in the paper).
+        planner: eq 12–14 parameters (paper: h = 20, Δt = 25 ms).
+        limit_margin: fraction of the data-sheet acceleration and velocity limits the planner and
+            the guard may use.
+        lateral_weight: weight of the five task directions other than the motion (x, y and
+            the orientation) relative to the motion direction in the guard's QP: the paper keeps
+            ẋ_B = 0 (eq 2), so when a limit is active the motion direction gives way first.
+        baseline_frequency: ω of the baseline's critically damped reference, rad/s.
+        baseline_target_depth: the baseline's static target below the top face, m.
+        admittance: the post-contact admittance controller.
+        handover_speed: the force-feedback MPC takes over once the tool, in contact, moves into
+            the dice no faster than this, m/s (default: the admittance controller's speed limit,
+            0.1 m/s): the impact itself is absorbed by the braking eq 14 certified.
+        mpc_period, mpc_horizon, mpc_dt: force-feedback MPC rate (s), nodes, node length (s).
+        mpc_force_weight: c6 of the pressing nodes; mpc_weights: the other cost weights.
+        learner_min_samples: samples before the learner's estimate may replace the prior.
+        learner_max_relative_std: ... and the largest relative standard error of α̂ and β̂.
+        steady_band: |f − target| ≤ steady_band · target counts as steady (5 %).
+        steady_hold: ... for at least this long, s (0.2).
+    """
+
+    dice: DiceConfig = field(default_factory=DiceConfig)
+    prior_stiffness: float = 2400.0
+    prior_damping: float = 15.0
+    approach_height: float = 0.46
+    target_force: float = 60.0
+    contact_threshold: float = 2.0
+    duration: float = 3.0
+    time_step: float = 1e-3
+    replan_period: float = 0.0
+    planner: PlannerConfig = field(default_factory=PlannerConfig)
+    limit_margin: float = 0.9
+    lateral_weight: float = 100.0
+    baseline_frequency: float = 5.0
+    baseline_target_depth: float = 0.005
+    admittance: AdmittanceForceController = field(default_factory=AdmittanceForceController)
+    handover_speed: float = 0.1
+    mpc_period: float = 0.004
+    mpc_horizon: int = 10
+    mpc_dt: float = 0.02
+    mpc_force_weight: float = 3.0
+    mpc_weights: CostWeights = field(
+        default_factory=lambda: CostWeights(posture=1.0, joint_velocity=0.1)
+    )
+    learner_min_samples: int = 20
+    learner_max_relative_std: float = 0.05
+    steady_band: float = 0.05
+    steady_hold: float = 0.2
+
+    def __post_init__(self) -> None:
+        positive = (
+            "prior_stiffness",
+            "approach_height",
+            "target_force",
+            "contact_threshold",
+            "duration",
+            "time_step",
+            "limit_margin",
+            "lateral_weight",
+            "baseline_frequency",
+            "mpc_period",
+            "mpc_dt",
+            "handover_speed",
+            "steady_band",
+            "steady_hold",
+        )
+        for name in positive:
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ConfigError(f"ImpactStudyConfig.{name} must be positive, got {value}")
+        if not (np.isfinite(self.prior_damping) and self.prior_damping >= 0):
+            raise ConfigError("prior_damping must be >= 0")
+        if self.limit_margin > 1.0:
+            raise ConfigError("limit_margin must be <= 1")
+        if self.contact_threshold >= self.target_force:
+            raise ConfigError("contact_threshold must be below target_force")
+        if not 0 <= self.baseline_target_depth < self.dice.max_penetration:
+            raise ConfigError("baseline_target_depth must be in [0, max_penetration)")
+        every = self.mpc_period / self.time_step
+        if abs(every - round(every)) > 1e-9 or round(every) < 1:
+            raise ConfigError("mpc_period must be a whole number of plant steps")
+        if not (np.isfinite(self.replan_period) and self.replan_period >= 0):
+            raise ConfigError("replan_period must be >= 0")
+
+    @property
+    def prior(self) -> SoftMaterial:
+        """The planner's material: prior stiffness/damping and the dice's z̄."""
+        return SoftMaterial(self.prior_stiffness, self.prior_damping, self.dice.max_penetration)
+
+    def control_limits(self, limits: JointLimits) -> JointLimits:
+        """The limits the planner and the guard use: ``limit_margin`` × q̈_max and q̇_max."""
+        return JointLimits(
+            position_lower=limits.position_lower,
+            position_upper=limits.position_upper,
+            velocity=self.limit_margin * limits.velocity,
+            acceleration=self.limit_margin * limits.acceleration,
+            torque=limits.torque,
+        )
+
+
+def start_configuration(
+    robot: RobotModel, position: np.ndarray, iterations: int = 300
+) -> np.ndarray:
+    """Joint positions (rad) that put the contact frame at ``position`` (m, world) with the
+    orientation it has at ``robot.q_nominal`` (tool pointing down): damped least-squares inverse
+    kinematics on SE(3), started from ``q_nominal``, with a small pull towards it in the null
+    space. Raises ConfigError if it does not converge to 0.1 mm / 1 mrad."""
+    model, data, fid = robot.model, robot.create_data(), robot.contact_frame_id
+    target = pin.SE3(robot.contact_placement(robot.q_nominal).rotation, np.asarray(position))
+    q = robot.q_nominal.copy()
+    for _ in range(iterations):
+        pin.framesForwardKinematics(model, data, q)
+        err = pin.log6(data.oMf[fid].inverse() * target).vector
+        if np.linalg.norm(err[:3]) < 1e-7 and np.linalg.norm(err[3:]) < 1e-6:
+            break
+        J = pin.computeFrameJacobian(model, data, q, fid, pin.ReferenceFrame.LOCAL)
+        step = J.T @ np.linalg.solve(J @ J.T + 1e-8 * np.eye(6), err)
+        null = np.eye(robot.nv) - np.linalg.pinv(J) @ J
+        q = pin.integrate(model, q, step + 0.01 * null @ (robot.q_nominal - q))
+    pin.framesForwardKinematics(model, data, q)
+    err = pin.log6(data.oMf[fid].inverse() * target).vector
+    if np.linalg.norm(err[:3]) > 1e-4 or np.linalg.norm(err[3:]) > 1e-3:
+        raise ConfigError(f"no joint configuration puts the tool at {position}")
+    if np.any(q < robot.position_lower) or np.any(q > robot.position_upper):
+        raise ConfigError(f"the start configuration for {position} is outside the joint limits")
+    return q
+
+
+@dataclass(frozen=True)
+class LimitViolations:
+    """Samples (control steps) at which a joint exceeded a data-sheet limit (eq 1b–1e).
+
+    Attributes:
+        position: q outside [q̲, q̄]. velocity: |q̇| > q̇_max.
+        acceleration: |q̈| > q̈_max with q̈ = (q̇[k+1] − q̇[k]) / Δt from the simulated q̇.
+        torque: |τ| ≥ τ_max for the torque the controller sent (the plant would saturate it).
+        max_ratio: largest |value| / limit of each kind (position: |q − mid-range| / half range,
+            1 at a limit).
+    """
+
+    position: int
+    velocity: int
+    acceleration: int
+    torque: int
+    max_ratio: dict[str, float]
+
+    @property
+    def total(self) -> int:
+        return self.position + self.velocity + self.acceleration + self.torque
+
+
+def count_limit_violations(
+    q: np.ndarray, v: np.ndarray, tau: np.ndarray, dt: float, limits: JointLimits
+) -> LimitViolations:
+    """Count the samples of a run (rows: steps) that break the limits; see LimitViolations."""
+    mid = 0.5 * (limits.position_upper + limits.position_lower)
+    half = 0.5 * (limits.position_upper - limits.position_lower)
+    p_ratio = np.abs(q - mid) / half
+    qdd = np.diff(v, axis=0) / dt
+    v_ratio = np.abs(v) / limits.velocity
+    a_ratio = np.abs(qdd) / limits.acceleration
+    t_ratio = np.abs(tau) / limits.torque
+    return LimitViolations(
+        position=int(np.count_nonzero(np.any(p_ratio > 1.0, axis=1))),
+        velocity=int(np.count_nonzero(np.any(v_ratio > 1.0, axis=1))),
+        acceleration=int(np.count_nonzero(np.any(a_ratio > 1.0, axis=1))),
+        torque=int(np.count_nonzero(np.any(t_ratio >= 1.0 - 1e-9, axis=1))),
+        max_ratio={
+            "position": float(p_ratio.max()) if p_ratio.size else 0.0,
+            "velocity": float(v_ratio.max()) if v_ratio.size else 0.0,
+            "acceleration": float(a_ratio.max()) if a_ratio.size else 0.0,
+            "torque": float(t_ratio.max()) if t_ratio.size else 0.0,
+        },
+    )
+
+
+def time_to_steady_force(
+    t: np.ndarray, force: np.ndarray, target: float, band: float, hold: float, start: float
+) -> float:
+    """First time ≥ ``start`` (s) from which ``|f − target| ≤ band·target`` holds for ``hold`` s;
+    NaN if never (within the data). ``t`` s, ``force`` N."""
+    inside = np.abs(force - target) <= band * target
+    dt = float(t[1] - t[0]) if t.size > 1 else 1.0
+    need = int(round(hold / dt))
+    k0 = int(np.searchsorted(t, start))
+    run = 0
+    for k in range(k0, t.size):
+        run = run + 1 if inside[k] else 0
+        if run > need:
+            return float(t[k - need])
+    return float("nan")
+
+
+@dataclass
+class ImpactRun:
+    """One run's results.
+
+    Attributes:
+        approach, regulation: which run.
+        pre_impact_velocity: speed along d at the last force-free sample before contact, m/s.
+        contact_time: time the force reached the contact threshold, s (NaN: never).
+        steady_time: :func:`time_to_steady_force` from the contact on, s (NaN: never).
+        peak_force: N. peak_penetration: below the true top face, m.
+        final_force: mean force over the last 0.2 s, N. final_force_error: max |f − target|
+            over the last 0.2 s, N.
+        violations: see LimitViolations (against the data-sheet limits).
+        learned_stiffness, learned_damping: the RLS estimate at the end, N/m, N·s/m (NaN if
+            the learner never got enough data); learned_std: their standard errors.
+        learner_samples: samples fed to the learner.
+        handover_time: when the force-feedback MPC took over, s (NaN: admittance runs).
+        wall_time: s. guard_stats: the JointLimitGuard's counters. planner_failures: eq 14
+            solves that failed (ImpactController.solver_failures).
+        mpc_solve_time_median: s (force-feedback MPC only).
+        log: time series (t, speed, force, penetration, bound, phase...).
+    """
+
+    approach: str
+    regulation: str
+    pre_impact_velocity: float
+    contact_time: float
+    steady_time: float
+    peak_force: float
+    peak_penetration: float
+    final_force: float
+    final_force_error: float
+    violations: LimitViolations
+    learned_stiffness: float
+    learned_damping: float
+    learned_std: tuple[float, float]
+    learner_samples: int
+    handover_time: float
+    wall_time: float
+    guard_stats: dict[str, int]
+    planner_failures: int
+    mpc_solve_time_median: float
+    log: dict[str, np.ndarray] = field(repr=False)
+
+    @property
+    def name(self) -> str:
+        return f"{self.approach}+{self.regulation}"
+
+    def summary(self) -> dict:
+        """JSON-friendly, without the time series."""
+        out = {k: v for k, v in asdict(self).items() if k != "log"}
+        out["violations"] = asdict(self.violations)
+        out["violations"]["total"] = self.violations.total
+        out["name"] = self.name
+        return out
+
+
+class _AdmittancePhase:
+    """The post-contact admittance task of ImpactController (Sec. VI), for the baseline: the
+    reference velocity follows :class:`AdmittanceForceController`, the position reference is its
+    integral from the contact position, the lateral position and the orientation are held."""
+
+    def __init__(self, admittance: AdmittanceForceController, target_force: float) -> None:
+        self.admittance = admittance
+        self.target_force = target_force
+
+    def start(self, position: np.ndarray, rotation: np.ndarray, speed: float) -> None:
+        self.origin = position.copy()
+        self.rotation = rotation.copy()
+        self.x_ref = 0.0
+        self.v_ref = speed
+
+    def command(self, force: float, dt: float) -> CartesianCommand:
+        self.v_ref = self.admittance.velocity(self.v_ref, force, self.target_force, dt)
+        self.x_ref += self.v_ref * dt
+        return CartesianCommand(
+            phase=CONTACT,
+            position=self.origin + self.x_ref * DOWN,
+            velocity=self.v_ref * DOWN,
+            acceleration=np.zeros(3),
+            rotation=self.rotation,
+            pre_impact_velocity=float("nan"),
+            force=force,
+            target_force=self.target_force,
+        )
+
+
+class _BaselineApproach:
+    """The baseline: a critically damped reference to a static target along d, its acceleration
+    saturated at the contact-space acceleration bound (eq 10–11, refreshed every
+    ``refresh`` s)."""
+
+    def __init__(
+        self,
+        robot: RobotModel,
+        limits: JointLimits,
+        distance: float,
+        frequency: float,
+        refresh: float,
+    ) -> None:
+        self.mapper = ContactSpaceMapper(robot, limits, DOWN)
+        self.distance = distance
+        self.omega = frequency
+        self.refresh = refresh
+        self.x = 0.0
+        self.v = 0.0
+        self._acc = (0.0, 0.0)
+        self._t_map: float | None = None
+
+    def command(
+        self, q: np.ndarray, v: np.ndarray, t: float, dt: float, hold: np.ndarray, rot: np.ndarray
+    ) -> CartesianCommand:
+        if self._t_map is None or t - self._t_map >= self.refresh - 1e-9:
+            try:
+                self._acc = self.mapper.update(q, v).acceleration_range(0.0)
+            except SolverError:
+                self._acc = (0.0, 0.0)  # no certified bound: do not accelerate
+            self._t_map = t
+        lo, hi = min(self._acc[0], 0.0), max(self._acc[1], 0.0)
+        w = self.omega
+        acc = float(np.clip(w * w * (self.distance - self.x) - 2.0 * w * self.v, lo, hi))
+        self.v += acc * dt
+        self.x += self.v * dt
+        return CartesianCommand(
+            phase="approach",
+            position=hold + self.x * DOWN,
+            velocity=self.v * DOWN,
+            acceleration=acc * DOWN,
+            rotation=rot,
+            pre_impact_velocity=float("nan"),
+            force=0.0,
+            target_force=0.0,
+        )
+
+
+def _learner_ready(
+    learner: RecursiveContactLearner, cfg: ImpactStudyConfig
+) -> tuple[float, float] | None:
+    """The learner's (α̂, β̂) if it is confident enough to replace the prior, else None."""
+    if learner.samples < cfg.learner_min_samples:
+        return None
+    try:
+        est = learner.estimate()
+    except InputError:  # (S Sᵀ) still singular
+        return None
+    ok = (
+        est.stiffness > 0
+        and est.damping >= 0
+        and est.stiffness_std <= cfg.learner_max_relative_std * est.stiffness
+        and est.damping_std <= cfg.learner_max_relative_std * max(est.damping, 1e-9)
+    )
+    return (est.stiffness, est.damping) if ok else None
+
+
+def run_impact(
+    approach: str,
+    regulation: str,
+    config: ImpactStudyConfig | None = None,
+    robot: RobotModel | None = None,
+) -> ImpactRun:
+    """One run of the experiment (see the module docstring), in lockstep simulated time."""
+    if approach not in APPROACHES:
+        raise ConfigError(f"approach must be one of {APPROACHES}, got {approach!r}")
+    if regulation not in REGULATIONS:
+        raise ConfigError(f"regulation must be one of {REGULATIONS}, got {regulation!r}")
+    cfg = config if config is not None else ImpactStudyConfig()
+    wall = time.perf_counter()
+    robot = robot if robot is not None else load_robot("panda")
+    model, fid = robot.model, robot.contact_frame_id
+    data = robot.create_data()
+    dice = cfg.dice
+    top = dice.top_height
+    x0, y0 = dice.position_xy
+    q0 = start_configuration(robot, np.array([x0, y0, top + cfg.approach_height]))
+    limits = joint_limits(robot)
+    ctrl_limits = cfg.control_limits(limits)
+    dt = cfg.time_step
+    steps = int(round(cfg.duration / dt))
+    mpc_every = int(round(cfg.mpc_period / dt))
+
+    guard = JointLimitGuard(
+        robot,
+        ctrl_limits,
+        JointLimitGuardConfig(
+            dt=dt,
+            margin=1.0,
+            task_weights=(cfg.lateral_weight, cfg.lateral_weight, 1.0) + (cfg.lateral_weight,) * 3,
+        ),
+    )
+    law = TaskSpaceInverseDynamics(robot, guard=guard)
+    impact_ctrl = None
+    baseline = None
+    if approach == "maximal":
+        impact_ctrl = ImpactController(
+            robot,
+            ctrl_limits,
+            ImpactControllerConfig(
+                direction=DOWN,
+                material=cfg.prior,
+                target_force=cfg.target_force,
+                contact_threshold=cfg.contact_threshold,
+                planner=cfg.planner,
+                admittance=cfg.admittance,
+                replan_period=cfg.replan_period,
+            ),
+        )
+    else:
+        baseline = _BaselineApproach(
+            robot,
+            ctrl_limits,
+            cfg.approach_height + cfg.baseline_target_depth,
+            cfg.baseline_frequency,
+            max(cfg.replan_period, dt),
+        )
+    admittance = _AdmittancePhase(cfg.admittance, cfg.target_force)
+    learner = RecursiveContactLearner()
+    mpc: ModelPredictiveController | None = None
+    mpc_torque = np.zeros(robot.nv)
+    solve_times: list[float] = []
+    learned_in_mpc = False
+
+    log = {
+        "t": np.arange(steps) * dt,
+        "speed": np.zeros(steps),  # along d, m/s
+        "force": np.zeros(steps),  # world z on the tool, N
+        "penetration": np.zeros(steps),  # below the true top face, m
+        "bound": np.full(steps, np.nan),  # maximal pre-impact velocity of eq 14, m/s
+        "in_contact_phase": np.zeros(steps, dtype=bool),
+        "mpc_stiffness": np.full(steps, np.nan),
+        "mpc_damping": np.full(steps, np.nan),
+    }
+    qs = np.zeros((steps + 1, robot.nq))
+    vs = np.zeros((steps + 1, robot.nv))
+    taus = np.zeros((steps, robot.nv))
+
+    plant_cfg = PlantConfig(time_step=dt, table=None, soft_boxes=(dice.box(),))
+    contact_k: int | None = None
+    touch_position: np.ndarray | None = None  # last force-free sample before contact
+    touch_speed = float("nan")
+    hold_position: np.ndarray | None = None
+    hold_rotation: np.ndarray | None = None
+    prior_pair = (cfg.prior_stiffness, cfg.prior_damping)
+    handover_k: int | None = None
+    with Plant(robot, plant_cfg) as plant:
+        plant.reset(q0)
+        for k in range(steps):
+            t = k * dt
+            s = plant.state()
+            q, v = s.q, s.v
+            qs[k], vs[k] = q, v
+            F = s.wrench_world[:3].copy()
+            force = float(F[2])
+            pin.forwardKinematics(model, data, q, v)
+            pin.updateFramePlacements(model, data)
+            oMf = data.oMf[fid]
+            p = oMf.translation.copy()
+            speed = float(DOWN @ pin.getFrameVelocity(model, data, fid, _LWA).linear)
+            if hold_position is None:
+                hold_position, hold_rotation = p.copy(), oMf.rotation.copy()
+            log["speed"][k] = speed
+            log["force"][k] = force
+            log["penetration"][k] = top - p[2]
+            if contact_k is None:
+                if force <= 0.0:
+                    touch_position, touch_speed = p.copy(), speed
+                elif force >= cfg.contact_threshold:
+                    contact_k = k
+                    if touch_position is None:  # in contact from the start (not expected)
+                        touch_position, touch_speed = p.copy(), speed
+                    admittance.start(p, hold_rotation, speed)
+            in_contact = contact_k is not None
+            log["in_contact_phase"][k] = in_contact
+            if in_contact and force > 0.0:
+                # eq 19–20: deformation from the first-touch position, its rate, the force.
+                learner.update(float(DOWN @ (p - touch_position)), speed, force)
+
+            impact_force = None
+            if not in_contact:
+                # An impact during the next step would push back with f ≈ β ż + α ż Δt.
+                prior = cfg.prior
+                f_pred = max(speed, 0.0) * (prior.damping + prior.stiffness * dt)
+                impact_force = -f_pred * DOWN
+            if (
+                regulation == "ff_mpc"
+                and in_contact
+                and handover_k is None
+                and speed <= cfg.handover_speed
+            ):
+                handover_k = k
+            if handover_k is not None:
+                if mpc is None:
+                    mpc = ModelPredictiveController(
+                        robot,
+                        MpcConfig(
+                            formulation="force_feedback",
+                            horizon=cfg.mpc_horizon,
+                            dt=cfg.mpc_dt,
+                            period=cfg.mpc_period,
+                            contact=ContactConfig(stiffness=prior_pair[0], damping=prior_pair[1]),
+                            weights=cfg.mpc_weights,
+                            q_reference=tuple(float(x) for x in q),
+                        ),
+                        PressTask(
+                            position=p,
+                            force=cfg.target_force,
+                            weights=PhaseWeights(force=cfg.mpc_force_weight),
+                        ),
+                    )
+                    mpc_start = k
+                    current = prior_pair
+                if (k - mpc_start) % mpc_every == 0:
+                    estimate = _learner_ready(learner, cfg)
+                    if estimate is not None:
+                        mpc.set_contact_parameters(*estimate)
+                        current = estimate
+                        learned_in_mpc = True
+                    command = mpc.step(MpcMeasurement(q=q, v=v, force=np.array([force])), t)
+                    mpc_torque = command.torque
+                    solve_times.append(command.solve_time)
+                log["mpc_stiffness"][k], log["mpc_damping"][k] = current
+                # The MPC models the normal force only: compensate that one (and the measured
+                # moment: the contact point is off the frame origin when the tool tilts) and keep
+                # the contact point's tangential acceleration at zero, so that the sticking
+                # friction carries no load (compensating the measured friction force would push
+                # the tool sideways until it slips).
+                normal = np.concatenate([force * _UP, s.wrench_world[3:]])
+                tau = guard.admissible_torque(mpc_torque, q, v, normal, held_directions=_LATERAL)
+            else:
+                if approach == "maximal":
+                    cmd = impact_ctrl.step(ImpactMeasurement(q, v, F), t)
+                    log["bound"][k] = cmd.pre_impact_velocity
+                elif in_contact:
+                    cmd = admittance.command(force, dt)
+                else:
+                    cmd = baseline.command(q, v, t, dt, hold_position, hold_rotation)
+                tau = law.torque(cmd, q, v, s.wrench_world, impact_force=impact_force)
+            taus[k] = tau
+            plant.step(tau)
+        s = plant.state()
+        qs[steps], vs[steps] = s.q, s.v
+
+    t_log = log["t"]
+    contact_time = float("nan") if contact_k is None else float(t_log[contact_k])
+    steady = (
+        float("nan")
+        if contact_k is None
+        else time_to_steady_force(
+            t_log,
+            log["force"],
+            cfg.target_force,
+            cfg.steady_band,
+            cfg.steady_hold,
+            contact_time,
+        )
+    )
+    tail = t_log >= t_log[-1] - 0.2
+    try:
+        est = learner.estimate()
+        learned = (est.stiffness, est.damping, (est.stiffness_std, est.damping_std))
+    except InputError:  # never enough contact data
+        learned = (float("nan"), float("nan"), (float("nan"), float("nan")))
+    return ImpactRun(
+        approach=approach,
+        regulation=regulation,
+        pre_impact_velocity=float(touch_speed),
+        contact_time=contact_time,
+        steady_time=steady,
+        peak_force=float(log["force"].max()),
+        peak_penetration=float(log["penetration"].max()),
+        final_force=float(log["force"][tail].mean()),
+        final_force_error=float(np.abs(log["force"][tail] - cfg.target_force).max()),
+        violations=count_limit_violations(qs, vs, taus, dt, limits),
+        learned_stiffness=float(learned[0]),
+        learned_damping=float(learned[1]),
+        learned_std=tuple(float(x) for x in learned[2]),
+        learner_samples=learner.samples,
+        handover_time=float("nan") if handover_k is None else float(t_log[handover_k]),
+        wall_time=time.perf_counter() - wall,
+        guard_stats=dict(guard.stats),
+        planner_failures=0 if impact_ctrl is None else impact_ctrl.solver_failures,
+        mpc_solve_time_median=float(np.median(solve_times)) if solve_times else float("nan"),
+        log=log | {"learned_in_mpc": np.array(learned_in_mpc)},
+    )
+
+
+#: The runs of the study, in table order.
+DEFAULT_RUNS = (
+    ("maximal", "admittance"),
+    ("maximal", "ff_mpc"),
+    ("baseline", "admittance"),
+    ("baseline", "ff_mpc"),
+)
+#: The paper's numbers (Sec. VI, Fig. 4), for comparison only.
+PAPER = {
+    "maximal_contact_time": 0.75,
+    "maximal_pre_impact_velocity": 0.898,
+    "baseline_contact_time": 1.38,
+}
+
+
+def _fmt(value: float, spec: str) -> str:
+    return "—" if not np.isfinite(value) else format(value, spec)
+
+
+def format_table(runs: list[ImpactRun], config: ImpactStudyConfig) -> str:
+    """The study's table (Markdown), one row per run, then the learner's estimates."""
+    dice = config.dice
+    head = (
+        "| run | pre-impact velocity (m/s) | contact (s) | steady force (s) | "
+        "peak force (N) | peak penetration (mm) | final force (N) | "
+        "violations q / q̇ / q̈ / τ | max q̈/q̈_max | wall (s) |"
+    )
+    lines = [head, "|" + "---|" * 10]
+    for r in runs:
+        v = r.violations
+        settle = r.steady_time - r.contact_time
+        lines.append(
+            f"| {r.name} | {_fmt(r.pre_impact_velocity, '.3f')} | {_fmt(r.contact_time, '.3f')} "
+            f"| {_fmt(r.steady_time, '.3f')} (+{_fmt(settle, '.3f')}) "
+            f"| {_fmt(r.peak_force, '.1f')} | {_fmt(1e3 * r.peak_penetration, '.1f')} "
+            f"| {_fmt(r.final_force, '.2f')} "
+            f"| {v.position} / {v.velocity} / {v.acceleration} / {v.torque} "
+            f"| {v.max_ratio['acceleration']:.3f} | {r.wall_time:.1f} |"
+        )
+    lines += [
+        "",
+        f"Learner (eq 19–21) at the end of each run vs the dice set in PyBullet "
+        f"(stiffness {dice.stiffness:g} N/m, damping {dice.damping:g} N·s/m; planner prior "
+        f"{config.prior_stiffness:g} N/m, {config.prior_damping:g} N·s/m):",
+        "",
+        "| run | samples | stiffness α̂ (N/m) | error | damping β̂ (N·s/m) | error | "
+        "MPC handover (s) |",
+        "|" + "---|" * 7,
+    ]
+    for r in runs:
+        ek = (r.learned_stiffness / dice.stiffness - 1.0) * 100.0
+        ed = (r.learned_damping / dice.damping - 1.0) * 100.0 if dice.damping > 0 else np.nan
+        lines.append(
+            f"| {r.name} | {r.learner_samples} | {_fmt(r.learned_stiffness, '.1f')} "
+            f"| {_fmt(ek, '+.1f')} % | {_fmt(r.learned_damping, '.2f')} | {_fmt(ed, '+.1f')} % "
+            f"| {_fmt(r.handover_time, '.3f')} |"
+        )
+    lines += [
+        "",
+        f"Steady force: |f − {config.target_force:g}| ≤ {100 * config.steady_band:g} % for "
+        f"{config.steady_hold:g} s (time it starts, and + its delay after the contact). "
+        "Violations: control steps beyond the data-sheet limits; q̈ = (q̇[k+1] − q̇[k])/Δt of "
+        "the simulated q̇; τ counts commanded torques at or over the limit. Paper (real Panda, "
+        f"its dice): contact at {PAPER['maximal_contact_time']} s with "
+        f"{PAPER['maximal_pre_impact_velocity']} m/s (maximal) vs "
+        f"{PAPER['baseline_contact_time']} s (baseline).",
+    ]
+    return "\n".join(lines)
+
+
+#: Line styles of the runs in the figure.
+_STYLE = {
+    ("maximal", "admittance"): dict(color="black", ls="-"),
+    ("maximal", "ff_mpc"): dict(color="tab:red", ls="-"),
+    ("baseline", "admittance"): dict(color="tab:cyan", ls="--"),
+    ("baseline", "ff_mpc"): dict(color="tab:purple", ls="--"),
+}
+
+
+def plot_runs(runs: list[ImpactRun], config: ImpactStudyConfig, path: Path) -> Path:
+    """A figure like the paper's Fig. 4: velocity along the motion (with the eq 14 bound of the
+    maximal approach) and contact force over time, every run; PNG at ``path``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax_v, ax_f, ax_z) = plt.subplots(3, 1, figsize=(7.0, 6.6), sharex=True, dpi=90)
+    bound_drawn = False
+    for r in runs:
+        t, log = r.log["t"], r.log
+        style = _STYLE.get((r.approach, r.regulation), {})
+        label = r.name.replace("ff_mpc", "FF-MPC")
+        ax_v.plot(t, log["speed"], lw=1.2, label=label, **style)
+        if r.approach == "maximal" and not bound_drawn:
+            ax_v.plot(
+                t,
+                log["bound"],
+                color="tab:blue",
+                lw=5.0,
+                alpha=0.3,
+                zorder=1,
+                label="max. safe pre-impact velocity (eq 14)",
+            )
+            bound_drawn = True
+        ax_f.plot(t, log["force"], lw=1.2, label=label, **style)
+        ax_z.plot(t, 1e3 * log["penetration"], lw=1.2, **style)
+        if np.isfinite(r.contact_time):
+            for ax in (ax_v, ax_f):
+                ax.axvline(r.contact_time, color=style.get("color", "gray"), lw=0.6, ls=":")
+    ax_f.axhline(config.target_force, color="tab:green", lw=1.5, label="desired force")
+    ax_z.axhline(
+        1e3 * config.dice.max_penetration, color="gray", lw=1.0, ls="-.", label="max. penetration z̄"
+    )
+    ax_z.set_ylim(bottom=-5.0)
+    ax_v.set_ylabel("velocity along d (m/s)")
+    ax_f.set_ylabel("contact force (N)")
+    ax_z.set_ylabel("penetration (mm)")
+    ax_z.set_xlabel("time (s)")
+    ax_v.legend(fontsize=7, loc="upper right")
+    ax_f.legend(fontsize=7, loc="upper left")
+    ax_z.legend(fontsize=7, loc="upper left")
+    for ax in (ax_v, ax_f, ax_z):
+        ax.grid(alpha=0.3)
+    dice = config.dice
+    fig.suptitle(
+        f"Panda on a soft dice (k = {dice.stiffness:g} N/m, d = {dice.damping:g} N·s/m): "
+        "maximal impact vs baseline",
+        fontsize=9,
+    )
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def default_out_dir() -> Path:
+    """``benchmarks/results/impact_study/<UTC time>`` under the current directory."""
+    stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    return Path("benchmarks") / "results" / "impact_study" / stamp
+
+
+@dataclass
+class ImpactStudyResult:
+    """Runs, the table (Markdown) and the files written."""
+
+    runs: list[ImpactRun]
+    table: str
+    files: list[Path]
+    wall_time: float
+
+
+def _prepare_out_dir(out_dir: Path, force: bool) -> Path:
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not force:
+        raise ConfigError(f"{out_dir} exists: choose another --out or pass --force to overwrite")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    return out_dir
+
+
+def run_impact_study(
+    config: ImpactStudyConfig | None = None,
+    runs: tuple[tuple[str, str], ...] = DEFAULT_RUNS,
+    out_dir: Path | None = None,
+    force: bool = False,
+    progress: bool = True,
+    command_line: str = "",
+) -> ImpactStudyResult:
+    """Run ``runs`` one after the other, write ``results.json``, ``table.md`` and
+    ``impact_fig4.png`` into ``out_dir`` (refused if it exists, unless ``force``)."""
+    cfg = config if config is not None else ImpactStudyConfig()
+    out = _prepare_out_dir(out_dir if out_dir is not None else default_out_dir(), force)
+    start = time.perf_counter()
+    robot = load_robot("panda")
+    results = []
+    for approach, regulation in runs:
+        if progress:
+            print(f"running {approach}+{regulation} ...", flush=True)
+        results.append(run_impact(approach, regulation, cfg, robot))
+        if progress:
+            r = results[-1]
+            print(
+                f"  contact {_fmt(r.contact_time, '.3f')} s, {r.violations.total} limit "
+                f"violations, {r.wall_time:.1f} s wall",
+                flush=True,
+            )
+    table = format_table(results, cfg)
+    wall = time.perf_counter() - start
+    figure = plot_runs(results, cfg, out / "impact_fig4.png")
+    document = {
+        "command_line": command_line,
+        "created": datetime.now(timezone.utc).isoformat(),
+        "python": platform.python_version(),
+        "config": json.loads(json.dumps(asdict(cfg), default=str)),
+        "paper": PAPER,
+        "runs": [r.summary() for r in results],
+        "wall_time_s": wall,
+    }
+    (out / "results.json").write_text(json.dumps(document, indent=2, default=float) + "\n")
+    (out / "table.md").write_text(table + "\n")
+    return ImpactStudyResult(
+        runs=results,
+        table=table,
+        files=[out / "table.md", out / "results.json", figure],
+        wall_time=wall,
+    )
