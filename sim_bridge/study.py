@@ -1,0 +1,774 @@
+"""The paper's simulation study (VI-C: Tables II–IV, Figs. 6–9) and Experiment 1 (VII-B).
+
+A study is a grid of closed-loop runs — formulations × torque PID on/off × seeds — each run being
+``run_scenario(load_scenario(name, overrides))`` with the overrides ``mpc.formulation``,
+``pid.enabled`` and ``seed`` (the seed draws the table tilt θ and the actuation bias (a, b), the
+same for every controller). Runs go to a pool of worker processes started with the ``spawn``
+method (PyBullet clients and crocoddyl objects must never be forked mid-state); a worker sends
+back the run's ``summary()`` and, for the one seed that is plotted, a downsampled log — never
+the full time series.
+
+Outputs, in a directory that must not exist yet (unless ``force``):
+
+* ``results.json`` — every run's summary, failures, the grid, the command line, the package
+  versions, the scenario's parameters and the wall time;
+* ``tables.md`` — Tables II (no PID) and III (PID) in the paper's layout, Table IV (ΔE_λ, ΔE_τ =
+  no-PID − PID per seed), computed from the TRUE normal force along the tilted table normal, then
+  the same tables from the MEASURED force (what the controllers see);
+* PNG figures like the paper's Figs. 6–9 (normal force vs reference and tangential position
+  error over time, one seed, three controllers), or Fig. 4 for Experiment 1.
+
+A run that raises (a diverging controller: non-finite state, solver failure) is recorded as a
+failure with its error and left out of the aggregates; the tables say how many runs each cell
+has and list the failures.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import multiprocessing
+import os
+import platform
+import re
+import sys
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ffmpc_core.config import FORMULATIONS
+from ffmpc_core.errors import ConfigError, FfmpcError
+from ffmpc_core.metrics import PolishingMetrics, summarize
+from ffmpc_core.scenario import Scenario, load_scenario, resolve_scenario_path, scenario_parameters
+
+#: Column titles of the paper's tables, per formulation.
+LABELS = {
+    "classical": "Classical",
+    "torque_feedback": "Torque-feedback",
+    "force_feedback": "Force-feedback",
+}
+#: Plot colours per formulation.
+COLORS = {"classical": "tab:blue", "torque_feedback": "tab:orange", "force_feedback": "tab:green"}
+#: Sampling period of the logs kept for the figures, s.
+PLOT_STEP = 0.002
+#: Signals of a downsampled plot log (t in s, forces in N, tangential error in mm).
+PLOT_SIGNALS = ("t", "force_true", "force_measured", "force_reference", "tangential_error_mm")
+
+#: The paper's Tables II–IV (VI-C) and Experiment 1 MAEs (VII-B), for comparison only.
+PAPER_TABLES = {
+    "II": {
+        "classical": ("5.75 ± 0.06", "25.52 ± 4.09", "59.36", "0.51"),
+        "torque_feedback": ("2.44 ± 0.01", "33.98 ± 4.42", "105.57", "32.75"),
+        "force_feedback": ("4.59 ± 0.01", "10.55 ± 4.40", "110.95", "0.00"),
+    },
+    "III": {
+        "classical": ("7.94 ± 1.43", "15.21 ± 5.70", "185.75", "0.00"),
+        "torque_feedback": ("3.87 ± 0.65", "12.44 ± 4.16", "211.00", "0.00"),
+        "force_feedback": ("3.07 ± 0.01", "2.04 ± 0.01", "111.97", "0.00"),
+    },
+    "IV": {
+        "classical": ("10.31 ± 6.85", "2.24 ± 0.08"),
+        "torque_feedback": ("21.55 ± 4.95", "2.20 ± 0.07"),
+        "force_feedback": ("8.51 ± 1.87", "1.95 ± 0.26"),
+    },
+}
+PAPER_FORCE_SQUARE_MAE = {"classical": 2.76, "torque_feedback": 2.70, "force_feedback": 2.16}
+
+
+#: Exceptions that mean "this run diverged" (recorded as a failure, the study goes on).
+DIVERGENCE_ERRORS: tuple[type[BaseException], ...] = (
+    FfmpcError,
+    ArithmeticError,
+    ValueError,
+    RuntimeError,
+    np.linalg.LinAlgError,
+)
+
+
+# --------------------------------------------------------------------------- runs
+@dataclass(frozen=True)
+class RunSpec:
+    """One run of a study: a scenario (shipped name or path) with the grid's overrides.
+
+    ``overrides`` are extra dotted-name overrides applied to every run of the study (as
+    ``(name, value)`` pairs, so the spec stays hashable and picklable); ``plot`` asks the worker
+    to send back a log downsampled to ``plot_step`` (s).
+    """
+
+    scenario: str
+    formulation: str
+    pid_enabled: bool
+    seed: int
+    duration: float | None = None
+    overrides: tuple[tuple[str, Any], ...] = ()
+    plot: bool = False
+    plot_step: float = PLOT_STEP
+
+    def scenario_overrides(self) -> dict[str, Any]:
+        out = dict(self.overrides)
+        out.update(
+            {
+                "mpc.formulation": self.formulation,
+                "pid.enabled": self.pid_enabled,
+                "seed": self.seed,
+            }
+        )
+        return out
+
+    def load(self) -> Scenario:
+        """The run's scenario (ConfigError on a bad file or override)."""
+        return load_scenario(self.scenario, self.scenario_overrides())
+
+
+@dataclass
+class RunOutcome:
+    """What a worker sends back: the run's ``summary()`` or its error, and maybe a plot log."""
+
+    spec: RunSpec
+    summary: dict | None = None
+    error: str | None = None
+    plot_log: dict[str, np.ndarray] | None = field(default=None, repr=False)
+
+    @property
+    def ok(self) -> bool:
+        return self.summary is not None
+
+
+def plot_log(result, scenario: Scenario, step: float) -> dict[str, np.ndarray]:
+    """The signals of :data:`PLOT_SIGNALS` from a run's log, one sample every ``step`` s.
+
+    The tangential error is ‖(I − n nᵀ)(p − p̄)‖ in mm, n the TRUE (tilted) table normal, as E_P;
+    ``window`` holds the [start, end] of the metrics window (s; NaN when empty).
+    """
+    from ffmpc_core.robots import load_robot
+    from sim_bridge.runner import build_task, plant_config
+
+    log = result.log
+    dt = scenario.plant.time_step
+    every = max(1, int(round(step / dt)))
+    task = build_task(scenario, load_robot(scenario.robot))
+    normal = plant_config(scenario, task, result.draws.tilt_angle).table.normal
+    error = log["ee_position"] - log["ee_reference"]
+    tangential = error - np.outer(error @ normal, normal)
+    full = {
+        "t": log["t"],
+        "force_true": log["force_true"],
+        "force_measured": log["force_measured"],
+        "force_reference": log["force_reference"],
+        "tangential_error_mm": 1e3 * np.linalg.norm(tangential, axis=1),
+    }
+    out = {name: np.array(values[::every]) for name, values in full.items()}
+    window = task.in_circle(log["t"])
+    out["window"] = log["t"][window][[0, -1]] if window.any() else np.array([np.nan, np.nan])
+    return out
+
+
+def execute_run(spec: RunSpec) -> RunOutcome:
+    """Run one spec (in a worker or in-process).
+
+    A run that diverges — non-finite states or measurements (InputError), a solver failure, a
+    numerical error from numpy/pinocchio/crocoddyl/PyBullet — is returned as a failure. A
+    configuration error, and programming errors (NameError, TypeError, ...), propagate: they
+    are not results.
+    """
+    import pybullet
+
+    from sim_bridge.runner import run_scenario
+
+    scenario = spec.load()
+    try:
+        result = run_scenario(scenario, spec.duration)
+    except ConfigError:
+        raise
+    except (*DIVERGENCE_ERRORS, pybullet.error) as exc:
+        return RunOutcome(spec, error=f"{type(exc).__name__}: {exc}")
+    logs = plot_log(result, scenario, spec.plot_step) if spec.plot else None
+    return RunOutcome(spec, summary=result.summary(), plot_log=logs)
+
+
+def validate_specs(specs: Sequence[RunSpec]) -> None:
+    """Load each distinct scenario of the grid once: a bad file or override fails now, before
+    any run (ConfigError)."""
+    if not specs:
+        raise ConfigError("a study needs at least one run")
+    distinct = {(s.scenario, s.overrides, s.formulation, s.pid_enabled): s for s in specs}
+    for spec in distinct.values():
+        spec.load()
+
+
+def _cost_rank(spec: RunSpec) -> int:
+    """Submission order: the slowest formulations first, so the pool's tail is short."""
+    return {"force_feedback": 0, "torque_feedback": 1}.get(spec.formulation, 2)
+
+
+def run_specs(
+    specs: Sequence[RunSpec],
+    workers: int | None = None,
+    progress: bool = True,
+    runner: Callable[[RunSpec], RunOutcome] = execute_run,
+) -> list[RunOutcome]:
+    """Run every spec and return the outcomes in the order of ``specs``.
+
+    Args:
+        workers: worker processes (default ``os.cpu_count()``); ``1`` runs in this process.
+            Workers are *spawned*: a script calling this with ``workers > 1`` needs the
+            ``if __name__ == "__main__":`` guard.
+        progress: a tqdm bar on stderr.
+    """
+    from tqdm import tqdm
+
+    workers = (os.cpu_count() or 1) if workers is None else int(workers)
+    if workers < 1:
+        raise ConfigError(f"workers must be >= 1, got {workers}")
+    validate_specs(specs)
+    outcomes: list[RunOutcome | None] = [None] * len(specs)
+    bar = tqdm(total=len(specs), file=sys.stderr, disable=not progress, unit="run", smoothing=0)
+    order = sorted(range(len(specs)), key=lambda i: _cost_rank(specs[i]))
+    try:
+        if workers == 1 or len(specs) == 1:
+            for i in order:
+                outcomes[i] = runner(specs[i])
+                bar.set_postfix_str(_postfix(specs[i]), refresh=False)
+                bar.update()
+        else:
+            context = multiprocessing.get_context("spawn")
+            with ProcessPoolExecutor(min(workers, len(specs)), mp_context=context) as pool:
+                futures = {pool.submit(runner, specs[i]): i for i in order}
+                try:
+                    for future in as_completed(futures):
+                        i = futures[future]
+                        outcomes[i] = future.result()
+                        bar.set_postfix_str(_postfix(specs[i]), refresh=False)
+                        bar.update()
+                except BaseException:
+                    # A bug or Ctrl-C: don't wait for the queued runs.
+                    pool.shutdown(wait=True, cancel_futures=True)
+                    raise
+    finally:
+        bar.close()
+    return [o for o in outcomes if o is not None]
+
+
+def _postfix(spec: RunSpec) -> str:
+    return f"{spec.formulation} pid={'on' if spec.pid_enabled else 'off'} seed={spec.seed}"
+
+
+def grid_specs(
+    scenario: str,
+    formulations: Sequence[str],
+    pid_modes: Sequence[bool],
+    seeds: Sequence[int],
+    duration: float | None = None,
+    overrides: dict[str, Any] | None = None,
+    plot_seed: int | None = None,
+) -> list[RunSpec]:
+    """The runs of a study: every (PID mode, formulation, seed), the ``plot_seed`` ones plotted."""
+    bad = [f for f in formulations if f not in FORMULATIONS]
+    if bad or not formulations:
+        raise ConfigError(f"formulations must be among {FORMULATIONS}, got {list(formulations)}")
+    if not seeds or not pid_modes:
+        raise ConfigError("a study needs at least one seed and one PID mode")
+    if duration is not None and not (math.isfinite(duration) and duration > 0):
+        raise ConfigError(f"duration must be > 0 s, got {duration}")
+    extra = tuple(sorted((overrides or {}).items()))
+    reserved = {"mpc.formulation", "pid.enabled", "seed"} & {k for k, _ in extra}
+    if reserved:
+        raise ConfigError(f"{sorted(reserved)} are set by the study grid, not by overrides")
+    return [
+        RunSpec(
+            scenario=scenario,
+            formulation=form,
+            pid_enabled=pid,
+            seed=int(seed),
+            duration=duration,
+            overrides=extra,
+            plot=plot_seed is not None and int(seed) == plot_seed,
+        )
+        for pid in pid_modes
+        for form in formulations
+        for seed in seeds
+    ]
+
+
+# --------------------------------------------------------------------------- results
+def prepare_output_dir(out: str | os.PathLike, force: bool = False) -> Path:
+    """Create the output directory; refuse an existing one unless ``force`` (then files in it
+    are overwritten)."""
+    path = Path(out)
+    if path.exists() and not force:
+        raise ConfigError(f"output directory {path} already exists; pass --force to overwrite")
+    if path.exists() and not path.is_dir():
+        raise ConfigError(f"output path {path} is not a directory")
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def source_state() -> dict[str, Any]:
+    """The git commit of the ffmpc sources that ran, and the files modified since (read-only
+    git queries; empty when not in a git checkout)."""
+    import subprocess
+
+    root = Path(__file__).resolve().parent.parent
+
+    def git(*args: str) -> str | None:
+        try:
+            done = subprocess.run(
+                ["git", "-C", str(root), *args], capture_output=True, text=True, timeout=10
+            )
+        except (OSError, subprocess.TimeoutExpired):
+            return None
+        return done.stdout if done.returncode == 0 else None
+
+    commit = git("rev-parse", "HEAD")
+    if commit is None:
+        return {}
+    status = git("status", "--porcelain", "--untracked-files=no") or ""
+    return {
+        "commit": commit.strip(),
+        "modified": [line[3:] for line in status.splitlines() if line.strip()],
+    }
+
+
+def study_document(
+    kind: str,
+    specs: Sequence[RunSpec],
+    outcomes: Sequence[RunOutcome],
+    *,
+    command_line: str,
+    workers: int,
+    wall_time: float,
+) -> dict[str, Any]:
+    """The content of ``results.json``: the grid, every run, failures, versions, timing."""
+    from ffmpc_core.selfcheck import installed_versions
+
+    first = specs[0]
+    scenario = first.load()
+    runs = [o.summary for o in outcomes if o.ok]
+    failures = [
+        {
+            "formulation": o.spec.formulation,
+            "pid_enabled": o.spec.pid_enabled,
+            "seed": o.spec.seed,
+            "error": o.error,
+        }
+        for o in outcomes
+        if not o.ok
+    ]
+    return {
+        "kind": kind,
+        "scenario": scenario.name,
+        "scenario_file": str(resolve_scenario_path(first.scenario)),
+        "overrides": dict(first.overrides),
+        "duration_s": first.duration,
+        "grid": {
+            "formulations": list(dict.fromkeys(s.formulation for s in specs)),
+            "pid_enabled": list(dict.fromkeys(s.pid_enabled for s in specs)),
+            "seeds": list(dict.fromkeys(s.seed for s in specs)),
+        },
+        "command_line": command_line,
+        "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "wall_time_s": wall_time,
+        "workers": workers,
+        "source": source_state(),
+        "versions": {
+            "python": platform.python_version(),
+            "platform": platform.platform(),
+            **installed_versions(),
+        },
+        "metrics_note": (
+            "metrics_true: the plant's true normal force along the tilted table normal; "
+            "metrics_measured: the measured force the controllers see (sensor noise and delay). "
+            "E_P uses the true table normal in both. Window: the circle phase (polishing) or "
+            "the square signal (force_square)."
+        ),
+        "scenario_parameters": scenario_parameters(
+            scenario.with_overrides({"seed": 0, "mpc.formulation": first.formulation})
+        ),
+        "runs": runs,
+        "failures": failures,
+    }
+
+
+def _metrics(run: dict, source: str) -> PolishingMetrics:
+    return PolishingMetrics(**run[f"metrics_{source}"])
+
+
+def _select(runs: Sequence[dict], formulation: str, pid: bool) -> list[dict]:
+    return [r for r in runs if r["formulation"] == formulation and r["pid_enabled"] == pid]
+
+
+def _pm(mean: float | None, std: float | None) -> str:
+    return "n/a" if mean is None else f"{mean:.2f} ± {std:.2f}"
+
+
+def aggregate(doc: dict, formulation: str, pid: bool, source: str) -> dict | None:
+    """``summarize()`` of the runs of one cell (``source`` "true" or "measured"), or None."""
+    runs = _select(doc["runs"], formulation, pid)
+    return summarize([_metrics(r, source) for r in runs]) if runs else None
+
+
+def delta_per_seed(doc: dict, formulation: str, source: str) -> dict[str, list[float]]:
+    """Table IV: ΔE_λ (N) and ΔE_τ (N·m) = no-PID − PID, per seed run in both modes."""
+    off = {r["seed"]: r for r in _select(doc["runs"], formulation, False)}
+    on = {r["seed"]: r for r in _select(doc["runs"], formulation, True)}
+    seeds = sorted(set(off) & set(on))
+    out: dict[str, list[float]] = {"seeds": seeds, "force_mae": [], "torque_mae": []}
+    for seed in seeds:
+        a, b = off[seed][f"metrics_{source}"], on[seed][f"metrics_{source}"]
+        out["force_mae"].append(a["force_mae"] - b["force_mae"])
+        if a["torque_mae"] is not None and b["torque_mae"] is not None:
+            out["torque_mae"].append(a["torque_mae"] - b["torque_mae"])
+    return out
+
+
+def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return lines
+
+
+def _counts(doc: dict, forms: Sequence[str], pid: bool) -> str:
+    total = len(doc["grid"]["seeds"])
+    return ", ".join(f"{LABELS[f]} {len(_select(doc['runs'], f, pid))}/{total}" for f in forms)
+
+
+def polishing_tables(doc: dict) -> str:
+    """``tables.md`` of a polishing study: Tables II–IV from the true, then the measured force."""
+    forms = doc["grid"]["formulations"]
+    modes = doc["grid"]["pid_enabled"]
+    lines = [
+        f"# Polishing study — scenario `{doc['scenario']}`",
+        "",
+        f"{len(doc['grid']['seeds'])} seeds ({_seed_range(doc['grid']['seeds'])}); each seed "
+        "draws the table tilt θ ~ U(±θmax) and the actuation bias (a, b), the same for every "
+        f"controller. Command: `{doc['command_line']}`. Wall time {doc['wall_time_s']:.0f} s "
+        f"on {doc['workers']} worker(s).",
+        "",
+        "Aggregation as the paper: E_P, E_λ mean ± std over the seeds; λmax and t_break the max "
+        "over the seeds (eq 34–35); metrics over the circle phase.",
+        "",
+    ]
+    sources = (
+        ("true", "TRUE normal force (the plant's, along the tilted table normal)"),
+        ("measured", "MEASURED force (what the controllers see: noise, delay, world-z axis)"),
+    )
+    for source, description in sources:
+        lines += [f"## Metrics from the {description}", ""]
+        for number, pid in (("II", False), ("III", True)):
+            if pid not in modes:
+                continue
+            what = "with" if pid else "without"
+            lines += [f"### Table {number} — {what} low-level torque PID ({source} force)", ""]
+            cells = {f: aggregate(doc, f, pid, source) for f in forms}
+            rows = [
+                ["E_P (mm)"]
+                + [
+                    _pm(c["position_mae_mm_mean"], c["position_mae_mm_std"]) if c else "n/a"
+                    for c in cells.values()
+                ],
+                ["E_λ (N)"]
+                + [
+                    _pm(c["force_mae_mean"], c["force_mae_std"]) if c else "n/a"
+                    for c in cells.values()
+                ],
+                ["λmax (N)"] + [f"{c['max_force']:.2f}" if c else "n/a" for c in cells.values()],
+                ["t_break (%)"]
+                + [f"{c['contact_break_percent']:.2f}" if c else "n/a" for c in cells.values()],
+            ]
+            lines += _table(["", *(LABELS[f] for f in forms)], rows)
+            lines += ["", f"Runs: {_counts(doc, forms, pid)}.", ""]
+        if set(modes) >= {True, False}:
+            lines += [f"### Table IV — no-PID minus PID, per seed ({source} force)", ""]
+            deltas = {f: delta_per_seed(doc, f, source) for f in forms}
+            rows = [
+                ["ΔE_λ (N)"] + [_pm(*_mean_std(d["force_mae"])) for d in deltas.values()],
+                ["ΔE_τ (N m)"] + [_pm(*_mean_std(d["torque_mae"])) for d in deltas.values()],
+            ]
+            lines += _table(["", *(LABELS[f] for f in forms)], rows)
+            pairs = ", ".join(f"{LABELS[f]} {len(d['seeds'])}" for f, d in deltas.items())
+            lines += ["", f"Seed pairs: {pairs}.", ""]
+    lines += _failures_section(doc)
+    lines += _paper_section(forms)
+    return "\n".join(lines) + "\n"
+
+
+def _mean_std(values: Sequence[float]) -> tuple[float | None, float | None]:
+    if not values:
+        return None, None
+    return float(np.mean(values)), float(np.std(values))
+
+
+def _seed_range(seeds: Sequence[int]) -> str:
+    seeds = list(seeds)
+    if seeds == list(range(seeds[0], seeds[0] + len(seeds))):
+        return f"seeds {seeds[0]}–{seeds[-1]}" if len(seeds) > 1 else f"seed {seeds[0]}"
+    return "seeds " + ", ".join(map(str, seeds))
+
+
+def _failures_section(doc: dict) -> list[str]:
+    failures = doc["failures"]
+    lines = ["## Failed runs (left out of every aggregate)", ""]
+    if not failures:
+        return lines + ["None.", ""]
+    for f in failures:
+        pid = "on" if f["pid_enabled"] else "off"
+        lines.append(f"- {LABELS[f['formulation']]}, PID {pid}, seed {f['seed']}: {f['error']}")
+    return lines + [""]
+
+
+def _paper_section(forms: Sequence[str]) -> list[str]:
+    lines = ["## The paper's values (Kleff et al., Tables II–IV), for comparison", ""]
+    for number, title in (("II", "without PID"), ("III", "with PID")):
+        rows = [
+            [name] + [PAPER_TABLES[number][f][i] for f in forms]
+            for i, name in enumerate(("E_P (mm)", "E_λ (N)", "λmax (N)", "t_break (%)"))
+        ]
+        lines += [f"Table {number} ({title}):", ""]
+        lines += _table(["", *(LABELS[f] for f in forms)], rows) + [""]
+    rows = [
+        [name] + [PAPER_TABLES["IV"][f][i] for f in forms]
+        for i, name in enumerate(("ΔE_λ (N)", "ΔE_τ (N m)"))
+    ]
+    lines += ["Table IV:", ""] + _table(["", *(LABELS[f] for f in forms)], rows) + [""]
+    return lines
+
+
+def force_square_report(doc: dict) -> str:
+    """``tables.md`` of Experiment 1: normal-force MAE per controller (true and measured)."""
+    forms = doc["grid"]["formulations"]
+    lines = [
+        f"# Experiment 1 (VII-B): force square signal — scenario `{doc['scenario']}`",
+        "",
+        f"{_seed_range(doc['grid']['seeds'])}; command `{doc['command_line']}`; wall time "
+        f"{doc['wall_time_s']:.0f} s. MAE of the normal force over the square signal, mean ± std "
+        "over the seeds.",
+        "",
+    ]
+    for pid in doc["grid"]["pid_enabled"]:
+        rows = []
+        for source in ("true", "measured"):
+            cells = [aggregate(doc, f, pid, source) for f in forms]
+            rows.append(
+                [f"E_λ (N), {source} force"]
+                + [_pm(c["force_mae_mean"], c["force_mae_std"]) if c else "n/a" for c in cells]
+            )
+        rows.append(["paper (hardware)"] + [f"{PAPER_FORCE_SQUARE_MAE[f]:.2f}" for f in forms])
+        lines += [f"## {'With' if pid else 'Without'} torque PID", ""]
+        lines += _table(["", *(LABELS[f] for f in forms)], rows)
+        lines += ["", f"Runs: {_counts(doc, forms, pid)}.", ""]
+    lines += _failures_section(doc)
+    return "\n".join(lines) + "\n"
+
+
+_CELL = re.compile(r"^(-?\d+(?:\.\d+)?)(?: ± (\d+(?:\.\d+)?))?$")
+
+
+def parse_markdown_table(text: str, title_prefix: str) -> dict[str, dict[str, str]]:
+    """Read back the table under the heading starting with ``title_prefix``:
+    ``{row name: {column title: cell}}`` (for tests and tools)."""
+    lines = text.splitlines()
+    start = next((i for i, s in enumerate(lines) if s.startswith(title_prefix)), None)
+    if start is None:
+        raise ConfigError(f"no table titled {title_prefix!r}")
+    i = start + 1
+    while i < len(lines) and not lines[i].startswith("|"):
+        i += 1
+    header = [c.strip() for c in lines[i].strip("|").split("|")]
+    out: dict[str, dict[str, str]] = {}
+    for row in lines[i + 2 :]:
+        if not row.startswith("|"):
+            break
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        out[cells[0]] = dict(zip(header[1:], cells[1:], strict=True))
+    return out
+
+
+def parse_cell(cell: str) -> tuple[float, float | None]:
+    """``"5.75 ± 0.06"`` → (5.75, 0.06); ``"59.36"`` → (59.36, None)."""
+    match = _CELL.match(cell.strip())
+    if not match:
+        raise ConfigError(f"not a table number: {cell!r}")
+    return float(match.group(1)), None if match.group(2) is None else float(match.group(2))
+
+
+# --------------------------------------------------------------------------- figures
+def _figure_outcomes(outcomes: Sequence[RunOutcome], pid: bool) -> list[RunOutcome]:
+    return [o for o in outcomes if o.plot_log is not None and o.spec.pid_enabled == pid]
+
+
+def _shade_window(log: dict[str, np.ndarray], axes) -> None:
+    """Grey band over the metrics window (circle phase or square signal)."""
+    start, end = log["window"]
+    if np.isfinite(start):
+        for i, ax in enumerate(axes):
+            ax.axvspan(start, end, color="0.9", zorder=0, label=None if i else "metrics window")
+
+
+def plot_polishing(outcomes: Sequence[RunOutcome], pid: bool, path: Path, title: str) -> bool:
+    """Figs. 6–9 style: (a) true normal force vs reference, (b) tangential position error, for
+    the plotted seed of every controller. Returns False when no run of that mode was plotted."""
+    chosen = _figure_outcomes(outcomes, pid)
+    if not chosen:
+        return False
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax_f, ax_p) = plt.subplots(2, 1, figsize=(7.5, 5.5), sharex=True, dpi=100)
+    ref_drawn = False
+    for o in chosen:
+        log, form = o.plot_log, o.spec.formulation
+        if not ref_drawn:
+            ax_f.plot(log["t"], log["force_reference"], "k--", lw=1.0, label="reference")
+            ref_drawn = True
+        ax_f.plot(log["t"], log["force_true"], color=COLORS[form], lw=0.8, label=LABELS[form])
+        ax_p.plot(
+            log["t"], log["tangential_error_mm"], color=COLORS[form], lw=0.8, label=LABELS[form]
+        )
+    _shade_window(chosen[0].plot_log, (ax_f, ax_p))
+    ax_f.set_ylabel("normal force λ (N)")
+    ax_f.set_title(title, fontsize=9)
+    ax_f.legend(loc="upper left", fontsize=8, ncol=4)
+    ax_f.grid(alpha=0.3)
+    ax_p.set_ylabel("tangential position error (mm)")
+    ax_p.set_xlabel("time (s)")
+    ax_p.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return True
+
+
+def plot_force_square(outcomes: Sequence[RunOutcome], path: Path, title: str) -> bool:
+    """Fig. 4 style: true normal force of each controller vs the square reference."""
+    chosen = [o for o in outcomes if o.plot_log is not None]
+    if not chosen:
+        return False
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.5, 3.5), dpi=100)
+    log = chosen[0].plot_log
+    ax.plot(log["t"], log["force_reference"], "k--", lw=1.0, label="reference")
+    for o in chosen:
+        form = o.spec.formulation
+        pid = "" if o.spec.pid_enabled else " (no PID)"
+        ax.plot(
+            o.plot_log["t"],
+            o.plot_log["force_true"],
+            color=COLORS[form],
+            lw=0.8,
+            label=LABELS[form] + pid,
+        )
+    _shade_window(log, (ax,))
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("normal force λ (N)")
+    ax.set_title(title, fontsize=9)
+    ax.legend(loc="upper left", fontsize=8, ncol=4)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return True
+
+
+# --------------------------------------------------------------------------- whole studies
+@dataclass
+class StudyReport:
+    """What a study produced: the results document, its tables and the files written."""
+
+    out_dir: Path
+    document: dict
+    tables: str
+    files: list[Path]
+    outcomes: list[RunOutcome] = field(repr=False)
+
+
+def _write_json(path: Path, doc: dict) -> None:
+    with open(path, "w", encoding="utf-8") as fh:
+        json.dump(doc, fh, indent=1, allow_nan=True)
+        fh.write("\n")
+
+
+def run_study(
+    kind: str,
+    specs: Sequence[RunSpec],
+    out_dir: str | os.PathLike,
+    *,
+    workers: int | None = None,
+    force: bool = False,
+    command_line: str = "",
+    progress: bool = True,
+) -> StudyReport:
+    """Run a grid of specs and write ``results.json``, ``tables.md`` and the figures.
+
+    Args:
+        kind: "polishing" (Tables II–IV, Figs. 6–9) or "force_square" (Experiment 1, Fig. 4).
+        out_dir: created here; an existing one is refused unless ``force``.
+    """
+    if kind not in ("polishing", "force_square"):
+        raise ConfigError(f"unknown study kind {kind!r}")
+    validate_specs(specs)
+    out = prepare_output_dir(out_dir, force)
+    workers = (os.cpu_count() or 1) if workers is None else int(workers)
+    start = time.perf_counter()
+    outcomes = run_specs(specs, workers, progress)
+    wall = time.perf_counter() - start
+    doc = study_document(
+        kind, specs, outcomes, command_line=command_line, workers=workers, wall_time=wall
+    )
+    files = [out / "results.json", out / "tables.md"]
+    _write_json(files[0], doc)
+    seed = next((o.spec.seed for o in outcomes if o.plot_log is not None), None)
+    if kind == "polishing":
+        tables = polishing_tables(doc)
+        for pid, name in ((True, "fig_polishing_pid.png"), (False, "fig_polishing_nopid.png")):
+            title = (
+                f"{doc['scenario']}, seed {seed}, {'with' if pid else 'no'} torque PID — "
+                "top: true normal force, bottom: tangential position error"
+            )
+            if plot_polishing(outcomes, pid, out / name, title):
+                files.append(out / name)
+    else:
+        tables = force_square_report(doc)
+        title = f"Experiment 1 — force square, {doc['scenario']}, seed {seed} (true normal force)"
+        if plot_force_square(outcomes, out / "fig_force_square.png", title):
+            files.append(out / "fig_force_square.png")
+    files[1].write_text(tables, encoding="utf-8")
+    return StudyReport(out, doc, tables, files, list(outcomes))
+
+
+def default_out_dir(kind: str) -> Path:
+    """``benchmarks/results/<kind>_study/<UTC time>`` under the current directory."""
+    stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    return Path("benchmarks") / "results" / f"{kind}_study" / stamp
+
+
+__all__ = [
+    "RunSpec",
+    "RunOutcome",
+    "StudyReport",
+    "execute_run",
+    "run_specs",
+    "grid_specs",
+    "run_study",
+    "prepare_output_dir",
+    "study_document",
+    "polishing_tables",
+    "force_square_report",
+    "aggregate",
+    "delta_per_seed",
+    "parse_markdown_table",
+    "parse_cell",
+    "plot_log",
+    "default_out_dir",
+]
