@@ -11,6 +11,9 @@ import sys
 
 from ffmpc_core.errors import FfmpcError
 
+#: ffmpc_core.config.FORMULATIONS, spelled out so that building the parser imports nothing heavy.
+STUDY_FORMULATIONS = ("classical", "torque_feedback", "force_feedback")
+
 
 def _cmd_check(args: argparse.Namespace) -> int:
     import numpy as np
@@ -54,6 +57,270 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return run_demo(seed=args.seed)
 
 
+def _parse_overrides(items: list[str] | None) -> dict:
+    """``--set name=value`` pairs; values are read as YAML scalars (``3``, ``true``, ``[1, 2]``)."""
+    import yaml
+
+    from ffmpc_core.errors import ConfigError
+
+    out = {}
+    for item in items or []:
+        name, sep, value = item.partition("=")
+        if not sep or not name:
+            raise ConfigError(f"--set expects name=value, got {item!r}")
+        out[name.strip()] = yaml.safe_load(value)
+    return out
+
+
+def _cmd_study(args: argparse.Namespace) -> int:
+    import shlex
+
+    from sim_bridge.study import default_out_dir, grid_specs, run_study
+
+    kind = "polishing" if args.study == "polishing" else "force_square"
+    if args.seeds < 1:
+        from ffmpc_core.errors import ConfigError
+
+        raise ConfigError(f"--seeds must be >= 1, got {args.seeds}")
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    pid_modes = {"on": [True], "off": [False], "both": [True, False]}[args.pid]
+    plot_seed = args.first_seed if args.plot_seed is None else args.plot_seed
+    specs = grid_specs(
+        args.scenario or kind,
+        args.formulations,
+        pid_modes,
+        seeds,
+        duration=args.duration,
+        overrides=_parse_overrides(args.set),
+        plot_seed=plot_seed,
+    )
+    out = args.out or default_out_dir(kind)
+    report = run_study(
+        kind,
+        specs,
+        out,
+        workers=args.workers,
+        force=args.force,
+        command_line=shlex.join(["ffmpc", *args.argv]),
+        progress=not args.no_progress,
+    )
+    print(report.tables)
+    if kind == "force_square":
+        from sim_bridge.study import LABELS, aggregate
+
+        for pid in pid_modes:
+            maes = []
+            for form in args.formulations:
+                cell = aggregate(report.document, form, pid, "true")
+                value = "failed" if cell is None else f"{cell['force_mae_mean']:.2f} N"
+                maes.append(f"{LABELS[form]} {value}")
+            print(f"normal-force MAE ({'PID' if pid else 'no PID'}): " + ", ".join(maes))
+    failures = report.document["failures"]
+    print(
+        f"{len(report.document['runs'])} runs, {len(failures)} failed, wall time "
+        f"{report.document['wall_time_s']:.1f} s"
+    )
+    for f in failures:
+        pid = "on" if f["pid_enabled"] else "off"
+        print(f"  FAILED {f['formulation']} pid={pid} seed={f['seed']}: {f['error']}")
+    print("files:")
+    for path in report.files:
+        print(f"  {path}")
+    return 0 if report.document["runs"] else 1
+
+
+def _add_study_arguments(p: argparse.ArgumentParser, seeds: int, pid: str) -> None:
+    p.add_argument("--scenario", help="shipped scenario name or path to a scenario file")
+    p.add_argument("--seeds", type=int, default=seeds, help=f"number of seeds (default {seeds})")
+    p.add_argument("--first-seed", type=int, default=0, help="first seed (default 0)")
+    p.add_argument("--workers", type=int, default=None, help="worker processes (default: all CPUs)")
+    p.add_argument(
+        "--out", help="output directory, must not exist (default benchmarks/results/...)"
+    )
+    p.add_argument("--force", action="store_true", help="write into an existing --out")
+    p.add_argument("--duration", type=float, help="simulated time per run, s (default: task)")
+    p.add_argument(
+        "--formulations",
+        nargs="+",
+        choices=STUDY_FORMULATIONS,
+        default=list(STUDY_FORMULATIONS),
+        help="controllers to compare (default: all three)",
+    )
+    p.add_argument(
+        "--pid", choices=("on", "off", "both"), default=pid, help=f"torque PID (default {pid})"
+    )
+    p.add_argument("--plot-seed", type=int, help="seed shown in the figures (default: first)")
+    p.add_argument(
+        "--set",
+        action="append",
+        metavar="NAME=VALUE",
+        help="scenario override, dotted name (repeatable), e.g. mpc.weights.force_feedback."
+        "force_phase=5",
+    )
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_study)
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    import json
+
+    from ffmpc_core.scenario import load_scenario
+    from ffmpc_ros.bringup import run_graph
+
+    overrides = _parse_overrides(args.set)
+    if args.formulation:
+        overrides["mpc.formulation"] = args.formulation
+    if args.seed is not None:
+        overrides["seed"] = args.seed
+    scenario = load_scenario(args.scenario, overrides)
+    result = run_graph(
+        scenario,
+        duration=args.duration,
+        single_process=args.single_process,
+        lockstep=not args.real_time,
+        timeout=args.timeout,
+        quiet=not args.verbose,
+        record=args.record,
+    )
+    print(json.dumps(result.summary(), indent=2))
+    return 0
+
+
+def _cmd_study_impact(args: argparse.Namespace) -> int:
+    import shlex
+    from dataclasses import replace
+
+    from sim_bridge.impact_study import (
+        ImpactStudyConfig,
+        default_out_dir,
+        run_impact_study,
+    )
+
+    base = ImpactStudyConfig()
+    dice = replace(
+        base.dice,
+        stiffness=args.dice_stiffness if args.dice_stiffness is not None else base.dice.stiffness,
+        damping=args.dice_damping if args.dice_damping is not None else base.dice.damping,
+    )
+    changes = {"dice": dice, "replan_period": args.replan_period, "duration": args.duration}
+    if args.prior_stiffness is not None:
+        changes["prior_stiffness"] = args.prior_stiffness
+    if args.prior_damping is not None:
+        changes["prior_damping"] = args.prior_damping
+    config = replace(base, **changes)
+    runs = tuple(tuple(name.split("+")) for name in args.runs)
+    result = run_impact_study(
+        config,
+        runs=runs,
+        out_dir=args.out or default_out_dir(),
+        force=args.force,
+        progress=not args.no_progress,
+        command_line=shlex.join(["ffmpc", *getattr(args, "argv", [])]),
+    )
+    print(result.table)
+    print(f"wall time {result.wall_time:.1f} s; files:")
+    for path in result.files:
+        print(f"  {path}")
+    failed = [r for r in result.runs if r.violations.total or not r.contact_time >= 0.0]
+    return 1 if failed else 0
+
+
+def _add_impact_study_parser(study_sub) -> None:
+    """``ffmpc study impact``: the safe-maximal-impact experiment (Dehio & Kheddar, Fig. 4)."""
+    runs = ("maximal+admittance", "maximal+ff_mpc", "baseline+admittance", "baseline+ff_mpc")
+    p = study_sub.add_parser(
+        "impact",
+        help="safe maximal impact on a soft dice vs a near-zero-velocity baseline (Fig. 4)",
+        description="The Panda, 0.46 m above a soft dice simulated in PyBullet, approaches it "
+        "either at the maximal safe pre-impact velocity (eq 9-14, every cycle) or with the "
+        "baseline (static target, near-zero contact velocity), then regulates 60 N with the "
+        "paper's admittance controller or hands over to the force-feedback MPC with the "
+        "stiffness and damping learned online (eq 19-21). Prints pre-impact velocity, contact "
+        "time, time to a steady force, peak force and penetration, joint-limit violations and "
+        "the learned material per run; writes table.md, results.json and impact_fig4.png. "
+        "Exit 1 if a run never touched the dice or broke a limit.",
+    )
+    p.add_argument(
+        "--out", help="output directory, must not exist (default benchmarks/results/...)"
+    )
+    p.add_argument("--force", action="store_true", help="write into an existing --out")
+    p.add_argument("--duration", type=float, default=3.0, help="simulated s per run (default 3)")
+    p.add_argument(
+        "--replan-period",
+        type=float,
+        default=0.0,
+        help="s between eq 9-14 solves of the maximal approach (default 0: every 1 ms cycle)",
+    )
+    p.add_argument("--runs", nargs="+", choices=runs, default=list(runs), help="runs to do")
+    p.add_argument("--dice-stiffness", type=float, help="true stiffness in PyBullet, N/m")
+    p.add_argument("--dice-damping", type=float, help="true damping in PyBullet, N.s/m")
+    p.add_argument("--prior-stiffness", type=float, help="planner's prior stiffness, N/m")
+    p.add_argument("--prior-damping", type=float, help="planner's prior damping, N.s/m")
+    p.add_argument("--no-progress", action="store_true", help="no progress lines")
+    p.set_defaults(func=_cmd_study_impact)
+
+
+def _add_explore_study_parser(study_sub) -> None:
+    """``ffmpc study explore``: the contact learner's exploration (Dehio & Kheddar, Sec. V-VI)."""
+
+    def run(args: argparse.Namespace) -> int:
+        from dataclasses import replace
+
+        from sim_bridge.exploration import (
+            ExplorationConfig,
+            format_checkpoints,
+            format_summary,
+            run_exploration_study,
+        )
+
+        base = ExplorationConfig()
+        velocities = tuple(args.impact_velocities) if args.impact_velocities else None
+        cfg = replace(
+            base,
+            sine_cycles=args.sine_cycles,
+            impact_velocities=velocities,
+            approach_speed=args.approach_speed,
+        )
+        runs = run_exploration_study(tuple(args.materials), cfg, progress=not args.no_progress)
+        for r in runs:
+            print("\n" + format_checkpoints(r))
+        print("\nFinal relative errors vs the truth set in PyBullet:\n")
+        print(format_summary(runs))
+        bad = [r for r in runs if r.violations.total or not r.final.covers(r.material)]
+        return 1 if bad else 0
+
+    p = study_sub.add_parser(
+        "explore",
+        help="learn a soft object's stiffness and damping online (Sec. V, eq 19-21)",
+        description="The Panda finds the surface of a soft object simulated in PyBullet by a "
+        "guarded approach, then tracks the exploration motion (a sinusoidal penetration, then "
+        "impacts at 0.15-0.35 m/s) inside the joint-limit QP while the recursive learner "
+        "(eq 19-21) is fed (z, z-dot, f). Prints the estimate, its confidence (2 standard "
+        "errors + the bound of the surface error) and the error vs the truth after the "
+        "sinusoid and after each impact, per material. Exit 1 if a joint limit was broken or "
+        "an interval misses the truth.",
+    )
+    p.add_argument(
+        "--materials",
+        nargs="+",
+        choices=("foam", "dice", "rubber"),
+        default=["foam", "dice", "rubber"],
+        help="objects to explore (default: all three)",
+    )
+    p.add_argument("--sine-cycles", type=int, default=4, help="sine periods (default 4)")
+    p.add_argument(
+        "--impact-velocities",
+        type=float,
+        nargs="+",
+        help="pre-impact velocities, m/s (default: each material's, 0.15-0.35)",
+    )
+    p.add_argument(
+        "--approach-speed", type=float, default=0.005, help="guarded approach, m/s (default 0.005)"
+    )
+    p.add_argument("--no-progress", action="store_true", help="no per-checkpoint lines")
+    p.set_defaults(func=run)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="ffmpc",
@@ -93,12 +360,66 @@ def build_parser() -> argparse.ArgumentParser:
     bench_mpc.add_argument("--solves", type=int, default=200, help="solves per configuration")
     bench_mpc.add_argument("--seed", type=int, default=0)
     bench_mpc.set_defaults(func=_cmd_bench_mpc)
+
+    study = sub.add_parser(
+        "study",
+        help="simulated studies: the papers' tables and figures",
+        description="Simulated studies that write results.json, tables and figures: the "
+        "force-feedback paper's polishing study and Experiment 1 (grids of closed-loop runs, "
+        "formulations x torque PID x seeds, in parallel worker processes), and the impact "
+        "paper's experiments.",
+    )
+    study_sub = study.add_subparsers(dest="study", required=True)
+    polishing = study_sub.add_parser(
+        "polishing",
+        help="Tables II-IV and Figs. 6-9 (VI-C)",
+        description="The polishing study of VI-C: each seed draws a table tilt and an actuation "
+        "bias; every controller runs with and without the torque PID. Prints Tables II-IV "
+        "(from the true normal force, then from the measured one) and writes results.json, "
+        "tables.md and two figures into --out.",
+    )
+    _add_study_arguments(polishing, seeds=20, pid="both")
+    square = study_sub.add_parser(
+        "force-square",
+        help="Experiment 1 (VII-B): square force signal, Fig. 4",
+        description="Experiment 1 of VII-B: the three controllers track a square normal-force "
+        "reference (with the torque PID, one seed by default); prints each controller's "
+        "normal-force MAE and writes results.json, tables.md and a Fig. 4-like plot.",
+    )
+    _add_study_arguments(square, seeds=1, pid="on")
+    _add_impact_study_parser(study_sub)
+    _add_explore_study_parser(study_sub)
+    run = sub.add_parser(
+        "run",
+        help="run a scenario on the ROS 2 node graph and print its metrics",
+        description="Start the plant, joint-sensor, F/T-sensor, MPC and PID nodes (each its own "
+        "process, or all in this one with --single-process) and a metrics node, run the "
+        "scenario in lockstep simulated time (or real time) and print the study metrics, "
+        "computed with the same code as the ROS-free runner.",
+    )
+    run.add_argument("scenario", help="a shipped scenario name or a scenario YAML path")
+    run.add_argument("--single-process", action="store_true", help="all nodes on one executor")
+    run.add_argument("--real-time", action="store_true", help="plant on the wall clock")
+    run.add_argument("--duration", type=float, default=None, help="simulated s (default: task)")
+    run.add_argument("--formulation", choices=STUDY_FORMULATIONS, default=None)
+    run.add_argument("--seed", type=int, default=None)
+    run.add_argument("--set", action="append", metavar="NAME=VALUE", help="scenario override")
+    run.add_argument("--timeout", type=float, default=3600.0, help="wall-time limit, s")
+    run.add_argument("--verbose", action="store_true", help="show the nodes' output")
+    run.add_argument(
+        "--record", metavar="PATH", help="record the run (every topic and parameter) to a bag"
+    )
+    run.set_defaults(func=_cmd_run)
+    from ffmpc_ros.bag.cli import add_bag_parser
+
+    add_bag_parser(sub)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
     try:
         return int(args.func(args) or 0)
     except FfmpcError as exc:

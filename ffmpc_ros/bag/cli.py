@@ -1,0 +1,257 @@
+"""``ffmpc bag``: info, play, plot, metrics, rerun, recover and record.
+
+:func:`add_bag_parser` registers the subcommand on the ``ffmpc`` parser; every command imports
+what it needs when it runs (building the parser imports nothing heavy).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+
+def _cmd_info(args: argparse.Namespace) -> int:
+    from ffmpc_ros.bag.reader import BagReader
+
+    with BagReader(args.bag) as bag:
+        if args.json:
+            print(
+                json.dumps(
+                    {
+                        "path": str(bag.path),
+                        "size_bytes": bag.file_size,
+                        "duration_s": bag.duration,
+                        "start_ns": bag.start_time,
+                        "end_ns": bag.end_time,
+                        "messages": bag.message_count,
+                        "topics": {
+                            t.topic: {"type": t.type, "count": t.count} for t in bag.topics.values()
+                        },
+                        "parameters": sorted(bag.parameters),
+                        "recovery": vars(bag.recovery) | {"describe": bag.recovery.describe()},
+                    },
+                    indent=2,
+                )
+            )
+        else:
+            print(bag.describe())
+        return 0 if bag.recovery.complete else 3
+
+
+def _cmd_recover(args: argparse.Namespace) -> int:
+    from ffmpc_ros.bag.reader import recover_bag
+
+    report = recover_bag(args.bag, args.out)
+    print(f"{args.bag}: {report.describe()}")
+    print(f"wrote {args.out}: {report.messages} messages")
+    return 0
+
+
+def _cmd_play(args: argparse.Namespace) -> int:
+    from ffmpc_ros.bag.player import parse_remaps, play_bag
+
+    report = play_bag(
+        args.bag,
+        rate=args.rate,
+        topics=args.topics,
+        remap=parse_remaps(args.remap or []),
+        clock_rate=args.clock,
+        delay=args.delay,
+    )
+    print(report.describe())
+    return 0
+
+
+def _cmd_metrics(args: argparse.Namespace) -> int:
+    from ffmpc_ros.bag.analysis import bag_study
+
+    study = bag_study(args.bag)
+    summary = study.summary()
+    if args.json:
+        print(json.dumps(summary | {"matches_recorded": study.matches_recorded}, indent=2))
+        return 0 if study.metrics_true is not None else 1
+    if study.metrics_true is None:
+        print(
+            f"{args.bag}: {study.recorded_cycles} of {study.cycles} cycles complete in the bag; "
+            "no metrics (a truncated bag: plot it, or recover it)"
+        )
+        return 1
+    print(f"{args.bag}: {study.formulation}, seed {study.seed}, {study.cycles} cycles")
+    for label, m in (("true", study.metrics_true), ("measured", study.metrics_measured)):
+        d = m.to_dict()
+        print(
+            f"  from the {label} force: E_P {d['position_mae_mm']:.3f} mm, "
+            f"E_λ {d['force_mae']:.3f} N, λmax {d['max_force']:.2f} N, "
+            f"t_break {d['contact_break_percent']:.1f} %, E_τ {d['torque_mae']}"
+        )
+    match = study.matches_recorded
+    if match is not None:
+        print(f"  equal to the /metrics/summary recorded in the bag: {match}")
+    return 0
+
+
+def _cmd_plot(args: argparse.Namespace) -> int:
+    from ffmpc_ros.bag.analysis import bag_study, plot_study
+
+    out = args.out or (str(args.bag).removesuffix(".mcap") + ".png")
+    print(f"wrote {plot_study(bag_study(args.bag), out)}")
+    return 0
+
+
+def _cmd_rerun(args: argparse.Namespace) -> int:
+    from ffmpc_ros.bag.rerun import rerun_node
+    from ffmpc_ros.cli import _parse_overrides
+
+    report = rerun_node(args.bag, args.node, _parse_overrides(args.set), timeout=args.timeout)
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    "node": report.node,
+                    "identical": report.identical,
+                    "cycles": report.cycles,
+                    "overrides": report.overrides,
+                    "outputs": [
+                        vars(c) | {"ignored": list(c.ignored), "exact": c.exact}
+                        for c in report.outputs
+                    ],
+                },
+                indent=2,
+                default=float,
+            )
+        )
+    else:
+        print(report.describe())
+    return 0 if report.identical else 1
+
+
+def _cmd_record(args: argparse.Namespace) -> int:
+    from ffmpc_ros.bag.recorder import record_bag
+
+    recorder = record_bag(
+        args.bag,
+        topics=args.topics,
+        duration=args.duration,
+        use_sim_time=not args.wall_clock,
+        writer_options={"flush_interval": args.flush_interval},
+    )
+    total = sum(recorder.received.values())
+    print(f"recorded {total} messages on {len(recorder.received)} topics into {args.bag}")
+    for topic, n in sorted(recorder.received.items()):
+        print(f"  {topic}: {n}")
+    return 0
+
+
+def add_bag_parser(sub) -> None:
+    """Register ``ffmpc bag`` and its subcommands on the ``ffmpc`` subparsers."""
+    bag = sub.add_parser(
+        "bag",
+        help="MCAP bags of runs: info, play, plot, metrics, rerun, recover, record",
+        description="Bags are rosbag2-compatible MCAP files (ros2 bag, Foxglove, rosbags and "
+        "mcap-ros2-support read them); `ffmpc run SCENARIO --record PATH` records a run with "
+        "every topic and every node's parameters.",
+    )
+    bag_sub = bag.add_subparsers(dest="bag_command", required=True)
+
+    p = bag_sub.add_parser(
+        "info",
+        help="topics, types, counts, duration, integrity",
+        description="Print what a bag holds (like `ros2 bag info`), and for a truncated bag "
+        "(a recorder killed mid-run) how much of it is readable. Exit 3 for a truncated bag.",
+    )
+    p.add_argument("bag")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(func=_cmd_info)
+
+    p = bag_sub.add_parser(
+        "play",
+        help="republish a bag with its original timing",
+        description="Republish the recorded messages at their recorded times (divided by "
+        "--rate), /clock included, so nodes with use_sim_time follow the bag.",
+    )
+    p.add_argument("bag")
+    p.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1)")
+    p.add_argument("--topics", nargs="+", help="recorded topics to play (default: all)")
+    p.add_argument(
+        "--remap", action="append", metavar="FROM:=TO", help="publish a topic under another name"
+    )
+    p.add_argument(
+        "--clock", type=float, metavar="HZ", help="publish /clock from the bag time at HZ instead"
+    )
+    p.add_argument("--delay", type=float, default=0.5, help="wall s before the first message")
+    p.set_defaults(func=_cmd_play)
+
+    p = bag_sub.add_parser(
+        "plot",
+        help="normal force, force reference and position error over time (PNG)",
+        description="Rebuild the run's log from the bag with the metrics node's code and plot "
+        "the true and measured normal force, the force reference and the tangential position "
+        "error.",
+    )
+    p.add_argument("bag")
+    p.add_argument("--out", help="PNG path, must not exist (default: BAG with .png)")
+    p.set_defaults(func=_cmd_plot)
+
+    p = bag_sub.add_parser(
+        "metrics",
+        help="the study metrics computed from a bag",
+        description="Feed the recorded topics to the metrics node (with the parameters it ran "
+        "with, from the bag) and print the study metrics (E_P, E_λ, λmax, t_break, E_τ), and "
+        "whether they equal the summary recorded in the bag.",
+    )
+    p.add_argument("bag")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(func=_cmd_metrics)
+
+    p = bag_sub.add_parser(
+        "rerun",
+        help="feed one node the recorded inputs and compare its outputs",
+        description="Rebuild one node with the parameters it ran with (plus --set changes), feed "
+        "it the recorded inputs in lockstep and compare its outputs with the recorded ones, "
+        "field by field. Exit 0 when identical, 1 when they differ.",
+    )
+    p.add_argument("bag")
+    p.add_argument(
+        "--node",
+        default="mpc",
+        choices=("mpc", "pid", "joint_sensor", "ft_sensor"),
+        help="node to re-run (default mpc)",
+    )
+    p.add_argument(
+        "--set",
+        action="append",
+        metavar="NAME=VALUE",
+        help="parameter change, scenario or node name (repeatable), e.g. "
+        "mpc.weights.force_feedback.force_phase=5",
+    )
+    p.add_argument("--timeout", type=float, default=10.0, help="wall s to wait at any one step")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(func=_cmd_rerun)
+
+    p = bag_sub.add_parser(
+        "recover",
+        help="copy what is readable of a truncated bag into a complete one",
+        description="Read a bag up to its last complete chunk and write it as a new, complete "
+        "bag that every MCAP tool opens.",
+    )
+    p.add_argument("bag")
+    p.add_argument("out", help="new bag path (must not exist)")
+    p.set_defaults(func=_cmd_recover)
+
+    p = bag_sub.add_parser(
+        "record",
+        help="record a live graph (every topic, or --topics)",
+        description="Record every topic of the graph on this ROS domain, with every node's "
+        "parameters, until Ctrl-C or --duration wall seconds.",
+    )
+    p.add_argument("bag", help="new bag path (must not exist)")
+    p.add_argument("--topics", nargs="+", help="topics to record (default: all)")
+    p.add_argument("--duration", type=float, help="wall seconds to record")
+    p.add_argument("--wall-clock", action="store_true", help="log times on the system clock")
+    p.add_argument(
+        "--flush-interval",
+        type=float,
+        default=1.0,
+        help="wall s between chunk flushes: at most this much is lost if killed (default 1)",
+    )
+    p.set_defaults(func=_cmd_record)

@@ -1,0 +1,345 @@
+"""The recorder node: raw subscriptions into a :class:`~ffmpc_ros.bag.writer.BagWriter`.
+
+It records every topic of the graph (or a chosen set) as it is discovered, from raw (CDR)
+subscriptions whose QoS matches the publishers' (reliable and transient-local when all of them
+are, like rosbag2), with each channel's offered QoS and type hash. It records ``/clock`` like any
+topic, and asks every node for its parameters (``list_parameters`` / ``get_parameters``
+services) and stores them as metadata, so a bag describes its own run. Log times are the
+recorder's clock at reception: simulated time when the graph runs on ``/clock``
+(``use_sim_time``, the default), as ``ros2 bag record --use-sim-time`` does.
+
+Start-up gate. A run must not start before the recorder sees it: with ``gate_topic`` the
+recorder subscribes to that topic only once every topic of ``wait_for`` has a matched publisher
+and the parameters of every node of ``parameters_of`` are in. ``ffmpc run --record`` gates on
+``/plant/joint_states`` and the plant waits for one more subscriber of it, so nothing of the run
+is missed (:func:`graph_recorder`).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import time
+from collections.abc import Iterable, Mapping, Sequence
+from typing import IO, Any
+
+import rclpy
+from rcl_interfaces.srv import GetParameters, ListParameters
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from rclpy.parameter import Parameter, parameter_value_to_python
+
+from ffmpc_ros.bag.ros_types import message_class, qos_from_dicts, qos_to_dict
+from ffmpc_ros.bag.writer import BagWriter
+
+#: Topics not recorded unless asked for by name.
+DEFAULT_EXCLUDE = ("/parameter_events",)
+#: History kept by every recording subscription, messages.
+RECORD_DEPTH = 1000
+#: Wall seconds between two looks at the graph once the gate is open.
+LATE_DISCOVERY_PERIOD = 0.5
+
+
+def _fqn(name: str, namespace: str) -> str:
+    return f"{namespace.rstrip('/')}/{name}"
+
+
+class _ParameterFetch:
+    """list_parameters then get_parameters of one node, polled from the recorder's timer."""
+
+    def __init__(self, node: Node, fqn: str) -> None:
+        self.fqn = fqn
+        self.list_client = node.create_client(ListParameters, f"{fqn}/list_parameters")
+        self.get_client = node.create_client(GetParameters, f"{fqn}/get_parameters")
+        self.future = None
+        self.names: list[str] | None = None
+        self.values: dict[str, Any] | None = None
+
+    def poll(self) -> bool:
+        """Advance one step if possible; True once the values are in."""
+        if self.values is not None:
+            return True
+        if self.future is not None and not self.future.done():
+            return False
+        if self.names is None:
+            if self.future is None:
+                if self.list_client.service_is_ready():
+                    self.future = self.list_client.call_async(ListParameters.Request())
+                return False
+            self.names = sorted(self.future.result().result.names)
+            self.future = None
+        if self.future is None:
+            if self.get_client.service_is_ready():
+                self.future = self.get_client.call_async(GetParameters.Request(names=self.names))
+            return False
+        values = [parameter_value_to_python(v) for v in self.future.result().values]
+        self.values = {
+            n: list(v) if not isinstance(v, str | bytes) and hasattr(v, "__len__") else v
+            for n, v in zip(self.names, values, strict=True)
+        }
+        return True
+
+
+class BagRecorder(Node):
+    """Records topics and parameters into a bag (module docstring).
+
+    Args:
+        target: bag path (must not exist) or binary file object.
+        topics: topics to record (None: every topic discovered, less ``exclude``).
+        exclude: topics never recorded when recording everything.
+        wait_for: topics that must have a matched publisher before the gate opens.
+        gate_topic: topic subscribed only once the gate opens (None: no gate).
+        parameters_of: node names whose parameters must be in before the gate opens; every
+            other node discovered is asked too (None: every node, nothing waited for).
+        use_sim_time: log times on ``/clock`` (simulated) rather than the system clock.
+        metadata: extra metadata records {name: {key: value}} written at once.
+        writer_options: keyword arguments of :class:`BagWriter` (``chunk_size``,
+            ``compression``, ``flush_interval``, ``fsync``).
+        discovery_period: wall seconds between two looks at the graph.
+        final_topic: the run is over once a message of this topic is recorded and nothing came
+            for ``settle`` wall seconds (:attr:`complete`).
+    """
+
+    def __init__(
+        self,
+        target: str | os.PathLike | IO[bytes],
+        *,
+        context=None,
+        node_name: str = "ffmpc_recorder",
+        topics: Iterable[str] | None = None,
+        exclude: Iterable[str] = DEFAULT_EXCLUDE,
+        wait_for: Iterable[str] = (),
+        gate_topic: str | None = None,
+        parameters_of: Iterable[str] | None = None,
+        use_sim_time: bool = True,
+        metadata: Mapping[str, Mapping[str, str]] | None = None,
+        writer_options: Mapping[str, Any] | None = None,
+        discovery_period: float = 0.05,
+        final_topic: str | None = None,
+        settle: float = 0.2,
+    ) -> None:
+        super().__init__(
+            node_name,
+            context=context,
+            parameter_overrides=[Parameter("use_sim_time", value=use_sim_time)],
+        )
+        self.writer = BagWriter(target, **dict(writer_options or {}))
+        self.topics = set(topics) if topics is not None else None
+        self.exclude = set(exclude)
+        self.wait_for = set(wait_for) - {gate_topic}
+        self.gate_topic = gate_topic
+        self.parameters_of = list(parameters_of) if parameters_of is not None else []
+        self.received: dict[str, int] = {}
+        self._recording_subs: dict[str, Any] = {}
+        self._channels: dict[str, int] = {}
+        self._fetches: dict[str, _ParameterFetch] = {}
+        self.parameters: dict[str, dict[str, Any]] = {}
+        self.gate_open = gate_topic is None
+        self.final_topic = final_topic
+        self.settle = settle
+        self.last_message_at = time.monotonic()
+        self.closed = False
+        self._created = time.time()
+        for name, data in (metadata or {}).items():
+            self.writer.add_metadata(name, data)
+        self._timer = self.create_timer(
+            discovery_period, self.discover, clock=Clock(clock_type=ClockType.STEADY_TIME)
+        )
+        self.discover()
+
+    # -- discovery ---------------------------------------------------------------------------
+    def _wanted(self, topic: str) -> bool:
+        if topic == self.gate_topic and not self.gate_open:
+            return False
+        if self.topics is not None:
+            return topic in self.topics or topic == self.gate_topic
+        return topic not in self.exclude
+
+    def discover(self) -> None:
+        """Subscribe to new topics, ask new nodes for their parameters, open the gate."""
+        if self.closed:
+            return
+        for topic, types in self.get_topic_names_and_types():
+            if topic in self._recording_subs or not self._wanted(topic):
+                continue
+            publishers = self.get_publishers_info_by_topic(topic)
+            if not publishers:
+                continue  # the publishers' QoS decides ours: wait for one
+            self._subscribe(topic, publishers[0].topic_type or types[0], publishers)
+        me = self.get_fully_qualified_name()
+        for name, namespace in self.get_node_names_and_namespaces():
+            fqn = _fqn(name, namespace)
+            if fqn == me or name.startswith("_") or fqn in self._fetches:
+                continue
+            self._fetches[fqn] = _ParameterFetch(self, fqn)
+        for fqn, fetch in self._fetches.items():
+            if fqn not in self.parameters and fetch.poll():
+                self.parameters[fqn] = fetch.values
+                self.writer.add_parameters(fqn, fetch.values)
+        if not self.gate_open and self._ready():
+            self.gate_open = True
+            # The run starts now: look at the graph less often, off its hot path.
+            self._timer.cancel()
+            self._timer = self.create_timer(
+                LATE_DISCOVERY_PERIOD, self.discover, clock=Clock(clock_type=ClockType.STEADY_TIME)
+            )
+            self.discover()
+
+    def _ready(self) -> bool:
+        for topic in self.wait_for:
+            sub = self._recording_subs.get(topic)
+            if sub is None or sub.get_publisher_count() == 0:
+                return False
+        recorded = {fqn.rsplit("/", 1)[-1] for fqn in self.parameters} | set(self.parameters)
+        return all(node in recorded for node in self.parameters_of)
+
+    def _subscribe(self, topic: str, type_name: str, publishers) -> None:
+        profiles = [qos_to_dict(p.qos_profile) for p in publishers]
+        channel = self.writer.add_topic(
+            topic,
+            type_name,
+            qos_profiles=profiles,
+            type_hash=str(publishers[0].topic_type_hash),
+        )
+        self._channels[topic] = channel
+        self.received[topic] = 0
+        qos = qos_from_dicts(profiles, depth=RECORD_DEPTH)
+        clock = self.get_clock()
+        writer = self.writer
+        received = self.received
+
+        def on_message(data: bytes) -> None:
+            writer.write(channel, data, clock.now().nanoseconds)
+            received[topic] += 1
+            self.last_message_at = time.monotonic()
+
+        self._recording_subs[topic] = self.create_subscription(
+            message_class(type_name), topic, on_message, qos, raw=True
+        )
+
+    @property
+    def complete(self) -> bool:
+        """``final_topic`` recorded and nothing received for ``settle`` s (True without one)."""
+        if self.final_topic is None:
+            return True
+        if not self.received.get(self.final_topic):
+            return False
+        return time.monotonic() - self.last_message_at >= self.settle
+
+    @property
+    def ready(self) -> bool:
+        """The gate is open (always, without a gate topic)."""
+        return self.gate_open
+
+    # -- end ---------------------------------------------------------------------------------
+    def close(self) -> None:
+        """Stop recording and close the bag (summary, footer). Idempotent."""
+        if self.closed:
+            return
+        self.closed = True
+        self._timer.cancel()
+        for sub in self._recording_subs.values():
+            self.destroy_subscription(sub)
+        self.writer.add_metadata(
+            "ffmpc_recorder",
+            {
+                "node": self.get_fully_qualified_name(),
+                "received": json.dumps(self.received),
+                "parameters_of": json.dumps(sorted(self.parameters)),
+                "started_unix_s": f"{self._created:.3f}",
+                "stopped_unix_s": f"{time.time():.3f}",
+            },
+        )
+        self.writer.close()
+
+    def destroy_node(self) -> None:
+        self.close()
+        super().destroy_node()
+
+
+def graph_recorder(
+    target: str | os.PathLike,
+    *,
+    context=None,
+    scenario=None,
+    run: Mapping[str, Mapping[str, Any]] | None = None,
+) -> BagRecorder:
+    """The recorder of ``ffmpc run --record``: every topic, gated on ``/plant/joint_states``
+    until every topic of the contract (``ffmpc_ros.topics.TOPICS``) has a publisher and the six
+    nodes' parameters are in; :attr:`BagRecorder.complete` once the metrics summary is in.
+    Metadata ``ffmpc_run`` holds the scenario file and the generated parameter file of the run
+    (``run``: {node: {name: value}})."""
+    import yaml
+
+    from ffmpc_core.scenario import scenario_parameters
+    from ffmpc_ros import topics
+    from ffmpc_ros.bringup import NODES, _nested
+
+    info: dict[str, str] = {}
+    if scenario is not None:
+        sections = scenario_parameters(scenario)
+        info["scenario_name"] = scenario.name
+        info["scenario"] = yaml.safe_dump(
+            {sec: {"ros__parameters": _nested(v)} for sec, v in sections.items()}, sort_keys=False
+        )
+    if run is not None:
+        info["params_file"] = yaml.safe_dump(
+            {node: {"ros__parameters": _nested(v)} for node, v in run.items()}, sort_keys=False
+        )
+    return BagRecorder(
+        target,
+        context=context,
+        wait_for=[t for t, _, _ in topics.TOPICS],
+        gate_topic=topics.PLANT_JOINT_STATES,
+        parameters_of=[*NODES, "metrics"],
+        metadata={"ffmpc_run": info} if info else None,
+        final_topic=topics.METRICS_SUMMARY,
+    )
+
+
+def record_bag(
+    target: str | os.PathLike,
+    *,
+    topics: Sequence[str] | None = None,
+    duration: float | None = None,
+    domain_id: int | None = None,
+    use_sim_time: bool = True,
+    writer_options: Mapping[str, Any] | None = None,
+    stop=None,
+) -> BagRecorder:
+    """Record a live graph until Ctrl-C/SIGTERM, ``duration`` wall seconds or ``stop()`` returns
+    True; returns the (closed) recorder with its counts."""
+    from rclpy.context import Context
+    from rclpy.experimental import EventsExecutor
+
+    domain = int(os.environ.get("ROS_DOMAIN_ID", "0")) if domain_id is None else domain_id
+    context = Context()
+    rclpy.init(args=[], context=context, domain_id=domain)
+    executor = EventsExecutor(context=context)
+    recorder = BagRecorder(
+        target,
+        context=context,
+        topics=topics,
+        use_sim_time=use_sim_time,
+        writer_options=writer_options,
+    )
+    executor.add_node(recorder)
+    end = None if duration is None else time.monotonic() + duration
+    stopping = []
+    previous = signal.signal(signal.SIGTERM, lambda *_: stopping.append(True))
+    try:
+        while not stopping and (end is None or time.monotonic() < end):
+            if stop is not None and stop():
+                break
+            executor.spin_once(timeout_sec=0.05)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        recorder.close()
+        executor.remove_node(recorder)
+        recorder.destroy_node()
+        executor.shutdown()
+        rclpy.shutdown(context=context)
+    return recorder
