@@ -75,7 +75,7 @@ class LowLevelConfig:
     stale_timeout: float = 0.004
     mpc_period: float = 0.002
     blend_duration: float = 0.1
-    hold_frequency: float = 2.0
+    hold_frequency: float = 4.0
     hold_damping_ratio: float = 1.0
 
     def __post_init__(self) -> None:

@@ -133,15 +133,15 @@ class MpcSection:
 @dataclass(frozen=True)
 class PidSection:
     enabled: bool = True
-    kp: float = 0.5
-    ki: float = 100.0
+    kp: float = 0.1
+    ki: float = 20.0  # 1/s; see ffmpc_core/pid.py for why these gains
     kd: float = 0.0
     integral_fraction: float = 0.3
     delay_cycles: int = 5  # δo = 5 ms at 1 kHz
     # Low-level loop around the PID (ffmpc_core.lowlevel); inactive while the MPC is on time.
     stale_timeout: float = 0.004  # s without a new MPC command → safe hold (2 MPC periods)
     blend_duration: float = 0.1  # s, hold → MPC torque blend (minimum jerk)
-    hold_frequency: float = 2.0  # Hz, natural frequency of the inertia-scaled hold PD
+    hold_frequency: float = 4.0  # Hz, natural frequency of the inertia-scaled hold PD
     hold_damping_ratio: float = 1.0
 
 

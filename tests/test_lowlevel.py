@@ -238,10 +238,11 @@ def _hold_drift(robot, overrides: dict, seed: int = 4) -> tuple[float, float]:
 
 
 def test_hold_keeps_the_simulated_robot_in_place(robot):
-    """The inertia-scaled PD of the hold matters: with it the tool moves < 15 mm while the PID's
-    integral removes the actuation bias and ends within 3 mm; gravity compensation alone
-    (hold_frequency 0) lets it sag by more than 5 cm (measured: 8.5 mm / 1.4 mm vs 148 mm)."""
+    """The inertia-scaled PD of the hold matters: with it (4 Hz) the tool moves < 20 mm while the
+    PID's integral slowly removes the actuation bias and ends within 8 mm; gravity compensation
+    alone (hold_frequency 0) lets it sag by more than 5 cm. Measured with the default PID
+    (K_P 0.1, K_I 20/s): 14.6 mm peak, 4.8 mm final (2 Hz hold: 28.7 / 10.7 mm)."""
     peak, final = _hold_drift(robot, {})
-    assert peak < 15e-3 and final < 3e-3, (peak, final)
+    assert peak < 20e-3 and final < 8e-3, (peak, final)
     peak_gravity_only, _ = _hold_drift(robot, {"pid.hold_frequency": 0.0})
     assert peak_gravity_only > 50e-3
