@@ -20,7 +20,7 @@ import numpy as np
 from ffmpc_core.model_plant import run_model_closed_loop
 from ffmpc_core.mpc import MpcConfig
 from ffmpc_core.robots import load_robot
-from ffmpc_core.tasks import PhaseWeights, PolishingTask
+from ffmpc_core.tasks import PolishingTask
 
 CONFIGURATIONS = ((5, 0.003), (20, 0.010))
 CASES = ("reference", "classical", "torque_feedback", "force_feedback")
@@ -28,16 +28,7 @@ CASES = ("reference", "classical", "torque_feedback", "force_feedback")
 
 def _task(robot) -> PolishingTask:
     p0 = robot.contact_placement(robot.q_nominal).translation
-    return PolishingTask(
-        p0,
-        p0,
-        still=0.0,
-        reach=0.0,
-        force_ramp=0.1,
-        circle=10.0,
-        stop=0.0,
-        weights=PhaseWeights(force=3.0),
-    )
+    return PolishingTask.pressing(p0, force_ramp=0.1, circle=10.0, stop=0.0)
 
 
 def bench_case(case: str, horizon: int, dt: float, solves: int) -> dict:

@@ -42,8 +42,52 @@ class PhaseWeights:
     force: float = 1e-2
 
 
+class _ApproachThenContact:
+    """What the approach-then-contact tasks share: the tool stands still, reaches
+    ``contact_position`` with a minimum-jerk path, then the contact phases begin.
+
+    A subclass provides ``start_position``, ``contact_position``, ``still``, ``reach``,
+    ``weights``, ``force(t)``, ``ee_position(t)`` and ``_ee_z_weight_in_contact``.
+    """
+
+    _ee_z_weight_in_contact: float = 0.0
+
+    @property
+    def contact_time(self) -> float:
+        """Time at which the OCP switches to the contact model, s."""
+        return self.still + self.reach
+
+    def approach_position(self, t: float) -> np.ndarray:
+        """p̄(t) up to the contact time: at rest, then a minimum-jerk reach, m, world frame."""
+        start = np.asarray(self.start_position, float)
+        contact = np.asarray(self.contact_position, float)
+        if t < self.still:
+            return start.copy()
+        s = min_jerk((t - self.still) / max(self.reach, 1e-9))
+        return start + s * (contact - start)
+
+    def in_contact(self, t: float) -> bool:
+        return t >= self.contact_time
+
+    def reference(self, t: float, dimension: int = 1) -> NodeReference:
+        """The node reference at time t for a contact model with ``dimension`` force entries
+        (1-D: the normal; 3-D (x, y, z): the z entry carries the normal force)."""
+        contact = self.in_contact(t)
+        force = np.zeros(dimension)
+        force[-1] = self.force(t)
+        w = self.weights
+        return NodeReference(
+            ee_position=self.ee_position(t),
+            force=force,
+            ee_position_weight=w.contact_ee_position if contact else w.free_ee_position,
+            force_weight=w.force if contact else 0.0,
+            in_contact=contact,
+            ee_position_diag=np.array([1.0, 1.0, self._ee_z_weight_in_contact if contact else 1.0]),
+        )
+
+
 @dataclass(frozen=True)
-class PolishingTask:
+class PolishingTask(_ApproachThenContact):
     """The polishing task of the paper (VI-A, VII-C), phases with fixed durations (s).
 
     Attributes:
@@ -73,17 +117,16 @@ class PolishingTask:
     weights: PhaseWeights = PhaseWeights()
     ee_z_weight_in_contact: float = 0.0
 
+    @property
+    def _ee_z_weight_in_contact(self) -> float:  # type: ignore[override]
+        return self.ee_z_weight_in_contact
+
     def __post_init__(self) -> None:
         for name in ("still", "reach", "force_ramp", "circle", "stop"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"phase duration {name} must be >= 0")
         if self.circle_radius < 0 or self.normal_force < 0:
             raise ConfigError("circle_radius and normal_force must be >= 0")
-
-    @property
-    def contact_time(self) -> float:
-        """Time at which the OCP switches to the contact model, s."""
-        return self.still + self.reach
 
     @property
     def circle_start(self) -> float:
@@ -97,21 +140,38 @@ class PolishingTask:
     def duration(self) -> float:
         return self.circle_end + self.stop
 
+    @classmethod
+    def pressing(
+        cls,
+        position: np.ndarray,
+        force_ramp: float = 0.3,
+        circle: float = 0.0,
+        stop: float = 0.5,
+        force_weight: float = 3.0,
+    ) -> PolishingTask:
+        """Contact from t = 0 where the tool is (``position``, m, world): ramp the normal force
+        in ``force_ramp`` s, circle for ``circle`` s, hold ``stop`` s. The closed loops on a
+        formulation's own dynamics (tests, demo, benchmark) use it."""
+        p = np.asarray(position, dtype=float)
+        return cls(
+            p,
+            p,
+            still=0.0,
+            reach=0.0,
+            force_ramp=force_ramp,
+            circle=circle,
+            stop=stop,
+            weights=PhaseWeights(force=force_weight),
+        )
+
     def circle_center(self) -> np.ndarray:
         """Centre of the circle, m, world frame: the circle starts at ``contact_position``."""
         return np.asarray(self.contact_position, float) - np.array([self.circle_radius, 0, 0])
 
     def ee_position(self, t: float) -> np.ndarray:
         """Desired contact-frame position p̄(t), m, world frame."""
-        start = np.asarray(self.start_position, float)
-        contact = np.asarray(self.contact_position, float)
-        if t < self.still:
-            return start.copy()
-        if t < self.contact_time:
-            s = min_jerk((t - self.still) / max(self.reach, 1e-9))
-            return start + s * (contact - start)
         if t < self.circle_start:
-            return contact.copy()
+            return self.approach_position(t)
         angle = self.angular_velocity * (min(t, self.circle_end) - self.circle_start)
         c = self.circle_center()
         return c + self.circle_radius * np.array([np.cos(angle), np.sin(angle), 0.0])
@@ -123,24 +183,6 @@ class PolishingTask:
         ramp = (t - self.contact_time) / max(self.force_ramp, 1e-9)
         return self.normal_force * min_jerk(ramp)
 
-    def in_contact(self, t: float) -> bool:
-        return t >= self.contact_time
-
-    def reference(self, t: float, dimension: int = 1) -> NodeReference:
-        """The node reference at time t for a contact model with ``dimension`` force entries."""
-        contact = self.in_contact(t)
-        force = np.zeros(dimension)
-        force[-1] = self.force(t)  # 1-D: the normal; 3-D (x, y, z): the z entry
-        w = self.weights
-        return NodeReference(
-            ee_position=self.ee_position(t),
-            force=force,
-            ee_position_weight=w.contact_ee_position if contact else w.free_ee_position,
-            force_weight=w.force if contact else 0.0,
-            in_contact=contact,
-            ee_position_diag=np.array([1.0, 1.0, self.ee_z_weight_in_contact if contact else 1.0]),
-        )
-
     def in_circle(self, t: np.ndarray) -> np.ndarray:
         """Mask of times inside the circle phase (where the paper's metrics are computed)."""
         t = np.asarray(t)
@@ -148,7 +190,7 @@ class PolishingTask:
 
 
 @dataclass(frozen=True)
-class ForceSquareTask:
+class ForceSquareTask(_ApproachThenContact):
     """Experiment 1 (VII-B): hold the tool on the table and track a square normal-force signal.
 
     The tool reaches ``contact_position``, the force ramps to ``low_force``, then alternates
@@ -167,10 +209,6 @@ class ForceSquareTask:
     weights: PhaseWeights = PhaseWeights()
 
     @property
-    def contact_time(self) -> float:
-        return self.still + self.reach
-
-    @property
     def square_start(self) -> float:
         return self.contact_time + self.force_ramp
 
@@ -179,12 +217,7 @@ class ForceSquareTask:
         return self.square_start + self.period * self.cycles
 
     def ee_position(self, t: float) -> np.ndarray:
-        start = np.asarray(self.start_position, float)
-        contact = np.asarray(self.contact_position, float)
-        if t < self.still:
-            return start.copy()
-        s = min_jerk((t - self.still) / max(self.reach, 1e-9))
-        return start + s * (contact - start)
+        return self.approach_position(t)
 
     def force(self, t: float) -> float:
         if t < self.contact_time:
@@ -193,23 +226,6 @@ class ForceSquareTask:
             return self.low_force * min_jerk((t - self.contact_time) / max(self.force_ramp, 1e-9))
         phase = ((t - self.square_start) % self.period) / self.period
         return self.high_force if phase < 0.5 else self.low_force
-
-    def in_contact(self, t: float) -> bool:
-        return t >= self.contact_time
-
-    def reference(self, t: float, dimension: int = 1) -> NodeReference:
-        contact = self.in_contact(t)
-        force = np.zeros(dimension)
-        force[-1] = self.force(t)
-        w = self.weights
-        return NodeReference(
-            ee_position=self.ee_position(t),
-            force=force,
-            ee_position_weight=w.contact_ee_position if contact else w.free_ee_position,
-            force_weight=w.force if contact else 0.0,
-            in_contact=contact,
-            ee_position_diag=np.array([1.0, 1.0, 0.0 if contact else 1.0]),
-        )
 
     def in_circle(self, t: np.ndarray) -> np.ndarray:
         """Mask of the evaluation window (the square signal), for the shared metrics code."""

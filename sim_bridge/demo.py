@@ -18,7 +18,7 @@ from ffmpc_core.mpc import MpcConfig
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
 from ffmpc_core.selfcheck import require_sound_dynamics
-from ffmpc_core.tasks import PhaseWeights, PolishingTask
+from ffmpc_core.tasks import PolishingTask
 from sim_bridge.runner import run_scenario
 
 
@@ -26,16 +26,7 @@ def run_demo(seed: int = 0) -> int:
     robot = load_robot("iiwa")
     require_sound_dynamics(robot)
     p0 = robot.contact_placement(robot.q_nominal).translation
-    task = PolishingTask(
-        p0,
-        p0,
-        still=0.0,
-        reach=0.0,
-        force_ramp=0.3,
-        circle=0.0,
-        stop=0.5,
-        weights=PhaseWeights(force=3.0),
-    )
+    task = PolishingTask.pressing(p0)
     print("1) Perfect model: each MPC against its own dynamics, ramp to 50 N in 0.3 s, hold 0.5 s")
     print(
         f"   {'formulation':16} {'force at end N':>14} {'max |err| held N':>17} "

@@ -10,7 +10,7 @@ from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.model_plant import ModelPlant, run_model_closed_loop
 from ffmpc_core.mpc import ModelPredictiveController, MpcConfig, MpcMeasurement, _interp_rows
 from ffmpc_core.robots import load_robot
-from ffmpc_core.tasks import PhaseWeights, PolishingTask
+from ffmpc_core.tasks import PolishingTask
 
 
 @pytest.fixture(scope="module")
@@ -21,16 +21,7 @@ def robot():
 def press_task(robot, circle=0.0):
     """Contact from t = 0, force ramped to 50 N in 0.3 s, then held (optionally circling)."""
     p0 = robot.contact_placement(robot.q_nominal).translation
-    return PolishingTask(
-        p0,
-        p0,
-        still=0.0,
-        reach=0.0,
-        force_ramp=0.3,
-        circle=circle,
-        stop=0.5,
-        weights=PhaseWeights(force=3.0),
-    )
+    return PolishingTask.pressing(p0, circle=circle)
 
 
 # Tolerances on the held force, from the perfect-model closed loop. Classical and torque-feedback
