@@ -27,6 +27,8 @@ EXECUTABLES: dict[str, str] = {
     "mpc": "ffmpc_ros.mpc_node",
     "pid": "ffmpc_ros.pid_node",
     "metrics": "ffmpc_ros.metrics_node",
+    "impact_planner": "ffmpc_ros.impact_planner_node",
+    "contact_learner": "ffmpc_ros.contact_learner_node",
 }
 
 _ROOT = Path(__file__).resolve().parent

@@ -122,6 +122,18 @@ class StudyNode(Node):
             except Exception:  # noqa: BLE001  (shutting down: the logger's context is gone)
                 pass
 
+    def inform(self, kind: str, message: str) -> None:
+        """Log an info line, at most one per kind per LOG_THROTTLE s (counted in log_lines)."""
+        now = time.monotonic()
+        last = self._last_log.get(kind)
+        if last is None or now - last >= LOG_THROTTLE:
+            self._last_log[kind] = now
+            self.log_lines[kind] += 1
+            try:
+                self.get_logger().info(message)
+            except Exception:  # noqa: BLE001  (shutting down: the logger's context is gone)
+                pass
+
     def check_stamp(self, topic: str, stamp: TimeMsg) -> int | None:
         """The cycle of an input's stamp if it is on the grid, newer than the last accepted one
         from ``topic`` and not stale; otherwise reject it and return None. Call

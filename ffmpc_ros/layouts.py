@@ -182,6 +182,66 @@ LOWLEVEL_STATUS = ArrayLayout(
     ),
 )
 
+#: /contact_learner/estimate — the recursive least-squares estimate of eq 21 with its confidence
+#: (ffmpc_core.impact.learner.ContactEstimate) and the sample it last took in.
+CONTACT_ESTIMATE = ArrayLayout(
+    "contact_estimate",
+    1,
+    (
+        Field("t", 1, "s", "simulated time of the newest sample fed"),
+        Field("stiffness", 1, "N/m", "α̂ along d (eq 21)"),
+        Field("damping", 1, "N·s/m", "β̂ along d (eq 21)"),
+        Field("stiffness_std", 1, "N/m", "standard error of α̂"),
+        Field("damping_std", 1, "N·s/m", "standard error of β̂"),
+        Field("noise_std", 1, "N", "σ̂, residual standard deviation of eq 3"),
+        Field("samples", 1, "-", "K, samples fed since the last reset"),
+        Field("condition", 1, "-", "condition number of (S Sᵀ + λI) (large: poorly excited)"),
+        Field("deformation", 1, "m", "z of the newest sample, dᵀ(p − surface)"),
+        Field("deformation_rate", 1, "m/s", "ż of the newest sample, dᵀṗ"),
+        Field("force", 1, "N", "f of the newest sample, −dᵀλ̂ (pressing force)"),
+        Field("direction", 3, "-", "unit motion direction d, world frame"),
+        Field("surface", 3, "m", "surface point p_s (contact frame at the onset), world frame"),
+    ),
+)
+
+#: /impact_planner/status — the impact controller's state each cycle (Sec. IV-C, Fig. 2).
+IMPACT_STATUS = ArrayLayout(
+    "impact_status",
+    1,
+    (
+        Field("t", 1, "s", "simulated time of the measurement the command is computed from"),
+        Field("phase", 1, "-", "0 approach, 1 contact (for good once force ≥ contact_threshold)"),
+        Field("safe_stop", 1, "-", "1: zero-velocity stop after bad, stale or missing input"),
+        Field(
+            "pre_impact_velocity",
+            1,
+            "m/s",
+            "eq 14 bound of this cycle along d; 0 in contact, on a stop or without a bound",
+        ),
+        Field("velocity", 1, "m/s", "commanded contact-frame velocity along d"),
+        Field("acceleration", 1, "m/s²", "feed-forward acceleration along d"),
+        Field("force", 1, "N", "measured pressing force along d, −dᵀλ̂"),
+        Field("target_force", 1, "N", "force regulated in contact"),
+        Field("contact_time", 1, "s", "time the contact was detected (−1 before)"),
+        Field("contact_velocity", 1, "m/s", "speed along d at the contact detection (0 before)"),
+        Field("stiffness", 1, "N/m", "α of the material the planner uses"),
+        Field("damping", 1, "N·s/m", "β of the material the planner uses"),
+        Field("learned", 1, "-", "1 if that material is the learner's estimate, 0 the prior"),
+        Field("solver_failures", 1, "-", "cycles without a certified eq 14 bound (rest commanded)"),
+        Field("rejected", 1, "-", "inputs rejected by the node so far"),
+        Field("direction", 3, "-", "unit motion direction d, world frame"),
+        Field("position", 3, "m", "reference position of the contact frame, world frame"),
+    ),
+)
+
 LAYOUTS: dict[str, ArrayLayout] = {
-    layout.name: layout for layout in (MPC_COMMAND, PLANT_TRUTH, PLANT_STATUS, LOWLEVEL_STATUS)
+    layout.name: layout
+    for layout in (
+        MPC_COMMAND,
+        PLANT_TRUTH,
+        PLANT_STATUS,
+        LOWLEVEL_STATUS,
+        CONTACT_ESTIMATE,
+        IMPACT_STATUS,
+    )
 }

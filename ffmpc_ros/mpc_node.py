@@ -8,6 +8,17 @@ the same stamp for force-feedback) and at least ``period`` has passed since the 
 lockstep that is every ``period / time_step`` cycles from k = 0, as the ROS-free runner does; in
 real time it is the first complete cycle after each period. The command carries the
 measurement's time t_k; the solver's wall time is reported but never used for control.
+
+Learned contact (force-feedback only; parameter ``use_learned_contact``, default off, so the
+polishing graph is unchanged): the node also subscribes ``/contact_learner/estimate`` (layout
+``contact_estimate``) and, for every estimate that is confident (``learner_min_samples``,
+``learner_max_relative_std``: both standard errors at most that fraction of the value), sets the
+OCP's contact stiffness K (N/m) and damping B (N·s/m) live (``set_contact_parameters``) for the
+next solve. The estimate is along the learner's motion direction: it replaces the normal-axis
+entry of K and B (``contact.normal_axis``; the only one of a 1-D contact), and with a
+LOCAL_WORLD_ALIGNED contact an estimate whose direction is not ±that axis is rejected. Each
+accepted update is logged (at most one line per 2 s). Estimates are not synchronised with the
+lockstep cycle: one applies from the first solve after its arrival.
 """
 
 from __future__ import annotations
@@ -16,12 +27,13 @@ from geometry_msgs.msg import WrenchStamped
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from ffmpc_core.errors import FfmpcError, InputError
+from ffmpc_core.errors import ConfigError, FfmpcError, InputError
 from ffmpc_core.mpc import ModelPredictiveController, MpcMeasurement
 from ffmpc_core.robots import load_robot
 from ffmpc_core.study import build_task, measured_force, mpc_config, steps_per_mpc_period
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import StudyNode, run_node
+from ffmpc_ros.impact_common import DIRECTION_TOLERANCE, confident, estimate_from_message
 
 _KEEP = 20  # cycles of unmatched measurements kept
 
@@ -50,6 +62,23 @@ class MpcNode(StudyNode):
         self.create_subscription(JointState, topics.SENSED_JOINT_STATES, self.on_joints, qos)
         if self.needs_force:
             self.create_subscription(WrenchStamped, topics.SENSED_WRENCH, self.on_wrench, qos)
+        self.use_learned_contact = bool(self.params["use_learned_contact"])
+        self.learner_min_samples = int(self.params["learner_min_samples"])
+        self.learner_max_relative_std = float(self.params["learner_max_relative_std"])
+        self.contact_updates = 0
+        if self.use_learned_contact:
+            if not self.needs_force:
+                raise ConfigError("use_learned_contact needs the force_feedback formulation")
+            contact = self.config.contact
+            self.contact_stiffness = contact.stiffness_vector().copy()  # N/m, per force entry
+            self.contact_damping = contact.damping_vector().copy()  # N·s/m
+            self._learned_entry = 0 if contact.dimension == 1 else contact.normal_axis
+            self.create_subscription(
+                Float64MultiArray,
+                topics.CONTACT_ESTIMATE,
+                self.on_estimate,
+                topics.subscriber_qos(False),
+            )
 
     def on_joints(self, msg: JointState) -> None:
         topic = topics.SENSED_JOINT_STATES
@@ -78,6 +107,52 @@ class MpcNode(StudyNode):
         self.accept_cycle(topic, k)
         self._forces[k] = force
         self._try_solve(k)
+
+    def on_estimate(self, msg: Float64MultiArray) -> None:
+        """A learner estimate: applied to the OCP's contact model when confident."""
+        topic = topics.CONTACT_ESTIMATE
+        try:
+            estimate, t, direction = estimate_from_message(msg)
+        except InputError as exc:
+            self.reject(f"{topic}:value", str(exc))
+            return
+        k = self.cycle_of_time(t)
+        if k is None:
+            self.reject(f"{topic}:stamp", f"estimate time {t} s off the grid")
+            return
+        last = self._last_cycle.get(topic)
+        if last is not None and k <= last:
+            self.reject(f"{topic}:order", f"estimate of cycle {k} is not after {last}")
+            return
+        contact = self.config.contact
+        if contact.frame_type == "LOCAL_WORLD_ALIGNED":
+            along = abs(float(direction[contact.normal_axis]))
+            if along < 1.0 - DIRECTION_TOLERANCE:
+                self.reject(
+                    f"{topic}:direction",
+                    f"estimate along {direction}, the contact model's axis is "
+                    f"{contact.normal_axis}",
+                )
+                return
+        self.accept_cycle(topic, k)
+        if not confident(estimate, self.learner_min_samples, self.learner_max_relative_std):
+            return
+        stiffness, damping = self.contact_stiffness.copy(), self.contact_damping.copy()
+        stiffness[self._learned_entry] = estimate.stiffness
+        damping[self._learned_entry] = estimate.damping
+        try:
+            self.mpc.set_contact_parameters(stiffness, damping)
+        except FfmpcError as exc:
+            self.reject(f"{topic}:value", str(exc))
+            return
+        self.contact_stiffness, self.contact_damping = stiffness, damping
+        self.contact_updates += 1
+        self.inform(
+            "contact_update",
+            f"contact model from the learner: stiffness {estimate.stiffness:.1f} N/m, damping "
+            f"{estimate.damping:.2f} N·s/m ({estimate.samples} samples, update "
+            f"{self.contact_updates})",
+        )
 
     def _due(self, k: int) -> bool:
         return self._last_solve is None or k - self._last_solve >= self.every

@@ -9,7 +9,9 @@ node declares:
 * the few values of OTHER sections it needs, under ``<section>.<name>`` (the MPC node declares
   ``pid.delay_cycles`` for its δo and ``plant.time_step``): ``ffmpc run`` fills them from the
   scenario; with ``ros2 run … --params-file`` they keep their defaults unless given with ``-p``;
-* graph parameters that are not part of a scenario (``lockstep``, ``duration``, …).
+* graph parameters that are not part of a scenario (``lockstep``, ``duration``, …). The impact
+  nodes (``impact_planner``, ``contact_learner``) have no scenario section: apart from ``robot``
+  and ``plant.time_step`` all their parameters are graph parameters.
 
 Every parameter is read-only (nodes build their models once), has a description, and numeric
 ones a range. The node rebuilds a :class:`~ffmpc_core.scenario.Scenario` from its values with the
@@ -224,6 +226,105 @@ WAIT_FOR_METRICS = GraphParameter(
 _TIME_STEP = ("plant.time_step",)
 _CONTACT = ("mpc.contact.dimension", "mpc.contact.normal_axis", "mpc.contact.frame_type")
 
+# -- the impact nodes (Dehio & Kheddar 2020) and the MPC's use of the learned contact ----------
+# Defaults: the paper's experiment (Sec. VI) as in sim_bridge.impact_study (Panda, prior
+# 2400 N/m and 15 N·s/m, z̄ = 3 cm, 90 % of the data-sheet limits).
+DIRECTION = GraphParameter(
+    "direction", [0.0, 0.0, -1.0], "unit motion direction d, world frame (eq 2; z, ż, f along d)"
+)
+LEARNER_MIN_SAMPLES = GraphParameter(
+    "learner_min_samples",
+    20,
+    "samples the learner's estimate needs before it is used",
+    (3, 2**31 - 1),
+)
+LEARNER_MAX_RELATIVE_STD = GraphParameter(
+    "learner_max_relative_std",
+    0.05,
+    "an estimate is used only when both standard errors are at most this fraction of the value",
+    (0.0, 1e3),
+)
+USE_LEARNED_CONTACT = GraphParameter(
+    "use_learned_contact",
+    False,
+    "force-feedback: take K, B live from /contact_learner/estimate when it is confident",
+)
+IMPACT_PLANNER_GRAPH: tuple[GraphParameter, ...] = (
+    DIRECTION,
+    GraphParameter("target_force", 60.0, "force regulated after contact, N", (1e-3, 1e4)),
+    GraphParameter(
+        "contact_threshold", 2.0, "pressing force along d that declares the contact, N", (1e-6, 1e4)
+    ),
+    GraphParameter("preview_horizon", 20, "h, preview steps of eq 12–14", (2, 1000)),
+    GraphParameter("preview_dt", 0.025, "Δt of the penetration preview (eq 6), s", (1e-4, 1.0)),
+    GraphParameter(
+        "prior_stiffness", 2400.0, "α of the planning material until learned, N/m", (1e-3, 1e9)
+    ),
+    GraphParameter(
+        "prior_damping", 15.0, "β of the planning material until learned, N·s/m", (0.0, 1e6)
+    ),
+    GraphParameter("max_penetration", 0.03, "z̄, end of the elastic domain, m", (1e-6, 1.0)),
+    GraphParameter(
+        "limit_margin",
+        0.9,
+        "fraction of the joint velocity and acceleration limits the planner may use",
+        (1e-3, 1.0),
+    ),
+    GraphParameter(
+        "acceleration_limit",
+        Parameter.Type.DOUBLE_ARRAY,
+        "q̈_max per joint, rad/s² (unset: the Panda data sheet; required for other robots)",
+    ),
+    GraphParameter("n_directions", 8, "eq 10 weight directions (vertices)", (3, 64)),
+    GraphParameter(
+        "max_approach_velocity", 0.0, "cap on the approach speed, m/s (0: none)", (0.0, 100.0)
+    ),
+    GraphParameter(
+        "replan_period",
+        0.0,
+        "re-solve eq 9–14 this often during the approach, s (0: every cycle, as the paper)",
+        (0.0, 10.0),
+    ),
+    GraphParameter("admittance", 2e-3, "admittance G after contact, m/(N·s)", (1e-9, 1.0)),
+    GraphParameter("admittance_max_velocity", 0.1, "admittance velocity bound, m/s", (1e-6, 10.0)),
+    GraphParameter(
+        "admittance_velocity_filter", 0.8, "admittance velocity filter γ per ms", (0.0, 0.999)
+    ),
+    GraphParameter(
+        "use_learned_material",
+        True,
+        "plan with /contact_learner/estimate once it is confident (else the prior only)",
+    ),
+    LEARNER_MIN_SAMPLES,
+    LEARNER_MAX_RELATIVE_STD,
+)
+CONTACT_LEARNER_GRAPH: tuple[GraphParameter, ...] = (
+    DIRECTION,
+    GraphParameter(
+        "contact_threshold",
+        2.0,
+        "pressing force along d that ends the search for the surface, N",
+        (1e-6, 1e4),
+    ),
+    GraphParameter(
+        "surface_force",
+        0.0,
+        "surface = contact-frame position at the last sample with force ≤ this before the "
+        "threshold, N",
+        (-1e4, 1e4),
+    ),
+    GraphParameter(
+        "feed_force", 0.0, "samples with force above this are in contact (and fed), N", (-1e4, 1e4)
+    ),
+    GraphParameter(
+        "skip_onset_samples",
+        1,
+        "first in-contact samples of each contact episode not fed to the learner",
+        (0, 100000),
+    ),
+    GraphParameter("regularization", 1e-9, "λ of (S Sᵀ)_0 = λI (eq 19), m² and m²/s²", (0.0, 1.0)),
+)
+
 NODE_SPECS: dict[str, NodeSpec] = {
     "plant": NodeSpec(
         "plant",
@@ -237,7 +338,11 @@ NODE_SPECS: dict[str, NodeSpec] = {
     ),
     "ft_sensor": NodeSpec("ft_sensor", "ft_sensor", ("seed",), _TIME_STEP + _CONTACT, (MAX_AGE,)),
     "mpc": NodeSpec(
-        "mpc", "mpc", ("robot", "task.*"), _TIME_STEP + ("pid.delay_cycles",), (MAX_AGE,)
+        "mpc",
+        "mpc",
+        ("robot", "task.*"),
+        _TIME_STEP + ("pid.delay_cycles",),
+        (MAX_AGE, USE_LEARNED_CONTACT, LEARNER_MIN_SAMPLES, LEARNER_MAX_RELATIVE_STD),
     ),
     "pid": NodeSpec(
         "pid",
@@ -252,6 +357,12 @@ NODE_SPECS: dict[str, NodeSpec] = {
         ("robot", "seed", "task.*"),
         _TIME_STEP + _CONTACT + ("mpc.formulation",),
         (DURATION, LOCKSTEP),
+    ),
+    "impact_planner": NodeSpec(
+        "impact_planner", None, ("robot",), _TIME_STEP, (LOCKSTEP, MAX_AGE, *IMPACT_PLANNER_GRAPH)
+    ),
+    "contact_learner": NodeSpec(
+        "contact_learner", None, ("robot",), _TIME_STEP, (MAX_AGE, *CONTACT_LEARNER_GRAPH)
     ),
 }
 
@@ -360,10 +471,11 @@ def declare_node_parameters(node, spec: NodeSpec) -> dict[str, Any]:
         node.declare_parameter(ros, default, descriptor(name, default))
         values[ros] = node.get_parameter(ros).value
     for g in spec.graph:
-        node.declare_parameter(
+        # (the declared Parameter: get_parameter raises for one declared by type and not set)
+        declared = node.declare_parameter(
             g.name, g.default, descriptor(g.name, g.default, g.description, g.range)
         )
-        values[g.name] = node.get_parameter(g.name).value
+        values[g.name] = declared.value
     return values
 
 

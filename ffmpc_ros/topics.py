@@ -55,6 +55,25 @@ TOPICS: tuple[tuple[str, str, str], ...] = (
     (METRICS_READY, "std_msgs/msg/Bool", "metrics"),
 )
 
+#: Topics and services of the impact nodes (Dehio & Kheddar 2020). They are kept out of
+#: :data:`TOPICS`: the polishing graph (and its recorder, which waits for every topic there)
+#: does not run these nodes.
+IMPACT_COMMAND = "/impact_planner/command"
+IMPACT_STATUS = "/impact_planner/status"
+IMPACT_RESET_SERVICE = "/impact_planner/reset"
+CONTACT_ESTIMATE = "/contact_learner/estimate"
+CONTACT_LEARNER_RESET_SERVICE = "/contact_learner/reset"
+
+#: The frame of the impact planner's twist: the velocity of the contact frame origin, world axes
+#: (the same frame as the wrenches).
+COMMAND_FRAME = WRENCH_FRAME
+
+IMPACT_TOPICS: tuple[tuple[str, str, str], ...] = (
+    (IMPACT_COMMAND, "geometry_msgs/msg/TwistStamped", "impact_planner"),
+    (IMPACT_STATUS, "std_msgs/msg/Float64MultiArray", "impact_planner"),
+    (CONTACT_ESTIMATE, "std_msgs/msg/Float64MultiArray", "contact_learner"),
+)
+
 #: History kept by every data publisher (and by lockstep subscribers), samples.
 PUBLISHER_DEPTH = 100
 

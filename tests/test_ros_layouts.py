@@ -45,6 +45,8 @@ def test_every_layout_is_documented_field_by_field():
         "plant_truth": topics.PLANT_TRUTH,
         "plant_status": topics.PLANT_STATUS,
         "lowlevel_status": topics.LOWLEVEL_STATUS,
+        "contact_estimate": topics.CONTACT_ESTIMATE,
+        "impact_status": topics.IMPACT_STATUS,
     }
     for name, layout in layouts.LAYOUTS.items():
         version, topic, rows = sections[name]
@@ -58,9 +60,15 @@ def test_every_topic_is_documented_with_its_type_and_publisher():
     rows = _table_rows((NOTES / "topics.md").read_text(encoding="utf-8"))
     topic_rows = [r for r in rows if r[0].startswith("/") and len(r) == 7]
     documented = {(r[0], r[1], r[2]) for r in topic_rows}
-    assert documented == set(topics.TOPICS)
-    assert len(topic_rows) == len(topics.TOPICS)
-    assert any(r[0] == topics.TARE_SERVICE and r[1] == "std_srvs/srv/Trigger" for r in rows)
+    assert documented == set(topics.TOPICS) | set(topics.IMPACT_TOPICS)
+    assert len(topic_rows) == len(topics.TOPICS) + len(topics.IMPACT_TOPICS)
+    services = (
+        topics.TARE_SERVICE,
+        topics.IMPACT_RESET_SERVICE,
+        topics.CONTACT_LEARNER_RESET_SERVICE,
+    )
+    for service in services:
+        assert any(r[0] == service and r[1] == "std_srvs/srv/Trigger" for r in rows), service
     readme = (NOTES / "README.md").read_text(encoding="utf-8")
     assert topics.WRENCH_FRAME in readme and str(topics.PUBLISHER_DEPTH) in readme
 

@@ -66,7 +66,16 @@ def test_every_parameter_has_a_description_and_numbers_a_range(ros):
             assert desc.read_only, desc.name
             if desc.type in NUMERIC and not desc.dynamic_typing:
                 assert desc.floating_point_range or desc.integer_range, desc.name
-    assert set(NODE_SPECS) == {"plant", "joint_sensor", "ft_sensor", "mpc", "pid", "metrics"}
+    assert set(NODE_SPECS) == {
+        "plant",
+        "joint_sensor",
+        "ft_sensor",
+        "mpc",
+        "pid",
+        "metrics",
+        "impact_planner",
+        "contact_learner",
+    }
 
 
 def test_out_of_range_and_invalid_values_are_refused_at_start(ros):

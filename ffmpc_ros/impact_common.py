@@ -1,0 +1,197 @@
+"""What the impact nodes share (Dehio & Kheddar 2020): the measured joint state and wrench of
+each cycle paired by stamp, the learner's estimate on the wire (layout ``contact_estimate``), and
+the rule that says when an estimate is confident enough to be used.
+
+Pairing. The impact planner and the contact learner read ``/joint_sensor/joint_states`` (q̂, q̇̂)
+and ``/ft_sensor/wrench`` (λ̂, frame ``contact_world_aligned``). A cycle k is processed once both
+messages stamped t_k are accepted, and only if k is after the last processed cycle (the
+controllers need non-decreasing time); incomplete cycles more than :data:`KEEP` cycles older
+than the newest are dropped. Input checks are the ones of :class:`~ffmpc_ros.base.StudyNode`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+
+import numpy as np
+from geometry_msgs.msg import WrenchStamped
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+
+from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.impact.deformation import unit_direction
+from ffmpc_core.impact.learner import ContactEstimate
+from ffmpc_ros import layouts, topics
+from ffmpc_ros.base import StudyNode
+
+#: Cycles an incomplete measurement waits for its partner before it is dropped: the publishers'
+#: history, so that a late subscriber can pair everything TRANSIENT_LOCAL hands it at once.
+KEEP = topics.PUBLISHER_DEPTH
+#: Largest |d_a − d_b| (per component) of two motion directions that count as the same.
+DIRECTION_TOLERANCE = 1e-6
+
+
+def direction_parameter(value) -> np.ndarray:
+    """The ``direction`` parameter as a unit 3-vector (world frame); ConfigError otherwise."""
+    try:
+        return unit_direction(np.asarray(value, dtype=float))
+    except InputError as exc:
+        raise ConfigError(f"parameter direction: {exc}") from None
+
+
+def confident(estimate: ContactEstimate, min_samples: int, max_relative_std: float) -> bool:
+    """True when an estimate may replace a prior: at least ``min_samples`` samples, α̂ > 0 N/m,
+    β̂ ≥ 0 N·s/m, and both standard errors at most ``max_relative_std`` times their value (the rule
+    of ``sim_bridge.impact_study``)."""
+    e = estimate
+    values = (e.stiffness, e.damping, e.stiffness_std, e.damping_std)
+    return bool(
+        all(np.isfinite(values))
+        and e.samples >= min_samples
+        and e.stiffness > 0.0
+        and e.damping >= 0.0
+        and e.stiffness_std <= max_relative_std * e.stiffness
+        and e.damping_std <= max_relative_std * max(e.damping, 1e-9)
+    )
+
+
+def estimate_message(
+    estimate: ContactEstimate,
+    t: float,
+    sample: tuple[float, float, float],
+    direction: np.ndarray,
+    surface: np.ndarray,
+) -> Float64MultiArray:
+    """The ``contact_estimate`` array of an estimate, its time t (s), the newest sample
+    (z m, ż m/s, f N), the direction d and the surface point (m, world frame)."""
+    z, zd, f = sample
+    return layouts.CONTACT_ESTIMATE.pack(
+        {
+            "t": t,
+            "stiffness": estimate.stiffness,
+            "damping": estimate.damping,
+            "stiffness_std": estimate.stiffness_std,
+            "damping_std": estimate.damping_std,
+            "noise_std": estimate.noise_std,
+            "samples": float(estimate.samples),
+            "condition": estimate.condition,
+            "deformation": z,
+            "deformation_rate": zd,
+            "force": f,
+            "direction": direction,
+            "surface": surface,
+        }
+    )
+
+
+def estimate_from_message(msg: Float64MultiArray) -> tuple[ContactEstimate, float, np.ndarray]:
+    """(estimate, t s, direction d) of a ``contact_estimate`` array; InputError when the layout,
+    a value or the direction is wrong."""
+    fields = layouts.CONTACT_ESTIMATE.unpack(msg)
+    samples = fields["samples"]
+    if samples < 0 or samples != int(samples):
+        raise InputError(f"samples must be a non-negative integer, got {samples}")
+    if min(fields["stiffness_std"], fields["damping_std"], fields["noise_std"]) < 0:
+        raise InputError("standard errors must be ≥ 0")
+    direction = unit_direction(fields["direction"])
+    estimate = ContactEstimate(
+        stiffness=fields["stiffness"],
+        damping=fields["damping"],
+        stiffness_std=fields["stiffness_std"],
+        damping_std=fields["damping_std"],
+        noise_std=fields["noise_std"],
+        samples=int(samples),
+        condition=fields["condition"],
+    )
+    return estimate, fields["t"], direction
+
+
+class MeasuredCycleNode(StudyNode):
+    """A StudyNode that processes the measured joint state and wrench of each cycle together
+    (see the module docstring). Subclasses set ``joint_names``, call
+    :meth:`subscribe_measurements`, and implement :meth:`process_cycle`; :meth:`input_failed` is
+    called for every rejected measurement except duplicates and out-of-order ones.
+
+    Attributes:
+        step_times: wall time of each :meth:`process_cycle`, s (the newest 100 000).
+        processed: cycles processed.
+    """
+
+    joint_names: list[str]
+
+    def __init__(self, spec: str, **kwargs) -> None:
+        super().__init__(spec, **kwargs)
+        self._joints: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._wrenches: dict[int, np.ndarray] = {}
+        self.last_processed: int | None = None
+        self.processed = 0
+        self.step_times: deque[float] = deque(maxlen=100_000)
+
+    def subscribe_measurements(self, qos) -> None:
+        self.create_subscription(JointState, topics.SENSED_JOINT_STATES, self.on_joints, qos)
+        self.create_subscription(WrenchStamped, topics.SENSED_WRENCH, self.on_wrench, qos)
+
+    # -- hooks -------------------------------------------------------------------------------
+    def process_cycle(self, k: int, q: np.ndarray, v: np.ndarray, wrench: np.ndarray) -> None:
+        """Cycle k's q (rad), q̇ (rad/s) and wrench [f; m] (N, N·m, ``contact_world_aligned``)."""
+        raise NotImplementedError
+
+    def input_failed(self, k: int | None) -> None:
+        """A measurement was rejected (k: its cycle when its stamp is on the grid)."""
+
+    # -- inputs ------------------------------------------------------------------------------
+    def _checked_cycle(self, topic: str, stamp) -> int | None:
+        k_msg = self.cycle_of(stamp)
+        k = self.check_stamp(topic, stamp)
+        if k is None:
+            last = self._last_cycle.get(topic)
+            if not (k_msg is not None and last is not None and k_msg <= last):
+                self.input_failed(k_msg)
+        return k
+
+    def on_joints(self, msg: JointState) -> None:
+        topic = topics.SENSED_JOINT_STATES
+        k = self._checked_cycle(topic, msg.header.stamp)
+        if k is None:
+            return
+        try:
+            q, v = self.joint_arrays(msg, self.joint_names, ("position", "velocity"))
+        except InputError as exc:
+            self.reject(f"{topic}:value", str(exc))
+            self.input_failed(k)
+            return
+        self.accept_cycle(topic, k)
+        self._joints[k] = (q, v)
+        self._try_cycle(k)
+
+    def on_wrench(self, msg: WrenchStamped) -> None:
+        topic = topics.SENSED_WRENCH
+        k = self._checked_cycle(topic, msg.header.stamp)
+        if k is None:
+            return
+        try:
+            wrench = self.wrench_array(msg)
+        except InputError as exc:
+            self.reject(f"{topic}:value", str(exc))
+            self.input_failed(k)
+            return
+        self.accept_cycle(topic, k)
+        self._wrenches[k] = wrench
+        self._try_cycle(k)
+
+    def _try_cycle(self, k: int) -> None:
+        for store in (self._joints, self._wrenches):
+            for old in [c for c in store if c < k - KEEP]:
+                del store[old]
+        if k not in self._joints or k not in self._wrenches:
+            return
+        q, v = self._joints.pop(k)
+        wrench = self._wrenches.pop(k)
+        if self.last_processed is not None and k <= self.last_processed:
+            return  # completed after a later cycle: the controllers need time to go forward
+        self.last_processed = k
+        start = time.perf_counter()
+        self.process_cycle(k, q, v, wrench)
+        self.step_times.append(time.perf_counter() - start)
+        self.processed += 1

@@ -1,0 +1,305 @@
+"""The impact planner node: approach a soft object at the maximal safe pre-impact velocity, then
+regulate the force (Dehio & Kheddar 2020, Sec. IV-C, Fig. 2; eq 9–14).
+
+Subscribes ``/joint_sensor/joint_states`` (q̂, q̇̂) and ``/ft_sensor/wrench`` (λ̂, frame
+``contact_world_aligned``), paired by cycle (:mod:`ffmpc_ros.impact_common`), and
+``/contact_learner/estimate``. For each complete cycle k it runs
+:class:`~ffmpc_core.impact.control.ImpactController` (the same object as
+``sim_bridge.impact_study``) at t_k = k·``plant.time_step`` and publishes, stamped t_k:
+
+* ``/impact_planner/command`` — geometry_msgs/TwistStamped, frame ``contact_world_aligned``:
+  linear = the desired contact-frame velocity v_ref·d (m/s), angular = 0 (hold the orientation).
+  In the approach v_ref tracks the eq 14 bound, ramped at the contact-space acceleration bound;
+  once the pressing force −dᵀλ̂ reaches ``contact_threshold`` (2 N) the admittance controller
+  regulates it to ``target_force`` (60 N);
+* ``/impact_planner/status`` — layout ``impact_status``: phase, the maximal safe pre-impact
+  velocity of the cycle, the commanded velocity/acceleration along d, the reference position,
+  the force, the material used, the contact time and speed, failures and rejections.
+
+Material. The planner plans with the prior (``prior_stiffness``, ``prior_damping``,
+``max_penetration``) until an estimate of ``/contact_learner/estimate`` for the same direction
+is confident (``learner_min_samples``, ``learner_max_relative_std``; parameter
+``use_learned_material``); from then on with the newest confident estimate (z̄ stays the prior's).
+
+Limits: the robot's position/torque limits, and ``limit_margin`` × its velocity and acceleration
+limits (``acceleration_limit``, rad/s²; unset: the Panda data sheet, any other robot needs it).
+
+Safe output. A rejected measurement (NaN/Inf, wrong names or frame, off the grid, stale — not a
+duplicate or out-of-order one) makes the node publish a zero twist with ``safe_stop`` = 1, stamped
+with the newest of: the rejected message's cycle, the node's clock, the last output. So does a
+watchdog (every 50 ms of wall time) when no complete cycle came for ``max_input_age`` of
+simulated time. Nothing is published before the first complete cycle. The controller keeps its
+state: the next complete cycle resumes its command (a consumer ramps as its own limits require).
+
+Service ``/impact_planner/reset`` (std_srvs/Trigger): back to the approach phase; the next
+cycle's pose becomes the hold pose (the learned material, if any, is kept).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from geometry_msgs.msg import TwistStamped
+from rclpy.clock import Clock, ClockType
+from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import Trigger
+
+from ffmpc_core.errors import FfmpcError, InputError
+from ffmpc_core.impact.control import (
+    CONTACT,
+    AdmittanceForceController,
+    CartesianCommand,
+    ImpactController,
+    ImpactControllerConfig,
+    ImpactMeasurement,
+)
+from ffmpc_core.impact.deformation import SoftMaterial
+from ffmpc_core.impact.limits import JointLimits, joint_limits
+from ffmpc_core.impact.planner import PlannerConfig
+from ffmpc_core.robots import load_robot
+from ffmpc_ros import layouts, topics
+from ffmpc_ros.base import run_node
+from ffmpc_ros.impact_common import (
+    DIRECTION_TOLERANCE,
+    MeasuredCycleNode,
+    confident,
+    direction_parameter,
+    estimate_from_message,
+)
+
+#: Wall-time period of the missing-input watchdog, s.
+WATCHDOG_PERIOD = 0.05
+
+
+def scaled_limits(limits: JointLimits, margin: float) -> JointLimits:
+    """``margin`` × the velocity and acceleration limits; positions and torques unchanged (as
+    ``sim_bridge.impact_study.ImpactStudyConfig.control_limits``)."""
+    return JointLimits(
+        position_lower=limits.position_lower,
+        position_upper=limits.position_upper,
+        velocity=margin * limits.velocity,
+        acceleration=margin * limits.acceleration,
+        torque=limits.torque,
+    )
+
+
+def controller_config(params: dict, prior: SoftMaterial) -> ImpactControllerConfig:
+    """The ImpactControllerConfig of the node's parameters (ConfigError when inconsistent)."""
+    n_directions = int(params["n_directions"])
+    cap = float(params["max_approach_velocity"])
+    return ImpactControllerConfig(
+        direction=direction_parameter(params["direction"]),
+        material=prior,
+        target_force=float(params["target_force"]),
+        contact_threshold=float(params["contact_threshold"]),
+        planner=PlannerConfig(
+            horizon=int(params["preview_horizon"]),
+            dt=float(params["preview_dt"]),
+            max_halfplanes=n_directions,
+        ),
+        n_directions=n_directions,
+        max_approach_velocity=cap if cap > 0 else math.inf,
+        admittance=AdmittanceForceController(
+            admittance=float(params["admittance"]),
+            max_velocity=float(params["admittance_max_velocity"]),
+            velocity_filter=float(params["admittance_velocity_filter"]),
+        ),
+        replan_period=float(params["replan_period"]),
+    )
+
+
+class ImpactPlannerNode(MeasuredCycleNode):
+    """ImpactController on topics (see the module docstring).
+
+    Attributes:
+        controller: the core controller. learned_material: the confident estimate in use (None:
+        the prior). safe_stops: safe stops published. last_command: the newest command.
+    """
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__("impact_planner", **kwargs)
+        p = self.params
+        self.robot = load_robot(self.scenario.robot)
+        self.joint_names = list(self.robot.joint_names)
+        acc = p["acceleration_limit"]
+        limits = joint_limits(self.robot, None if acc is None else np.asarray(acc, dtype=float))
+        self.limits = scaled_limits(limits, float(p["limit_margin"]))
+        self.prior = SoftMaterial(
+            float(p["prior_stiffness"]), float(p["prior_damping"]), float(p["max_penetration"])
+        )
+        self.config = controller_config(p, self.prior)
+        self.direction = self.config.direction
+        self.controller = ImpactController(self.robot, self.limits, self.config)
+        self.use_learned_material = bool(p["use_learned_material"])
+        self.learner_min_samples = int(p["learner_min_samples"])
+        self.learner_max_relative_std = float(p["learner_max_relative_std"])
+        self.learned_material: SoftMaterial | None = None
+        self.last_command: CartesianCommand | None = None
+        self._last_output: int | None = None
+        self._last_good: int | None = None
+        self._stopped = False
+        self.safe_stops = 0
+        self.estimates_used = 0
+        qos = topics.publisher_qos()
+        self.pub_command = self.create_publisher(TwistStamped, topics.IMPACT_COMMAND, qos)
+        self.pub_status = self.create_publisher(Float64MultiArray, topics.IMPACT_STATUS, qos)
+        self.subscribe_measurements(topics.subscriber_qos(bool(p["lockstep"])))
+        self.create_subscription(
+            Float64MultiArray,
+            topics.CONTACT_ESTIMATE,
+            self.on_estimate,
+            topics.subscriber_qos(False),
+        )
+        self.create_service(Trigger, topics.IMPACT_RESET_SERVICE, self.on_reset)
+        self.create_timer(
+            WATCHDOG_PERIOD, self._watchdog, clock=Clock(clock_type=ClockType.STEADY_TIME)
+        )
+
+    # -- the control cycle -------------------------------------------------------------------
+    def process_cycle(self, k: int, q: np.ndarray, v: np.ndarray, wrench: np.ndarray) -> None:
+        t = self.t_of(k)
+        material = self.controller.material
+        try:
+            command = self.controller.step(ImpactMeasurement(q=q, v=v, force=wrench[:3]), t)
+        except FfmpcError as exc:
+            self.reject("step", f"cycle {k}: {exc}")
+            self.input_failed(k)
+            return
+        self.last_command = command
+        self._last_good = k
+        self._stopped = False
+        bound = command.pre_impact_velocity
+        self._publish(
+            k,
+            command.velocity,
+            {
+                "safe_stop": 0.0,
+                "pre_impact_velocity": bound if math.isfinite(bound) else 0.0,
+                "velocity": float(self.direction @ command.velocity),
+                "acceleration": float(self.direction @ command.acceleration),
+                "stiffness": material.stiffness,
+                "damping": material.damping,
+                "learned": float(material is self.learned_material),
+            },
+        )
+
+    def _publish(self, k: int, velocity: np.ndarray, fields: dict) -> None:
+        c, command = self.controller, self.last_command
+        msg = TwistStamped()
+        msg.header.stamp = self.stamp_of(k)
+        msg.header.frame_id = topics.COMMAND_FRAME
+        msg.twist.linear.x, msg.twist.linear.y, msg.twist.linear.z = (float(x) for x in velocity)
+        self.pub_command.publish(msg)
+        status = {
+            "t": self.t_of(k),
+            "phase": float(c.phase == CONTACT),
+            "force": command.force,
+            "target_force": command.target_force,
+            "contact_time": -1.0 if c.contact_time is None else c.contact_time,
+            "contact_velocity": 0.0 if c.contact_velocity is None else c.contact_velocity,
+            "solver_failures": float(c.solver_failures),
+            "rejected": float(sum(self.rejected.values())),
+            "direction": self.direction,
+            "position": command.position,
+            **fields,
+        }
+        self.pub_status.publish(layouts.IMPACT_STATUS.pack(status))
+        self._last_output = k
+
+    # -- safe output -------------------------------------------------------------------------
+    def _clock_cycle(self) -> int | None:
+        ns = self.get_clock().now().nanoseconds
+        return ns // self.step_ns if ns > 0 else None
+
+    def input_failed(self, k: int | None) -> None:
+        self.safe_stop(k)
+
+    def safe_stop(self, k: int | None = None) -> None:
+        """Publish a zero twist (``safe_stop`` = 1); see the module docstring for its stamp."""
+        if self.last_command is None:
+            return  # nothing commanded yet: nothing to stop
+        candidates = [c for c in (k, self._clock_cycle(), self._last_output) if c is not None]
+        material = self.controller.material
+        self._publish(
+            max(candidates),
+            np.zeros(3),
+            {
+                "safe_stop": 1.0,
+                "pre_impact_velocity": 0.0,
+                "velocity": 0.0,
+                "acceleration": 0.0,
+                "stiffness": material.stiffness,
+                "damping": material.damping,
+                "learned": float(material is self.learned_material),
+            },
+        )
+        self._stopped = True
+        self.safe_stops += 1
+
+    def _watchdog(self) -> None:
+        """Stop once when no complete cycle came for ``max_input_age`` (simulated time)."""
+        if self._stopped or self._last_good is None:
+            return
+        now = self._clock_cycle()
+        if now is None:
+            return
+        age = (now - self._last_good) * self.time_step
+        if age > self.max_input_age:
+            self.reject("inputs:missing", f"no complete cycle for {age:.4f} s")
+            self.safe_stop(now)
+
+    # -- the learner's estimate --------------------------------------------------------------
+    def on_estimate(self, msg: Float64MultiArray) -> None:
+        topic = topics.CONTACT_ESTIMATE
+        try:
+            estimate, t, direction = estimate_from_message(msg)
+        except InputError as exc:
+            self.reject(f"{topic}:value", str(exc))
+            return
+        k = self.cycle_of_time(t)
+        if k is None:
+            self.reject(f"{topic}:stamp", f"estimate time {t} s off the grid")
+            return
+        last = self._last_cycle.get(topic)
+        if last is not None and k <= last:
+            self.reject(f"{topic}:order", f"estimate of cycle {k} is not after {last}")
+            return
+        if np.max(np.abs(direction - self.direction)) > DIRECTION_TOLERANCE:
+            self.reject(f"{topic}:direction", f"estimate along {direction}, planning along d")
+            return
+        self.accept_cycle(topic, k)
+        if not self.use_learned_material or not confident(
+            estimate, self.learner_min_samples, self.learner_max_relative_std
+        ):
+            return
+        self.learned_material = SoftMaterial(
+            estimate.stiffness, estimate.damping, self.prior.max_penetration
+        )
+        self.controller.material = self.learned_material
+        self.estimates_used += 1
+        self.inform(
+            "learned_material",
+            f"planning with the learned material: stiffness {estimate.stiffness:.1f} N/m, "
+            f"damping {estimate.damping:.2f} N·s/m ({estimate.samples} samples)",
+        )
+
+    def on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        self.controller.reset()
+        if self.learned_material is not None:
+            self.controller.material = self.learned_material
+        self.last_command = None
+        self._last_good = None
+        self._stopped = False
+        response.success = True
+        response.message = "back to the approach phase"
+        self.get_logger().info(f"reset: {response.message}")
+        return response
+
+
+def main(argv=None) -> int:
+    return run_node(ImpactPlannerNode, __doc__.splitlines()[0], argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
