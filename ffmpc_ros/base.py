@@ -22,6 +22,7 @@ import sys
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 import rclpy
@@ -155,6 +156,24 @@ class StudyNode(Node):
 
     def accept_cycle(self, topic: str, k: int) -> None:
         self._last_cycle[topic] = k
+
+    def receive(self, topic: str, msg, parse: Callable[[Any], Any]) -> tuple[int, Any] | None:
+        """Check the stamp of ``msg``, parse it, accept its cycle: ``(k, parse(msg))``, or None
+        when the stamp or the values are rejected (one throttled log line, see :meth:`reject`)."""
+        k = self.check_stamp(topic, msg.header.stamp)
+        if k is None:
+            return None
+        try:
+            value = parse(msg)
+        except InputError as exc:
+            self.reject(f"{topic}:value", str(exc))
+            return None
+        self.accept_cycle(topic, k)
+        return k, value
+
+    def joint_fields(self, *fields: str) -> Callable[[Any], list[np.ndarray]]:
+        """A parser of JointState messages into ``fields`` in the robot's joint order."""
+        return lambda msg: self.joint_arrays(msg, self.joint_names, fields)
 
     def vector(self, values, n: int, name: str) -> np.ndarray:
         """A float array of n finite values (InputError otherwise)."""

@@ -27,7 +27,7 @@ from geometry_msgs.msg import WrenchStamped
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
-from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.errors import ConfigError
 from ffmpc_core.study import device_generator, force_sensing_model, measured_force
 from ffmpc_ros import topics
 from ffmpc_ros.base import StudyNode, run_node
@@ -75,15 +75,10 @@ class FtSensorNode(StudyNode):
 
     def on_wrench(self, msg: WrenchStamped) -> None:
         topic = topics.PLANT_WRENCH
-        k = self.check_stamp(topic, msg.header.stamp)
-        if k is None:
+        got = self.receive(topic, msg, self.wrench_array)
+        if got is None:
             return
-        try:
-            wrench = self.wrench_array(msg)
-        except InputError as exc:
-            self.reject(f"{topic}:value", str(exc))
-            return
-        self.accept_cycle(topic, k)
+        k, wrench = got
         raw = self.model.step(measured_force(wrench, self.contact))
         self._recent.append(raw)
         measured = raw - self.offset

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from sensor_msgs.msg import JointState
 
-from ffmpc_core.errors import InputError
 from ffmpc_core.robots import load_robot
 from ffmpc_core.study import device_generator, joint_sensing_model
 from ffmpc_ros import topics
@@ -40,17 +39,10 @@ class JointSensorNode(StudyNode):
 
     def on_joint_state(self, msg: JointState) -> None:
         topic = topics.PLANT_JOINT_STATES
-        k = self.check_stamp(topic, msg.header.stamp)
-        if k is None:
+        got = self.receive(topic, msg, self.joint_fields("position", "velocity", "effort"))
+        if got is None:
             return
-        try:
-            q, v, effort = self.joint_arrays(
-                msg, self.joint_names, ("position", "velocity", "effort")
-            )
-        except InputError as exc:
-            self.reject(f"{topic}:value", str(exc))
-            return
-        self.accept_cycle(topic, k)
+        _, (q, v, effort) = got
         q_hat, v_hat, _ = self.model.step(q, v)
         out = JointState()
         out.header.stamp = msg.header.stamp

@@ -82,29 +82,21 @@ class MpcNode(StudyNode):
 
     def on_joints(self, msg: JointState) -> None:
         topic = topics.SENSED_JOINT_STATES
-        k = self.check_stamp(topic, msg.header.stamp)
-        if k is None:
+        got = self.receive(topic, msg, self.joint_fields("position", "velocity", "effort"))
+        if got is None:
             return
-        try:
-            arrays = self.joint_arrays(msg, self.joint_names, ("position", "velocity", "effort"))
-        except InputError as exc:
-            self.reject(f"{topic}:value", str(exc))
-            return
-        self.accept_cycle(topic, k)
+        k, arrays = got
         self._joints[k] = tuple(arrays)
         self._try_solve(k)
 
     def on_wrench(self, msg: WrenchStamped) -> None:
         topic = topics.SENSED_WRENCH
-        k = self.check_stamp(topic, msg.header.stamp)
-        if k is None:
+        got = self.receive(
+            topic, msg, lambda m: measured_force(self.wrench_array(m), self.config.contact)
+        )
+        if got is None:
             return
-        try:
-            force = measured_force(self.wrench_array(msg), self.config.contact)
-        except InputError as exc:
-            self.reject(f"{topic}:value", str(exc))
-            return
-        self.accept_cycle(topic, k)
+        k, force = got
         self._forces[k] = force
         self._try_solve(k)
 
