@@ -30,13 +30,13 @@ import math
 import crocoddyl
 import numpy as np
 
-from ffmpc_core.config import ContactConfig, CostWeights, NodeReference
+from ffmpc_core.config import ContactConfig, CostWeights
 from ffmpc_core.errors import ConfigError, InputError, ModelError
 from ffmpc_core.rigid_contact import (
     COST_TORQUE,
     DEFAULT_BAUMGARTE_VELOCITY_GAIN,
     CommonCostHandles,
-    check_node_reference,
+    SwitchableContactNode,
     make_differential_model,
     rigid_contact_force,
 )
@@ -215,7 +215,7 @@ class IntegratedActionDataLPF(crocoddyl.ActionDataAbstract):
         self.hessian = np.zeros((3 * nv, 3 * nv))
 
 
-class LowPassNode:
+class LowPassNode(SwitchableContactNode):
     """One node of the torque-feedback OCP (Sec. IV-C) with switchable contact.
 
     Attributes:
@@ -262,24 +262,6 @@ class LowPassNode:
             self._handles.append(CommonCostHandles(dam, robot.nv))
         self.in_contact = bool(in_contact) and not self.terminal
         self.model = self._models[self.in_contact]
-
-    def set_reference(self, ref: NodeReference) -> bool:
-        """Update p̄, λ̄, c4, c6 (and q̄) in place and select contact/free dynamics.
-
-        Returns True iff ``model`` is now a different object (then the caller must call
-        ``problem.updateModel(k, node.model)``). A terminal node never switches.
-        """
-        check_node_reference(ref, self.contact, self.robot.nq)
-        for handles in self._handles:
-            handles.apply(ref)
-        if self.terminal:
-            return False
-        status = bool(ref.in_contact)
-        if status == self.in_contact:
-            return False
-        self.in_contact = status
-        self.model = self._models[status]
-        return True
 
     def contact_force(self, data: IntegratedActionDataLPF) -> np.ndarray:
         """λ^r(x) of this node (eq 14b) from ``data`` (created by ``model``) after calc, N."""

@@ -420,7 +420,31 @@ def rigid_contact_force(
     raise ModelError(f"not a rigid-contact or free differential data: {type(differential_data)}")
 
 
-class RigidContactNode:
+class SwitchableContactNode:
+    """``set_reference`` of the nodes that hold a free and an in-contact model (classical and
+    torque-feedback): attributes ``robot``, ``contact``, ``terminal``, ``in_contact``, ``model``,
+    ``_models`` {bool: model} and ``_handles`` (cost handles updated in place)."""
+
+    def set_reference(self, ref: NodeReference) -> bool:
+        """Update p̄, λ̄, c4, c6 (and q̄) in place and select contact/free dynamics.
+
+        Returns True iff ``model`` is now a different object: the caller must then call
+        ``problem.updateModel(k, node.model)``. A terminal node never switches.
+        """
+        check_node_reference(ref, self.contact, self.robot.nq)
+        for handles in self._handles:
+            handles.apply(ref)
+        if self.terminal:
+            return False
+        status = bool(ref.in_contact)
+        if status == self.in_contact:
+            return False
+        self.in_contact = status
+        self.model = self._models[status]
+        return True
+
+
+class RigidContactNode(SwitchableContactNode):
     """One node of the classical OCP (Sec. III-C) with switchable contact.
 
     Attributes:
@@ -466,24 +490,6 @@ class RigidContactNode:
             self._handles.append(CommonCostHandles(dam, robot.nv))
         self.in_contact = bool(in_contact) and not self.terminal
         self.model = self._models[self.in_contact]
-
-    def set_reference(self, ref: NodeReference) -> bool:
-        """Update p̄, λ̄, c4, c6 (and q̄) in place and select contact/free dynamics.
-
-        Returns True iff ``model`` is now a different object: the caller must then call
-        ``problem.updateModel(k, node.model)``. A terminal node never switches.
-        """
-        check_node_reference(ref, self.contact, self.robot.nq)
-        for handles in self._handles:
-            handles.apply(ref)
-        if self.terminal:
-            return False
-        status = bool(ref.in_contact)
-        if status == self.in_contact:
-            return False
-        self.in_contact = status
-        self.model = self._models[status]
-        return True
 
     def contact_force(self, data: crocoddyl.ActionDataAbstract) -> np.ndarray:
         """λ^r of this node (eq 8b) from ``data`` (created by ``model``) after calc, N."""

@@ -107,6 +107,29 @@ def estimate_from_message(msg: Float64MultiArray) -> tuple[ContactEstimate, floa
     return estimate, fields["t"], direction
 
 
+def receive_estimate(
+    node: StudyNode, msg: Float64MultiArray
+) -> tuple[int, ContactEstimate, np.ndarray] | None:
+    """A learner estimate message checked like any input: values, cycle on the grid, after the
+    last accepted one. ``(k, estimate, direction)``, or None after one throttled log line. The
+    caller accepts the cycle (``node.accept_cycle``) once it has used the estimate."""
+    topic = topics.CONTACT_ESTIMATE
+    try:
+        estimate, t, direction = estimate_from_message(msg)
+    except InputError as exc:
+        node.reject(f"{topic}:value", str(exc))
+        return None
+    k = node.cycle_of_time(t)
+    if k is None:
+        node.reject(f"{topic}:stamp", f"estimate time {t} s off the grid")
+        return None
+    last = node._last_cycle.get(topic)
+    if last is not None and k <= last:
+        node.reject(f"{topic}:order", f"estimate of cycle {k} is not after {last}")
+        return None
+    return k, estimate, direction
+
+
 class MeasuredCycleNode(StudyNode):
     """A StudyNode that processes the measured joint state and wrench of each cycle together
     (see the module docstring). Subclasses set ``joint_names``, call

@@ -45,7 +45,7 @@ from rclpy.clock import Clock, ClockType
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
-from ffmpc_core.errors import FfmpcError, InputError
+from ffmpc_core.errors import FfmpcError
 from ffmpc_core.impact.control import (
     CONTACT,
     AdmittanceForceController,
@@ -65,7 +65,7 @@ from ffmpc_ros.impact_common import (
     MeasuredCycleNode,
     confident,
     direction_parameter,
-    estimate_from_message,
+    receive_estimate,
 )
 
 #: Wall-time period of the missing-input watchdog, s.
@@ -252,19 +252,10 @@ class ImpactPlannerNode(MeasuredCycleNode):
     # -- the learner's estimate --------------------------------------------------------------
     def on_estimate(self, msg: Float64MultiArray) -> None:
         topic = topics.CONTACT_ESTIMATE
-        try:
-            estimate, t, direction = estimate_from_message(msg)
-        except InputError as exc:
-            self.reject(f"{topic}:value", str(exc))
+        got = receive_estimate(self, msg)
+        if got is None:
             return
-        k = self.cycle_of_time(t)
-        if k is None:
-            self.reject(f"{topic}:stamp", f"estimate time {t} s off the grid")
-            return
-        last = self._last_cycle.get(topic)
-        if last is not None and k <= last:
-            self.reject(f"{topic}:order", f"estimate of cycle {k} is not after {last}")
-            return
+        k, estimate, direction = got
         if np.max(np.abs(direction - self.direction)) > DIRECTION_TOLERANCE:
             self.reject(f"{topic}:direction", f"estimate along {direction}, planning along d")
             return

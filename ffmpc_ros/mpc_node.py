@@ -27,13 +27,13 @@ from geometry_msgs.msg import WrenchStamped
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from ffmpc_core.errors import ConfigError, FfmpcError, InputError
+from ffmpc_core.errors import ConfigError, FfmpcError
 from ffmpc_core.mpc import ModelPredictiveController, MpcMeasurement
 from ffmpc_core.robots import load_robot
 from ffmpc_core.study import build_task, measured_force, mpc_config, steps_per_mpc_period
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import StudyNode, run_node
-from ffmpc_ros.impact_common import DIRECTION_TOLERANCE, confident, estimate_from_message
+from ffmpc_ros.impact_common import DIRECTION_TOLERANCE, confident, receive_estimate
 
 _KEEP = 20  # cycles of unmatched measurements kept
 
@@ -103,19 +103,10 @@ class MpcNode(StudyNode):
     def on_estimate(self, msg: Float64MultiArray) -> None:
         """A learner estimate: applied to the OCP's contact model when confident."""
         topic = topics.CONTACT_ESTIMATE
-        try:
-            estimate, t, direction = estimate_from_message(msg)
-        except InputError as exc:
-            self.reject(f"{topic}:value", str(exc))
+        got = receive_estimate(self, msg)
+        if got is None:
             return
-        k = self.cycle_of_time(t)
-        if k is None:
-            self.reject(f"{topic}:stamp", f"estimate time {t} s off the grid")
-            return
-        last = self._last_cycle.get(topic)
-        if last is not None and k <= last:
-            self.reject(f"{topic}:order", f"estimate of cycle {k} is not after {last}")
-            return
+        k, estimate, direction = got
         contact = self.config.contact
         if contact.frame_type == "LOCAL_WORLD_ALIGNED":
             along = abs(float(direction[contact.normal_axis]))
