@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.optimize import linprog
 
 from ffmpc_core.errors import ConfigError, SolverError
 from ffmpc_core.impact.deformation import SoftMaterial, deformation_dynamics, simulate_deformation
@@ -12,6 +11,7 @@ from ffmpc_core.impact.limits import ContactSpaceMapper, joint_limits
 from ffmpc_core.impact.planner import (
     ImpactPlanner,
     PlannerConfig,
+    _highs_max_velocity,
     penetration_constraints,
     penetration_cost,
     pre_impact_cost,
@@ -61,23 +61,8 @@ def _check_plan(plan, dyn, b, mat):
 
 
 def _highs_max(rows):
-    A = np.column_stack([rows.K, rows.X])
-    eq = rows.lower == rows.upper
-    up = np.isfinite(rows.upper) & ~eq
-    lo = np.isfinite(rows.lower) & ~eq
-    c = np.zeros(A.shape[1])
-    c[0] = -1.0
-    res = linprog(
-        c,
-        A_ub=np.vstack([A[up], -A[lo]]),
-        b_ub=np.concatenate([rows.upper[up], -rows.lower[lo]]),
-        A_eq=A[eq],
-        b_eq=rows.lower[eq],
-        bounds=[(None, None)] * A.shape[1],
-        method="highs",
-    )
-    assert res.status == 0
-    return res.x[0]
+    """max ż_imp of eq 14's LP by HiGHS (scipy), m/s: the reference the osqp solution must hit."""
+    return _highs_max_velocity(rows)[0][0]
 
 
 @pytest.mark.parametrize("cost", ["qp", "lp"])
