@@ -6,10 +6,16 @@ import math
 import zlib
 
 import crocoddyl  # noqa: I001 (crocoddyl first: it loads the boost libraries mim_solvers needs)
-import mim_solvers
 import numpy as np
 import pinocchio as pin
 import pytest
+from ocp_helpers import (
+    assert_close_rel,
+    random_reference,
+    random_state,
+    rich_weights,
+    solve,
+)
 
 from ffmpc_core.config import ContactConfig, CostWeights, NodeReference
 from ffmpc_core.errors import ConfigError, InputError, ModelError
@@ -39,54 +45,13 @@ def robot(request):
     return load_robot(request.param)
 
 
-def rich_weights(rng, nc: int, isotropic_velocity: bool = False, lowpass_input=0.3):
-    return CostWeights(
-        posture=0.7,
-        posture_diag=tuple(rng.uniform(0.5, 2.0, 7)),
-        joint_velocity=0.3,
-        torque=0.05,
-        torque_diag=tuple(rng.uniform(0.5, 2.0, 7)),
-        ee_position=20.0,
-        ee_velocity=3.0,
-        ee_velocity_diag=1.5 if isotropic_velocity else (1.0, 2.0, 3.0),
-        force=0.2,
-        force_diag=1.5 if nc == 1 else (1.0, 0.5, 2.0),
-        lowpass_input=lowpass_input,
-    )
-
-
-def reference(rng, robot, contact, in_contact):
-    p = robot.contact_placement(robot.q_nominal).translation + 0.05 * rng.standard_normal(3)
-    return NodeReference(
-        ee_position=p,
-        force=10.0 * rng.standard_normal(contact.dimension),
-        ee_position_weight=15.0,
-        force_weight=0.4,
-        in_contact=in_contact,
-        posture=robot.q_nominal + 0.1 * rng.standard_normal(robot.nq),
-    )
-
-
-def random_state(rng, robot):
-    q = robot.q_nominal + 0.3 * rng.standard_normal(robot.nq)
-    v = rng.standard_normal(robot.nv)
-    tau = robot.gravity(q) + 10.0 * rng.standard_normal(robot.nv)
-    return np.concatenate([q, v, tau])
-
-
-def assert_close_rel(actual, expected, rtol, what):
-    scale = max(1.0, float(np.max(np.abs(expected))))
-    err = float(np.max(np.abs(actual - expected)))
-    assert err <= rtol * scale, f"{what}: max error {err:.2e} (scale {scale:.2e})"
-
-
 @pytest.mark.parametrize("contact_name", list(CONTACTS))
 @pytest.mark.parametrize("mode", MODES)
 def test_derivatives_match_numdiff(robot, contact_name, mode):
     rng = np.random.default_rng(zlib.crc32(f"{robot.name}/{contact_name}/{mode}".encode()))
     contact = CONTACTS[contact_name]
     for isotropic in (True, False):
-        weights = rich_weights(rng, contact.dimension, isotropic)
+        weights = rich_weights(rng, contact.dimension, isotropic, lowpass_input=0.3)
         node = make_lowpass_node(
             robot,
             contact,
@@ -96,12 +61,12 @@ def test_derivatives_match_numdiff(robot, contact_name, mode):
             PAPER_CUTOFF_FREQUENCY,
             in_contact=mode == "contact",
         )
-        node.set_reference(reference(rng, robot, contact, mode == "contact"))
+        node.set_reference(random_reference(rng, robot, contact, mode == "contact"))
         model = node.model
         numdiff = crocoddyl.ActionModelNumDiff(model, False)
         data, nd_data = model.createData(), numdiff.createData()
         for _ in range(2):
-            x = random_state(rng, robot)
+            x = random_state(rng, robot, with_torque=True)
             if mode == "terminal":
                 model.calc(data, x)
                 model.calcDiff(data, x)
@@ -125,8 +90,8 @@ def test_step_and_cost_match_classical_model_plus_eq28(robot, contact_name, in_c
     """Eq 13–14 and 28 against the classical node driven by the filtered torque."""
     rng = np.random.default_rng(5)
     contact = CONTACTS[contact_name]
-    weights = rich_weights(rng, contact.dimension)
-    ref = reference(rng, robot, contact, in_contact)
+    weights = rich_weights(rng, contact.dimension, lowpass_input=0.3)
+    ref = random_reference(rng, robot, contact, in_contact)
     lpf = make_lowpass_node(robot, contact, weights, DT, False, 50.0, in_contact=in_contact)
     classical = make_rigid_contact_node(robot, contact, weights, DT, False, in_contact=in_contact)
     lpf.set_reference(ref)
@@ -137,7 +102,7 @@ def test_step_and_cost_match_classical_model_plus_eq28(robot, contact_name, in_c
     assert lpf.alpha == pytest.approx(alpha, rel=1e-15)
     model, pd = robot.model, robot.create_data()
     for _ in range(3):
-        x = random_state(rng, robot)
+        x = random_state(rng, robot, with_torque=True)
         w = 20.0 * rng.standard_normal(nv)
         q, tau = x[:nv], x[2 * nv :]
         lpf.model.calc(lpf_data, x, w)
@@ -170,11 +135,11 @@ def test_gauss_newton_hessian_of_eq28():
     without = make_lowpass_node(
         robot, contact, weights.with_(lowpass_input=0.0), DT, False, 50.0, in_contact=True
     )
-    ref = reference(rng, robot, contact, True)
+    ref = random_reference(rng, robot, contact, True)
     with_cw.set_reference(ref)
     without.set_reference(ref)
     d1, d0 = with_cw.model.createData(), without.model.createData()
-    x = random_state(rng, robot)
+    x = random_state(rng, robot, with_torque=True)
     w = 10.0 * rng.standard_normal(robot.nv)
 
     def tau_g(xx):
@@ -198,7 +163,7 @@ def test_footnote2_limits_of_the_filter():
     contact = CONTACTS["1d_lwa_z"]
     rng = np.random.default_rng(2)
     nv = robot.nv
-    x = random_state(rng, robot)
+    x = random_state(rng, robot, with_torque=True)
     w = 30.0 * rng.standard_normal(nv)
     tau = x[2 * nv :]
 
@@ -232,15 +197,6 @@ def test_footnote2_limits_of_the_filter():
         np.testing.assert_array_equal(xk[2 * nv :], tau)
 
 
-def solve(problem, x0, iters=20):
-    solver = mim_solvers.SolverSQP(problem)
-    solver.termination_tolerance = 1e-10
-    xs = [x0.copy() for _ in range(problem.T + 1)]
-    us = [x0[14:].copy() for _ in range(problem.T)]
-    solver.solve(xs, us, iters, False)
-    return np.array(solver.xs), np.array(solver.us)
-
-
 def test_set_reference_switches_contact_across_solves():
     robot = load_robot("panda")
     contact = CONTACTS["1d_lwa_z"]
@@ -262,7 +218,7 @@ def test_set_reference_switches_contact_across_solves():
         problem = crocoddyl.ShootingProblem(x0, [n.model for n in nodes[:3]], nodes[3].model)
         return nodes, problem
 
-    fresh = {status: solve(build(status)[1], x0) for status in (False, True)}
+    fresh = {status: solve(build(status)[1], x0, x0[14:]) for status in (False, True)}
     assert np.max(np.abs(fresh[True][1] - fresh[False][1])) > 1e-3
 
     nodes, problem = build(False)
@@ -271,7 +227,7 @@ def test_set_reference_switches_contact_across_solves():
             if node.set_reference(ref(status)):
                 problem.updateModel(k, node.model)
             assert node.model is node._models[status and k < 3]
-        xs, us = solve(problem, x0)
+        xs, us = solve(problem, x0, x0[14:])
         np.testing.assert_allclose(xs, fresh[status][0], atol=1e-9)
         np.testing.assert_allclose(us, fresh[status][1], atol=1e-7)
 

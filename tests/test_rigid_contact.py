@@ -5,10 +5,16 @@ from __future__ import annotations
 import zlib
 
 import crocoddyl  # noqa: I001 (crocoddyl first: it loads the boost libraries mim_solvers needs)
-import mim_solvers
 import numpy as np
 import pinocchio as pin
 import pytest
+from ocp_helpers import (
+    assert_close_rel,
+    random_reference,
+    random_state,
+    rich_weights,
+    solve,
+)
 
 from ffmpc_core.config import ContactConfig, CostWeights, NodeReference
 from ffmpc_core.errors import ConfigError, InputError
@@ -33,54 +39,13 @@ def robot(request):
     return load_robot(request.param)
 
 
-def rich_weights(rng: np.random.Generator, isotropic_velocity: bool, nc: int) -> CostWeights:
-    """Non-trivial weights so that every term of eq 25 matters."""
-    return CostWeights(
-        posture=0.7,
-        posture_diag=tuple(rng.uniform(0.5, 2.0, 7)),
-        joint_velocity=0.3,
-        joint_velocity_diag=tuple(rng.uniform(0.5, 2.0, 7)),
-        torque=0.05,
-        torque_diag=tuple(rng.uniform(0.5, 2.0, 7)),
-        ee_position=20.0,
-        ee_position_diag=(1.0, 2.0, 0.5),
-        ee_velocity=3.0,
-        ee_velocity_diag=1.5 if isotropic_velocity else (1.0, 2.0, 3.0),
-        force=0.2,
-        force_diag=(1.0, 0.5, 2.0)[:nc] if nc > 1 else 1.5,
-    )
-
-
-def random_reference(rng, robot, contact, in_contact: bool) -> NodeReference:
-    p = robot.contact_placement(robot.q_nominal).translation + 0.05 * rng.standard_normal(3)
-    return NodeReference(
-        ee_position=p,
-        force=10.0 * rng.standard_normal(contact.dimension),
-        ee_position_weight=15.0,
-        force_weight=0.4,
-        in_contact=in_contact,
-        posture=robot.q_nominal + 0.1 * rng.standard_normal(robot.nq),
-    )
-
-
-def random_state(rng, robot) -> np.ndarray:
-    q = robot.q_nominal + 0.3 * rng.standard_normal(robot.nq)
-    return np.concatenate([q, rng.standard_normal(robot.nv)])
-
-
 def build_node(robot, contact, mode, rng, isotropic_velocity=False):
-    weights = rich_weights(rng, isotropic_velocity, contact.dimension)
+    weights = rich_weights(rng, contact.dimension, isotropic_velocity)
     node = make_rigid_contact_node(
         robot, contact, weights, DT, mode == "terminal", in_contact=mode == "contact"
     )
     node.set_reference(random_reference(rng, robot, contact, mode == "contact"))
     return node, weights
-
-
-def assert_close_rel(actual, expected, rtol, what):
-    scale = max(1.0, float(np.max(np.abs(expected))))
-    err = float(np.max(np.abs(actual - expected)))
-    assert err <= rtol * scale, f"{what}: max error {err:.2e} (scale {scale:.2e})"
 
 
 @pytest.mark.parametrize("contact_name", list(CONTACTS))
@@ -208,7 +173,7 @@ def test_cost_is_eq25(robot, contact_name, mode):
     rng = np.random.default_rng(11)
     contact = CONTACTS[contact_name]
     for isotropic in (True, False):
-        weights = rich_weights(rng, isotropic, contact.dimension)
+        weights = rich_weights(rng, contact.dimension, isotropic)
         node = make_rigid_contact_node(
             robot, contact, weights, DT, mode == "terminal", in_contact=mode == "contact"
         )
@@ -227,15 +192,6 @@ def test_cost_is_eq25(robot, contact_name, mode):
                 lam = kkt_solution(robot, contact, x, tau, DEFAULT_BAUMGARTE_VELOCITY_GAIN)[1]
             expected = DT * eq25_cost(robot, contact, weights, ref, x, tau, lam, False)
         assert data.cost == pytest.approx(expected, rel=1e-9)
-
-
-def solve(problem, x0, iters=20):
-    solver = mim_solvers.SolverSQP(problem)
-    solver.termination_tolerance = 1e-10
-    xs = [x0.copy() for _ in range(problem.T + 1)]
-    us = [np.zeros(problem.runningModels[0].nu) for _ in range(problem.T)]
-    solver.solve(xs, us, iters, False)
-    return np.array(solver.xs), np.array(solver.us)
 
 
 def test_set_reference_switches_contact_across_solves():
@@ -259,8 +215,8 @@ def test_set_reference_switches_contact_across_solves():
         problem = crocoddyl.ShootingProblem(x0, [n.model for n in nodes[:3]], nodes[3].model)
         return nodes, problem
 
-    fresh_free = solve(build(False)[1], x0)
-    fresh_contact = solve(build(True)[1], x0)
+    fresh_free = solve(build(False)[1], x0, np.zeros(robot.nv))
+    fresh_contact = solve(build(True)[1], x0, np.zeros(robot.nv))
     assert np.max(np.abs(fresh_free[1] - fresh_contact[1])) > 1.0  # the contact matters
 
     nodes, problem = build(False)
@@ -274,7 +230,7 @@ def test_set_reference_switches_contact_across_solves():
                     problem.updateModel(k, node.model)
                 # same reference again: no switch
                 assert node.set_reference(ref(status)) is False
-            xs, us = solve(problem, x0)
+            xs, us = solve(problem, x0, np.zeros(robot.nv))
             np.testing.assert_allclose(xs, expected[0], atol=1e-9)
             np.testing.assert_allclose(us, expected[1], atol=1e-7)
             forces = [nodes[k].contact_force(problem.runningDatas[k]) for k in range(3)]

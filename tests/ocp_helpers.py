@@ -1,0 +1,69 @@
+"""Helpers of the OCP-formulation tests (classical and torque-feedback nodes): rich weights
+and references so every cost term matters, seeded random states, a relative-tolerance check and
+a small SQP solve."""
+
+from __future__ import annotations
+
+import crocoddyl  # noqa: F401  (loads boost before mim_solvers)
+import mim_solvers
+import numpy as np
+
+from ffmpc_core.config import CostWeights, NodeReference
+
+
+def rich_weights(
+    rng: np.random.Generator, nc: int, isotropic_velocity: bool = False, lowpass_input=0.0
+) -> CostWeights:
+    """Non-trivial weights so that every term of eq 25 (and eq 28) matters."""
+    return CostWeights(
+        posture=0.7,
+        posture_diag=tuple(rng.uniform(0.5, 2.0, 7)),
+        joint_velocity=0.3,
+        joint_velocity_diag=tuple(rng.uniform(0.5, 2.0, 7)),
+        torque=0.05,
+        torque_diag=tuple(rng.uniform(0.5, 2.0, 7)),
+        ee_position=20.0,
+        ee_position_diag=(1.0, 2.0, 0.5),
+        ee_velocity=3.0,
+        ee_velocity_diag=1.5 if isotropic_velocity else (1.0, 2.0, 3.0),
+        force=0.2,
+        force_diag=(1.0, 0.5, 2.0)[:nc] if nc > 1 else 1.5,
+        lowpass_input=lowpass_input,
+    )
+
+
+def random_reference(rng, robot, contact, in_contact: bool) -> NodeReference:
+    p = robot.contact_placement(robot.q_nominal).translation + 0.05 * rng.standard_normal(3)
+    return NodeReference(
+        ee_position=p,
+        force=10.0 * rng.standard_normal(contact.dimension),
+        ee_position_weight=15.0,
+        force_weight=0.4,
+        in_contact=in_contact,
+        posture=robot.q_nominal + 0.1 * rng.standard_normal(robot.nq),
+    )
+
+
+def random_state(rng, robot, with_torque: bool = False) -> np.ndarray:
+    """(q, v) near the nominal posture, or (q, v, τ) with τ around gravity (torque-feedback)."""
+    q = robot.q_nominal + 0.3 * rng.standard_normal(robot.nq)
+    x = [q, rng.standard_normal(robot.nv)]
+    if with_torque:
+        x.append(robot.gravity(q) + 10.0 * rng.standard_normal(robot.nv))
+    return np.concatenate(x)
+
+
+def assert_close_rel(actual, expected, rtol, what):
+    scale = max(1.0, float(np.max(np.abs(expected))))
+    err = float(np.max(np.abs(actual - expected)))
+    assert err <= rtol * scale, f"{what}: max error {err:.2e} (scale {scale:.2e})"
+
+
+def solve(problem, x0, u0, iters=20):
+    """SQP solve (KKT tolerance 1e-10) from x0 repeated and controls u0; returns (xs, us)."""
+    solver = mim_solvers.SolverSQP(problem)
+    solver.termination_tolerance = 1e-10
+    xs = [x0.copy() for _ in range(problem.T + 1)]
+    us = [np.array(u0, dtype=float) for _ in range(problem.T)]
+    solver.solve(xs, us, iters, False)
+    return np.array(solver.xs), np.array(solver.us)
