@@ -11,12 +11,14 @@ import pytest
 import yaml
 from rclpy.publisher import Publisher
 from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import JointState
 
 from ffmpc_core.scenario import load_scenario
 from ffmpc_ros import topics
 from ffmpc_ros.bag.analysis import bag_study
+from ffmpc_ros.bag.machine import MACHINE_RECORD, machine_fingerprint, same_machine
 from ffmpc_ros.bag.reader import BagReader
-from ffmpc_ros.bag.rerun import message_time
+from ffmpc_ros.bag.rerun import RerunTolerance, compare_outputs, message_time, rerun_node
 from ffmpc_ros.bag.ros_types import message_class
 from ffmpc_ros.bringup import NODES, run_graph
 
@@ -129,3 +131,34 @@ def test_ffmpc_run_record_and_refusal_to_overwrite(tmp_path, capfd):
     assert main(["bag", "info", str(path)]) == 0
     info = capfd.readouterr().out
     assert "Topic: /mpc/command" in info and "complete" in info
+    # Recorded here: the bag carries this machine's fingerprint, so a re-run must be bit-exact.
+    with BagReader(path) as bag:
+        assert bag.metadata_named(MACHINE_RECORD) == machine_fingerprint()
+    report = rerun_node(path, "mpc")
+    assert report.same_machine and report.identical and report.ok, report.describe()
+
+
+def _joint_state(position: list[float]) -> JointState:
+    msg = JointState()
+    msg.name = ["a", "b"]
+    msg.position = position
+    return msg
+
+
+def test_rerun_comparison_tolerates_round_off_but_not_a_change(monkeypatch):
+    recorded = [_joint_state([1.0, 1000.0]), _joint_state([2.0, 3000.0])]
+    round_off = [_joint_state([1.0, 1000.0 + 1e-9]), _joint_state([2.0, 3000.0])]
+    changed = [_joint_state([1.0, 1000.0]), _joint_state([2.0, 3000.01])]
+    c = compare_outputs("/js", recorded, round_off)
+    assert (c.identical, c.within_tolerance, c.exact, c.reproduced) == (1, 2, False, True)
+    assert c.first_difference.startswith("message 0")
+    c = compare_outputs("/js", recorded, changed)
+    assert (c.identical, c.within_tolerance, c.reproduced) == (1, 1, False)
+    assert c.first_difference.startswith("message 1")
+    assert compare_outputs("/js", recorded, changed, RerunTolerance(relative=1e-5)).reproduced
+    assert not compare_outputs("/js", recorded, recorded[:1]).reproduced  # a message missing
+    # The fingerprint follows the BLAS kernel choice.
+    here = machine_fingerprint()
+    assert same_machine(here) and not same_machine(None)
+    monkeypatch.setenv("OPENBLAS_CORETYPE", "SomeOtherCore")
+    assert not same_machine(here)

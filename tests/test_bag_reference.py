@@ -96,18 +96,22 @@ def test_plot_writes_a_png(tmp_path, capfd):
     assert main(["bag", "plot", str(BAG), "--out", str(out)]) == 2  # never overwritten
 
 
-def test_mpc_rerun_reproduces_the_recorded_torques_exactly(capfd):
+def test_mpc_rerun_reproduces_the_recorded_torques(capfd):
+    """Within the stated tolerance on any machine; bit for bit on the machine that recorded it."""
     report = rerun_node(BAG, "mpc")
-    assert report.identical, report.describe()
+    assert report.ok and report.reproduced, report.describe()
+    if report.same_machine:
+        assert report.identical, report.describe()
     command = report.comparison(topics.MPC_COMMAND)
-    assert command.recorded == command.rerun == command.identical == 251
+    assert command.recorded == command.rerun == command.within_tolerance == 251
     assert command.ignored == ("mpc_command.solve_time",)
     assert report.inputs == {topics.SENSED_WRENCH: 501, topics.SENSED_JOINT_STATES: 501}
     assert not report.rejected
     from ffmpc_ros.cli import main
 
     assert main(["bag", "rerun", str(BAG)]) == 0
-    assert "IDENTICAL" in capfd.readouterr().out
+    out = capfd.readouterr().out
+    assert "IDENTICAL" in out or "WITHIN TOLERANCE" in out
 
 
 def test_a_changed_cost_weight_is_reported(capfd):
@@ -116,7 +120,8 @@ def test_a_changed_cost_weight_is_reported(capfd):
     name = "mpc.weights.force_feedback.force_phase"
     assert main(["bag", "rerun", str(BAG), "--set", f"{name}=5", "--json"]) == 1
     out = json.loads(capfd.readouterr().out)
-    assert out["identical"] is False and out["overrides"] == {name: 5}
+    assert out["identical"] is False and out["reproduced"] is False and out["ok"] is False
+    assert out["overrides"] == {name: 5}
     (command,) = out["outputs"]
     assert command["max_difference"]["mpc_command.torque"] > 1e-3
     # The weight acts only once the force phase (t >= still + reach = 0.25 s) enters the
@@ -124,14 +129,14 @@ def test_a_changed_cost_weight_is_reported(capfd):
     first = command["first_difference"]
     t_first = float(first[first.index("t = ") + 4 : first.index(" s)")])
     assert 0.22 <= t_first <= 0.25
-    assert command["identical"] == int(round(t_first / 0.002))
+    assert command["within_tolerance"] == int(round(t_first / 0.002))
 
 
 @pytest.mark.parametrize("node", ["pid", "joint_sensor", "ft_sensor"])
-def test_other_nodes_rerun_exactly(node):
+def test_other_nodes_rerun(node):
     report = rerun_node(BAG, node)
-    assert report.identical, report.describe()
-    assert all(c.recorded == c.identical > 0 for c in report.outputs)
+    assert report.ok and report.reproduced, report.describe()
+    assert all(c.recorded == c.within_tolerance > 0 for c in report.outputs)
 
 
 def test_player_keeps_timing_rate_selection_and_remapping():

@@ -99,20 +99,29 @@ def _cmd_plot(args: argparse.Namespace) -> int:
 
 
 def _cmd_rerun(args: argparse.Namespace) -> int:
-    from ffmpc_ros.bag.rerun import rerun_node
+    from ffmpc_ros.bag.rerun import RerunTolerance, rerun_node
     from ffmpc_ros.cli import _parse_overrides
 
-    report = rerun_node(args.bag, args.node, _parse_overrides(args.set), timeout=args.timeout)
+    tolerance = RerunTolerance(args.rtol, args.atol)
+    report = rerun_node(
+        args.bag, args.node, _parse_overrides(args.set), timeout=args.timeout, tolerance=tolerance
+    )
+    ok = report.identical if args.exact else report.ok
     if args.json:
         print(
             json.dumps(
                 {
                     "node": report.node,
                     "identical": report.identical,
+                    "reproduced": report.reproduced,
+                    "same_machine": report.same_machine,
+                    "ok": ok,
+                    "tolerance": {"relative": tolerance.relative, "absolute": tolerance.absolute},
                     "cycles": report.cycles,
                     "overrides": report.overrides,
                     "outputs": [
-                        vars(c) | {"ignored": list(c.ignored), "exact": c.exact}
+                        vars(c)
+                        | {"ignored": list(c.ignored), "exact": c.exact, "reproduced": c.reproduced}
                         for c in report.outputs
                     ],
                 },
@@ -122,7 +131,7 @@ def _cmd_rerun(args: argparse.Namespace) -> int:
         )
     else:
         print(report.describe())
-    return 0 if report.identical else 1
+    return 0 if ok else 1
 
 
 def _cmd_record(args: argparse.Namespace) -> int:
@@ -208,7 +217,9 @@ def add_bag_parser(sub) -> None:
         help="feed one node the recorded inputs and compare its outputs",
         description="Rebuild one node with the parameters it ran with (plus --set changes), feed "
         "it the recorded inputs in lockstep and compare its outputs with the recorded ones, "
-        "field by field. Exit 0 when identical, 1 when they differ.",
+        "field by field. Exit 0 when they are bit-identical (on the machine that recorded the "
+        "bag) or equal within the tolerance (elsewhere: other CPUs and BLAS kernels change the "
+        "last bits), 1 when they differ.",
     )
     p.add_argument("bag")
     p.add_argument(
@@ -225,6 +236,15 @@ def add_bag_parser(sub) -> None:
         "mpc.weights.force_feedback.force_phase=5",
     )
     p.add_argument("--timeout", type=float, default=10.0, help="wall s to wait at any one step")
+    p.add_argument(
+        "--rtol", type=float, default=1e-6, help="relative tolerance per field (default 1e-6)"
+    )
+    p.add_argument(
+        "--atol", type=float, default=1e-9, help="absolute tolerance per field (default 1e-9)"
+    )
+    p.add_argument(
+        "--exact", action="store_true", help="require bit-identical outputs on any machine"
+    )
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=_cmd_rerun)
 

@@ -269,11 +269,13 @@ def graph_recorder(
     until every topic of the contract (``ffmpc_ros.topics.TOPICS``) has a publisher and the six
     nodes' parameters are in; :attr:`BagRecorder.complete` once the metrics summary is in.
     Metadata ``ffmpc_run`` holds the scenario file and the generated parameter file of the run
-    (``run``: {node: {name: value}})."""
+    (``run``: {node: {name: value}}); ``ffmpc_machine`` the recording machine's fingerprint
+    (:func:`ffmpc_ros.bag.machine.machine_fingerprint`)."""
     import yaml
 
     from ffmpc_core.scenario import scenario_parameters
     from ffmpc_ros import topics
+    from ffmpc_ros.bag.machine import MACHINE_RECORD, machine_fingerprint
     from ffmpc_ros.bringup import NODES, _nested
 
     info: dict[str, str] = {}
@@ -287,13 +289,16 @@ def graph_recorder(
         info["params_file"] = yaml.safe_dump(
             {node: {"ros__parameters": _nested(v)} for node, v in run.items()}, sort_keys=False
         )
+    records = {MACHINE_RECORD: machine_fingerprint()}
+    if info:
+        records["ffmpc_run"] = info
     return BagRecorder(
         target,
         context=context,
         wait_for=[t for t, _, _ in topics.TOPICS],
         gate_topic=topics.PLANT_JOINT_STATES,
         parameters_of=[*NODES, "metrics"],
-        metadata={"ffmpc_run": info} if info else None,
+        metadata=records,
         final_topic=topics.METRICS_SUMMARY,
     )
 

@@ -9,10 +9,14 @@ one (accepted or rejected) before the next cycle: the lockstep of the graph, so 
 its inputs in the same order and at the same simulated times as in the recorded run. Its outputs
 are compared field by field with the recorded ones.
 
-In lockstep the nodes are deterministic: the same inputs give bit-identical outputs, except the
-fields that carry wall time (:data:`WALL_TIME_FIELDS`: the MPC's solve time), which are
-ignored. A changed parameter (a cost weight, a gain) shows as differences: this is how a
-controller change is regression-tested against a recorded run.
+In lockstep the nodes are deterministic: on the machine that recorded the bag, the same inputs
+give bit-identical outputs, except the fields that carry wall time (:data:`WALL_TIME_FIELDS`: the
+MPC's solve time), which are ignored. Another CPU, other BLAS kernels (``OPENBLAS_CORETYPE``) or
+other library versions change the last bits, so outputs are judged with a stated tolerance
+(:class:`RerunTolerance`: per field, max |Δ| ≤ absolute + relative · max |recorded|), and
+bit-identity is demanded only when the bag's ``ffmpc_machine`` fingerprint equals this machine's
+(:mod:`ffmpc_ros.bag.machine`). A changed parameter (a cost weight, a gain) shows as differences far
+above the tolerance: this is how a controller change is regression-tested against a recorded run.
 
 All topics of the re-run are remapped under a private hidden prefix, so a re-run never talks to a
 live graph on the same ROS domain.
@@ -39,6 +43,7 @@ from ffmpc_core.errors import ConfigError
 from ffmpc_core.scenario import Scenario
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.bag.errors import BagError
+from ffmpc_ros.bag.machine import MACHINE_RECORD, same_machine
 from ffmpc_ros.bag.reader import BagMessage, BagReader
 from ffmpc_ros.bag.ros_types import message_class, qos_from_dicts
 
@@ -63,6 +68,36 @@ _LAYOUTS_BY_LABEL = {layout.label: layout for layout in layouts.LAYOUTS.values()
 
 class RerunError(BagError):
     """The re-run could not be carried out (missing inputs, a node that does not respond)."""
+
+
+@dataclass(frozen=True)
+class RerunTolerance:
+    """How close a re-run output must be to the recorded one, field by field.
+
+    A field (a named slice of a layout, or a message field) matches when
+    ``max |re-run − recorded| ≤ absolute + relative · max |recorded|`` over its entries, in the
+    field's own unit. The defaults sit far above round-off (1e-15 relative per operation; a whole
+    MPC solve measured 1e-11 relative between two OpenBLAS kernel sets) and far below any change a
+    parameter makes (a cost weight changed from 1 to 5 changes the torque by > 1e-3 N·m).
+    """
+
+    relative: float = 1e-6
+    absolute: float = 1e-9
+
+    def __post_init__(self) -> None:
+        if not (self.relative >= 0.0 and self.absolute >= 0.0):
+            raise ConfigError(f"tolerances must be >= 0, got {self}")
+
+    def allows(self, recorded, difference: float) -> bool:
+        """Whether ``difference`` (max |Δ| of one field) is within tolerance of ``recorded``."""
+        if not math.isfinite(difference):
+            return False
+        if isinstance(recorded, np.ndarray) and recorded.size:
+            finite = recorded[np.isfinite(recorded)]
+            scale = float(np.max(np.abs(finite))) if finite.size else 0.0
+        else:
+            scale = 0.0
+        return difference <= self.absolute + self.relative * scale
 
 
 # -- comparison -------------------------------------------------------------------------------
@@ -154,7 +189,8 @@ class TopicComparison:
     topic: str
     recorded: int
     rerun: int
-    identical: int  # matched messages equal in every compared field
+    identical: int  # matched messages equal in every compared field (bit for bit)
+    within_tolerance: int = 0  # matched messages equal within the tolerance in every field
     max_difference: dict[str, float] = field(default_factory=dict)  # field: max |Δ| (> 0 only)
     first_difference: str | None = None
     ignored: tuple[str, ...] = ()
@@ -163,11 +199,18 @@ class TopicComparison:
     def exact(self) -> bool:
         return self.recorded == self.rerun == self.identical
 
+    @property
+    def reproduced(self) -> bool:
+        """Every recorded message re-run, each within the tolerance."""
+        return self.recorded == self.rerun == self.within_tolerance
+
     def describe(self) -> str:
-        verdict = "IDENTICAL" if self.exact else "DIFFERENT"
+        verdict = (
+            "IDENTICAL" if self.exact else "WITHIN TOLERANCE" if self.reproduced else "DIFFERENT"
+        )
         lines = [
             f"  {self.topic}: {verdict} — {self.identical} of {self.recorded} recorded messages "
-            f"reproduced exactly ({self.rerun} re-run)"
+            f"reproduced exactly, {self.within_tolerance} within tolerance ({self.rerun} re-run)"
             + (f"; ignored (wall time): {', '.join(self.ignored)}" if self.ignored else "")
         ]
         for name, value in sorted(self.max_difference.items(), key=lambda kv: -kv[1])[:8]:
@@ -189,10 +232,23 @@ class RerunReport:
     cycles: int
     wall_time: float
     rejected: dict[str, int] = field(default_factory=dict)
+    tolerance: RerunTolerance = field(default_factory=RerunTolerance)
+    same_machine: bool = False  # the bag's fingerprint equals this machine's
 
     @property
     def identical(self) -> bool:
+        """Every output bit-identical to the recording."""
         return all(c.exact for c in self.outputs)
+
+    @property
+    def reproduced(self) -> bool:
+        """Every output equal to the recording within the tolerance."""
+        return all(c.reproduced for c in self.outputs)
+
+    @property
+    def ok(self) -> bool:
+        """The re-run passes: bit-identical on the recording machine, within tolerance elsewhere."""
+        return self.identical if self.same_machine else self.reproduced
 
     def comparison(self, topic: str) -> TopicComparison:
         for c in self.outputs:
@@ -210,37 +266,57 @@ class RerunReport:
             head += "\n  overrides: " + ", ".join(f"{k}={v!r}" for k, v in self.overrides.items())
         if self.rejected:
             head += f"\n  inputs rejected by the node: {self.rejected}"
-        verdict = (
-            "outputs IDENTICAL to the recording"
-            if self.identical
-            else "outputs DIFFER from the recording"
+        t = self.tolerance
+        head += f"\n  tolerance per field: {t.absolute:g} + {t.relative:g}·max|recorded|; " + (
+            "recorded on this machine: bit-identity required"
+            if self.same_machine
+            else "recorded on another machine (or stack): bit-identity not required"
         )
+        if self.identical:
+            verdict = "outputs IDENTICAL to the recording"
+        elif self.reproduced:
+            verdict = "outputs equal to the recording WITHIN TOLERANCE" + (
+                ", but not bit-identical on the recording machine" if self.same_machine else ""
+            )
+        else:
+            verdict = "outputs DIFFER from the recording"
         return "\n".join([head, *(c.describe() for c in self.outputs), verdict])
 
 
-def compare_outputs(topic: str, recorded: list, rerun: list) -> TopicComparison:
+def compare_outputs(
+    topic: str, recorded: list, rerun: list, tolerance: RerunTolerance | None = None
+) -> TopicComparison:
     """Field-by-field comparison of two message lists (deserialized), matched in order."""
+    tolerance = tolerance or RerunTolerance()
     comparison = TopicComparison(topic, len(recorded), len(rerun), 0)
+    first_outside: str | None = None
+    first_inexact: str | None = None
     for i, (a, b) in enumerate(zip(recorded, rerun, strict=False)):
         fa, fb = flatten_message(a), flatten_message(b)
         if not comparison.ignored:
             comparison.ignored = ignored_fields(a)
-        same = True
+        same = close = True
         worst: tuple[float, str] = (0.0, "")
         for name in sorted(set(fa) | set(fb)):
             d = _difference(fa.get(name), fb.get(name)) if name in fa and name in fb else math.inf
             if d > 0:
                 same = False
+                close = close and tolerance.allows(fa.get(name), d)
                 comparison.max_difference[name] = max(comparison.max_difference.get(name, 0), d)
                 worst = max(worst, (d, name))
         if same:
             comparison.identical += 1
-        elif comparison.first_difference is None:
+        if close:
+            comparison.within_tolerance += 1
+        if not same and (first_inexact is None or (not close and first_outside is None)):
             t = message_time(a)
             when = f"message {i}" + (f" (t = {t:.6f} s)" if t is not None else "")
-            comparison.first_difference = f"{when}: " + _show(
-                worst[1], fa.get(worst[1]), fb.get(worst[1])
-            )
+            shown = f"{when}: " + _show(worst[1], fa.get(worst[1]), fb.get(worst[1]))
+            first_inexact = first_inexact or shown
+            if not close:
+                first_outside = shown
+    # The first message outside the tolerance; else the first not bit-identical.
+    comparison.first_difference = first_outside or first_inexact
     if len(recorded) != len(rerun) and comparison.first_difference is None:
         comparison.first_difference = f"{len(recorded)} recorded vs {len(rerun)} re-run messages"
     return comparison
@@ -312,12 +388,15 @@ def rerun_node(
     *,
     domain_id: int | None = None,
     timeout: float = 10.0,
+    tolerance: RerunTolerance | None = None,
 ) -> RerunReport:
     """Re-run ``node`` on the inputs recorded in bag ``path`` (module docstring).
 
     Args:
         overrides: parameter changes ({name: value}, scenario or node names).
         timeout: wall seconds to wait for the node at any one step (RerunError beyond).
+        tolerance: how close outputs must be off the recording machine (default
+            :class:`RerunTolerance`).
     """
     from ffmpc_ros.bringup import NODES, _load
     from ffmpc_ros.params import parameter_overrides
@@ -353,7 +432,11 @@ def rerun_node(
             created.append(feeder)
             for n in created:
                 executor.add_node(n)
-            return _run(bag, node, target, feeder, executor, prefix, timeout, overrides, start)
+            report = _run(
+                bag, node, target, feeder, executor, prefix, timeout, overrides, start, tolerance
+            )
+            report.same_machine = same_machine(bag.metadata_named(MACHINE_RECORD))
+            return report
         finally:
             for n in created:
                 executor.remove_node(n)
@@ -366,7 +449,10 @@ def _strip(prefix: str, name: str) -> str:
     return name[len(prefix) :] if name.startswith(prefix) else name
 
 
-def _run(bag, node, target, feeder, executor, prefix, timeout, overrides, start) -> RerunReport:
+def _run(
+    bag, node, target, feeder, executor, prefix, timeout, overrides, start, tolerance
+) -> RerunReport:
+    tolerance = tolerance or RerunTolerance()
     inputs = sorted(
         {_strip(prefix, s.topic_name) for s in target.subscriptions} - set(_IGNORED_TOPICS)
     )
@@ -471,6 +557,7 @@ def _run(bag, node, target, feeder, executor, prefix, timeout, overrides, start)
                 t,
                 [deserialize_message(m.data, cls) for m in recorded[t]],
                 [deserialize_message(d, cls) for d in collected[t]],
+                tolerance,
             )
         )
     return RerunReport(
@@ -482,4 +569,5 @@ def _run(bag, node, target, feeder, executor, prefix, timeout, overrides, start)
         cycles=len(by_cycle),
         wall_time=time.perf_counter() - start,
         rejected=dict(target.rejected),
+        tolerance=tolerance,
     )
