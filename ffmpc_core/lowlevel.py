@@ -232,8 +232,11 @@ class LowLevelController:
         return gravity + self._hold_stiffness * (self._hold_q - q) - self._hold_damping * v
 
     def _mpc_torque(self, meas: LowLevelMeasurement) -> np.ndarray:
+        """τ*, or τ* + G·(x̂ − x̂_solve) with the Riccati feedback; τ* alone on a cycle whose λ̂
+        is missing (force-feedback: a rejected or lost wrench never stops the loop)."""
         cmd = self._command
-        if self._first_use or not self.config.riccati_feedback:
+        missing_force = self.config.formulation == "force_feedback" and meas.force is None
+        if self._first_use or not self.config.riccati_feedback or missing_force:
             self._first_use = False
             return cmd.torque
         dx = self.state_from(meas) - cmd.state

@@ -8,16 +8,22 @@ the ROS-free runner does, so both paths hand bit-identical times to the controll
 
 Rejections. A message is rejected when it is malformed (NaN/Inf, wrong length, unknown or
 missing joint names, wrong frame_id), off the cycle grid, not newer than the last accepted one
-from the same topic (out of order or duplicate), or older than ``max_input_age`` on the node's
-simulated clock (stale). A rejected message changes nothing; the node logs one warning per kind
-of rejection and per :data:`LOG_THROTTLE` seconds (wall time), and counts every rejection in
+from the same topic (out of order or duplicate), older than ``max_input_age`` on the node's
+simulated clock (stale), or stamped more than :data:`MAX_FUTURE_STAMP` ahead of the node's clock
+(from the future: never adopted, so a spoofed or corrupted stamp cannot make every genuine
+message look old). A rejected message changes nothing; the node logs one warning per kind of
+rejection and per :data:`LOG_THROTTLE` seconds (wall time), and counts every rejection in
 :attr:`StudyNode.rejected`.
+
+Fixed at start. Every node runs on the plant's ``/clock``: ``use_sim_time`` is forced true at
+construction and a later change is refused with a reason (the other parameters are read-only).
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 import time
 from collections import Counter
@@ -27,12 +33,14 @@ from typing import Any
 import numpy as np
 import rclpy
 from builtin_interfaces.msg import Time as TimeMsg
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from ffmpc_core.errors import InputError
 from ffmpc_core.scenario import Scenario
+from ffmpc_ros.discovery import ensure_local_discovery
 from ffmpc_ros.params import NODE_SPECS, declare_node_parameters, scenario_from_parameters
 from ffmpc_ros.topics import WRENCH_FRAME
 
@@ -40,6 +48,10 @@ from ffmpc_ros.topics import WRENCH_FRAME
 LOG_THROTTLE = 2.0
 #: A stamp farther than this from the cycle grid is rejected, ns.
 GRID_TOLERANCE_NS = 1000
+#: A stamp more than this ahead of the node's clock is rejected (from the future), s. Ten plant
+#: cycles: far above the reordering of ``/clock`` and data topics between two processes (at most
+#: a cycle or two in lockstep), far below any delay a spoofed stamp could hide behind.
+MAX_FUTURE_STAMP = 0.01
 
 
 class StudyNode(Node):
@@ -81,6 +93,18 @@ class StudyNode(Node):
         self._last_log: dict[str, float] = {}
         self._last_cycle: dict[str, int] = {}
         self.max_input_age = float(self.params.get("max_input_age", math.inf))
+        self.add_on_set_parameters_callback(self._refuse_fixed_parameters)
+
+    def _refuse_fixed_parameters(self, parameters: Sequence[Parameter]) -> SetParametersResult:
+        """Refuse a run-time change of ``use_sim_time`` (the graph's one clock is /clock)."""
+        for p in parameters:
+            if p.name == "use_sim_time" and p.value is not True:
+                return SetParametersResult(
+                    successful=False,
+                    reason="use_sim_time is fixed at start: every ffmpc node runs on the "
+                    "plant's /clock (simulated time)",
+                )
+        return SetParametersResult(successful=True)
 
     # -- time ------------------------------------------------------------------------------
     def cycle_of(self, stamp: TimeMsg) -> int | None:
@@ -136,23 +160,36 @@ class StudyNode(Node):
                 pass
 
     def check_stamp(self, topic: str, stamp: TimeMsg) -> int | None:
-        """The cycle of an input's stamp if it is on the grid, newer than the last accepted one
-        from ``topic`` and not stale; otherwise reject it and return None. Call
-        :meth:`accept_cycle` once the whole message is accepted."""
+        """The cycle of an input's stamp if it is on the grid and :meth:`check_cycle` accepts it;
+        otherwise reject it and return None. Call :meth:`accept_cycle` once the whole message
+        is accepted."""
         k = self.cycle_of(stamp)
         if k is None:
             self.reject(f"{topic}:stamp", f"stamp {stamp.sec}.{stamp.nanosec:09d} off the grid")
             return None
+        return k if self.check_cycle(topic, k) else None
+
+    def check_cycle(self, topic: str, k: int) -> bool:
+        """Whether an input of cycle k (time k·time_step) may be used: after the last accepted
+        one from ``topic``, at most :data:`MAX_FUTURE_STAMP` ahead of this node's clock and at
+        most ``max_input_age`` behind it. Rejects it (one throttled log line) otherwise."""
         last = self._last_cycle.get(topic)
         if last is not None and k <= last:
             self.reject(f"{topic}:order", f"cycle {k} is not after the last accepted {last}")
-            return None
+            return False
         now_ns = self.get_clock().now().nanoseconds
-        age = (now_ns - k * self.step_ns) * 1e-9
-        if now_ns > 0 and age > self.max_input_age:
-            self.reject(f"{topic}:stale", f"stamp {k * self.time_step:.6f} s is {age:.4f} s old")
-            return None
-        return k
+        ahead = (k * self.step_ns - now_ns) * 1e-9
+        if ahead > MAX_FUTURE_STAMP:
+            self.reject(
+                f"{topic}:future",
+                f"stamp {k * self.time_step:.6f} s is {ahead:.4f} s ahead of this node's clock "
+                f"({now_ns * 1e-9:.6f} s; tolerance {MAX_FUTURE_STAMP} s)",
+            )
+            return False
+        if now_ns > 0 and -ahead > self.max_input_age:
+            self.reject(f"{topic}:stale", f"stamp {k * self.time_step:.6f} s is {-ahead:.4f} s old")
+            return False
+        return True
 
     def accept_cycle(self, topic: str, k: int) -> None:
         self._last_cycle[topic] = k
@@ -226,10 +263,14 @@ def run_node(factory: Callable[..., StudyNode], description: str, argv=None) -> 
         "(scenario files: ffmpc_core/scenarios/; see msgs_notes/).",
     )
     parser.parse_args(user_args)
+    discovery = ensure_local_discovery()
     rclpy.init(args=argv)
     node = None
     try:
         node = factory()
+        node.get_logger().info(
+            f"started: ROS_DOMAIN_ID {os.environ.get('ROS_DOMAIN_ID', '0')}, discovery {discovery}"
+        )
         from rclpy.experimental import EventsExecutor
 
         executor = EventsExecutor()

@@ -10,6 +10,7 @@ import argparse
 import sys
 
 from ffmpc_core.errors import FfmpcError
+from ffmpc_ros.discovery import ensure_local_discovery
 
 #: ffmpc_core.config.FORMULATIONS, spelled out so that building the parser imports nothing heavy.
 STUDY_FORMULATIONS = ("classical", "torque_feedback", "force_feedback")
@@ -417,6 +418,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    ensure_local_discovery()
     parser = build_parser()
     args = parser.parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)

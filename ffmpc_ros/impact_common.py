@@ -111,8 +111,9 @@ def receive_estimate(
     node: StudyNode, msg: Float64MultiArray
 ) -> tuple[int, ContactEstimate, np.ndarray] | None:
     """A learner estimate message checked like any input: values, cycle on the grid, after the
-    last accepted one. ``(k, estimate, direction)``, or None after one throttled log line. The
-    caller accepts the cycle (``node.accept_cycle``) once it has used the estimate."""
+    last accepted one, neither from the future nor stale (``StudyNode.check_cycle``).
+    ``(k, estimate, direction)``, or None after one throttled log line. The caller accepts the
+    cycle (``node.accept_cycle``) once it has used the estimate."""
     topic = topics.CONTACT_ESTIMATE
     try:
         estimate, t, direction = estimate_from_message(msg)
@@ -123,9 +124,7 @@ def receive_estimate(
     if k is None:
         node.reject(f"{topic}:stamp", f"estimate time {t} s off the grid")
         return None
-    last = node._last_cycle.get(topic)
-    if last is not None and k <= last:
-        node.reject(f"{topic}:order", f"estimate of cycle {k} is not after {last}")
+    if not node.check_cycle(topic, k):
         return None
     return k, estimate, direction
 

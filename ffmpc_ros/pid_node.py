@@ -13,6 +13,12 @@ Lockstep: on the cycles where the MPC solves (k a multiple of ``mpc.period / tim
 node waits for the command of that cycle before stepping, as the runner does; if none comes
 within ``lockstep_timeout`` (wall time, s) it goes on without it (the stale-command fallback then
 takes over). Real time: every cycle is stepped at once with the newest command.
+
+Missing force (Riccati feedback of force-feedback). Cycle k waits for the wrench of cycle k only
+while it may still come: once that wrench was rejected, a later one was accepted, the lockstep
+timeout passed, or in real time, the cycle goes on with the newest accepted λ̂ if it is at most
+``max_input_age`` old (sample and hold), else without λ̂ — the low level then sends the MPC torque
+τ* without feedback for that cycle. One bad wrench never stalls the loop.
 """
 
 from __future__ import annotations
@@ -52,6 +58,8 @@ class PidNode(StudyNode):
         self._joints: dict[int, tuple] = {}
         self._forces: dict[int, np.ndarray] = {}
         self._commands: dict[int, LowLevelCommand] = {}
+        self._force_rejected: set[int] = set()  # cycles whose wrench was rejected
+        self._held_force: tuple[int, np.ndarray] | None = None  # newest accepted (k, λ̂)
         self._last_step: int | None = None
         self._waiting_since: float | None = None
         self._skip_wait: set[int] = set()
@@ -84,9 +92,14 @@ class PidNode(StudyNode):
             topic, msg, lambda m: measured_force(self.wrench_array(m), self.scenario.mpc.contact)
         )
         if got is None:
+            k = self.cycle_of(msg.header.stamp)
+            if k is not None:
+                self._force_rejected.add(k)
+                self._advance()
             return
         k, force = got
         self._forces[k] = force
+        self._held_force = (k, force)
         self._advance()
 
     def on_command(self, msg: Float64MultiArray) -> None:
@@ -105,9 +118,7 @@ class PidNode(StudyNode):
         if k is None:
             self.reject(f"{topic}:stamp", f"command time {fields['t']} s off the grid")
             return
-        last = self._last_cycle.get(topic)
-        if last is not None and k <= last:
-            self.reject(f"{topic}:order", f"command of cycle {k} is not after {last}")
+        if not self.check_cycle(topic, k):
             return
         gain = fields["feedback_gain"].reshape(self.robot.nv, self.lowlevel.nx)
         self.accept_cycle(topic, k)
@@ -119,8 +130,28 @@ class PidNode(StudyNode):
         pending = sorted(self._joints)
         return pending[0] if pending else None
 
+    def _force_settled(self, k: int) -> bool:
+        """Whether cycle k need not wait any longer for its wrench (see the module docstring)."""
+        return (
+            k in self._forces
+            or k in self._force_rejected
+            or not self.lockstep
+            or k in self._skip_wait
+            or (self._held_force is not None and self._held_force[0] > k)
+        )
+
+    def _force_for(self, k: int) -> np.ndarray | None:
+        """λ̂ of cycle k, or the newest accepted one if at most max_input_age old, or None."""
+        force = self._forces.pop(k, None)
+        if force is not None or self._held_force is None:
+            return force
+        k_held, held = self._held_force
+        return held if (k - k_held) * self.time_step <= self.max_input_age else None
+
     def _ready(self, k: int) -> bool:
-        if self.needs_force and k not in self._forces:
+        if self.needs_force and not self._force_settled(k):
+            if self._waiting_since is None:
+                self._waiting_since = time.monotonic()
             return False
         if not self.lockstep or k % self.every != 0 or k in self._commands:
             return True
@@ -152,7 +183,8 @@ class PidNode(StudyNode):
             self._waiting_since = None
             self._skip_wait.discard(k)
             q, v, tau = self._joints.pop(k)
-            force = self._forces.pop(k, None)
+            force = self._force_for(k) if self.needs_force else self._forces.pop(k, None)
+            self._force_rejected.discard(k)
             for kc in sorted(c for c in self._commands if c <= k):
                 try:
                     self.lowlevel.set_command(self._commands.pop(kc), self.t_of(kc))
@@ -162,6 +194,7 @@ class PidNode(StudyNode):
             for store in (self._joints, self._forces, self._commands):
                 for old in [c for c in store if c < k - _KEEP]:
                     del store[old]
+            self._force_rejected = {c for c in self._force_rejected if c >= k - _KEEP}
 
     def _step(self, k: int, meas: LowLevelMeasurement) -> None:
         try:

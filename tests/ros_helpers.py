@@ -42,6 +42,21 @@ class RosHarness:
             self.executor.spin_once(timeout_sec=0.01)
         return done()
 
+    def set_clock(self, node, k: int, timeout: float = 5.0) -> None:
+        """Publish /clock = t_k (node's time step) and spin until ``node``'s clock shows it: the
+        nodes judge stamps against their clock (stale, or from the future)."""
+        from rosgraph_msgs.msg import Clock
+
+        if not hasattr(self, "_clock_pub"):
+            self._clock_pub = self.probe("_clock_driver").create_publisher(
+                Clock, topics.CLOCK, 10
+            )
+        self._clock_pub.publish(Clock(clock=node.stamp_of(k)))
+        target = k * node.step_ns
+        assert self.spin_until(
+            lambda: node.get_clock().now().nanoseconds >= target, timeout
+        ), f"{node.get_name()} did not see /clock = cycle {k}"
+
     def spin_for(self, seconds: float) -> None:
         end = time.monotonic() + seconds
         while time.monotonic() < end:

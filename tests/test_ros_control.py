@@ -143,6 +143,7 @@ def test_pid_node_falls_back_to_hold_when_the_mpc_goes_stale(ros, robot):
     q, v, tau, _ = _measurements(robot, 40, seed=3)
     gravity = robot.gravity(robot.q_nominal)
     for k in range(40):
+        ros.set_clock(node, k)
         if k % 2 == 0 and k <= 20:
             pub_c.publish(_command_msg(k, gravity))
             ros.spin_for(0.005)

@@ -115,6 +115,7 @@ def test_ft_sensor_reproduces_eq_32_filters_and_detects_contact(ros):
     # measured by the 1-D sensor (mpc.contact.dimension 1 along z).
     normal = np.concatenate([np.linspace(0, 20, 40), np.linspace(20, 0, 40), np.zeros(20)])
     for k, fz in enumerate(normal):
+        ros.set_clock(node, k)
         pub.publish(wrench(node, k, (3.0, -2.0, fz), (0.1, 0.2, 0.3)))
     assert ros.spin_until(lambda: len(contact) == len(normal))
     model = force_sensing_model(scenario, device_generator(3, "force_sensor"))
@@ -152,20 +153,24 @@ def test_ft_sensor_tare_and_rejections(ros):
 
     assert not tare().success  # no measurement yet
     for k in range(30):
+        ros.set_clock(node, k)
         pub.publish(wrench(node, k, (0.0, 0.0, 1.5)))  # a 1.5 N bias, not in contact
     assert ros.spin_until(lambda: len(out) == 30)
     recent = [m.wrench.force.z for m in out[-20:]]
     result = tare()
     assert result.success and "20 samples" in result.message
     np.testing.assert_allclose(node.offset, [np.mean(recent)], rtol=1e-12)
+    ros.set_clock(node, 30)
     pub.publish(wrench(node, 30, (0.0, 0.0, 1.5)))
     assert ros.spin_until(lambda: len(out) == 31)
     assert abs(out[-1].wrench.force.z) < 2.5  # 1.5 N bias removed; noise σ = 0.5 N
     for k in range(31, 60):
+        ros.set_clock(node, k)
         pub.publish(wrench(node, k, (0.0, 0.0, 40.0)))
     assert ros.spin_until(lambda: node.in_contact)
     assert not tare().success  # refused in contact
     n = len(out)
+    ros.set_clock(node, 61)
     pub.publish(wrench(node, 60, (0.0, 0.0, 40.0), frame="world"))
     pub.publish(wrench(node, 61, (np.nan, 0.0, 40.0)))
     pub.publish(wrench(node, 59, (0.0, 0.0, 40.0)))

@@ -1,0 +1,198 @@
+"""Faults at the nodes' inputs: stamps from the future, a rejected wrench under Riccati feedback,
+run-time changes of ``use_sim_time`` and the discovery range of every entry point."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import WrenchStamped
+from rclpy.parameter import Parameter
+from ros_helpers import RosHarness, joint_state, overrides, recorder, wrench
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+
+from ffmpc_core.robots import load_robot
+from ffmpc_core.scenario import load_scenario
+from ffmpc_ros import layouts, topics
+from ffmpc_ros.base import MAX_FUTURE_STAMP
+from ffmpc_ros.discovery import DISCOVERY_RANGE_VARIABLE, ensure_local_discovery
+from ffmpc_ros.joint_sensor_node import JointSensorNode
+from ffmpc_ros.pid_node import PidNode
+
+
+@pytest.fixture
+def ros():
+    harness = RosHarness()
+    yield harness
+    harness.close()
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("iiwa")
+
+
+def _command(k: int, torque, state, gain) -> Float64MultiArray:
+    nv, nx = gain.shape
+    values = {
+        "t": k * 1e-3,
+        "nv": nv,
+        "nx": nx,
+        "sequence": k // 2,
+        "iterations": 1,
+        "kkt": 0.0,
+        "solve_time": 0.0,
+        "converged": 1.0,
+        "torque": torque,
+        "state": state,
+        "feedback_gain": gain,
+    }
+    return layouts.MPC_COMMAND.pack(values, nv, nx)
+
+
+def test_a_stamp_from_the_future_is_rejected_and_never_becomes_the_nodes_now(ros, robot):
+    node = ros.add(
+        JointSensorNode(context=ros.context, parameter_overrides=overrides("joint_sensor"))
+    )
+    probe = ros.probe()
+    out = recorder(probe, JointState, topics.SENSED_JOINT_STATES)
+    pub = probe.create_publisher(JointState, topics.PLANT_JOINT_STATES, topics.publisher_qos())
+    q, v, tau = robot.q_nominal, np.zeros(7), np.zeros(7)
+    ros.set_clock(node, 10)
+    pub.publish(joint_state(node, 10, q, v, tau))
+    assert ros.spin_until(lambda: len(out) == 1)
+    # One hour ahead, then just beyond the tolerance: both rejected, one log line each kind.
+    ahead = int(round(MAX_FUTURE_STAMP / node.time_step)) + 1
+    for k in (10 + 3_600_000, 11 + ahead):
+        pub.publish(joint_state(node, k, q, v, tau))
+    kind = f"{topics.PLANT_JOINT_STATES}:future"
+    assert ros.spin_until(lambda: node.rejected[kind] == 2)
+    assert node.log_lines[kind] == 1
+    # Genuine messages still go through: the future stamps were never adopted.
+    for k in (11, 12):
+        ros.set_clock(node, k)
+        pub.publish(joint_state(node, k, q, v, tau))
+    assert ros.spin_until(lambda: len(out) == 3)
+    assert [node.cycle_of(m.header.stamp) for m in out] == [10, 11, 12]
+    # Within the tolerance (the /clock of cycle k may arrive after its data): accepted.
+    pub.publish(joint_state(node, 12 + ahead - 1, q, v, tau))
+    assert ros.spin_until(lambda: len(out) == 4)
+
+
+def test_a_command_from_the_future_is_rejected_by_the_pid(ros, robot):
+    scenario = load_scenario("polishing", {"mpc.formulation": "classical"})
+    node = ros.add(
+        PidNode(context=ros.context, parameter_overrides=overrides("pid", scenario, lockstep=False))
+    )
+    probe = ros.probe()
+    pub_c = probe.create_publisher(Float64MultiArray, topics.MPC_COMMAND, topics.publisher_qos())
+    pub_j = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
+    motor = recorder(probe, JointState, topics.MOTOR_TORQUE)
+    gravity = robot.gravity(robot.q_nominal)
+    spoof = np.full(7, 1e3)  # would saturate every joint
+    ros.set_clock(node, 4)
+    pub_c.publish(_command(4_000_000, spoof, np.zeros(14), np.zeros((7, 14))))
+    assert ros.spin_until(lambda: node.rejected[f"{topics.MPC_COMMAND}:future"] == 1)
+    pub_c.publish(_command(4, gravity, np.zeros(14), np.zeros((7, 14))))
+    pub_j.publish(joint_state(node, 4, robot.q_nominal, np.zeros(7), gravity))
+    assert ros.spin_until(lambda: len(motor) == 1)
+    assert node.lowlevel.command_time == pytest.approx(4e-3)  # the genuine one was taken
+    np.testing.assert_allclose(node.last_output.desired_torque, gravity)
+
+
+def test_one_rejected_wrench_does_not_stall_the_riccati_feedback_loop(ros, robot):
+    """Force-feedback with Riccati feedback in lockstep: the PID waits for each cycle's wrench.
+    A NaN wrench is rejected; the cycle goes on with the newest good λ̂ (held), and a loop whose
+    wrenches stop altogether goes on without feedback after the lockstep timeout."""
+    scenario = load_scenario(
+        "polishing", {"mpc.formulation": "force_feedback", "mpc.riccati_feedback": True}
+    )
+    node = ros.add(
+        PidNode(
+            context=ros.context,
+            parameter_overrides=overrides("pid", scenario, lockstep_timeout=0.2),
+        )
+    )
+    probe = ros.probe()
+    pub_c = probe.create_publisher(Float64MultiArray, topics.MPC_COMMAND, topics.publisher_qos())
+    pub_j = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
+    pub_w = probe.create_publisher(WrenchStamped, topics.SENSED_WRENCH, topics.publisher_qos())
+    motor = recorder(probe, JointState, topics.MOTOR_TORQUE)
+    desired = recorder(probe, JointState, topics.DESIRED_TORQUE)
+    q, gravity = robot.q_nominal, robot.gravity(robot.q_nominal)
+    gain = np.zeros((7, 15))
+    gain[:, 14] = 0.01  # τ = τ* + 0.01·(λ̂ − λ_solve): the held force shows in the torque
+    state = np.concatenate([q, np.zeros(7), [0.0]])
+    for k in range(12):
+        ros.set_clock(node, k)
+        if k % 2 == 0:
+            pub_c.publish(_command(k, gravity, state, gain))
+        force = np.nan if k in (3, 4) else 10.0 + k
+        pub_w.publish(wrench(node, k, (0.0, 0.0, force)))
+        if k < 8:
+            pub_j.publish(joint_state(node, k, q, np.zeros(7), gravity))
+            assert ros.spin_until(lambda k=k: len(motor) == k + 1, timeout=5.0), k
+    assert node.rejected[f"{topics.SENSED_WRENCH}:value"] == 2
+    # Cycles 3 and 4 used the held λ̂ of cycle 2 (12 N); the others their own.
+    assert ros.spin_until(lambda: len(desired) == 8)
+    tau = [np.array(m.effort) for m in desired]
+    assert tau[3][0] == pytest.approx(gravity[0] + 0.01 * 12.0)
+    assert tau[5][0] == pytest.approx(gravity[0] + 0.01 * 15.0)
+    # Wrenches stop: after the lockstep timeout the loop goes on (held λ̂ while fresh).
+    for k in range(12, 16):
+        ros.set_clock(node, k)
+        pub_j.publish(joint_state(node, k, q, np.zeros(7), gravity))
+    assert ros.spin_until(lambda: len(motor) == 12, timeout=10.0)
+    assert all(np.all(np.abs(m.effort) <= robot.torque_limit) for m in motor)
+
+
+def test_use_sim_time_is_fixed_at_start(ros):
+    node = ros.add(
+        JointSensorNode(context=ros.context, parameter_overrides=overrides("joint_sensor"))
+    )
+    (result,) = node.set_parameters([Parameter("use_sim_time", value=False)])
+    assert not result.successful and "fixed at start" in result.reason
+    assert node.get_parameter("use_sim_time").value is True
+    (result,) = node.set_parameters([Parameter("seed", value=5)])
+    assert not result.successful  # every scenario parameter is read-only
+
+
+def test_discovery_stays_on_this_machine_unless_the_user_widens_it(monkeypatch):
+    monkeypatch.delenv(DISCOVERY_RANGE_VARIABLE, raising=False)
+    assert ensure_local_discovery() == "LOCALHOST"
+    assert os.environ[DISCOVERY_RANGE_VARIABLE] == "LOCALHOST"
+    monkeypatch.setenv(DISCOVERY_RANGE_VARIABLE, "SUBNET")
+    assert ensure_local_discovery() == "SUBNET"  # a range chosen on purpose is kept
+
+
+@pytest.mark.parametrize(
+    "module", ["ffmpc_ros.joint_sensor_node", "ffmpc_ros.pid_node", "sim_bridge.node"]
+)
+def test_a_node_started_by_hand_reports_localhost_discovery(module):
+    env = {k: v for k, v in os.environ.items() if k != DISCOVERY_RANGE_VARIABLE}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", module],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + 30.0
+        lines = []
+        while time.monotonic() < deadline:
+            line = proc.stdout.readline()
+            if not line:
+                break
+            lines.append(line)
+            if "discovery" in line:
+                break
+        assert any("discovery LOCALHOST" in line for line in lines), "".join(lines)
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
