@@ -102,8 +102,12 @@ class ArrayLayout:
                 raise InputError(f"{self.label}: no valid nx field")
             nx = int(data[index])
         expected = self.length(nv, nx)
-        if data.size != expected or dims[0].size != data.size:
+        if data.size != expected:
             raise InputError(f"{self.label}: {data.size} elements, expected {expected}")
+        if dims[0].size != data.size:
+            raise InputError(
+                f"{self.label}: the layout says {dims[0].size} elements, the data has {data.size}"
+            )
         if not np.all(np.isfinite(data)):
             raise InputError(f"{self.label}: non-finite element(s)")
         out = {}

@@ -1,0 +1,359 @@
+"""Every subscriber callback of every node, fed arbitrary messages (hypothesis, derandomized):
+no exception escapes, and nothing the node publishes is unsafe — every number finite, every
+torque within the robot's limits.
+
+Each example is a run of a few cycles one simulated second after the previous example (the
+node's /clock callback is driven directly, as the plant's /clock would). In every cycle each
+subscription gets a valid message of that cycle (so the node really computes and publishes), a
+valid message with one field corrupted, a message drawn at random over its whole type (NaN,
+±inf, 1e300, wrong lengths, unknown names and frames, stamps anywhere in time), or nothing; now
+and then the clock jumps. The test also asserts that the fuzz reached the nodes' outputs.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from builtin_interfaces.msg import Time as TimeMsg
+from geometry_msgs.msg import TwistStamped, WrenchStamped
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from ros_helpers import RosHarness, overrides
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool, Float64MultiArray
+
+from ffmpc_core.robots import load_robot
+from ffmpc_core.scenario import load_scenario
+from ffmpc_ros import layouts, topics
+
+#: Layout of each Float64MultiArray topic a node subscribes to.
+TOPIC_LAYOUTS = {
+    topics.MPC_COMMAND: layouts.MPC_COMMAND,
+    topics.PLANT_TRUTH: layouts.PLANT_TRUTH,
+    topics.CONTACT_ESTIMATE: layouts.CONTACT_ESTIMATE,
+}
+#: Topics carrying joint torques to the motors (checked against the torque limits).
+TORQUE_TOPICS = (topics.MOTOR_TORQUE, topics.DESIRED_TORQUE)
+EXAMPLES = 25
+#: How each subscription is fed in a cycle (drawn uniformly from this list).
+HOW = ("valid",) * 6 + ("corrupt", "corrupt", "random", "skip")
+#: Topics each node must have published at least once during its fuzz (the fuzz got deep).
+OUTPUTS = {
+    "plant": (topics.PLANT_JOINT_STATES,),
+    "joint_sensor": (topics.SENSED_JOINT_STATES,),
+    "ft_sensor": (topics.SENSED_WRENCH,),
+    "mpc": (topics.MPC_COMMAND,),
+    "pid": (topics.MOTOR_TORQUE, topics.DESIRED_TORQUE),
+    "metrics": (),
+    "impact_planner": (topics.IMPACT_COMMAND,),
+    "contact_learner": (topics.CONTACT_ESTIMATE,),
+}
+
+
+def _nodes():
+    from ffmpc_ros.contact_learner_node import ContactLearnerNode
+    from ffmpc_ros.ft_sensor_node import FtSensorNode
+    from ffmpc_ros.impact_planner_node import ImpactPlannerNode
+    from ffmpc_ros.joint_sensor_node import JointSensorNode
+    from ffmpc_ros.metrics_node import MetricsNode
+    from ffmpc_ros.mpc_node import MpcNode
+    from ffmpc_ros.pid_node import PidNode
+    from sim_bridge.node import PlantNode
+
+    ff_riccati = load_scenario(
+        "polishing", {"mpc.formulation": "force_feedback", "mpc.riccati_feedback": True}
+    )
+    panda = load_scenario("polishing").with_overrides({"robot": "panda"})
+    return {
+        "plant": (PlantNode, "plant", ff_riccati, {}),
+        "joint_sensor": (JointSensorNode, "joint_sensor", ff_riccati, {}),
+        "ft_sensor": (FtSensorNode, "ft_sensor", ff_riccati, {}),
+        "mpc": (MpcNode, "mpc", ff_riccati, {"use_learned_contact": True}),
+        "pid": (PidNode, "pid", ff_riccati, {"lockstep_timeout": 0.01}),
+        "metrics": (MetricsNode, "metrics", ff_riccati, {}),
+        "impact_planner": (ImpactPlannerNode, "impact_planner", panda, {}),
+        "contact_learner": (ContactLearnerNode, "contact_learner", panda, {}),
+    }
+
+
+@pytest.fixture(scope="module")
+def ros():
+    harness = RosHarness()
+    yield harness
+    harness.close()
+
+
+# -- strategies -------------------------------------------------------------------------------
+ADVERSARIAL = st.sampled_from(
+    [math.nan, math.inf, -math.inf, 1e9, -1e9, 1e300, -1e300, 5e-324, 0.0, -0.0]
+)
+FLOATS = st.one_of(st.floats(-3.0, 3.0), ADVERSARIAL, st.floats(allow_nan=True))
+
+
+def _stamp(step_ns: int, base_k: int):
+    near = st.integers(-3, 12).map(lambda d: (base_k + d) * step_ns)
+    anywhere = st.integers(0, 2**31 - 1).map(lambda s: s * 1_000_000_000)
+    off_grid = st.integers(1, step_ns - 1).map(lambda d: base_k * step_ns + d)
+    return st.one_of(near, near, near, anywhere, off_grid).map(
+        lambda ns: TimeMsg(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
+    )
+
+
+def _vector(n: int):
+    return st.one_of(
+        st.lists(st.floats(-3.0, 3.0), min_size=n, max_size=n),
+        st.lists(FLOATS, min_size=n, max_size=n),
+        st.lists(FLOATS, min_size=0, max_size=n + 3),
+    )
+
+
+def _joint_state(node, names: list[str], stamp):
+    nv = len(names)
+    name_lists = st.one_of(
+        st.just(names),
+        st.permutations(names),
+        st.lists(st.sampled_from([*names, "elbow", ""]), max_size=nv + 2),
+    )
+
+    def build(stamp, names_, position, velocity, effort) -> JointState:
+        msg = JointState()
+        msg.header.stamp = stamp
+        msg.name = list(names_)
+        msg.position, msg.velocity, msg.effort = position, velocity, effort
+        return msg
+
+    return st.builds(build, stamp, name_lists, _vector(nv), _vector(nv), _vector(nv))
+
+
+def _wrench(stamp):
+    def build(stamp, frame, values) -> WrenchStamped:
+        msg = WrenchStamped()
+        msg.header.stamp = stamp
+        msg.header.frame_id = frame
+        w = msg.wrench
+        w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y, w.torque.z = values
+        return msg
+
+    frames = st.sampled_from([topics.WRENCH_FRAME, topics.WRENCH_FRAME, "world", ""])
+    values = st.tuples(*[st.one_of(st.floats(-80.0, 80.0), FLOATS)] * 6)
+    return st.builds(build, stamp, frames, values)
+
+
+def _array(layout, node, stamp_ns):
+    nv = getattr(getattr(node, "robot", None), "nv", 7)
+    nx = getattr(getattr(node, "lowlevel", None), "nx", None) or getattr(
+        getattr(node, "mpc", None), "nx", 2 * nv
+    )
+
+    def valid(t, body) -> list[float]:
+        data = list(body[: layout.length(nv, nx)])
+        data += [0.5] * (layout.length(nv, nx) - len(data))
+        slices = layout.slices(nv, nx)
+        data[slices["t"].start] = t
+        for name, size in (("nv", nv), ("nx", nx)):
+            if name in slices:
+                data[slices[name].start] = float(size)
+        return data
+
+    def build(label, data, mutations) -> Float64MultiArray:
+        msg = Float64MultiArray(data=[0.0])
+        msg.layout.dim = layouts.MPC_COMMAND.pack(
+            {f.name: np.zeros(f.length(1, 1)) for f in layouts.MPC_COMMAND.fields}, 1, 1
+        ).layout.dim
+        msg.layout.dim[0].label = label
+        for i, value in mutations:
+            if data:
+                data[i % len(data)] = value
+        msg.data = data
+        return msg
+
+    t = st.sampled_from([1e-9 * stamp_ns]) | st.floats(0.0, 1e4) | ADVERSARIAL
+    bodies = st.lists(st.floats(-2.0, 2.0), min_size=0, max_size=layout.length(nv, nx))
+    data = st.one_of(st.builds(valid, t, bodies), st.lists(FLOATS, max_size=400))
+    labels = st.sampled_from([layout.label, layout.label, "ffmpc/other/1", ""])
+    mutations = st.lists(st.tuples(st.integers(0, 10_000), FLOATS), max_size=3)
+    return st.builds(build, labels, data, mutations)
+
+
+def _message(sub, node, base_k: int):
+    step_ns = node.step_ns
+    stamp = _stamp(step_ns, base_k)
+    if sub.msg_type is JointState:
+        return _joint_state(node, list(node_joint_names(node)), stamp)
+    if sub.msg_type is WrenchStamped:
+        return _wrench(stamp)
+    if sub.msg_type is Clock:
+        return stamp.map(lambda s: Clock(clock=s))
+    if sub.msg_type is Bool:
+        return st.builds(Bool, data=st.booleans())
+    if sub.msg_type is Float64MultiArray:
+        return _array(TOPIC_LAYOUTS[sub.topic_name], node, base_k * step_ns)
+    raise AssertionError(f"no strategy for {sub.msg_type} on {sub.topic_name}")
+
+
+def node_joint_names(node) -> list[str]:
+    if hasattr(node, "joint_names"):
+        return list(node.joint_names)
+    return list(load_robot(node.scenario.robot).joint_names)
+
+
+# -- checks -----------------------------------------------------------------------------------
+def _numbers(msg) -> list[float]:
+    if isinstance(msg, JointState):
+        return [*msg.position, *msg.velocity, *msg.effort]
+    if isinstance(msg, WrenchStamped):
+        f, m = msg.wrench.force, msg.wrench.torque
+        return [f.x, f.y, f.z, m.x, m.y, m.z]
+    if isinstance(msg, TwistStamped):
+        lin, ang = msg.twist.linear, msg.twist.angular
+        return [lin.x, lin.y, lin.z, ang.x, ang.y, ang.z]
+    if isinstance(msg, Float64MultiArray):
+        return list(msg.data)
+    return []
+
+
+def _check(published: list, limits: np.ndarray) -> None:
+    for topic, msg in published:
+        values = np.asarray(_numbers(msg), dtype=float)
+        assert np.all(np.isfinite(values)), f"{topic} published a non-finite value: {msg}"
+        if topic in TORQUE_TOPICS:
+            assert np.all(np.abs(values[-len(limits) :]) <= limits), f"{topic}: {msg.effort}"
+        if topic == topics.MPC_COMMAND:
+            torque = layouts.MPC_COMMAND.unpack(msg, len(limits))["torque"]
+            assert np.all(np.abs(torque) <= limits), f"{topic}: {torque}"
+
+
+def _valid(sub, node, k: int, data) -> object:
+    """A plausible message of cycle k for ``sub`` (values drawn small and finite)."""
+    stamp = node.stamp_of(k)
+    small = st.floats(-0.05, 0.05)
+    if sub.msg_type is JointState:
+        names = node_joint_names(node)
+        robot = _robot(node)
+        msg = JointState()
+        msg.header.stamp = stamp
+        msg.name = names
+        noise = np.array(data.draw(st.lists(small, min_size=len(names), max_size=len(names))))
+        msg.position = (robot.q_nominal + noise).tolist()
+        msg.velocity = (10 * noise).tolist()
+        msg.effort = (robot.gravity(robot.q_nominal) + 100 * noise).tolist()
+        return msg
+    if sub.msg_type is WrenchStamped:
+        msg = WrenchStamped()
+        msg.header.stamp = stamp
+        msg.header.frame_id = topics.WRENCH_FRAME
+        msg.wrench.force.x, msg.wrench.force.y = data.draw(small), data.draw(small)
+        msg.wrench.force.z = data.draw(st.floats(0.0, 60.0))  # pressing (λ_z > 0)
+        return msg
+    if sub.msg_type is Bool:
+        return Bool(data=data.draw(st.booleans()))
+    layout = TOPIC_LAYOUTS[sub.topic_name]
+    nv = _robot(node).nv
+    nx = _nx(node)
+    values = {f.name: np.full(f.length(nv, nx), data.draw(small)) for f in layout.fields}
+    values["t"] = k * node.time_step
+    for name, value in (("nv", nv), ("nx", nx), ("samples", 100.0), ("stiffness", 3000.0)):
+        if name in values:
+            values[name] = value
+    if "direction" in values:
+        values["direction"] = np.array([0.0, 0.0, -1.0])
+    if "damping" in values:
+        values["damping"] = 20.0
+    for name in ("stiffness_std", "damping_std", "noise_std"):
+        if name in values:
+            values[name] = abs(values[name]) + 1e-3
+    if "state" in values:
+        values["state"][:nv] = _robot(node).q_nominal
+    return layout.pack(values, nv, nx)
+
+
+def _corrupt(msg, data):
+    """``msg`` with one number replaced by an adversarial value (or its stamp moved)."""
+    if isinstance(msg, Float64MultiArray) and msg.data:
+        values = list(msg.data)
+        values[data.draw(st.integers(0, len(values) - 1))] = data.draw(ADVERSARIAL)
+        msg.data = values
+    elif isinstance(msg, JointState):
+        field = data.draw(st.sampled_from(["position", "velocity", "effort"]))
+        values = list(getattr(msg, field))
+        values[data.draw(st.integers(0, len(values) - 1))] = data.draw(ADVERSARIAL)
+        setattr(msg, field, values)
+    elif isinstance(msg, WrenchStamped):
+        setattr(msg.wrench.force, data.draw(st.sampled_from("xyz")), data.draw(ADVERSARIAL))
+    if hasattr(msg, "header") and data.draw(st.booleans()):
+        msg.header.stamp = data.draw(_stamp(1_000_000, 0))
+    return msg
+
+
+def _robot(node):
+    robot = getattr(node, "robot", None)
+    return robot if robot is not None else load_robot(node.scenario.robot)
+
+
+def _nx(node) -> int:
+    lowlevel = getattr(node, "lowlevel", None)
+    if lowlevel is not None:
+        return lowlevel.nx
+    mpc = getattr(node, "mpc", None)
+    return mpc.nx if mpc is not None else 2 * _robot(node).nv
+
+
+@pytest.mark.parametrize("case", list(_nodes()))
+def test_no_message_crashes_a_node_or_makes_it_unsafe(case, ros):
+    cls, spec, scenario, graph = _nodes()[case]
+    node = ros.add(cls(context=ros.context, parameter_overrides=overrides(spec, scenario, **graph)))
+    limits = load_robot(scenario.robot).torque_limit * (1 + 1e-12)
+    published: list = []
+    counts: dict[str, int] = {}
+    for pub in node.publishers:
+        topic = pub.topic_name
+
+        def record(msg, topic=topic, original=pub.publish):
+            published.append((topic, msg))
+            counts[topic] = counts.get(topic, 0) + 1
+            original(msg)
+
+        pub.publish = record
+    if hasattr(node, "_try_start"):
+        node._try_start()  # the plant publishes its first state
+    subs = [s for s in node.subscriptions if s.topic_name != topics.CLOCK]
+    clock = next(s for s in node.subscriptions if s.topic_name == topics.CLOCK)
+    assert subs, case
+    base = {"k": 0}
+
+    @settings(
+        max_examples=EXAMPLES,
+        derandomize=True,
+        deadline=None,
+        database=None,
+        suppress_health_check=list(HealthCheck),
+    )
+    @given(data=st.data())
+    def feed(data):
+        base["k"] += 1000  # one second later: earlier inputs are now stale, not newer
+        for i in range(data.draw(st.integers(1, 10), label="cycles")):
+            # the plant checks torques against its own cycle; the others follow /clock
+            k = getattr(node, "k", None) if case == "plant" else base["k"] + i
+            clock.callback(Clock(clock=node.stamp_of(k)))
+            for sub in subs:
+                how = data.draw(st.sampled_from(HOW), label="how")
+                if how == "skip":
+                    continue
+                if how == "random":
+                    msg = data.draw(_message(sub, node, k), label=sub.topic_name)
+                else:
+                    msg = _valid(sub, node, k, data)
+                    if how == "corrupt":
+                        msg = _corrupt(msg, data)
+                sub.callback(msg)  # no exception may escape
+            if data.draw(st.integers(0, 19), label="jump") == 0:
+                clock.callback(data.draw(_message(clock, node, k), label="clock"))
+        _check(published, limits)
+        published.clear()
+
+    feed()
+    assert node.rejected.total() > 0  # the fuzz did reach the input checks
+    assert counts.keys() >= set(OUTPUTS[case]), counts  # ... and the nodes' outputs
