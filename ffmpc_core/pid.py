@@ -15,6 +15,11 @@ Readings of the paper's equation:
   constant, so this equals the derivative of the error between MPC updates without the kick
   a jump of τ^d would give.
 * ``enabled=False`` is the paper's "without PID" study: τ^m(t) = τ^d(t − δo), no feedback.
+* Plausibility (``ffmpc_core.plausibility``): with ``torque_limit`` given, a finite measured
+  torque beyond ``TORQUE_FACTOR`` × the limit (a torque spike, a broken sensor) is rejected:
+  that cycle has no P or D feedback, the integral keeps its value (one absurd sample must not
+  pin it at its anti-windup bound) and ``rejected`` counts it. A non-finite one is an
+  InputError, with the state untouched.
 
 Default gains (``TorquePidGains.default``): K_P = 0.1, K_I = 20 s⁻¹, K_D = 0. On the torque
 loop alone (actuation delay δs = 1 cycle: e_{k+1} = −a·K_P·e_k − a·K_I·Δt·Σe + d) any
@@ -37,6 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.plausibility import TORQUE_FACTOR
 from ffmpc_core.sensing import DelayLine
 
 
@@ -106,13 +112,28 @@ class TorquePid:
         dt: the cycle, s (the first call integrates over dt; later calls over the actual Δt).
         delay_cycles: δo in cycles (5 at 1 kHz for the paper's 5 ms).
         enabled: False → τ^m = τ^d(t − δo) (the paper's "without PID").
+        torque_limit: the joints' torque limits, N·m; measured torques beyond
+            ``TORQUE_FACTOR`` × these are rejected (None: only non-finite ones are).
     """
 
     def __init__(
-        self, gains: TorquePidGains, dt: float, delay_cycles: int = 5, enabled: bool = True
+        self,
+        gains: TorquePidGains,
+        dt: float,
+        delay_cycles: int = 5,
+        enabled: bool = True,
+        torque_limit: np.ndarray | None = None,
     ) -> None:
         if not (math.isfinite(dt) and dt > 0.0):
             raise ConfigError(f"dt must be > 0, got {dt}")
+        if torque_limit is None:
+            self._plausible_max = np.full(gains.nv, np.inf)
+        else:
+            limit = np.asarray(torque_limit, dtype=float)
+            if limit.shape != (gains.nv,) or not np.all(limit > 0.0):
+                raise ConfigError(f"torque_limit must be {gains.nv} positive values")
+            self._plausible_max = TORQUE_FACTOR * limit
+        self.rejected = 0
         self.gains = gains
         self.dt = float(dt)
         self.enabled = bool(enabled)
@@ -138,11 +159,21 @@ class TorquePid:
         """The integral state ∫(τ̂ − τ^d(· − δo)) ds, N·m·s (a copy)."""
         return self._integral.copy()
 
-    def reset(self) -> None:
-        """Zero the integral, forget the derivative and the δo history."""
+    def reset(self, integral: np.ndarray | None = None) -> None:
+        """Forget the derivative and the δo history; the integral state becomes ``integral``
+        (N·m·s, clipped to the anti-windup bound) or 0."""
         self._desired.reset()
         self._integral[:] = 0.0
+        if integral is not None:
+            value = self._check(integral, "integral")
+            self._integral[:] = np.clip(value, -self._integral_bound, self._integral_bound)
         self._t_previous = None
+
+    def without_delay(self) -> TorquePid:
+        """A new PID with the same gains, cycle, switch and plausibility limits but δo = 0."""
+        twin = TorquePid(self.gains, self.dt, delay_cycles=0, enabled=self.enabled)
+        twin._plausible_max = self._plausible_max.copy()
+        return twin
 
     def _check(self, value, name: str) -> np.ndarray:
         arr = np.asarray(value, dtype=float)
@@ -160,11 +191,15 @@ class TorquePid:
         first = self._t_previous is None
         h = self.dt if first else t - self._t_previous
         self._t_previous = float(t)
+        g = self.gains
+        if np.any(np.abs(measured) > self._plausible_max):
+            # Implausible sample: no P/D feedback this cycle, the integral is kept.
+            self.rejected += 1
+            return delayed if not self.enabled else delayed - g.ki * self._integral
         derivative = np.zeros_like(measured) if first else (measured - self._previous_measured) / h
         self._previous_measured[:] = measured
         if not self.enabled:
             return delayed
-        g = self.gains
         error = measured - delayed
         self._integral = np.clip(
             self._integral + error * h, -self._integral_bound, self._integral_bound
