@@ -7,10 +7,12 @@ Real MPC stacks never send a raw solver output straight to the motors. One class
 * **hold** — until the first MPC command, the safe hold of :meth:`LowLevelController.hold_torque`
   (below);
 * **blend** — when MPC commands start (or come back after a fallback) and the loop has already
-  sent hold torques, the motor torque moves from τ_hold to the PID's output for the MPC torque
-  with a minimum-jerk weight over ``blend_duration``; when the first command is there before
-  anything was sent (the runner, and the graph in lockstep), there is nothing to blend from and
-  the MPC torque is used at once — so a loop whose MPC is on time gives exactly the plain scheme;
+  sent hold torques, the desired torque moves from τ_hold to the MPC torque with a minimum-jerk
+  weight w over ``blend_duration``: the PID's reference is w·τ*(t − δo) + (1 − w)·τ_hold(t), the
+  MPC part through the δo delay line, the hold part without it; when the first command is there
+  before anything was sent (the runner, and the graph in lockstep), there is nothing to blend
+  from and the MPC torque is used at once — so a loop whose MPC is on time gives exactly the
+  plain scheme;
 * **track** — the MPC torque: on the cycle a command arrives, its torque τ*; on the cycles in
   between, τ* (the paper's plain scheme) or, with ``riccati_feedback``, τ* + G·(x̂ − x̂_solve)
   (G = ``MpcCommand.feedback_gain``, relative to ``MpcCommand.state``);
@@ -21,14 +23,15 @@ Real MPC stacks never send a raw solver output straight to the motors. One class
 
 In track, the desired torque τ^d (saturated to the robot's limits) goes through the torque PID of
 eq 33 (with its δo delay line) and the motor torque τ^m is saturated too. **The hold torque
-bypasses the δo delay line**: it is computed from this cycle's measurement and goes to the
-motors (saturated) through the same PID gains with δo = 0 (``TorquePid.without_delay``), whose
-integral starts from the tracking PID's (it has learned the actuation bias b and gain a of
-eq 31 — on the iiwa's light wrist, b ≈ 1.5 N·m would otherwise bend the hold by ~0.3 rad).
-No delay sits inside the hold's feedback loop (through the 5 ms delay line, the old
-diagonal-inertia hold PD drove joints to 3–5× their velocity limits at saturated torque). The
-tracking PID is reset when the MPC torque takes over again, so it never replays torques from
-before the hold. Nothing reads a clock: t is given to every call.
+bypasses the δo delay line**: it is computed from this cycle's measurement and is the PID's
+reference as it is (``TorquePid.step(..., undelayed=τ_hold, weight=0)``), so no delay sits inside
+the hold's feedback loop (through the 5 ms delay line, the old diagonal-inertia hold PD drove
+joints to 3–5× their velocity limits at saturated torque). The same PID object runs on: its
+integral keeps rejecting the actuation bias b and gain a of eq 31 (on the iiwa's light wrist
+b ≈ 1.5 N·m would otherwise bend the hold by ~0.3 rad) and its delay line keeps filling, so the
+MPC takes over without a jump (switching between two PIDs, or resetting one, at the end of a
+blend kicked the wrist to 1.9–3.5× its velocity limit after a 50–100 ms dropout; measured).
+Nothing reads a clock: t is given to every call.
 
 The safe hold (stable by construction). Rigid-body model M(q)q̈ + C(q, q̇)q̇ + g(q) = τ, ω =
 2π·``hold_frequency``, K_d = 2ζω, K_p = ω² (ζ = ``hold_damping_ratio``). Two phases:
@@ -52,9 +55,14 @@ The safe hold (stable by construction). Rigid-body model M(q)q̈ + C(q, q̇)q̇ 
 
 V is continuous when the posture is latched (e = 0 then, V = T) and drops when the hold goes
 back to brake (V → T), so V never increases during the whole safe hold: it is stable by
-construction, with saturation. The fraction left (default 25 %) absorbs what the model does not
-know: the actuation gain a ∈ [0.8, 1.2] and bias |b| ≤ 2 N·m of eq 31, friction, noise; the
-bias leaves a steady posture error ≈ M_h⁻¹·b/K_p (there is no integral in the hold).
+construction, with saturation. Velocities: T never exceeds its value at engagement, so no joint
+is driven faster than the motion the hold inherited. The torque fraction left (default 25 %)
+absorbs what the model does not know: the actuation gain a ∈ [0.8, 1.2] and bias |b| ≤ 2 N·m of
+eq 31, friction, noise; the PID's integral (above, bounded by its anti-windup limit) removes
+the bias slowly (K_I = 20 s⁻¹), outside this argument. Why brake first rather than a PD around
+the posture where the hold began: after a dropout at speed, that posture is already behind the
+robot, and a PD around it reverses the motion and saturates (its V̇ is then indefinite); braking
+along −M·q̇ dissipates at any saturation scale.
 """
 
 from __future__ import annotations
@@ -202,14 +210,12 @@ class LowLevelController:
         omega = 2.0 * math.pi * config.hold_frequency
         self._kp, self._kd = omega * omega, 2.0 * config.hold_damping_ratio * omega
         self._hold_budget = config.hold_torque_fraction * robot.torque_limit
-        self._hold_pid = pid.without_delay()
         self.reset()
 
     # -- state ------------------------------------------------------------------------------
     def reset(self) -> None:
         """Back to HOLD, no command, nothing sent; the PID forgets its history."""
         self.pid.reset()
-        self._hold_pid.reset()
         self._mode = LowLevelMode.HOLD
         self._command: LowLevelCommand | None = None
         self._command_t = -math.inf
@@ -289,10 +295,8 @@ class LowLevelController:
 
     # -- the safe hold ------------------------------------------------------------------------
     def _start_hold(self) -> None:
-        """A new hold: brake first (the posture is latched once the robot is at rest); the hold's
-        delay-free PID starts from the tracking PID's integral (its estimate of the bias)."""
+        """A new hold: brake first (the posture is latched once the robot is at rest)."""
         self._hold_q = None
-        self._hold_pid.reset(integral=self.pid.integral)
 
     def _mass(self, q: np.ndarray) -> np.ndarray:
         mass = pin.crba(self.robot.model, self._data, q)
@@ -359,30 +363,32 @@ class LowLevelController:
                 fresh = False
         if fresh:
             if self._mode in (LowLevelMode.HOLD, LowLevelMode.FALLBACK):
-                # The MPC takes over: the PID starts afresh (no torque from before the hold).
-                self.pid.reset()
                 if self._sent_any and self.config.blend_duration > 0.0:
                     self._mode, self._blend_start = LowLevelMode.BLEND, t
                 else:
                     self._mode = LowLevelMode.TRACK
-            motor = self.robot.clip_torque(self.pid.step(measured, tau_mpc, t))
-            desired = tau_mpc
             if self._mode == LowLevelMode.BLEND:
                 blend = min_jerk((t - self._blend_start) / self.config.blend_duration)
                 if blend >= 1.0:
                     self._mode = LowLevelMode.TRACK
-                else:
-                    hold = self.robot.clip_torque(self.hold_torque(q, v))
-                    desired = self.robot.clip_torque((1.0 - blend) * hold + blend * tau_raw)
-                    motor = self.robot.clip_torque((1.0 - blend) * hold + blend * motor)
+            if self._mode == LowLevelMode.BLEND:
+                # The MPC torque enters the delay line; the hold part reaches the motors without.
+                hold = self.robot.clip_torque(self.hold_torque(q, v))
+                desired = self.robot.clip_torque((1.0 - blend) * hold + blend * tau_raw)
+                motor = self.pid.step(measured, tau_mpc, t, undelayed=hold, weight=blend)
+            else:
+                desired = tau_mpc
+                motor = self.pid.step(measured, tau_mpc, t)
+            motor = self.robot.clip_torque(motor)
         else:
             if self._mode not in (LowLevelMode.HOLD, LowLevelMode.FALLBACK):
                 self._mode = LowLevelMode.FALLBACK
                 self._start_hold()
             blend = 0.0
             desired = self.robot.clip_torque(self.hold_torque(q, v))
-            # To the motors without the δo delay line (δo = 0 PID: bias and gain rejection).
-            motor = self.robot.clip_torque(self._hold_pid.step(measured, desired, t))
+            # To the motors without the δo delay line; the PID's integral keeps rejecting the
+            # actuation bias, and its delay line fills with the hold torque.
+            motor = self.robot.clip_torque(self.pid.step(measured, desired, t, desired, 0.0))
         self._t_previous = float(t)
         self._sent_any = True
         return LowLevelOutput(motor, desired, self._mode, float(age), float(blend))

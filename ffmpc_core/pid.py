@@ -159,21 +159,11 @@ class TorquePid:
         """The integral state ∫(τ̂ − τ^d(· − δo)) ds, N·m·s (a copy)."""
         return self._integral.copy()
 
-    def reset(self, integral: np.ndarray | None = None) -> None:
-        """Forget the derivative and the δo history; the integral state becomes ``integral``
-        (N·m·s, clipped to the anti-windup bound) or 0."""
+    def reset(self) -> None:
+        """Zero the integral, forget the derivative and the δo history."""
         self._desired.reset()
         self._integral[:] = 0.0
-        if integral is not None:
-            value = self._check(integral, "integral")
-            self._integral[:] = np.clip(value, -self._integral_bound, self._integral_bound)
         self._t_previous = None
-
-    def without_delay(self) -> TorquePid:
-        """A new PID with the same gains, cycle, switch and plausibility limits but δo = 0."""
-        twin = TorquePid(self.gains, self.dt, delay_cycles=0, enabled=self.enabled)
-        twin._plausible_max = self._plausible_max.copy()
-        return twin
 
     def _check(self, value, name: str) -> np.ndarray:
         arr = np.asarray(value, dtype=float)
@@ -181,13 +171,30 @@ class TorquePid:
             raise InputError(f"{name} must be {self.gains.nv} finite numbers, got {value!r}")
         return arr
 
-    def step(self, measured_torque: np.ndarray, desired_torque: np.ndarray, t: float) -> np.ndarray:
-        """Motor torque τ^m(t), N·m, from τ̂(t) (N·m), this cycle's τ^d (N·m) and t (s)."""
+    def step(
+        self,
+        measured_torque: np.ndarray,
+        desired_torque: np.ndarray,
+        t: float,
+        undelayed: np.ndarray | None = None,
+        weight: float = 1.0,
+    ) -> np.ndarray:
+        """Motor torque τ^m(t), N·m, from τ̂(t) (N·m), this cycle's τ^d (N·m) and t (s).
+
+        With ``undelayed`` (N·m) the reference of eq 33 is ``weight·τ^d(t − δo) + (1 − weight)·
+        undelayed``: the low level's safe hold (weight 0) and its blend to the MPC torque reach
+        the motors without the δo delay line, while τ^d keeps filling it and the integral runs
+        on, so the PID takes over without a jump.
+        """
         measured = self._check(measured_torque, "measured_torque")
         desired = self._check(desired_torque, "desired_torque")
         if not math.isfinite(t) or (self._t_previous is not None and t <= self._t_previous):
             raise InputError(f"t must be finite and increasing, got {t} after {self._t_previous}")
         delayed = self._desired.step(desired)
+        if undelayed is not None:
+            if not 0.0 <= weight <= 1.0:
+                raise InputError(f"weight must lie in [0, 1], got {weight}")
+            delayed = weight * delayed + (1.0 - weight) * self._check(undelayed, "undelayed")
         first = self._t_previous is None
         h = self.dt if first else t - self._t_previous
         self._t_previous = float(t)

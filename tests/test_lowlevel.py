@@ -89,13 +89,16 @@ def test_hold_before_the_first_command_brakes_then_holds_with_the_full_mass_matr
     mass = pin.crba(robot.model, data, moving.q)
     expected = robot.gravity(moving.q) - kd * mass @ moving.v
     np.testing.assert_allclose(out.desired_torque, expected, rtol=1e-12)
-    # To the motors through the same PID gains with δo = 0: no delay line.
+    # To the motors through the PID with the hold torque as its reference, undelayed.
     direct = TorquePid(TorquePidGains.default(robot.torque_limit), DT, delay_cycles=0)
     np.testing.assert_allclose(
         out.motor_torque, direct.step(moving.torque, out.desired_torque, 0.0), rtol=1e-12
     )
     at_rest = LowLevelMeasurement(moving.q + 0.001, np.full(7, 0.01), moving.torque)
-    low.step(at_rest, DT)
+    out = low.step(at_rest, DT)  # through a 5-cycle delay line this would still be cycle 0's
+    np.testing.assert_allclose(
+        out.motor_torque, direct.step(at_rest.torque, out.desired_torque, DT), rtol=1e-12
+    )
     np.testing.assert_array_equal(low.hold_posture, at_rest.q)
     mass_h = pin.crba(robot.model, data, at_rest.q)
     assert abs(mass_h[0, 2]) > 0.1  # the coupling the diagonal hold ignored
