@@ -258,7 +258,7 @@ class LowLevelController:
 
         InputError if it is malformed or not newer than the current one (the previous command
         is then kept), or if its torque is non-finite or implausible (beyond
-        ``plausibility.TORQUE_FACTOR`` × the limits): that is a failed MPC, and the current
+        ``plausibility.COMMAND_TORQUE_FACTOR`` × the limits): that is a failed MPC, and the current
         command is dropped too, so the next cycle is the safe hold.
         """
         nv = self.robot.nv

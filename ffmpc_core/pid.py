@@ -16,9 +16,9 @@ Readings of the paper's equation:
   a jump of τ^d would give.
 * ``enabled=False`` is the paper's "without PID" study: τ^m(t) = τ^d(t − δo), no feedback.
 * Plausibility (``ffmpc_core.plausibility``): with ``torque_limit`` given, a finite measured
-  torque beyond ``TORQUE_FACTOR`` × the limit (a torque spike, a broken sensor) is rejected:
-  that cycle has no P or D feedback, the integral keeps its value (one absurd sample must not
-  pin it at its anti-windup bound) and ``rejected`` counts it. A non-finite one is an
+  torque beyond ``MEASURED_TORQUE_FACTOR`` × the limit (a torque spike, a broken sensor) is
+  rejected: that cycle has no P or D feedback, the integral keeps its value (one absurd sample
+  must not pin it at its anti-windup bound) and ``rejected`` counts it. A non-finite one is an
   InputError, with the state untouched.
 
 Default gains (``TorquePidGains.default``): K_P = 0.1, K_I = 20 s⁻¹, K_D = 0. On the torque
@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ffmpc_core.errors import ConfigError, InputError
-from ffmpc_core.plausibility import TORQUE_FACTOR
+from ffmpc_core.plausibility import MEASURED_TORQUE_FACTOR
 from ffmpc_core.sensing import DelayLine
 
 
@@ -113,7 +113,7 @@ class TorquePid:
         delay_cycles: δo in cycles (5 at 1 kHz for the paper's 5 ms).
         enabled: False → τ^m = τ^d(t − δo) (the paper's "without PID").
         torque_limit: the joints' torque limits, N·m; measured torques beyond
-            ``TORQUE_FACTOR`` × these are rejected (None: only non-finite ones are).
+            ``MEASURED_TORQUE_FACTOR`` × these are rejected (None: only non-finite ones are).
     """
 
     def __init__(
@@ -132,7 +132,7 @@ class TorquePid:
             limit = np.asarray(torque_limit, dtype=float)
             if limit.shape != (gains.nv,) or not np.all(limit > 0.0):
                 raise ConfigError(f"torque_limit must be {gains.nv} positive values")
-            self._plausible_max = TORQUE_FACTOR * limit
+            self._plausible_max = MEASURED_TORQUE_FACTOR * limit
         self.rejected = 0
         self.gains = gains
         self.dt = float(dt)

@@ -11,10 +11,14 @@ torque.
 
 Ranges and why:
 
-* **Torques** (commanded before saturation, and measured): |τ_i| ≤ ``TORQUE_FACTOR`` × the
-  joint's torque limit (N·m). An MPC output somewhat above the limit is normal (the OCP has
-  no hard torque bound; the low level saturates it); 5× the limit is no physical torque of the
-  arm — a solver that diverged or a broken sensor.
+* **Commanded torques** (before saturation): |τ_i| ≤ ``COMMAND_TORQUE_FACTOR`` = 100 × the
+  joint's torque limit (N·m). The OCP has no hard torque bound and the low level saturates its
+  output, so a raw MPC torque above the limit is normal: at first contact it reached 9.9× the
+  limit (force-feedback with Riccati feedback, polishing seed 2, measured); 100× is no solver
+  transient but a divergence.
+* **Measured torques**: |τ̂_i| ≤ ``MEASURED_TORQUE_FACTOR`` = 5 × the limit. The joint torque is
+  the motor torque (saturated) times the actuation gain (≤ 1.2, eq 31) plus bias, friction and
+  noise: beyond 5× it is a broken sensor or a spike.
 * **Forces** (F/T sensor): |λ_j| ≤ ``FORCE_MAX`` = 2000 N per axis, 10× the iiwa's 200 N class of
   contact and 40× the paper's 50 N reference (a 6-axis sensor of this class saturates at
   ~500–2500 N).
@@ -37,8 +41,10 @@ import numpy as np
 
 from ffmpc_core.errors import InputError
 
-#: Largest plausible |τ| as a multiple of the joint torque limit (commanded or measured).
-TORQUE_FACTOR = 5.0
+#: Largest plausible |τ| of a command (before saturation), multiple of the joint torque limit.
+COMMAND_TORQUE_FACTOR = 100.0
+#: Largest plausible |τ̂| measured, multiple of the joint torque limit.
+MEASURED_TORQUE_FACTOR = 5.0
 #: Largest plausible |λ| per axis of the F/T sensor, N.
 FORCE_MAX = 2000.0
 #: Largest plausible |tare offset| per axis, N.
@@ -49,21 +55,26 @@ STIFFNESS_MIN, STIFFNESS_MAX = 10.0, 1e6
 DAMPING_MIN, DAMPING_MAX = 0.0, 1e5
 
 
-def torque_plausible(tau: np.ndarray, torque_limit: np.ndarray) -> bool:
-    """True when every τ_i is finite and |τ_i| ≤ TORQUE_FACTOR·limit_i (N·m)."""
+def torque_plausible(
+    tau: np.ndarray, torque_limit: np.ndarray, factor: float = MEASURED_TORQUE_FACTOR
+) -> bool:
+    """True when every τ_i is finite and |τ_i| ≤ factor·limit_i (N·m; default: a measurement)."""
     tau = np.asarray(tau, dtype=float)
-    return bool(np.all(np.isfinite(tau)) and np.all(np.abs(tau) <= TORQUE_FACTOR * torque_limit))
+    return bool(np.all(np.isfinite(tau)) and np.all(np.abs(tau) <= factor * torque_limit))
 
 
-def check_torque(tau, torque_limit: np.ndarray, name: str = "torque") -> np.ndarray:
-    """τ (N·m) as a float array; InputError if any entry is non-finite or implausible."""
+def check_torque(
+    tau, torque_limit: np.ndarray, name: str = "torque", factor: float = COMMAND_TORQUE_FACTOR
+) -> np.ndarray:
+    """τ (N·m) as a float array; InputError if any entry is non-finite or beyond factor × its
+    limit (default: a command)."""
     arr = np.asarray(tau, dtype=float)
     if arr.shape != np.shape(torque_limit):
         raise InputError(f"{name} must have {np.size(torque_limit)} entries, got {arr.shape}")
-    if not torque_plausible(arr, torque_limit):
+    if not torque_plausible(arr, torque_limit, factor):
         raise InputError(
             f"{name} {np.array2string(arr, precision=3)} N·m is not finite or exceeds "
-            f"{TORQUE_FACTOR:g}× the torque limits: refused"
+            f"{factor:g}× the torque limits: refused"
         )
     return arr
 
@@ -112,7 +123,8 @@ __all__ = [
     "STIFFNESS_MAX",
     "STIFFNESS_MIN",
     "TARE_OFFSET_MAX",
-    "TORQUE_FACTOR",
+    "COMMAND_TORQUE_FACTOR",
+    "MEASURED_TORQUE_FACTOR",
     "check_contact_parameters",
     "check_force",
     "check_tare_offset",

@@ -89,7 +89,7 @@ class RobotModel:
     def clip_torque(self, tau: np.ndarray) -> np.ndarray:
         """Saturate a torque to the joint torque limits (N·m).
 
-        A non-finite entry, or one beyond ``plausibility.TORQUE_FACTOR`` × its limit, raises
+        A non-finite entry, or one beyond ``plausibility.COMMAND_TORQUE_FACTOR`` × its limit, raises
         InputError: such a torque is a fault (a diverged solver), never a command to saturate
         or to replace by 0 — the caller must stop the robot safely (``ffmpc_core.lowlevel``).
         """

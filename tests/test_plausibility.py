@@ -130,7 +130,11 @@ def test_check_functions_name_the_value_and_unit():
         pl.check_force(np.array([-1e9]))
     with pytest.raises(InputError, match="N/m"):
         pl.check_contact_parameters(1e12, 10.0)
-    assert pl.torque_plausible(4.9 * LIMIT, LIMIT)
+    assert pl.torque_plausible(4.9 * LIMIT, LIMIT)  # a measurement
+    assert not pl.torque_plausible(5.1 * LIMIT, LIMIT)
+    np.testing.assert_array_equal(pl.check_torque(50.0 * LIMIT, LIMIT), 50.0 * LIMIT)  # a command
+    with pytest.raises(InputError, match="100"):
+        pl.check_torque(101.0 * LIMIT, LIMIT)
     assert not pl.torque_plausible(np.append(np.zeros(6), np.inf), LIMIT)
 
 
