@@ -307,3 +307,34 @@ def test_hold_keeps_the_simulated_robot_in_place(robot):
     assert peak < 20e-3 and final < 8e-3, (peak, final)
     peak_gravity_only, _ = _hold_drift(robot, {"pid.hold_frequency": 0.0})
     assert peak_gravity_only > 50e-3
+
+
+def test_hold_goes_back_to_brake_when_pushed_and_latches_again_at_rest(robot):
+    """Latched at rest; a push (kinetic energy > 4× the settle energy) unlatches it — brake, no
+    PD pulling back at full torque — and it latches again where the robot comes to rest."""
+    cfg = LowLevelConfig(formulation="classical")
+    low = LowLevelController(robot, cfg, _pid(robot))
+    q0 = robot.q_nominal.copy()
+    torque = robot.gravity(q0)
+    low.step(LowLevelMeasurement(q0, np.zeros(7), torque), 0.0)
+    np.testing.assert_array_equal(low.hold_posture, q0)
+    pushed = LowLevelMeasurement(q0 + 0.05, np.full(7, 0.3), torque)
+    out = low.step(pushed, DT)
+    assert low.hold_posture is None  # braking
+    brake = -low._kd * pin.crba(robot.model, robot.create_data(), pushed.q) @ pushed.v
+    np.testing.assert_allclose(out.desired_torque, robot.gravity(pushed.q) + brake, rtol=1e-12)
+    low.step(LowLevelMeasurement(pushed.q, np.zeros(7), torque), 2 * DT)
+    np.testing.assert_array_equal(low.hold_posture, pushed.q)
+
+
+def test_engage_hold_drops_the_command_and_hold_parameters_are_validated(robot):
+    rng = np.random.default_rng(8)
+    low = LowLevelController(robot, LowLevelConfig(formulation="classical"), _pid(robot))
+    low.set_command(_command(robot, rng), 0.0)
+    assert low.step(_meas(robot, rng), 0.0).mode == LowLevelMode.TRACK
+    low.engage_hold()
+    assert low.step(_meas(robot, rng), DT).mode == LowLevelMode.FALLBACK
+    with pytest.raises(ConfigError):
+        LowLevelConfig(hold_settle_energy=0.0)
+    with pytest.raises(ConfigError):
+        LowLevelConfig(hold_torque_fraction=1.5)
