@@ -4,24 +4,65 @@ Real MPC stacks never send a raw solver output straight to the motors. One class
 :class:`LowLevelController`, holds the whole policy, used by BOTH the ROS-free runner
 (``sim_bridge.runner``) and the PID node (``ffmpc_ros.pid_node``):
 
-* **hold** — until the first MPC command, the desired torque is a safe hold: gravity
-  compensation plus an inertia-scaled joint PD around the posture measured when the hold began,
-  τ_hold = g(q̂) + M_ii ω²·(q_hold − q̂) − 2ζ M_ii ω·q̇̂ (M_ii: diagonal of the joint-space
-  inertia at q_hold, ω = 2π·``hold_frequency``);
+* **hold** — until the first MPC command, the safe hold of :meth:`LowLevelController.hold_torque`
+  (below);
 * **blend** — when MPC commands start (or come back after a fallback) and the loop has already
   sent hold torques, the desired torque moves from τ_hold to the MPC torque with a minimum-jerk
-  weight over ``blend_duration``; when the first command is there before anything was sent (the
-  runner, and the graph in lockstep), there is nothing to blend from and the MPC torque is used
-  at once — so a loop whose MPC is on time gives exactly the plain scheme;
+  weight w over ``blend_duration``: the PID's reference is w·τ*(t − δo) + (1 − w)·τ_hold(t), the
+  MPC part through the δo delay line, the hold part without it; when the first command is there
+  before anything was sent (the runner, and the graph in lockstep), there is nothing to blend
+  from and the MPC torque is used at once — so a loop whose MPC is on time gives exactly the
+  plain scheme;
 * **track** — the MPC torque: on the cycle a command arrives, its torque τ*; on the cycles in
   between, τ* (the paper's plain scheme) or, with ``riccati_feedback``, τ* + G·(x̂ − x̂_solve)
   (G = ``MpcCommand.feedback_gain``, relative to ``MpcCommand.state``);
-* **fallback** — when the newest command is older than ``stale_timeout`` (simulated time), the
-  safe hold again, around the posture measured at that moment.
+* **fallback** — the safe hold again, engaged on the first cycle whose newest command is older
+  than ``stale_timeout`` (simulated time), or on the first cycle after an invalid command
+  (non-finite or implausible torque, :meth:`LowLevelController.set_command`) or an explicit
+  :meth:`LowLevelController.engage_hold` (the MPC failed).
 
-The desired torque τ^d (saturated to the robot's limits) then goes through the torque PID of
-eq 33 (with its δo delay line) and the motor torque τ^m is saturated too. Nothing reads a
-clock: t is given to every call.
+In track, the desired torque τ^d (saturated to the robot's limits) goes through the torque PID of
+eq 33 (with its δo delay line) and the motor torque τ^m is saturated too. **The hold torque
+bypasses the δo delay line**: it is computed from this cycle's measurement and is the PID's
+reference as it is (``TorquePid.step(..., undelayed=τ_hold, weight=0)``), so no delay sits inside
+the hold's feedback loop (through the 5 ms delay line, the old diagonal-inertia hold PD drove
+joints to 3–5× their velocity limits at saturated torque). The same PID object runs on: its
+integral keeps rejecting the actuation bias b and gain a of eq 31 (on the iiwa's light wrist
+b ≈ 1.5 N·m would otherwise bend the hold by ~0.3 rad) and its delay line keeps filling, so the
+MPC takes over without a jump (switching between two PIDs, or resetting one, at the end of a
+blend kicked the wrist to 1.9–3.5× its velocity limit after a 50–100 ms dropout; measured).
+Nothing reads a clock: t is given to every call.
+
+The safe hold (stable by construction). Rigid-body model M(q)q̈ + C(q, q̇)q̇ + g(q) = τ, ω =
+2π·``hold_frequency``, K_d = 2ζω, K_p = ω² (ζ = ``hold_damping_ratio``). Two phases:
+
+* **brake** (damping first) while the robot moves (kinetic energy T̂ = ½q̇̂ᵀM(q̂)q̇̂ >
+  ``hold_settle_energy``; an energy, not a joint speed, so the light wrist's torque-noise jitter
+  does not count as motion):
+  τ = g(q̂) − s·K_d·M(q̂)·q̇̂, with the largest s ∈ [0, 1] that keeps every |τ_i| within
+  ``hold_torque_fraction`` × its limit. With T = ½ q̇ᵀMq̇ and the skew symmetry of Ṁ − 2C,
+  Ṫ = q̇ᵀ(τ − g) = −s·K_d·q̇ᵀMq̇ = −2·s·K_d·T ≤ 0 for ANY s ≥ 0: the kinetic energy decays
+  (time constant 1/(2K_d) at s = 1), whatever the saturation does — no joint is ever driven
+  faster, and the scaling keeps the torques within the limits;
+* **hold** once T̂ ≤ ``hold_settle_energy``: the posture q_h is latched and
+  τ = g(q̂) + M_h·(−K_p·(q̂ − q_h) − K_d·q̇̂), M_h = M(q_h) the FULL joint-space mass matrix
+  (not its diagonal), constant during the hold. K_p·M_h and K_d·M_h are constant symmetric
+  positive definite, so this is a PD plus gravity compensation with V = T + ½K_p·eᵀM_h·e,
+  V̇ = −K_d·q̇ᵀM_h·q̇ ≤ 0 (Takegaki–Arimoto; LaSalle: e → 0); near q_h, M(q) ≈ M_h and each
+  joint is the decoupled critically damped q̈ = −K_p·e − K_d·q̇. If that torque would exceed
+  ``hold_torque_fraction`` × a limit, or T̂ exceeds 4 × the settle energy (a push), the hold
+  goes back to brake.
+
+V is continuous when the posture is latched (e = 0 then, V = T) and drops when the hold goes
+back to brake (V → T), so V never increases during the whole safe hold: it is stable by
+construction, with saturation. Velocities: T never exceeds its value at engagement, so no joint
+is driven faster than the motion the hold inherited. The torque fraction left (default 25 %)
+absorbs what the model does not know: the actuation gain a ∈ [0.8, 1.2] and bias |b| ≤ 2 N·m of
+eq 31, friction, noise; the PID's integral (above, bounded by its anti-windup limit) removes
+the bias slowly (K_I = 20 s⁻¹), outside this argument. Why brake first rather than a PD around
+the posture where the hold began: after a dropout at speed, that posture is already behind the
+robot, and a PD around it reverses the motion and saturates (its V̇ is then indefinite); braking
+along −M·q̇ dissipates at any saturation scale.
 """
 
 from __future__ import annotations
@@ -36,6 +77,7 @@ import pinocchio as pin
 from ffmpc_core.config import FORMULATIONS
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.pid import TorquePid
+from ffmpc_core.plausibility import check_torque
 from ffmpc_core.robots import RobotModel
 from ffmpc_core.tasks import min_jerk
 
@@ -49,7 +91,7 @@ class LowLevelMode(IntEnum):
     HOLD = 0  # no MPC command yet: safe hold
     BLEND = 1  # hold → MPC torque
     TRACK = 2  # MPC torque (plus optional Riccati feedback)
-    FALLBACK = 3  # MPC output stale: safe hold
+    FALLBACK = 3  # MPC output stale or invalid: safe hold
 
 
 @dataclass(frozen=True)
@@ -62,11 +104,20 @@ class LowLevelConfig:
         force_dimension: entries of λ̂ (force-feedback).
         riccati_feedback: apply τ* + G·(x̂ − x̂_solve) between solves (off: the paper's scheme).
         stale_timeout: age of the newest command (s, simulated) beyond which the loop falls back
-            to the safe hold; must exceed the MPC period.
+            to the safe hold; must exceed the MPC period. The default, 4 ms = two MPC periods,
+            tolerates ONE missed solve: a command is stamped with the time of the measurement
+            it was solved from and, in the graph, arrives up to one period later, so a
+            one-period timeout would trip on every on-time command with any jitter. The hold
+            then engages on the first loop cycle past the timeout: at most 5 ms after the last
+            good command's measurement. An invalid command engages it on the next cycle.
         mpc_period: the MPC's re-planning period, s (only checked against ``stale_timeout``).
         blend_duration: hold → MPC blend duration, s (minimum-jerk weight).
-        hold_frequency: natural frequency of the hold PD, Hz.
-        hold_damping_ratio: its damping ratio ζ.
+        hold_frequency: natural frequency ω/2π of the hold PD, Hz (K_p = ω², K_d = 2ζω).
+        hold_damping_ratio: its damping ratio ζ (1: critically damped).
+        hold_settle_energy: kinetic energy ½q̇ᵀMq̇ (J) under which the hold latches its posture
+            (brake above it; back to brake above 4× it). 2e-3 J: 0.04 rad/s on the iiwa's
+            shoulder (M₁₁ ≈ 2.2 kg·m²), far above the wrist's noise jitter (~1e-4 J).
+        hold_torque_fraction: fraction of each joint's torque limit the hold may use, in (0, 1].
     """
 
     formulation: str = "force_feedback"
@@ -77,6 +128,8 @@ class LowLevelConfig:
     blend_duration: float = 0.1
     hold_frequency: float = 4.0
     hold_damping_ratio: float = 1.0
+    hold_settle_energy: float = 2e-3
+    hold_torque_fraction: float = 0.75
 
     def __post_init__(self) -> None:
         if self.formulation not in FORMULATIONS:
@@ -93,6 +146,10 @@ class LowLevelConfig:
             )
         if self.blend_duration < 0 or self.hold_frequency < 0 or self.hold_damping_ratio < 0:
             raise ConfigError("blend_duration, hold_frequency, hold_damping_ratio must be >= 0")
+        if not (math.isfinite(self.hold_settle_energy) and self.hold_settle_energy > 0):
+            raise ConfigError("hold_settle_energy must be > 0 J")
+        if not 0.0 < self.hold_torque_fraction <= 1.0:
+            raise ConfigError("hold_torque_fraction must lie in (0, 1]")
 
 
 @dataclass
@@ -134,7 +191,7 @@ class LowLevelController:
 
     Shape: ``reset()``, ``set_command(command, t_command)`` when an MPC output arrives (t_command:
     the time of the measurement it was solved from, s), ``step(measurement, t) -> output`` once
-    per plant cycle.
+    per plant cycle; ``engage_hold()`` when the MPC failed.
     """
 
     def __init__(self, robot: RobotModel, config: LowLevelConfig, pid: TorquePid) -> None:
@@ -151,7 +208,8 @@ class LowLevelController:
         }[config.formulation]
         self._data = robot.create_data()
         omega = 2.0 * math.pi * config.hold_frequency
-        self._omega2, self._two_zeta_omega = omega * omega, 2.0 * config.hold_damping_ratio * omega
+        self._kp, self._kd = omega * omega, 2.0 * config.hold_damping_ratio * omega
+        self._hold_budget = config.hold_torque_fraction * robot.torque_limit
         self.reset()
 
     # -- state ------------------------------------------------------------------------------
@@ -165,9 +223,9 @@ class LowLevelController:
         self._sent_any = False
         self._blend_start = 0.0
         self._hold_q: np.ndarray | None = None
-        self._hold_stiffness = np.zeros(self.robot.nv)
-        self._hold_damping = np.zeros(self.robot.nv)
+        self._hold_mass = np.zeros((self.robot.nv, self.robot.nv))
         self._t_previous: float | None = None
+        self.invalid_commands = 0
 
     @property
     def mode(self) -> LowLevelMode:
@@ -178,6 +236,11 @@ class LowLevelController:
         """Time of the newest command, s (−inf before the first)."""
         return self._command_t
 
+    @property
+    def hold_posture(self) -> np.ndarray | None:
+        """The latched hold posture q_h, rad (None while braking or outside the hold)."""
+        return None if self._hold_q is None else self._hold_q.copy()
+
     # -- inputs -----------------------------------------------------------------------------
     def _vector(self, value, n: int, name: str) -> np.ndarray:
         arr = np.asarray(value, dtype=float)
@@ -185,14 +248,29 @@ class LowLevelController:
             raise InputError(f"{name} must be {n} finite numbers, got shape {arr.shape}")
         return arr
 
+    def engage_hold(self) -> None:
+        """Drop the current command: the next :meth:`step` is the safe hold (FALLBACK, or HOLD
+        before any command was used) until a new valid command arrives."""
+        self._command = None
+
     def set_command(self, command, t_command: float) -> None:
         """Take a new MPC output (``torque``, ``state``, ``feedback_gain``) solved at t_command.
 
-        InputError (and the previous command kept) if it is malformed or not newer than the
-        current one.
+        InputError if it is malformed or not newer than the current one (the previous command
+        is then kept), or if its torque is non-finite or implausible (beyond
+        ``plausibility.COMMAND_TORQUE_FACTOR`` × the limits): that is a failed MPC, and the current
+        command is dropped too, so the next cycle is the safe hold.
         """
         nv = self.robot.nv
-        torque = self._vector(command.torque, nv, "command torque")
+        raw = np.asarray(command.torque, dtype=float)
+        if raw.shape != (nv,):
+            raise InputError(f"command torque must be {nv} finite numbers, got shape {raw.shape}")
+        try:
+            torque = check_torque(raw, self.robot.torque_limit, "command torque")
+        except InputError:
+            self.invalid_commands += 1
+            self.engage_hold()
+            raise
         state = self._vector(command.state, self.nx, "command state")
         gain = np.asarray(command.feedback_gain, dtype=float)
         if gain.shape != (nv, self.nx) or not np.all(np.isfinite(gain)):
@@ -215,22 +293,47 @@ class LowLevelController:
             parts.append(self._vector(meas.force, self.config.force_dimension, "force"))
         return np.concatenate(parts)
 
-    # -- the policy ---------------------------------------------------------------------------
-    def _start_hold(self, q: np.ndarray) -> None:
-        """Hold around q: PD gains M_ii·ω², 2ζ·M_ii·ω from the joint-space inertia at q."""
-        self._hold_q = q.copy()
+    # -- the safe hold ------------------------------------------------------------------------
+    def _start_hold(self) -> None:
+        """A new hold: brake first (the posture is latched once the robot is at rest)."""
+        self._hold_q = None
+
+    def _mass(self, q: np.ndarray) -> np.ndarray:
         mass = pin.crba(self.robot.model, self._data, q)
-        diag = np.diag(mass).copy()
-        self._hold_stiffness = diag * self._omega2
-        self._hold_damping = diag * self._two_zeta_omega
+        return np.triu(mass) + np.triu(mass, 1).T  # symmetric whatever the convention
+
+    def _scaled(self, gravity: np.ndarray, tau_pd: np.ndarray) -> tuple[np.ndarray, float]:
+        """(g + s·τ_pd, s) with the largest s ∈ [0, 1] keeping |τ_i| ≤ the hold's budget."""
+        room = np.maximum(self._hold_budget - np.abs(gravity), 0.0)
+        need = np.abs(tau_pd)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratios = np.where(need > room, room / np.where(need > 0.0, need, 1.0), 1.0)
+        scale = float(min(1.0, ratios.min()))
+        return gravity + scale * tau_pd, scale
 
     def hold_torque(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """τ_hold = g(q̂) + K·(q_hold − q̂) − D·q̇̂, N·m (not saturated)."""
-        if self._hold_q is None:
-            self._start_hold(q)
+        """The safe hold's torque, N·m, from q̂ (rad) and q̇̂ (rad/s) — brake or latched PD
+        (module docstring); within ``hold_torque_fraction`` of the limits unless gravity alone
+        needs more (the caller saturates)."""
+        settle = self.config.hold_settle_energy
         gravity = pin.computeGeneralizedGravity(self.robot.model, self._data, q)
-        return gravity + self._hold_stiffness * (self._hold_q - q) - self._hold_damping * v
+        mass = self._mass(q)
+        energy = 0.5 * float(v @ mass @ v)
+        if self._hold_q is not None and energy > 4.0 * settle:
+            self._hold_q = None  # pushed: brake again
+        if self._hold_q is None and energy <= settle:
+            self._hold_q = q.copy()
+            self._hold_mass = mass
+        if self._hold_q is not None:
+            tau_pd = self._hold_mass @ (-self._kp * (q - self._hold_q) - self._kd * v)
+            tau, scale = self._scaled(gravity, tau_pd)
+            if scale >= 1.0:
+                return tau
+            self._hold_q = None  # the PD would saturate: brake (dissipative at any scale)
+        tau, _ = self._scaled(gravity, mass @ (-self._kd * v))
+        return tau
 
+    # -- the policy ---------------------------------------------------------------------------
     def _mpc_torque(self, meas: LowLevelMeasurement) -> np.ndarray:
         """τ*, or τ* + G·(x̂ − x̂_solve) with the Riccati feedback; τ* alone on a cycle whose λ̂
         is missing (force-feedback: a rejected or lost wrench never stops the loop)."""
@@ -254,28 +357,41 @@ class LowLevelController:
         fresh = self._command is not None and age <= self.config.stale_timeout + TIME_EPS
         blend = 1.0
         if fresh:
+            try:
+                tau_raw = self._mpc_torque(meas)
+                tau_mpc = self.robot.clip_torque(tau_raw)
+            except InputError:  # the Riccati feedback gave an implausible torque
+                self.invalid_commands += 1
+                self.engage_hold()
+                fresh = False
+        if fresh:
             if self._mode in (LowLevelMode.HOLD, LowLevelMode.FALLBACK):
                 if self._sent_any and self.config.blend_duration > 0.0:
                     self._mode, self._blend_start = LowLevelMode.BLEND, t
                 else:
                     self._mode = LowLevelMode.TRACK
-            tau_mpc = self._mpc_torque(meas)
             if self._mode == LowLevelMode.BLEND:
                 blend = min_jerk((t - self._blend_start) / self.config.blend_duration)
                 if blend >= 1.0:
-                    self._mode, desired = LowLevelMode.TRACK, tau_mpc
-                else:
-                    desired = (1.0 - blend) * self.hold_torque(q, v) + blend * tau_mpc
+                    self._mode = LowLevelMode.TRACK
+            if self._mode == LowLevelMode.BLEND:
+                # The MPC torque enters the delay line; the hold part reaches the motors without.
+                hold = self.robot.clip_torque(self.hold_torque(q, v))
+                desired = self.robot.clip_torque((1.0 - blend) * hold + blend * tau_raw)
+                motor = self.pid.step(measured, tau_mpc, t, undelayed=hold, weight=blend)
             else:
                 desired = tau_mpc
+                motor = self.pid.step(measured, tau_mpc, t)
+            motor = self.robot.clip_torque(motor)
         else:
             if self._mode not in (LowLevelMode.HOLD, LowLevelMode.FALLBACK):
                 self._mode = LowLevelMode.FALLBACK
-                self._start_hold(q)
+                self._start_hold()
             blend = 0.0
-            desired = self.hold_torque(q, v)
-        desired = self.robot.clip_torque(desired)
-        motor = self.robot.clip_torque(self.pid.step(measured, desired, t))
+            desired = self.robot.clip_torque(self.hold_torque(q, v))
+            # To the motors without the δo delay line; the PID's integral keeps rejecting the
+            # actuation bias, and its delay line fills with the hold torque.
+            motor = self.robot.clip_torque(self.pid.step(measured, desired, t, desired, 0.0))
         self._t_previous = float(t)
         self._sent_any = True
         return LowLevelOutput(motor, desired, self._mode, float(age), float(blend))

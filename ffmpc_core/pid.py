@@ -15,6 +15,11 @@ Readings of the paper's equation:
   constant, so this equals the derivative of the error between MPC updates without the kick
   a jump of τ^d would give.
 * ``enabled=False`` is the paper's "without PID" study: τ^m(t) = τ^d(t − δo), no feedback.
+* Plausibility (``ffmpc_core.plausibility``): with ``torque_limit`` given, a finite measured
+  torque beyond ``MEASURED_TORQUE_FACTOR`` × the limit (a torque spike, a broken sensor) is
+  rejected: that cycle has no P or D feedback, the integral keeps its value (one absurd sample
+  must not pin it at its anti-windup bound) and ``rejected`` counts it. A non-finite one is an
+  InputError, with the state untouched.
 
 Default gains (``TorquePidGains.default``): K_P = 0.1, K_I = 20 s⁻¹, K_D = 0. On the torque
 loop alone (actuation delay δs = 1 cycle: e_{k+1} = −a·K_P·e_k − a·K_I·Δt·Σe + d) any
@@ -37,6 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.plausibility import MEASURED_TORQUE_FACTOR
 from ffmpc_core.sensing import DelayLine
 
 
@@ -106,13 +112,28 @@ class TorquePid:
         dt: the cycle, s (the first call integrates over dt; later calls over the actual Δt).
         delay_cycles: δo in cycles (5 at 1 kHz for the paper's 5 ms).
         enabled: False → τ^m = τ^d(t − δo) (the paper's "without PID").
+        torque_limit: the joints' torque limits, N·m; measured torques beyond
+            ``MEASURED_TORQUE_FACTOR`` × these are rejected (None: only non-finite ones are).
     """
 
     def __init__(
-        self, gains: TorquePidGains, dt: float, delay_cycles: int = 5, enabled: bool = True
+        self,
+        gains: TorquePidGains,
+        dt: float,
+        delay_cycles: int = 5,
+        enabled: bool = True,
+        torque_limit: np.ndarray | None = None,
     ) -> None:
         if not (math.isfinite(dt) and dt > 0.0):
             raise ConfigError(f"dt must be > 0, got {dt}")
+        if torque_limit is None:
+            self._plausible_max = np.full(gains.nv, np.inf)
+        else:
+            limit = np.asarray(torque_limit, dtype=float)
+            if limit.shape != (gains.nv,) or not np.all(limit > 0.0):
+                raise ConfigError(f"torque_limit must be {gains.nv} positive values")
+            self._plausible_max = MEASURED_TORQUE_FACTOR * limit
+        self.rejected = 0
         self.gains = gains
         self.dt = float(dt)
         self.enabled = bool(enabled)
@@ -150,21 +171,42 @@ class TorquePid:
             raise InputError(f"{name} must be {self.gains.nv} finite numbers, got {value!r}")
         return arr
 
-    def step(self, measured_torque: np.ndarray, desired_torque: np.ndarray, t: float) -> np.ndarray:
-        """Motor torque τ^m(t), N·m, from τ̂(t) (N·m), this cycle's τ^d (N·m) and t (s)."""
+    def step(
+        self,
+        measured_torque: np.ndarray,
+        desired_torque: np.ndarray,
+        t: float,
+        undelayed: np.ndarray | None = None,
+        weight: float = 1.0,
+    ) -> np.ndarray:
+        """Motor torque τ^m(t), N·m, from τ̂(t) (N·m), this cycle's τ^d (N·m) and t (s).
+
+        With ``undelayed`` (N·m) the reference of eq 33 is ``weight·τ^d(t − δo) + (1 − weight)·
+        undelayed``: the low level's safe hold (weight 0) and its blend to the MPC torque reach
+        the motors without the δo delay line, while τ^d keeps filling it and the integral runs
+        on, so the PID takes over without a jump.
+        """
         measured = self._check(measured_torque, "measured_torque")
         desired = self._check(desired_torque, "desired_torque")
         if not math.isfinite(t) or (self._t_previous is not None and t <= self._t_previous):
             raise InputError(f"t must be finite and increasing, got {t} after {self._t_previous}")
         delayed = self._desired.step(desired)
+        if undelayed is not None:
+            if not 0.0 <= weight <= 1.0:
+                raise InputError(f"weight must lie in [0, 1], got {weight}")
+            delayed = weight * delayed + (1.0 - weight) * self._check(undelayed, "undelayed")
         first = self._t_previous is None
         h = self.dt if first else t - self._t_previous
         self._t_previous = float(t)
+        g = self.gains
+        if np.any(np.abs(measured) > self._plausible_max):
+            # Implausible sample: no P/D feedback this cycle, the integral is kept.
+            self.rejected += 1
+            return delayed if not self.enabled else delayed - g.ki * self._integral
         derivative = np.zeros_like(measured) if first else (measured - self._previous_measured) / h
         self._previous_measured[:] = measured
         if not self.enabled:
             return delayed
-        g = self.gains
         error = measured - delayed
         self._integral = np.clip(
             self._integral + error * h, -self._integral_bound, self._integral_bound

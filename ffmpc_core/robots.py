@@ -22,6 +22,7 @@ import numpy as np
 import pinocchio as pin
 
 from ffmpc_core.errors import ConfigError, ModelError
+from ffmpc_core.plausibility import check_torque
 
 #: LBR iiwa 7 R800 data sheet: maximum joint torques (N·m) and speeds (deg/s).
 IIWA7_TORQUE_LIMIT = np.array([176.0, 176.0, 110.0, 110.0, 110.0, 40.0, 40.0])
@@ -86,8 +87,13 @@ class RobotModel:
         return pin.computeGeneralizedGravity(self.model, data, q).copy()
 
     def clip_torque(self, tau: np.ndarray) -> np.ndarray:
-        """Saturate a torque to the joint torque limits (N·m); NaN becomes 0."""
-        tau = np.nan_to_num(np.asarray(tau, dtype=float), nan=0.0, posinf=0.0, neginf=0.0)
+        """Saturate a torque to the joint torque limits (N·m).
+
+        A non-finite entry, or one beyond ``plausibility.COMMAND_TORQUE_FACTOR`` × its limit, raises
+        InputError: such a torque is a fault (a diverged solver), never a command to saturate
+        or to replace by 0 — the caller must stop the robot safely (``ffmpc_core.lowlevel``).
+        """
+        tau = check_torque(tau, self.torque_limit)
         return np.clip(tau, -self.torque_limit, self.torque_limit)
 
 

@@ -141,7 +141,7 @@ class PidSection:
     # Low-level loop around the PID (ffmpc_core.lowlevel); inactive while the MPC is on time.
     stale_timeout: float = 0.004  # s without a new MPC command → safe hold (2 MPC periods)
     blend_duration: float = 0.1  # s, hold → MPC torque blend (minimum jerk)
-    hold_frequency: float = 4.0  # Hz, natural frequency of the inertia-scaled hold PD
+    hold_frequency: float = 4.0  # Hz, natural frequency of the safe hold PD (full mass matrix)
     hold_damping_ratio: float = 1.0
 
 

@@ -13,11 +13,13 @@ happen in a fixed order (q, then q̇, then λ) so the same seed gives the same s
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
 from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.plausibility import check_force, check_tare_offset
 
 
 def delay_cycles(delay: float, cycle: float) -> int:
@@ -216,3 +218,52 @@ class ForceSensingModel:
     def step(self, force: np.ndarray) -> np.ndarray:
         """λ̂ (N) from this cycle's true force λ (N), same frame."""
         return force_measurement(self._force.step(force), self.force_noise_std, self.rng)
+
+
+class ForceTare:
+    """The F/T sensor's tare: offset (N) = mean of the last ``samples`` plausible raw readings.
+
+    ``add(raw)`` once per reading (readings that are non-finite or beyond
+    ``plausibility.FORCE_MAX`` are not kept: a −1e9 N glitch must not become the offset);
+    ``tare(in_contact)`` sets the offset, or raises InputError and keeps the previous one while
+    in contact, before any reading, or when the mean exceeds ``plausibility.TARE_OFFSET_MAX``
+    per axis (a loaded or broken sensor); ``offset`` is what the sensor subtracts.
+    """
+
+    def __init__(self, samples: int, force_dim: int) -> None:
+        if isinstance(samples, bool) or int(samples) != samples or samples < 1:
+            raise ConfigError(f"tare samples must be a whole number >= 1, got {samples!r}")
+        if force_dim <= 0:
+            raise ConfigError(f"force_dim must be > 0, got {force_dim}")
+        self._recent: deque[np.ndarray] = deque(maxlen=int(samples))
+        self.offset = np.zeros(force_dim)
+        self.force_dim = force_dim
+        self.rejected = 0
+
+    @property
+    def samples(self) -> int:
+        """Readings currently kept for the next tare."""
+        return len(self._recent)
+
+    def add(self, raw: np.ndarray) -> bool:
+        """Keep a raw reading (N) for the next tare; False (not kept) if it is implausible."""
+        arr = np.asarray(raw, dtype=float)
+        if arr.shape != (self.force_dim,):
+            raise InputError(f"a reading must have {self.force_dim} entries, got {arr.shape}")
+        try:
+            check_force(arr, "F/T reading")
+        except InputError:
+            self.rejected += 1
+            return False
+        self._recent.append(arr.copy())
+        return True
+
+    def tare(self, in_contact: bool) -> np.ndarray:
+        """Set and return the offset (N); InputError (offset unchanged) when refused."""
+        if in_contact:
+            raise InputError("tare refused: the sensor is in contact")
+        if not self._recent:
+            raise InputError("tare refused: no plausible measurement yet")
+        offset = check_tare_offset(np.mean(np.array(self._recent), axis=0))
+        self.offset = offset
+        return offset.copy()

@@ -190,7 +190,11 @@ def torque_pid(scenario: Scenario, robot: RobotModel) -> TorquePid:
     c = scenario.pid
     gains = TorquePidGains.default(robot.torque_limit, c.kp, c.ki, c.kd, c.integral_fraction)
     return TorquePid(
-        gains, scenario.plant.time_step, delay_cycles=c.delay_cycles, enabled=c.enabled
+        gains,
+        scenario.plant.time_step,
+        delay_cycles=c.delay_cycles,
+        enabled=c.enabled,
+        torque_limit=robot.torque_limit,
     )
 
 

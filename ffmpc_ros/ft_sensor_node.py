@@ -14,20 +14,21 @@ publishes, with the same stamp:
   ``contact_on_force``, false again once it falls below ``contact_off_force`` (hysteresis).
 
 Service ``/ft_sensor/tare`` (std_srvs/Trigger): the offset becomes the mean of the last
-``tare_samples`` measurements; refused while in contact or before any measurement.
+``tare_samples`` plausible measurements; refused while in contact, before any measurement, or
+when that mean is implausible (``ffmpc_core.sensing.ForceTare``, ``ffmpc_core.plausibility``).
 """
 
 from __future__ import annotations
 
 import math
-from collections import deque
 
 import numpy as np
 from geometry_msgs.msg import WrenchStamped
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
-from ffmpc_core.errors import ConfigError
+from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.sensing import ForceTare
 from ffmpc_core.study import device_generator, force_sensing_model, measured_force
 from ffmpc_ros import topics
 from ffmpc_ros.base import StudyNode, run_node
@@ -52,7 +53,7 @@ class FtSensorNode(StudyNode):
         self.offset = np.zeros(dim)
         self.filtered: np.ndarray | None = None
         self.in_contact = False
-        self._recent: deque[np.ndarray] = deque(maxlen=fs.tare_samples)
+        self.force_tare = ForceTare(fs.tare_samples, dim)
         qos = topics.publisher_qos()
         self.pub_wrench = self.create_publisher(WrenchStamped, topics.SENSED_WRENCH, qos)
         self.pub_filtered = self.create_publisher(WrenchStamped, topics.FILTERED_WRENCH, qos)
@@ -80,7 +81,7 @@ class FtSensorNode(StudyNode):
             return
         k, wrench = got
         raw = self.model.step(measured_force(wrench, self.contact))
-        self._recent.append(raw)
+        self.force_tare.add(raw)  # an implausible reading is not kept for the tare
         measured = raw - self.offset
         if self.filtered is None:
             self.filtered = measured.copy()
@@ -98,20 +99,19 @@ class FtSensorNode(StudyNode):
         self.published += 1
 
     def on_tare(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        if self.in_contact:
+        previous = self.offset
+        try:
+            self.offset = self.force_tare.tare(self.in_contact)
+        except InputError as exc:
             response.success = False
-            response.message = "refused: the sensor is in contact"
-        elif not self._recent:
-            response.success = False
-            response.message = "refused: no measurement yet"
+            response.message = str(exc)
         else:
-            previous, self.offset = self.offset, np.mean(np.array(self._recent), axis=0)
             if self.filtered is not None:
                 self.filtered += previous - self.offset
             response.success = True
             response.message = (
                 f"offset {np.array2string(self.offset, precision=4)} N "
-                f"from {len(self._recent)} samples"
+                f"from {self.force_tare.samples} samples"
             )
         self.get_logger().info(f"tare: {response.message}")
         return response

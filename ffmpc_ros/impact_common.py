@@ -22,6 +22,7 @@ from std_msgs.msg import Float64MultiArray
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.impact.deformation import unit_direction
 from ffmpc_core.impact.learner import ContactEstimate
+from ffmpc_core.impact.learner import confident as learner_confident
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import StudyNode
 
@@ -41,19 +42,9 @@ def direction_parameter(value) -> np.ndarray:
 
 
 def confident(estimate: ContactEstimate, min_samples: int, max_relative_std: float) -> bool:
-    """True when an estimate may replace a prior: at least ``min_samples`` samples, α̂ > 0 N/m,
-    β̂ ≥ 0 N·s/m, and both standard errors at most ``max_relative_std`` times their value (the rule
-    of ``sim_bridge.impact_study``)."""
-    e = estimate
-    values = (e.stiffness, e.damping, e.stiffness_std, e.damping_std)
-    return bool(
-        all(np.isfinite(values))
-        and e.samples >= min_samples
-        and e.stiffness > 0.0
-        and e.damping >= 0.0
-        and e.stiffness_std <= max_relative_std * e.stiffness
-        and e.damping_std <= max_relative_std * max(e.damping, 1e-9)
-    )
+    """True when an estimate may replace a prior (``ffmpc_core.impact.learner.confident``:
+    enough samples, small standard errors, α̂ and β̂ within their plausible ranges)."""
+    return learner_confident(estimate, min_samples, max_relative_std)
 
 
 def estimate_message(

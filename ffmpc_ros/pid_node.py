@@ -113,6 +113,7 @@ class PidNode(StudyNode):
                 )
         except InputError as exc:
             self.reject(f"{topic}:value", str(exc))
+            self.lowlevel.engage_hold()  # an invalid command: safe hold from the next cycle
             return
         k = self.cycle_of_time(fields["t"])
         if k is None:

@@ -87,6 +87,7 @@ from ffmpc_core.impact.learner import (
     ContactEstimate,
     ExplorationReference,
     RecursiveContactLearner,
+    confident,
     exploration_reference,
     fit_stiffness_damping,
     stack_data,
@@ -465,13 +466,7 @@ class ExplorationRun:
 
 
 def _confident(est: ContactEstimate, cfg: ExplorationConfig) -> bool:
-    return (
-        est.samples >= cfg.learner_min_samples
-        and est.stiffness > 0
-        and est.damping >= 0
-        and est.stiffness_std <= cfg.learner_max_relative_std * est.stiffness
-        and est.damping_std <= cfg.learner_max_relative_std * max(est.damping, 1e-9)
-    )
+    return confident(est, cfg.learner_min_samples, cfg.learner_max_relative_std)
 
 
 def _tool_contact(plant: Plant, body: int) -> tuple[float, int]:

@@ -99,7 +99,7 @@ from ffmpc_core.impact.control import (
     ImpactMeasurement,
 )
 from ffmpc_core.impact.deformation import SoftMaterial
-from ffmpc_core.impact.learner import RecursiveContactLearner
+from ffmpc_core.impact.learner import RecursiveContactLearner, confident
 from ffmpc_core.impact.limits import ContactSpaceMapper, JointLimits, joint_limits
 from ffmpc_core.impact.planner import PlannerConfig
 from ffmpc_core.impact.task_space import (
@@ -537,12 +537,7 @@ def _learner_ready(
         est = learner.estimate()
     except InputError:  # (S Sᵀ) still singular
         return None
-    ok = (
-        est.stiffness > 0
-        and est.damping >= 0
-        and est.stiffness_std <= cfg.learner_max_relative_std * est.stiffness
-        and est.damping_std <= cfg.learner_max_relative_std * max(est.damping, 1e-9)
-    )
+    ok = confident(est, cfg.learner_min_samples, cfg.learner_max_relative_std)
     return (est.stiffness, est.damping) if ok else None
 
 

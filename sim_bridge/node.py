@@ -190,6 +190,7 @@ class PlantNode(StudyNode):
             return
         try:
             (tau,) = self.joint_arrays(msg, self.joint_names, ("effort",))
+            tau = self.robot.clip_torque(tau)  # an absurd torque is refused, not saturated
         except InputError as exc:
             self.reject(f"{topic}:value", str(exc))
             return
@@ -197,7 +198,7 @@ class PlantNode(StudyNode):
         sent = self._published_at.pop(k, None)
         if sent is not None:
             self.latencies.append(time.perf_counter() - sent)
-        self.motor_torque = self.robot.clip_torque(tau)
+        self.motor_torque = tau
         self._motor_cycle = k
         if self.lockstep and not self.done:
             self.step_plant()

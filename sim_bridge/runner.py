@@ -15,19 +15,40 @@ One plant cycle (``plant.time_step``, 1 ms by default) does, in this order:
 
 Nothing reads a clock and every random number comes from generators seeded by the scenario's
 seed, so a run is a pure function of (scenario, seed). The ROS node graph reproduces this order.
+
+Faults (``faults=[Fault("mpc-dropout", 0.6, 0.05)]`` or ``["mpc-dropout@0.6+0.05"]``, see
+``ffmpc_core.faults``) change what the CONTROLLERS read or get, never the plant or the random
+streams (the sensing models still draw every cycle, so a faulty run and its fault-free twin see
+the same noise): an MPC dropout skips the solve; a sensor dropout skips the solve and hands the
+low level the last measurement received; a torque spike replaces the τ̂ the PID and a
+torque-feedback MPC read; a NaN wrench replaces the λ̂ they read (the log keeps the sensor's own
+λ̂). An input the MPC needs that is non-finite or implausible (``ffmpc_core.plausibility``), an
+MPC that raises, or a command the low level refuses engages the safe hold on that cycle
+(``LowLevelController.engage_hold``). Whatever the faults, the results carry
+``max_velocity_ratio`` and ``max_torque_ratio`` (per joint, max over the run of |q̇|/limit with
+the plant's q̇, and |τ̂|/limit with the torque applied to the plant) and ``safe_hold_s`` (time
+spent in the safe hold, s); ``safety_log`` holds their time series (not part of ``log``, which the
+node graph reproduces).
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from ffmpc_core.errors import ConfigError  # noqa: F401  (re-exported for callers)
-from ffmpc_core.lowlevel import LowLevelMeasurement
+from ffmpc_core.errors import (
+    ConfigError,  # noqa: F401  (re-exported for callers)
+    FfmpcError,
+    InputError,
+)
+from ffmpc_core.faults import Fault, active_kinds, faults_from
+from ffmpc_core.lowlevel import LowLevelMeasurement, LowLevelMode
 from ffmpc_core.metrics import PolishingMetrics
 from ffmpc_core.mpc import ModelPredictiveController, MpcMeasurement
+from ffmpc_core.plausibility import check_force, torque_plausible
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import Scenario
 from ffmpc_core.study import (
@@ -47,11 +68,17 @@ from ffmpc_core.study import (
 )
 from sim_bridge.plant import Plant, PlantConfig, TableConfig
 
+_HOLD_MODES = (int(LowLevelMode.HOLD), int(LowLevelMode.FALLBACK))
+
 
 @dataclass
 class RunResult:
     """Outcome of one run: metrics from the true and from the measured normal force, the draws,
-    the time series (``log``), and timing statistics."""
+    the time series (``log``), timing statistics, and the safety figures (module docstring):
+    ``max_velocity_ratio`` / ``max_torque_ratio`` per joint, ``safe_hold_s`` (s), the MPC
+    solves that raised (``mpc_failures``; the hold took over), the faults injected, and
+    ``safety_log`` (t s; v rad/s and tau_applied N·m per joint; mode, the ``LowLevelMode`` of
+    each cycle)."""
 
     scenario: str
     formulation: str
@@ -64,6 +91,12 @@ class RunResult:
     wall_time: float = 0.0
     solve_time_median: float = 0.0
     iterations_median: float = 0.0
+    max_velocity_ratio: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    max_torque_ratio: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    safe_hold_s: float = 0.0
+    mpc_failures: int = 0
+    faults: tuple[Fault, ...] = ()
+    safety_log: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 
     def summary(self) -> dict:
         """A JSON-friendly dict without the time series."""
@@ -80,6 +113,11 @@ class RunResult:
             "wall_time_s": self.wall_time,
             "solve_time_median_s": self.solve_time_median,
             "iterations_median": self.iterations_median,
+            "max_velocity_ratio": [float(x) for x in self.max_velocity_ratio],
+            "max_torque_ratio": [float(x) for x in self.max_torque_ratio],
+            "safe_hold_s": self.safe_hold_s,
+            "mpc_failures": self.mpc_failures,
+            "faults": [str(f) for f in self.faults],
         }
 
 
@@ -98,14 +136,20 @@ def plant_config(scenario: Scenario, task, tilt: float) -> PlantConfig:
     return PlantConfig(time_step=p.time_step, table=table)
 
 
-def run_scenario(scenario: Scenario, duration: float | None = None) -> RunResult:
+def run_scenario(
+    scenario: Scenario,
+    duration: float | None = None,
+    faults: Iterable[Fault | str] | None = None,
+) -> RunResult:
     """Run one scenario in lockstep simulated time and return its metrics and log.
 
     Args:
         scenario: the experiment (its ``seed`` seeds every random draw of the run).
         duration: simulated time, s (default: the task's full duration).
+        faults: faults to inject (``Fault`` or ``KIND@T[+DURATION]``; module docstring).
     """
     wall_start = time.perf_counter()
+    faults = faults_from(faults)
     robot = load_robot(scenario.robot)
     # One generator per device, spawned in a fixed order; the ROS nodes spawn the same ones.
     draw_rng, joint_rng, force_rng, act_rng = spawn_generators(scenario.seed)
@@ -129,30 +173,74 @@ def run_scenario(scenario: Scenario, duration: float | None = None) -> RunResult
     steps = int(round(duration / dt))
     log = StudyLog(steps, robot, task)
     solve_times, iterations = [], []
+    mpc_failures = 0
+    nv = robot.nv
+    trace_v, trace_tau = np.zeros((steps, nv)), np.zeros((steps, nv))
+    trace_mode = np.zeros(steps, dtype=int)
+    formulation = config.formulation
     with Plant(robot, plant_config(scenario, task, draws.tilt_angle)) as plant:
         plant.reset(robot.q_nominal)
         tau_hat = robot.gravity(robot.q_nominal)  # the motors hold the robot at start
+        received = None  # (q̂, q̇̂, τ̂, λ̂) last read by the controllers
+        last_force = None  # last plausible λ̂ (the low level's Riccati feedback)
         for k in range(steps):
             t = k * dt
             if k == push_at:
                 plant.apply_external_push(np.array(p.push_force), push_steps)
+            active = active_kinds(faults, t) if faults else {}
             s = plant.state()
             q_hat, v_hat, _ = joint_sensing.step(s.q, s.v)
             f_hat = force_sensing.step(measured_force(s.wrench_world, contact))
-            if k % every == 0:
-                meas = MpcMeasurement(q=q_hat, v=v_hat, force=f_hat, torque=tau_hat)
-                command = mpc.step(meas, t)
-                solve_times.append(command.solve_time)
-                iterations.append(command.iterations)
-                lowlevel.set_command(command, t)
+            # What the controllers read this cycle (faults change only this).
+            tau_read, f_read = tau_hat, f_hat
+            if "torque-spike" in active:
+                tau_read = np.full(nv, active["torque-spike"].value)
+            if "nan-wrench" in active:
+                f_read = np.full_like(f_hat, np.nan)
+            sensors_fresh = "sensor-dropout" not in active or received is None
+            if sensors_fresh:
+                received = (q_hat, v_hat, tau_read, f_read)
+            q_read, v_read, tau_read, f_read = received
+            try:
+                check_force(f_read)
+                last_force = f_read
+                force_ok = True
+            except InputError:
+                force_ok = False
+            if k % every == 0 and sensors_fresh and "mpc-dropout" not in active:
+                needs_ok = (formulation != "force_feedback" or force_ok) and (
+                    formulation != "torque_feedback"
+                    or torque_plausible(tau_read, robot.torque_limit)
+                )
+                command = None
+                if needs_ok:
+                    meas = MpcMeasurement(q=q_read, v=v_read, force=f_read, torque=tau_read)
+                    try:
+                        command = mpc.step(meas, t)
+                    except FfmpcError:
+                        command = None
+                        mpc_failures += 1
+                if command is None:
+                    lowlevel.engage_hold()  # an implausible input or a failed solve
+                else:
+                    solve_times.append(command.solve_time)
+                    iterations.append(command.iterations)
+                    try:
+                        lowlevel.set_command(command, t)
+                    except InputError:
+                        pass  # refused; a bad torque has engaged the safe hold
             # Hold / blend / track / fallback + PID (eq 33): with the MPC on time this is the
             # plain scheme (τ* on solve cycles; τ* or τ* + G·Δx in between).
-            out = lowlevel.step(LowLevelMeasurement(q_hat, v_hat, tau_hat, f_hat), t)
+            f_low = f_read if force_ok or last_force is None else last_force
+            if f_low is not None and not np.all(np.isfinite(f_low)):
+                f_low = np.zeros_like(f_low)  # no plausible λ̂ yet: the hold does not use it
+            out = lowlevel.step(LowLevelMeasurement(q_read, v_read, tau_read, f_low), t)
             tau_hat = actuation.step(out.motor_torque, s.v)
             plant.step(tau_hat)
             log.record(
                 k, t, s.q, s.normal_force, f_hat[-1], out.desired_torque, tau_hat, out.motor_torque
             )
+            trace_v[k], trace_tau[k], trace_mode[k] = s.v, tau_hat, int(out.mode)
         normal = plant.table_normal
 
     metrics_true, metrics_measured = study_metrics(log.arrays, task, normal)
@@ -168,10 +256,22 @@ def run_scenario(scenario: Scenario, duration: float | None = None) -> RunResult
         wall_time=time.perf_counter() - wall_start,
         solve_time_median=float(np.median(solve_times)) if solve_times else 0.0,
         iterations_median=float(np.median(iterations)) if iterations else 0.0,
+        max_velocity_ratio=np.max(np.abs(trace_v) / robot.velocity_limit, axis=0),
+        max_torque_ratio=np.max(np.abs(trace_tau) / robot.torque_limit, axis=0),
+        safe_hold_s=float(np.sum(np.isin(trace_mode, _HOLD_MODES)) * dt),
+        mpc_failures=mpc_failures,
+        faults=faults,
+        safety_log={
+            "t": log.arrays["t"],
+            "v": trace_v,
+            "tau_applied": trace_tau,
+            "mode": trace_mode,
+        },
     )
 
 
 __all__ = [
+    "Fault",
     "RunResult",
     "RunDraws",
     "run_scenario",

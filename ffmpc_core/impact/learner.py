@@ -23,11 +23,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.plausibility import check_contact_parameters
 
 __all__ = [
     "ContactEstimate",
     "ExplorationReference",
     "RecursiveContactLearner",
+    "confident",
     "exploration_reference",
     "fit_stiffness_damping",
     "model_error",
@@ -106,6 +108,25 @@ class ContactEstimate:
     def material_matrix(self) -> np.ndarray:
         """``[α̂, β̂]`` as eq 3's 1×2 matrix."""
         return np.array([[self.stiffness, self.damping]])
+
+
+def confident(estimate: ContactEstimate, min_samples: int, max_relative_std: float) -> bool:
+    """True when an estimate may replace the prior contact model (MPC, impact planner): at least
+    ``min_samples`` samples, both standard errors at most ``max_relative_std`` times their value,
+    and α̂, β̂ inside the plausible ranges of ``ffmpc_core.plausibility`` (10–1e6 N/m,
+    0–1e5 N·s/m) — a learned 1e-9 or 1e12 N/m is refused and the prior kept."""
+    e = estimate
+    values = (e.stiffness, e.damping, e.stiffness_std, e.damping_std)
+    if not all(np.isfinite(values)) or e.samples < min_samples:
+        return False
+    try:
+        check_contact_parameters(e.stiffness, e.damping)
+    except InputError:
+        return False
+    return bool(
+        e.stiffness_std <= max_relative_std * e.stiffness
+        and e.damping_std <= max_relative_std * max(e.damping, 1e-9)
+    )
 
 
 class RecursiveContactLearner:

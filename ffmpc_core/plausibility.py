@@ -1,0 +1,133 @@
+"""Plausibility limits on every physical input and learned value (one place, named, with units).
+
+A value can be finite and still absurd: a torque sensor that reads 1e9 N·m, a force/torque
+sensor offset of −1e9 N, a learned stiffness of 1e-9 or 1e12 N/m. Such a value must never be
+adopted: it is rejected with a clear :class:`~ffmpc_core.errors.InputError` and the consumer keeps
+its last safe state (the PID its integral, the F/T sensor its offset, the MPC and the impact
+planner their prior contact model) or, for a torque command, the robot is put in the safe hold
+(``ffmpc_core.lowlevel``). Clipping an absurd value to a bound, or replacing it by 0, is not a
+safe answer: a 0 torque drops the arm, a torque clipped to the limit from ±inf drives it at full
+torque.
+
+Ranges and why:
+
+* **Commanded torques** (before saturation): |τ_i| ≤ ``COMMAND_TORQUE_FACTOR`` = 100 × the
+  joint's torque limit (N·m). The OCP has no hard torque bound and the low level saturates its
+  output, so a raw MPC torque above the limit is normal: at first contact it reached 9.9× the
+  limit (force-feedback with Riccati feedback, polishing seed 2, measured); 100× is no solver
+  transient but a divergence.
+* **Measured torques**: |τ̂_i| ≤ ``MEASURED_TORQUE_FACTOR`` = 5 × the limit. The joint torque is
+  the motor torque (saturated) times the actuation gain (≤ 1.2, eq 31) plus bias, friction and
+  noise: beyond 5× it is a broken sensor or a spike.
+* **Forces** (F/T sensor): |λ_j| ≤ ``FORCE_MAX`` = 2000 N per axis, 10× the iiwa's 200 N class of
+  contact and 40× the paper's 50 N reference (a 6-axis sensor of this class saturates at
+  ~500–2500 N).
+* **Tare offset**: |offset_j| ≤ ``TARE_OFFSET_MAX`` = 50 N per axis — a tare removes a sensor
+  bias and the weight of a tool, not a contact force; a larger mean means the sensor is loaded
+  or broken. The tare is refused while in contact.
+* **Learned contact stiffness** α̂ ∈ [``STIFFNESS_MIN``, ``STIFFNESS_MAX``] = [10, 1e6] N/m: from a
+  soft foam to a stiff surface seen through the tool (the project's materials: 1e3–1e4 N/m).
+  Below, the material pushes back less than 1 N per 10 cm (no contact to model); above, the
+  contact's natural frequency with a ~2 kg effective mass exceeds 110 Hz, which a 2 ms OCP
+  step and a 1 kHz loop cannot resolve.
+* **Learned contact damping** β̂ ∈ [``DAMPING_MIN``, ``DAMPING_MAX``] = [0, 1e5] N·s/m.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ffmpc_core.errors import InputError
+
+#: Largest plausible |τ| of a command (before saturation), multiple of the joint torque limit.
+COMMAND_TORQUE_FACTOR = 100.0
+#: Largest plausible |τ̂| measured, multiple of the joint torque limit.
+MEASURED_TORQUE_FACTOR = 5.0
+#: Largest plausible |λ| per axis of the F/T sensor, N.
+FORCE_MAX = 2000.0
+#: Largest plausible |tare offset| per axis, N.
+TARE_OFFSET_MAX = 50.0
+#: Range of a learned contact stiffness α̂, N/m.
+STIFFNESS_MIN, STIFFNESS_MAX = 10.0, 1e6
+#: Range of a learned contact damping β̂, N·s/m.
+DAMPING_MIN, DAMPING_MAX = 0.0, 1e5
+
+
+def torque_plausible(
+    tau: np.ndarray, torque_limit: np.ndarray, factor: float = MEASURED_TORQUE_FACTOR
+) -> bool:
+    """True when every τ_i is finite and |τ_i| ≤ factor·limit_i (N·m; default: a measurement)."""
+    tau = np.asarray(tau, dtype=float)
+    return bool(np.all(np.isfinite(tau)) and np.all(np.abs(tau) <= factor * torque_limit))
+
+
+def check_torque(
+    tau, torque_limit: np.ndarray, name: str = "torque", factor: float = COMMAND_TORQUE_FACTOR
+) -> np.ndarray:
+    """τ (N·m) as a float array; InputError if any entry is non-finite or beyond factor × its
+    limit (default: a command)."""
+    arr = np.asarray(tau, dtype=float)
+    if arr.shape != np.shape(torque_limit):
+        raise InputError(f"{name} must have {np.size(torque_limit)} entries, got {arr.shape}")
+    if not torque_plausible(arr, torque_limit, factor):
+        raise InputError(
+            f"{name} {np.array2string(arr, precision=3)} N·m is not finite or exceeds "
+            f"{factor:g}× the torque limits: refused"
+        )
+    return arr
+
+
+def check_force(force, name: str = "force") -> np.ndarray:
+    """λ (N) as a float array; InputError if non-finite or |λ_j| > FORCE_MAX."""
+    arr = np.asarray(force, dtype=float)
+    if not np.all(np.isfinite(arr)) or np.any(np.abs(arr) > FORCE_MAX):
+        raise InputError(
+            f"{name} {np.array2string(arr, precision=3)} N is not finite or exceeds "
+            f"{FORCE_MAX:g} N: refused"
+        )
+    return arr
+
+
+def check_tare_offset(offset) -> np.ndarray:
+    """A tare offset (N) as a float array; InputError if |offset_j| > TARE_OFFSET_MAX."""
+    arr = np.asarray(offset, dtype=float)
+    if not np.all(np.isfinite(arr)) or np.any(np.abs(arr) > TARE_OFFSET_MAX):
+        raise InputError(
+            f"tare offset {np.array2string(arr, precision=3)} N exceeds {TARE_OFFSET_MAX:g} N "
+            "per axis (a loaded or broken sensor): refused, the previous offset is kept"
+        )
+    return arr
+
+
+def check_contact_parameters(stiffness: float, damping: float) -> tuple[float, float]:
+    """(α̂ N/m, β̂ N·s/m); InputError outside [STIFFNESS_MIN, STIFFNESS_MAX] × [DAMPING_MIN,
+    DAMPING_MAX] or non-finite."""
+    k, b = float(stiffness), float(damping)
+    if not (math.isfinite(k) and STIFFNESS_MIN <= k <= STIFFNESS_MAX):
+        raise InputError(
+            f"stiffness {k:g} N/m outside [{STIFFNESS_MIN:g}, {STIFFNESS_MAX:g}] N/m: refused"
+        )
+    if not (math.isfinite(b) and DAMPING_MIN <= b <= DAMPING_MAX):
+        raise InputError(
+            f"damping {b:g} N·s/m outside [{DAMPING_MIN:g}, {DAMPING_MAX:g}] N·s/m: refused"
+        )
+    return k, b
+
+
+__all__ = [
+    "DAMPING_MAX",
+    "DAMPING_MIN",
+    "FORCE_MAX",
+    "STIFFNESS_MAX",
+    "STIFFNESS_MIN",
+    "TARE_OFFSET_MAX",
+    "COMMAND_TORQUE_FACTOR",
+    "MEASURED_TORQUE_FACTOR",
+    "check_contact_parameters",
+    "check_force",
+    "check_tare_offset",
+    "check_torque",
+    "torque_plausible",
+]

@@ -1,0 +1,116 @@
+"""Faults injected through the ROS-free runner (PyBullet plant): the worst-moment MPC dropout —
+in contact (≈ 58 N) while the tool polishes at ≈ 0.2 m/s — and the other fault kinds.
+
+Before/after, same conditions (polishing, early contact, seed 0, dropout at t = 0.7 s, 1.2 s
+run; ``max ratio`` = max over the rest of the run and the joints of |q̇|/limit and |τ̂|/limit,
+τ̂ the torque applied to the plant):
+
+======================================  ==========  ===========  ================
+run                                     max |q̇|/l   max |τ̂|/l    tool travel max
+======================================  ==========  ===========  ================
+force-feedback, MPC never back, old      5.49        0.98         25.0 mm
+force-feedback, MPC never back, new      0.61        0.23         10.7 mm
+classical, MPC back after 0.1 s, old     5.41        0.97         (tracks again)
+classical, MPC back after 0.1 s, new     0.75        0.51         (tracks again)
+======================================  ==========  ===========  ================
+
+("old": the diagonal-inertia hold PD through the PID's 5 ms delay line, commit ad3f5f4; "new":
+``ffmpc_core.lowlevel``'s brake-then-hold with the full mass matrix and no delay line. The new
+0.61 is the velocity the robot had when the MPC stopped: the hold only slows it down.)
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ffmpc_core.lowlevel import LowLevelMode
+from ffmpc_core.robots import load_robot
+from ffmpc_core.scenario import load_scenario
+from sim_bridge.runner import Fault, run_scenario
+
+EARLY_CONTACT = {
+    "task.still": 0.0,
+    "task.reach": 0.1,
+    "task.force_ramp": 0.3,
+    "task.start_height": 0.0,
+}
+DT = 1e-3
+T_FAULT = 0.7  # s: in contact at 50 N, on the circle at full speed
+K_FAULT = 700
+#: Bound on the tool's travel after the MPC stops for good, m (measured 10.7 mm).
+STOP_BOUND = 15e-3
+#: Bound on the tool's mean speed over the last 0.1 s of the run, m/s (measured 10.3 mm/s:
+#: what is left is the PID's integral slowly removing the actuation bias).
+STILL_BOUND = 20e-3
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("iiwa")
+
+
+def _scenario(formulation: str):
+    return load_scenario("polishing", {**EARLY_CONTACT, "seed": 0, "mpc.formulation": formulation})
+
+
+def _after(result, robot, k: int = K_FAULT) -> tuple[float, float]:
+    log = result.safety_log
+    v = np.max(np.abs(log["v"][k:]) / robot.velocity_limit)
+    tau = np.max(np.abs(log["tau_applied"][k:]) / robot.torque_limit)
+    return float(v), float(tau)
+
+
+def test_mpc_dropout_in_contact_at_speed_never_back_stops_the_robot_within_limits(robot):
+    result = run_scenario(_scenario("force_feedback"), 1.2, [Fault("mpc-dropout", T_FAULT)])
+    log, mode = result.log, result.safety_log["mode"]
+    # The worst moment: pressing and moving.
+    assert log["force_true"][K_FAULT] > 40.0
+    ee = log["ee_position"]
+    assert np.linalg.norm(ee[K_FAULT] - ee[K_FAULT - 10]) / (10 * DT) > 0.15  # m/s
+    # Last command at 0.698 s; stale after 4 ms: the hold is on at 0.703 s, the first cycle
+    # whose command is older than stale_timeout, and stays on.
+    assert mode[702] == LowLevelMode.TRACK
+    assert np.all(mode[703:] == LowLevelMode.FALLBACK)
+    assert result.safe_hold_s == pytest.approx(1.2 - 0.703, abs=1.5 * DT)
+    v_ratio, tau_ratio = _after(result, robot)
+    assert v_ratio <= 1.0 and tau_ratio <= 1.0, (v_ratio, tau_ratio)
+    # The hold never speeds a joint up beyond the motion it inherited.
+    v = np.abs(result.safety_log["v"]) / robot.velocity_limit
+    assert v[K_FAULT + 5 :].max() <= v[K_FAULT : K_FAULT + 5].max() + 0.05
+    travel = np.linalg.norm(ee[K_FAULT:] - ee[K_FAULT], axis=1)
+    assert travel.max() < STOP_BOUND, travel.max()
+    assert np.linalg.norm(ee[-1] - ee[-101]) / 0.1 < STILL_BOUND
+    assert result.max_velocity_ratio.shape == (7,) and result.max_torque_ratio.shape == (7,)
+
+
+def test_mpc_dropout_then_back_blends_in_within_limits(robot):
+    result = run_scenario(_scenario("classical"), 1.2, ["mpc-dropout@0.7+0.1"])
+    mode = result.safety_log["mode"]
+    assert np.all(mode[703:800] == LowLevelMode.FALLBACK)
+    assert mode[800] == LowLevelMode.BLEND and mode[-1] == LowLevelMode.TRACK
+    v_ratio, tau_ratio = _after(result, robot)
+    assert v_ratio <= 1.0 and tau_ratio <= 1.0, (v_ratio, tau_ratio)
+    assert result.log["force_true"][-100:].min() > 1.0  # back in contact, polishing
+
+
+@pytest.mark.parametrize(
+    ("fault", "holds"),
+    [
+        ("torque-spike@0.7+0.01", False),  # the PID rejects τ̂ = 1e9 N·m; tracking goes on
+        ("nan-wrench@0.7+0.01", True),  # the force-feedback MPC cannot solve: hold at once
+        ("sensor-dropout@0.7+0.02", True),  # no measurement, no solve: stale → hold
+    ],
+)
+def test_other_faults_keep_every_joint_within_its_limits(robot, fault, holds):
+    result = run_scenario(_scenario("force_feedback"), 0.9, [fault])
+    mode = result.safety_log["mode"]
+    v_ratio, tau_ratio = _after(result, robot)
+    assert v_ratio <= 1.0 and tau_ratio <= 1.0, (v_ratio, tau_ratio)
+    assert (result.safe_hold_s > 0.0) is holds
+    assert np.all(np.isfinite(result.log["tau_motor"]))
+    if fault.startswith("nan-wrench"):
+        assert mode[K_FAULT] == LowLevelMode.FALLBACK  # the same cycle
+    assert mode[-1] == LowLevelMode.TRACK  # the MPC takes over again
+    assert result.log["force_true"][-50:].min() > 1.0
+    assert result.summary()["faults"] == [fault]
