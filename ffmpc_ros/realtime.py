@@ -60,6 +60,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -247,6 +248,26 @@ def apply_scheduling(pid: int, cpu: int | None, priority: int) -> list[str]:
             os.sched_setscheduler(pid, os.SCHED_FIFO, os.sched_param(priority))
         except (OSError, PermissionError) as exc:
             warnings.append(f"cannot use SCHED_FIFO {priority}: {exc}")
+    return warnings
+
+
+def raise_helper_threads() -> list[str]:
+    """Under SCHED_FIFO: give every other thread of this process (the middleware's receive and
+    event threads) one priority level above the calling thread. At equal priority they would
+    run only while the loop thread sleeps, so a command that arrived in time could wait
+    past the cycle that needs it. Returns warnings."""
+    if os.sched_getscheduler(0) != os.SCHED_FIFO:
+        return []
+    me = threading.get_native_id()
+    level = min(os.sched_getparam(0).sched_priority + 1, 99)
+    warnings = []
+    for tid in os.listdir("/proc/self/task"):
+        if int(tid) == me:
+            continue
+        try:
+            os.sched_setscheduler(int(tid), os.SCHED_FIFO, os.sched_param(level))
+        except OSError as exc:  # the thread may have ended
+            warnings.append(f"thread {tid}: {exc}")
     return warnings
 
 
@@ -679,6 +700,7 @@ def loop_main(argv: Sequence[str] | None = None) -> int:
     try:
         loop = RealtimeLoop(_params_from_args(argv), context)
         loop.wait_for_mpc()
+        raise_helper_threads()
         rec = loop.run()
         summary, log = loop.results(rec, [tuple(w) for w in args.fault_window])
         loop.publish_status(rec, summary["timing"])
@@ -769,6 +791,8 @@ def run_realtime(
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
         for name in THREAD_VARIABLES:  # one BLAS/OpenMP thread: no spinning helper threads
             env.setdefault(name, "1")
+        # the publishing thread sends (no asynchronous sender thread to wait for)
+        env.setdefault("RMW_FASTRTPS_PUBLICATION_MODE", "SYNCHRONOUS")
         out = os.path.join(tmp, "loop")
         ros = ["--ros-args", "--params-file", path]
         faults = [a for w in fault_windows for a in ("--fault-window", str(w[0]), str(w[1]))]
