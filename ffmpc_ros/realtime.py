@@ -22,16 +22,18 @@ Execution model (chosen by measurement on the 2-core machine, see the README):
 Deadlines (every time below is wall time, measured with ``time.perf_counter``):
 
 * **loop** — cycle k is released at r_k = t0 + k·Δt (Δt = ``plant.time_step``). Its deadline
-  is met when, by r_{k+1}, it has taken the MPC commands that arrived, run the sensor models,
-  published the measurement, computed τ^m (hold/blend/track/fallback + PID), applied it through
-  the actuation model and stepped the plant to t_{k+1}: the torque of cycle k is applied before
-  the plant's step k+1 is due. A late cycle starts at once when the previous one ends (the
+  is met when, by r_{k+1}, it has run the sensor models on the state of t_k, published the
+  measurement, taken the MPC commands that arrived, computed τ^m (hold/blend/track/fallback +
+  PID), applied it through the actuation model and stepped the plant to t_{k+1}: the torque of
+  cycle k is applied before the plant's step k+1 is due. A late cycle starts at once when the previous one ends (the
   plant never skips a step), so a stall shows as several missed cycles. The **cycle latency**
   is the time from r_k to the end of that work (so it includes the wake-up jitter).
 * **MPC** — every ``mpc.period`` (a tick: cycles k with k % (period/Δt) = 0) the MPC must solve
-  from the measurement of cycle k and its command must be in the loop before the loop computes
-  cycle k + period/Δt, i.e. within one MPC period. A tick that is never solved (the MPC was
-  still busy) is a miss.
+  from the measurement of cycle k and its command must be in the loop when it takes commands
+  in cycle k + period/Δt (just after publishing that cycle's measurement), i.e. within one MPC
+  period. A tick that is never solved (the MPC was still busy) is a miss. The MPC latency
+  reported is the wall time from publishing the measurement of a tick to the loop taking its
+  command, so it is quantised by the 1 ms cycle.
 * **Fixed latency (logical execution time).** A command solved from cycle k is applied at
   cycle k + period/Δt — not earlier even if it is in sooner — so its latency is fixed, as in
   lockstep. The scenario's δo (``pid.delay_cycles``) is the end-to-end delay of the
@@ -513,11 +515,7 @@ class RealtimeLoop:
                 act = self._active
                 t = k * dt
                 stamp = _stamp(k, self.step_ns)
-                self._take_commands(
-                    k, rec["command_arrival"], rec["command_latency"], rec["published"], solve_times
-                )
-                self._release_commands(k)
-                # sensing (eq 30, 32) and the measurement the MPC reads
+                # sensing (eq 30, 32) and the measurement the MPC reads, first: the MPC's time
                 q_hat, v_hat, _ = self.joint_model.step(state.q, state.v)
                 f_hat = self.force_model.step(measured_force(state.wrench_world, contact))
                 if act["clock"]:
@@ -529,6 +527,10 @@ class RealtimeLoop:
                         full[axis] = float(value)
                     self.pub_wrench.publish(self._wrench_msg(stamp, full))
                 rec["published"][k] = time.perf_counter()
+                self._take_commands(
+                    k, rec["command_arrival"], rec["command_latency"], rec["published"], solve_times
+                )
+                self._release_commands(k)
                 # the torque loop, actuation (eq 31) and one physics step
                 try:
                     out = self.lowlevel.step(LowLevelMeasurement(q_hat, v_hat, tau_hat, f_hat), t)
