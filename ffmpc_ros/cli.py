@@ -221,7 +221,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         f"loop {shown(fractions.get('loop'), '.4f')}; latency p50/p99/max "
         f"{shown(t.get('latency_p50_ms'), '.3f')}/{shown(t.get('latency_p99_ms'), '.3f')}/"
         f"{shown(t.get('latency_max_ms'), '.3f')} ms; fallback "
-        f"{shown(t.get('fallback_time_s'), '.3f')} s"
+        f"{shown(t.get('fallback_time_s'), '.3f')} s",
+        file=sys.stderr,  # stdout stays one JSON document
     )
     failures = result.timing_failures()
     for failure in failures:
