@@ -25,9 +25,10 @@ Deadlines (every time below is wall time, measured with ``time.perf_counter``):
   is met when, by r_{k+1}, it has run the sensor models on the state of t_k, published the
   measurement, taken the MPC commands that arrived, computed τ^m (hold/blend/track/fallback +
   PID), applied it through the actuation model and stepped the plant to t_{k+1}: the torque of
-  cycle k is applied before the plant's step k+1 is due. A late cycle starts at once when the previous one ends (the
-  plant never skips a step), so a stall shows as several missed cycles. The **cycle latency**
-  is the time from r_k to the end of that work (so it includes the wake-up jitter).
+  cycle k is applied before the plant's step k+1 is due. A late cycle starts at once when the
+  previous one ends (the plant never skips a step), so a stall shows as several missed cycles.
+  The **cycle latency** is the time from r_k to the end of that work (so it includes the
+  wake-up jitter).
 * **MPC** — every ``mpc.period`` (a tick: cycles k with k % (period/Δt) = 0) the MPC must solve
   from the measurement of cycle k and its command must be in the loop when it takes commands
   in cycle k + period/Δt (just after publishing that cycle's measurement), i.e. within one MPC
@@ -326,6 +327,7 @@ class RealtimeLoop:
                 name, context=context, parameter_overrides=parameter_overrides(params[name])
             )
 
+        self.context = context
         self.nodes = {n: node(n) for n in ("plant", "joint_sensor", "ft_sensor", "pid")}
         plant_node = self.nodes["plant"]
         s = plant_node.scenario
@@ -475,6 +477,8 @@ class RealtimeLoop:
         ):
             if time.monotonic() > end:
                 raise RealtimeError(f"no MPC node appeared within {limit} s")
+            if not self.context.ok():
+                raise KeyboardInterrupt
             time.sleep(0.01)
         time.sleep(self.start_delay)
 
@@ -511,6 +515,8 @@ class RealtimeLoop:
                 release = t0 + k * dt
                 sleep_until(release)
                 if k % SUBSCRIBER_CHECK_EVERY == 0:
+                    if not self.context.ok():  # SIGINT (rclpy's handler shuts the context)
+                        raise KeyboardInterrupt
                     self._refresh_subscribers()
                 act = self._active
                 t = k * dt
@@ -698,6 +704,9 @@ def loop_main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(user)
     context = Context()
     rclpy.init(args=argv, context=context)
+    # SIGINT (Ctrl-C, the bring-up's stop, the parent's death) and SIGTERM end the run at once
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
     loop = None
     try:
         loop = RealtimeLoop(_params_from_args(argv), context)
