@@ -200,17 +200,16 @@ class _PidStatusProbe:
         heard = self.mode[ticks] >= 0
         on_time = heard & (np.abs(self.command_age[ticks]) < 0.5 * self.time_step)
         misses = int(plant_status.get("deadline_misses", steps)) if plant_status else steps
-        unexcused, excused = fallback_time(self.mode[self.mode >= 0], self.time_step, ())
-        if fault_windows:
-            known = np.where(self.mode >= 0, self.mode, 0)
-            unexcused, excused = fallback_time(known, self.time_step, fault_windows)
+        known = np.where(self.mode >= 0, self.mode, int(LowLevelMode.HOLD))  # unheard: no fallback
+        unexcused, excused = fallback_time(known, self.time_step, fault_windows)
         lat = {
             name: (plant_status[f"latency_{name}"] * 1e3 if plant_status else None)
             for name in ("p50", "p99", "max")
         }
+        heard_ticks = int(np.count_nonzero(heard))
         return {
-            "deadline_met_fraction": {
-                "mpc": float(np.count_nonzero(on_time)) / ticks.size,
+            "deadline_met_fraction": {  # over the ticks whose status arrived
+                "mpc": float(np.count_nonzero(on_time)) / heard_ticks if heard_ticks else None,
                 "loop": 1.0 - misses / steps,
             },
             "fallback_time_s": unexcused,
@@ -220,6 +219,7 @@ class _PidStatusProbe:
             "latency_p99_ms": lat["p99"],
             "latency_max_ms": lat["max"],
             "status_cycles": int(np.count_nonzero(self.mode >= 0)),
+            "unobserved_ticks": int(ticks.size - heard_ticks),
             "mode_cycles": {
                 m.name.lower(): int(np.count_nonzero(self.mode == int(m))) for m in LowLevelMode
             },
