@@ -443,7 +443,7 @@ def build_parser() -> argparse.ArgumentParser:
         "PID) composed in one process at 1 kHz on the wall clock and the MPC node in another "
         "at its own rate (ffmpc_ros/realtime.py). Both modes print the fraction of MPC and "
         "loop deadlines met, latency percentiles and the time in fallback; exit 1 when more "
-        "than 1 %% of either kind of deadline was missed or the loop fell back outside a "
+        "than 1 % of either kind of deadline was missed or the loop fell back outside a "
         "--fault-window.",
     )
     run.add_argument("scenario", help="a shipped scenario name or a scenario YAML path")
