@@ -645,7 +645,10 @@ class RealtimeLoop:
         )
 
     def results(self, rec: dict, fault_windows: FaultWindows = ()) -> tuple[dict, dict]:
-        """(summary, log arrays): the study metrics (same code as the runner) and the timing."""
+        """(summary, log arrays): the study metrics (same code as the runner) and the timing;
+        the log has the runner's arrays plus, per cycle, ``mode`` (LowLevelMode),
+        ``cycle_latency`` (s) and ``command_arrival`` (the cycle at which the command solved
+        from this cycle was taken, −1 for none)."""
         log = StudyLog(self.steps, self.robot, self.task)
         for k in range(self.steps):
             log.record(
@@ -675,6 +678,9 @@ class RealtimeLoop:
             m.name.lower(): int(np.count_nonzero(rec["mode"] == int(m))) for m in LowLevelMode
         }
         timing["rejected"] = rec["rejected"]
+        arrays = dict(log.arrays)
+        for name in ("mode", "cycle_latency", "command_arrival"):  # the run's timing per cycle
+            arrays[name] = rec[name]
         summary = {
             "formulation": self.scenario.mpc.formulation,
             "seed": self.scenario.seed,
@@ -684,7 +690,7 @@ class RealtimeLoop:
             "wall_time_s": rec["wall_time"],
             "timing": timing,
         }
-        return summary, log.arrays
+        return summary, arrays
 
     def close(self) -> None:
         self.plant.close()
