@@ -88,7 +88,7 @@ class MpcNode(StudyNode):
             self.contact_stiffness = contact.stiffness_vector().copy()  # N/m, per force entry
             self.contact_damping = contact.damping_vector().copy()  # N·s/m
             self._learned_entry = 0 if contact.dimension == 1 else contact.normal_axis
-            self.create_subscription(
+            self.estimates = self.create_subscription(
                 Float64MultiArray,
                 topics.CONTACT_ESTIMATE,
                 self.on_estimate,
@@ -182,32 +182,41 @@ class MpcNode(StudyNode):
     def spin_realtime(self) -> None:
         """Real time, instead of an executor: block on a wait set over the inputs, take the
         newest sample of each topic (older ones are worthless) and solve when it completes a
-        tick; until the context shuts down (SIGINT). The collector is frozen and disabled."""
+        tick; until the context shuts down (SIGINT). The collector is frozen and disabled.
+        /clock is not taken: the node's clock stays at 0, so no input is rejected as stale by
+        age (the newest sample is used, and the loop process times every command)."""
         from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
         gc.collect()
         gc.freeze()
         gc.disable()
-        handlers = (self.on_joints, self.on_wrench)
+        # (subscription, handler, only on MPC ticks): measurements, then the learner's estimate
+        inputs = [
+            (sub, handler, True)
+            for sub, handler in zip(self.inputs, (self.on_joints, self.on_wrench), strict=False)
+        ]
+        if self.use_learned_contact:
+            inputs.append((self.estimates, self.on_estimate, False))
         with contextlib.ExitStack() as stack:
-            for sub in self.inputs:
+            for sub, _, _ in inputs:
                 stack.enter_context(sub.handle)
             stack.enter_context(self.context.handle)
-            wait_set = _rclpy.WaitSet(len(self.inputs), 0, 0, 0, 0, 0, self.context.handle)
+            wait_set = _rclpy.WaitSet(len(inputs), 0, 0, 0, 0, 0, self.context.handle)
             while self.context.ok():
                 wait_set.clear_entities()
-                for sub in self.inputs:
+                for sub, _, _ in inputs:
                     wait_set.add_subscription(sub.handle)
                 try:
                     wait_set.wait(100_000_000)  # ns
                 except Exception:  # noqa: BLE001  (the context shut down while waiting)
                     break
-                for sub, handler in zip(self.inputs, handlers, strict=False):
+                for sub, handler, ticks_only in inputs:
                     newest = None
                     while (taken := sub.handle.take_message(sub.msg_type, sub.raw)) is not None:
                         newest = taken[0]
-                    if newest is not None and self._is_tick(newest.header.stamp):
-                        handler(newest)
+                    if newest is None or (ticks_only and not self._is_tick(newest.header.stamp)):
+                        continue
+                    handler(newest)
         gc.enable()
 
     def _try_solve(self, k: int) -> None:
