@@ -1,6 +1,6 @@
 """Speed of the ROS 2 node graph: real-time factor in lockstep (multi-process and
-single-process, against the ROS-free runner on the same scenario) and the sensor-to-torque
-latency in real-time mode.
+single-process, against the ROS-free runner on the same scenario) and the deadlines of the
+real-time mode.
 
 Real-time factor = simulated time / wall time of the stepping (from the plant's first step to
 its last; start-up excluded, reported apart). Sensor-to-torque latency = wall time from the
@@ -66,18 +66,16 @@ def main(argv: list[str] | None = None) -> int:
             f"{result.startup_time:.1f} s); metrics equal to the runner: {same}"
         )
         print(f"    {_latency(result.plant_status)}")
-    for single in (False, True):
-        result = run_graph(
-            scenario, duration=args.rt_duration, single_process=single, lockstep=False
-        )
-        status = result.plant_status
-        label = "single-process" if single else "multi-process "
-        print(
-            f"graph real time {label}: {status['steps']:.0f} steps in {status['wall_time']:.2f} s "
-            f"wall, deadline misses {status['deadline_misses']:.0f} "
-            f"({100 * status['deadline_misses'] / max(status['steps'], 1):.1f} %)"
-        )
-        print(f"    sensor-to-torque {_latency(status)}")
+    result = run_graph(scenario, duration=args.rt_duration, lockstep=False)
+    t = result.timing
+    print(
+        f"graph real time (ffmpc_ros.realtime, default scheduling): {args.rt_duration:.2f} s in "
+        f"{result.wall_time:.2f} s wall; deadlines met MPC "
+        f"{t['deadline_met_fraction']['mpc']:.4f}, loop {t['deadline_met_fraction']['loop']:.4f}; "
+        f"cycle latency p50 {t['latency_p50_ms']:.3f} ms, p99 {t['latency_p99_ms']:.3f} ms, "
+        f"max {t['latency_max_ms']:.3f} ms; fallback {t['fallback_time_s']:.3f} s "
+        "(python benchmarks/bench_realtime.py compares execution models)"
+    )
     return 0
 
 

@@ -273,10 +273,14 @@ def run_node(factory: Callable[..., StudyNode], description: str, argv=None) -> 
         )
         from rclpy.experimental import EventsExecutor
 
-        executor = EventsExecutor()
-        executor.add_node(node)
-        while rclpy.ok() and not node.finished():
-            executor.spin_once(timeout_sec=0.1)
+        spin_realtime = getattr(node, "spin_realtime", None)
+        if spin_realtime is not None and not node.params.get("lockstep", True):
+            spin_realtime()  # real time: the node's own wait loop, no executor
+        else:
+            executor = EventsExecutor()
+            executor.add_node(node)
+            while rclpy.ok() and not node.finished():
+                executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

@@ -21,6 +21,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -31,7 +32,8 @@ from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 
-from ffmpc_core.errors import FfmpcError
+from ffmpc_core.errors import ConfigError, FfmpcError
+from ffmpc_core.lowlevel import LowLevelMode
 from ffmpc_core.metrics import PolishingMetrics
 from ffmpc_core.scenario import Scenario
 from ffmpc_ros import layouts, topics
@@ -68,14 +70,27 @@ class GraphResult:
     startup_time: float = 0.0  # from the call to the first plant step, s
     plant_status: dict | None = None
     bag: dict | None = None  # with ``record``: path and messages recorded per topic
+    timing: dict | None = None  # deadlines met, fallback time, latencies (module docstring)
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def real_time_factor(self) -> float:
         """Simulated time / wall time of the stepping (> 1: faster than real time)."""
         return self.sim_time / self.wall_time if self.wall_time > 0 else float("inf")
 
+    def timing_failures(self, max_missed: float | None = None) -> list[str]:
+        """Why this run's timing fails (empty: it passes), ``ffmpc_ros.realtime``'s rule."""
+        from ffmpc_ros.realtime import MAX_MISSED_FRACTION, timing_failures
+
+        if self.timing is None:
+            return ["no timing statistics"]
+        limit = MAX_MISSED_FRACTION if max_missed is None else max_missed
+        return timing_failures(self.timing, limit)
+
     def summary(self) -> dict:
+        timing = self.timing or {}
         return {
+            "mode": "lockstep" if self.lockstep else "real_time",
             "formulation": self.formulation,
             "seed": self.seed,
             "single_process": self.single_process,
@@ -86,8 +101,20 @@ class GraphResult:
             "wall_time_s": self.wall_time,
             "real_time_factor": self.real_time_factor,
             "plant_status": self.plant_status,
+            **{key: timing.get(key) for key in TIMING_KEYS},
+            "timing": timing,
             **({"bag": self.bag} if self.bag is not None else {}),
         }
+
+
+#: Timing statistics copied to the top level of a run's summary (``ffmpc run --json``).
+TIMING_KEYS = (
+    "deadline_met_fraction",
+    "fallback_time_s",
+    "latency_p50_ms",
+    "latency_p99_ms",
+    "latency_max_ms",
+)
 
 
 def _load(path: str):
@@ -139,6 +166,67 @@ class _StatusProbe:
         self.status = layouts.PLANT_STATUS.unpack(msg)
 
 
+class _PidStatusProbe:
+    """Lockstep: the torque loop's mode and command age of every cycle (``/pid/status``)."""
+
+    def __init__(self, node: Node, steps: int, time_step: float) -> None:
+        self.time_step = time_step
+        self.mode = np.full(steps, -1, dtype=np.int8)
+        self.command_age = np.full(steps, np.nan)
+        node.create_subscription(
+            Float64MultiArray, topics.LOWLEVEL_STATUS, self._on, topics.subscriber_qos(True)
+        )
+
+    def _on(self, msg: Float64MultiArray) -> None:
+        try:
+            status = layouts.LOWLEVEL_STATUS.unpack(msg)
+        except FfmpcError:
+            return
+        k = int(round(status["t"] / self.time_step))
+        if 0 <= k < self.mode.size:
+            self.mode[k] = int(status["mode"])
+            self.command_age[k] = status["command_age"]
+
+    @property
+    def complete(self) -> bool:
+        return bool(np.all(self.mode >= 0))
+
+    def timing(self, every: int, plant_status: dict, fault_windows) -> dict:
+        """Lockstep timing (simulated-time deadlines, see the module docstring)."""
+        from ffmpc_ros.realtime import fallback_time
+
+        steps = self.mode.size
+        ticks = np.arange(0, steps, every)
+        heard = self.mode[ticks] >= 0
+        on_time = heard & (np.abs(self.command_age[ticks]) < 0.5 * self.time_step)
+        misses = int(plant_status.get("deadline_misses", steps)) if plant_status else steps
+        known = np.where(self.mode >= 0, self.mode, int(LowLevelMode.HOLD))  # unheard: no fallback
+        unexcused, excused = fallback_time(known, self.time_step, fault_windows)
+        lat = {
+            name: (plant_status[f"latency_{name}"] * 1e3 if plant_status else None)
+            for name in ("p50", "p99", "max")
+        }
+        heard_ticks = int(np.count_nonzero(heard))
+        return {
+            "deadline_met_fraction": {  # over the ticks whose status arrived
+                "mpc": float(np.count_nonzero(on_time)) / heard_ticks if heard_ticks else None,
+                "loop": 1.0 - misses / steps,
+            },
+            "fallback_time_s": unexcused,
+            "fallback_excused_s": excused,
+            "fault_windows": [list(map(float, w)) for w in fault_windows],
+            "latency_p50_ms": lat["p50"],
+            "latency_p99_ms": lat["p99"],
+            "latency_max_ms": lat["max"],
+            "status_cycles": int(np.count_nonzero(self.mode >= 0)),
+            "unobserved_ticks": int(ticks.size - heard_ticks),
+            "mode_cycles": {
+                m.name.lower(): int(np.count_nonzero(self.mode == int(m))) for m in LowLevelMode
+            },
+            "definition": "lockstep: simulated-time deadlines (ffmpc_ros.bringup)",
+        }
+
+
 def run_graph(
     scenario: Scenario,
     *,
@@ -149,6 +237,9 @@ def run_graph(
     domain_id: int | None = None,
     quiet: bool = True,
     record: str | os.PathLike | None = None,
+    fault_windows: Sequence[tuple[float, float]] = (),
+    cpus: tuple[int, int] | None | str = "auto",
+    priority: int | None = None,
 ) -> GraphResult:
     """Run ``scenario`` on the node graph and return the metrics node's result.
 
@@ -161,6 +252,12 @@ def run_graph(
         quiet: multi-process: send the children's output to a log file instead of the terminal.
         record: record the run into this MCAP bag (must not exist): every topic and every
             node's parameters; the plant then also waits for the recorder to see the graph.
+        fault_windows: (start, end) simulated s of injected faults: fallback inside them is
+            excused (the hook for fault injection).
+        cpus: real time: (loop CPU, MPC CPU) to pin the two processes to ("auto": the first
+            two CPUs; None: no pinning).
+        priority: real time: SCHED_FIFO priority of both processes (None:
+            ``realtime.DEFAULT_PRIORITY``; 0: normal scheduling).
     """
     start = time.perf_counter()
     domain = int(os.environ.get("ROS_DOMAIN_ID", "0")) if domain_id is None else domain_id
@@ -172,6 +269,18 @@ def run_graph(
 
         duration = build_task(scenario, load_robot(scenario.robot)).duration
     params = graph_parameters(scenario, lockstep, duration)
+    if not lockstep:
+        if single_process or record is not None:
+            raise ConfigError(
+                "real time runs the loop nodes and the MPC node as two processes (one "
+                "interpreter each, see ffmpc_ros.realtime); --single-process and --record are "
+                "lockstep options"
+            )
+        return _run_real_time(
+            scenario, params, timeout, domain, quiet, fault_windows, cpus, priority
+        )
+    from ffmpc_core.study import steps_per_mpc_period
+
     if record is not None:  # the recorder is one more subscriber the plant waits for
         params["plant"]["start_subscribers"] += 1
     context = Context()
@@ -187,6 +296,7 @@ def run_graph(
         )
         probe_node = Node("ffmpc_bringup", context=context)
         probe = _StatusProbe(probe_node)
+        pid_probe = _PidStatusProbe(probe_node, metrics.steps, metrics.time_step)
         nodes += [metrics, probe_node]
         if record is not None:
             from ffmpc_ros.bag.recorder import graph_recorder
@@ -218,8 +328,10 @@ def run_graph(
             executor.spin_once(timeout_sec=0.05)
         done = time.perf_counter()
         # The final plant status (latencies, deadline misses) follows the last state.
-        while (probe.status is None or not probe.status["done"]) or not (
-            recorder is None or recorder.complete
+        while (
+            (probe.status is None or not probe.status["done"])
+            or not (recorder is None or recorder.complete)
+            or not pid_probe.complete
         ):
             if time.perf_counter() > done + 2.0:
                 break
@@ -248,6 +360,48 @@ def run_graph(
         startup_time=(done - start) - stepping,
         plant_status=status or None,
         bag=None if recorder is None else {"path": str(record), "received": recorder.received},
+        timing=pid_probe.timing(steps_per_mpc_period(scenario), status, fault_windows),
+    )
+
+
+def _run_real_time(
+    scenario: Scenario, params, timeout, domain, quiet, fault_windows, cpus, priority
+) -> GraphResult:
+    """Real time (``ffmpc_ros.realtime``): the loop process and the MPC process."""
+    from ffmpc_ros.realtime import DEFAULT_PRIORITY, run_realtime
+
+    run = run_realtime(
+        params,
+        timeout=timeout,
+        domain=domain,
+        quiet=quiet,
+        cpus=cpus,
+        priority=DEFAULT_PRIORITY if priority is None else priority,
+        fault_windows=fault_windows,
+    )
+    s, timing = run.summary, run.summary["timing"]
+    loop = timing["loop"]
+    status = {
+        "done": 1.0,
+        "steps": s["cycles"],
+        "lockstep": 0.0,
+        "deadline_misses": loop["cycles"] - loop["deadlines_met"],
+        "wall_time": s["wall_time_s"],
+    }
+    return GraphResult(
+        formulation=scenario.mpc.formulation,
+        seed=scenario.seed,
+        single_process=False,
+        lockstep=False,
+        metrics_true=run.metrics_true,
+        metrics_measured=run.metrics_measured,
+        log=run.log,
+        sim_time=s["cycles"] * scenario.plant.time_step,
+        wall_time=s["wall_time_s"],
+        startup_time=run.startup_time,
+        plant_status=status,
+        timing=timing,
+        warnings=run.warnings,
     )
 
 

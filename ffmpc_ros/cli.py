@@ -164,7 +164,9 @@ def _add_study_arguments(p: argparse.ArgumentParser, seeds: int, pid: str) -> No
 
 def _cmd_run(args: argparse.Namespace) -> int:
     import json
+    import shlex
 
+    from ffmpc_core.errors import ConfigError
     from ffmpc_core.scenario import load_scenario
     from ffmpc_ros.bringup import run_graph
 
@@ -174,6 +176,21 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.seed is not None:
         overrides["seed"] = args.seed
     scenario = load_scenario(args.scenario, overrides)
+    cpus = "auto"
+    if args.cpus == "none":
+        cpus = None
+    elif args.cpus is not None:
+        try:
+            loop_cpu, mpc_cpu = (int(c) for c in args.cpus.split(","))
+        except ValueError:
+            raise ConfigError(
+                f"--cpus expects LOOP,MPC (two CPU numbers) or none, got {args.cpus!r}"
+            ) from None
+        cpus = (loop_cpu, mpc_cpu)
+    if (args.cpus is not None or args.priority is not None) and not args.real_time:
+        raise ConfigError("--cpus and --priority are real-time options (add --real-time)")
+    if args.priority is not None and not 0 <= args.priority <= 99:
+        raise ConfigError(f"--priority must be in 0..99, got {args.priority}")
     result = run_graph(
         scenario,
         duration=args.duration,
@@ -182,9 +199,36 @@ def _cmd_run(args: argparse.Namespace) -> int:
         timeout=args.timeout,
         quiet=not args.verbose,
         record=args.record,
+        fault_windows=[tuple(w) for w in args.fault_window or []],
+        cpus=cpus,
+        priority=args.priority,
     )
-    print(json.dumps(result.summary(), indent=2))
-    return 0
+    summary = result.summary()
+    summary["command_line"] = shlex.join(["ffmpc", *args.argv])
+    print(json.dumps(summary, indent=2))
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as fh:
+            json.dump(summary, fh, indent=2)
+    for warning in result.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+    t = result.timing or {}
+    fractions = t.get("deadline_met_fraction") or {}
+
+    def shown(value, fmt: str) -> str:
+        return "n/a" if value is None else format(value, fmt)
+
+    print(
+        f"timing ({summary['mode']}): deadlines met MPC {shown(fractions.get('mpc'), '.4f')}, "
+        f"loop {shown(fractions.get('loop'), '.4f')}; latency p50/p99/max "
+        f"{shown(t.get('latency_p50_ms'), '.3f')}/{shown(t.get('latency_p99_ms'), '.3f')}/"
+        f"{shown(t.get('latency_max_ms'), '.3f')} ms; fallback "
+        f"{shown(t.get('fallback_time_s'), '.3f')} s",
+        file=sys.stderr,  # stdout stays one JSON document
+    )
+    failures = result.timing_failures()
+    for failure in failures:
+        print(f"FAILED: {failure}", file=sys.stderr)
+    return 1 if failures else 0
 
 
 def _cmd_study_impact(args: argparse.Namespace) -> int:
@@ -395,12 +439,19 @@ def build_parser() -> argparse.ArgumentParser:
         help="run a scenario on the ROS 2 node graph and print its metrics",
         description="Start the plant, joint-sensor, F/T-sensor, MPC and PID nodes (each its own "
         "process, or all in this one with --single-process) and a metrics node, run the "
-        "scenario in lockstep simulated time (or real time) and print the study metrics, "
-        "computed with the same code as the ROS-free runner.",
+        "scenario in lockstep simulated time and print the study metrics, computed with the "
+        "same code as the ROS-free runner. --real-time runs the loop nodes (plant, sensors, "
+        "PID) composed in one process at 1 kHz on the wall clock and the MPC node in another "
+        "at its own rate (ffmpc_ros/realtime.py). Both modes print the fraction of MPC and "
+        "loop deadlines met, latency percentiles and the time in fallback; exit 1 when more "
+        "than 1 % of either kind of deadline was missed or the loop fell back outside a "
+        "--fault-window.",
     )
     run.add_argument("scenario", help="a shipped scenario name or a scenario YAML path")
     run.add_argument("--single-process", action="store_true", help="all nodes on one executor")
-    run.add_argument("--real-time", action="store_true", help="plant on the wall clock")
+    run.add_argument(
+        "--real-time", action="store_true", help="1 kHz loop and MPC on the wall clock"
+    )
     run.add_argument("--duration", type=float, default=None, help="simulated s (default: task)")
     run.add_argument("--formulation", choices=STUDY_FORMULATIONS, default=None)
     run.add_argument("--seed", type=int, default=None)
@@ -409,6 +460,33 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--verbose", action="store_true", help="show the nodes' output")
     run.add_argument(
         "--record", metavar="PATH", help="record the run (every topic and parameter) to a bag"
+    )
+    run.add_argument(
+        "--json",
+        metavar="FILE",
+        help="write the summary (metrics_true, metrics_measured, deadline_met_fraction, "
+        "fallback_time_s, latency_p50/p99/max_ms, timing details) to FILE",
+    )
+    run.add_argument(
+        "--cpus",
+        metavar="LOOP,MPC",
+        help="real time: pin the loop and the MPC process to these CPUs (default: the first "
+        "two CPUs; 'none': no pinning)",
+    )
+    run.add_argument(
+        "--priority",
+        type=int,
+        default=None,
+        help="real time: SCHED_FIFO priority of both processes, 1-99 (default 80 where "
+        "permitted: root or CAP_SYS_NICE; 0: normal scheduling)",
+    )
+    run.add_argument(
+        "--fault-window",
+        nargs=2,
+        type=float,
+        action="append",
+        metavar=("START", "END"),
+        help="simulated s of an injected fault: fallback inside it is excused (repeatable)",
     )
     run.set_defaults(func=_cmd_run)
     from ffmpc_ros.bag.cli import add_bag_parser

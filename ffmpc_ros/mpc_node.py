@@ -5,8 +5,11 @@ Subscribes ``/joint_sensor/joint_states`` (q̂, q̇̂, τ̂) and, for force-feed
 
 It solves at cycle k once it has the measurements OF cycle k (joint state, and the wrench with
 the same stamp for force-feedback) and at least ``period`` has passed since the last solve: in
-lockstep that is every ``period / time_step`` cycles from k = 0, as the ROS-free runner does; in
-real time it is the first complete cycle after each period. The command carries the
+lockstep that is every ``period / time_step`` cycles from k = 0, as the ROS-free runner does. In
+real time (``lockstep: false``) it solves on the ticks k = j·period/time_step only, on the
+newest complete one (a tick that arrives while a solve runs is skipped): the node warms up
+(``WARM_UP_SOLVES`` solves, then ``reset``) before it subscribes, and runs without an executor
+(``spin_realtime``: a wait set over its inputs, newest sample taken). The command carries the
 measurement's time t_k; the solver's wall time is reported but never used for control.
 
 Learned contact (force-feedback only; parameter ``use_learned_contact``, default off, so the
@@ -23,6 +26,10 @@ lockstep cycle: one applies from the first solve after its arrival.
 
 from __future__ import annotations
 
+import contextlib
+import gc
+
+import numpy as np
 from geometry_msgs.msg import WrenchStamped
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
@@ -36,6 +43,7 @@ from ffmpc_ros.base import StudyNode, run_node
 from ffmpc_ros.impact_common import DIRECTION_TOLERANCE, confident, receive_estimate
 
 _KEEP = 20  # cycles of unmatched measurements kept
+WARM_UP_SOLVES = 20  # real time: solves before the node subscribes to its inputs
 
 
 class MpcNode(StudyNode):
@@ -55,13 +63,20 @@ class MpcNode(StudyNode):
         self._last_solve: int | None = None
         self.sequence = 0
         self.solve_times: list[float] = []
+        self.lockstep = bool(self.params["lockstep"])
+        if not self.lockstep:
+            self.warm_up()
         self.publisher = self.create_publisher(
             Float64MultiArray, topics.MPC_COMMAND, topics.publisher_qos()
         )
-        qos = topics.subscriber_qos(True)
-        self.create_subscription(JointState, topics.SENSED_JOINT_STATES, self.on_joints, qos)
+        qos = topics.subscriber_qos(self.lockstep)
+        self.inputs = [
+            self.create_subscription(JointState, topics.SENSED_JOINT_STATES, self.on_joints, qos)
+        ]
         if self.needs_force:
-            self.create_subscription(WrenchStamped, topics.SENSED_WRENCH, self.on_wrench, qos)
+            self.inputs.append(
+                self.create_subscription(WrenchStamped, topics.SENSED_WRENCH, self.on_wrench, qos)
+            )
         self.use_learned_contact = bool(self.params["use_learned_contact"])
         self.learner_min_samples = int(self.params["learner_min_samples"])
         self.learner_max_relative_std = float(self.params["learner_max_relative_std"])
@@ -73,7 +88,7 @@ class MpcNode(StudyNode):
             self.contact_stiffness = contact.stiffness_vector().copy()  # N/m, per force entry
             self.contact_damping = contact.damping_vector().copy()  # N·s/m
             self._learned_entry = 0 if contact.dimension == 1 else contact.normal_axis
-            self.create_subscription(
+            self.estimates = self.create_subscription(
                 Float64MultiArray,
                 topics.CONTACT_ESTIMATE,
                 self.on_estimate,
@@ -138,7 +153,71 @@ class MpcNode(StudyNode):
         )
 
     def _due(self, k: int) -> bool:
+        if not self.lockstep:  # real time: the ticks k = j·every, the newest one
+            return k % self.every == 0 and (self._last_solve is None or k > self._last_solve)
         return self._last_solve is None or k - self._last_solve >= self.every
+
+    # -- real time ----------------------------------------------------------------------------
+    def warm_up(self, solves: int = WARM_UP_SOLVES) -> None:
+        """Real time: solve a few times from the start posture (t = 0), then forget it all
+        (``reset``): the first real solve then runs warm code, not a cold start."""
+        nv = self.robot.nv
+        q = self.robot.q_nominal
+        meas = MpcMeasurement(
+            q=q.copy(),
+            v=np.zeros(nv),
+            force=np.zeros(self.config.contact.dimension) if self.needs_force else None,
+            torque=self.robot.gravity(q),
+        )
+        for _ in range(solves):
+            self.mpc.reset()
+            self.mpc.step(meas, 0.0)
+        self.mpc.reset()
+
+    def _is_tick(self, stamp) -> bool:
+        """Real time: whether a stamp is an MPC tick (other cycles are not parsed at all)."""
+        k = self.cycle_of(stamp)
+        return k is None or k % self.every == 0  # (off-grid stamps: rejected by the handler)
+
+    def spin_realtime(self) -> None:
+        """Real time, instead of an executor: block on a wait set over the inputs, take the
+        newest sample of each topic (older ones are worthless) and solve when it completes a
+        tick; until the context shuts down (SIGINT). The collector is frozen and disabled.
+        /clock is not taken: the node's clock stays at 0, so no input is rejected as stale by
+        age (the newest sample is used, and the loop process times every command)."""
+        from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+
+        gc.collect()
+        gc.freeze()
+        gc.disable()
+        # (subscription, handler, only on MPC ticks): measurements, then the learner's estimate
+        inputs = [
+            (sub, handler, True)
+            for sub, handler in zip(self.inputs, (self.on_joints, self.on_wrench), strict=False)
+        ]
+        if self.use_learned_contact:
+            inputs.append((self.estimates, self.on_estimate, False))
+        with contextlib.ExitStack() as stack:
+            for sub, _, _ in inputs:
+                stack.enter_context(sub.handle)
+            stack.enter_context(self.context.handle)
+            wait_set = _rclpy.WaitSet(len(inputs), 0, 0, 0, 0, 0, self.context.handle)
+            while self.context.ok():
+                wait_set.clear_entities()
+                for sub, _, _ in inputs:
+                    wait_set.add_subscription(sub.handle)
+                try:
+                    wait_set.wait(100_000_000)  # ns
+                except Exception:  # noqa: BLE001  (the context shut down while waiting)
+                    break
+                for sub, handler, ticks_only in inputs:
+                    newest = None
+                    while (taken := sub.handle.take_message(sub.msg_type, sub.raw)) is not None:
+                        newest = taken[0]
+                    if newest is None or (ticks_only and not self._is_tick(newest.header.stamp)):
+                        continue
+                    handler(newest)
+        gc.enable()
 
     def _try_solve(self, k: int) -> None:
         for store in (self._joints, self._forces):

@@ -342,7 +342,7 @@ NODE_SPECS: dict[str, NodeSpec] = {
         "mpc",
         ("robot", "task.*"),
         _TIME_STEP + ("pid.delay_cycles",),
-        (MAX_AGE, USE_LEARNED_CONTACT, LEARNER_MIN_SAMPLES, LEARNER_MAX_RELATIVE_STD),
+        (LOCKSTEP, MAX_AGE, USE_LEARNED_CONTACT, LEARNER_MIN_SAMPLES, LEARNER_MAX_RELATIVE_STD),
     ),
     "pid": NodeSpec(
         "pid",

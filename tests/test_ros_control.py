@@ -179,3 +179,40 @@ def test_pid_node_rejects_bad_commands_and_saturates(ros, robot):
     assert ros.spin_until(lambda: len(motor) == len(desired) == 1 and node.rejected.total() == 6)
     np.testing.assert_array_equal(desired[0].effort, robot.torque_limit)
     assert np.all(np.abs(motor[0].effort) <= robot.torque_limit)
+
+
+def test_mpc_node_real_time_path_solves_on_ticks_only(ros, robot):
+    """``lockstep: false``: the node warms up, then ``spin_realtime`` (its own wait set, no
+    executor) solves on the MPC ticks (k = 0, 2, 4 …) only and ignores the cycles between."""
+    import os
+    import threading
+
+    import rclpy
+    from rclpy.context import Context
+
+    scenario = load_scenario("polishing", {"mpc.formulation": "classical"})
+    context = Context()
+    rclpy.init(context=context, domain_id=int(os.environ["ROS_DOMAIN_ID"]))
+    node = MpcNode(context=context, parameter_overrides=overrides("mpc", scenario, lockstep=False))
+    spinner = threading.Thread(target=node.spin_realtime, daemon=True)
+    spinner.start()
+    try:
+        probe = ros.probe()
+        out = recorder(probe, Float64MultiArray, topics.MPC_COMMAND)
+        pub = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
+        assert ros.spin_until(lambda: pub.get_subscription_count() > 0, timeout=10)
+        q, v, tau, _ = _measurements(robot, 6)
+        for k in (1, 2, 3, 4, 5):
+            pub.publish(joint_state(node, k, q[k], v[k], tau[k]))
+            done = ros.spin_until(lambda k=k: len(out) == k // 2, timeout=10)
+            ros.spin_for(0.05)  # an odd cycle would have been solved by now
+            assert done and len(out) == k // 2, k
+        got = [layouts.MPC_COMMAND.unpack(m, 7) for m in out]
+        assert [g["t"] for g in got] == [0.002, 0.004] and [g["sequence"] for g in got] == [0, 1]
+        assert all(np.all(np.isfinite(g["torque"])) for g in got)
+        assert node.mpc.nx == 14 and len(node.solve_times) == 2
+    finally:
+        rclpy.shutdown(context=context)
+        spinner.join(timeout=5)
+        assert not spinner.is_alive()
+        node.destroy_node()

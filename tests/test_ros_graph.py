@@ -1,8 +1,7 @@
 """The whole node graph against the ROS-free runner: in lockstep, single-process and
 multi-process, every logged signal and both metric sets are bit-identical to ``run_scenario``
 for the same scenario and seed (same objects, same float64 inputs — CDR carries doubles
-exactly —, same times t = k·time_step, same generators). Real-time mode runs and reports its
-deadline misses and latencies."""
+exactly —, same times t = k·time_step, same generators). Real time: tests/test_realtime.py."""
 
 from __future__ import annotations
 
@@ -44,15 +43,15 @@ def test_multi_process_graph_equals_the_runner():
     _assert_same_run(graph, runner)
 
 
-def test_real_time_graph_runs_on_the_wall_clock_and_counts_misses():
+def test_real_time_refuses_the_lockstep_only_options():
+    """Real time has its own execution model (ffmpc_ros.realtime, tested in test_realtime.py)."""
+    from ffmpc_core.errors import ConfigError
+
     scenario = load_scenario("polishing", {"mpc.formulation": "classical"})
-    graph = run_graph(scenario, duration=0.2, single_process=True, lockstep=False, timeout=60)
-    status = graph.plant_status
-    assert status["lockstep"] == 0.0 and status["steps"] == 200
-    assert 0 <= status["deadline_misses"] <= 200 and status["latency_count"] > 0
-    assert status["wall_time"] >= 0.19  # paced by the wall clock
-    assert np.all(np.isfinite(graph.log["tau_motor"]))
-    assert np.isfinite(graph.metrics_true.position_mae_mm)
+    with pytest.raises(ConfigError, match="two processes"):
+        run_graph(scenario, duration=0.2, single_process=True, lockstep=False)
+    with pytest.raises(ConfigError, match="two processes"):
+        run_graph(scenario, duration=0.2, lockstep=False, record="/tmp/never_written.mcap")
 
 
 def test_generated_parameter_file_is_a_ros_parameter_file(tmp_path):

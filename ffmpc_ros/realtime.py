@@ -1,0 +1,885 @@
+"""Real-time mode: the 1 kHz loop and the 500 Hz MPC on the wall clock, deadlines measured.
+
+Execution model (chosen by measurement on the 2-core machine, see the README):
+
+* **the loop process** composes the ``plant``, ``joint_sensor``, ``ft_sensor`` and ``pid`` ROS
+  nodes in one process, as ROS 2 components with intra-process communication would be: four
+  rclpy nodes with their own names, parameters and publishers, but the edges between them
+  (plant → sensor models → torque loop → actuation → plant) are direct calls, not DDS. One
+  thread runs the loop on an absolute wall-clock schedule (cycle k is released at
+  t0 + k·time_step; sleep to ~``SPIN_MARGIN`` before the release, then busy-wait), with no
+  executor on the hot path: the MPC commands are taken straight from the subscription
+  (``take_message``, ~2 µs when empty). The garbage collector is frozen and disabled for the run.
+* **the MPC process** is the ordinary ``mpc`` node (``ffmpc_ros.mpc_node``) with
+  ``lockstep: false``: it blocks on a wait set over its inputs (no executor), solves on the
+  newest measurement of each MPC tick and publishes ``/mpc/command``.
+* They talk over ROS topics: ``/joint_sensor/joint_states`` and ``/ft_sensor/wrench`` (loop →
+  MPC, every cycle), ``/mpc/command`` (MPC → loop) and ``/clock``. The observer topics
+  (``/plant/*``, ``/pid/*``) are published only while something subscribes to them.
+* Optional scheduling: each process pinned to one core (``cpus``) and/or ``SCHED_FIFO`` at
+  ``priority`` (root or CAP_SYS_NICE; the kernel's RT throttling still leaves 5 % to others).
+
+Deadlines (every time below is wall time, measured with ``time.perf_counter``):
+
+* **loop** — cycle k is released at r_k = t0 + k·Δt (Δt = ``plant.time_step``). Its deadline
+  is met when, by r_{k+1}, it has run the sensor models on the state of t_k, published the
+  measurement, taken the MPC commands that arrived, computed τ^m (hold/blend/track/fallback +
+  PID), applied it through the actuation model and stepped the plant to t_{k+1}: the torque of
+  cycle k is applied before the plant's step k+1 is due. A late cycle starts at once when the
+  previous one ends (the plant never skips a step), so a stall shows as several missed cycles.
+  The **cycle latency** is the time from r_k to the end of that work (so it includes the
+  wake-up jitter).
+* **MPC** — every ``mpc.period`` (a tick: cycles k with k % (period/Δt) = 0) the MPC must solve
+  from the measurement of cycle k and its command must be in the loop when it takes commands
+  in cycle k + period/Δt (just after publishing that cycle's measurement), i.e. within one MPC
+  period. A tick that is never solved (the MPC was still busy) is a miss. The MPC latency
+  reported is the wall time from publishing the measurement of a tick to the loop taking its
+  command, so it is quantised by the 1 ms cycle.
+* **Fixed latency (logical execution time).** A command solved from cycle k is applied at
+  cycle k + period/Δt — not earlier even if it is in sooner — so its latency is fixed, as in
+  lockstep. The scenario's δo (``pid.delay_cycles``) is the end-to-end delay of the
+  lockstep model: here period/Δt cycles of it are real (the MPC's deadline) and the torque
+  PID's delay line models the rest (δo − period, never negative; with δo < period the real
+  delay is one period). A late command is applied when it arrives.
+* **fallback time** — simulated time the loop spends in ``LowLevelMode.FALLBACK`` (its input
+  older than ``pid.stale_timeout``), minus what falls inside a fault window (a list of
+  (start, end) simulated seconds during which a fault is injected on purpose: the hook for
+  fault injection, :func:`fallback_time`).
+
+``ffmpc run --real-time`` exits non-zero when more than :data:`MAX_MISSED_FRACTION` of either
+kind of deadline was missed or any fallback time falls outside the fault windows.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import ctypes
+import gc
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import rclpy
+from builtin_interfaces.msg import Time as TimeMsg
+from geometry_msgs.msg import WrenchStamped
+from rclpy.context import Context
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock as ClockMsg
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+
+from ffmpc_core.errors import FfmpcError, InputError
+from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement, LowLevelMode
+from ffmpc_core.metrics import PolishingMetrics
+from ffmpc_core.robots import load_robot
+from ffmpc_core.study import (
+    StudyLog,
+    actuation_model,
+    build_task,
+    device_generator,
+    draw_run,
+    force_sensing_model,
+    joint_sensing_model,
+    lowlevel_controller,
+    measured_force,
+    steps_per_mpc_period,
+    study_metrics,
+)
+from ffmpc_ros import layouts, topics
+from ffmpc_ros.base import StudyNode
+from ffmpc_ros.params import parameter_overrides
+
+#: A run fails when more than this fraction of the loop's or the MPC's deadlines was missed.
+MAX_MISSED_FRACTION = 0.01
+#: The loop sleeps until this long before a release, then busy-waits, s.
+SPIN_MARGIN = 2.0e-4
+#: How often the loop re-checks who subscribes to its observer topics, cycles.
+SUBSCRIBER_CHECK_EVERY = 100
+#: SCHED_FIFO priority of both processes by default (where permitted; 0: normal scheduling).
+DEFAULT_PRIORITY = 80
+#: Wall time the loop process waits for the MPC to appear, s.
+MPC_WAIT = 120.0
+
+#: Environment variables set to 1 in both processes (unless set): BLAS and OpenMP thread pools
+#: spin on the other core and steal it from the other process.
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+FaultWindows = Sequence[tuple[float, float]]
+
+
+class RealtimeError(FfmpcError):
+    """The real-time run could not start or finish (a process died, a time limit passed)."""
+
+
+# -- statistics ---------------------------------------------------------------------------------
+def fallback_time(
+    modes: np.ndarray, time_step: float, fault_windows: FaultWindows = ()
+) -> tuple[float, float]:
+    """(unexcused, excused) simulated seconds in FALLBACK: cycle k (t_k = k·time_step) counts
+    time_step; it is excused when t_k lies in a fault window [start, end] (s)."""
+    modes = np.asarray(modes)
+    fallback = modes == int(LowLevelMode.FALLBACK)
+    t = np.arange(modes.size) * time_step
+    excused = np.zeros(modes.size, dtype=bool)
+    for start, end in fault_windows:
+        if not (math.isfinite(start) and math.isfinite(end)) or end < start:
+            raise InputError(f"fault window ({start}, {end}) must be finite with end >= start")
+        excused |= (t >= start - 1e-12) & (t <= end + 1e-12)
+    return (
+        float(np.count_nonzero(fallback & ~excused)) * time_step,
+        float(np.count_nonzero(fallback & excused)) * time_step,
+    )
+
+
+def percentiles_ms(values: np.ndarray) -> dict[str, float | None]:
+    """p50, p99 and max of durations in s, as ms (None when there are none)."""
+    values = np.asarray(values, dtype=float)
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        return {"p50_ms": None, "p99_ms": None, "max_ms": None}
+    return {
+        "p50_ms": float(np.percentile(values, 50) * 1e3),
+        "p99_ms": float(np.percentile(values, 99) * 1e3),
+        "max_ms": float(values.max() * 1e3),
+    }
+
+
+def timing_report(
+    *,
+    time_step: float,
+    every: int,
+    cycle_latency: np.ndarray,
+    modes: np.ndarray,
+    command_arrival: np.ndarray,
+    command_latency: np.ndarray,
+    solve_times: np.ndarray,
+    fault_windows: FaultWindows = (),
+) -> dict:
+    """The deadline statistics of a run (see the module docstring for the definitions).
+
+    Args:
+        time_step: Δt, s. every: cycles per MPC period.
+        cycle_latency: per cycle, wall time from its release to the end of its work, s.
+        modes: per cycle, the LowLevelMode of the loop.
+        command_arrival: per cycle k, the cycle at whose start the command solved from cycle k
+            was taken (−1: none).
+        command_latency: per cycle k, wall time from publishing the measurement of k to taking
+            its command, s (nan: none).
+        solve_times: the solve times the commands reported, s.
+    """
+    cycles = cycle_latency.size
+    loop_met = int(np.count_nonzero(cycle_latency <= time_step))
+    ticks = np.arange(0, cycles, every)
+    ticks = ticks[ticks + every < cycles]  # ticks whose deadline falls inside the run
+    arrival = command_arrival[ticks]
+    mpc_met = int(np.count_nonzero((arrival >= 0) & (arrival <= ticks + every)))
+    unexcused, excused = fallback_time(modes, time_step, fault_windows)
+    loop = {
+        "cycles": cycles,
+        "deadlines_met": loop_met,
+        "deadline_met_fraction": loop_met / cycles if cycles else None,
+        **{f"latency_{k}": v for k, v in percentiles_ms(cycle_latency).items()},
+    }
+    mpc = {
+        "ticks": int(ticks.size),
+        "solved": int(np.count_nonzero(arrival >= 0)),
+        "deadlines_met": mpc_met,
+        "deadline_met_fraction": mpc_met / ticks.size if ticks.size else None,
+        **{f"latency_{k}": v for k, v in percentiles_ms(command_latency[ticks]).items()},
+        **{f"solve_{k}": v for k, v in percentiles_ms(solve_times).items()},
+    }
+    return {
+        "deadline_met_fraction": {
+            "mpc": mpc["deadline_met_fraction"],
+            "loop": loop["deadline_met_fraction"],
+        },
+        "fallback_time_s": unexcused,
+        "fallback_excused_s": excused,
+        "fault_windows": [list(map(float, w)) for w in fault_windows],
+        "latency_p50_ms": loop["latency_p50_ms"],
+        "latency_p99_ms": loop["latency_p99_ms"],
+        "latency_max_ms": loop["latency_max_ms"],
+        "loop": loop,
+        "mpc": mpc,
+    }
+
+
+def timing_failures(timing: dict, max_missed: float = MAX_MISSED_FRACTION) -> list[str]:
+    """Why a run's timing fails (empty: it passes): a deadline fraction below 1 − max_missed
+    (or unknown), or fallback time outside the fault windows."""
+    out = []
+    for kind, fraction in timing["deadline_met_fraction"].items():
+        if fraction is None or fraction < 1.0 - max_missed:
+            shown = "unknown" if fraction is None else f"{fraction:.4f}"
+            out.append(f"{kind} deadlines met {shown} < {1.0 - max_missed:.2f}")
+    if timing["fallback_time_s"] > 0.0:
+        out.append(f"{timing['fallback_time_s']:.3f} s in fallback outside fault windows")
+    return out
+
+
+# -- scheduling ---------------------------------------------------------------------------------
+def set_timer_slack(ns: int = 1000) -> bool:
+    """Linux: timer slack of this thread, ns (default 50 µs makes every sleep late)."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        return libc.prctl(29, ctypes.c_ulong(ns), 0, 0, 0) == 0  # PR_SET_TIMERSLACK
+    except (OSError, AttributeError):
+        return False
+
+
+def apply_scheduling(pid: int, cpu: int | None, priority: int) -> list[str]:
+    """Pin process ``pid`` (0: this one) to ``cpu`` and give it SCHED_FIFO ``priority`` (0:
+    leave the normal policy). Returns warnings for what could not be applied."""
+    warnings = []
+    if cpu is not None:
+        try:
+            os.sched_setaffinity(pid, {cpu})
+        except OSError as exc:
+            warnings.append(f"cannot pin to CPU {cpu}: {exc}")
+    if priority > 0:
+        try:
+            os.sched_setscheduler(pid, os.SCHED_FIFO, os.sched_param(priority))
+        except (OSError, PermissionError) as exc:
+            warnings.append(f"cannot use SCHED_FIFO {priority}: {exc}")
+    return warnings
+
+
+def raise_helper_threads() -> list[str]:
+    """Under SCHED_FIFO: give every other thread of this process (the middleware's receive and
+    event threads) one priority level above the calling thread. At equal priority they would
+    run only while the loop thread sleeps, so a command that arrived in time could wait
+    past the cycle that needs it. Returns warnings."""
+    if os.sched_getscheduler(0) != os.SCHED_FIFO:
+        return []
+    me = threading.get_native_id()
+    level = min(os.sched_getparam(0).sched_priority + 1, 99)
+    warnings = []
+    for tid in os.listdir("/proc/self/task"):
+        if int(tid) == me:
+            continue
+        try:
+            os.sched_setscheduler(int(tid), os.SCHED_FIFO, os.sched_param(level))
+        except OSError as exc:  # the thread may have ended
+            warnings.append(f"thread {tid}: {exc}")
+    return warnings
+
+
+def default_cpus() -> tuple[int, int] | None:
+    """(loop CPU, MPC CPU): the first two CPUs this process may use (None with fewer)."""
+    allowed = sorted(os.sched_getaffinity(0))
+    return (allowed[0], allowed[1]) if len(allowed) >= 2 else None
+
+
+def _die_with_parent() -> None:
+    """In a child before exec: SIGINT when the parent dies (no orphan survives a killed run)."""
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGINT, 0, 0, 0)  # PR_SET_PDEATHSIG
+
+
+def sleep_until(deadline: float) -> None:
+    """Sleep until ``SPIN_MARGIN`` before ``deadline`` (perf_counter s), then busy-wait."""
+    remaining = deadline - time.perf_counter()
+    if remaining > SPIN_MARGIN:
+        time.sleep(remaining - SPIN_MARGIN)
+    while time.perf_counter() < deadline:
+        pass
+
+
+# -- the loop process ---------------------------------------------------------------------------
+def _stamp(k: int, step_ns: int) -> TimeMsg:
+    sec, nanosec = divmod(k * step_ns, 1_000_000_000)
+    return TimeMsg(sec=int(sec), nanosec=int(nanosec))
+
+
+def command_qos() -> QoSProfile:
+    """/mpc/command in the loop process: reliable, every command kept until taken."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=topics.PUBLISHER_DEPTH,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.VOLATILE,
+    )
+
+
+class RealtimeLoop:
+    """The plant, sensor and PID nodes composed in one process, run on the wall clock.
+
+    Args:
+        params: {node: {ROS name: value}} of ``plant``, ``joint_sensor``, ``ft_sensor``, ``pid``
+            (``ffmpc_ros.bringup.graph_parameters``; the plant's ``duration`` and
+            ``start_delay`` are used).
+        context: the rclpy context.
+    """
+
+    def __init__(self, params: dict[str, dict], context: Context) -> None:
+        def node(name: str) -> StudyNode:
+            return StudyNode(
+                name, context=context, parameter_overrides=parameter_overrides(params[name])
+            )
+
+        self.context = context
+        self.nodes = {n: node(n) for n in ("plant", "joint_sensor", "ft_sensor", "pid")}
+        plant_node = self.nodes["plant"]
+        s = plant_node.scenario
+        self.scenario = s
+        robot = self.robot = load_robot(s.robot)
+        self.joint_names = list(robot.joint_names)
+        self.time_step = plant_node.time_step
+        self.step_ns = plant_node.step_ns
+        # plant (as sim_bridge.node.PlantNode)
+        from sim_bridge.plant import Plant
+        from sim_bridge.runner import plant_config
+
+        self.draws = draw_run(s, robot, device_generator(s.seed, "draws"))
+        self.task = build_task(s, robot)
+        self.actuation = actuation_model(
+            s, robot, self.draws, device_generator(s.seed, "actuation")
+        )
+        self.plant = Plant(robot, plant_config(s, self.task, self.draws.tilt_angle))
+        self.plant.reset(robot.q_nominal)
+        duration = float(plant_node.params["duration"]) or self.task.duration
+        self.steps = int(round(duration / self.time_step))
+        p = s.plant
+        self.push_at = int(round(p.push_time / self.time_step)) if p.push_enabled else -1
+        self.push_steps = int(round(p.push_duration / self.time_step))
+        self.start_delay = float(plant_node.params["start_delay"])
+        # sensors (as JointSensorNode, FtSensorNode)
+        js = self.nodes["joint_sensor"].scenario
+        self.joint_model = joint_sensing_model(
+            js, robot.nv, device_generator(js.seed, "joint_sensor")
+        )
+        ft = self.nodes["ft_sensor"].scenario
+        self.contact = ft.mpc.contact
+        self.force_model = force_sensing_model(ft, device_generator(ft.seed, "force_sensor"))
+        self.force_axes = [self.contact.normal_axis] if self.contact.dimension == 1 else [0, 1, 2]
+        # torque loop (as PidNode), with the fixed MPC latency taken out of the δo delay line
+        ps = self.nodes["pid"].scenario
+        self.every = steps_per_mpc_period(ps)
+        self.modelled_delay_cycles = max(0, ps.pid.delay_cycles - self.every)
+        ps = ps.with_overrides({"pid.delay_cycles": self.modelled_delay_cycles})
+        self.lowlevel = lowlevel_controller(ps, robot)
+        self.needs_force = ps.mpc.riccati_feedback and ps.mpc.formulation == "force_feedback"
+
+        pn, jn, fn, cn = (self.nodes[n] for n in ("plant", "joint_sensor", "ft_sensor", "pid"))
+        qos = topics.publisher_qos()
+        self.pub_clock = pn.create_publisher(ClockMsg, topics.CLOCK, topics.clock_qos())
+        self.pub_plant_joints = pn.create_publisher(JointState, topics.PLANT_JOINT_STATES, qos)
+        self.pub_plant_wrench = pn.create_publisher(WrenchStamped, topics.PLANT_WRENCH, qos)
+        self.pub_truth = pn.create_publisher(Float64MultiArray, topics.PLANT_TRUTH, qos)
+        self.pub_status = pn.create_publisher(Float64MultiArray, topics.PLANT_STATUS, qos)
+        self.pub_joints = jn.create_publisher(JointState, topics.SENSED_JOINT_STATES, qos)
+        self.pub_wrench = fn.create_publisher(WrenchStamped, topics.SENSED_WRENCH, qos)
+        self.pub_motor = cn.create_publisher(JointState, topics.MOTOR_TORQUE, qos)
+        self.pub_desired = cn.create_publisher(JointState, topics.DESIRED_TORQUE, qos)
+        self.pub_pid_status = cn.create_publisher(Float64MultiArray, topics.LOWLEVEL_STATUS, qos)
+        self.sub_command = cn.create_subscription(
+            Float64MultiArray, topics.MPC_COMMAND, lambda _msg: None, command_qos()
+        )
+        self._active: dict[str, bool] = {}
+        self._pending: dict[int, LowLevelCommand] = {}
+        self.rejected: dict[str, int] = {}
+
+    # -- helpers ---------------------------------------------------------------------------------
+    def _refresh_subscribers(self) -> None:
+        pubs = {
+            "clock": self.pub_clock,
+            "plant_joints": self.pub_plant_joints,
+            "plant_wrench": self.pub_plant_wrench,
+            "truth": self.pub_truth,
+            "joints": self.pub_joints,
+            "wrench": self.pub_wrench,
+            "motor": self.pub_motor,
+            "desired": self.pub_desired,
+            "pid_status": self.pub_pid_status,
+        }
+        self._active = {name: pub.get_subscription_count() > 0 for name, pub in pubs.items()}
+
+    def _reject(self, kind: str, message: str) -> None:
+        self.rejected[kind] = self.rejected.get(kind, 0) + 1
+        self.nodes["pid"].reject(kind, message)
+
+    def _take_commands(self, k: int, arrival: np.ndarray, latency: np.ndarray, sent, solve):
+        """Take every command that arrived; note the cycle at which each arrived."""
+        sub = self.sub_command
+        now = time.perf_counter()
+        while True:
+            with sub.handle:
+                taken = sub.handle.take_message(sub.msg_type, sub.raw)
+            if taken is None:
+                return
+            msg = taken[0]
+            nv = self.robot.nv
+            try:
+                fields = layouts.MPC_COMMAND.unpack(msg, nv)
+                if int(fields["nv"]) != nv or int(fields["nx"]) != self.lowlevel.nx:
+                    raise InputError(f"command for nv={fields['nv']:.0f}, nx={fields['nx']:.0f}")
+            except InputError as exc:
+                self._reject(f"{topics.MPC_COMMAND}:value", str(exc))
+                continue
+            kc = self.nodes["pid"].cycle_of_time(fields["t"])
+            if kc is None or kc > k or kc < 0 or kc >= self.steps or arrival[kc] >= 0:
+                self._reject(f"{topics.MPC_COMMAND}:stamp", f"command time {fields['t']} s")
+                continue
+            arrival[kc] = k
+            latency[kc] = now - sent[kc]
+            solve.append(float(fields["solve_time"]))
+            gain = fields["feedback_gain"].reshape(nv, self.lowlevel.nx)
+            self._pending[kc] = LowLevelCommand(fields["torque"], fields["state"], gain)
+
+    def _release_commands(self, k: int) -> None:
+        """Apply, in order, the commands solved at least one MPC period before cycle k."""
+        for kc in sorted(c for c in self._pending if c + self.every <= k):
+            command = self._pending.pop(kc)
+            try:
+                self.lowlevel.set_command(command, kc * self.time_step)
+            except InputError as exc:
+                self._reject(f"{topics.MPC_COMMAND}:value", str(exc))
+
+    def _joint_msg(self, stamp, q, v, effort) -> JointState:
+        msg = JointState()
+        msg.header.stamp = stamp
+        msg.name = self.joint_names
+        if q is not None:
+            msg.position = q.tolist()
+        if v is not None:
+            msg.velocity = v.tolist()
+        msg.effort = effort.tolist()
+        return msg
+
+    def _wrench_msg(self, stamp, force: np.ndarray, moment=None) -> WrenchStamped:
+        msg = WrenchStamped()
+        msg.header.stamp = stamp
+        msg.header.frame_id = topics.WRENCH_FRAME
+        f = msg.wrench.force
+        f.x, f.y, f.z = (float(x) for x in force)
+        if moment is not None:
+            m = msg.wrench.torque
+            m.x, m.y, m.z = (float(x) for x in moment)
+        return msg
+
+    def wait_for_mpc(self, limit: float = MPC_WAIT) -> None:
+        """Block until the MPC subscribes to the joint states and publishes commands, then
+        ``start_delay`` more (discovery settles both ways)."""
+        end = time.monotonic() + limit
+        while (
+            self.pub_joints.get_subscription_count() < 1
+            or self.sub_command.get_publisher_count() < 1
+        ):
+            if time.monotonic() > end:
+                raise RealtimeError(f"no MPC node appeared within {limit} s")
+            if not self.context.ok():
+                raise KeyboardInterrupt
+            time.sleep(0.01)
+        time.sleep(self.start_delay)
+
+    # -- the run ---------------------------------------------------------------------------------
+    def run(self) -> dict:
+        """Run every cycle on the wall clock; returns the raw per-cycle records."""
+        n, nv, dt = self.steps, self.robot.nv, self.time_step
+        rec = {
+            "q": np.zeros((n, nv)),
+            "force_true": np.zeros(n),
+            "force_measured": np.zeros(n),
+            "tau_desired": np.zeros((n, nv)),
+            "tau_measured": np.zeros((n, nv)),
+            "tau_motor": np.zeros((n, nv)),
+            "mode": np.zeros(n, dtype=np.int8),
+            "cycle_latency": np.zeros(n),
+            "command_arrival": np.full(n, -1, dtype=np.int64),
+            "command_latency": np.full(n, np.nan),
+            "published": np.zeros(n),
+        }
+        solve_times: list[float] = []
+        tau_hat = self.robot.gravity(self.robot.q_nominal)  # the motors hold the robot at start
+        last_motor = tau_hat.copy()
+        state = self.plant.state()
+        contact = self.contact
+        gc.collect()
+        gc.freeze()
+        gc.disable()
+        set_timer_slack()
+        pid_node = self.nodes["pid"]
+        try:
+            t0 = time.perf_counter() + 0.01
+            for k in range(n):
+                release = t0 + k * dt
+                sleep_until(release)
+                if k % SUBSCRIBER_CHECK_EVERY == 0:
+                    if not self.context.ok():  # SIGINT (rclpy's handler shuts the context)
+                        raise KeyboardInterrupt
+                    self._refresh_subscribers()
+                act = self._active
+                t = k * dt
+                stamp = _stamp(k, self.step_ns)
+                # sensing (eq 30, 32) and the measurement the MPC reads, first: the MPC's time
+                q_hat, v_hat, _ = self.joint_model.step(state.q, state.v)
+                f_hat = self.force_model.step(measured_force(state.wrench_world, contact))
+                if act["clock"]:
+                    self.pub_clock.publish(ClockMsg(clock=stamp))
+                self.pub_joints.publish(self._joint_msg(stamp, q_hat, v_hat, tau_hat))
+                if act["wrench"]:
+                    full = [0.0, 0.0, 0.0]
+                    for axis, value in zip(self.force_axes, f_hat, strict=True):
+                        full[axis] = float(value)
+                    self.pub_wrench.publish(self._wrench_msg(stamp, full))
+                rec["published"][k] = time.perf_counter()
+                self._take_commands(
+                    k, rec["command_arrival"], rec["command_latency"], rec["published"], solve_times
+                )
+                self._release_commands(k)
+                # the torque loop, actuation (eq 31) and one physics step
+                try:
+                    out = self.lowlevel.step(LowLevelMeasurement(q_hat, v_hat, tau_hat, f_hat), t)
+                except InputError as exc:  # keeps the previous motor torque
+                    self._reject("step", f"cycle {k}: {exc}")
+                    out = None
+                motor = out.motor_torque if out is not None else last_motor
+                last_motor = motor
+                if k == self.push_at:
+                    self.plant.apply_external_push(
+                        np.array(self.scenario.plant.push_force), self.push_steps
+                    )
+                q_true, force_true = state.q, state.normal_force
+                tau_hat = self.actuation.step(motor, state.v)
+                self.plant.step(tau_hat)
+                state = self.plant.state()
+                rec["cycle_latency"][k] = time.perf_counter() - release
+                # records and the observer topics (off the deadline)
+                rec["q"][k] = q_true
+                rec["force_true"][k] = force_true
+                rec["force_measured"][k] = f_hat[-1]
+                rec["tau_measured"][k] = tau_hat
+                rec["tau_motor"][k] = motor
+                if out is not None:
+                    rec["tau_desired"][k] = out.desired_torque
+                    rec["mode"][k] = int(out.mode)
+                else:
+                    rec["tau_desired"][k] = rec["tau_desired"][k - 1]
+                    rec["mode"][k] = rec["mode"][k - 1]
+                self._publish_observers(k, stamp, q_true, force_true, out, tau_hat, state)
+        finally:
+            gc.enable()
+            gc.unfreeze()
+        rec["solve_times"] = np.array(solve_times)
+        rec["wall_time"] = time.perf_counter() - t0
+        rec["table_normal"] = self.plant.table_normal
+        rec["rejected"] = dict(self.rejected) | {
+            k: v for k, v in pid_node.rejected.items() if k not in self.rejected
+        }
+        return rec
+
+    def _publish_observers(self, k, stamp, q_true, force_true, out, tau_hat, state) -> None:
+        """The topics no controller reads, only while someone subscribes."""
+        act = self._active
+        if act["plant_joints"] or act["plant_wrench"] or act["truth"]:
+            # /plant/* of cycle k+1 (the state after this step; effort: τ̂ applied over it)
+            nxt = _stamp(k + 1, self.step_ns)
+            if act["plant_joints"]:
+                self.pub_plant_joints.publish(self._joint_msg(nxt, state.q, state.v, tau_hat))
+            if act["plant_wrench"]:
+                w = state.wrench_world
+                self.pub_plant_wrench.publish(self._wrench_msg(nxt, w[:3], w[3:]))
+            if act["truth"]:
+                self.pub_truth.publish(
+                    layouts.PLANT_TRUTH.pack(
+                        {
+                            "t": (k + 1) * self.time_step,
+                            "normal_force": state.normal_force,
+                            "in_contact": float(state.in_contact),
+                            "robot_collision": float(state.robot_collision),
+                            "table_normal": self.plant.table_normal,
+                            "contact_position": state.contact_frame_position,
+                        }
+                    )
+                )
+        if out is None:
+            return
+        if act["motor"]:
+            self.pub_motor.publish(self._joint_msg(stamp, None, None, out.motor_torque))
+        if act["desired"]:
+            self.pub_desired.publish(self._joint_msg(stamp, None, None, out.desired_torque))
+        if act["pid_status"]:
+            age = out.command_age if np.isfinite(out.command_age) else 1e9
+            self.pub_pid_status.publish(
+                layouts.LOWLEVEL_STATUS.pack(
+                    {
+                        "t": k * self.time_step,
+                        "mode": float(out.mode),
+                        "command_age": age,
+                        "blend": out.blend,
+                        "rejected": float(sum(self.rejected.values())),
+                    }
+                )
+            )
+
+    def publish_status(self, rec: dict, timing: dict) -> None:
+        """The final /plant/status (latencies: cycle latency, s; misses: loop deadlines)."""
+        lat = rec["cycle_latency"]
+        loop = timing["loop"]
+        self.pub_status.publish(
+            layouts.PLANT_STATUS.pack(
+                {
+                    "t": self.steps * self.time_step,
+                    "steps": self.steps,
+                    "done": 1.0,
+                    "lockstep": 0.0,
+                    "deadline_misses": loop["cycles"] - loop["deadlines_met"],
+                    "latency_count": lat.size,
+                    "latency_mean": float(lat.mean()),
+                    "latency_p50": float(np.percentile(lat, 50)),
+                    "latency_p99": float(np.percentile(lat, 99)),
+                    "latency_max": float(lat.max()),
+                    "wall_time": rec["wall_time"],
+                }
+            )
+        )
+
+    def results(self, rec: dict, fault_windows: FaultWindows = ()) -> tuple[dict, dict]:
+        """(summary, log arrays): the study metrics (same code as the runner) and the timing;
+        the log has the runner's arrays plus, per cycle, ``mode`` (LowLevelMode),
+        ``cycle_latency`` (s) and ``command_arrival`` (the cycle at which the command solved
+        from this cycle was taken, −1 for none)."""
+        log = StudyLog(self.steps, self.robot, self.task)
+        for k in range(self.steps):
+            log.record(
+                k,
+                k * self.time_step,
+                rec["q"][k],
+                rec["force_true"][k],
+                rec["force_measured"][k],
+                rec["tau_desired"][k],
+                rec["tau_measured"][k],
+                rec["tau_motor"][k],
+            )
+        true, measured = study_metrics(log.arrays, self.task, rec["table_normal"])
+        timing = timing_report(
+            time_step=self.time_step,
+            every=self.every,
+            cycle_latency=rec["cycle_latency"],
+            modes=rec["mode"],
+            command_arrival=rec["command_arrival"],
+            command_latency=rec["command_latency"],
+            solve_times=rec["solve_times"],
+            fault_windows=fault_windows,
+        )
+        timing["mpc_fixed_latency_cycles"] = self.every
+        timing["pid_delay_line_cycles"] = self.modelled_delay_cycles
+        timing["mode_cycles"] = {
+            m.name.lower(): int(np.count_nonzero(rec["mode"] == int(m))) for m in LowLevelMode
+        }
+        timing["rejected"] = rec["rejected"]
+        arrays = dict(log.arrays)
+        for name in ("mode", "cycle_latency", "command_arrival"):  # the run's timing per cycle
+            arrays[name] = rec[name]
+        summary = {
+            "formulation": self.scenario.mpc.formulation,
+            "seed": self.scenario.seed,
+            "cycles": self.steps,
+            "metrics_true": true.to_dict(),
+            "metrics_measured": measured.to_dict(),
+            "wall_time_s": rec["wall_time"],
+            "timing": timing,
+        }
+        return summary, arrays
+
+    def close(self) -> None:
+        self.plant.close()
+        for node in self.nodes.values():
+            node.destroy_node()
+
+
+def loop_main(argv: Sequence[str] | None = None) -> int:
+    """The loop process: ``python -m ffmpc_ros.realtime --out PREFIX [--cpu C] [--priority P]
+    [--fault-window START END]... --ros-args --params-file FILE``. Writes PREFIX.json (summary)
+    and PREFIX.npz (log)."""
+    argv = list(sys.argv if argv is None else argv)
+    parser = argparse.ArgumentParser(prog="ffmpc-realtime-loop", description=loop_main.__doc__)
+    parser.add_argument("--out", required=True)
+    parser.add_argument("--fault-window", nargs=2, type=float, action="append", default=[])
+    user = rclpy.utilities.remove_ros_args(argv)[1:]
+    args = parser.parse_args(user)
+    context = Context()
+    rclpy.init(args=argv, context=context)
+    # SIGINT (Ctrl-C, the bring-up's stop, the parent's death) and SIGTERM end the run at once
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    loop = None
+    try:
+        loop = RealtimeLoop(_params_from_args(argv), context)
+        loop.wait_for_mpc()
+        raise_helper_threads()
+        rec = loop.run()
+        summary, log = loop.results(rec, [tuple(w) for w in args.fault_window])
+        loop.publish_status(rec, summary["timing"])
+        np.savez(args.out + ".npz", **log)
+        with open(args.out + ".json", "w", encoding="utf-8") as fh:
+            json.dump(summary, fh)
+    except KeyboardInterrupt:
+        return 130
+    finally:
+        if loop is not None:
+            loop.close()
+        with contextlib.suppress(Exception):
+            rclpy.shutdown(context=context)
+    return 0
+
+
+def _params_from_args(argv: Sequence[str]) -> dict[str, dict]:
+    """The node sections of the ``--params-file`` among ``argv`` (as the bring-up wrote it)."""
+    import yaml
+
+    path = argv[list(argv).index("--params-file") + 1]
+    with open(path, encoding="utf-8") as fh:
+        doc = yaml.safe_load(fh)
+    out = {}
+    for node in ("plant", "joint_sensor", "ft_sensor", "pid"):
+        out[node] = _flatten(doc[node]["ros__parameters"])
+    return out
+
+
+def _flatten(d: dict, prefix: str = "") -> dict:
+    out = {}
+    for key, value in d.items():
+        if isinstance(value, dict):
+            out.update(_flatten(value, prefix + key + "."))
+        else:
+            out[prefix + key] = value
+    return out
+
+
+# -- the bring-up -------------------------------------------------------------------------------
+@dataclass
+class RealtimeRun:
+    """What :func:`run_realtime` returns: the loop's summary and log, the processes' output."""
+
+    summary: dict
+    log: dict[str, np.ndarray] = field(repr=False)
+    startup_time: float
+    warnings: list[str]
+
+    @property
+    def metrics_true(self) -> PolishingMetrics:
+        return PolishingMetrics(**self.summary["metrics_true"])
+
+    @property
+    def metrics_measured(self) -> PolishingMetrics:
+        return PolishingMetrics(**self.summary["metrics_measured"])
+
+
+def run_realtime(
+    params: dict[str, dict],
+    *,
+    timeout: float = 600.0,
+    domain: int = 0,
+    quiet: bool = True,
+    cpus: tuple[int, int] | None | str = "auto",
+    priority: int = DEFAULT_PRIORITY,
+    fault_windows: FaultWindows = (),
+) -> RealtimeRun:
+    """Start the MPC process and the loop process, wait for the run, return its results.
+
+    Args:
+        params: ``bringup.graph_parameters(scenario, lockstep=False, duration)``.
+        cpus: (loop CPU, MPC CPU) to pin each process to ("auto": :func:`default_cpus`; None:
+            let the kernel place them).
+        priority: SCHED_FIFO priority of both processes (0: normal scheduling); where it is
+            not permitted the run goes on with normal scheduling and a warning.
+        fault_windows: (start, end) simulated s in which fallback is excused.
+    """
+    from ffmpc_ros.bringup import NODES, write_params_file
+
+    start = time.perf_counter()
+    warnings: list[str] = []
+    if cpus == "auto":
+        cpus = default_cpus()
+    with tempfile.TemporaryDirectory(prefix="ffmpc_rt_") as tmp:
+        path = os.path.join(tmp, "graph_params.yaml")
+        write_params_file({n: v for n, v in params.items() if n in NODES}, path)
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
+        for name in THREAD_VARIABLES:  # one BLAS/OpenMP thread: no spinning helper threads
+            env.setdefault(name, "1")
+        # the publishing thread sends (no asynchronous sender thread to wait for)
+        env.setdefault("RMW_FASTRTPS_PUBLICATION_MODE", "SYNCHRONOUS")
+        out = os.path.join(tmp, "loop")
+        ros = ["--ros-args", "--params-file", path]
+        faults = [a for w in fault_windows for a in ("--fault-window", str(w[0]), str(w[1]))]
+        commands = {
+            "mpc": [sys.executable, "-m", "ffmpc_ros.mpc_node", *ros],
+            "loop": [sys.executable, "-m", "ffmpc_ros.realtime", "--out", out, *faults, *ros],
+        }
+        children: dict[str, subprocess.Popen] = {}
+        try:
+            for name, cmd in commands.items():
+                log = open(os.path.join(tmp, f"{name}.log"), "w") if quiet else None  # noqa: SIM115
+                child = subprocess.Popen(
+                    cmd,
+                    env=env,
+                    stdout=log,
+                    stderr=subprocess.STDOUT if quiet else None,
+                    start_new_session=True,
+                    preexec_fn=_die_with_parent,  # noqa: PLW1509  (the parent has no threads)
+                )
+                children[name] = child
+                cpu = None if cpus is None else cpus[0 if name == "loop" else 1]
+                warnings += apply_scheduling(child.pid, cpu, priority)
+            end = start + timeout
+            loop = children["loop"]
+            while loop.poll() is None:
+                if time.perf_counter() > end:
+                    raise RealtimeError(f"the real-time run did not finish within {timeout} s")
+                if children["mpc"].poll() is not None:
+                    raise RealtimeError(
+                        f"the MPC process exited with {children['mpc'].returncode}"
+                        + _tail(tmp, "mpc", quiet)
+                    )
+                time.sleep(0.05)
+            if loop.returncode != 0:
+                raise RealtimeError(
+                    f"the loop process exited with {loop.returncode}" + _tail(tmp, "loop", quiet)
+                )
+        finally:
+            _stop(list(children.values()))
+        with open(out + ".json", encoding="utf-8") as fh:
+            summary = json.load(fh)
+        with np.load(out + ".npz") as data:
+            log = {k: data[k] for k in data.files}
+    startup = time.perf_counter() - start - summary["wall_time_s"]
+    return RealtimeRun(summary=summary, log=log, startup_time=startup, warnings=warnings)
+
+
+def _tail(directory: str, name: str, quiet: bool) -> str:
+    if not quiet:
+        return ""
+    try:
+        with open(os.path.join(directory, f"{name}.log"), encoding="utf-8") as fh:
+            return ":\n" + "".join(fh.readlines()[-15:])
+    except OSError:
+        return ""
+
+
+def _stop(children: list[subprocess.Popen]) -> None:
+    """SIGINT every child still running, then wait (SIGKILL after 5 s)."""
+    for child in children:
+        if child.poll() is None:
+            child.send_signal(signal.SIGINT)
+    deadline = time.monotonic() + 5.0
+    for child in children:
+        try:
+            child.wait(timeout=max(0.1, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.wait()
+
+
+if __name__ == "__main__":
+    raise SystemExit(loop_main())

@@ -1,0 +1,136 @@
+"""Real-time mode (ffmpc_ros.realtime) and ``ffmpc run --json``.
+
+The statistics are checked on hand-made per-cycle records (deadline counting, fallback time and
+fault windows, the failure rule); ``ffmpc run --json`` is checked on a short lockstep run (its
+metrics equal the ROS-free runner's, every deadline met, no fallback) and on a ≈1 s real-time
+run, where only the structure and the consistency of the statistics are asserted: the deadline
+fraction depends on the machine's load and belongs to a printed measurement, not a test.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from ffmpc_core.errors import InputError
+from ffmpc_core.lowlevel import LowLevelMode
+from ffmpc_core.scenario import load_scenario
+from ffmpc_ros.cli import main
+from ffmpc_ros.realtime import fallback_time, timing_failures, timing_report
+from sim_bridge.runner import run_scenario
+
+TIMING_KEYS = (
+    "deadline_met_fraction",
+    "fallback_time_s",
+    "latency_p50_ms",
+    "latency_p99_ms",
+    "latency_max_ms",
+)
+FALLBACK, TRACK = int(LowLevelMode.FALLBACK), int(LowLevelMode.TRACK)
+
+
+def test_fallback_time_counts_cycles_and_excuses_fault_windows():
+    modes = np.full(100, TRACK)
+    modes[10:20] = FALLBACK  # t = 0.010 ... 0.019 s
+    modes[50:55] = FALLBACK  # t = 0.050 ... 0.054 s
+    assert fallback_time(modes, 1e-3) == pytest.approx((0.015, 0.0))
+    assert fallback_time(modes, 1e-3, [(0.049, 0.060)]) == pytest.approx((0.010, 0.005))
+    assert fallback_time(modes, 1e-3, [(0.0, 1.0)]) == pytest.approx((0.0, 0.015))
+    with pytest.raises(InputError):
+        fallback_time(modes, 1e-3, [(0.5, 0.1)])
+
+
+def _report(latency, arrival, modes=None, windows=()):
+    n = latency.size
+    return timing_report(
+        time_step=1e-3,
+        every=2,
+        cycle_latency=latency,
+        modes=np.full(n, TRACK) if modes is None else modes,
+        command_arrival=arrival,
+        command_latency=np.where(arrival >= 0, 1.5e-3, np.nan),
+        solve_times=np.full(3, 5e-4),
+        fault_windows=windows,
+    )
+
+
+def test_deadlines_are_counted_as_defined():
+    """Loop: cycle latency ≤ Δt. MPC: the command of tick k taken by cycle k + 2 (every = 2);
+    the last tick, whose deadline falls after the run, is not counted."""
+    latency = np.full(10, 0.5e-3)
+    latency[3] = 1.2e-3  # late
+    latency[4] = 1.0e-3  # exactly on time
+    arrival = np.full(10, -1)
+    arrival[0], arrival[2], arrival[4], arrival[6] = 2, 5, 6, 9  # ticks 0..6 (8: after the run)
+    report = _report(latency, arrival)
+    assert report["loop"]["deadlines_met"] == 9 and report["loop"]["cycles"] == 10
+    assert report["deadline_met_fraction"]["loop"] == pytest.approx(0.9)
+    assert report["mpc"]["ticks"] == 4 and report["mpc"]["solved"] == 4
+    assert report["mpc"]["deadlines_met"] == 2  # tick 2 arrived at 5, tick 6 at 9
+    assert report["deadline_met_fraction"]["mpc"] == pytest.approx(0.5)
+    assert report["latency_max_ms"] == pytest.approx(1.2)
+    assert report["latency_p50_ms"] == pytest.approx(0.5)
+    assert report["fallback_time_s"] == 0.0
+    failures = timing_failures(report)
+    assert len(failures) == 2 and "mpc" in failures[0] and "loop" in failures[1]
+
+
+def test_a_run_fails_on_fallback_outside_fault_windows_only():
+    latency = np.full(20, 0.5e-3)
+    arrival = np.where(np.arange(20) % 2 == 0, np.arange(20) + 2, -1)
+    modes = np.full(20, TRACK)
+    modes[8:12] = FALLBACK
+    assert timing_failures(_report(latency, arrival)) == []
+    failing = _report(latency, arrival, modes)
+    assert failing["fallback_time_s"] == pytest.approx(0.004)
+    assert timing_failures(failing) == ["0.004 s in fallback outside fault windows"]
+    excused = _report(latency, arrival, modes, windows=[(0.008, 0.011)])
+    assert excused["fallback_time_s"] == 0.0
+    assert excused["fallback_excused_s"] == pytest.approx(0.004)
+    assert timing_failures(excused) == []
+
+
+def test_lockstep_run_json_has_the_runner_metrics_and_every_deadline(tmp_path):
+    path = tmp_path / "run.json"
+    args = ["run", "polishing", "--duration", "0.1", "--single-process", "--seed", "3"]
+    args += ["--set", "mpc.formulation=classical", "--json", str(path)]
+    assert main(args) == 0
+    doc = json.loads(path.read_text())
+    runner = run_scenario(
+        load_scenario("polishing", {"seed": 3, "mpc.formulation": "classical"}), duration=0.1
+    )
+    assert doc["mode"] == "lockstep" and doc["seed"] == 3
+    assert doc["metrics_true"] == runner.metrics_true.to_dict()
+    assert doc["metrics_measured"] == runner.metrics_measured.to_dict()
+    assert doc["deadline_met_fraction"] == {"mpc": 1.0, "loop": 1.0}
+    assert doc["fallback_time_s"] == 0.0
+    assert 0.0 < doc["latency_p50_ms"] <= doc["latency_p99_ms"] <= doc["latency_max_ms"]
+    assert doc["timing"]["mode_cycles"]["track"] == 100
+    assert doc["command_line"].startswith("ffmpc run polishing")
+
+
+def test_real_time_run_json_is_consistent(tmp_path):
+    """≈1 s on the wall clock: structure and consistency, not a deadline target."""
+    path = tmp_path / "rt.json"
+    args = ["run", "polishing", "--real-time", "--duration", "1.0"]
+    args += ["--set", "mpc.formulation=classical", "--json", str(path), "--timeout", "180"]
+    code = main(args)
+    doc = json.loads(path.read_text())
+    assert doc["mode"] == "real_time" and set(TIMING_KEYS) <= set(doc)
+    for name in ("metrics_true", "metrics_measured"):
+        assert set(doc[name]) >= {"position_mae_mm", "force_mae", "max_force"}
+    timing = doc["timing"]
+    loop, mpc = timing["loop"], timing["mpc"]
+    assert loop["cycles"] == 1000 and mpc["ticks"] == 499  # the last tick's deadline is t = 1 s
+    assert 0 <= mpc["deadlines_met"] <= mpc["solved"] <= mpc["ticks"]
+    assert doc["deadline_met_fraction"]["loop"] == pytest.approx(loop["deadlines_met"] / 1000)
+    assert doc["deadline_met_fraction"]["mpc"] == pytest.approx(mpc["deadlines_met"] / 499)
+    assert 0.0 < doc["latency_p50_ms"] <= doc["latency_p99_ms"] <= doc["latency_max_ms"]
+    assert doc["latency_p50_ms"] == loop["latency_p50_ms"]
+    assert sum(timing["mode_cycles"].values()) == 1000
+    assert doc["fallback_time_s"] == pytest.approx(timing["mode_cycles"]["fallback"] * 1e-3)
+    assert mpc["solved"] == 0 or 0.0 < mpc["solve_p50_ms"] <= mpc["solve_max_ms"]
+    assert doc["wall_time_s"] >= 0.99  # paced by the wall clock
+    assert code == (1 if timing_failures(timing) else 0)
