@@ -21,8 +21,9 @@ so a run does not depend on the CPU speed. Real time (``lockstep: false``, this 
 own): the plant steps on a wall-clock timer of period time_step with the newest motor torque; a
 step taken without the torque of its own cycle is a deadline miss. ``ffmpc run --real-time``
 does not use this path: it composes the plant with the sensor and PID nodes in one wall-clock
-loop (``ffmpc_ros.realtime``), since separate processes cannot hold 1 kHz in Python. The sensor-to-torque latency (wall time from
-publishing the state of cycle k to receiving its motor torque) is measured in both modes.
+loop (``ffmpc_ros.realtime``), since separate processes cannot hold 1 kHz in Python. The
+sensor-to-torque latency (wall time from publishing the state of cycle k to receiving its motor
+torque) is measured in both modes.
 """
 
 from __future__ import annotations
