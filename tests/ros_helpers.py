@@ -48,14 +48,12 @@ class RosHarness:
         from rosgraph_msgs.msg import Clock
 
         if not hasattr(self, "_clock_pub"):
-            self._clock_pub = self.probe("_clock_driver").create_publisher(
-                Clock, topics.CLOCK, 10
-            )
+            self._clock_pub = self.probe("_clock_driver").create_publisher(Clock, topics.CLOCK, 10)
         self._clock_pub.publish(Clock(clock=node.stamp_of(k)))
         target = k * node.step_ns
-        assert self.spin_until(
-            lambda: node.get_clock().now().nanoseconds >= target, timeout
-        ), f"{node.get_name()} did not see /clock = cycle {k}"
+        assert self.spin_until(lambda: node.get_clock().now().nanoseconds >= target, timeout), (
+            f"{node.get_name()} did not see /clock = cycle {k}"
+        )
 
     def spin_for(self, seconds: float) -> None:
         end = time.monotonic() + seconds
