@@ -23,6 +23,7 @@ All take their data from the same builders (:func:`velocity_lp_data`, :func:`ver
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import daqp
@@ -67,6 +68,11 @@ PANDA_ACCELERATION_LIMIT = np.array([15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0])
 MAPPER_SOLVERS = ("daqp", "osqp")
 #: DAQP's infinity: bounds at or beyond it are ignored by the solver.
 DAQP_INF = 1e30
+#: DAQP settings for LPs (zero Hessian: DAQP iterates proximal-point QPs). With its defaults
+#: (proximal weight 1e-6 when needed, automatic stopping) the eq 14 LP stopped up to 4e-5 m/s
+#: short of HiGHS's optimum with row violations up to 2e-8; a proximal weight of 1e-3 and a
+#: 1e-12 stopping tolerance gave ≤ 4e-9 m/s and ≤ 2e-12 on the same problems.
+DAQP_LP_SETTINGS = {"eps_prox": 1e-3, "eta_prox": 1e-12}
 
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 _OSQP_LP_SETTINGS = dict(
@@ -400,31 +406,38 @@ def halfplanes_from_support_points(
     Returns ``None`` if the ordered points are not a convex counter-clockwise polygon of at least
     3 vertices (the caller then uses Qhull).
     """
-    pts = np.array(vertices, dtype=float)
-    pts[:, 1] /= effective_mass
-    scale = 1.0 + float(np.max(np.abs(pts)))
+    # Plain floats: a handful of points, where numpy's per-call cost would dominate.
+    pts = [(float(z), float(f) / effective_mass) for z, f in vertices]
+    scale = 1.0 + max(max(abs(x), abs(y)) for x, y in pts)
     tol = 1e-7 * scale  # well above the LP solvers' accuracy (~1e-9), in m/s²
     # Repeated support points (several directions on one vertex): keep one.
-    step = pts - np.roll(pts, 1, axis=0)
-    pts = pts[np.hypot(step[:, 0], step[:, 1]) > tol]
+    pts = [p for k, p in enumerate(pts) if math.dist(p, pts[k - 1]) > tol]
     if len(pts) < 3:
         return None
     # Points on the chord of their neighbours are not hull vertices; a right turn beyond the
     # tolerance means the points are not a convex counter-clockwise polygon.
-    prev, nxt = np.roll(pts, 1, axis=0), np.roll(pts, -1, axis=0)
-    e1, e2 = pts - prev, nxt - pts
-    cross = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-    chord = np.hypot(*(nxt - prev).T)
-    if np.any(cross < -tol * chord):
+    hull = []
+    m = len(pts)
+    for k in range(m):
+        (x0, y0), (x1, y1), (x2, y2) = pts[k - 1], pts[k], pts[(k + 1) % m]
+        cross = (x1 - x0) * (y2 - y1) - (y1 - y0) * (x2 - x1)
+        chord = math.hypot(x2 - x0, y2 - y0)
+        if cross < -tol * chord:
+            return None
+        if cross > tol * chord:
+            hull.append((x1, y1))
+    if len(hull) < 3:
         return None
-    pts = pts[cross > tol * chord]
-    if len(pts) < 3:
-        return None
-    edge = np.roll(pts, -1, axis=0) - pts
-    normal = np.column_stack([edge[:, 1], -edge[:, 0]])
-    normal /= np.hypot(edge[:, 0], edge[:, 1])[:, None]
-    offset = np.einsum("ij,ij->i", normal, pts)
-    if np.any(pts @ normal.T > offset + tol):
+    m = len(hull)
+    normal = np.empty((m, 2))
+    offset = np.empty(m)
+    for k in range(m):
+        (x0, y0), (x1, y1) = hull[k], hull[(k + 1) % m]
+        length = math.hypot(x1 - x0, y1 - y0)
+        nx, ny = (y1 - y0) / length, (x0 - x1) / length
+        normal[k] = nx, ny
+        offset[k] = nx * x0 + ny * y0
+    if np.any(np.array(pts) @ normal.T > offset + tol):
         return None
     P = np.column_stack([normal[:, 0], normal[:, 1] / effective_mass])
     return P, offset
@@ -690,6 +703,7 @@ class ContactSpaceMapper:
             self.stats["lp_solves"] += 1
             if self._daqp is None:
                 self._daqp = daqp.Model()
+                self._daqp.settings = DAQP_LP_SETTINGS
                 self._daqp.setup(np.zeros((self._nx, self._nx)), f, An, upn, lon)
             elif k == 0:
                 self._daqp.update(f=f, A=An, bupper=upn, blower=lon)

@@ -42,6 +42,7 @@ from ffmpc_core.errors import ConfigError, InputError, SolverError
 from ffmpc_core.impact.deformation import DeformationDynamics, SoftMaterial, simulate_deformation
 from ffmpc_core.impact.limits import (
     DAQP_INF,
+    DAQP_LP_SETTINGS,
     MAPPER_SOLVERS,
     ContactSpaceBounds,
     _SparsePattern,
@@ -109,7 +110,7 @@ class PlannerConfig:
     max_halfplanes: int = 8
     solver: str = "daqp"
     eps: float = 1e-4
-    primal_tol: float = 1e-9
+    primal_tol: float = 1e-8
     input_scale: float = 100.0
 
     def __post_init__(self) -> None:
@@ -287,7 +288,8 @@ class PenetrationPlan:
         states: s_1 … s_{h+1} ((h+1)×2; m, m/s), by feed-forward simulation of eq 6.
         accelerations: z̈_1 … z̈_h (m/s², eq 8). forces: f_1 … f_{h+1} (N, eq 3).
         max_violation: largest violation of an eq 12 constraint by the simulated plan, in the
-            constraint's own units (m, m/s or m/s²); 0 when feasible.
+            constraint's own units (m, m/s or m/s²); 0 when feasible (DAQP: evaluated on the
+            condensed rows, the same states up to rounding).
         iterations: solver iterations (OSQP: ADMM; DAQP: active-set changes).
         solve_time: solver time, s.
         solver: ``"daqp"``, ``"osqp"`` or ``"highs"`` (fallback after a failed solve).
@@ -464,6 +466,13 @@ class _Eq14Workspace:
         up_n = self.upper_n[self._rows_hp]  # a view
         up_n[self.upper[self._rows_hp] >= DAQP_INF] = DAQP_INF
 
+    def violation(self, x: np.ndarray) -> float:
+        """Largest violation of the rows by ``x = [ż_imp, U]`` in their own units (m, m/s,
+        m/s²; 0 if none): :func:`constraint_violation` on the condensed states (``z_1 = 0``
+        holds by construction), without re-simulating."""
+        Ax = self.A @ x
+        return float(max(0.0, np.max(Ax - self.upper), np.max(self.lower - Ax)))
+
     def plan_arrays(
         self, x: np.ndarray, dynamics: DeformationDynamics
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -610,6 +619,70 @@ class ImpactPlanner:
         )
         return rows, pred
 
+    def feasibility_tolerance(
+        self,
+        plan: PenetrationPlan,
+        dynamics: DeformationDynamics,
+        bounds: ContactSpaceBounds,
+        material: SoftMaterial,
+        eq12: bool = False,
+    ) -> np.ndarray:
+        """Per-row tolerance (the rows of :meth:`constraints`, in their own units m, m/s, m/s²)
+        to which the solver that produced ``plan`` guarantees them; ``eq12=True`` for a plan of
+        :meth:`plan_penetration` (ż_imp fixed, variables U only).
+
+        * ``"daqp"``: ``primal_tol`` on DAQP's own constraint rows: DAQP solves the dual of the
+          problem in ``u = R x`` (``RᵀR = H + eps_prox I``: eq 14's W̃, eq 12's W, or the
+          proximal weight of the LP variant) and tests each row of ``A R⁻¹`` scaled to unit
+          norm, so row i of the unit-normalised A holds to ``primal_tol·‖(A R⁻¹)_i‖``;
+        * ``"osqp"``: OSQP's termination test ``‖A x − z‖∞ ≤ eps_abs + eps_rel·max(‖A x‖∞, ‖z‖∞)``
+          on the problem it was given (rows normalised after ``input_scale``; eps = ``eps`` for
+          eq 14, 1e-7 for eq 12); its polish is only accepted if it does not increase that
+          residual;
+        * ``"highs"``: HiGHS's primal feasibility tolerance, 1e-7, on the raw rows.
+
+        Each is converted to the raw rows' units by the row norms, plus a rounding allowance of
+        1e-12 × (|row|·|x| + |bound|) for the condensed-versus-simulated evaluation.
+        """
+        cfg = self.config
+        rows, _ = self.constraints(dynamics, bounds, material)
+        x = np.concatenate([[plan.pre_impact_velocity], plan.inputs])
+        A = np.column_stack([rows.K, rows.X])
+        finite = np.where(np.isfinite(rows.upper), np.abs(rows.upper), 0.0)
+        finite = np.maximum(finite, np.where(np.isfinite(rows.lower), np.abs(rows.lower), 0.0))
+        rounding = 1e-12 * (np.abs(A) @ np.abs(x) + finite)
+        if plan.solver == "highs":
+            return 1e-7 + rounding
+        lower, upper = rows.lower, rows.upper
+        if eq12:  # the ż_imp column moves to the bounds
+            lower, upper = lower - rows.K * x[0], upper - rows.K * x[0]
+            A, x = rows.X, x[1:]
+        if plan.solver == "daqp":
+            if eq12:
+                H = penetration_cost(dynamics, cfg).W
+            elif cfg.cost == "lp":
+                H = DAQP_LP_SETTINGS["eps_prox"] * np.eye(cfg.horizon + 1)
+            else:
+                H, _ = pre_impact_cost(penetration_cost(dynamics, cfg), cfg)
+            norms = np.linalg.norm(A, axis=1)
+            norms[norms == 0.0] = 1.0
+            R = np.linalg.cholesky(H).T  # H = Rᵀ R
+            M = np.linalg.solve(R.T, (A / norms[:, None]).T).T  # A_n R⁻¹
+            return cfg.primal_tol * np.linalg.norm(M, axis=1) * norms + rounding
+        if plan.solver != "osqp":
+            raise ConfigError(f"unknown solver {plan.solver!r} in the plan")
+        scale = np.full(cfg.horizon, cfg.input_scale)
+        if not eq12:
+            scale = np.concatenate([[1.0], scale])
+        As = A * scale
+        norms = np.linalg.norm(As, axis=1)
+        norms[norms == 0.0] = 1.0
+        Ax = (As / norms[:, None]) @ (x / scale)
+        z = np.clip(Ax, lower / norms, upper / norms)
+        eps = 1e-7 if eq12 else cfg.eps
+        tol = eps + eps * max(np.max(np.abs(Ax)), np.max(np.abs(z)))
+        return tol * norms + rounding
+
     def max_pre_impact_velocity(
         self,
         dynamics: DeformationDynamics,
@@ -649,7 +722,10 @@ class ImpactPlanner:
         for _attempt in range(2):
             if self._daqp is None:
                 self._daqp = daqp.Model()
-                self._daqp.settings = {"primal_tol": self.config.primal_tol}
+                settings = {"primal_tol": self.config.primal_tol}
+                if self.config.cost == "lp":
+                    settings.update(DAQP_LP_SETTINGS)
+                self._daqp.settings = settings
                 exitflag, _ = self._daqp.setup(
                     H, f, work.An, work.upper_n, work.lower_n, work.sense
                 )
@@ -668,7 +744,7 @@ class ImpactPlanner:
                     states=states,
                     accelerations=acc,
                     forces=forces,
-                    max_violation=constraint_violation(states, acc, forces, bounds, material),
+                    max_violation=work.violation(x),
                     iterations=int(info["iterations"]),
                     solve_time=float(info["solve_time"]),
                     solver="daqp",
