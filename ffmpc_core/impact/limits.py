@@ -407,7 +407,7 @@ def halfplanes_from_support_points(
     3 vertices (the caller then uses Qhull).
     """
     # Plain floats: a handful of points, where numpy's per-call cost would dominate.
-    pts = [(float(z), float(f) / effective_mass) for z, f in vertices]
+    pts = [(z, f / effective_mass) for z, f in np.asarray(vertices, dtype=float).tolist()]
     scale = 1.0 + max(max(abs(x), abs(y)) for x, y in pts)
     tol = 1e-7 * scale  # well above the LP solvers' accuracy (~1e-9), in m/s²
     # Repeated support points (several directions on one vertex): keep one.
@@ -542,6 +542,10 @@ class ContactSpaceMapper:
         self.set_direction(direction)
         n = robot.nv
         self._n = n
+        self._zero_nv = np.zeros(n)
+        self._strict_lower = np.tril_indices(n, -1)
+        theta = 2.0 * np.pi * (np.arange(self.n_directions) + 0.5) / self.n_directions
+        self._weights = np.column_stack([np.cos(theta), np.sin(theta)])  # ÷ Λ in column 1
         # eq 9: variables q̇ (n); rows [J_B; I].
         vel_mask = np.vstack([np.ones((5, n)), np.eye(n)])
         self._vel_pattern = _SparsePattern(vel_mask)
@@ -592,30 +596,29 @@ class ContactSpaceMapper:
         """Change the unit motion direction (world frame); the solvers are kept."""
         self.direction = unit_direction(direction)
         self.basis = motion_basis(self.direction)
+        self._basis_T = np.ascontiguousarray(self.basis.T)
 
     def kinematics(self, q: np.ndarray, v: np.ndarray) -> dict[str, np.ndarray | float]:
         """Pinocchio quantities at (q rad, v rad/s): J_A, J_B, drifts J̇q̇ (m/s², rad/s²),
         M (kg·m²), h (N·m) and the effective mass Λ (kg)."""
         model, data, fid = self.robot.model, self._data, self.robot.contact_frame_id
-        pin.forwardKinematics(model, data, q, v, np.zeros(model.nv))
-        pin.computeJointJacobians(model, data, q)
+        pin.forwardKinematics(model, data, q, v, self._zero_nv)
+        pin.computeJointJacobians(model, data)  # from the placements just computed
         pin.updateFramePlacements(model, data)
-        J = pin.getFrameJacobian(model, data, fid, _LWA)
-        acc = pin.getFrameClassicalAcceleration(model, data, fid, _LWA)
-        drift = self.basis.T @ np.concatenate([acc.linear, acc.angular])
-        J_A, J_B = split_jacobian(J, self.basis)
-        M = pin.crba(model, data, q)
-        M = np.triu(M) + np.triu(M, 1).T
+        JO = self._basis_T @ pin.getFrameJacobian(model, data, fid, _LWA)  # eq 2 split
+        drift = self._basis_T @ pin.getFrameClassicalAcceleration(model, data, fid, _LWA).vector
+        M = pin.crba(model, data, q)  # upper triangle filled
+        M[self._strict_lower] = M.T[self._strict_lower]
         h = pin.nonLinearEffects(model, data, q, v).copy()
         Minv = pin.computeMinverse(model, data, q)
         return {
-            "J_A": J_A,
-            "J_B": J_B,
+            "J_A": JO[0],
+            "J_B": JO[1:],
             "drift_A": float(drift[0]),
             "drift_B": drift[1:],
             "M": M,
             "h": h,
-            "effective_mass": effective_mass_from(J_A, Minv),
+            "effective_mass": effective_mass_from(JO[0], Minv),
         }
 
     def _osqp(self, solver: osqp.OSQP, cost: np.ndarray) -> np.ndarray | None:
@@ -691,10 +694,8 @@ class ContactSpaceMapper:
         bias = kin["h"] + M @ qdd0
         np.subtract(-lim.torque, bias, out=lo[n : 2 * n])
         np.subtract(lim.torque, bias, out=up[n : 2 * n])
-        # Rows to unit norm: DAQP's primal tolerance is then in the variables' units (m/s²).
-        norms = np.sqrt(np.einsum("ij,ij->i", A, A))
-        An, lon, upn = A / norms[:, None], lo / norms, up / norms
-        upn[2 * n] = DAQP_INF
+        # No row scaling here: DAQP scales the rows of A R⁻¹ to unit norm itself.
+        An, lon, upn = A, lo, up
         f = self._daqp_f
         out = np.empty((len(weights), 2))
         for k, w in enumerate(weights):
@@ -728,7 +729,8 @@ class ContactSpaceMapper:
         kin = self.kinematics(q, v)
         J_A, J_B = kin["J_A"], kin["J_B"]
         lam = float(kin["effective_mass"])
-        weights = vertex_directions(self.n_directions, lam)
+        weights = self._weights.copy()
+        weights[:, 1] /= lam  # = vertex_directions(self.n_directions, lam)
         if self.solver == "osqp":
             zdot_lower, zdot_upper = self.velocity_bounds(J_A, J_B, q)
             lp = vertex_lp_data(

@@ -94,7 +94,8 @@ class PlannerConfig:
         eps: OSQP absolute/relative tolerance of eq 14 (``solver="osqp"``); the solution is then
             polished (exact active-set solve). A solve whose polish fails is redone by HiGHS.
         primal_tol: DAQP primal feasibility tolerance (``solver="daqp"``) on the unit-normalised
-            rows (m, m/s, m/s² per unit row norm).
+            rows (m, m/s, m/s² per unit row norm; see ImpactPlanner.feasibility_tolerance).
+            1e-9 made DAQP stop at its noise floor (exit flag 4) on some of our problems.
         input_scale: internal scaling of u (m/s²) so that OSQP sees [ż_imp, u/input_scale] of
             similar magnitude; rows are also normalised. Does not change the solution.
     """
@@ -110,7 +111,7 @@ class PlannerConfig:
     max_halfplanes: int = 8
     solver: str = "daqp"
     eps: float = 1e-4
-    primal_tol: float = 1e-8
+    primal_tol: float = 1e-7
     input_scale: float = 100.0
 
     def __post_init__(self) -> None:
@@ -374,9 +375,11 @@ class _Eq14Workspace:
 
     Same rows, order and units as :func:`penetration_constraints` (which stays the readable
     reference; a test checks both agree), built from the 2×2 recurrences ``A_d^k e2`` and
-    ``A_d^k B_d`` (scalar loop) and a fixed Toeplitz index instead of the matrix powers. The rows
-    are then scaled to unit norm (``A``, ``lower``, ``upper``; zero padding rows get bounds
-    ±``DAQP_INF``, which DAQP ignores). Variables ``[ż_imp, u_1 … u_h]``.
+    ``A_d^k B_d`` (scalar loop) and a fixed Toeplitz index instead of the matrix powers. Zero
+    padding rows get bounds ±``DAQP_INF`` (DAQP ignores zero rows and infinite bounds). DAQP
+    gets the rows scaled to unit norm (``An``, ``lower_n``, ``upper_n``): its ``primal_tol``
+    bounds ``A x − b`` of the rows it is given (measured), so it then means the same for every
+    row. Variables ``[ż_imp, u_1 … u_h]``.
     """
 
     def __init__(self, horizon: int, max_halfplanes: int) -> None:
@@ -386,6 +389,7 @@ class _Eq14Workspace:
         self.A = np.zeros((self.n_rows, h + 1))
         self.lower = np.zeros(self.n_rows)
         self.upper = np.zeros(self.n_rows)
+        self.norms = np.ones(self.n_rows)
         self.An = np.zeros_like(self.A)
         self.lower_n = np.zeros(self.n_rows)
         self.upper_n = np.zeros(self.n_rows)
@@ -402,13 +406,14 @@ class _Eq14Workspace:
         self._gv = np.zeros(h + 1)
         self.z_u = np.zeros((h + 1, h))
         self.v_u = np.zeros((h + 1, h))
-        self.acc = np.zeros((h, h + 1))  # [K | X] rows of z̈_1..z̈_h (eq 8)
-        self.frc = np.zeros((h, h + 1))  # [K | X] rows of f_1..f_h (eq 3)
+        self._af = np.zeros((h, 2, h + 1))
+        self.acc = self._af[:, 0]  # [K | X] rows of z̈_1..z̈_h (eq 8)
+        self.frc = self._af[:, 1]  # [K | X] rows of f_1..f_h (eq 3)
+        self._diag = (np.arange(h), np.arange(1, h + 1))  # u_i in the row of z̈_i
         self._rows_z = slice(0, h)
         self._rows_v = slice(h, 2 * h + 1)
         self._rows_hp = slice(2 * h + 1, 2 * h + 1 + h * nh)
         self.lower[self._rows_hp] = -DAQP_INF
-        self._eye = np.eye(h)
 
     def update(
         self, dynamics: DeformationDynamics, bounds: ContactSpaceBounds, material: SoftMaterial
@@ -441,15 +446,16 @@ class _Eq14Workspace:
         A[-1, 1:] = self.v_u[-1]
         (c1, c2), d = dynamics.C[0], float(dynamics.D[0, 0])
         e1, e2 = dynamics.E[0]
-        acc, frc = self.acc, self.frc
+        acc, frc = self.acc, self.frc  # views of self._af[:, 0] and self._af[:, 1]
         acc[:, 0] = c1 * zi[:h] + c2 * vi[:h]
         np.multiply(self.z_u[:h], c1, out=acc[:, 1:])
-        acc[:, 1:] += c2 * self.v_u[:h] + d * self._eye
+        acc[:, 1:] += c2 * self.v_u[:h]
+        acc[self._diag] += d
         frc[:, 0] = e1 * zi[:h] + e2 * vi[:h]
         np.multiply(self.z_u[:h], e1, out=frc[:, 1:])
         frc[:, 1:] += e2 * self.v_u[:h]
-        hp = A[self._rows_hp].reshape(h, nh, h + 1)
-        hp[:, :n_p] = P[None, :, 0, None] * acc[:, None, :] + P[None, :, 1, None] * frc[:, None, :]
+        hp = A[self._rows_hp].reshape(h, nh, h + 1)  # a view
+        np.matmul(P, self._af, out=hp[:, :n_p])  # P [z̈_i; f_i] for every step i
         hp[:, n_p:] = 0.0
         up_hp = self.upper[self._rows_hp].reshape(h, nh)  # a view
         up_hp[:, :n_p] = p
@@ -457,7 +463,9 @@ class _Eq14Workspace:
         self.upper[self._rows_z] = material.max_penetration
         self.lower[self._rows_v] = bounds.velocity_lower
         self.upper[self._rows_v] = bounds.velocity_upper
-        norms = np.sqrt(np.einsum("ij,ij->i", A, A))
+        # Unit rows for DAQP: its primal_tol applies to A x − b of the rows it is given.
+        norms = self.norms
+        np.sqrt(np.einsum("ij,ij->i", A, A), out=norms)
         norms[norms == 0.0] = 1.0
         np.divide(A, norms[:, None], out=self.An)
         np.divide(self.lower, norms, out=self.lower_n)
@@ -631,10 +639,11 @@ class ImpactPlanner:
         to which the solver that produced ``plan`` guarantees them; ``eq12=True`` for a plan of
         :meth:`plan_penetration` (ż_imp fixed, variables U only).
 
-        * ``"daqp"``: ``primal_tol`` on DAQP's own constraint rows: DAQP solves the dual of the
-          problem in ``u = R x`` (``RᵀR = H + eps_prox I``: eq 14's W̃, eq 12's W, or the
-          proximal weight of the LP variant) and tests each row of ``A R⁻¹`` scaled to unit
-          norm, so row i of the unit-normalised A holds to ``primal_tol·‖(A R⁻¹)_i‖``;
+        * ``"daqp"``: ``primal_tol`` on the unit-normalised rows DAQP is given, plus the
+          rounding of its primal recovery ``x = R⁻¹(u − v)``: DAQP works in ``u = R x + v``
+          (``RᵀR = H + eps_prox I``: eq 14's W̃, eq 12's W or the LP variant's proximal weight;
+          ``v = R⁻ᵀ f``, ~1e5 with eq 14's large velocity weight), which loses about
+          ``‖v‖`` × 1e4 ε (ε the double precision) per unit of ``‖(A R⁻¹)_i‖``;
         * ``"osqp"``: OSQP's termination test ``‖A x − z‖∞ ≤ eps_abs + eps_rel·max(‖A x‖∞, ‖z‖∞)``
           on the problem it was given (rows normalised after ``input_scale``; eps = ``eps`` for
           eq 14, 1e-7 for eq 12); its polish is only accepted if it does not increase that
@@ -654,8 +663,9 @@ class ImpactPlanner:
         if plan.solver == "highs":
             return 1e-7 + rounding
         lower, upper = rows.lower, rows.upper
+        x0 = x[0]
         if eq12:  # the ż_imp column moves to the bounds
-            lower, upper = lower - rows.K * x[0], upper - rows.K * x[0]
+            lower, upper = lower - rows.K * x0, upper - rows.K * x0
             A, x = rows.X, x[1:]
         if plan.solver == "daqp":
             if eq12:
@@ -664,11 +674,17 @@ class ImpactPlanner:
                 H = DAQP_LP_SETTINGS["eps_prox"] * np.eye(cfg.horizon + 1)
             else:
                 H, _ = pre_impact_cost(penetration_cost(dynamics, cfg), cfg)
-            norms = np.linalg.norm(A, axis=1)
-            norms[norms == 0.0] = 1.0
+            if eq12:
+                f = penetration_cost(dynamics, cfg).y + penetration_cost(dynamics, cfg).Y * x0
+            elif cfg.cost == "lp":
+                f = self._q_lp
+            else:
+                f = pre_impact_cost(penetration_cost(dynamics, cfg), cfg)[1]
             R = np.linalg.cholesky(H).T  # H = Rᵀ R
-            M = np.linalg.solve(R.T, (A / norms[:, None]).T).T  # A_n R⁻¹
-            return cfg.primal_tol * np.linalg.norm(M, axis=1) * norms + rounding
+            M = np.linalg.solve(R.T, A.T).T  # A R⁻¹
+            v = np.linalg.solve(R.T, f)
+            recovery = 1e4 * np.finfo(float).eps * np.linalg.norm(v) * np.linalg.norm(M, axis=1)
+            return cfg.primal_tol * np.linalg.norm(A, axis=1) + recovery + rounding
         if plan.solver != "osqp":
             raise ConfigError(f"unknown solver {plan.solver!r} in the plan")
         scale = np.full(cfg.horizon, cfg.input_scale)
