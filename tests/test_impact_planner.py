@@ -142,6 +142,27 @@ def test_daqp_gives_the_optimum_of_the_references_on_random_problems():
         assert planner.stats["failures"] == 0 and planner.stats["highs_fallbacks"] == 0
 
 
+def test_daqp_with_force_tracking_equals_osqp():
+    """With ω_f > 0 W̃ changes with the dynamics every cycle (DAQP refactorises it): the
+    optimum still equals OSQP's polished one, and the workspace's predictions are eq 6's."""
+    cfg = dict(force_tracking_weight=1e-4, target_force=60.0)
+    new = ImpactPlanner(PlannerConfig(**cfg))
+    ref = ImpactPlanner(PlannerConfig(solver="osqp", eps=1e-8, **cfg))
+    compared = 0
+    for dyn, b, mat in _random_problems(seed=13, n_states=3, n_materials=4):
+        plan = new.max_pre_impact_velocity(dyn, b, mat)
+        S_imp, S_u = new._work.predictions()
+        ref_imp, ref_u = prediction_matrices(dyn, 20)
+        np.testing.assert_allclose(S_imp, ref_imp, rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(S_u, ref_u, rtol=1e-12, atol=1e-15)
+        other = ref.max_pre_impact_velocity(dyn, b, mat)
+        if other.solver == "osqp":
+            assert plan.pre_impact_velocity == pytest.approx(other.pre_impact_velocity, abs=1e-6)
+            compared += 1
+        _check_plan(plan, dyn, b, mat, new.feasibility_tolerance(plan, dyn, b, mat))
+    assert compared >= 9 and new.stats["failures"] == 0
+
+
 def test_daqp_warm_start_keeps_the_working_set():
     """The same problem solved again starts from the optimal working set: no active-set change."""
     dyn, b, mat = _random_problems(seed=3, n_states=1, n_materials=1)[0]

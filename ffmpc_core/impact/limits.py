@@ -255,6 +255,19 @@ def deformation_velocity_bounds_closed_form(
     if red is None or red[1].shape[1] > 1:
         return None
     c = red[0][:, 0]
+    if red[1].shape[1] == 1 and np.all(np.abs(red[1][:, 0]) > 1e-12):
+        # Every joint moves with β (the usual case): pairs only.
+        m = red[1][:, 0]
+        pos = m > 0
+        alpha = np.where(pos, lower, upper) / m  # β ≥ α_i + γ_i ż
+        delta = np.where(pos, upper, lower) / m  # β ≤ δ_i + γ_i ż
+        gamma = -c / m
+        k = gamma[:, None] - gamma[None, :]  # pair (i, j): k ż ≤ δ_j − α_i
+        bound = np.divide(delta[None, :] - alpha[:, None], k, where=k != 0.0, out=_nan_like(k))
+        up_pairs, lo_pairs = bound[k > 0], bound[k < 0]
+        if up_pairs.size == 0 or lo_pairs.size == 0:
+            return None
+        return float(lo_pairs.max()), float(up_pairs.min())
     if red[1].shape[1] == 1:
         m = red[1][:, 0]
         free = np.abs(m) > 1e-12
@@ -271,15 +284,12 @@ def deformation_velocity_bounds_closed_form(
     if np.any(free):
         mf, cf = m[free], c[free]
         pos = mf > 0
-        alpha = np.where(pos, lower[free], upper[free]) / mf  # β ≥ α_i + γ_i ż
-        delta = np.where(pos, upper[free], lower[free]) / mf  # β ≤ δ_i + γ_i ż
+        alpha = np.where(pos, lower[free], upper[free]) / mf
+        delta = np.where(pos, upper[free], lower[free]) / mf
         gamma = -cf / mf
-        k = gamma[:, None] - gamma[None, :]  # pair (i, j): k ż ≤ δ_j − α_i
-        rhs = delta[None, :] - alpha[:, None]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            bound = rhs / k
-        up_pairs = bound[k > 0]
-        lo_pairs = bound[k < 0]
+        k = gamma[:, None] - gamma[None, :]
+        bound = np.divide(delta[None, :] - alpha[:, None], k, where=k != 0.0, out=_nan_like(k))
+        up_pairs, lo_pairs = bound[k > 0], bound[k < 0]
         if up_pairs.size:
             z_hi = min(z_hi, float(up_pairs.min()))
         if lo_pairs.size:
@@ -287,6 +297,10 @@ def deformation_velocity_bounds_closed_form(
     if not (np.isfinite(z_lo) and np.isfinite(z_hi)):
         return None
     return z_lo, z_hi
+
+
+def _nan_like(a: np.ndarray) -> np.ndarray:
+    return np.full_like(a, np.nan)
 
 
 @dataclass(frozen=True)

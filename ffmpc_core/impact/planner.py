@@ -395,21 +395,30 @@ class _Eq14Workspace:
         self.upper_n = np.zeros(self.n_rows)
         self.sense = np.zeros(self.n_rows, dtype=np.int32)
         self.sense[-1] = 5  # ż_{h+1} = 0: an equality row
-        # Toeplitz index: state i (0..h) depends on u_j (j < i) through gain lag i−1−j;
-        # entry 0 of the padded gain vector is the structural zero.
-        i = np.arange(h + 1)[:, None]
+        # All numbers of the rows come from one vector, filled by the scalar recurrences:
+        # [0, z_1..z_{h+1} per unit ż_imp, ż_1..ż_{h+1} per unit ż_imp, (A^l B)_z, (A^l B)_ż for
+        # l = 0..h−1]; state k (0-based) depends on u_j through the gain of lag k−1−j ≥ 0.
+        self._vec = np.zeros(1 + 2 * (h + 1) + 2 * h)
+        k = np.arange(h + 1)[:, None]
         j = np.arange(h)[None, :]
-        self._lag = np.where(i - 1 - j >= 0, i - j, 0)
-        self.z_imp = np.zeros(h + 1)  # z_i, ż_i per unit ż_imp (i = 1..h+1)
-        self.v_imp = np.zeros(h + 1)
-        self._gz = np.zeros(h + 1)  # [0, (A^k B)_z for k = 0..h−1]
-        self._gv = np.zeros(h + 1)
-        self.z_u = np.zeros((h + 1, h))
-        self.v_u = np.zeros((h + 1, h))
+        lag = k - 1 - j
+        off_z, off_v = 1, 2 + h
+        off_gz, off_gv = 2 * h + 3, 3 * h + 3
+        idx_z = np.zeros((h + 1, h + 1), dtype=np.intp)
+        idx_v = np.zeros((h + 1, h + 1), dtype=np.intp)
+        idx_z[:, 0] = off_z + np.arange(h + 1)
+        idx_v[:, 0] = off_v + np.arange(h + 1)
+        idx_z[:, 1:] = np.where(lag >= 0, off_gz + lag, 0)
+        idx_v[:, 1:] = np.where(lag >= 0, off_gv + lag, 0)
+        self._idx_top = np.concatenate([idx_z[1:], idx_v])  # rows z_2..z_{h+1}, ż_1..ż_{h+1}
+        self._idx_states = np.stack([idx_z[:h], idx_v[:h]], axis=1)  # (h, 2, h+1): s_1..s_h
+        self._zv = np.zeros((h, 2, h + 1))
+        self._ce = np.zeros((2, 2))
         self._af = np.zeros((h, 2, h + 1))
         self.acc = self._af[:, 0]  # [K | X] rows of z̈_1..z̈_h (eq 8)
         self.frc = self._af[:, 1]  # [K | X] rows of f_1..f_h (eq 3)
         self._diag = (np.arange(h), np.arange(1, h + 1))  # u_i in the row of z̈_i
+        self._rows_top = slice(0, 2 * h + 1)
         self._rows_z = slice(0, h)
         self._rows_v = slice(h, 2 * h + 1)
         self._rows_hp = slice(2 * h + 1, 2 * h + 1 + h * nh)
@@ -424,42 +433,36 @@ class _Eq14Workspace:
         n_p = P.shape[0]
         if n_p > nh:
             raise ConfigError(f"{n_p} half-planes exceed max_halfplanes={nh}")
-        (a11, a12), (a21, a22) = dynamics.A_d
-        b1, b2 = dynamics.B_d[:, 0]
-        zi, vi, gz, gv = self.z_imp, self.v_imp, self._gz, self._gv
+        (a11, a12), (a21, a22) = dynamics.A_d.tolist()
+        b1, b2 = dynamics.B_d[:, 0].tolist()
+        vec = self._vec
+        off_v, off_gz, off_gv = 2 + h, 2 * h + 3, 3 * h + 3
         x1, x2 = 0.0, 1.0  # A^k e2
-        y1, y2 = float(b1), float(b2)  # A^k B
+        y1, y2 = b1, b2  # A^k B
         for k in range(h + 1):
-            zi[k], vi[k] = x1, x2
+            vec[1 + k] = x1
+            vec[off_v + k] = x2
             x1, x2 = a11 * x1 + a12 * x2, a21 * x1 + a22 * x2
             if k < h:
-                gz[k + 1], gv[k + 1] = y1, y2
+                vec[off_gz + k] = y1
+                vec[off_gv + k] = y2
                 y1, y2 = a11 * y1 + a12 * y2, a21 * y1 + a22 * y2
-        np.take(gz, self._lag, out=self.z_u)
-        np.take(gv, self._lag, out=self.v_u)
         A = self.A
-        A[self._rows_z, 0] = zi[1:]
-        A[self._rows_z, 1:] = self.z_u[1:]
-        A[self._rows_v, 0] = vi
-        A[self._rows_v, 1:] = self.v_u
-        A[-1, 0] = vi[-1]
-        A[-1, 1:] = self.v_u[-1]
-        (c1, c2), d = dynamics.C[0], float(dynamics.D[0, 0])
-        e1, e2 = dynamics.E[0]
-        acc, frc = self.acc, self.frc  # views of self._af[:, 0] and self._af[:, 1]
-        acc[:, 0] = c1 * zi[:h] + c2 * vi[:h]
-        np.multiply(self.z_u[:h], c1, out=acc[:, 1:])
-        acc[:, 1:] += c2 * self.v_u[:h]
-        acc[self._diag] += d
-        frc[:, 0] = e1 * zi[:h] + e2 * vi[:h]
-        np.multiply(self.z_u[:h], e1, out=frc[:, 1:])
-        frc[:, 1:] += e2 * self.v_u[:h]
+        np.take(vec, self._idx_top, out=A[self._rows_top])
+        A[-1] = A[2 * h]  # ż_{h+1}
+        np.take(vec, self._idx_states, out=self._zv)
+        ce = self._ce
+        ce[0] = dynamics.C[0]
+        ce[1] = dynamics.E[0]
+        np.matmul(ce, self._zv, out=self._af)  # [z̈_i; f_i] = [C; E] s_i (+ D u_i below)
+        self.acc[self._diag] += dynamics.D[0, 0]
         hp = A[self._rows_hp].reshape(h, nh, h + 1)  # a view
         np.matmul(P, self._af, out=hp[:, :n_p])  # P [z̈_i; f_i] for every step i
-        hp[:, n_p:] = 0.0
         up_hp = self.upper[self._rows_hp].reshape(h, nh)  # a view
         up_hp[:, :n_p] = p
-        up_hp[:, n_p:] = DAQP_INF
+        if n_p < nh:
+            hp[:, n_p:] = 0.0
+            up_hp[:, n_p:] = DAQP_INF
         self.upper[self._rows_z] = material.max_penetration
         self.lower[self._rows_v] = bounds.velocity_lower
         self.upper[self._rows_v] = bounds.velocity_upper
@@ -474,6 +477,15 @@ class _Eq14Workspace:
         up_n = self.upper_n[self._rows_hp]  # a view
         up_n[self.upper[self._rows_hp] >= DAQP_INF] = DAQP_INF
 
+    def predictions(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(S_imp, S_u)`` of :func:`prediction_matrices` from the current rows."""
+        h = self.h
+        S = np.zeros((h + 1, 2, h + 1))
+        S[1:, 0] = self.A[self._rows_z]
+        S[:, 1] = self.A[self._rows_v]
+        S = S.reshape(2 * (h + 1), h + 1)
+        return S[:, 0].copy(), S[:, 1:].copy()
+
     def violation(self, x: np.ndarray) -> float:
         """Largest violation of the rows by ``x = [ż_imp, U]`` in their own units (m, m/s,
         m/s²; 0 if none): :func:`constraint_violation` on the condensed states (``z_1 = 0``
@@ -487,10 +499,11 @@ class _Eq14Workspace:
         """States (h+1)×2 (m, m/s), accelerations (h,) (m/s², eq 8) and forces (h+1,) (N, eq 3)
         of ``x = [ż_imp, u_1 … u_h]`` from the condensed rows (eq 6; the same numbers as
         :func:`simulate_deformation` up to rounding)."""
-        U = x[1:]
-        states = np.empty((self.h + 1, 2))
-        states[:, 0] = self.z_imp * x[0] + self.z_u @ U
-        states[:, 1] = self.v_imp * x[0] + self.v_u @ U
+        h = self.h
+        states = np.empty((h + 1, 2))
+        states[0, 0] = 0.0
+        states[1:, 0] = self.A[self._rows_z] @ x
+        states[:, 1] = self.A[self._rows_v] @ x
         return states, self.acc @ x, states @ dynamics.E[0]
 
 
@@ -717,11 +730,7 @@ class ImpactPlanner:
             return self._const_hessian, self._q_lp, False
         if self._const_hessian is not None:
             return self._const_hessian, self._const_cost, False
-        pred = (
-            np.column_stack([self._work.z_imp, self._work.v_imp]).reshape(-1),
-            np.stack([self._work.z_u, self._work.v_u], axis=1).reshape(-1, cfg.horizon),
-        )
-        Wt, wt = pre_impact_cost(penetration_cost(dynamics, cfg, pred), cfg)
+        Wt, wt = pre_impact_cost(penetration_cost(dynamics, cfg, self._work.predictions()), cfg)
         return Wt, wt, True
 
     def _max_daqp(
