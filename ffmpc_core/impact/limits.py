@@ -68,6 +68,9 @@ PANDA_ACCELERATION_LIMIT = np.array([15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0])
 MAPPER_SOLVERS = ("daqp", "osqp")
 #: DAQP's infinity: bounds at or beyond it are ignored by the solver.
 DAQP_INF = 1e30
+#: DAQP exit flags counted as solved (1: optimal, 2: optimal with soft constraints); anything
+#: else (e.g. 4, which DAQP 0.11 returned when primal_tol was below its noise floor) is a failure.
+DAQP_SOLVED = (1, 2)
 #: DAQP settings for LPs (zero Hessian: DAQP iterates proximal-point QPs). With its defaults
 #: (proximal weight 1e-6 when needed, automatic stopping) the eq 14 LP stopped up to 4e-5 m/s
 #: short of HiGHS's optimum with row violations up to 2e-8; a proximal weight of 1e-3 and a
@@ -725,7 +728,7 @@ class ContactSpaceMapper:
             else:
                 self._daqp.update(f=f)
             x, _, exitflag, _ = self._daqp.solve()
-            if exitflag < 1:
+            if exitflag not in DAQP_SOLVED:
                 self._daqp = None  # rebuild from scratch next time (no stale working set)
                 self.stats["highs_fallbacks"] += 1
                 return None

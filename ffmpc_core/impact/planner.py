@@ -43,6 +43,7 @@ from ffmpc_core.impact.deformation import DeformationDynamics, SoftMaterial, sim
 from ffmpc_core.impact.limits import (
     DAQP_INF,
     DAQP_LP_SETTINGS,
+    DAQP_SOLVED,
     MAPPER_SOLVERS,
     ContactSpaceBounds,
     _SparsePattern,
@@ -65,8 +66,6 @@ __all__ = [
 _COSTS = ("qp", "lp")
 #: Solvers of eq 12/14 (and of the eq 9–11 mapping, see ContactSpaceMapper).
 PLANNER_SOLVERS = MAPPER_SOLVERS
-#: DAQP exit flags counted as solved (1: optimal, 2: optimal with soft constraints).
-_DAQP_SOLVED = (1, 2)
 
 
 @dataclass(frozen=True)
@@ -688,7 +687,8 @@ class ImpactPlanner:
             else:
                 H, _ = pre_impact_cost(penetration_cost(dynamics, cfg), cfg)
             if eq12:
-                f = penetration_cost(dynamics, cfg).y + penetration_cost(dynamics, cfg).Y * x0
+                pen = penetration_cost(dynamics, cfg)
+                f = pen.y + pen.Y * x0
             elif cfg.cost == "lp":
                 f = self._q_lp
             else:
@@ -761,7 +761,7 @@ class ImpactPlanner:
                 exitflag = self._daqp.update(**kw)
             if exitflag >= 0:
                 x, _, exitflag, info = self._daqp.solve()
-            if exitflag in _DAQP_SOLVED:
+            if exitflag in DAQP_SOLVED:
                 states, acc, forces = work.plan_arrays(x, dynamics)
                 return PenetrationPlan(
                     pre_impact_velocity=float(x[0]),
@@ -867,7 +867,7 @@ class ImpactPlanner:
         x, _, exitflag, info = daqp.solve(
             cost.W, cost.y + cost.Y * zdot, A, up, lo, sense, primal_tol=self.config.primal_tol
         )
-        if exitflag not in _DAQP_SOLVED:
+        if exitflag not in DAQP_SOLVED:
             raise SolverError(f"eq 12: DAQP exit flag {exitflag}")
         return self._plan(
             zdot, x, dynamics, bounds, material, info["iterations"], info["solve_time"], "daqp"
