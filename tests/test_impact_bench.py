@@ -109,6 +109,7 @@ def test_bench_impact_writes_sane_json(tmp_path, capsys):
         assert math.isfinite(result[key]) and result[key] > 0.0
         assert math.isfinite(result["reference"][key]) and result["reference"][key] > 0.0
     assert result["median_ms"] <= result["p90_ms"] <= result["p99_ms"] <= result["max_ms"]
+    assert 0.0 < result["cpu_median_ms"] and result["reference"]["cpu_median_ms"] > 0.0
     assert result["reference"]["solver"] == "osqp" and result["solver"] == "daqp"
     ratio = result["reference"]["median_ms"] / result["median_ms"]
     assert result["ratio_reference_over_new"] == pytest.approx(ratio)
