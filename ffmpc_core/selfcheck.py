@@ -30,6 +30,7 @@ REPORTED_PACKAGES = (
     "numpy",
     "scipy",
     "osqp",
+    "daqp",
     "pybullet",
     "mcap",
     "mcap-ros2-support",

@@ -52,6 +52,12 @@ def _cmd_bench_mpc(args: argparse.Namespace) -> int:
     return run_bench_mpc(args)
 
 
+def _cmd_bench_impact(args: argparse.Namespace) -> int:
+    from sim_bridge.bench_impact import run_bench_impact
+
+    return run_bench_impact(args)
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from sim_bridge.demo import run_demo
 
@@ -405,6 +411,24 @@ def build_parser() -> argparse.ArgumentParser:
     bench_mpc.add_argument("--solves", type=int, default=200, help="solves per configuration")
     bench_mpc.add_argument("--seed", type=int, default=0)
     bench_mpc.set_defaults(func=_cmd_bench_mpc)
+    bench_impact = bench_sub.add_parser(
+        "impact",
+        help="impact planner cycle time (eq 9-14 + learner), DAQP vs the OSQP reference",
+        description="Runs the impact study's maximal approach in PyBullet, then replays its "
+        "pre-contact states through the planner cycle (learner update, eq 9-11 mapping, eq 14) "
+        "with DAQP and with the old OSQP pipeline, interleaved in the same run; prints median, "
+        "p90, p99, their ratio and the solver failures.",
+    )
+    bench_impact.add_argument("--cycles", type=int, default=1000, help="timed planner cycles")
+    bench_impact.add_argument("--warmup", type=int, default=50, help="untimed first cycles")
+    bench_impact.add_argument(
+        "--sim-duration",
+        type=float,
+        default=1.2,
+        help="simulated seconds of the study's approach to take the problems from",
+    )
+    bench_impact.add_argument("--json", help="write the figures to this JSON file")
+    bench_impact.set_defaults(func=_cmd_bench_impact)
 
     study = sub.add_parser(
         "study",

@@ -97,6 +97,7 @@ def controller_config(params: dict, prior: SoftMaterial) -> ImpactControllerConf
             horizon=int(params["preview_horizon"]),
             dt=float(params["preview_dt"]),
             max_halfplanes=n_directions,
+            solver=str(params["solver"]),
         ),
         n_directions=n_directions,
         max_approach_velocity=cap if cap > 0 else math.inf,

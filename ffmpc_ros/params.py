@@ -277,6 +277,12 @@ IMPACT_PLANNER_GRAPH: tuple[GraphParameter, ...] = (
     ),
     GraphParameter("n_directions", 8, "eq 10 weight directions (vertices)", (3, 64)),
     GraphParameter(
+        "solver",
+        "daqp",
+        "eq 10 and eq 14 solver: daqp (warm-started active set; eq 9 and 11 in closed form) "
+        "or osqp (the previous pipeline, kept as a reference)",
+    ),
+    GraphParameter(
         "max_approach_velocity", 0.0, "cap on the approach speed, m/s (0: none)", (0.0, 100.0)
     ),
     GraphParameter(

@@ -412,7 +412,8 @@ class ImpactRun:
         wall_time: s. guard_stats: the JointLimitGuard's counters. planner_failures: eq 14
             solves that failed (ImpactController.solver_failures).
         mpc_solve_time_median: s (force-feedback MPC only).
-        log: time series (t, speed, force, penetration, bound, phase...).
+        log: time series (t, speed, force, penetration, bound, phase..., and the joint
+            positions ``q`` (rad) and velocities ``v`` (rad/s) at each step).
     """
 
     approach: str
@@ -768,7 +769,7 @@ def run_impact(
         guard_stats=dict(guard.stats),
         planner_failures=0 if impact_ctrl is None else impact_ctrl.solver_failures,
         mpc_solve_time_median=float(np.median(solve_times)) if solve_times else float("nan"),
-        log=log | {"learned_in_mpc": np.array(learned_in_mpc)},
+        log=log | {"learned_in_mpc": np.array(learned_in_mpc), "q": qs[:steps], "v": vs[:steps]},
     )
 
 

@@ -10,8 +10,11 @@ from scipy.integrate import quad, solve_ivp
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.impact.deformation import (
     SoftMaterial,
+    continuous_deformation_dynamics,
     deformation_dynamics,
     deformation_force,
+    discretize_deformation_closed_form,
+    discretize_deformation_dynamics,
     effective_mass,
     simulate_deformation,
 )
@@ -131,3 +134,27 @@ def test_bad_input_is_rejected():
     dyn = deformation_dynamics(2000.0, 50.0, 4.0, 0.025)
     with pytest.raises(InputError):
         simulate_deformation(dyn, np.array([0.0, np.inf]), np.zeros(3))
+
+
+def test_closed_form_discretisation_equals_expm():
+    """Eq 6–7 in closed form (Cayley–Hamilton) against scipy's expm on seeded random materials
+    and effective masses: under-, over- and critically damped, undamped, tiny and large Δt."""
+    rng = np.random.default_rng(7)
+    cases = [(2000.0, 2.0 * np.sqrt(2000.0 * 4.0), 4.0, 0.025), (3000.0, 0.0, 5.0, 0.025)]
+    for _ in range(500):
+        cases.append(
+            (
+                10 ** rng.uniform(1.0, 5.5),
+                10 ** rng.uniform(-1.0, 3.5),
+                10 ** rng.uniform(-0.5, 1.5),
+                10 ** rng.uniform(-3.5, -1.0),
+            )
+        )
+    for alpha, beta, lam, dt in cases:
+        A_c, B_c = continuous_deformation_dynamics(alpha, beta, lam)
+        A_ref, B_ref = discretize_deformation_dynamics(A_c, B_c, dt)
+        A_d, B_d = discretize_deformation_closed_form(alpha, beta, lam, dt)
+        np.testing.assert_allclose(A_d, A_ref, rtol=0, atol=1e-11 * np.abs(A_ref).max())
+        np.testing.assert_allclose(B_d, B_ref, rtol=0, atol=1e-11 * np.abs(B_ref).max())
+    with pytest.raises(ConfigError):
+        discretize_deformation_closed_form(-1.0, 1.0, 1.0, 0.01)

@@ -247,6 +247,9 @@ def test_impact_parameters_are_described_read_only_and_ranged(ros):
             assert desc.description and desc.read_only, desc.name
             if desc.type in numeric:
                 assert desc.floating_point_range or desc.integer_range, desc.name
+    with pytest.raises(ConfigError, match="solver"):
+        bad = overrides("impact_planner", scenario, solver="qpoases")
+        ImpactPlannerNode(context=ros.context, parameter_overrides=bad, node_name="bad_solver")
     with pytest.raises(InvalidParameterValueException):
         bad = overrides("contact_learner", scenario, skip_onset_samples=-1)
         ContactLearnerNode(context=ros.context, parameter_overrides=bad, node_name="bad")

@@ -3,7 +3,7 @@
 Modules:
     deformation: eq 3–8 (deformation dynamics, effective mass, discretisation, acceleration map).
     limits: eq 1, 2, 9–11 (joint limits mapped to the contact space).
-    planner: eq 12–14 (penetration QP, maximal pre-impact velocity, with OSQP).
+    planner: eq 12–14 (penetration QP, maximal pre-impact velocity; DAQP, OSQP reference).
     learner: eq 15–21 (batch and recursive least squares, exploration reference).
     control: Sec. IV-C (the controller: approach at the maximal safe speed, then admittance).
     task_space: a task-space inverse-dynamics law from the Cartesian command to joint torques.
@@ -26,6 +26,7 @@ from ffmpc_core.impact.deformation import (
     continuous_deformation_dynamics,
     deformation_dynamics,
     deformation_force,
+    discretize_deformation_closed_form,
     discretize_deformation_dynamics,
     effective_mass,
     simulate_deformation,
@@ -69,6 +70,7 @@ __all__ = [
     "continuous_deformation_dynamics",
     "deformation_dynamics",
     "deformation_force",
+    "discretize_deformation_closed_form",
     "discretize_deformation_dynamics",
     "effective_mass",
     "exploration_reference",

@@ -78,7 +78,8 @@ class ImpactControllerConfig:
             planning (e.g. from :class:`RecursiveContactLearner`).
         target_force: force to regulate after contact, N (paper: 60).
         contact_threshold: pressing force that declares the contact, N (paper: 2).
-        planner: eq 12–14 parameters (paper: h = 20, Δt = 25 ms).
+        planner: eq 12–14 parameters (paper: h = 20, Δt = 25 ms); its ``solver`` (daqp|osqp)
+            also selects how the eq 9–11 mapping is solved.
         n_directions: eq 10 weight directions (vertices).
         max_approach_velocity: optional cap on the approach speed, m/s (inf = none).
         admittance: the post-contact force controller.
@@ -167,7 +168,9 @@ class ImpactController:
         self.robot = robot
         self.limits = limits
         self.config = config
-        self.mapper = ContactSpaceMapper(robot, limits, config.direction, config.n_directions)
+        self.mapper = ContactSpaceMapper(
+            robot, limits, config.direction, config.n_directions, solver=config.planner.solver
+        )
         self.planner = ImpactPlanner(config.planner)
         self.learner = RecursiveContactLearner()
         self._data = robot.create_data()

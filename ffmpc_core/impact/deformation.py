@@ -23,6 +23,7 @@ counterpart is ``τ = M q̈ + h + J_Aᵀ f`` (see :mod:`ffmpc_core.impact.limits
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,6 +41,7 @@ __all__ = [
     "deformation_dynamics",
     "deformation_force",
     "discretize_deformation_dynamics",
+    "discretize_deformation_closed_form",
     "effective_mass",
     "effective_mass_from",
     "material_matrix",
@@ -147,6 +149,51 @@ def discretize_deformation_dynamics(
     return phi[:n, :n].copy(), phi[:n, n:].copy()
 
 
+def _sinhc(x2: float) -> tuple[float, float]:
+    """``(cosh(x), sinh(x)/x)`` for ``x = sqrt(x2)``, ``x2`` real of any sign (x imaginary when
+    ``x2 < 0``: then ``(cos|x|, sin|x|/|x|)``); a Taylor series near 0 avoids the 0/0."""
+    if abs(x2) < 1e-6:
+        return 1.0 + x2 / 2.0 + x2 * x2 / 24.0, 1.0 + x2 / 6.0 + x2 * x2 / 120.0
+    if x2 > 0.0:
+        x = math.sqrt(x2)
+        return math.cosh(x), math.sinh(x) / x
+    x = math.sqrt(-x2)
+    return math.cos(x), math.sin(x) / x
+
+
+def discretize_deformation_closed_form(
+    stiffness: float, damping: float, effective_mass: float, dt: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Eq 6–7 in closed form: the zero-order-hold ``(A_d, B_d)`` of eq 5 without ``expm``.
+
+    With ``a = α/Λ``, ``b = β/Λ`` (1/s², 1/s), ``A_c = [[0, 1], [−a, −b]]`` has the eigenvalues
+    ``μ ± σ``, ``μ = −b/2``, ``σ² = b²/4 − a``; by Cayley–Hamilton
+    ``A_d = e^{μΔt} (cosh(σΔt) I + Δt·sinh(σΔt)/(σΔt) (A_c − μ I))`` (σ imaginary: cos and sin;
+    σ → 0: the series), and, ``A_c`` being invertible (``a > 0``),
+    ``B_d = ∫₀^Δt e^{A_c τ} dτ B_c = A_c⁻¹ (A_d − I) e2``. Same result as
+    :func:`discretize_deformation_dynamics` (the reference, tested to ~1e-12 relative) at a
+    fraction of its cost. Inputs are validated as in :func:`continuous_deformation_dynamics`.
+    """
+    _positive(stiffness, "stiffness")
+    _positive(damping, "damping", allow_zero=True)
+    lam = _positive(effective_mass, "effective_mass")
+    dt = _positive(dt, "dt")
+    a, b = stiffness / lam, damping / lam
+    mu = -0.5 * b
+    ch, shc = _sinhc((0.25 * b * b - a) * dt * dt)
+    e = math.exp(mu * dt)
+    s = e * shc * dt  # e^{μΔt} sinh(σΔt)/σ
+    c = e * ch
+    a11 = c - mu * s
+    a12 = s
+    a21 = -a * s
+    a22 = c + (-b - mu) * s
+    # A_c⁻¹ = [[−b/a, −1/a], [1, 0]]; (A_d − I) e2 = [a12, a22 − 1].
+    b1 = (-b * a12 - (a22 - 1.0)) / a
+    b2 = a12
+    return np.array([[a11, a12], [a21, a22]]), np.array([[b1], [b2]])
+
+
 def acceleration_map(A_d: np.ndarray, B_d: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """Eq 8 / appendix A: ``z̈_i = C s_i + D u_i`` (m/s²), the mean acceleration over step i.
 
@@ -184,9 +231,10 @@ class DeformationDynamics:
 def deformation_dynamics(
     stiffness: float, damping: float, effective_mass: float, dt: float
 ) -> DeformationDynamics:
-    """Build eq 3–8 at once: α (N/m), β (N·s/m), Λ (kg), Δt (s)."""
+    """Build eq 3–8 at once: α (N/m), β (N·s/m), Λ (kg), Δt (s); eq 6–7 in closed form
+    (:func:`discretize_deformation_closed_form`)."""
     A_c, B_c = continuous_deformation_dynamics(stiffness, damping, effective_mass)
-    A_d, B_d = discretize_deformation_dynamics(A_c, B_c, dt)
+    A_d, B_d = discretize_deformation_closed_form(stiffness, damping, effective_mass, dt)
     C, D = acceleration_map(A_d, B_d, dt)
     return DeformationDynamics(
         stiffness=float(stiffness),
