@@ -20,6 +20,15 @@ Setup (``ffmpc study impact``):
 * The planner (eq 12–14) starts from a PRIOR material, softer than the truth (2400 N/m,
   15 N·s/m, as from a data sheet): the robot has not touched the dice yet. The RLS learner
   (eq 19–21) is fed from the first contact on and its estimate goes to the force-feedback MPC.
+* Strategy of the maximal approach (``strategy``). ``touch_first`` (the default):
+  :class:`~ffmpc_core.impact.touch_first.TouchFirstImpactController` first touches the dice at
+  the eq 14 bound that is safe for every material of the plausible range around the prior
+  (0.4–4× its stiffness and damping: eq 14 solved for each corner, the smallest bound kept),
+  regulates a 15 N touch while the learner collects data, plans the strike from the learner's
+  confidence interval (or refuses a target the softest material of that interval cannot hold
+  within z̄), retracts 6 cm above the touched surface and strikes at the eq 14 bound of the
+  learned interval. ``prior``: the paper's scheme with the prior taken as the truth (a dice
+  softer than the prior then goes past z̄, a stiffer one beyond the planned force).
 
 Runs (approach × regulation):
 
@@ -222,8 +231,11 @@ class ImpactStudyConfig:
         baseline_target_depth: the baseline's static target below the top face, m.
         admittance: the post-contact admittance controller.
         handover_speed: the force-feedback MPC takes over once the tool, in contact, moves into
-            the dice no faster than this, m/s (default: the admittance controller's speed limit,
-            0.1 m/s): the impact itself is absorbed by the braking eq 14 certified.
+            the dice no faster than this (with the touch-first strategy: moves either way no
+            faster than this; a tool bouncing back at 0.17 m/s was handed over, and the MPC
+            then spun the wrist past its acceleration limit), m/s (default: the admittance
+            controller's speed limit, 0.1 m/s): the impact itself is absorbed by the braking
+            eq 14 certified.
         mpc_period, mpc_horizon, mpc_dt: force-feedback MPC rate (s), nodes, node length (s).
         mpc_force_weight: c6 of the pressing nodes; mpc_weights: the other cost weights.
         learner_min_samples: samples before the learner's estimate may replace the prior.
@@ -236,10 +248,6 @@ class ImpactStudyConfig:
         handover_blend: the force-feedback MPC's torque is blended in linearly over this long,
             s, from the admittance controller's (both through the joint-limit guard, so every
             blend is admissible: q̈ is affine in τ and the admissible set is convex); 0 = switch.
-        handover_force_band: with the ``touch_first`` strategy the MPC also waits until the
-            force is within this fraction of the target (the strike's overshoot on a stiff
-            object, 2× the target at 3× the prior's stiffness, is left to the admittance
-            controller that absorbed it; handed a 130 N error, the MPC pulled the tool off).
     """
 
     dice: DiceConfig = field(default_factory=DiceConfig)
@@ -272,7 +280,6 @@ class ImpactStudyConfig:
     strategy: str = "touch_first"
     touch: TouchFirstConfig = field(default_factory=TouchFirstConfig)
     handover_blend: float = 0.05
-    handover_force_band: float = 0.25
 
     def __post_init__(self) -> None:
         positive = (
@@ -310,8 +317,6 @@ class ImpactStudyConfig:
             raise ConfigError("replan_period must be >= 0")
         if self.strategy not in STRATEGIES:
             raise ConfigError(f"strategy must be one of {STRATEGIES}, got {self.strategy!r}")
-        if not (np.isfinite(self.handover_force_band) and self.handover_force_band > 0):
-            raise ConfigError("handover_force_band must be > 0")
         if not (np.isfinite(self.handover_blend) and self.handover_blend >= 0):
             raise ConfigError("handover_blend must be >= 0 (s)")
 
@@ -741,10 +746,7 @@ def run_impact(
                 and in_contact
                 and handover_k is None
                 and speed <= cfg.handover_speed
-                and (
-                    touch_first is None
-                    or abs(force - cfg.target_force) <= cfg.handover_force_band * cfg.target_force
-                )
+                and (touch_first is None or abs(speed) <= cfg.handover_speed)
             ):
                 handover_k = k
             if handover_k is not None:

@@ -5,9 +5,9 @@ touch-first strategy (``ffmpc_core.impact.touch_first``) every run must keep the
 within z̄ and every joint within its data-sheet limits (q, q̇, q̈, τ), or refuse the 60 N target
 before the strike when the dice cannot hold it within z̄ (60 N / 1200 N/m = 50 mm > 30 mm).
 
-The closed-loop runs are the ROS-free study code, shortened: the tool starts 0.2 m (not 0.46 m)
-above the dice and eq 9–14 are re-solved every 5 ms (as in tests/test_impact_study.py). The
-simulation is deterministic (no random draws: PyBullet, no noise), so there is no seed to set.
+The closed-loop runs are the ROS-free study code, shortened: 2.5 s of simulated time (touch at
+≈ 1.3 s, strike at ≈ 2.2 s) and eq 9–14 re-solved every 5 ms (as in tests/test_impact_study.py).
+The simulation is deterministic (no random draws: PyBullet, no noise), so there is no seed.
 
 Tolerances: the penetration is measured below the true top face, while the planner counts z from
 the last force-free sample, at most one control step of motion (ż·Δt ≤ 0.6 mm) deeper: bound
@@ -50,7 +50,7 @@ PRIOR_K, PRIOR_B = 2400.0, 15.0
 ZBAR = 0.03
 #: (stiffness factor, damping factor) of the dice against the prior: the corners and 1×/1×.
 CORNERS = [(0.5, 0.5), (3.0, 3.0), (0.5, 3.0), (3.0, 0.5), (1.0, 1.0)]
-FAST = ImpactStudyConfig(replan_period=0.005, approach_height=0.2, duration=2.1)
+FAST = ImpactStudyConfig(replan_period=0.005, duration=2.5)
 
 
 @pytest.fixture(scope="module")
@@ -178,9 +178,34 @@ def test_model_error_is_safe_or_refused(corner_runs, factors):
         return
     assert run.refusal == ""
     assert np.isfinite(run.contact_time) and run.contact_time > run.decision_time
-    # the strike was planned from the learned model: faster than the touch only when the
-    # learned material allows it, and hitting at (within 5 %) the eq 14 bound of that model
+    # the strike was planned from the learned model and never hit faster than its eq 14 bound
+    # (+2 %: one control step of tracking lag); it can hit slower: the joint-limit guard keeps
+    # the impact's own joint accelerations admissible, which on the 3×/3× dice caps the speed
     k = int(np.searchsorted(run.log["t"], run.contact_time))
     bound = run.log["bound"][k - 1]
-    assert run.pre_impact_velocity == pytest.approx(bound, rel=0.05)
+    assert run.pre_impact_velocity <= 1.02 * bound
+    assert run.pre_impact_velocity > 0.2
     assert "learned" in run.strike_knowledge
+
+
+@pytest.mark.slow
+def test_handover_to_the_force_feedback_mpc_keeps_every_joint_limit(robot):
+    """The true dice (3000 N/m, 20 N·s/m): after the strike, the force-feedback MPC takes over
+    once the tool moves slower than 0.1 m/s either way, its torque blended in over 50 ms, both
+    torques through the joint-limit guard. No limit is broken (q, q̇, q̈, τ, no tolerance), the
+    blend ramps 0 → 1, and the MPC holds the target within 1 N at the end (no sensor noise)."""
+    cfg = replace(FAST, duration=2.9)
+    run = run_impact("maximal", "ff_mpc", cfg, robot)
+    assert run.violations.total == 0, run.violations
+    assert run.refusal == "" and np.isfinite(run.handover_time)
+    assert run.handover_time > run.contact_time
+    log, dt = run.log, cfg.time_step
+    k = int(round(run.handover_time / dt))
+    assert abs(log["speed"][k]) <= cfg.handover_speed
+    weights = log["mpc_weight"][k : k + int(round(cfg.handover_blend / dt))]
+    assert weights[0] == pytest.approx(dt / cfg.handover_blend)
+    assert np.all(np.diff(weights) > 0) and weights[-1] == 1.0
+    assert np.all(log["phase"][k + weights.size :] == "ff_mpc")
+    tail = log["t"] >= log["t"][-1] - 0.1
+    assert np.abs(log["force"][tail] - cfg.target_force).max() < 1.0
+    assert run.peak_penetration <= ZBAR + cfg.time_step * run.pre_impact_velocity
