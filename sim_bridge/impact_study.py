@@ -810,6 +810,8 @@ def run_impact(
             else:
                 tau = tau_mpc
                 log["phase"][k] = "ff_mpc"
+                if touch_first is not None:  # the controller is not stepped: keep learning
+                    touch_first.learn(p, speed, force)
             log["mpc_weight"][k] = weight
             taus[k] = tau
             plant.step(tau)

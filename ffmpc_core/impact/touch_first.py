@@ -256,6 +256,17 @@ class TouchFirstImpactController(ImpactController):
         kappa = self.touch.impact_force_factor
         return kappa * max(speed, 0.0) * (k.damping + k.stiffness * dt)
 
+    def learn(self, position: np.ndarray, speed: float, force: float) -> None:
+        """Eq 19–20 for a sample taken while another controller acts (e.g. the force-feedback
+        MPC after the hand-over): contact-frame position (m, world), speed along d (m/s) and
+        pressing force (N); z from the last force-free sample before this contact. Ignored
+        outside the strike's contact phase or without force."""
+        if self.phase != CONTACT or force <= 0.0 or not self.config.learn_online:
+            return
+        d = self.config.direction
+        z = float(d @ (np.asarray(position, dtype=float) - self._contact_position))
+        self.learner.update(z, float(speed), float(force))
+
     # ------------------------------------------------------------------ the cycle
     def step(self, measurement: ImpactMeasurement, t: float) -> CartesianCommand:
         """One control cycle at time ``t`` (s)."""

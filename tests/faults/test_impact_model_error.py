@@ -206,6 +206,8 @@ def test_handover_to_the_force_feedback_mpc_keeps_every_joint_limit(robot):
     assert weights[0] == pytest.approx(dt / cfg.handover_blend)
     assert np.all(np.diff(weights) > 0) and weights[-1] == 1.0
     assert np.all(log["phase"][k + weights.size :] == "ff_mpc")
+    # the learner keeps learning while the MPC acts (every sample in contact after the handover)
+    assert run.learner_samples >= np.count_nonzero(log["force"][k:] > 0.0)
     tail = log["t"] >= log["t"][-1] - 0.1
     assert np.abs(log["force"][tail] - cfg.target_force).max() < 1.0
     assert run.peak_penetration <= ZBAR + cfg.time_step * run.pre_impact_velocity
