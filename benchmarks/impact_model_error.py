@@ -12,8 +12,11 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import sys
 from pathlib import Path
+
+_REFUSAL = re.compile(r"steady penetration of (?P<z>[\d.]+) mm = (?P<f>[\d.]+) N / (?P<k>\d+) N/m")
 
 
 def _f(value: float | None, spec: str) -> str:
@@ -39,8 +42,9 @@ def rows(root: Path) -> list[str]:
         pen = 1e3 * r["peak_penetration"]
         flag = " **over**" if pen > zbar + 1e3 * 1e-3 * (r["pre_impact_velocity"] or 0) else ""
         refusal = r.get("refusal") or ""
-        if refusal:
-            refusal = refusal.split(";")[0]
+        m = _REFUSAL.search(refusal)
+        if m:
+            refusal = f"refused before the strike: {m['f']} N / {m['k']} N/m = {m['z']} mm > z̄"
         out.append(
             f"| {strategy} | {k:g} | {b:g} | {r['regulation']} "
             f"| {_f(r.get('touch_velocity'), '.3f')} | {_f(r['pre_impact_velocity'], '.3f')} "
