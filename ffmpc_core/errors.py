@@ -25,3 +25,9 @@ class SolverError(FfmpcError):
 
 class InputError(FfmpcError, ValueError):
     """A measurement or message is malformed (NaN/Inf, wrong size, wrong names, stale)."""
+
+
+class InfeasibleTargetError(FfmpcError):
+    """A task cannot be done safely with what is known (e.g. a force target whose steady
+    penetration, target / worst-case stiffness, exceeds the material's bound z̄). Raised
+    before the motion that would need it; the message carries the numbers."""

@@ -20,6 +20,15 @@ Setup (``ffmpc study impact``):
 * The planner (eq 12–14) starts from a PRIOR material, softer than the truth (2400 N/m,
   15 N·s/m, as from a data sheet): the robot has not touched the dice yet. The RLS learner
   (eq 19–21) is fed from the first contact on and its estimate goes to the force-feedback MPC.
+* Strategy of the maximal approach (``strategy``). ``touch_first`` (the default):
+  :class:`~ffmpc_core.impact.touch_first.TouchFirstImpactController` first touches the dice at
+  the eq 14 bound that is safe for every material of the plausible range around the prior
+  (0.4–4× its stiffness and damping: eq 14 solved for each corner, the smallest bound kept),
+  regulates a 15 N touch while the learner collects data, plans the strike from the learner's
+  confidence interval (or refuses a target the softest material of that interval cannot hold
+  within z̄), retracts 6 cm above the touched surface and strikes at the eq 14 bound of the
+  learned interval. ``prior``: the paper's scheme with the prior taken as the truth (a dice
+  softer than the prior then goes past z̄, a stiffer one beyond the planned force).
 
 Runs (approach × regulation):
 
@@ -102,10 +111,16 @@ from ffmpc_core.impact.deformation import SoftMaterial
 from ffmpc_core.impact.learner import RecursiveContactLearner, confident
 from ffmpc_core.impact.limits import ContactSpaceMapper, JointLimits, joint_limits
 from ffmpc_core.impact.planner import PlannerConfig
+from ffmpc_core.impact.robust import MaterialInterval, check_force_target
 from ffmpc_core.impact.task_space import (
     JointLimitGuard,
     JointLimitGuardConfig,
     TaskSpaceInverseDynamics,
+)
+from ffmpc_core.impact.touch_first import (
+    STRIKE,
+    TouchFirstConfig,
+    TouchFirstImpactController,
 )
 from ffmpc_core.mpc import ModelPredictiveController, MpcConfig, MpcMeasurement
 from ffmpc_core.robots import RobotModel, load_robot
@@ -132,6 +147,10 @@ __all__ = [
 ]
 
 APPROACHES = ("maximal", "baseline")
+#: How the maximal approach treats the unknown material: ``touch_first`` (touch at the bound
+#: safe for the plausible range, learn, re-plan from the learned interval, then strike) or
+#: ``prior`` (the paper's scheme with the prior as if it were the truth; the fault of issue 12).
+STRATEGIES = ("touch_first", "prior")
 REGULATIONS = ("admittance", "ff_mpc")
 DOWN = np.array([0.0, 0.0, -1.0])
 #: Directions of the contact point held by friction once the tool sticks on the dice.
@@ -167,9 +186,11 @@ class DiceConfig:
     def __post_init__(self) -> None:
         for name in ("stiffness", "size", "max_penetration"):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
-                raise ConfigError(f"DiceConfig.{name} must be positive")
+                raise ConfigError(
+                    f"dice {name} must be positive and finite, got {getattr(self, name)}"
+                )
         if not (np.isfinite(self.damping) and self.damping >= 0):
-            raise ConfigError("DiceConfig.damping must be >= 0")
+            raise ConfigError(f"dice damping must be finite and >= 0, got {self.damping}")
         if self.max_penetration >= self.size:
             raise ConfigError("max_penetration must be smaller than the dice")
 
@@ -210,14 +231,23 @@ class ImpactStudyConfig:
         baseline_target_depth: the baseline's static target below the top face, m.
         admittance: the post-contact admittance controller.
         handover_speed: the force-feedback MPC takes over once the tool, in contact, moves into
-            the dice no faster than this, m/s (default: the admittance controller's speed limit,
-            0.1 m/s): the impact itself is absorbed by the braking eq 14 certified.
+            the dice no faster than this (with the touch-first strategy: moves either way no
+            faster than this; a tool bouncing back at 0.17 m/s was handed over, and the MPC
+            then spun the wrist past its acceleration limit), m/s (default: the admittance
+            controller's speed limit, 0.1 m/s): the impact itself is absorbed by the braking
+            eq 14 certified.
         mpc_period, mpc_horizon, mpc_dt: force-feedback MPC rate (s), nodes, node length (s).
         mpc_force_weight: c6 of the pressing nodes; mpc_weights: the other cost weights.
         learner_min_samples: samples before the learner's estimate may replace the prior.
         learner_max_relative_std: ... and the largest relative standard error of α̂ and β̂.
         steady_band: |f − target| ≤ steady_band · target counts as steady (5 %).
         steady_hold: ... for at least this long, s (0.2).
+        strategy: the maximal approach's treatment of the unknown material (:data:`STRATEGIES`).
+        touch: parameters of the ``touch_first`` strategy
+            (:class:`~ffmpc_core.impact.touch_first.TouchFirstConfig`).
+        handover_blend: the force-feedback MPC's torque is blended in linearly over this long,
+            s, from the admittance controller's (both through the joint-limit guard, so every
+            blend is admissible: q̈ is affine in τ and the admissible set is convex); 0 = switch.
     """
 
     dice: DiceConfig = field(default_factory=DiceConfig)
@@ -226,7 +256,7 @@ class ImpactStudyConfig:
     approach_height: float = 0.46
     target_force: float = 60.0
     contact_threshold: float = 2.0
-    duration: float = 3.0
+    duration: float = 4.0
     time_step: float = 1e-3
     replan_period: float = 0.0
     planner: PlannerConfig = field(default_factory=PlannerConfig)
@@ -247,6 +277,9 @@ class ImpactStudyConfig:
     learner_max_relative_std: float = 0.05
     steady_band: float = 0.05
     steady_hold: float = 0.2
+    strategy: str = "touch_first"
+    touch: TouchFirstConfig = field(default_factory=TouchFirstConfig)
+    handover_blend: float = 0.05
 
     def __post_init__(self) -> None:
         positive = (
@@ -282,6 +315,10 @@ class ImpactStudyConfig:
             raise ConfigError("mpc_period must be a whole number of plant steps")
         if not (np.isfinite(self.replan_period) and self.replan_period >= 0):
             raise ConfigError("replan_period must be >= 0")
+        if self.strategy not in STRATEGIES:
+            raise ConfigError(f"strategy must be one of {STRATEGIES}, got {self.strategy!r}")
+        if not (np.isfinite(self.handover_blend) and self.handover_blend >= 0):
+            raise ConfigError("handover_blend must be >= 0 (s)")
 
     @property
     def prior(self) -> SoftMaterial:
@@ -414,6 +451,14 @@ class ImpactRun:
         mpc_solve_time_median: s (force-feedback MPC only).
         log: time series (t, speed, force, penetration, bound, phase..., and the joint
             positions ``q`` (rad) and velocities ``v`` (rad/s) at each step).
+        strategy: the maximal approach's strategy (:data:`STRATEGIES`; ``prior`` for the
+            baseline, which plans nothing).
+        touch_time, touch_velocity: the exploratory touch's contact (s) and speed at the last
+            force-free sample before it (m/s); NaN without a touch.
+        touch_peak_force, touch_peak_penetration: N and m, from the touch to the decision.
+        decision_time: when the strike was decided (or refused) from the learned model, s.
+        refusal: why the target was refused ("" if it was not); contact_time is then NaN.
+        strike_knowledge: the material interval the strike was planned with.
     """
 
     approach: str
@@ -436,6 +481,14 @@ class ImpactRun:
     planner_failures: int
     mpc_solve_time_median: float
     log: dict[str, np.ndarray] = field(repr=False)
+    strategy: str = "prior"
+    touch_time: float = float("nan")
+    touch_velocity: float = float("nan")
+    touch_peak_force: float = float("nan")
+    touch_peak_penetration: float = float("nan")
+    decision_time: float = float("nan")
+    refusal: str = ""
+    strike_knowledge: str = ""
 
     @property
     def name(self) -> str:
@@ -580,20 +633,24 @@ def run_impact(
     law = TaskSpaceInverseDynamics(robot, guard=guard)
     impact_ctrl = None
     baseline = None
+    touch_first: TouchFirstImpactController | None = None
     if approach == "maximal":
-        impact_ctrl = ImpactController(
-            robot,
-            ctrl_limits,
-            ImpactControllerConfig(
-                direction=DOWN,
-                material=cfg.prior,
-                target_force=cfg.target_force,
-                contact_threshold=cfg.contact_threshold,
-                planner=cfg.planner,
-                admittance=cfg.admittance,
-                replan_period=cfg.replan_period,
-            ),
+        ctrl_cfg = ImpactControllerConfig(
+            direction=DOWN,
+            material=cfg.prior,
+            target_force=cfg.target_force,
+            contact_threshold=cfg.contact_threshold,
+            planner=cfg.planner,
+            admittance=cfg.admittance,
+            replan_period=cfg.replan_period,
         )
+        if cfg.strategy == "touch_first":
+            # Raises InfeasibleTargetError here, before any motion, if no plausible material
+            # can hold the target (or the touch force is unsafe for the softest one).
+            touch_first = TouchFirstImpactController(robot, ctrl_limits, ctrl_cfg, cfg.touch)
+            impact_ctrl = touch_first
+        else:
+            impact_ctrl = ImpactController(robot, ctrl_limits, ctrl_cfg)
     else:
         baseline = _BaselineApproach(
             robot,
@@ -603,7 +660,9 @@ def run_impact(
             max(cfg.replan_period, dt),
         )
     admittance = _AdmittancePhase(cfg.admittance, cfg.target_force)
-    learner = RecursiveContactLearner()
+    # The touch-first controller learns itself (during the touch and after the strike): the MPC
+    # then takes its estimate. Otherwise the run feeds its own learner from the contact on.
+    learner = touch_first.learner if touch_first is not None else RecursiveContactLearner()
     mpc: ModelPredictiveController | None = None
     mpc_torque = np.zeros(robot.nv)
     solve_times: list[float] = []
@@ -618,6 +677,8 @@ def run_impact(
         "in_contact_phase": np.zeros(steps, dtype=bool),
         "mpc_stiffness": np.full(steps, np.nan),
         "mpc_damping": np.full(steps, np.nan),
+        "phase": np.full(steps, "", dtype="<U13"),  # the maximal approach's phase
+        "mpc_weight": np.zeros(steps),  # share of the MPC's torque in the blend
     }
     qs = np.zeros((steps + 1, robot.nq))
     vs = np.zeros((steps + 1, robot.nv))
@@ -653,19 +714,25 @@ def run_impact(
             if contact_k is None:
                 if force <= 0.0:
                     touch_position, touch_speed = p.copy(), speed
-                elif force >= cfg.contact_threshold:
+                elif force >= cfg.contact_threshold and (
+                    touch_first is None or touch_first.phase == STRIKE
+                ):
+                    # (the touch-first controller's exploratory touch is not the contact)
                     contact_k = k
                     if touch_position is None:  # in contact from the start (not expected)
                         touch_position, touch_speed = p.copy(), speed
                     admittance.start(p, hold_rotation, speed)
             in_contact = contact_k is not None
             log["in_contact_phase"][k] = in_contact
-            if in_contact and force > 0.0:
+            if in_contact and force > 0.0 and touch_first is None:
                 # eq 19–20: deformation from the first-touch position, its rate, the force.
                 learner.update(float(DOWN @ (p - touch_position)), speed, force)
 
             impact_force = None
-            if not in_contact:
+            if touch_first is not None:
+                # The current knowledge's nominal material: f ≈ (β + α Δt) ż.
+                impact_force = -touch_first.impact_force_estimate(speed, dt) * DOWN
+            elif not in_contact:
                 # An impact during the next step would push back with f ≈ β ż + α ż Δt.
                 prior = cfg.prior
                 f_pred = max(speed, 0.0) * (prior.damping + prior.stiffness * dt)
@@ -675,6 +742,7 @@ def run_impact(
                 and in_contact
                 and handover_k is None
                 and speed <= cfg.handover_speed
+                and (touch_first is None or abs(speed) <= cfg.handover_speed)
             ):
                 handover_k = k
             if handover_k is not None:
@@ -714,16 +782,33 @@ def run_impact(
                 # friction carries no load (compensating the measured friction force would push
                 # the tool sideways until it slips).
                 normal = np.concatenate([force * _UP, s.wrench_world[3:]])
-                tau = guard.admissible_torque(mpc_torque, q, v, normal, held_directions=_LATERAL)
+                tau_mpc = guard.admissible_torque(
+                    mpc_torque, q, v, normal, held_directions=_LATERAL
+                )
+                blend = cfg.handover_blend
+                weight = 1.0 if blend <= 0 else min((k - handover_k + 1) * dt / blend, 1.0)
             else:
+                weight = 0.0
+            if weight < 1.0:
                 if approach == "maximal":
                     cmd = impact_ctrl.step(ImpactMeasurement(q, v, F), t)
                     log["bound"][k] = cmd.pre_impact_velocity
+                    log["phase"][k] = impact_ctrl.phase
                 elif in_contact:
                     cmd = admittance.command(force, dt)
                 else:
                     cmd = baseline.command(q, v, t, dt, hold_position, hold_rotation)
                 tau = law.torque(cmd, q, v, s.wrench_world, impact_force=impact_force)
+                if weight > 0.0:
+                    # Both torques are admissible for this state (each through the guard) and
+                    # the admissible set is convex in τ: the blend is admissible too.
+                    tau = (1.0 - weight) * tau + weight * tau_mpc
+            else:
+                tau = tau_mpc
+                log["phase"][k] = "ff_mpc"
+                if touch_first is not None:  # the controller is not stepped: keep learning
+                    touch_first.learn(p, speed, force)
+            log["mpc_weight"][k] = weight
             taus[k] = tau
             plant.step(tau)
         s = plant.state()
@@ -749,10 +834,31 @@ def run_impact(
         learned = (est.stiffness, est.damping, (est.stiffness_std, est.damping_std))
     except InputError:  # never enough contact data
         learned = (float("nan"), float("nan"), (float("nan"), float("nan")))
+    touch = {}
+    if touch_first is not None:
+        nan = float("nan")
+        t_touch = nan if touch_first.touch_time is None else touch_first.touch_time
+        t_decide = nan if touch_first.decision_time is None else touch_first.decision_time
+        window = (t_log >= t_touch) & (t_log <= t_decide) if np.isfinite(t_decide) else None
+        touch = dict(
+            touch_time=t_touch,
+            touch_velocity=nan
+            if touch_first.touch_velocity is None
+            else touch_first.touch_velocity,
+            touch_peak_force=nan if window is None else float(log["force"][window].max()),
+            touch_peak_penetration=(
+                nan if window is None else float(log["penetration"][window].max())
+            ),
+            decision_time=t_decide,
+            refusal="" if touch_first.refusal is None else str(touch_first.refusal),
+            strike_knowledge=touch_first.knowledge.describe(),
+        )
     return ImpactRun(
         approach=approach,
         regulation=regulation,
-        pre_impact_velocity=float(touch_speed),
+        strategy=cfg.strategy if approach == "maximal" else "prior",
+        **touch,
+        pre_impact_velocity=float(touch_speed) if contact_k is not None else float("nan"),
         contact_time=contact_time,
         steady_time=steady,
         peak_force=float(log["force"].max()),
@@ -830,6 +936,25 @@ def format_table(runs: list[ImpactRun], config: ImpactStudyConfig) -> str:
             f"| {_fmt(ek, '+.1f')} % | {_fmt(r.learned_damping, '.2f')} | {_fmt(ed, '+.1f')} % "
             f"| {_fmt(r.handover_time, '.3f')} |"
         )
+    touched = [r for r in runs if r.strategy == "touch_first"]
+    if touched:
+        lines += [
+            "",
+            "Touch first (the maximal approach's exploratory touch at the eq 14 bound safe for "
+            "the plausible range, then the strike planned from the learned interval):",
+            "",
+            "| run | touch (s) | touch velocity (m/s) | touch peak force (N) | "
+            "touch peak penetration (mm) | decision (s) | strike planned with | refusal |",
+            "|" + "---|" * 8,
+        ]
+        for r in touched:
+            lines.append(
+                f"| {r.name} | {_fmt(r.touch_time, '.3f')} | {_fmt(r.touch_velocity, '.3f')} "
+                f"| {_fmt(r.touch_peak_force, '.1f')} "
+                f"| {_fmt(1e3 * r.touch_peak_penetration, '.1f')} "
+                f"| {_fmt(r.decision_time, '.3f')} | {r.strike_knowledge} "
+                f"| {r.refusal or '—'} |"
+            )
     lines += [
         "",
         f"Steady force: |f − {config.target_force:g}| ≤ {100 * config.steady_band:g} % for "
@@ -934,6 +1059,25 @@ def _prepare_out_dir(out_dir: Path, force: bool) -> Path:
     return out_dir
 
 
+def check_before_motion(config: ImpactStudyConfig) -> None:
+    """The touch-first strategy's checks before any motion (see
+    :class:`~ffmpc_core.impact.touch_first.TouchFirstImpactController`): raises
+    :class:`~ffmpc_core.errors.InfeasibleTargetError` if the touch force is unsafe for the
+    softest plausible material or no plausible material can hold the target within z̄."""
+    if config.strategy != "touch_first":
+        return
+    prior = MaterialInterval.from_prior(
+        config.prior, config.touch.stiffness_factors, config.touch.damping_factors
+    )
+    check_force_target(config.touch.touch_force, prior, "the exploratory touch force")
+    check_force_target(
+        config.target_force,
+        prior,
+        "even the stiffest plausible material cannot hold it",
+        worst_case=False,
+    )
+
+
 def run_impact_study(
     config: ImpactStudyConfig | None = None,
     runs: tuple[tuple[str, str], ...] = DEFAULT_RUNS,
@@ -945,6 +1089,8 @@ def run_impact_study(
     """Run ``runs`` one after the other, write ``results.json``, ``table.md`` and
     ``impact_fig4.png`` into ``out_dir`` (refused if it exists, unless ``force``)."""
     cfg = config if config is not None else ImpactStudyConfig()
+    if any(approach == "maximal" for approach, _ in runs):
+        check_before_motion(cfg)  # refuse before any motion (and before writing anything)
     out = _prepare_out_dir(out_dir if out_dir is not None else default_out_dir(), force)
     start = time.perf_counter()
     robot = load_robot("panda")

@@ -6,6 +6,10 @@ Modules:
     planner: eq 12–14 (penetration QP, maximal pre-impact velocity; DAQP, OSQP reference).
     learner: eq 15–21 (batch and recursive least squares, exploration reference).
     control: Sec. IV-C (the controller: approach at the maximal safe speed, then admittance).
+    robust: eq 14 over an interval of materials (the prior's plausible range, or the learner's
+        confidence interval) and the infeasible-force-target check.
+    touch_first: learn before striking hard: a touch safe for every plausible material, the
+        learner's interval, then the maximal strike (or a refusal of the target).
     task_space: a task-space inverse-dynamics law from the Cartesian command to joint torques.
 
 Sign convention of the package: the deformation ``z`` and the pressing force ``f`` are positive
@@ -45,7 +49,14 @@ from ffmpc_core.impact.limits import (
     joint_limits,
 )
 from ffmpc_core.impact.planner import ImpactPlanner, PenetrationPlan, PlannerConfig
+from ffmpc_core.impact.robust import (
+    MaterialInterval,
+    RobustImpactPlanner,
+    check_force_target,
+    steady_penetration,
+)
 from ffmpc_core.impact.task_space import TaskSpaceGains, TaskSpaceInverseDynamics
+from ffmpc_core.impact.touch_first import TouchFirstConfig, TouchFirstImpactController
 
 __all__ = [
     "PANDA_ACCELERATION_LIMIT",
@@ -60,13 +71,18 @@ __all__ = [
     "ImpactMeasurement",
     "ImpactPlanner",
     "JointLimits",
+    "MaterialInterval",
     "PenetrationPlan",
     "PlannerConfig",
     "RecursiveContactLearner",
+    "RobustImpactPlanner",
     "SoftMaterial",
     "TaskSpaceGains",
     "TaskSpaceInverseDynamics",
+    "TouchFirstConfig",
+    "TouchFirstImpactController",
     "acceleration_map",
+    "check_force_target",
     "continuous_deformation_dynamics",
     "deformation_dynamics",
     "deformation_force",
@@ -77,4 +93,5 @@ __all__ = [
     "fit_stiffness_damping",
     "joint_limits",
     "simulate_deformation",
+    "steady_penetration",
 ]
