@@ -259,7 +259,7 @@ class LowPassNode(SwitchableContactNode):
             self._models[status] = IntegratedActionModelLPF(
                 dam, self.dt, cutoff_frequency, weights.lowpass_input
             )
-            self._handles.append(CommonCostHandles(dam, robot.nv))
+            self._handles.append(CommonCostHandles(dam, robot.nv, weights.diag("ee_position", 3)))
         self.in_contact = bool(in_contact) and not self.terminal
         self.model = self._models[self.in_contact]
 

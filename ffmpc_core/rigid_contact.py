@@ -375,33 +375,67 @@ def check_node_reference(ref: NodeReference, contact: ContactConfig, nq: int) ->
         q = np.asarray(ref.posture, dtype=float)
         if q.shape != (nq,) or not np.all(np.isfinite(q)):
             raise InputError(f"posture must be {nq} finite values (rad), got {ref.posture!r}")
+    if ref.ee_position_diag is not None:
+        d = np.asarray(ref.ee_position_diag, dtype=float)
+        if d.shape != (3,) or not np.all(np.isfinite(d)) or np.any(d < 0):
+            raise InputError(
+                f"ee_position_diag must be 3 finite values >= 0, got {ref.ee_position_diag!r}"
+            )
 
 
 class CommonCostHandles:
-    """Handles on the per-node references of ℓ0 in one differential model: p̄, c4, λ̄, c6, q̄."""
+    """Handles on the per-node references of ℓ0 in one differential model: p̄, c4, Q4, λ̄, c6, q̄.
 
-    def __init__(self, differential: crocoddyl.DifferentialActionModelAbstract, nv: int) -> None:
+    Q4 (the activation of the end-effector position cost) is changed in place on the crocoddyl
+    ``ActivationModelWeightedQuad``. crocoddyl 3.2.1 copies the new weights into the Hessian of
+    the activation data at the next ``calcDiff`` of ONE data only (a flag of the model), so a
+    model must have a single data alive when its Q4 changes — as in the MPC's shooting problem,
+    where each node model has exactly one; data created after the change are always right.
+    """
+
+    def __init__(
+        self,
+        differential: crocoddyl.DifferentialActionModelAbstract,
+        nv: int,
+        ee_position_diag: np.ndarray,
+    ) -> None:
         costs = differential.costs.costs
         self._nv = nv
         self._posture = costs[COST_POSTURE].cost.residual
         self._ee_item = costs[COST_EE_POSITION]
         self._ee_residual = self._ee_item.cost.residual
+        self._ee_activation = self._ee_item.cost.activation
+        self._default_ee_diag = np.array(ee_position_diag, dtype=float)
+        self._ee_diag = self._default_ee_diag.copy()  # what the activation holds now
         self._force_item = costs[COST_FORCE] if COST_FORCE in costs else None
         self._force_residual = None if self._force_item is None else self._force_item.cost.residual
+        self._force_linear = np.zeros(3)
+        self._zero3 = np.zeros(3)
+        self._x_reference = np.zeros(2 * nv)
 
     def apply(self, ref: NodeReference) -> None:
-        """Copy the references of ``ref`` into the cost model (in place; validated before)."""
+        """Copy the references of ``ref`` into the cost model (in place; validated before).
+
+        ``ref.ee_position_diag`` None restores ``CostWeights.ee_position_diag``.
+        """
         self._ee_residual.reference = np.asarray(ref.ee_position, dtype=float)
         self._ee_item.weight = float(ref.ee_position_weight)
+        diag = self._default_ee_diag if ref.ee_position_diag is None else ref.ee_position_diag
+        if not np.array_equal(diag, self._ee_diag):
+            self._ee_diag[:] = diag
+            self._ee_activation.weights = self._ee_diag
         if self._force_item is not None:
             f = np.asarray(ref.force, dtype=float)
-            linear = np.array([0.0, 0.0, f[0]]) if f.size == 1 else f
-            self._force_residual.reference = pin.Force(linear, np.zeros(3))
+            linear = self._force_linear
+            if f.size == 1:
+                linear[2] = f[0]
+            else:
+                linear[:] = f
+            self._force_residual.reference = pin.Force(linear, self._zero3)
             self._force_item.weight = float(ref.force_weight)
         if ref.posture is not None:
-            self._posture.reference = np.concatenate(
-                [np.asarray(ref.posture, dtype=float), np.zeros(self._nv)]
-            )
+            self._x_reference[: self._nv] = ref.posture
+            self._posture.reference = self._x_reference
 
 
 def rigid_contact_force(
@@ -487,7 +521,7 @@ class RigidContactNode(SwitchableContactNode):
                 robot, contact, weights, in_contact=status, terminal=self.terminal, **kwargs
             )
             self._models[status] = crocoddyl.IntegratedActionModelEuler(dam, self.dt)
-            self._handles.append(CommonCostHandles(dam, robot.nv))
+            self._handles.append(CommonCostHandles(dam, robot.nv, weights.diag("ee_position", 3)))
         self.in_contact = bool(in_contact) and not self.terminal
         self.model = self._models[self.in_contact]
 

@@ -500,7 +500,7 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
         self.nv, self.nc, self.ndx = nv, nc, 2 * nv + nc
         self.u_lb = -robot.torque_limit
         self.u_ub = robot.torque_limit.copy()
-        # Activations Q_i (immutable) and scalar weights c_i (c4, c6 change per node).
+        # Activations Q_i (Q4 changes per node) and scalar weights c_i (c4, c6 change per node).
         self._diag = {
             "posture": weights.diag("posture", nv),
             "joint_velocity": weights.diag("joint_velocity", nv),
@@ -510,6 +510,7 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
             "force": weights.diag("force", nc),
             "force_rate": np.ones(nc),
         }
+        self._default_ee_position_diag = self._diag["ee_position"].copy()
         self._c = {
             "posture": weights.posture,
             "joint_velocity": weights.joint_velocity,
@@ -577,11 +578,24 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
         force_weight: float,
         in_contact: bool,
         posture: np.ndarray | None = None,
+        ee_position_diag: np.ndarray | None = None,
     ) -> None:
-        """Update p̄ (m, world), λ̄ (N, force frame), c4, c6, the contact flag and q̄ (rad)."""
+        """Update p̄ (m, world), λ̄ (N, force frame), c4, c6, the contact flag, q̄ (rad) and Q4.
+
+        ``ee_position_diag`` is the activation Q4 of the end-effector position cost (3 entries,
+        world axes, ≥ 0; tasks give (1, 1, 0) in contact so that the normal direction belongs to
+        the force task); None restores ``CostWeights.ee_position_diag``. Nothing changes when
+        any value is invalid (InputError).
+        """
         p = _as_finite_vector(ee_position, 3, "ee_position")
         f = _as_finite_vector(np.atleast_1d(force), self.nc, "force")
         qb = None if posture is None else _as_finite_vector(posture, self.nv, "posture")
+        if ee_position_diag is None:
+            q4 = self._default_ee_position_diag
+        else:
+            q4 = _as_finite_vector(ee_position_diag, 3, "ee_position_diag")
+            if np.any(q4 < 0.0):
+                raise InputError(f"ee_position_diag must be non-negative, got {q4}")
         for name, c in (("ee_position_weight", ee_position_weight), ("force_weight", force_weight)):
             if not np.isfinite(c) or c < 0.0:
                 raise InputError(f"{name} must be finite and non-negative, got {c}")
@@ -589,6 +603,7 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
         self.force_reference[:] = f
         if qb is not None:
             self.q_reference[:] = qb
+        self._diag["ee_position"][:] = q4
         self._c["ee_position"] = float(ee_position_weight)
         self._c["force"] = float(force_weight)
         self.set_in_contact(in_contact)
@@ -766,7 +781,8 @@ class SoftContactNode:
         return self.model.terminal
 
     def set_reference(self, ref: NodeReference) -> bool:
-        """Update p̄ (m, world), λ̄ (N), c4, c6, q̄ (if given) and the contact flag in place.
+        """Update p̄ (m, world), λ̄ (N), c4, c6, q̄ (if given), Q4 (``ref.ee_position_diag``;
+        None: the CostWeights one) and the contact flag in place.
 
         Out of contact (``ref.in_contact`` False) the node's K = B = 0 and c6 = 0. Returns
         False: the model object is never replaced, so the solver's problem needs no rebuild.
@@ -778,6 +794,7 @@ class SoftContactNode:
             ref.force_weight,
             ref.in_contact,
             ref.posture,
+            ref.ee_position_diag,
         )
         return False
 

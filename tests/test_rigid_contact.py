@@ -145,7 +145,10 @@ def eq25_cost(robot, contact, weights, ref, x, tau, lam, terminal):
     pdot = pin.getFrameVelocity(model, data, fid, pin.LOCAL_WORLD_ALIGNED).linear
 
     def term(c, name, r):
-        return c * 0.5 * float(np.sum(weights.diag(name, r.size) * r**2))
+        diag = weights.diag(name, r.size)
+        if name == "ee_position" and ref.ee_position_diag is not None:
+            diag = np.asarray(ref.ee_position_diag, dtype=float)  # the node's own Q4
+        return c * 0.5 * float(np.sum(diag * r**2))
 
     cost = term(weights.posture, "posture", q - ref.posture)
     cost += term(weights.joint_velocity, "joint_velocity", v)
