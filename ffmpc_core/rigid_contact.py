@@ -65,6 +65,8 @@ change) just allocates one node's data.
 
 from __future__ import annotations
 
+import math
+
 import crocoddyl
 import numpy as np
 import pinocchio as pin
@@ -359,28 +361,26 @@ def _check_posture(robot: RobotModel, q: np.ndarray) -> np.ndarray:
     return q.copy()
 
 
+def _is_finite_vector(value, n: int) -> bool:
+    arr = np.asarray(value, dtype=float)
+    return arr.shape == (n,) and bool(np.isfinite(arr).all())
+
+
 def check_node_reference(ref: NodeReference, contact: ContactConfig, nq: int) -> None:
     """Raise :class:`InputError` unless ``ref`` has the right sizes and finite, valid values."""
-    p = np.asarray(ref.ee_position, dtype=float)
-    if p.shape != (3,) or not np.all(np.isfinite(p)):
+    if not _is_finite_vector(ref.ee_position, 3):
         raise InputError(f"ee_position must be 3 finite values (m), got {ref.ee_position!r}")
-    f = np.asarray(ref.force, dtype=float)
-    if f.shape != (contact.dimension,) or not np.all(np.isfinite(f)):
+    if not _is_finite_vector(ref.force, contact.dimension):
         raise InputError(f"force must be {contact.dimension} finite values (N), got {ref.force!r}")
     for name in ("ee_position_weight", "force_weight"):
         w = getattr(ref, name)
-        if not np.isfinite(w) or w < 0:
+        if not math.isfinite(w) or w < 0:
             raise InputError(f"{name} must be finite and >= 0, got {w!r}")
-    if ref.posture is not None:
-        q = np.asarray(ref.posture, dtype=float)
-        if q.shape != (nq,) or not np.all(np.isfinite(q)):
-            raise InputError(f"posture must be {nq} finite values (rad), got {ref.posture!r}")
-    if ref.ee_position_diag is not None:
-        d = np.asarray(ref.ee_position_diag, dtype=float)
-        if d.shape != (3,) or not np.all(np.isfinite(d)) or np.any(d < 0):
-            raise InputError(
-                f"ee_position_diag must be 3 finite values >= 0, got {ref.ee_position_diag!r}"
-            )
+    if ref.posture is not None and not _is_finite_vector(ref.posture, nq):
+        raise InputError(f"posture must be {nq} finite values (rad), got {ref.posture!r}")
+    d = ref.ee_position_diag
+    if d is not None and (not _is_finite_vector(d, 3) or bool((np.asarray(d) < 0).any())):
+        raise InputError(f"ee_position_diag must be 3 finite values >= 0, got {d!r}")
 
 
 class CommonCostHandles:
@@ -421,7 +421,7 @@ class CommonCostHandles:
         self._ee_residual.reference = np.asarray(ref.ee_position, dtype=float)
         self._ee_item.weight = float(ref.ee_position_weight)
         diag = self._default_ee_diag if ref.ee_position_diag is None else ref.ee_position_diag
-        if not np.array_equal(diag, self._ee_diag):
+        if (self._ee_diag != diag).any():
             self._ee_diag[:] = diag
             self._ee_activation.weights = self._ee_diag
         if self._force_item is not None:
@@ -457,20 +457,18 @@ def rigid_contact_force(
 class SwitchableContactNode:
     """``set_reference`` of the nodes that hold a free and an in-contact model (classical and
     torque-feedback): attributes ``robot``, ``contact``, ``terminal``, ``in_contact``, ``model``,
-    ``_models`` {bool: model} and ``_handles`` (cost handles updated in place)."""
+    ``_models`` {bool: model} and ``_handles`` {bool: cost handles of that model}."""
 
     def set_reference(self, ref: NodeReference) -> bool:
-        """Update p̄, λ̄, c4, c6 (and q̄) in place and select contact/free dynamics.
+        """Select contact/free dynamics and update its p̄, λ̄, c4, Q4, c6 (and q̄) in place.
 
-        Returns True iff ``model`` is now a different object: the caller must then call
-        ``problem.updateModel(k, node.model)``. A terminal node never switches.
+        Only the selected model's costs are written (the other one gets them when it is
+        selected again). Returns True iff ``model`` is now a different object: the caller must
+        then call ``problem.updateModel(k, node.model)``. A terminal node never switches.
         """
         check_node_reference(ref, self.contact, self.robot.nq)
-        for handles in self._handles:
-            handles.apply(ref)
-        if self.terminal:
-            return False
-        status = bool(ref.in_contact)
+        status = False if self.terminal else bool(ref.in_contact)
+        self._handles[status].apply(ref)
         if status == self.in_contact:
             return False
         self.in_contact = status
@@ -515,13 +513,13 @@ class RigidContactNode(SwitchableContactNode):
             builtin_residuals=builtin_residuals,
         )
         self._models: dict[bool, crocoddyl.IntegratedActionModelEuler] = {}
-        self._handles: list[CommonCostHandles] = []
+        self._handles: dict[bool, CommonCostHandles] = {}
         for status in (False,) if self.terminal else (False, True):
             dam = make_differential_model(
                 robot, contact, weights, in_contact=status, terminal=self.terminal, **kwargs
             )
             self._models[status] = crocoddyl.IntegratedActionModelEuler(dam, self.dt)
-            self._handles.append(CommonCostHandles(dam, robot.nv, weights.diag("ee_position", 3)))
+            self._handles[status] = CommonCostHandles(dam, robot.nv, weights.diag("ee_position", 3))
         self.in_contact = bool(in_contact) and not self.terminal
         self.model = self._models[self.in_contact]
 

@@ -31,6 +31,8 @@ residual ``√(c·Q·Δt)·r`` so that ``cost = ½‖data.r‖²`` and the Gauss
 
 from __future__ import annotations
 
+import math
+
 import crocoddyl
 import numpy as np
 import pinocchio as pin
@@ -63,7 +65,7 @@ def _as_finite_vector(value, n: int, name: str, error=InputError) -> np.ndarray:
         arr = np.full(n, float(arr))
     if arr.shape != (n,):
         raise error(f"{name} must have {n} entries, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         raise error(f"{name} must be finite, got {arr}")
     return arr
 
@@ -594,19 +596,27 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
             q4 = self._default_ee_position_diag
         else:
             q4 = _as_finite_vector(ee_position_diag, 3, "ee_position_diag")
-            if np.any(q4 < 0.0):
+            if (q4 < 0.0).any():
                 raise InputError(f"ee_position_diag must be non-negative, got {q4}")
-        for name, c in (("ee_position_weight", ee_position_weight), ("force_weight", force_weight)):
-            if not np.isfinite(c) or c < 0.0:
+        c4, c6 = float(ee_position_weight), float(force_weight)
+        for name, c in (("ee_position_weight", c4), ("force_weight", c6)):
+            if not math.isfinite(c) or c < 0.0:
                 raise InputError(f"{name} must be finite and non-negative, got {c}")
         self.ee_position_reference[:] = p
         self.force_reference[:] = f
         if qb is not None:
             self.q_reference[:] = qb
-        self._diag["ee_position"][:] = q4
-        self._c["ee_position"] = float(ee_position_weight)
-        self._c["force"] = float(force_weight)
-        self.set_in_contact(in_contact)
+        # The weight vectors are rebuilt only when a weight or the contact flag changes (task
+        # phase switches), not on every MPC step.
+        c, q4_now = self._c, self._diag["ee_position"]
+        weights_changed = c["ee_position"] != c4 or c["force"] != c6 or (q4_now != q4).any()
+        if weights_changed:
+            c["ee_position"], c["force"] = c4, c6
+            q4_now[:] = q4
+        if bool(in_contact) != self.in_contact:
+            self.set_in_contact(in_contact)
+        elif weights_changed:
+            self._update_weights()
 
     def set_in_contact(self, in_contact: bool) -> None:
         """In contact: K, B nominal; otherwise K = B = 0 and c6 = 0 for this node."""
