@@ -173,6 +173,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.seed is not None:
         overrides["seed"] = args.seed
     scenario = load_scenario(args.scenario, overrides)
+    if scenario.mpc.command_delay == "measured":
+        from ffmpc_core.study import resolve_command_delay
+
+        scenario, record = resolve_command_delay(scenario)
+        print(f"mpc.command_delay measured: δo = {record['delta_o_s'] * 1e3:.0f} ms", flush=True)
     result = run_graph(
         scenario,
         duration=args.duration,

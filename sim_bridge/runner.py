@@ -35,12 +35,14 @@ from ffmpc_core.study import (
     StudyLog,
     actuation_model,
     build_task,
+    command_delay,
     draw_run,
     force_sensing_model,
     joint_sensing_model,
     lowlevel_controller,
     measured_force,
     mpc_config,
+    resolve_command_delay,
     spawn_generators,
     steps_per_mpc_period,
     study_metrics,
@@ -64,6 +66,7 @@ class RunResult:
     wall_time: float = 0.0
     solve_time_median: float = 0.0
     iterations_median: float = 0.0
+    command_delay: float = 0.0  # δo of the run, s (pid.delay_cycles plant steps)
 
     def summary(self) -> dict:
         """A JSON-friendly dict without the time series."""
@@ -80,6 +83,7 @@ class RunResult:
             "wall_time_s": self.wall_time,
             "solve_time_median_s": self.solve_time_median,
             "iterations_median": self.iterations_median,
+            "command_delay_s": self.command_delay,
         }
 
 
@@ -107,6 +111,8 @@ def run_scenario(scenario: Scenario, duration: float | None = None) -> RunResult
     """
     wall_start = time.perf_counter()
     robot = load_robot(scenario.robot)
+    # mpc.command_delay: measured → time this MPC here (the studies resolve it beforehand).
+    scenario, _ = resolve_command_delay(scenario, robot)
     # One generator per device, spawned in a fixed order; the ROS nodes spawn the same ones.
     draw_rng, joint_rng, force_rng, act_rng = spawn_generators(scenario.seed)
     draws = draw_run(scenario, robot, draw_rng)
@@ -168,6 +174,7 @@ def run_scenario(scenario: Scenario, duration: float | None = None) -> RunResult
         wall_time=time.perf_counter() - wall_start,
         solve_time_median=float(np.median(solve_times)) if solve_times else 0.0,
         iterations_median=float(np.median(iterations)) if iterations else 0.0,
+        command_delay=round(command_delay(scenario), 12),
     )
 
 
