@@ -409,7 +409,9 @@ class CommonCostHandles:
         self._ee_diag = self._default_ee_diag.copy()  # what the activation holds now
         self._force_item = costs[COST_FORCE] if COST_FORCE in costs else None
         self._force_residual = None if self._force_item is None else self._force_item.cost.residual
-        self._force_linear = np.zeros(3)
+        self._force_linear = np.zeros(3)  # what the force residual's reference holds now
+        self._c4 = float(self._ee_item.weight)
+        self._c6 = None if self._force_item is None else float(self._force_item.weight)
         self._zero3 = np.zeros(3)
         self._x_reference = np.zeros(2 * nv)
 
@@ -419,7 +421,11 @@ class CommonCostHandles:
         ``ref.ee_position_diag`` None restores ``CostWeights.ee_position_diag``.
         """
         self._ee_residual.reference = np.asarray(ref.ee_position, dtype=float)
-        self._ee_item.weight = float(ref.ee_position_weight)
+        # Weights and the force reference are written only when they change (phase switches,
+        # the force ramp): each write crosses into crocoddyl.
+        c4 = float(ref.ee_position_weight)
+        if c4 != self._c4:
+            self._ee_item.weight = self._c4 = c4
         diag = self._default_ee_diag if ref.ee_position_diag is None else ref.ee_position_diag
         if (self._ee_diag != diag).any():
             self._ee_diag[:] = diag
@@ -428,11 +434,16 @@ class CommonCostHandles:
             f = np.asarray(ref.force, dtype=float)
             linear = self._force_linear
             if f.size == 1:
+                changed = linear[2] != f[0]
                 linear[2] = f[0]
             else:
+                changed = bool((linear != f).any())
                 linear[:] = f
-            self._force_residual.reference = pin.Force(linear, self._zero3)
-            self._force_item.weight = float(ref.force_weight)
+            if changed:
+                self._force_residual.reference = pin.Force(linear, self._zero3)
+            c6 = float(ref.force_weight)
+            if c6 != self._c6:
+                self._force_item.weight = self._c6 = c6
         if ref.posture is not None:
             self._x_reference[: self._nv] = ref.posture
             self._posture.reference = self._x_reference

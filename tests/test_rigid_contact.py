@@ -284,3 +284,33 @@ def test_bad_input_raises():
         make_rigid_contact_node(
             robot, contact, CostWeights(), DT, False, baumgarte_velocity_gain=-1.0
         )
+
+
+@pytest.mark.parametrize("contact_name", ["1d_lwa_z", "3d_lwa"])
+def test_every_reference_change_reaches_the_cost(contact_name):
+    """The node writes c4, λ̄, c6 and Q4 into crocoddyl only when they change: a sequence of
+    changes (and returns to earlier values) gives the cost of a node built afresh each time."""
+    robot = load_robot("iiwa")
+    contact = CONTACTS[contact_name]
+    nc = contact.dimension
+    node = make_rigid_contact_node(robot, contact, CostWeights(), DT, False, in_contact=True)
+    data = node.model.createData()
+    x = np.concatenate([robot.q_nominal + 0.01, np.zeros(robot.nv)])
+    tau = robot.gravity(robot.q_nominal) + 1.0
+    p = robot.contact_placement(robot.q_nominal).translation + 0.01
+    sequence = [
+        (10.0, 0.1, 5.0, (1.0, 1.0, 1.0)),
+        (10.0, 0.1, 20.0, (1.0, 1.0, 1.0)),
+        (10.0, 0.3, 20.0, (1.0, 1.0, 0.0)),
+        (30.0, 0.3, 20.0, (1.0, 1.0, 0.0)),
+        (10.0, 0.1, 5.0, (1.0, 1.0, 1.0)),
+    ]
+    for c4, c6, force, diag in sequence:
+        ref = NodeReference(p, np.full(nc, force), c4, c6, True, ee_position_diag=np.array(diag))
+        node.set_reference(ref)
+        node.model.calc(data, x, tau)
+        fresh = make_rigid_contact_node(robot, contact, CostWeights(), DT, False, in_contact=True)
+        fresh.set_reference(ref)
+        fresh_data = fresh.model.createData()
+        fresh.model.calc(fresh_data, x, tau)
+        assert data.cost == pytest.approx(fresh_data.cost, rel=1e-12)
