@@ -1,4 +1,5 @@
-"""``ffmpc bench mpc``: solve time of each formulation, against crocoddyl's all-C++ classical model.
+"""``ffmpc bench mpc``: MPC step and solve times of each formulation, against crocoddyl's all-C++
+classical model.
 
 For every configuration (N = 5, Δt = 3 ms and N = 20, Δt = 10 ms, on the iiwa) each controller
 runs in closed loop against its own dynamics (:mod:`ffmpc_core.model_plant`) through the same
@@ -6,24 +7,36 @@ pressing task — contact from t = 0, normal force ramped to 50 N and held, the 
 polishing circle — so every formulation solves the same sequence of problems from states it
 really visits. The reference is the classical problem built from crocoddyl's C++ residuals only
 (``builtin_residuals``), measured in the same run; ratios are medians over that median.
-Figures are wall-clock on a shared machine: compare ratios, not absolute times, across runs.
+
+Two times per MPC step: the **step** (wall time of the whole ``ModelPredictiveController.step``:
+measured state, the nodes' reference updates, the warm start, the solve, the command) and the
+**solve** alone (mim_solvers' SQP). The step time is the headline figure (``median_ms``,
+``p90_ms``, ``ratio_to_reference``): it is what delays a command. A solve "hits the cap" when
+it used all ``max_iterations`` (8) SQP iterations. Figures are wall-clock on a shared machine:
+compare ratios, not absolute times, across runs.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import platform
 import time
+from pathlib import Path
 
 import numpy as np
 
+from ffmpc_core.config import FORMULATIONS
+from ffmpc_core.errors import ConfigError
 from ffmpc_core.model_plant import run_model_closed_loop
 from ffmpc_core.mpc import MpcConfig
 from ffmpc_core.robots import load_robot
 from ffmpc_core.tasks import PolishingTask
 
+#: (N, Δt in s) of the benchmark.
 CONFIGURATIONS = ((5, 0.003), (20, 0.010))
-CASES = ("reference", "classical", "torque_feedback", "force_feedback")
+REFERENCE = "reference"
+CASES = (REFERENCE, *FORMULATIONS)
 
 
 def _task(robot) -> PolishingTask:
@@ -32,12 +45,17 @@ def _task(robot) -> PolishingTask:
 
 
 def bench_case(case: str, horizon: int, dt: float, solves: int) -> dict:
-    """Closed-loop solves of one case; returns solve-time and iteration statistics."""
+    """Closed-loop MPC steps of one case (``reference`` or a formulation); returns step-time,
+    solve-time (ms) and iteration statistics over every step but the first (cold start)."""
+    if case not in CASES:
+        raise ConfigError(f"unknown bench case {case!r}; choose among {CASES}")
+    if solves < 2:
+        raise ConfigError(f"the benchmark needs at least 2 solves per case, got {solves}")
     robot = load_robot("iiwa")
-    formulation = "classical" if case == "reference" else case
+    formulation = "classical" if case == REFERENCE else case
     config = MpcConfig(formulation=formulation, horizon=horizon, dt=dt)
     factory = None
-    if case == "reference":
+    if case == REFERENCE:
         from ffmpc_core.rigid_contact import make_rigid_contact_node
 
         def factory(terminal: bool):
@@ -49,43 +67,132 @@ def bench_case(case: str, horizon: int, dt: float, solves: int) -> dict:
     log = run_model_closed_loop(
         robot, config, task, duration=solves * config.period, node_factory=factory
     )
-    times = np.asarray(log.solve_time[1:])  # the first solve starts cold
+    steps = np.asarray(log.step_time[1:]) * 1e3  # the first step starts cold
+    solve = np.asarray(log.solve_time[1:]) * 1e3
     iters = np.asarray(log.iterations[1:])
     return {
-        "case": case,
-        "horizon": horizon,
+        "formulation": case,
+        "nodes": horizon,
         "dt": dt,
-        "solves": int(times.size),
-        "median_ms": float(np.median(times) * 1e3),
-        "p90_ms": float(np.percentile(times, 90) * 1e3),
+        "solves": int(steps.size),
+        "median_ms": float(np.median(steps)),
+        "p90_ms": float(np.percentile(steps, 90)),
+        "step_median_ms": float(np.median(steps)),
+        "solve_median_ms": float(np.median(solve)),
+        "solve_p90_ms": float(np.percentile(solve, 90)),
         "iterations_median": float(np.median(iters)),
         "iterations_max": int(iters.max()),
+        "cap_hit_fraction": float(np.mean(iters >= config.max_iterations)),
+        "max_iterations": config.max_iterations,
         "final_force_N": float(log.force[-1][-1]),
     }
 
 
+def parse_cases(items: list[str] | None) -> list[tuple[int, float, list[str]]]:
+    """``--cases`` → [(N, Δt, formulations)] per configuration, the reference always first.
+
+    An item is a formulation (every configuration) or ``formulation:N`` (the configuration with
+    N nodes only); no item: every formulation in every configuration.
+    """
+    by_nodes = {n: dt for n, dt in CONFIGURATIONS}
+    wanted: dict[int, list[str]] = {n: [] for n, _ in CONFIGURATIONS}
+    for item in items or [f for f in FORMULATIONS]:
+        name, _, nodes = item.partition(":")
+        if name not in FORMULATIONS:
+            raise ConfigError(f"--cases: unknown formulation {name!r}; choose among {FORMULATIONS}")
+        if nodes:
+            try:
+                n = int(nodes)
+            except ValueError:
+                raise ConfigError(f"--cases: bad node count in {item!r}") from None
+            if n not in by_nodes:
+                raise ConfigError(f"--cases: N must be one of {sorted(by_nodes)}, got {n}")
+            targets = [n]
+        else:
+            targets = list(by_nodes)
+        for n in targets:
+            if name not in wanted[n]:
+                wanted[n].append(name)
+    return [
+        (n, by_nodes[n], [REFERENCE] + [f for f in FORMULATIONS if f in wanted[n]])
+        for n, _ in CONFIGURATIONS
+        if wanted[n]
+    ]
+
+
+def run_cases(plan: list[tuple[int, float, list[str]]], solves: int, on_row=None) -> list[dict]:
+    """Run the planned cases; every row gets ``ratio_to_reference`` (step medians) and
+    ``solve_ratio_to_reference`` (solve medians) against its configuration's reference."""
+    rows: list[dict] = []
+    for horizon, dt, cases in plan:
+        ref: dict | None = None
+        for case in cases:
+            row = bench_case(case, horizon, dt, solves)
+            if case == REFERENCE:
+                ref = row
+            assert ref is not None  # the reference runs first in every configuration
+            row["ratio_to_reference"] = row["median_ms"] / ref["median_ms"]
+            row["solve_ratio_to_reference"] = row["solve_median_ms"] / ref["solve_median_ms"]
+            rows.append(row)
+            if on_row is not None:
+                on_row(row)
+    return rows
+
+
 def run_bench_mpc(args: argparse.Namespace) -> int:
+    """Print the table (and write ``--json``) of the cases chosen by ``--cases``."""
+    plan = parse_cases(getattr(args, "cases", None))
+    json_path = getattr(args, "json", None)
+    stamp = time.strftime("%Y-%m-%d %H:%M")
+    machine = platform.processor() or platform.machine()
     print(
-        f"ffmpc bench mpc — iiwa, {args.solves} closed-loop solves per case, "
-        f"{platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d %H:%M')}"
+        f"ffmpc bench mpc — iiwa, {args.solves} closed-loop MPC steps per case, {machine}, {stamp}"
     )
     header = (
-        f"{'N':>3} {'dt ms':>5}  {'formulation':16} {'median ms':>9} {'p90 ms':>7} "
-        f"{'iters med':>9} {'iters max':>9} {'ratio':>6} {'force N':>8}"
+        f"{'N':>3} {'dt ms':>5}  {'formulation':16} {'step med':>8} {'step p90':>8} "
+        f"{'solve med':>9} {'iters med':>9} {'iters max':>9} {'cap hit':>7} {'ratio':>6} "
+        f"{'force N':>8}"
     )
-    for horizon, dt in CONFIGURATIONS:
-        print(header)
-        rows = [bench_case(case, horizon, dt, args.solves) for case in CASES]
-        ref = rows[0]["median_ms"]
-        for r in rows:
-            print(
-                f"{horizon:>3} {dt * 1e3:>5.0f}  {r['case']:16} {r['median_ms']:>9.3f} "
-                f"{r['p90_ms']:>7.3f} {r['iterations_median']:>9.1f} {r['iterations_max']:>9d} "
-                f"{r['median_ms'] / ref:>6.2f} {r['final_force_N']:>8.2f}"
-            )
-        print()
+    last_nodes: list[int] = []
+
+    def show(r: dict) -> None:
+        if not last_nodes or last_nodes[-1] != r["nodes"]:
+            if last_nodes:
+                print()
+            print(header)
+            last_nodes.append(r["nodes"])
+        print(
+            f"{r['nodes']:>3} {r['dt'] * 1e3:>5.0f}  {r['formulation']:16} {r['median_ms']:>8.3f} "
+            f"{r['p90_ms']:>8.3f} {r['solve_median_ms']:>9.3f} {r['iterations_median']:>9.1f} "
+            f"{r['iterations_max']:>9d} {100 * r['cap_hit_fraction']:>6.1f}% "
+            f"{r['ratio_to_reference']:>6.2f} {r['final_force_N']:>8.2f}",
+            flush=True,
+        )
+
+    rows = run_cases(plan, args.solves, show)
+    print()
     print(
-        "ratio = median solve time / median of 'reference' (crocoddyl's all-C++ classical "
-        "model, same task, same run). 'force N' = normal force at the end of the run."
+        "times in ms; step = the whole MPC step (references, warm start, solve), solve = the SQP "
+        "alone; ratio = median step time / median of 'reference' (crocoddyl's all-C++ classical "
+        "model, same task, same run); cap hit = solves that used all 8 iterations; 'force N' = "
+        "normal force at the end of the run."
     )
+    if json_path:
+        doc = {
+            "command": "ffmpc bench mpc",
+            "created": stamp,
+            "machine": machine,
+            "solves_per_case": args.solves,
+            "notes": (
+                "median_ms, p90_ms, step_median_ms: wall time of the whole MPC step (reference "
+                "updates, warm start, solve), ms; solve_*: the SQP solve alone, ms; "
+                "ratio_to_reference: median step time over that of 'reference' (crocoddyl's "
+                "all-C++ classical model) in the same configuration and run; "
+                "cap_hit_fraction: fraction of solves that used max_iterations."
+            ),
+            "cases": rows,
+        }
+        path = Path(json_path)
+        path.write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+        print(f"wrote {path}")
     return 0

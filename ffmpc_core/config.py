@@ -131,3 +131,18 @@ class NodeReference:
     #: Q4 for this node (3 entries, world axes); None keeps CostWeights.ee_position_diag. Tasks
     #: zero the normal (z) entry in contact so the normal direction belongs to the force task.
     ee_position_diag: np.ndarray | None = field(default=None)
+
+    @classmethod
+    def empty(cls, dimension: int = 1) -> NodeReference:
+        """A preallocated reference (zeros, out of contact, Q4 = 1) for ``reference_into``:
+        ``dimension`` force entries, ``ee_position_diag`` allocated, no posture."""
+        if dimension not in (1, 3):
+            raise ConfigError(f"force dimension must be 1 or 3, got {dimension}")
+        return cls(
+            ee_position=np.zeros(3),
+            force=np.zeros(dimension),
+            ee_position_weight=0.0,
+            force_weight=0.0,
+            in_contact=False,
+            ee_position_diag=np.ones(3),
+        )

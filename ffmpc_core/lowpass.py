@@ -245,7 +245,7 @@ class LowPassNode(SwitchableContactNode):
         self.cutoff_frequency = float(cutoff_frequency)
         self.alpha = lowpass_alpha(cutoff_frequency, dt)
         self._models: dict[bool, IntegratedActionModelLPF] = {}
-        self._handles: list[CommonCostHandles] = []
+        self._handles: dict[bool, CommonCostHandles] = {}
         for status in (False,) if self.terminal else (False, True):
             dam = make_differential_model(
                 robot,
@@ -259,7 +259,7 @@ class LowPassNode(SwitchableContactNode):
             self._models[status] = IntegratedActionModelLPF(
                 dam, self.dt, cutoff_frequency, weights.lowpass_input
             )
-            self._handles.append(CommonCostHandles(dam, robot.nv))
+            self._handles[status] = CommonCostHandles(dam, robot.nv, weights.diag("ee_position", 3))
         self.in_contact = bool(in_contact) and not self.terminal
         self.model = self._models[self.in_contact]
 

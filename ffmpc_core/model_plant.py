@@ -13,6 +13,7 @@ formulation, integrated at ``dt`` (1 ms by default):
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -110,7 +111,10 @@ class ModelPlant:
 
 @dataclass
 class ClosedLoopLog:
-    """Time series of a closed-loop run (rows per plant step)."""
+    """Time series of a closed-loop run: rows per plant step, and per MPC step for
+    ``iterations``, ``solve_time`` (s, the SQP solve alone), ``step_time`` (s, wall time of the
+    whole ``ModelPredictiveController.step``: state, references, warm start, solve, command) and
+    ``converged``."""
 
     t: list[float] = field(default_factory=list)
     force: list[np.ndarray] = field(default_factory=list)
@@ -119,6 +123,8 @@ class ClosedLoopLog:
     ee_reference: list[np.ndarray] = field(default_factory=list)
     iterations: list[int] = field(default_factory=list)
     solve_time: list[float] = field(default_factory=list)
+    step_time: list[float] = field(default_factory=list)
+    converged: list[bool] = field(default_factory=list)
 
     def arrays(self) -> dict[str, np.ndarray]:
         return {k: np.asarray(v) for k, v in self.__dict__.items()}
@@ -155,9 +161,13 @@ def run_model_closed_loop(
     for k in range(int(round(duration / plant_dt))):
         t = k * plant_dt
         if k % every == 0:
-            command = mpc.step(plant.measurement(), t)
+            measurement = plant.measurement()
+            start = time.perf_counter()
+            command = mpc.step(measurement, t)
+            log.step_time.append(time.perf_counter() - start)
             log.iterations.append(command.iterations)
             log.solve_time.append(command.solve_time)
+            log.converged.append(command.converged)
         control = command.us[0] if mpc_config.formulation == "torque_feedback" else command.torque
         plant.step(control, schedule.in_contact(t))
         q = plant.x[: robot.nq]

@@ -8,8 +8,9 @@ Every ``step``:
 
 1. builds x̂ from the measurement: (q, v) classical, (q, v, τ̂) torque-feedback, (q, v, λ̂)
    force-feedback (eq 5, 10, 19);
-2. asks the task schedule for the references of every node at t + kΔt and updates the nodes in
-   place (phase switches replace a node's model only when its contact status changes);
+2. has the task schedule write the references of every node at t + kΔt into preallocated
+   references and updates the nodes in place (phase switches replace a node's model only when
+   its contact status changes);
 3. warm-starts from the previous solution shifted by the elapsed time (linear interpolation
    along the horizon, first state replaced by x̂);
 4. solves with ``mim_solvers.SolverSQP`` (filter line search, ≤ 8 iterations, KKT tolerance 1e-4,
@@ -44,7 +45,15 @@ class OcpNode(Protocol):
 
 
 class Schedule(Protocol):
+    """A task schedule (:mod:`ffmpc_core.tasks`): the reference of a node at time t (s).
+
+    ``reference_into`` writes into a preallocated reference (no allocation on the MPC's hot
+    path); a schedule without it is asked for a new ``reference`` per node instead.
+    """
+
     def reference(self, t: float, dimension: int = 1) -> NodeReference: ...
+
+    def reference_into(self, t: float, ref: NodeReference) -> NodeReference: ...
 
 
 @dataclass(frozen=True)
@@ -187,6 +196,10 @@ class ModelPredictiveController:
         self._x0 = np.zeros(self.nx)
         self._x0[:nv] = q_ref
         self._make_problem()
+        # One preallocated reference per node (+ terminal, + predictor), filled in place.
+        self._refs = [NodeReference.empty(self.nc) for _ in range(config.horizon + 1)]
+        self._predictor_ref = NodeReference.empty(self.nc)
+        self._reference_into = getattr(schedule, "reference_into", None)
         self._predictor = None
         if config.command_delay > 0.0:
             # Torque-feedback: what acts during the delay is the torque τ̃ already sent, so (q, v)
@@ -296,7 +309,7 @@ class ModelPredictiveController:
             for ts, us in self._sent:
                 if ts <= s + 1e-12:
                     u = us
-            ref = self.schedule.reference(t + i * h, self.nc)
+            ref = self._reference(t + i * h, self._predictor_ref)
             if self._predictor.set_reference(ref):
                 self._predictor_data = self._predictor.model.createData()
             self._predictor.model.calc(self._predictor_data, x, u)
@@ -317,13 +330,21 @@ class ModelPredictiveController:
             raise InputError(f"measurement {name} is not finite: {arr}")
         return arr
 
+    def _reference(self, t: float, ref: NodeReference) -> NodeReference:
+        """The schedule's reference at t, written into ``ref`` when the schedule can."""
+        if self._reference_into is not None:
+            return self._reference_into(t, ref)
+        return self.schedule.reference(t, self.nc)
+
     def _update_references(self, t: float) -> None:
+        """Node k gets the reference at t + kΔt, the terminal node the one at t + NΔt."""
         dt = self.config.dt
         changed = False
+        refs = self._refs
         for k, node in enumerate(self.nodes):
-            changed |= node.set_reference(self.schedule.reference(t + k * dt, self.nc))
+            changed |= node.set_reference(self._reference(t + k * dt, refs[k]))
         horizon_end = t + len(self.nodes) * dt
-        changed |= self.terminal_node.set_reference(self.schedule.reference(horizon_end, self.nc))
+        changed |= self.terminal_node.set_reference(self._reference(horizon_end, refs[-1]))
         if changed:
             self._make_problem()
 

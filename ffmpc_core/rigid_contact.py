@@ -65,6 +65,8 @@ change) just allocates one node's data.
 
 from __future__ import annotations
 
+import math
+
 import crocoddyl
 import numpy as np
 import pinocchio as pin
@@ -359,49 +361,92 @@ def _check_posture(robot: RobotModel, q: np.ndarray) -> np.ndarray:
     return q.copy()
 
 
+def _is_finite_vector(value, n: int) -> bool:
+    arr = np.asarray(value, dtype=float)
+    return arr.shape == (n,) and bool(np.isfinite(arr).all())
+
+
 def check_node_reference(ref: NodeReference, contact: ContactConfig, nq: int) -> None:
     """Raise :class:`InputError` unless ``ref`` has the right sizes and finite, valid values."""
-    p = np.asarray(ref.ee_position, dtype=float)
-    if p.shape != (3,) or not np.all(np.isfinite(p)):
+    if not _is_finite_vector(ref.ee_position, 3):
         raise InputError(f"ee_position must be 3 finite values (m), got {ref.ee_position!r}")
-    f = np.asarray(ref.force, dtype=float)
-    if f.shape != (contact.dimension,) or not np.all(np.isfinite(f)):
+    if not _is_finite_vector(ref.force, contact.dimension):
         raise InputError(f"force must be {contact.dimension} finite values (N), got {ref.force!r}")
     for name in ("ee_position_weight", "force_weight"):
         w = getattr(ref, name)
-        if not np.isfinite(w) or w < 0:
+        if not math.isfinite(w) or w < 0:
             raise InputError(f"{name} must be finite and >= 0, got {w!r}")
-    if ref.posture is not None:
-        q = np.asarray(ref.posture, dtype=float)
-        if q.shape != (nq,) or not np.all(np.isfinite(q)):
-            raise InputError(f"posture must be {nq} finite values (rad), got {ref.posture!r}")
+    if ref.posture is not None and not _is_finite_vector(ref.posture, nq):
+        raise InputError(f"posture must be {nq} finite values (rad), got {ref.posture!r}")
+    d = ref.ee_position_diag
+    if d is not None and (not _is_finite_vector(d, 3) or bool((np.asarray(d) < 0).any())):
+        raise InputError(f"ee_position_diag must be 3 finite values >= 0, got {d!r}")
 
 
 class CommonCostHandles:
-    """Handles on the per-node references of ℓ0 in one differential model: p̄, c4, λ̄, c6, q̄."""
+    """Handles on the per-node references of ℓ0 in one differential model: p̄, c4, Q4, λ̄, c6, q̄.
 
-    def __init__(self, differential: crocoddyl.DifferentialActionModelAbstract, nv: int) -> None:
+    Q4 (the activation of the end-effector position cost) is changed in place on the crocoddyl
+    ``ActivationModelWeightedQuad``. crocoddyl 3.2.1 copies the new weights into the Hessian of
+    the activation data at the next ``calcDiff`` of ONE data only (a flag of the model), so a
+    model must have a single data alive when its Q4 changes — as in the MPC's shooting problem,
+    where each node model has exactly one; data created after the change are always right.
+    """
+
+    def __init__(
+        self,
+        differential: crocoddyl.DifferentialActionModelAbstract,
+        nv: int,
+        ee_position_diag: np.ndarray,
+    ) -> None:
         costs = differential.costs.costs
         self._nv = nv
         self._posture = costs[COST_POSTURE].cost.residual
         self._ee_item = costs[COST_EE_POSITION]
         self._ee_residual = self._ee_item.cost.residual
+        self._ee_activation = self._ee_item.cost.activation
+        self._default_ee_diag = np.array(ee_position_diag, dtype=float)
+        self._ee_diag = self._default_ee_diag.copy()  # what the activation holds now
         self._force_item = costs[COST_FORCE] if COST_FORCE in costs else None
         self._force_residual = None if self._force_item is None else self._force_item.cost.residual
+        self._force_linear = np.zeros(3)  # what the force residual's reference holds now
+        self._c4 = float(self._ee_item.weight)
+        self._c6 = None if self._force_item is None else float(self._force_item.weight)
+        self._zero3 = np.zeros(3)
+        self._x_reference = np.zeros(2 * nv)
 
     def apply(self, ref: NodeReference) -> None:
-        """Copy the references of ``ref`` into the cost model (in place; validated before)."""
+        """Copy the references of ``ref`` into the cost model (in place; validated before).
+
+        ``ref.ee_position_diag`` None restores ``CostWeights.ee_position_diag``.
+        """
         self._ee_residual.reference = np.asarray(ref.ee_position, dtype=float)
-        self._ee_item.weight = float(ref.ee_position_weight)
+        # Weights and the force reference are written only when they change (phase switches,
+        # the force ramp): each write crosses into crocoddyl.
+        c4 = float(ref.ee_position_weight)
+        if c4 != self._c4:
+            self._ee_item.weight = self._c4 = c4
+        diag = self._default_ee_diag if ref.ee_position_diag is None else ref.ee_position_diag
+        if (self._ee_diag != diag).any():
+            self._ee_diag[:] = diag
+            self._ee_activation.weights = self._ee_diag
         if self._force_item is not None:
             f = np.asarray(ref.force, dtype=float)
-            linear = np.array([0.0, 0.0, f[0]]) if f.size == 1 else f
-            self._force_residual.reference = pin.Force(linear, np.zeros(3))
-            self._force_item.weight = float(ref.force_weight)
+            linear = self._force_linear
+            if f.size == 1:
+                changed = linear[2] != f[0]
+                linear[2] = f[0]
+            else:
+                changed = bool((linear != f).any())
+                linear[:] = f
+            if changed:
+                self._force_residual.reference = pin.Force(linear, self._zero3)
+            c6 = float(ref.force_weight)
+            if c6 != self._c6:
+                self._force_item.weight = self._c6 = c6
         if ref.posture is not None:
-            self._posture.reference = np.concatenate(
-                [np.asarray(ref.posture, dtype=float), np.zeros(self._nv)]
-            )
+            self._x_reference[: self._nv] = ref.posture
+            self._posture.reference = self._x_reference
 
 
 def rigid_contact_force(
@@ -423,20 +468,18 @@ def rigid_contact_force(
 class SwitchableContactNode:
     """``set_reference`` of the nodes that hold a free and an in-contact model (classical and
     torque-feedback): attributes ``robot``, ``contact``, ``terminal``, ``in_contact``, ``model``,
-    ``_models`` {bool: model} and ``_handles`` (cost handles updated in place)."""
+    ``_models`` {bool: model} and ``_handles`` {bool: cost handles of that model}."""
 
     def set_reference(self, ref: NodeReference) -> bool:
-        """Update p̄, λ̄, c4, c6 (and q̄) in place and select contact/free dynamics.
+        """Select contact/free dynamics and update its p̄, λ̄, c4, Q4, c6 (and q̄) in place.
 
-        Returns True iff ``model`` is now a different object: the caller must then call
-        ``problem.updateModel(k, node.model)``. A terminal node never switches.
+        Only the selected model's costs are written (the other one gets them when it is
+        selected again). Returns True iff ``model`` is now a different object: the caller must
+        then call ``problem.updateModel(k, node.model)``. A terminal node never switches.
         """
         check_node_reference(ref, self.contact, self.robot.nq)
-        for handles in self._handles:
-            handles.apply(ref)
-        if self.terminal:
-            return False
-        status = bool(ref.in_contact)
+        status = False if self.terminal else bool(ref.in_contact)
+        self._handles[status].apply(ref)
         if status == self.in_contact:
             return False
         self.in_contact = status
@@ -481,13 +524,13 @@ class RigidContactNode(SwitchableContactNode):
             builtin_residuals=builtin_residuals,
         )
         self._models: dict[bool, crocoddyl.IntegratedActionModelEuler] = {}
-        self._handles: list[CommonCostHandles] = []
+        self._handles: dict[bool, CommonCostHandles] = {}
         for status in (False,) if self.terminal else (False, True):
             dam = make_differential_model(
                 robot, contact, weights, in_contact=status, terminal=self.terminal, **kwargs
             )
             self._models[status] = crocoddyl.IntegratedActionModelEuler(dam, self.dt)
-            self._handles.append(CommonCostHandles(dam, robot.nv))
+            self._handles[status] = CommonCostHandles(dam, robot.nv, weights.diag("ee_position", 3))
         self.in_contact = bool(in_contact) and not self.terminal
         self.model = self._models[self.in_contact]
 

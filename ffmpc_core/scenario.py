@@ -25,6 +25,9 @@ from ffmpc_core.config import FORMULATIONS, ContactConfig, CostWeights
 from ffmpc_core.errors import ConfigError
 
 SECTIONS = ("plant", "joint_sensor", "ft_sensor", "mpc", "pid")
+#: ``mpc.command_delay`` settings besides a number of seconds.
+COMMAND_DELAY_PID = "pid"
+COMMAND_DELAY_MEASURED = "measured"
 WILDCARD = "/**"
 
 #: Where the scenario files shipped with ffmpc live.
@@ -113,6 +116,12 @@ class MpcSection:
     cutoff_frequency: float = 50.0
     riccati_feedback: bool = False
     delay_compensation: bool = True  # send the plan for t + δo (δo = pid.delay_cycles)
+    #: δo, the delay between a measurement and the moment its command acts (eq 33's delay line
+    #: and the MPC's prediction): "pid" = pid.delay_cycles plant steps (the default), a number of
+    #: seconds (a whole number of plant steps; it sets pid.delay_cycles), or "measured" = the
+    #: median MPC step time of a short calibration run of this MPC on this machine, rounded up
+    #: to the plant step (:func:`ffmpc_core.study.resolve_command_delay`; the studies do it).
+    command_delay: str = COMMAND_DELAY_PID
     contact: ContactConfig = field(default_factory=ContactConfig)
     #: per formulation: CostWeights fields plus ``force_phase`` (c6) and ``ee_position_phase``
     weights: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -166,6 +175,8 @@ class Scenario:
             if key not in flat and not key.startswith("mpc.weights."):
                 raise ConfigError(f"unknown scenario parameter {key!r}")
             flat[key] = value
+        if "pid.delay_cycles" in overrides and "mpc.command_delay" not in overrides:
+            flat["mpc.command_delay"] = COMMAND_DELAY_PID  # the explicit δo in cycles wins
         return _scenario_from_flat(self.name, flat)
 
 
@@ -216,6 +227,8 @@ def _scenario_from_flat(name: str, flat: dict[str, Any]) -> Scenario:
                 raise ConfigError(f"mpc.weights: unknown formulation {form!r}")
             weights.setdefault(form, {})[wname] = value
     plain = {k: v for k, v in mpc_flat.items() if not k.startswith(("contact.", "weights."))}
+    if "command_delay" in plain:
+        plain["command_delay"] = _command_delay_setting(plain["command_delay"])
     mpc = replace(_coerce(MpcSection, plain, "mpc"), contact=contact, weights=weights)
     if mpc.formulation not in FORMULATIONS:
         raise ConfigError(f"mpc.formulation must be one of {FORMULATIONS}")
@@ -234,7 +247,45 @@ def _scenario_from_flat(name: str, flat: dict[str, Any]) -> Scenario:
     )
     if scenario.task.name not in ("polishing", "force_square"):
         raise ConfigError(f"task.name must be polishing or force_square, got {scenario.task.name}")
+    fixed = command_delay_seconds(scenario.mpc.command_delay)
+    if fixed is not None:  # a fixed δo sets the PID's delay line
+        cycles = delay_in_plant_steps(fixed, scenario.plant.time_step)
+        scenario = replace(scenario, pid=replace(scenario.pid, delay_cycles=cycles))
     return scenario
+
+
+def _command_delay_setting(value: Any) -> str:
+    """``mpc.command_delay`` as its canonical text: "pid", "measured" or seconds (``repr``)."""
+    if isinstance(value, str) and value.strip() in (COMMAND_DELAY_PID, COMMAND_DELAY_MEASURED):
+        return value.strip()
+    if isinstance(value, bool):
+        raise ConfigError(f"mpc.command_delay must be 'pid', 'measured' or seconds, got {value!r}")
+    try:
+        seconds = float(value)
+    except (TypeError, ValueError):
+        raise ConfigError(
+            f"mpc.command_delay must be 'pid', 'measured' or seconds, got {value!r}"
+        ) from None
+    if not (np.isfinite(seconds) and seconds >= 0.0):
+        raise ConfigError(f"mpc.command_delay must be finite and >= 0 s, got {value!r}")
+    return repr(seconds)
+
+
+def command_delay_seconds(setting: str) -> float | None:
+    """δo in s of a fixed ``mpc.command_delay`` setting; None for "pid" and "measured"."""
+    if setting in (COMMAND_DELAY_PID, COMMAND_DELAY_MEASURED):
+        return None
+    return float(setting)
+
+
+def delay_in_plant_steps(delay: float, time_step: float) -> int:
+    """A delay (s) as a whole number of plant steps (ConfigError if it is not one)."""
+    cycles = delay / time_step
+    if abs(cycles - round(cycles)) > 1e-6:
+        raise ConfigError(
+            f"mpc.command_delay = {delay} s is not a whole number of plant steps ({time_step} s)"
+        )
+    return int(round(cycles))
 
 
 def _scenario_to_flat(s: Scenario) -> dict[str, Any]:

@@ -31,6 +31,8 @@ residual ``√(c·Q·Δt)·r`` so that ``cost = ½‖data.r‖²`` and the Gauss
 
 from __future__ import annotations
 
+import math
+
 import crocoddyl
 import numpy as np
 import pinocchio as pin
@@ -63,7 +65,7 @@ def _as_finite_vector(value, n: int, name: str, error=InputError) -> np.ndarray:
         arr = np.full(n, float(arr))
     if arr.shape != (n,):
         raise error(f"{name} must have {n} entries, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         raise error(f"{name} must be finite, got {arr}")
     return arr
 
@@ -500,7 +502,7 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
         self.nv, self.nc, self.ndx = nv, nc, 2 * nv + nc
         self.u_lb = -robot.torque_limit
         self.u_ub = robot.torque_limit.copy()
-        # Activations Q_i (immutable) and scalar weights c_i (c4, c6 change per node).
+        # Activations Q_i (Q4 changes per node) and scalar weights c_i (c4, c6 change per node).
         self._diag = {
             "posture": weights.diag("posture", nv),
             "joint_velocity": weights.diag("joint_velocity", nv),
@@ -510,6 +512,7 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
             "force": weights.diag("force", nc),
             "force_rate": np.ones(nc),
         }
+        self._default_ee_position_diag = self._diag["ee_position"].copy()
         self._c = {
             "posture": weights.posture,
             "joint_velocity": weights.joint_velocity,
@@ -577,21 +580,43 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
         force_weight: float,
         in_contact: bool,
         posture: np.ndarray | None = None,
+        ee_position_diag: np.ndarray | None = None,
     ) -> None:
-        """Update p̄ (m, world), λ̄ (N, force frame), c4, c6, the contact flag and q̄ (rad)."""
+        """Update p̄ (m, world), λ̄ (N, force frame), c4, c6, the contact flag, q̄ (rad) and Q4.
+
+        ``ee_position_diag`` is the activation Q4 of the end-effector position cost (3 entries,
+        world axes, ≥ 0; tasks give (1, 1, 0) in contact so that the normal direction belongs to
+        the force task); None restores ``CostWeights.ee_position_diag``. Nothing changes when
+        any value is invalid (InputError).
+        """
         p = _as_finite_vector(ee_position, 3, "ee_position")
         f = _as_finite_vector(np.atleast_1d(force), self.nc, "force")
         qb = None if posture is None else _as_finite_vector(posture, self.nv, "posture")
-        for name, c in (("ee_position_weight", ee_position_weight), ("force_weight", force_weight)):
-            if not np.isfinite(c) or c < 0.0:
+        if ee_position_diag is None:
+            q4 = self._default_ee_position_diag
+        else:
+            q4 = _as_finite_vector(ee_position_diag, 3, "ee_position_diag")
+            if (q4 < 0.0).any():
+                raise InputError(f"ee_position_diag must be non-negative, got {q4}")
+        c4, c6 = float(ee_position_weight), float(force_weight)
+        for name, c in (("ee_position_weight", c4), ("force_weight", c6)):
+            if not math.isfinite(c) or c < 0.0:
                 raise InputError(f"{name} must be finite and non-negative, got {c}")
         self.ee_position_reference[:] = p
         self.force_reference[:] = f
         if qb is not None:
             self.q_reference[:] = qb
-        self._c["ee_position"] = float(ee_position_weight)
-        self._c["force"] = float(force_weight)
-        self.set_in_contact(in_contact)
+        # The weight vectors are rebuilt only when a weight or the contact flag changes (task
+        # phase switches), not on every MPC step.
+        c, q4_now = self._c, self._diag["ee_position"]
+        weights_changed = c["ee_position"] != c4 or c["force"] != c6 or (q4_now != q4).any()
+        if weights_changed:
+            c["ee_position"], c["force"] = c4, c6
+            q4_now[:] = q4
+        if bool(in_contact) != self.in_contact:
+            self.set_in_contact(in_contact)
+        elif weights_changed:
+            self._update_weights()
 
     def set_in_contact(self, in_contact: bool) -> None:
         """In contact: K, B nominal; otherwise K = B = 0 and c6 = 0 for this node."""
@@ -766,7 +791,8 @@ class SoftContactNode:
         return self.model.terminal
 
     def set_reference(self, ref: NodeReference) -> bool:
-        """Update p̄ (m, world), λ̄ (N), c4, c6, q̄ (if given) and the contact flag in place.
+        """Update p̄ (m, world), λ̄ (N), c4, c6, q̄ (if given), Q4 (``ref.ee_position_diag``;
+        None: the CostWeights one) and the contact flag in place.
 
         Out of contact (``ref.in_contact`` False) the node's K = B = 0 and c6 = 0. Returns
         False: the model object is never replaced, so the solver's problem needs no rebuild.
@@ -778,6 +804,7 @@ class SoftContactNode:
             ref.force_weight,
             ref.in_contact,
             ref.posture,
+            ref.ee_position_diag,
         )
         return False
 

@@ -12,7 +12,8 @@ the paper's metrics (eq 34–35, Tables II–IV), for the runner and for the ROS
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pinocchio as pin
@@ -25,7 +26,7 @@ from ffmpc_core.metrics import PolishingMetrics, polishing_metrics
 from ffmpc_core.mpc import MpcConfig
 from ffmpc_core.pid import TorquePid, TorquePidGains
 from ffmpc_core.robots import RobotModel
-from ffmpc_core.scenario import Scenario
+from ffmpc_core.scenario import COMMAND_DELAY_MEASURED, COMMAND_DELAY_PID, Scenario
 from ffmpc_core.sensing import ForceSensingModel, SensingModel, SensingParams
 from ffmpc_core.tasks import ForceSquareTask, PhaseWeights, PolishingTask
 
@@ -120,8 +121,17 @@ def draw_run(scenario: Scenario, robot: RobotModel, rng: np.random.Generator) ->
 
 
 def mpc_config(scenario: Scenario) -> MpcConfig:
-    """The MPC's parameters; with ``mpc.delay_compensation`` it plans for t + δo."""
+    """The MPC's parameters; with ``mpc.delay_compensation`` it plans for t + δo.
+
+    δo = ``pid.delay_cycles`` plant steps; ``mpc.command_delay: measured`` must have been
+    resolved first (:func:`resolve_command_delay`).
+    """
     m = scenario.mpc
+    if m.command_delay == COMMAND_DELAY_MEASURED:
+        raise ConfigError(
+            "mpc.command_delay is 'measured': resolve it first (resolve_command_delay; the "
+            "studies and `ffmpc run` do)"
+        )
     return MpcConfig(
         formulation=m.formulation,
         horizon=m.horizon,
@@ -136,6 +146,76 @@ def mpc_config(scenario: Scenario) -> MpcConfig:
         if m.delay_compensation
         else 0.0,
     )
+
+
+def command_delay(scenario: Scenario) -> float:
+    """δo of a (resolved) scenario, s: ``pid.delay_cycles`` plant steps."""
+    return scenario.pid.delay_cycles * scenario.plant.time_step
+
+
+def measure_mpc_step_time(scenario: Scenario, robot: RobotModel, steps: int = 60) -> float:
+    """Median wall time of the scenario's MPC step on this machine, s (the calibration of
+    ``mpc.command_delay: measured``).
+
+    The MPC of the scenario (formulation, horizon, Δt, weights, contact; δo as
+    ``pid.delay_cycles`` so that its predictor is timed too) runs ``steps`` steps in closed loop
+    against its own dynamics (:mod:`ffmpc_core.model_plant`), pressing and circling from the
+    nominal posture (in contact, where solves are the hardest); the cold first step is left
+    out. The whole step is timed (state, references, warm start, solve): it is what delays a
+    command.
+    """
+    from ffmpc_core.model_plant import run_model_closed_loop
+
+    if steps < 2:
+        raise ConfigError(f"the calibration needs at least 2 MPC steps, got {steps}")
+    provisional = replace(scenario, mpc=replace(scenario.mpc, command_delay=COMMAND_DELAY_PID))
+    config = mpc_config(provisional)
+    p0 = robot.contact_placement(robot.q_nominal).translation
+    task = PolishingTask.pressing(p0, force_ramp=0.1, circle=10.0, stop=0.0)
+    log = run_model_closed_loop(robot, config, task, duration=steps * config.period)
+    return float(np.median(log.step_time[1:]))
+
+
+def resolve_command_delay(
+    scenario: Scenario,
+    robot: RobotModel | None = None,
+    measured: float | None = None,
+    steps: int = 60,
+) -> tuple[Scenario, dict]:
+    """The scenario with δo settled, and a record of it for the results.
+
+    ``mpc.command_delay``: "pid" and fixed values are returned as they are; "measured" becomes
+    the median MPC step time (``measured``, s, or :func:`measure_mpc_step_time` with ``steps``)
+    rounded UP to a whole number of plant steps (so lockstep stays exact), which sets
+    ``pid.delay_cycles``. The record: ``setting``, ``delta_o_s`` (δo used, s),
+    ``delay_cycles`` and, when measured, ``measured_step_median_s`` and ``calibration_steps``.
+    """
+    setting = scenario.mpc.command_delay
+    dt = scenario.plant.time_step
+    record: dict = {"setting": setting}
+    if setting == COMMAND_DELAY_MEASURED:
+        if measured is None:
+            from ffmpc_core.robots import load_robot
+
+            robot = robot or load_robot(scenario.robot)
+            measured = measure_mpc_step_time(scenario, robot, steps)
+            record["calibration_steps"] = steps
+        if not (np.isfinite(measured) and measured >= 0.0):
+            raise ConfigError(f"measured MPC step time must be finite and >= 0 s, got {measured}")
+        cycles = int(math.ceil(measured / dt - 1e-9))  # 0.004 / 0.001 is 4.000000000000001
+        if cycles * dt < measured:
+            cycles += 1
+        horizon = scenario.mpc.horizon * scenario.mpc.dt
+        if scenario.mpc.delay_compensation and cycles * dt >= horizon:
+            raise ConfigError(
+                f"measured δo {measured * 1e3:.2f} ms rounds up to {cycles * dt * 1e3:.0f} ms, "
+                f"not shorter than the MPC horizon N·Δt = {horizon * 1e3:.0f} ms"
+            )
+        scenario = scenario.with_overrides({"mpc.command_delay": round(cycles * dt, 12)})
+        record["measured_step_median_s"] = float(measured)
+    record["delay_cycles"] = scenario.pid.delay_cycles
+    record["delta_o_s"] = round(command_delay(scenario), 12)
+    return scenario, record
 
 
 def measured_force(wrench_world: np.ndarray, contact: ContactConfig) -> np.ndarray:

@@ -2,7 +2,9 @@
 
 A schedule maps a time t (s, simulated) to a :class:`~ffmpc_core.config.NodeReference`. The MPC
 asks it for every node of its horizon (t, t + Δt, …), so references and phase switches are
-previewed. Schedules are pure functions of t: no clock, no state.
+previewed. Schedules are pure functions of t: no clock, no state. ``reference(t, dimension)``
+returns a new reference; ``reference_into(t, ref)`` writes the same values into a preallocated
+one (:meth:`NodeReference.empty`), which is what the MPC does every step for every node.
 
 Two tasks of the force-feedback paper:
 
@@ -19,6 +21,7 @@ And one for the impact study (Dehio & Kheddar 2020, Sec. VI, after the contact):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,12 +62,23 @@ class _ApproachThenContact:
 
     def approach_position(self, t: float) -> np.ndarray:
         """p̄(t) up to the contact time: at rest, then a minimum-jerk reach, m, world frame."""
+        return self._approach_position_into(t, np.empty(3))
+
+    def _approach_position_into(self, t: float, out: np.ndarray) -> np.ndarray:
         start = np.asarray(self.start_position, float)
-        contact = np.asarray(self.contact_position, float)
         if t < self.still:
-            return start.copy()
+            out[:] = start
+            return out
         s = min_jerk((t - self.still) / max(self.reach, 1e-9))
-        return start + s * (contact - start)
+        np.subtract(np.asarray(self.contact_position, float), start, out=out)
+        out *= s
+        out += start
+        return out
+
+    def _ee_position_into(self, t: float, out: np.ndarray) -> np.ndarray:
+        """p̄(t) written into ``out`` (3 entries), m, world frame; subclasses may override."""
+        out[:] = self.ee_position(t)
+        return out
 
     def in_contact(self, t: float) -> bool:
         return t >= self.contact_time
@@ -72,18 +86,24 @@ class _ApproachThenContact:
     def reference(self, t: float, dimension: int = 1) -> NodeReference:
         """The node reference at time t for a contact model with ``dimension`` force entries
         (1-D: the normal; 3-D (x, y, z): the z entry carries the normal force)."""
+        return self.reference_into(t, NodeReference.empty(dimension))
+
+    def reference_into(self, t: float, ref: NodeReference) -> NodeReference:
+        """Write the node reference at time t into ``ref`` (from :meth:`NodeReference.empty`;
+        its force size is the dimension) without allocating; returns ``ref``. ``posture`` is
+        left as it is (these tasks do not set it)."""
         contact = self.in_contact(t)
-        force = np.zeros(dimension)
-        force[-1] = self.force(t)
+        self._ee_position_into(t, ref.ee_position)
+        ref.force[:] = 0.0
+        ref.force[-1] = self.force(t)
         w = self.weights
-        return NodeReference(
-            ee_position=self.ee_position(t),
-            force=force,
-            ee_position_weight=w.contact_ee_position if contact else w.free_ee_position,
-            force_weight=w.force if contact else 0.0,
-            in_contact=contact,
-            ee_position_diag=np.array([1.0, 1.0, self._ee_z_weight_in_contact if contact else 1.0]),
-        )
+        ref.ee_position_weight = w.contact_ee_position if contact else w.free_ee_position
+        ref.force_weight = w.force if contact else 0.0
+        ref.in_contact = contact
+        diag = ref.ee_position_diag
+        diag[0] = diag[1] = 1.0
+        diag[2] = self._ee_z_weight_in_contact if contact else 1.0
+        return ref
 
 
 @dataclass(frozen=True)
@@ -170,11 +190,19 @@ class PolishingTask(_ApproachThenContact):
 
     def ee_position(self, t: float) -> np.ndarray:
         """Desired contact-frame position p̄(t), m, world frame."""
-        if t < self.circle_start:
-            return self.approach_position(t)
-        angle = self.angular_velocity * (min(t, self.circle_end) - self.circle_start)
-        c = self.circle_center()
-        return c + self.circle_radius * np.array([np.cos(angle), np.sin(angle), 0.0])
+        return self._ee_position_into(t, np.empty(3))
+
+    def _ee_position_into(self, t: float, out: np.ndarray) -> np.ndarray:
+        circle_start = self.circle_start
+        if t < circle_start:
+            return self._approach_position_into(t, out)
+        angle = self.angular_velocity * (min(t, circle_start + self.circle) - circle_start)
+        r = self.circle_radius
+        start = self.contact_position  # the circle starts here; its centre is r along −x
+        out[0] = start[0] - r + r * math.cos(angle)
+        out[1] = start[1] + r * math.sin(angle)
+        out[2] = start[2]
+        return out
 
     def force(self, t: float) -> float:
         """Desired normal force λ̄(t), N (positive: the table pushes the tool up)."""
@@ -218,6 +246,9 @@ class ForceSquareTask(_ApproachThenContact):
 
     def ee_position(self, t: float) -> np.ndarray:
         return self.approach_position(t)
+
+    def _ee_position_into(self, t: float, out: np.ndarray) -> np.ndarray:
+        return self._approach_position_into(t, out)
 
     def force(self, t: float) -> float:
         if t < self.contact_time:
@@ -265,13 +296,15 @@ class PressTask:
         return True
 
     def reference(self, t: float, dimension: int = 1) -> NodeReference:
-        force = np.zeros(dimension)
-        force[-1] = self.force
-        return NodeReference(
-            ee_position=self.ee_position(t),
-            force=force,
-            ee_position_weight=self.weights.contact_ee_position,
-            force_weight=self.weights.force,
-            in_contact=True,
-            ee_position_diag=np.array([1.0, 1.0, 0.0]),
-        )
+        return self.reference_into(t, NodeReference.empty(dimension))
+
+    def reference_into(self, t: float, ref: NodeReference) -> NodeReference:
+        """Write the reference at t into ``ref`` (see :meth:`NodeReference.empty`); returns it."""
+        ref.ee_position[:] = self.position
+        ref.force[:] = 0.0
+        ref.force[-1] = self.force
+        ref.ee_position_weight = self.weights.contact_ee_position
+        ref.force_weight = self.weights.force
+        ref.in_contact = True
+        ref.ee_position_diag[:] = (1.0, 1.0, 0.0)
+        return ref

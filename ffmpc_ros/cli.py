@@ -197,6 +197,15 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise ConfigError("--cpus and --priority are real-time options (add --real-time)")
     if args.priority is not None and not 0 <= args.priority <= 99:
         raise ConfigError(f"--priority must be in 0..99, got {args.priority}")
+    if scenario.mpc.command_delay == "measured":
+        from ffmpc_core.study import resolve_command_delay
+
+        scenario, record = resolve_command_delay(scenario)
+        print(
+            f"mpc.command_delay measured: δo = {record['delta_o_s'] * 1e3:.0f} ms",
+            file=sys.stderr,
+            flush=True,
+        )
     result = run_graph(
         scenario,
         duration=args.duration,
@@ -434,13 +443,23 @@ def build_parser() -> argparse.ArgumentParser:
     bench_sub = bench.add_subparsers(dest="bench", required=True)
     bench_mpc = bench_sub.add_parser(
         "mpc",
-        help="MPC solve time per formulation",
-        description="Median and p90 solve time and iterations of each formulation on the iiwa, "
-        "at N=5, dt=3 ms and N=20, dt=10 ms, and the ratio to crocoddyl's built-in classical "
-        "contact model on the same problem, measured in the same run.",
+        help="MPC step and solve time per formulation",
+        description="Median and p90 MPC step time (references, warm start and solve), median "
+        "solve time, iterations and iteration-cap hits of each formulation on the iiwa, at N=5, "
+        "dt=3 ms and N=20, dt=10 ms, and the ratio to crocoddyl's built-in classical contact "
+        "model on the same problem, measured in the same run.",
     )
-    bench_mpc.add_argument("--solves", type=int, default=200, help="solves per configuration")
+    bench_mpc.add_argument("--solves", type=int, default=200, help="MPC steps per case")
     bench_mpc.add_argument("--seed", type=int, default=0)
+    bench_mpc.add_argument(
+        "--cases",
+        nargs="+",
+        metavar="FORMULATION[:N]",
+        help="formulations to run (classical, torque_feedback, force_feedback), optionally "
+        "restricted to one configuration with :5 or :20 (default: all); the reference always "
+        "runs in each configuration used",
+    )
+    bench_mpc.add_argument("--json", metavar="FILE", help='also write {"cases": [...]} to FILE')
     bench_mpc.set_defaults(func=_cmd_bench_mpc)
     bench_impact = bench_sub.add_parser(
         "impact",

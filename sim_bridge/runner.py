@@ -56,12 +56,14 @@ from ffmpc_core.study import (
     StudyLog,
     actuation_model,
     build_task,
+    command_delay,
     draw_run,
     force_sensing_model,
     joint_sensing_model,
     lowlevel_controller,
     measured_force,
     mpc_config,
+    resolve_command_delay,
     spawn_generators,
     steps_per_mpc_period,
     study_metrics,
@@ -97,6 +99,7 @@ class RunResult:
     mpc_failures: int = 0
     faults: tuple[Fault, ...] = ()
     safety_log: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+    command_delay: float = 0.0  # δo of the run, s (pid.delay_cycles plant steps)
 
     def summary(self) -> dict:
         """A JSON-friendly dict without the time series."""
@@ -118,6 +121,7 @@ class RunResult:
             "safe_hold_s": self.safe_hold_s,
             "mpc_failures": self.mpc_failures,
             "faults": [str(f) for f in self.faults],
+            "command_delay_s": self.command_delay,
         }
 
 
@@ -151,6 +155,8 @@ def run_scenario(
     wall_start = time.perf_counter()
     faults = faults_from(faults)
     robot = load_robot(scenario.robot)
+    # mpc.command_delay: measured → time this MPC here (the studies resolve it beforehand).
+    scenario, _ = resolve_command_delay(scenario, robot)
     # One generator per device, spawned in a fixed order; the ROS nodes spawn the same ones.
     draw_rng, joint_rng, force_rng, act_rng = spawn_generators(scenario.seed)
     draws = draw_run(scenario, robot, draw_rng)
@@ -267,6 +273,7 @@ def run_scenario(
             "tau_applied": trace_tau,
             "mode": trace_mode,
         },
+        command_delay=round(command_delay(scenario), 12),
     )
 
 

@@ -35,7 +35,7 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -98,7 +98,8 @@ class RunSpec:
 
     ``overrides`` are extra dotted-name overrides applied to every run of the study (as
     ``(name, value)`` pairs, so the spec stays hashable and picklable); ``plot`` asks the worker
-    to send back a log downsampled to ``plot_step`` (s).
+    to send back a log downsampled to ``plot_step`` (s); ``command_delay`` is the δo (s) that
+    :func:`resolve_command_delays` measured for the spec's formulation.
     """
 
     scenario: str
@@ -109,6 +110,8 @@ class RunSpec:
     overrides: tuple[tuple[str, Any], ...] = ()
     plot: bool = False
     plot_step: float = PLOT_STEP
+    #: δo resolved by the study for ``mpc.command_delay: measured`` (s), else None.
+    command_delay: float | None = None
 
     def scenario_overrides(self) -> dict[str, Any]:
         out = dict(self.overrides)
@@ -119,6 +122,8 @@ class RunSpec:
                 "seed": self.seed,
             }
         )
+        if self.command_delay is not None:
+            out["mpc.command_delay"] = self.command_delay
         return out
 
     def load(self) -> Scenario:
@@ -190,6 +195,32 @@ def execute_run(spec: RunSpec) -> RunOutcome:
         return RunOutcome(spec, error=f"{type(exc).__name__}: {exc}")
     logs = plot_log(result, scenario, spec.plot_step) if spec.plot else None
     return RunOutcome(spec, summary=result.summary(), plot_log=logs)
+
+
+def resolve_command_delays(
+    specs: Sequence[RunSpec], steps: int = 60
+) -> tuple[list[RunSpec], dict[str, dict]]:
+    """Settle δo (``mpc.command_delay``) of every spec, once per formulation.
+
+    With ``mpc.command_delay: measured`` the MPC of each formulation is timed on this machine
+    (:func:`ffmpc_core.study.resolve_command_delay`, ``steps`` MPC steps, in this process,
+    before any run starts) and its specs get the measured δo, rounded up to the plant step.
+    Returns the specs and ``{formulation: record}`` (``delta_o_s`` is the δo the runs used).
+    """
+    from ffmpc_core.study import resolve_command_delay
+
+    records: dict[str, dict] = {}
+    resolved: dict[tuple, float | None] = {}
+    out = []
+    for spec in specs:
+        key = (spec.scenario, spec.overrides, spec.formulation)
+        if key not in resolved:
+            scenario, record = resolve_command_delay(spec.load(), steps=steps)
+            measured = record["setting"] == "measured"
+            resolved[key] = record["delta_o_s"] if measured else None
+            records.setdefault(spec.formulation, record)
+        out.append(replace(spec, command_delay=resolved[key]))
+    return out, records
 
 
 def validate_specs(specs: Sequence[RunSpec]) -> None:
@@ -343,8 +374,10 @@ def study_document(
     command_line: str,
     workers: int,
     wall_time: float,
+    command_delays: dict[str, dict] | None = None,
 ) -> dict[str, Any]:
-    """The content of ``results.json``: the grid, every run, failures, versions, timing."""
+    """The content of ``results.json``: the grid, every run, failures, versions, timing, and
+    the δo each formulation ran with (``command_delay``, see :func:`resolve_command_delays`)."""
     from ffmpc_core.selfcheck import installed_versions
 
     first = specs[0]
@@ -387,6 +420,7 @@ def study_document(
             "E_P uses the true table normal in both. Window: the circle phase (polishing) or "
             "the square signal (force_square)."
         ),
+        "command_delay": command_delays or {},
         "scenario_parameters": scenario_parameters(
             scenario.with_overrides({"seed": 0, "mpc.formulation": first.formulation})
         ),
@@ -721,10 +755,17 @@ def run_study(
     out = prepare_output_dir(out_dir, force)
     workers = (os.cpu_count() or 1) if workers is None else int(workers)
     start = time.perf_counter()
+    specs, delays = resolve_command_delays(specs)
     outcomes = run_specs(specs, workers, progress)
     wall = time.perf_counter() - start
     doc = study_document(
-        kind, specs, outcomes, command_line=command_line, workers=workers, wall_time=wall
+        kind,
+        specs,
+        outcomes,
+        command_line=command_line,
+        workers=workers,
+        wall_time=wall,
+        command_delays=delays,
     )
     files = [out / "results.json", out / "tables.md"]
     _write_json(files[0], doc)
@@ -759,6 +800,7 @@ __all__ = [
     "StudyReport",
     "execute_run",
     "run_specs",
+    "resolve_command_delays",
     "grid_specs",
     "run_study",
     "prepare_output_dir",

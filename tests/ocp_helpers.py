@@ -32,6 +32,11 @@ def rich_weights(
     )
 
 
+#: Q4 of :func:`random_reference`: differs from ``rich_weights``' (1, 2, 0.5), so the derivative
+#: tests cover a per-node Q4.
+RICH_EE_POSITION_DIAG = (1.5, 0.5, 0.25)
+
+
 def random_reference(rng, robot, contact, in_contact: bool) -> NodeReference:
     p = robot.contact_placement(robot.q_nominal).translation + 0.05 * rng.standard_normal(3)
     return NodeReference(
@@ -41,6 +46,7 @@ def random_reference(rng, robot, contact, in_contact: bool) -> NodeReference:
         force_weight=0.4,
         in_contact=in_contact,
         posture=robot.q_nominal + 0.1 * rng.standard_normal(robot.nq),
+        ee_position_diag=np.array(RICH_EE_POSITION_DIAG),
     )
 
 

@@ -159,3 +159,26 @@ def test_bad_measurements_are_rejected(robot):
         MpcConfig(formulation="rigid")
     with pytest.raises(ConfigError):
         replace(MpcConfig(), command_delay=1.0)
+
+
+def test_schedule_without_reference_into_gives_the_same_commands(robot):
+    """The in-place reference path and the allocating fallback drive the MPC identically."""
+
+    class AllocatingSchedule:
+        def __init__(self, task):
+            self.task = task
+
+        def reference(self, t, dimension=1):
+            return self.task.reference(t, dimension)
+
+    task = press_task(robot, circle=0.2)
+    config = MpcConfig(formulation="force_feedback", command_delay=0.004)
+    a = ModelPredictiveController(robot, config, task)
+    b = ModelPredictiveController(robot, config, AllocatingSchedule(task))
+    plant = ModelPlant(robot, "force_feedback", config.contact)
+    plant.reset(robot.q_nominal)
+    for k in range(5):
+        t = 0.002 * k
+        ca, cb = a.step(plant.measurement(), t), b.step(plant.measurement(), t)
+        np.testing.assert_array_equal(ca.torque, cb.torque)
+        plant.step(ca.torque, True)

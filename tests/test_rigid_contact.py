@@ -145,7 +145,10 @@ def eq25_cost(robot, contact, weights, ref, x, tau, lam, terminal):
     pdot = pin.getFrameVelocity(model, data, fid, pin.LOCAL_WORLD_ALIGNED).linear
 
     def term(c, name, r):
-        return c * 0.5 * float(np.sum(weights.diag(name, r.size) * r**2))
+        diag = weights.diag(name, r.size)
+        if name == "ee_position" and ref.ee_position_diag is not None:
+            diag = np.asarray(ref.ee_position_diag, dtype=float)  # the node's own Q4
+        return c * 0.5 * float(np.sum(diag * r**2))
 
     cost = term(weights.posture, "posture", q - ref.posture)
     cost += term(weights.joint_velocity, "joint_velocity", v)
@@ -281,3 +284,33 @@ def test_bad_input_raises():
         make_rigid_contact_node(
             robot, contact, CostWeights(), DT, False, baumgarte_velocity_gain=-1.0
         )
+
+
+@pytest.mark.parametrize("contact_name", ["1d_lwa_z", "3d_lwa"])
+def test_every_reference_change_reaches_the_cost(contact_name):
+    """The node writes c4, λ̄, c6 and Q4 into crocoddyl only when they change: a sequence of
+    changes (and returns to earlier values) gives the cost of a node built afresh each time."""
+    robot = load_robot("iiwa")
+    contact = CONTACTS[contact_name]
+    nc = contact.dimension
+    node = make_rigid_contact_node(robot, contact, CostWeights(), DT, False, in_contact=True)
+    data = node.model.createData()
+    x = np.concatenate([robot.q_nominal + 0.01, np.zeros(robot.nv)])
+    tau = robot.gravity(robot.q_nominal) + 1.0
+    p = robot.contact_placement(robot.q_nominal).translation + 0.01
+    sequence = [
+        (10.0, 0.1, 5.0, (1.0, 1.0, 1.0)),
+        (10.0, 0.1, 20.0, (1.0, 1.0, 1.0)),
+        (10.0, 0.3, 20.0, (1.0, 1.0, 0.0)),
+        (30.0, 0.3, 20.0, (1.0, 1.0, 0.0)),
+        (10.0, 0.1, 5.0, (1.0, 1.0, 1.0)),
+    ]
+    for c4, c6, force, diag in sequence:
+        ref = NodeReference(p, np.full(nc, force), c4, c6, True, ee_position_diag=np.array(diag))
+        node.set_reference(ref)
+        node.model.calc(data, x, tau)
+        fresh = make_rigid_contact_node(robot, contact, CostWeights(), DT, False, in_contact=True)
+        fresh.set_reference(ref)
+        fresh_data = fresh.model.createData()
+        fresh.model.calc(fresh_data, x, tau)
+        assert data.cost == pytest.approx(fresh_data.cost, rel=1e-12)

@@ -175,6 +175,7 @@ def test_action_model_matches_numdiff(robots, robot_name, dim, frame, terminal):
             force_weight=0.5,
             in_contact=True,
             posture=q_bar,
+            ee_position_diag=np.array([1.5, 0.5, 0.25]),  # differs from _weights()' Q4
         )
     )
     model = node.model

@@ -56,3 +56,39 @@ def test_force_square():
     assert task.force(t0 + task.period * 0.75) == 20.0
     assert task.force(t0 + task.period * 1.25) == 50.0
     assert task.reference(t0).in_contact
+
+
+def _same_reference(a, b):
+    np.testing.assert_array_equal(a.ee_position, b.ee_position)
+    np.testing.assert_array_equal(a.force, b.force)
+    np.testing.assert_array_equal(a.ee_position_diag, b.ee_position_diag)
+    assert (a.ee_position_weight, a.force_weight, a.in_contact, a.posture) == (
+        b.ee_position_weight,
+        b.force_weight,
+        b.in_contact,
+        b.posture,
+    )
+
+
+@pytest.mark.parametrize("dimension", [1, 3])
+def test_reference_into_writes_what_reference_returns(dimension):
+    """The MPC's in-place path gives the same references as ``reference`` at every phase, and
+    writes into the given arrays (no new ones)."""
+    from ffmpc_core.config import NodeReference
+    from ffmpc_core.tasks import PressTask
+
+    polishing = make_task(ee_z_weight_in_contact=0.25)
+    square = ForceSquareTask(np.array([0.5, 0.0, 0.45]), np.array([0.55, 0.0, 0.30]))
+    press = PressTask(np.array([0.5, 0.1, 0.2]), force=30.0)
+    ref = NodeReference.empty(dimension)
+    arrays = (ref.ee_position, ref.force, ref.ee_position_diag)
+    for task, end in ((polishing, polishing.duration), (square, square.duration), (press, 1.0)):
+        for t in np.linspace(0.0, end + 0.1, 97):
+            out = task.reference_into(float(t), ref)
+            assert out is ref
+            now = (ref.ee_position, ref.force, ref.ee_position_diag)
+            assert all(a is b for a, b in zip(arrays, now, strict=True))
+            _same_reference(ref, task.reference(float(t), dimension))
+            np.testing.assert_array_equal(ref.ee_position, task.ee_position(float(t)))
+    contact = polishing.reference(polishing.circle_start + 0.1)
+    np.testing.assert_array_equal(contact.ee_position_diag, [1.0, 1.0, 0.25])
