@@ -9,6 +9,7 @@
 namespace bp = boost::python;
 
 namespace ffmpc {
+void expose_errors();  // cpp/errors.cpp: C++ ConfigError/InputError -> ffmpc_core.errors
 void expose_soft_contact();
 }  // namespace ffmpc
 
@@ -17,5 +18,6 @@ BOOST_PYTHON_MODULE(_native) {
   bp::import("crocoddyl");
   eigenpy::enableEigenPy();
   bp::scope().attr("__doc__") = "Native (C++) crocoddyl action models of ffmpc.";
+  ffmpc::expose_errors();
   ffmpc::expose_soft_contact();
 }
