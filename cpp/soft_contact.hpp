@@ -33,7 +33,8 @@ struct SoftContactDynamicsData {
 
   SoftContactDynamicsData(const pinocchio::Model& model, std::size_t nc);
 
-  pinocchio::Data pinocchio;
+  pinocchio::Data pinocchio;         // kinematics (LOCAL): frame placement, velocity, acceleration
+  pinocchio::Data pinocchio_aba;     // ABA in WORLD convention, reused by its derivatives
   pinocchio::Data pinocchio_static;  // tau_g(q, lambda) (v = a = 0)
   std::vector<pinocchio::Force> fext;
   // calc
@@ -182,6 +183,8 @@ class IntegratedActionModelSoftContact : public crocoddyl::ActionModelAbstractTp
 
  private:
   void update_weights();
+  /// Gauss-Newton Lxx of the state terms (weights w), from the sparsity of data.Rx.
+  void add_state_hessian(IntegratedActionDataSoftContact& d, const VectorXd& w) const;
 
   SoftContactDynamics dynamics_;
   std::size_t nv_, nc_, ndx_;
@@ -209,7 +212,8 @@ struct IntegratedActionDataSoftContact : public crocoddyl::ActionDataAbstractTpl
   VectorXd residual;  // unweighted stacked residual (RESIDUAL_TERMS layout)
   VectorXd wr;        // W r
   MatrixXd Rx, Ru;    // residual Jacobians
-  MatrixXd WRx, WRu;  // W Rx, W Ru
+  MatrixXd WG;        // W_tau (d r_tau/dq), nv x nv
+  MatrixXd WJt;       // W_tau J^T, nv x nc
   MatrixXd Fxu;       // [Fx Fu]
 };
 
