@@ -126,6 +126,7 @@ SoftContactDynamicsData::SoftContactDynamicsData(const pinocchio::Model& model, 
       minv_jlin_t(Eigen::Matrix<double, Eigen::Dynamic, 3>::Zero(model.nv, 3)),
       tmp_3nv(Matrix3xd::Zero(3, model.nv)),
       local_velocity_dqv(Matrix3xd::Zero(3, 2 * model.nv)),
+      tmp_3x2nv(Matrix3xd::Zero(3, 2 * model.nv)),
       zero_nv(VectorXd::Zero(model.nv)) {}
 
 // ======================================================================= dynamics
@@ -289,7 +290,8 @@ void SoftContactDynamics::calc_diff(SoftContactDynamicsData& d,
   d.tmp_3nv.noalias() = S_v * Ja;
   d.ee_velocity_dqv = d.local_velocity_dqv;
   d.ee_velocity_dqv.leftCols(nv) -= d.tmp_3nv;
-  d.ee_velocity_dqv = R.lazyProduct(d.ee_velocity_dqv).eval();
+  d.tmp_3x2nv = d.ee_velocity_dqv;
+  d.ee_velocity_dqv.noalias() = R.lazyProduct(d.tmp_3x2nv);
 
   if (world_aligned_) {
     d.frame_velocity_dxu.leftCols(2 * nv) = d.ee_velocity_dqv;
@@ -323,7 +325,8 @@ void SoftContactDynamics::calc_kinematics_diff(SoftContactDynamicsData& d,
   d.ee_velocity_dqv.rightCols(nv) = Jl;
   d.tmp_3nv.noalias() = skew(d.linear_velocity_local) * Ja;
   d.ee_velocity_dqv.leftCols(nv) -= d.tmp_3nv;
-  d.ee_velocity_dqv = R.lazyProduct(d.ee_velocity_dqv).eval();
+  d.tmp_3x2nv = d.ee_velocity_dqv;
+  d.ee_velocity_dqv.noalias() = R.lazyProduct(d.tmp_3x2nv);
 }
 
 void SoftContactDynamics::calc_gravity_compensation_diff(

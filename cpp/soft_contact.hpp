@@ -63,6 +63,7 @@ struct SoftContactDynamicsData {
   Eigen::Matrix<double, Eigen::Dynamic, 3> minv_jlin_t;
   Matrix3xd tmp_3nv;
   Matrix3xd local_velocity_dqv;
+  Matrix3xd tmp_3x2nv;
   VectorXd zero_nv;
 };
 
@@ -84,6 +85,8 @@ class SoftContactDynamics {
                        const Eigen::Ref<const VectorXd>& v) const;
   void calc_gravity_compensation(SoftContactDynamicsData& d,
                                  const Eigen::Ref<const VectorXd>& q) const;
+  /// Needs calc at the same (q, v, lambda, tau) first: its WORLD-convention ABA pass is reused
+  /// (tau is therefore not read again).
   void calc_diff(SoftContactDynamicsData& d, const Eigen::Ref<const VectorXd>& q,
                  const Eigen::Ref<const VectorXd>& v, const Eigen::Ref<const VectorXd>& tau) const;
   void calc_kinematics_diff(SoftContactDynamicsData& d, const Eigen::Ref<const VectorXd>& q,
