@@ -44,6 +44,7 @@ native: $(NATIVE)
 
 $(NATIVE): $(STAMP) $(wildcard cpp/*.cpp cpp/*.hpp)
 	$(BIN)/python -m pip install --quiet --no-build-isolation --no-deps -e .
+	$(BIN)/python -m ffmpc_ros.ament >/dev/null  # pip rewrote the launchers (env python3)
 	touch $(NATIVE)
 
 demo: $(STAMP) $(NATIVE)
