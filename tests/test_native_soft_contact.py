@@ -336,3 +336,22 @@ def test_make_soft_contact_node_twins_start_equal(robots):
     np.testing.assert_array_equal(b.force_reference, a.force_reference)
     x, u = _random_x_u(np.random.default_rng(6), robot, 1)
     _compare(a, b, x, u, "factories")
+
+
+def test_self_check_compares_native_and_python_and_can_fail(robots, monkeypatch):
+    import ffmpc_core.native as native
+    from ffmpc_core.selfcheck import check_native_soft_contact
+
+    robot = robots["iiwa"]
+    result = check_native_soft_contact(robot, np.random.default_rng(0), samples=3)
+    assert result.ok and result.samples == 6 and result.max_error < 1e-11
+
+    class Wrong(native.IntegratedActionModelSoftContactNative):
+        """A native model whose contact is twice as stiff: the check must see it."""
+
+        def __init__(self, robot, contact, weights, dt):
+            super().__init__(robot, contact, weights, dt)
+            self.set_contact_parameters(2.0 * contact.stiffness_vector(), contact.damping_vector())
+
+    monkeypatch.setattr(native, "IntegratedActionModelSoftContactNative", Wrong)
+    assert not check_native_soft_contact(robot, np.random.default_rng(0), samples=3).ok
