@@ -36,7 +36,13 @@ from ffmpc_core.tasks import PolishingTask
 #: (N, Δt in s) of the benchmark.
 CONFIGURATIONS = ((5, 0.003), (20, 0.010))
 REFERENCE = "reference"
-CASES = (REFERENCE, *FORMULATIONS)
+#: ``*_python``: the formulation with the Python reference action models (MpcConfig.backend);
+#: the plain names use the default backend (native C++).
+PYTHON_CASES = tuple(f"{f}_python" for f in FORMULATIONS)
+CASES = (REFERENCE, *FORMULATIONS, *PYTHON_CASES)
+#: What runs without ``--cases``: the three formulations, and the Python force-feedback model as
+#: the before-figure of the native port measured in the same run.
+DEFAULT_CASES = (*FORMULATIONS, "force_feedback_python")
 
 
 def _task(robot) -> PolishingTask:
@@ -52,8 +58,9 @@ def bench_case(case: str, horizon: int, dt: float, solves: int) -> dict:
     if solves < 2:
         raise ConfigError(f"the benchmark needs at least 2 solves per case, got {solves}")
     robot = load_robot("iiwa")
-    formulation = "classical" if case == REFERENCE else case
-    config = MpcConfig(formulation=formulation, horizon=horizon, dt=dt)
+    backend = "python" if case.endswith("_python") else "native"
+    formulation = "classical" if case == REFERENCE else case.removesuffix("_python")
+    config = MpcConfig(formulation=formulation, horizon=horizon, dt=dt, backend=backend)
     factory = None
     if case == REFERENCE:
         from ffmpc_core.rigid_contact import make_rigid_contact_node
@@ -72,6 +79,7 @@ def bench_case(case: str, horizon: int, dt: float, solves: int) -> dict:
     iters = np.asarray(log.iterations[1:])
     return {
         "formulation": case,
+        "backend": "builtin" if case == REFERENCE else backend,
         "nodes": horizon,
         "dt": dt,
         "solves": int(steps.size),
@@ -96,10 +104,11 @@ def parse_cases(items: list[str] | None) -> list[tuple[int, float, list[str]]]:
     """
     by_nodes = {n: dt for n, dt in CONFIGURATIONS}
     wanted: dict[int, list[str]] = {n: [] for n, _ in CONFIGURATIONS}
-    for item in items or [f for f in FORMULATIONS]:
+    choices = (*FORMULATIONS, *PYTHON_CASES)
+    for item in items or list(DEFAULT_CASES):
         name, _, nodes = item.partition(":")
-        if name not in FORMULATIONS:
-            raise ConfigError(f"--cases: unknown formulation {name!r}; choose among {FORMULATIONS}")
+        if name not in choices:
+            raise ConfigError(f"--cases: unknown case {name!r}; choose among {choices}")
         if nodes:
             try:
                 n = int(nodes)
@@ -114,7 +123,7 @@ def parse_cases(items: list[str] | None) -> list[tuple[int, float, list[str]]]:
             if name not in wanted[n]:
                 wanted[n].append(name)
     return [
-        (n, by_nodes[n], [REFERENCE] + [f for f in FORMULATIONS if f in wanted[n]])
+        (n, by_nodes[n], [REFERENCE] + [f for f in choices if f in wanted[n]])
         for n, _ in CONFIGURATIONS
         if wanted[n]
     ]
@@ -149,7 +158,7 @@ def run_bench_mpc(args: argparse.Namespace) -> int:
         f"ffmpc bench mpc — iiwa, {args.solves} closed-loop MPC steps per case, {machine}, {stamp}"
     )
     header = (
-        f"{'N':>3} {'dt ms':>5}  {'formulation':16} {'step med':>8} {'step p90':>8} "
+        f"{'N':>3} {'dt ms':>5}  {'formulation':21} {'step med':>8} {'step p90':>8} "
         f"{'solve med':>9} {'iters med':>9} {'iters max':>9} {'cap hit':>7} {'ratio':>6} "
         f"{'force N':>8}"
     )
@@ -162,7 +171,7 @@ def run_bench_mpc(args: argparse.Namespace) -> int:
             print(header)
             last_nodes.append(r["nodes"])
         print(
-            f"{r['nodes']:>3} {r['dt'] * 1e3:>5.0f}  {r['formulation']:16} {r['median_ms']:>8.3f} "
+            f"{r['nodes']:>3} {r['dt'] * 1e3:>5.0f}  {r['formulation']:21} {r['median_ms']:>8.3f} "
             f"{r['p90_ms']:>8.3f} {r['solve_median_ms']:>9.3f} {r['iterations_median']:>9.1f} "
             f"{r['iterations_max']:>9d} {100 * r['cap_hit_fraction']:>6.1f}% "
             f"{r['ratio_to_reference']:>6.2f} {r['final_force_N']:>8.2f}",

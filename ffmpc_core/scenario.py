@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from ffmpc_core.config import FORMULATIONS, ContactConfig, CostWeights
+from ffmpc_core.config import BACKENDS, FORMULATIONS, ContactConfig, CostWeights
 from ffmpc_core.errors import ConfigError
 
 SECTIONS = ("plant", "joint_sensor", "ft_sensor", "mpc", "pid")
@@ -122,6 +122,7 @@ class MpcSection:
     #: median MPC step time of a short calibration run of this MPC on this machine, rounded up
     #: to the plant step (:func:`ffmpc_core.study.resolve_command_delay`; the studies do it).
     command_delay: str = COMMAND_DELAY_PID
+    backend: str = "native"  # action models: native (C++) | python (reference), MpcConfig.backend
     contact: ContactConfig = field(default_factory=ContactConfig)
     #: per formulation: CostWeights fields plus ``force_phase`` (c6) and ``ee_position_phase``
     weights: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -232,6 +233,8 @@ def _scenario_from_flat(name: str, flat: dict[str, Any]) -> Scenario:
     mpc = replace(_coerce(MpcSection, plain, "mpc"), contact=contact, weights=weights)
     if mpc.formulation not in FORMULATIONS:
         raise ConfigError(f"mpc.formulation must be one of {FORMULATIONS}")
+    if mpc.backend not in BACKENDS:
+        raise ConfigError(f"mpc.backend must be one of {BACKENDS}, got {mpc.backend!r}")
     for form in weights:
         mpc.cost_weights(form)  # validate now, not mid-run
     scenario = Scenario(

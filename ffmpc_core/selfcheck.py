@@ -58,7 +58,8 @@ def version_mismatches() -> dict[str, tuple[str | None, str]]:
 
 @dataclass(frozen=True)
 class DynamicsCheck:
-    """Result of :func:`check_crocoddyl_dynamics`: worst acceleration error, rad/s²."""
+    """Result of a check: worst error (:func:`check_crocoddyl_dynamics`: acceleration error,
+    rad/s²; :func:`check_native_soft_contact`: relative difference, dimensionless)."""
 
     robot: str
     max_error: float
@@ -104,6 +105,49 @@ def check_crocoddyl_dynamics(
         ref = pin.aba(robot.model, ref_data, q, v, tau)
         worst = max(worst, float(np.max(np.abs(dad.xout - ref))))
     return DynamicsCheck(robot.name, worst, tolerance, samples)
+
+
+def check_native_soft_contact(
+    robot: RobotModel,
+    rng: np.random.Generator,
+    samples: int = 10,
+    tolerance: float = 1e-9,
+) -> DynamicsCheck:
+    """Compare the native (C++) force-feedback node with the Python reference on random states.
+
+    Worst relative difference of x⁺ and Fx (1-D and 3-D contact, LOCAL_WORLD_ALIGNED), which
+    catches a C++ module built against other pinocchio/crocoddyl binaries than the ones loaded.
+    States: q within the joint limits, |v| ≤ 1 rad/s, |λ| ≤ 20 N, |τ| ≤ 20 % of the limits.
+    """
+    from ffmpc_core.config import ContactConfig, CostWeights
+    from ffmpc_core.native import IntegratedActionModelSoftContactNative
+    from ffmpc_core.soft_contact import IntegratedActionModelSoftContact
+
+    worst = 0.0
+    for dim in (1, 3):
+        contact = ContactConfig(dimension=dim)
+        pair = [
+            cls(robot, contact, CostWeights(), 0.003)
+            for cls in (IntegratedActionModelSoftContact, IntegratedActionModelSoftContactNative)
+        ]
+        datas = [m.createData() for m in pair]
+        for _ in range(samples):
+            x = np.concatenate(
+                [
+                    rng.uniform(robot.position_lower, robot.position_upper),
+                    rng.uniform(-1.0, 1.0, robot.nv),
+                    rng.uniform(-20.0, 20.0, dim),
+                ]
+            )
+            u = rng.uniform(-0.2, 0.2) * robot.torque_limit
+            for model, data in zip(pair, datas, strict=True):
+                model.calc(data, x, u)
+                model.calcDiff(data, x, u)
+            for name in ("xnext", "Fx"):
+                ref, nat = np.asarray(getattr(datas[0], name)), np.asarray(getattr(datas[1], name))
+                scale = max(1.0, float(np.max(np.abs(ref))))
+                worst = max(worst, float(np.max(np.abs(nat - ref))) / scale)
+    return DynamicsCheck(robot.name, worst, tolerance, 2 * samples)
 
 
 def require_sound_dynamics(robot: RobotModel, rng: np.random.Generator | None = None) -> None:

@@ -22,6 +22,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
     from ffmpc_core.robots import ROBOT_NAMES, load_robot
     from ffmpc_core.selfcheck import (
         check_crocoddyl_dynamics,
+        check_native_soft_contact,
         installed_versions,
         version_mismatches,
     )
@@ -43,6 +44,14 @@ def _cmd_check(args: argparse.Namespace) -> int:
             f"(tolerance {result.tolerance:g}): {verdict}"
         )
         status |= 0 if result.ok else 1
+        native = check_native_soft_contact(load_robot(robot_name), rng, samples=args.samples)
+        verdict = "ok" if native.ok else "FAILED"
+        print(
+            f"native force-feedback model vs Python reference on {robot_name}: max relative "
+            f"|Δ(x⁺, Fx)| = {native.max_error:.2e} over {native.samples} states "
+            f"(tolerance {native.tolerance:g}): {verdict}"
+        )
+        status |= 0 if native.ok else 1
     return status
 
 
