@@ -10,17 +10,36 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export ROS_LOG_DIR ?= $(CURDIR)/.ros_log
 export HOME ?= $(CURDIR)
 
-.PHONY: demo test lint bench install clean
+.PHONY: demo test lint bench install native clean
+
+define BUILD_REQUIRES
+try:
+    import tomllib
+except ImportError:  # Python 3.10
+    from pip._vendor import tomli as tomllib
+with open("pyproject.toml", "rb") as f:
+    print("\n".join(tomllib.load(f)["build-system"]["requires"]))
+endef
+export BUILD_REQUIRES
 
 install: $(STAMP)
 
-$(STAMP): pyproject.toml
+# The build requirements (pyproject [build-system] requires: scikit-build-core, the pinned
+# pin/crocoddyl/eigen, CMake) go into the venv first, so that the editable install and every
+# rebuild of the C++ module (`make native`) run without build isolation: same ABI, ~10x faster.
+$(STAMP): pyproject.toml CMakeLists.txt $(wildcard cpp/*.cpp cpp/*.hpp)
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	$(BIN)/python -c "$$BUILD_REQUIRES" > $(VENV)/build-requirements.txt
+	$(BIN)/python -m pip install --quiet -r $(VENV)/build-requirements.txt
+	$(BIN)/python -m pip install --quiet --no-build-isolation -e '.[dev]'
 	$(BIN)/python -m ffmpc_ros.ament  # ros2 run layout (editable installs skip data-files)
 	$(BIN)/ffmpc check
 	touch $(STAMP)
+
+# Rebuild the C++ module ffmpc_core._native after editing cpp/ (incremental, in build/).
+native: $(STAMP)
+	$(BIN)/python -m pip install --quiet --no-build-isolation --no-deps -e .
 
 demo: $(STAMP)
 	$(BIN)/ffmpc demo
@@ -36,4 +55,4 @@ bench: $(STAMP)
 	$(BIN)/ffmpc bench mpc
 
 clean:
-	rm -rf $(VENV) .ros_log .pytest_cache
+	rm -rf $(VENV) .ros_log .pytest_cache build
