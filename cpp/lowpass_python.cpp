@@ -30,8 +30,7 @@ void expose_lowpass() {
 
   typedef IntegratedActionModelLPF Model;
   typedef IntegratedActionDataLPF Data;
-  bp::register_ptr_to_python<std::shared_ptr<Model>>();
-  bp::class_<Model, bp::bases<crocoddyl::ActionModelAbstract>>(
+  bp::class_<Model, bp::bases<crocoddyl::ActionModelAbstract>, std::shared_ptr<Model>>(
       "IntegratedActionModelLPF",
       "Eq 13-14 and 28 as a crocoddyl action model on x = (q, v, tau), u = w (C++ port of\n"
       "ffmpc_core.lowpass.IntegratedActionModelLPF: same step, cost and derivatives).",

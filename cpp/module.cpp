@@ -10,6 +10,8 @@ namespace bp = boost::python;
 
 namespace ffmpc {
 void expose_soft_contact();
+void expose_residuals();  // cpp/residuals_python.cpp
+void expose_lowpass();    // cpp/lowpass_python.cpp
 }  // namespace ffmpc
 
 BOOST_PYTHON_MODULE(_native) {
@@ -18,4 +20,6 @@ BOOST_PYTHON_MODULE(_native) {
   eigenpy::enableEigenPy();
   bp::scope().attr("__doc__") = "Native (C++) crocoddyl action models of ffmpc.";
   ffmpc::expose_soft_contact();
+  ffmpc::expose_residuals();
+  ffmpc::expose_lowpass();
 }

@@ -14,7 +14,7 @@ typedef crocoddyl::ResidualDataAbstract ResidualDataAbstract;
 typedef Eigen::Ref<const Eigen::VectorXd> ConstRef;
 
 template <class Model>
-void def_calc(bp::class_<Model, bp::bases<crocoddyl::ResidualModelAbstract>>& cls) {
+void def_calc(bp::class_<Model, bp::bases<crocoddyl::ResidualModelAbstract>, std::shared_ptr<Model>>& cls) {
   typedef void (Model::*WithControl)(const std::shared_ptr<ResidualDataAbstract>&, const ConstRef&,
                                      const ConstRef&);
   typedef void (Model::*StateOnly)(const std::shared_ptr<ResidualDataAbstract>&, const ConstRef&);
@@ -35,8 +35,9 @@ void def_calc(bp::class_<Model, bp::bases<crocoddyl::ResidualModelAbstract>>& cl
 void expose_residuals() {
   typedef crocoddyl::StateMultibody StateMultibody;
 
-  bp::register_ptr_to_python<std::shared_ptr<ResidualModelContactGravityTorque>>();
-  bp::class_<ResidualModelContactGravityTorque, bp::bases<crocoddyl::ResidualModelAbstract>> grav(
+  bp::class_<ResidualModelContactGravityTorque, bp::bases<crocoddyl::ResidualModelAbstract>,
+             std::shared_ptr<ResidualModelContactGravityTorque>>
+      grav(
       "ResidualModelContactGravityTorque",
       "Eq 25.3 in contact: r = tau - tau_g(q, lambda^r(x, u)), tau_g = g(q) - J^T lambda, N.m,\n"
       "with exact derivatives through the rigid contact force (C++ port of\n"
@@ -61,8 +62,8 @@ void expose_residuals() {
                                     bp::return_internal_reference<>()),
                     "d tau_g / d q with the force fixed (after calcDiff), N.m/rad.");
 
-  bp::register_ptr_to_python<std::shared_ptr<ResidualModelFrameLinearVelocityWorld>>();
-  bp::class_<ResidualModelFrameLinearVelocityWorld, bp::bases<crocoddyl::ResidualModelAbstract>>
+  bp::class_<ResidualModelFrameLinearVelocityWorld, bp::bases<crocoddyl::ResidualModelAbstract>,
+             std::shared_ptr<ResidualModelFrameLinearVelocityWorld>>
       vel("ResidualModelFrameLinearVelocityWorld",
           "Eq 25.5: linear velocity of a frame origin in world axes (LOCAL_WORLD_ALIGNED), m/s,\n"
           "with exact derivatives (C++ port of\n"
