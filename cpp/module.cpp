@@ -9,6 +9,7 @@
 namespace bp = boost::python;
 
 namespace ffmpc {
+void expose_errors();  // cpp/errors.cpp: C++ ConfigError/InputError -> ffmpc_core.errors
 void expose_soft_contact();
 void expose_residuals();  // cpp/residuals_python.cpp
 void expose_lowpass();    // cpp/lowpass_python.cpp
@@ -19,6 +20,7 @@ BOOST_PYTHON_MODULE(_native) {
   bp::import("crocoddyl");
   eigenpy::enableEigenPy();
   bp::scope().attr("__doc__") = "Native (C++) crocoddyl action models of ffmpc.";
+  ffmpc::expose_errors();
   ffmpc::expose_soft_contact();
   ffmpc::expose_residuals();
   ffmpc::expose_lowpass();

@@ -23,7 +23,9 @@ from ffmpc_core.robots import load_robot
 from ffmpc_core.tasks import PolishingTask
 
 CONFIGURATIONS = ((5, 0.003), (20, 0.010))
-CASES = ("reference", "classical", "torque_feedback", "force_feedback")
+#: ``*_python``: the formulation with the Python reference action models (MpcConfig.backend);
+#: the others use the default (native C++ where the formulation has one).
+CASES = ("reference", "classical", "torque_feedback", "force_feedback", "force_feedback_python")
 
 
 def _task(robot) -> PolishingTask:
@@ -34,8 +36,9 @@ def _task(robot) -> PolishingTask:
 def bench_case(case: str, horizon: int, dt: float, solves: int) -> dict:
     """Closed-loop solves of one case; returns solve-time and iteration statistics."""
     robot = load_robot("iiwa")
-    formulation = "classical" if case == "reference" else case
-    config = MpcConfig(formulation=formulation, horizon=horizon, dt=dt)
+    backend = "python" if case.endswith("_python") else "native"
+    formulation = "classical" if case == "reference" else case.removesuffix("_python")
+    config = MpcConfig(formulation=formulation, horizon=horizon, dt=dt, backend=backend)
     factory = None
     if case == "reference":
         from ffmpc_core.rigid_contact import make_rigid_contact_node
@@ -70,7 +73,7 @@ def run_bench_mpc(args: argparse.Namespace) -> int:
         f"{platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d %H:%M')}"
     )
     header = (
-        f"{'N':>3} {'dt ms':>5}  {'formulation':16} {'median ms':>9} {'p90 ms':>7} "
+        f"{'N':>3} {'dt ms':>5}  {'formulation':21} {'median ms':>9} {'p90 ms':>7} "
         f"{'iters med':>9} {'iters max':>9} {'ratio':>6} {'force N':>8}"
     )
     for horizon, dt in CONFIGURATIONS:
@@ -79,7 +82,7 @@ def run_bench_mpc(args: argparse.Namespace) -> int:
         ref = rows[0]["median_ms"]
         for r in rows:
             print(
-                f"{horizon:>3} {dt * 1e3:>5.0f}  {r['case']:16} {r['median_ms']:>9.3f} "
+                f"{horizon:>3} {dt * 1e3:>5.0f}  {r['case']:21} {r['median_ms']:>9.3f} "
                 f"{r['p90_ms']:>7.3f} {r['iterations_median']:>9.1f} {r['iterations_max']:>9d} "
                 f"{r['median_ms'] / ref:>6.2f} {r['final_force_N']:>8.2f}"
             )

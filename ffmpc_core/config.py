@@ -20,6 +20,9 @@ import pinocchio as pin
 from ffmpc_core.errors import ConfigError
 
 FORMULATIONS = ("classical", "torque_feedback", "force_feedback")
+#: Implementations of the project's own action models: C++ (ffmpc_core.native) or the Python
+#: reference (MpcConfig.backend, scenario mpc.backend).
+BACKENDS = ("native", "python")
 _FRAME_TYPES = {
     "LOCAL_WORLD_ALIGNED": pin.ReferenceFrame.LOCAL_WORLD_ALIGNED,
     "LOCAL": pin.ReferenceFrame.LOCAL,

@@ -29,7 +29,7 @@ import crocoddyl  # noqa: F401  (must be imported before mim_solvers: it loads b
 import mim_solvers
 import numpy as np
 
-from ffmpc_core.config import FORMULATIONS, ContactConfig, CostWeights, NodeReference
+from ffmpc_core.config import BACKENDS, FORMULATIONS, ContactConfig, CostWeights, NodeReference
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.robots import RobotModel
 
@@ -67,6 +67,10 @@ class MpcConfig:
             integrating its own model with the commands already sent (a Smith predictor) and
             solves from there; 0 = the plain scheme (solve from the measured state).
         prediction_step: integration step of that prediction, s.
+        backend: implementation of the project's own action models: ``"native"`` (C++,
+            :mod:`ffmpc_core.native`, the default) or ``"python"`` (the readable reference,
+            e.g. :mod:`ffmpc_core.soft_contact`). Both give the same numbers (tests hold them
+            equal); formulations without a native model use the Python one.
     """
 
     formulation: str = "force_feedback"
@@ -81,8 +85,11 @@ class MpcConfig:
     q_reference: tuple[float, ...] | None = None
     command_delay: float = 0.0
     prediction_step: float = 0.001
+    backend: str = "native"
 
     def __post_init__(self) -> None:
+        if self.backend not in BACKENDS:
+            raise ConfigError(f"backend must be one of {BACKENDS}, got {self.backend!r}")
         if self.formulation not in FORMULATIONS:
             raise ConfigError(
                 f"formulation must be one of {FORMULATIONS}, got {self.formulation!r}"
@@ -147,7 +154,10 @@ def _node_factory(robot: RobotModel, config: MpcConfig, q_ref) -> Callable[[bool
         return lambda terminal: make_lowpass_node(
             *args, terminal, config.cutoff_frequency, q_reference=q_ref
         )
-    from ffmpc_core.soft_contact import make_soft_contact_node
+    if config.backend == "native":
+        from ffmpc_core.native import make_native_soft_contact_node as make_soft_contact_node
+    else:
+        from ffmpc_core.soft_contact import make_soft_contact_node
 
     return lambda terminal: make_soft_contact_node(*args, terminal, q_reference=q_ref)
 

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from ffmpc_core.config import FORMULATIONS, ContactConfig, CostWeights
+from ffmpc_core.config import BACKENDS, FORMULATIONS, ContactConfig, CostWeights
 from ffmpc_core.errors import ConfigError
 
 SECTIONS = ("plant", "joint_sensor", "ft_sensor", "mpc", "pid")
@@ -113,6 +113,7 @@ class MpcSection:
     cutoff_frequency: float = 50.0
     riccati_feedback: bool = False
     delay_compensation: bool = True  # send the plan for t + δo (δo = pid.delay_cycles)
+    backend: str = "native"  # action models: native (C++) | python (reference), MpcConfig.backend
     contact: ContactConfig = field(default_factory=ContactConfig)
     #: per formulation: CostWeights fields plus ``force_phase`` (c6) and ``ee_position_phase``
     weights: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -219,6 +220,8 @@ def _scenario_from_flat(name: str, flat: dict[str, Any]) -> Scenario:
     mpc = replace(_coerce(MpcSection, plain, "mpc"), contact=contact, weights=weights)
     if mpc.formulation not in FORMULATIONS:
         raise ConfigError(f"mpc.formulation must be one of {FORMULATIONS}")
+    if mpc.backend not in BACKENDS:
+        raise ConfigError(f"mpc.backend must be one of {BACKENDS}, got {mpc.backend!r}")
     for form in weights:
         mpc.cost_weights(form)  # validate now, not mid-run
     scenario = Scenario(

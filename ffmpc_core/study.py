@@ -132,6 +132,7 @@ def mpc_config(scenario: Scenario) -> MpcConfig:
         cutoff_frequency=m.cutoff_frequency,
         max_iterations=m.max_iterations,
         kkt_tolerance=m.kkt_tolerance,
+        backend=m.backend,
         command_delay=scenario.pid.delay_cycles * scenario.plant.time_step
         if m.delay_compensation
         else 0.0,

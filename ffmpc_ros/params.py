@@ -144,6 +144,7 @@ DESCRIPTIONS: dict[str, str] = {
     "mpc.cutoff_frequency": "low-pass actuation cut-off f_c, Hz (torque-feedback)",
     "mpc.riccati_feedback": "low level applies τ* + G·Δx between solves",
     "mpc.delay_compensation": "plan for t + δo (δo = pid.delay_cycles cycles)",
+    "mpc.backend": "action models: native (C++, default) | python (the reference)",
     "mpc.contact.dimension": "contact force entries: 1 (normal) or 3",
     "mpc.contact.frame_type": "LOCAL_WORLD_ALIGNED (the study feeds world-aligned forces)",
     "mpc.contact.normal_axis": "axis of the 1-D force: 0 x, 1 y, 2 z",
