@@ -19,7 +19,7 @@ void check_size(const Eigen::Ref<const Eigen::VectorXd>& v, std::size_t n, const
     std::ostringstream msg;
     msg << "IntegratedActionModelLPF: " << what << " has dimension " << v.size() << ", expected "
         << n;
-    throw std::invalid_argument(msg.str());
+    throw InputError(msg.str());
   }
 }
 
@@ -51,21 +51,20 @@ IntegratedActionModelLPF::IntegratedActionModelLPF(
       torque_cost_(torque_cost),
       nv_(differential->get_state()->get_nv()) {
   if (differential->get_state()->get_nq() != nv_) {
-    throw std::invalid_argument(
-        "IntegratedActionModelLPF needs nq == nv (Euclidean configuration space)");
+    throw ModelError("IntegratedActionModelLPF needs nq == nv (Euclidean configuration space)");
   }
   if (differential->get_nu() != nv_) {
-    throw std::invalid_argument("IntegratedActionModelLPF: the differential model must be fully "
-                                "actuated (nu == nv)");
+    throw ModelError(
+        "IntegratedActionModelLPF: the differential model must be fully actuated (nu == nv)");
   }
   if (!std::isfinite(dt) || dt <= 0.0) {
-    throw std::invalid_argument("IntegratedActionModelLPF: dt must be > 0 s");
+    throw ConfigError("IntegratedActionModelLPF: dt must be > 0 s");
   }
   if (std::isnan(cutoff_frequency) || cutoff_frequency < 0.0) {
-    throw std::invalid_argument("IntegratedActionModelLPF: cutoff_frequency must be in [0, inf] Hz");
+    throw ConfigError("IntegratedActionModelLPF: cutoff_frequency must be in [0, inf] Hz");
   }
   if (!std::isfinite(lowpass_input_weight) || lowpass_input_weight < 0.0) {
-    throw std::invalid_argument("IntegratedActionModelLPF: lowpass_input_weight must be >= 0");
+    throw ConfigError("IntegratedActionModelLPF: lowpass_input_weight must be >= 0");
   }
   alpha_ = std::exp(-2.0 * M_PI * cutoff_frequency * dt);  // eq 13
 }
@@ -77,7 +76,7 @@ void IntegratedActionModelLPF::calc(const std::shared_ptr<ActionDataAbstract>& d
   check_size(u, nv_, "u");
   auto* d = static_cast<IntegratedActionDataLPF*>(data.get());
   if (!d->torque_residual) {
-    throw NativeModelError("a running low-pass model needs the '" + torque_cost_ +
+    throw ModelError("a running low-pass model needs the '" + torque_cost_ +
                            "' cost (eq 25.3)");
   }
   const std::size_t nv = nv_;
@@ -109,7 +108,7 @@ void IntegratedActionModelLPF::calcDiff(const std::shared_ptr<ActionDataAbstract
   check_size(u, nv_, "u");
   auto* d = static_cast<IntegratedActionDataLPF*>(data.get());
   if (!d->torque_residual) {
-    throw NativeModelError("a running low-pass model needs the '" + torque_cost_ +
+    throw ModelError("a running low-pass model needs the '" + torque_cost_ +
                            "' cost (eq 25.3)");
   }
   const std::size_t nv = nv_, n2 = 2 * nv;

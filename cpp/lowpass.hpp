@@ -13,14 +13,10 @@
 #include <crocoddyl/core/diff-action-base.hpp>
 #include <crocoddyl/core/residual-base.hpp>
 
-namespace ffmpc {
+#include "errors.hpp"
+#include "residuals.hpp"
 
-/// A model is used in a way it does not support (e.g. a running low-pass step without the
-/// torque cost of eq 25.3). The bindings translate it to ffmpc_core.errors.ModelError.
-class NativeModelError : public std::runtime_error {
- public:
-  explicit NativeModelError(const std::string& what) : std::runtime_error(what) {}
-};
+namespace ffmpc {
 
 /// Eq 13–14 and 28 as a crocoddyl action model on x = (q, v, τ) (rad, rad/s, N·m), u = w (N·m).
 ///

@@ -13,21 +13,9 @@ namespace {
 typedef crocoddyl::ActionDataAbstract ActionDataAbstract;
 typedef Eigen::Ref<const Eigen::VectorXd> ConstRef;
 
-/// ffmpc_core.errors.ModelError (a new reference kept for the life of the process).
-PyObject* model_error_type = nullptr;
-
-void translate_model_error(const NativeModelError& e) {
-  PyErr_SetString(model_error_type != nullptr ? model_error_type : PyExc_RuntimeError, e.what());
-}
-
 }  // namespace
 
 void expose_lowpass() {
-  bp::object errors = bp::import("ffmpc_core.errors");
-  bp::object model_error = errors.attr("ModelError");
-  model_error_type = bp::incref(model_error.ptr());
-  bp::register_exception_translator<NativeModelError>(&translate_model_error);
-
   typedef IntegratedActionModelLPF Model;
   typedef IntegratedActionDataLPF Data;
   bp::class_<Model, bp::bases<crocoddyl::ActionModelAbstract>, std::shared_ptr<Model>>(

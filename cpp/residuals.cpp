@@ -2,6 +2,8 @@
 // ffmpc_core/rigid_contact.py.
 #include "residuals.hpp"
 
+#include "errors.hpp"
+
 #include <stdexcept>
 
 #include <pinocchio/algorithm/frames-derivatives.hpp>
@@ -23,7 +25,7 @@ ResidualModelContactGravityTorque::ResidualModelContactGravityTorque(
       world_aligned_(world_aligned),
       contact_name_(contact_name) {
   if (nu != state->get_nv()) {
-    throw std::invalid_argument("ResidualModelContactGravityTorque: nu must equal nv (full actuation)");
+    throw ConfigError("ResidualModelContactGravityTorque: nu must equal nv (full actuation)");
   }
 }
 
@@ -101,14 +103,14 @@ ResidualDataContactGravityTorque::ResidualDataContactGravityTorque(
       nc(0) {
   auto* in_contact = dynamic_cast<crocoddyl::DataCollectorMultibodyInContact*>(data);
   if (in_contact == nullptr) {
-    throw std::invalid_argument(
+    throw ModelError(
         "ResidualModelContactGravityTorque needs the data of a contact differential model "
         "(DifferentialActionModelContactFwdDynamics)");
   }
   contacts = in_contact->contacts;
   const auto it = contacts->contacts.find(model->get_contact_name());
   if (it == contacts->contacts.end()) {
-    throw std::invalid_argument("ResidualModelContactGravityTorque: no contact named '" +
+    throw ModelError("ResidualModelContactGravityTorque: no contact named '" +
                                 model->get_contact_name() + "'");
   }
   contact = it->second;
@@ -123,7 +125,7 @@ ResidualModelFrameLinearVelocityWorld::ResidualModelFrameLinearVelocityWorld(
       pin_model_(state->get_pinocchio()),
       frame_id_(frame_id) {
   if (frame_id >= static_cast<pinocchio::FrameIndex>(pin_model_->nframes)) {
-    throw std::invalid_argument("ResidualModelFrameLinearVelocityWorld: frame_id out of range");
+    throw ConfigError("ResidualModelFrameLinearVelocityWorld: frame_id out of range");
   }
 }
 
@@ -199,7 +201,7 @@ ResidualDataFrameLinearVelocityWorld::ResidualDataFrameLinearVelocityWorld(
       zero_a(VectorXd::Zero(model->get_state()->get_nv())) {
   auto* multibody = dynamic_cast<crocoddyl::DataCollectorMultibody*>(data);
   if (multibody == nullptr) {
-    throw std::invalid_argument(
+    throw ModelError(
         "ResidualModelFrameLinearVelocityWorld needs the data of a multibody differential model");
   }
   shared_pinocchio = multibody->pinocchio;

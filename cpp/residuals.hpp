@@ -5,6 +5,7 @@
 #define FFMPC_CPP_RESIDUALS_HPP_
 
 #include <memory>
+#include <stdexcept>
 #include <string>
 
 #include <crocoddyl/core/residual-base.hpp>
@@ -17,6 +18,14 @@
 #include <pinocchio/multibody/model.hpp>
 
 namespace ffmpc {
+
+/// A model is used in a way it does not support (missing contact or cost data, a running
+/// low-pass step without the torque cost of eq 25.3): ffmpc_core.errors.ModelError in Python
+/// (translator registered by expose_residuals()). Configuration and input errors use
+/// ffmpc::ConfigError / ffmpc::InputError of errors.hpp.
+struct ModelError : public std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
 
 typedef crocoddyl::MathBaseTpl<double>::VectorXs VectorXd;
 typedef crocoddyl::MathBaseTpl<double>::MatrixXs MatrixXd;

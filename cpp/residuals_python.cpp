@@ -13,6 +13,12 @@ namespace {
 typedef crocoddyl::ResidualDataAbstract ResidualDataAbstract;
 typedef Eigen::Ref<const Eigen::VectorXd> ConstRef;
 
+void translate_model_error(const ModelError& error) {
+  // ffmpc_core.errors is pure Python (no dependency): importing it here cannot recurse.
+  bp::object cls = bp::import("ffmpc_core.errors").attr("ModelError");
+  PyErr_SetString(cls.ptr(), error.what());
+}
+
 template <class Model>
 void def_calc(bp::class_<Model, bp::bases<crocoddyl::ResidualModelAbstract>, std::shared_ptr<Model>>& cls) {
   typedef void (Model::*WithControl)(const std::shared_ptr<ResidualDataAbstract>&, const ConstRef&,
@@ -33,6 +39,7 @@ void def_calc(bp::class_<Model, bp::bases<crocoddyl::ResidualModelAbstract>, std
 }  // namespace
 
 void expose_residuals() {
+  bp::register_exception_translator<ModelError>(&translate_model_error);
   typedef crocoddyl::StateMultibody StateMultibody;
 
   bp::class_<ResidualModelContactGravityTorque, bp::bases<crocoddyl::ResidualModelAbstract>,

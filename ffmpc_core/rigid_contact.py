@@ -75,7 +75,7 @@ import crocoddyl
 import numpy as np
 import pinocchio as pin
 
-from ffmpc_core.config import ContactConfig, CostWeights, NodeReference
+from ffmpc_core.config import BACKENDS, ContactConfig, CostWeights, NodeReference
 from ffmpc_core.errors import ConfigError, InputError, ModelError
 from ffmpc_core.robots import RobotModel
 
@@ -85,9 +85,9 @@ DEFAULT_BAUMGARTE_VELOCITY_GAIN = 50.0
 #: Name of the contact in crocoddyl's ``ContactModelMultiple``.
 CONTACT_NAME = "contact"
 
-#: Implementations of the custom residuals (and of the low-pass integrator, ffmpc_core.lowpass):
-#: C++ from ffmpc_core._native, or the Python reference classes.
-BACKENDS = ("native", "python")
+#: Default implementation of the custom residuals (and of the low-pass integrator of
+#: ffmpc_core.lowpass): ``"native"`` = C++ from ffmpc_core._native; ``"python"`` = the reference
+#: classes (config.BACKENDS).
 DEFAULT_BACKEND = "native"
 
 #: Names of the cost terms of ℓ0 (eq 25.1–25.6) in crocoddyl's ``CostModelSum``.
