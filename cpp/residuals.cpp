@@ -158,8 +158,9 @@ void ResidualModelFrameLinearVelocityWorld::calcDiff(
   const Eigen::Matrix3d rotation = pinocchio::updateFramePlacement(*pin_model_, pd, frame_id_).rotation();
   const Eigen::Vector3d v_local =
       pinocchio::getFrameVelocity(*pin_model_, pd, frame_id_, pinocchio::LOCAL).linear();
-  d->Rx.leftCols(nv).noalias() =
-      rotation * (d->dv_dq.topRows<3>() - pinocchio::skew(v_local) * d->dv_dv.bottomRows<3>());
+  d->dvl_dq.noalias() = -pinocchio::skew(v_local) * d->dv_dv.bottomRows<3>();
+  d->dvl_dq += d->dv_dq.topRows<3>();
+  d->Rx.leftCols(nv).noalias() = rotation * d->dvl_dq;
   d->Rx.rightCols(nv).noalias() = rotation * d->dv_dv.topRows<3>();
 }
 
@@ -198,6 +199,7 @@ ResidualDataFrameLinearVelocityWorld::ResidualDataFrameLinearVelocityWorld(
                      ->get_pinocchio()),
       dv_dq(Matrix6xd::Zero(6, model->get_state()->get_nv())),
       dv_dv(Matrix6xd::Zero(6, model->get_state()->get_nv())),
+      dvl_dq(Eigen::Matrix<double, 3, Eigen::Dynamic>::Zero(3, model->get_state()->get_nv())),
       zero_a(VectorXd::Zero(model->get_state()->get_nv())) {
   auto* multibody = dynamic_cast<crocoddyl::DataCollectorMultibody*>(data);
   if (multibody == nullptr) {

@@ -143,6 +143,7 @@ struct ResidualDataFrameLinearVelocityWorld : public crocoddyl::ResidualDataAbst
   pinocchio::Data pinocchio;          ///< private pinocchio data (derivatives)
   Matrix6xd dv_dq;                    ///< ∂v_local/∂q (6 × nv)
   Matrix6xd dv_dv;                    ///< ∂v_local/∂v = LOCAL frame Jacobian (6 × nv)
+  Eigen::Matrix<double, 3, Eigen::Dynamic> dvl_dq;  ///< ∂v_l/∂q − [v_l]×·J_ω (3 × nv)
   VectorXd zero_a;                    ///< zero joint acceleration (nv)
 };
 
