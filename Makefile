@@ -4,6 +4,7 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.ffmpc-installed
+NATIVE := $(VENV)/.ffmpc-native
 
 # ROS 2 from PyPI needs a writable HOME/log dir; discovery stays on this machine.
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
@@ -22,36 +23,41 @@ with open("pyproject.toml", "rb") as f:
 endef
 export BUILD_REQUIRES
 
-install: $(STAMP)
+install: $(STAMP) $(NATIVE)
 
 # The build requirements (pyproject [build-system] requires: scikit-build-core, the pinned
 # pin/crocoddyl/eigen, CMake) go into the venv first, so that the editable install and every
 # rebuild of the C++ module (`make native`) run without build isolation: same ABI, ~10x faster.
-$(STAMP): pyproject.toml CMakeLists.txt $(wildcard cpp/*.cpp cpp/*.hpp)
+$(STAMP): pyproject.toml CMakeLists.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -c "$$BUILD_REQUIRES" > $(VENV)/build-requirements.txt
 	$(BIN)/python -m pip install --quiet -r $(VENV)/build-requirements.txt
 	$(BIN)/python -m pip install --quiet --no-build-isolation -e '.[dev]'
-	$(BIN)/python -m ffmpc_ros.ament  # ros2 run layout (editable installs skip data-files)
+	$(BIN)/python -m ffmpc_ros.ament  # ros2 run layout, launchers run by this venv's python
 	$(BIN)/ffmpc check
-	touch $(STAMP)
+	touch $(STAMP) $(NATIVE)
 
-# Rebuild the C++ module ffmpc_core._native after editing cpp/ (incremental, in build/).
-native: $(STAMP)
+# Rebuild the C++ module ffmpc_core._native after editing cpp/ (incremental, in build/); the
+# targets below do it on their own when a cpp/ file is newer than the last build.
+native: $(NATIVE)
+
+$(NATIVE): $(STAMP) $(wildcard cpp/*.cpp cpp/*.hpp)
 	$(BIN)/python -m pip install --quiet --no-build-isolation --no-deps -e .
+	$(BIN)/python -m ffmpc_ros.ament >/dev/null  # pip rewrote the launchers (env python3)
+	touch $(NATIVE)
 
-demo: $(STAMP)
+demo: $(STAMP) $(NATIVE)
 	$(BIN)/ffmpc demo
 
-test: $(STAMP)
+test: $(STAMP) $(NATIVE)
 	$(BIN)/python -m pytest -q $(PYTEST_ARGS)
 
 lint: $(STAMP)
 	$(BIN)/ruff check ffmpc_core sim_bridge ffmpc_ros tests benchmarks
 	$(BIN)/ruff format --check ffmpc_core sim_bridge ffmpc_ros tests benchmarks
 
-bench: $(STAMP)
+bench: $(STAMP) $(NATIVE)
 	$(BIN)/ffmpc bench mpc
 
 clean:

@@ -92,6 +92,7 @@ void check_weight(double c, const std::string& name) {
 // ======================================================================= dynamics data
 SoftContactDynamicsData::SoftContactDynamicsData(const pinocchio::Model& model, std::size_t nc)
     : pinocchio(model),
+      pinocchio_aba(model),
       pinocchio_static(model),
       fext(model.njoints, pinocchio::Force::Zero()),
       force_frame(Eigen::Vector3d::Zero()),
@@ -125,6 +126,7 @@ SoftContactDynamicsData::SoftContactDynamicsData(const pinocchio::Model& model, 
       minv_jlin_t(Eigen::Matrix<double, Eigen::Dynamic, 3>::Zero(model.nv, 3)),
       tmp_3nv(Matrix3xd::Zero(3, model.nv)),
       local_velocity_dqv(Matrix3xd::Zero(3, 2 * model.nv)),
+      tmp_3x2nv(Matrix3xd::Zero(3, 2 * model.nv)),
       zero_nv(VectorXd::Zero(model.nv)) {}
 
 // ======================================================================= dynamics
@@ -197,7 +199,9 @@ void SoftContactDynamics::calc(SoftContactDynamicsData& d, const Eigen::Ref<cons
     d.rotation = pinocchio::updateFramePlacement(model_, d.pinocchio, frame_id_).rotation();
   }
   set_external_force(d, force);
-  d.ddq = pinocchio::aba(model_, d.pinocchio, q, v, tau, d.fext);
+  // WORLD convention, in its own data: calc_diff reuses this pass (the derivative overload
+  // without q, v, tau), which saves a third of the ABA derivatives' cost.
+  d.ddq = pinocchio::aba(model_, d.pinocchio_aba, q, v, tau, d.fext, pinocchio::Convention::WORLD);
   pinocchio::forwardKinematics(model_, d.pinocchio, q, v, d.ddq);
   read_frame_kinematics(d);
   d.classical_acceleration_local =
@@ -234,12 +238,13 @@ void SoftContactDynamics::calc_diff(SoftContactDynamicsData& d,
                                     const Eigen::Ref<const VectorXd>& tau) const {
   const std::size_t nv = nv_, ndx = 2 * nv_ + nc_;
   pinocchio::Data& pd = d.pinocchio;
-  pinocchio::computeABADerivatives(model_, pd, q, v, tau, d.fext);
-  d.ddq_dxu.leftCols(nv) = pd.ddq_dq;
-  d.ddq_dxu.middleCols(nv, nv) = pd.ddq_dv;
+  pinocchio::Data& pa = d.pinocchio_aba;  // holds calc's WORLD-convention ABA at (q, v, tau)
+  pinocchio::computeABADerivatives(model_, pa, d.fext);
+  d.ddq_dxu.leftCols(nv) = pa.ddq_dq;
+  d.ddq_dxu.middleCols(nv, nv) = pa.ddq_dv;
   // Only the upper triangle of M^-1 is filled.
-  d.minv = pd.Minv;
-  d.minv.triangularView<Eigen::StrictlyLower>() = d.minv.transpose();
+  d.minv.triangularView<Eigen::Upper>() = pa.Minv;
+  d.minv.triangularView<Eigen::StrictlyLower>() = pa.Minv.transpose();
   d.ddq_dxu.middleCols(ndx, nv) = d.minv;
   pinocchio::computeForwardKinematicsDerivatives(model_, pd, q, v, d.ddq);
   pinocchio::getFrameAccelerationDerivatives(model_, pd, frame_id_, pinocchio::LOCAL,
@@ -248,13 +253,13 @@ void SoftContactDynamics::calc_diff(SoftContactDynamicsData& d,
   const auto Jl = d.jacobian.topRows<3>();
   const auto Ja = d.jacobian.bottomRows<3>();
   const Eigen::Matrix3d& R = d.rotation;
-  d.minv_jlin_t.noalias() = d.minv * Jl.transpose();
+  d.minv_jlin_t.noalias() = d.minv.lazyProduct(Jl.transpose());
 
   // Eq 22, dq''/dlambda = M^-1 J^T; world-fixed force: dq''/dq += M^-1 J_lin^T [f_local]x J_ang.
   auto ddq_dforce = d.ddq_dxu.middleCols(2 * nv, nc_);
   if (world_aligned_) {
     d.tmp_3nv.noalias() = skew(d.force_local) * Ja;
-    d.ddq_dxu.leftCols(nv).noalias() += d.minv_jlin_t * d.tmp_3nv;
+    d.ddq_dxu.leftCols(nv).noalias() += d.minv_jlin_t.lazyProduct(d.tmp_3nv);
     for (std::size_t i = 0; i < nc_; ++i) {
       ddq_dforce.col(i).noalias() = d.minv_jlin_t * R.row(row(i)).transpose();
       d.contact_jacobian.row(i).noalias() = R.row(row(i)) * Jl;
@@ -275,23 +280,24 @@ void SoftContactDynamics::calc_diff(SoftContactDynamicsData& d,
   d.local_velocity_dqv.leftCols(nv) = d.velocity_dq.topRows<3>();
   d.local_velocity_dqv.rightCols(nv) = Jl;
   Matrix3xd& dacc = d.local_acceleration_dxu;
-  dacc.noalias() = Jl * d.ddq_dxu;  // chain rule through q'' (eq 23, dp''/dq'' = J)
+  dacc.noalias() = Jl.lazyProduct(d.ddq_dxu);  // chain rule through q'' (eq 23, dp''/dq'' = J)
   dacc.leftCols(nv) += d.acceleration_dq.topRows<3>();
   dacc.middleCols(nv, nv) += d.acceleration_dv.topRows<3>();
-  dacc.leftCols(nv).noalias() += C * d.velocity_dq;
-  dacc.middleCols(nv, nv).noalias() += C * d.jacobian;
+  dacc.leftCols(nv).noalias() += C.lazyProduct(d.velocity_dq);
+  dacc.middleCols(nv, nv).noalias() += C.lazyProduct(d.jacobian);
 
   // World-aligned linear velocity, d(R v) = R (dv - [v]x J_ang dq).
   d.tmp_3nv.noalias() = S_v * Ja;
   d.ee_velocity_dqv = d.local_velocity_dqv;
   d.ee_velocity_dqv.leftCols(nv) -= d.tmp_3nv;
-  d.ee_velocity_dqv = (R * d.ee_velocity_dqv).eval();
+  d.tmp_3x2nv = d.ee_velocity_dqv;
+  d.ee_velocity_dqv.noalias() = R.lazyProduct(d.tmp_3x2nv);
 
   if (world_aligned_) {
     d.frame_velocity_dxu.leftCols(2 * nv) = d.ee_velocity_dqv;
     d.tmp_3nv.noalias() = skew(d.classical_acceleration_local) * Ja;
     dacc.leftCols(nv) -= d.tmp_3nv;
-    d.frame_acceleration_dxu.noalias() = R * dacc;
+    d.frame_acceleration_dxu.noalias() = R.lazyProduct(dacc);
   } else {
     d.frame_velocity_dxu.leftCols(2 * nv) = d.local_velocity_dqv;
     d.frame_acceleration_dxu = dacc;
@@ -319,7 +325,8 @@ void SoftContactDynamics::calc_kinematics_diff(SoftContactDynamicsData& d,
   d.ee_velocity_dqv.rightCols(nv) = Jl;
   d.tmp_3nv.noalias() = skew(d.linear_velocity_local) * Ja;
   d.ee_velocity_dqv.leftCols(nv) -= d.tmp_3nv;
-  d.ee_velocity_dqv = (R * d.ee_velocity_dqv).eval();
+  d.tmp_3x2nv = d.ee_velocity_dqv;
+  d.ee_velocity_dqv.noalias() = R.lazyProduct(d.tmp_3x2nv);
 }
 
 void SoftContactDynamics::calc_gravity_compensation_diff(
@@ -330,7 +337,7 @@ void SoftContactDynamics::calc_gravity_compensation_diff(
   if (world_aligned_) {
     // tau_g contains -J_lin^T R^T f_w; d(R^T f_w) = [R^T f_w]x J_ang dq.
     d.tmp_3nv.noalias() = skew(d.force_local) * d.jacobian.bottomRows<3>();
-    d.gravity_compensation_dq.noalias() -= d.jacobian.topRows<3>().transpose() * d.tmp_3nv;
+    d.gravity_compensation_dq.noalias() -= d.jacobian.topRows<3>().transpose().lazyProduct(d.tmp_3nv);
   }
   d.gravity_compensation_dforce = -d.contact_jacobian.transpose();
 }
@@ -465,6 +472,26 @@ void IntegratedActionModelSoftContact::set_q_reference(const VectorXd& q_referen
   q_reference_ = finite_vector<ConfigError>(q_reference, nv_, "q_reference", false);
 }
 
+void IntegratedActionModelSoftContact::add_state_hessian(IntegratedActionDataSoftContact& d,
+                                                         const VectorXd& w) const {
+  // Lxx of the state terms: posture (d/dq = I), joint velocity (d/dv = I), force
+  // (d/dlambda = I) are diagonal; ee position (3 x nv, on q) and ee velocity (3 x 2nv, on q, v)
+  // are three rank-one updates each.
+  const std::size_t nv = nv_, nc = nc_;
+  d.Lxx.setZero();
+  d.Lxx.diagonal().head(nv) = w.segment(offset_[POSTURE], nv);
+  d.Lxx.diagonal().segment(nv, nv) = w.segment(offset_[JOINT_VELOCITY], nv);
+  d.Lxx.diagonal().tail(nc) = w.segment(offset_[FORCE], nc);
+  for (std::size_t i = 0; i < 3; ++i) {
+    const double wp = w[offset_[EE_POSITION] + i];
+    const auto rp = d.Rx.row(offset_[EE_POSITION] + i).head(nv);
+    d.Lxx.topLeftCorner(nv, nv).noalias() += (wp * rp.transpose()) * rp;
+    const double wv = w[offset_[EE_VELOCITY] + i];
+    const auto rv = d.Rx.row(offset_[EE_VELOCITY] + i).head(2 * nv);
+    d.Lxx.topLeftCorner(2 * nv, 2 * nv).noalias() += (wv * rv.transpose()) * rv;
+  }
+}
+
 void IntegratedActionModelSoftContact::calc(const std::shared_ptr<ActionDataAbstract>& data,
                                             const Eigen::Ref<const VectorXd>& x,
                                             const Eigen::Ref<const VectorXd>& u) {
@@ -560,16 +587,37 @@ void IntegratedActionModelSoftContact::calcDiff(const std::shared_ptr<ActionData
   Rx.block(offset_[TORQUE], 2 * nv, nv, nc) = dd.contact_jacobian.transpose();
   Rx.middleRows(offset_[FORCE_RATE], nc) = dd.force_rate_dxu.leftCols(ndx_);
   Ru.middleRows(offset_[FORCE_RATE], nc) = dd.force_rate_dxu.rightCols(nv);
-  // Costs (Gauss-Newton): Lx = Rx^T W r, Lxx = Rx^T W Rx, ...
+  // Costs (Gauss-Newton): Lx = Rx^T W r, Lu = Ru^T W r, Lxx = Rx^T W Rx, Lxu = Rx^T W Ru,
+  // Luu = Ru^T W Ru, assembled block by block from the sparsity of Rx, Ru (see
+  // add_state_hessian); the same sums as the dense products, a fraction of their cost.
   const VectorXd& w = w_running_;
   d->wr = w.cwiseProduct(d->residual);
-  d->WRx = w.asDiagonal() * Rx;
-  d->WRu = w.asDiagonal() * Ru;
   d->Lx.noalias() = Rx.transpose() * d->wr;
-  d->Lxx.noalias() = Rx.transpose() * d->WRx;
   d->Lu.noalias() = Ru.transpose() * d->wr;
-  d->Luu.noalias() = Ru.transpose() * d->WRu;
-  d->Lxu.noalias() = Rx.transpose() * d->WRu;
+  add_state_hessian(*d, w);
+  // Torque residual r = u - tau_g(q, lambda): d/dq = -G, d/dlambda = J^T, d/du = I.
+  const auto wt = w.segment(offset_[TORQUE], nv);
+  const auto G = Rx.block(offset_[TORQUE], 0, nv, nv);  // -d tau_g/dq
+  d->WG.noalias() = wt.asDiagonal() * G;
+  d->WJt.noalias() = wt.asDiagonal() * dd.contact_jacobian.transpose();
+  d->Lxx.topLeftCorner(nv, nv).noalias() += G.transpose().lazyProduct(d->WG);
+  d->Lxx.block(0, 2 * nv, nv, nc).noalias() += G.transpose().lazyProduct(d->WJt);
+  d->Lxx.block(2 * nv, 2 * nv, nc, nc).noalias() += dd.contact_jacobian.lazyProduct(d->WJt);
+  d->Lxx.block(2 * nv, 0, nc, nv) = d->Lxx.block(0, 2 * nv, nv, nc).transpose();
+  d->Lxu.setZero();
+  d->Lxu.topRows(nv) = d->WG.transpose();
+  d->Lxu.bottomRows(nc) = d->WJt.transpose();
+  d->Luu.setZero();
+  d->Luu.diagonal() = wt;
+  // Force-rate residual (nc dense rows): rank-one updates.
+  for (std::size_t i = 0; i < nc; ++i) {
+    const double wi = w[offset_[FORCE_RATE] + i];
+    const auto rx = Rx.row(offset_[FORCE_RATE] + i);
+    const auto ru = Ru.row(offset_[FORCE_RATE] + i);
+    d->Lxx.noalias() += (wi * rx.transpose()) * rx;
+    d->Lxu.noalias() += (wi * rx.transpose()) * ru;
+    d->Luu.noalias() += (wi * ru.transpose()) * ru;
+  }
   // Dynamics (eq 24): [Fx Fu] = [I 0] + [dt^2; dt; dt] d f/d(x, u), plus dt on dq+/dv.
   MatrixXd& Fxu = d->Fxu;
   Fxu.setZero();
@@ -595,11 +643,10 @@ void IntegratedActionModelSoftContact::calcDiff(const std::shared_ptr<ActionData
   MatrixXd& Rx = d->Rx;
   Rx.block(offset_[EE_POSITION], 0, 3, nv) = dd.position_dq;
   Rx.block(offset_[EE_VELOCITY], 0, 3, 2 * nv) = dd.ee_velocity_dqv;
-  const VectorXd& w = w_state_;
+  const VectorXd& w = w_state_;  // torque and force-rate weights are zero
   d->wr = w.cwiseProduct(d->residual);
-  d->WRx = w.asDiagonal() * Rx;
   d->Lx.noalias() = Rx.transpose() * d->wr;
-  d->Lxx.noalias() = Rx.transpose() * d->WRx;
+  add_state_hessian(*d, w);
   d->Fx.setIdentity();
   d->Fu.setZero();
   d->Lu.setZero();
@@ -643,8 +690,8 @@ IntegratedActionDataSoftContact::IntegratedActionDataSoftContact(
       wr(VectorXd::Zero(model->get_nr())),
       Rx(MatrixXd::Zero(model->get_nr(), model->get_ndx())),
       Ru(MatrixXd::Zero(model->get_nr(), model->get_nv())),
-      WRx(MatrixXd::Zero(model->get_nr(), model->get_ndx())),
-      WRu(MatrixXd::Zero(model->get_nr(), model->get_nv())),
+      WG(MatrixXd::Zero(model->get_nv(), model->get_nv())),
+      WJt(MatrixXd::Zero(model->get_nv(), model->get_nc())),
       Fxu(MatrixXd::Zero(model->get_ndx(), model->get_ndx() + model->get_nv())) {
   const std::size_t nv = model->get_nv(), nc = model->get_nc();
   // Constant blocks of the residual Jacobians.

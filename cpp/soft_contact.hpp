@@ -33,7 +33,8 @@ struct SoftContactDynamicsData {
 
   SoftContactDynamicsData(const pinocchio::Model& model, std::size_t nc);
 
-  pinocchio::Data pinocchio;
+  pinocchio::Data pinocchio;         // kinematics (LOCAL): frame placement, velocity, acceleration
+  pinocchio::Data pinocchio_aba;     // ABA in WORLD convention, reused by its derivatives
   pinocchio::Data pinocchio_static;  // tau_g(q, lambda) (v = a = 0)
   std::vector<pinocchio::Force> fext;
   // calc
@@ -62,6 +63,7 @@ struct SoftContactDynamicsData {
   Eigen::Matrix<double, Eigen::Dynamic, 3> minv_jlin_t;
   Matrix3xd tmp_3nv;
   Matrix3xd local_velocity_dqv;
+  Matrix3xd tmp_3x2nv;
   VectorXd zero_nv;
 };
 
@@ -83,6 +85,8 @@ class SoftContactDynamics {
                        const Eigen::Ref<const VectorXd>& v) const;
   void calc_gravity_compensation(SoftContactDynamicsData& d,
                                  const Eigen::Ref<const VectorXd>& q) const;
+  /// Needs calc at the same (q, v, lambda, tau) first: its WORLD-convention ABA pass is reused
+  /// (tau is therefore not read again).
   void calc_diff(SoftContactDynamicsData& d, const Eigen::Ref<const VectorXd>& q,
                  const Eigen::Ref<const VectorXd>& v, const Eigen::Ref<const VectorXd>& tau) const;
   void calc_kinematics_diff(SoftContactDynamicsData& d, const Eigen::Ref<const VectorXd>& q,
@@ -182,6 +186,8 @@ class IntegratedActionModelSoftContact : public crocoddyl::ActionModelAbstractTp
 
  private:
   void update_weights();
+  /// Gauss-Newton Lxx of the state terms (weights w), from the sparsity of data.Rx.
+  void add_state_hessian(IntegratedActionDataSoftContact& d, const VectorXd& w) const;
 
   SoftContactDynamics dynamics_;
   std::size_t nv_, nc_, ndx_;
@@ -209,7 +215,8 @@ struct IntegratedActionDataSoftContact : public crocoddyl::ActionDataAbstractTpl
   VectorXd residual;  // unweighted stacked residual (RESIDUAL_TERMS layout)
   VectorXd wr;        // W r
   MatrixXd Rx, Ru;    // residual Jacobians
-  MatrixXd WRx, WRu;  // W Rx, W Ru
+  MatrixXd WG;        // W_tau (d r_tau/dq), nv x nv
+  MatrixXd WJt;       // W_tau J^T, nv x nc
   MatrixXd Fxu;       // [Fx Fu]
 };
 

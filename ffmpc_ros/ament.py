@@ -4,10 +4,11 @@
 first entry of ``AMENT_PREFIX_PATH`` holding the ament index marker
 ``share/ament_index/resource_index/packages/PKG``; ``share/PKG/package.xml`` is the manifest.
 
-A regular ``pip install .`` installs these files from pyproject's ``data-files``. An editable
-install (``pip install -e .``, what the Makefile does) does NOT install data files (setuptools'
-PEP 660 editable wheels skip them), so ``python -m ffmpc_ros.ament`` writes the same layout
-into the environment's prefix, with launchers whose shebang is this interpreter.
+``pip install .`` (and ``pip install -e .``) installs these files: CMakeLists.txt puts them in
+the wheel's data directory (scikit-build-core), with launchers that run ``/usr/bin/env python3``.
+``python -m ffmpc_ros.ament`` (run by the Makefile) writes the same layout into the environment's
+prefix with launchers whose shebang is this interpreter, so ``ros2 run`` uses the venv without
+activating it.
 """
 
 from __future__ import annotations

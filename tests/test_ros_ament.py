@@ -4,6 +4,7 @@ and runs (``--help``)."""
 
 from __future__ import annotations
 
+import importlib.metadata
 import os
 import subprocess
 import sys
@@ -60,18 +61,43 @@ def test_the_venv_prefix_resolves_when_the_layout_is_installed(monkeypatch):
     _check_prefix(Path(sys.prefix), monkeypatch)
 
 
-def test_pyproject_ships_the_same_layout_and_console_scripts():
-    """A regular `pip install .` gets the layout from data-files: the shipped launchers are the
-    generated ones, the manifest is the root package.xml, and every node has a console script."""
-    project = tomllib.loads((ROOT / "pyproject.toml").read_text())
-    data = project["tool"]["setuptools"]["data-files"]
-    assert data["share/ffmpc_ros"] == ["package.xml"]
-    marker = ROOT / data["share/ament_index/resource_index/packages"][0]
-    assert marker.name == PACKAGE and marker.read_text() == ""
-    shipped = {Path(p).name: ROOT / p for p in data[f"lib/{PACKAGE}"]}
+def test_the_build_ships_the_same_layout_and_console_scripts():
+    """`pip install .` gets the layout from CMakeLists.txt (scikit-build-core's data directory):
+    the shipped launchers are the generated ones, the marker is empty, the manifest is the root
+    package.xml, every node has a console script, and the installed distribution recorded them."""
+    layout = ROOT / "ffmpc_ros" / "ros_layout"
+    marker = layout / "resource" / PACKAGE
+    assert marker.read_text() == ""
+    shipped = {p.name: p for p in (layout / "lib").iterdir()}
     assert set(shipped) == set(EXECUTABLES)
     for exe, path in shipped.items():
         assert path.read_text() == launcher_text(exe) and os.access(path, os.X_OK)
+    cmake = (ROOT / "CMakeLists.txt").read_text()
+    for text in (
+        "ffmpc_ros/ros_layout/resource/ffmpc_ros",
+        '"${SKBUILD_DATA_DIR}/share/ament_index/resource_index/packages"',
+        '"${CMAKE_CURRENT_SOURCE_DIR}/package.xml"',
+        '"${SKBUILD_DATA_DIR}/share/ffmpc_ros"',
+        "ffmpc_ros/ros_layout/lib/*",
+        '"${SKBUILD_DATA_DIR}/lib/ffmpc_ros"',
+    ):
+        assert text in cmake, text
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())
     scripts = project["project"]["scripts"]
     for exe, module in EXECUTABLES.items():
         assert scripts[f"ffmpc-{exe.replace('_', '-')}"] == f"{module}:main"
+    try:
+        files = importlib.metadata.files("ffmpc")
+    except importlib.metadata.PackageNotFoundError:
+        pytest.skip("ffmpc is not installed in this environment")
+    if files is None or not any(str(f).endswith("share/ffmpc_ros/package.xml") for f in files):
+        pytest.skip("this ffmpc install was not built by scikit-build-core")
+    located = {Path(f.locate()).resolve() for f in files}
+    prefix = Path(sys.prefix).resolve()
+    expected = [prefix / "lib" / PACKAGE / exe for exe in EXECUTABLES]
+    expected += [
+        prefix / "share" / "ament_index" / "resource_index" / "packages" / PACKAGE,
+        prefix / "share" / PACKAGE / "package.xml",
+    ]
+    for path in expected:
+        assert path in located, path
