@@ -11,6 +11,8 @@ namespace bp = boost::python;
 namespace ffmpc {
 void expose_errors();  // cpp/errors.cpp: C++ ConfigError/InputError -> ffmpc_core.errors
 void expose_soft_contact();
+void expose_residuals();  // cpp/residuals_python.cpp
+void expose_lowpass();    // cpp/lowpass_python.cpp
 }  // namespace ffmpc
 
 BOOST_PYTHON_MODULE(_native) {
@@ -20,4 +22,6 @@ BOOST_PYTHON_MODULE(_native) {
   bp::scope().attr("__doc__") = "Native (C++) crocoddyl action models of ffmpc.";
   ffmpc::expose_errors();
   ffmpc::expose_soft_contact();
+  ffmpc::expose_residuals();
+  ffmpc::expose_lowpass();
 }

@@ -11,6 +11,13 @@ a tangent of size 2·nv, so :class:`IntegratedActionModelLPF` is a Python
 nq == nv: their configuration space is Euclidean). It wraps a differential model of
 :mod:`ffmpc_core.rigid_contact` (contact or free dynamics, cost ℓ0) whose control is τ.
 
+The Python class is the readable reference; ``ffmpc_core._native.IntegratedActionModelLPF``
+(``cpp/lowpass.cpp``) is its C++ port with the same step, cost, derivatives and attributes
+(``differential``, ``dt``, ``cutoff_frequency``, ``alpha``, ``lowpass_input_weight``, ``nv``;
+data ``differential``, ``torque_residual``, ``lowpass_residual``), held equal to it by
+``tests/test_native_lowpass.py``. :func:`make_lowpass_model` picks one by ``backend``
+(``"native"`` by default, as every node builder here; see :mod:`ffmpc_core.rigid_contact`).
+
 Discrete dynamics (eq 14a): q̈ from the differential model at (q, v, τ); semi-implicit Euler
 v⁺ = v + Δt·q̈, q⁺ = q + Δt·v⁺; the filter under zero-order hold τ⁺ = α·τ + (1 − α)·w with
 α = exp(−ω_c·Δt) (eq 13).
@@ -34,10 +41,13 @@ from ffmpc_core.config import ContactConfig, CostWeights
 from ffmpc_core.errors import ConfigError, InputError, ModelError
 from ffmpc_core.rigid_contact import (
     COST_TORQUE,
+    DEFAULT_BACKEND,
     DEFAULT_BAUMGARTE_VELOCITY_GAIN,
     CommonCostHandles,
     SwitchableContactNode,
+    check_backend,
     make_differential_model,
+    native_module,
     rigid_contact_force,
 )
 from ffmpc_core.robots import RobotModel
@@ -67,6 +77,44 @@ def lowpass_filter_step(tau: np.ndarray, w: np.ndarray, alpha: float) -> np.ndar
     return alpha * tau + (1.0 - alpha) * w
 
 
+def check_lowpass_arguments(
+    differential: crocoddyl.DifferentialActionModelAbstract,
+    dt: float,
+    cutoff_frequency: float,
+    lowpass_input_weight: float,
+) -> None:
+    """Raise :class:`ModelError` / :class:`ConfigError` unless the arguments of a low-pass model
+    are valid: nq == nv == nu, Δt > 0 s, f_c in [0, ∞] Hz, c_w ≥ 0 (1/(N·m)²)."""
+    nv = differential.state.nv
+    if differential.state.nq != nv:
+        raise ModelError("the low-pass model needs nq == nv (Euclidean configuration space)")
+    if differential.nu != nv:
+        raise ModelError(f"the differential model must be fully actuated (nu={nv})")
+    if not math.isfinite(lowpass_input_weight) or lowpass_input_weight < 0:
+        raise ConfigError(f"lowpass_input_weight must be >= 0, got {lowpass_input_weight}")
+    lowpass_alpha(cutoff_frequency, dt)  # validates f_c and Δt
+
+
+def make_lowpass_model(
+    differential: crocoddyl.DifferentialActionModelAbstract,
+    dt: float,
+    cutoff_frequency: float,
+    lowpass_input_weight: float = 0.0,
+    backend: str = DEFAULT_BACKEND,
+) -> crocoddyl.ActionModelAbstract:
+    """The low-pass integrator (eq 13–14, 28) around ``differential``: the C++ port
+    (``backend="native"``) or the Python :class:`IntegratedActionModelLPF` (``"python"``).
+
+    Same arguments and units as :class:`IntegratedActionModelLPF`; validated here for both.
+    """
+    if not check_backend(backend):
+        return IntegratedActionModelLPF(differential, dt, cutoff_frequency, lowpass_input_weight)
+    check_lowpass_arguments(differential, dt, cutoff_frequency, lowpass_input_weight)
+    return native_module().IntegratedActionModelLPF(
+        differential, float(dt), float(cutoff_frequency), float(lowpass_input_weight), COST_TORQUE
+    )
+
+
 class IntegratedActionModelLPF(crocoddyl.ActionModelAbstract):
     """Eq 13–14 and eq 28 as a crocoddyl action model on x = (q, v, τ), u = w.
 
@@ -89,13 +137,8 @@ class IntegratedActionModelLPF(crocoddyl.ActionModelAbstract):
         cutoff_frequency: float,
         lowpass_input_weight: float = 0.0,
     ) -> None:
+        check_lowpass_arguments(differential, dt, cutoff_frequency, lowpass_input_weight)
         nv = differential.state.nv
-        if differential.state.nq != nv:
-            raise ModelError("the low-pass model needs nq == nv (Euclidean configuration space)")
-        if differential.nu != nv:
-            raise ModelError(f"the differential model must be fully actuated (nu={nv})")
-        if not math.isfinite(lowpass_input_weight) or lowpass_input_weight < 0:
-            raise ConfigError(f"lowpass_input_weight must be >= 0, got {lowpass_input_weight}")
         super().__init__(crocoddyl.StateVector(3 * nv), nv)
         self.differential = differential
         self.dt = float(dt)
@@ -219,11 +262,13 @@ class LowPassNode(SwitchableContactNode):
     """One node of the torque-feedback OCP (Sec. IV-C) with switchable contact.
 
     Attributes:
-        model: the :class:`IntegratedActionModelLPF` to put in the ``ShootingProblem``.
+        model: the low-pass integrator (:func:`make_lowpass_model`) to put in the
+            ``ShootingProblem``.
         in_contact: whether ``model`` has the rigid contact (always False when terminal).
         terminal: terminal node (state terms of ℓ0 on (q, v) only).
         dt: Δt, s. cutoff_frequency: f_c, Hz. alpha: α of eq 13.
         contact: the contact configuration.
+        backend: ``"native"`` (C++ integrator and residuals) or ``"python"``.
     """
 
     def __init__(
@@ -237,14 +282,17 @@ class LowPassNode(SwitchableContactNode):
         q_reference: np.ndarray | None,
         in_contact: bool,
         baumgarte_velocity_gain: float,
+        backend: str = DEFAULT_BACKEND,
     ) -> None:
+        check_backend(backend)
+        self.backend = backend
         self.robot = robot
         self.contact = contact
         self.dt = float(dt)
         self.terminal = bool(terminal)
         self.cutoff_frequency = float(cutoff_frequency)
         self.alpha = lowpass_alpha(cutoff_frequency, dt)
-        self._models: dict[bool, IntegratedActionModelLPF] = {}
+        self._models: dict[bool, crocoddyl.ActionModelAbstract] = {}
         self._handles: dict[bool, CommonCostHandles] = {}
         for status in (False,) if self.terminal else (False, True):
             dam = make_differential_model(
@@ -255,9 +303,10 @@ class LowPassNode(SwitchableContactNode):
                 terminal=self.terminal,
                 q_reference=q_reference,
                 baumgarte_velocity_gain=baumgarte_velocity_gain,
+                backend=backend,
             )
-            self._models[status] = IntegratedActionModelLPF(
-                dam, self.dt, cutoff_frequency, weights.lowpass_input
+            self._models[status] = make_lowpass_model(
+                dam, self.dt, cutoff_frequency, weights.lowpass_input, backend
             )
             self._handles[status] = CommonCostHandles(dam, robot.nv, weights.diag("ee_position", 3))
         self.in_contact = bool(in_contact) and not self.terminal
@@ -279,6 +328,7 @@ def make_lowpass_node(
     *,
     in_contact: bool = False,
     baumgarte_velocity_gain: float = DEFAULT_BAUMGARTE_VELOCITY_GAIN,
+    backend: str = DEFAULT_BACKEND,
 ) -> LowPassNode:
     """Build a node of the torque-feedback OCP (eq 10–14, cost eq 28).
 
@@ -288,6 +338,7 @@ def make_lowpass_node(
         dt: Δt, s.
         terminal: terminal node.
         cutoff_frequency: f_c of the actuation filter, Hz (paper: 50 Hz).
+        backend: ``"native"`` (C++) or ``"python"`` (the reference classes).
     """
     if not math.isfinite(dt) or dt <= 0:
         raise ConfigError(f"dt must be > 0 s, got {dt}")
@@ -301,6 +352,7 @@ def make_lowpass_node(
         q_reference,
         in_contact,
         baumgarte_velocity_gain,
+        backend,
     )
 
 

@@ -156,12 +156,14 @@ def _node_factory(robot: RobotModel, config: MpcConfig, q_ref) -> Callable[[bool
     if config.formulation == "classical":
         from ffmpc_core.rigid_contact import make_rigid_contact_node
 
-        return lambda terminal: make_rigid_contact_node(*args, terminal, q_reference=q_ref)
+        return lambda terminal: make_rigid_contact_node(
+            *args, terminal, q_reference=q_ref, backend=config.backend
+        )
     if config.formulation == "torque_feedback":
         from ffmpc_core.lowpass import make_lowpass_node
 
         return lambda terminal: make_lowpass_node(
-            *args, terminal, config.cutoff_frequency, q_reference=q_ref
+            *args, terminal, config.cutoff_frequency, q_reference=q_ref, backend=config.backend
         )
     if config.backend == "native":
         from ffmpc_core.native import make_native_soft_contact_node as make_soft_contact_node

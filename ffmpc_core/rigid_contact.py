@@ -51,7 +51,13 @@ differences in ``tests/test_rigid_contact.py``):
 * ``ResidualModelFrameVelocity`` in ``LOCAL_WORLD_ALIGNED`` takes pinocchio's LWA velocity
   derivatives, which are not the derivatives of the world-aligned vector (26 % off).
   For an isotropic Q5 we use the ``LOCAL`` residual instead (same norm, exact derivatives, C++);
-  otherwise :class:`ResidualModelFrameLinearVelocityWorld` (Python, exact).
+  otherwise :class:`ResidualModelFrameLinearVelocityWorld` (exact).
+
+**Backends.** The two residuals above exist twice: the Python classes of this module (the readable
+reference) and their C++ ports in ``ffmpc_core._native`` (``cpp/residuals.cpp``, same residuals
+and derivatives, held equal by ``tests/test_native_lowpass.py``). ``backend="native"`` (the
+default of every builder) puts the C++ ones in the cost model, so the whole node runs in C++;
+``backend="python"`` the Python ones.
 
 **Switching contact on/off.** A running node owns two prebuilt action models (in contact and
 free). :meth:`RigidContactNode.set_reference` points ``model`` at the right one and returns True
@@ -71,7 +77,7 @@ import crocoddyl
 import numpy as np
 import pinocchio as pin
 
-from ffmpc_core.config import ContactConfig, CostWeights, NodeReference
+from ffmpc_core.config import BACKENDS, ContactConfig, CostWeights, NodeReference
 from ffmpc_core.errors import ConfigError, InputError, ModelError
 from ffmpc_core.robots import RobotModel
 
@@ -81,6 +87,11 @@ DEFAULT_BAUMGARTE_VELOCITY_GAIN = 50.0
 #: Name of the contact in crocoddyl's ``ContactModelMultiple``.
 CONTACT_NAME = "contact"
 
+#: Default implementation of the custom residuals (and of the low-pass integrator of
+#: ffmpc_core.lowpass): ``"native"`` = C++ from ffmpc_core._native; ``"python"`` = the reference
+#: classes (config.BACKENDS).
+DEFAULT_BACKEND = "native"
+
 #: Names of the cost terms of ℓ0 (eq 25.1–25.6) in crocoddyl's ``CostModelSum``.
 COST_POSTURE = "posture"
 COST_JOINT_VELOCITY = "joint_velocity"
@@ -88,6 +99,26 @@ COST_TORQUE = "torque"
 COST_EE_POSITION = "ee_position"
 COST_EE_VELOCITY = "ee_velocity"
 COST_FORCE = "force"
+
+
+def check_backend(backend: str) -> bool:
+    """True for ``"native"``, False for ``"python"``; :class:`ConfigError` otherwise."""
+    if backend not in BACKENDS:
+        raise ConfigError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    return backend == "native"
+
+
+def native_module():
+    """The compiled module ``ffmpc_core._native`` (C++ models); :class:`ModelError` when it was
+    not built (``make native``)."""
+    try:
+        from ffmpc_core import _native
+    except ImportError as exc:
+        raise ModelError(
+            f"the native backend needs the compiled module ffmpc_core._native ({exc}); "
+            "build it with `make native` or use backend='python'"
+        ) from exc
+    return _native
 
 
 def contact_axis_rotation(normal_axis: int) -> np.ndarray:
@@ -248,17 +279,20 @@ def make_costs(
     terminal: bool,
     q_reference: np.ndarray,
     builtin_residuals: bool = False,
+    backend: str = DEFAULT_BACKEND,
 ) -> crocoddyl.CostModelSum:
     """The cost ℓ0 of eq 25 (running) or its state terms (terminal), see the module docstring.
 
     The references start at p̄ = p(q̄), λ̄ = 0; the weights at ``weights`` (c4, c6 are then set
-    per node by :meth:`CommonCostHandles.apply`).
+    per node by :meth:`CommonCostHandles.apply`). ``backend``: C++ (``"native"``) or Python
+    (``"python"``) custom residuals (module docstring).
 
     ``builtin_residuals=True`` uses crocoddyl's own ``ResidualModelContactControlGrav`` for eq 25.3
     in contact: all-C++, but in crocoddyl 3.2.1 it ignores the contact force (τ − g(q)). It
     exists only as the speed reference of ``ffmpc bench mpc``; never control with it.
     """
     nv, nu, fid = state.nv, state.nv, robot.contact_frame_id
+    native = native_module() if check_backend(backend) else None
     costs = crocoddyl.CostModelSum(state, nu)
     x_reference = np.concatenate([q_reference, np.zeros(nv)])
     zeros = np.zeros(nv)
@@ -287,7 +321,12 @@ def make_costs(
         ee_vel = crocoddyl.ResidualModelFrameVelocity(state, fid, pin.Motion.Zero(), pin.LOCAL, nu)
         act = _quad(np.concatenate([q5, np.zeros(3)]))
     else:
-        ee_vel = ResidualModelFrameLinearVelocityWorld(state, fid, nu)
+        world_velocity = (
+            ResidualModelFrameLinearVelocityWorld
+            if native is None
+            else native.ResidualModelFrameLinearVelocityWorld
+        )
+        ee_vel = world_velocity(state, fid, nu)
         act = _quad(q5)
     costs.addCost(
         COST_EE_VELOCITY, crocoddyl.CostModelResidual(state, act, ee_vel), weights.ee_velocity
@@ -300,7 +339,12 @@ def make_costs(
         torque = crocoddyl.ResidualModelContactControlGrav(state, nu)
     elif in_contact:
         world_aligned = contact.pin_frame == pin.LOCAL_WORLD_ALIGNED
-        torque = ResidualModelContactGravityTorque(state, nu, world_aligned)
+        if native is None:
+            torque = ResidualModelContactGravityTorque(state, nu, world_aligned)
+        else:
+            torque = native.ResidualModelContactGravityTorque(
+                state, nu, world_aligned, CONTACT_NAME
+            )
     else:
         torque = crocoddyl.ResidualModelControlGrav(state, nu)
     act = _quad(weights.diag("torque", nv))
@@ -324,11 +368,12 @@ def make_differential_model(
     q_reference: np.ndarray | None = None,
     baumgarte_velocity_gain: float = DEFAULT_BAUMGARTE_VELOCITY_GAIN,
     builtin_residuals: bool = False,
+    backend: str = DEFAULT_BACKEND,
 ) -> crocoddyl.DifferentialActionModelAbstract:
     """Continuous dynamics (eq 5–6; free dynamics when not in contact) with the cost ℓ0.
 
     Control: joint torque τ, N·m (full actuation). A terminal model has the state terms only
-    and free dynamics (a terminal node has no dynamics).
+    and free dynamics (a terminal node has no dynamics). ``backend``: see :func:`make_costs`.
     """
     q_reference = _check_posture(robot, robot.q_nominal if q_reference is None else q_reference)
     state = crocoddyl.StateMultibody(robot.model)
@@ -343,6 +388,7 @@ def make_differential_model(
         terminal=terminal,
         q_reference=q_reference,
         builtin_residuals=builtin_residuals,
+        backend=backend,
     )
     if not in_contact:
         return crocoddyl.DifferentialActionModelFreeFwdDynamics(state, actuation, costs)
@@ -498,6 +544,7 @@ class RigidContactNode(SwitchableContactNode):
         terminal: whether this is the terminal node (state costs only, not × Δt).
         dt: integration step Δt, s.
         contact: the contact configuration.
+        backend: ``"native"`` or ``"python"`` custom residuals (module docstring).
     """
 
     def __init__(
@@ -511,9 +558,12 @@ class RigidContactNode(SwitchableContactNode):
         in_contact: bool,
         baumgarte_velocity_gain: float,
         builtin_residuals: bool = False,
+        backend: str = DEFAULT_BACKEND,
     ) -> None:
         if not np.isfinite(dt) or dt <= 0:
             raise ConfigError(f"dt must be > 0 s, got {dt}")
+        check_backend(backend)
+        self.backend = backend
         self.robot = robot
         self.contact = contact
         self.dt = float(dt)
@@ -522,6 +572,7 @@ class RigidContactNode(SwitchableContactNode):
             q_reference=q_reference,
             baumgarte_velocity_gain=baumgarte_velocity_gain,
             builtin_residuals=builtin_residuals,
+            backend=backend,
         )
         self._models: dict[bool, crocoddyl.IntegratedActionModelEuler] = {}
         self._handles: dict[bool, CommonCostHandles] = {}
@@ -550,6 +601,7 @@ def make_rigid_contact_node(
     in_contact: bool = False,
     baumgarte_velocity_gain: float = DEFAULT_BAUMGARTE_VELOCITY_GAIN,
     builtin_residuals: bool = False,
+    backend: str = DEFAULT_BACKEND,
 ) -> RigidContactNode:
     """Build a node of the classical OCP (eq 5–8, cost eq 27); see :class:`RigidContactNode`.
 
@@ -563,6 +615,7 @@ def make_rigid_contact_node(
         in_contact: initial dynamics (switch later with ``set_reference``).
         baumgarte_velocity_gain: K_d, 1/s (module docstring).
         builtin_residuals: benchmark reference only (see :func:`make_costs`).
+        backend: ``"native"`` (C++ custom residuals) or ``"python"`` (module docstring).
     """
     return RigidContactNode(
         robot,
@@ -574,4 +627,5 @@ def make_rigid_contact_node(
         in_contact,
         baumgarte_velocity_gain,
         builtin_residuals,
+        backend,
     )

@@ -1,0 +1,83 @@
+// Python bindings of the low-pass-filter integrator (lowpass.hpp): ffmpc_core._native.
+#include <boost/python.hpp>
+#include <eigenpy/eigenpy.hpp>
+
+#include "lowpass.hpp"
+
+namespace bp = boost::python;
+
+namespace ffmpc {
+
+namespace {
+
+typedef crocoddyl::ActionDataAbstract ActionDataAbstract;
+typedef Eigen::Ref<const Eigen::VectorXd> ConstRef;
+
+}  // namespace
+
+void expose_lowpass() {
+  typedef IntegratedActionModelLPF Model;
+  typedef IntegratedActionDataLPF Data;
+  bp::class_<Model, bp::bases<crocoddyl::ActionModelAbstract>, std::shared_ptr<Model>>(
+      "IntegratedActionModelLPF",
+      "Eq 13-14 and 28 as a crocoddyl action model on x = (q, v, tau), u = w (C++ port of\n"
+      "ffmpc_core.lowpass.IntegratedActionModelLPF: same step, cost and derivatives).",
+      bp::init<std::shared_ptr<crocoddyl::DifferentialActionModelAbstract>, double, double, double,
+               std::string>(
+          bp::args("self", "differential", "dt", "cutoff_frequency", "lowpass_input_weight",
+                   "torque_cost"),
+          "differential: control tau (nu == nv == nq); dt: s; cutoff_frequency: f_c, Hz;\n"
+          "lowpass_input_weight: c_w, 1/(N.m)^2; torque_cost: name of the eq 25.3 cost whose\n"
+          "residual tau - tau_g gives tau_g (running nodes)."))
+      .def<void (Model::*)(const std::shared_ptr<ActionDataAbstract>&, const ConstRef&,
+                           const ConstRef&)>("calc", &Model::calc,
+                                             bp::args("self", "data", "x", "u"),
+                                             "Next state and cost at (x, u).")
+      .def<void (Model::*)(const std::shared_ptr<ActionDataAbstract>&, const ConstRef&)>(
+          "calc", &Model::calc, bp::args("self", "data", "x"),
+          "Terminal: cost of the differential model at (q, v); xnext = x.")
+      .def<void (Model::*)(const std::shared_ptr<ActionDataAbstract>&, const ConstRef&,
+                           const ConstRef&)>("calcDiff", &Model::calcDiff,
+                                             bp::args("self", "data", "x", "u"),
+                                             "Derivatives at (x, u) (after calc).")
+      .def<void (Model::*)(const std::shared_ptr<ActionDataAbstract>&, const ConstRef&)>(
+          "calcDiff", &Model::calcDiff, bp::args("self", "data", "x"),
+          "Terminal derivatives at x (after calc).")
+      .def("createData", &Model::createData, bp::args("self"), "Create the data.")
+      .add_property("differential",
+                    bp::make_function(&Model::get_differential,
+                                      bp::return_value_policy<bp::return_by_value>()),
+                    "The wrapped differential model.")
+      .add_property("dt", &Model::get_dt, "Delta t, s.")
+      .add_property("cutoff_frequency", &Model::get_cutoff_frequency, "f_c, Hz.")
+      .add_property("alpha", &Model::get_alpha, "alpha = exp(-2 pi f_c dt) of eq 13.")
+      .add_property("lowpass_input_weight", &Model::get_lowpass_input_weight,
+                    "c_w of eq 28, 1/(N.m)^2.")
+      .add_property("nv", &Model::get_nv, "Joint-velocity dimension.")
+      .add_property("torque_cost",
+                    bp::make_function(&Model::get_torque_cost,
+                                      bp::return_value_policy<bp::copy_const_reference>()),
+                    "Name of the eq 25.3 cost of the differential model.");
+
+  bp::register_ptr_to_python<std::shared_ptr<Data>>();
+  bp::class_<Data, bp::bases<crocoddyl::ActionDataAbstract>, boost::noncopyable>(
+      "IntegratedActionDataLPF", "Workspace of IntegratedActionModelLPF.",
+      bp::init<Model*>(bp::args("self", "model"), "Create the data of model.")
+          [bp::with_custodian_and_ward<1, 2>()])
+      .add_property("differential",
+                    bp::make_getter(&Data::differential,
+                                    bp::return_value_policy<bp::return_by_value>()),
+                    "The differential model's data.")
+      .add_property("torque_residual",
+                    bp::make_getter(&Data::torque_residual,
+                                    bp::return_value_policy<bp::return_by_value>()),
+                    "The eq 25.3 residual data of the differential data (None if absent).")
+      .add_property("lowpass_residual",
+                    bp::make_getter(&Data::lowpass_residual, bp::return_internal_reference<>()),
+                    "w - tau_g of eq 28 after calc, N.m.")
+      .add_property("dtau_g_dx",
+                    bp::make_getter(&Data::dtau_g_dx, bp::return_internal_reference<>()),
+                    "d tau_g / dx (nv x 3nv) after calcDiff.");
+}
+
+}  // namespace ffmpc
