@@ -26,9 +26,23 @@ KEYS = {
 
 
 def test_parse_cases():
+    # By default: the three formulations (native) and the Python force-feedback model.
     assert parse_cases(None) == [
-        (n, dt, ["reference", "classical", "torque_feedback", "force_feedback"])
+        (
+            n,
+            dt,
+            [
+                "reference",
+                "classical",
+                "torque_feedback",
+                "force_feedback",
+                "force_feedback_python",
+            ],
+        )
         for n, dt in CONFIGURATIONS
+    ]
+    assert parse_cases(["torque_feedback_python:5"]) == [
+        (5, 0.003, ["reference", "torque_feedback_python"])
     ]
     assert parse_cases(["force_feedback:20", "classical"]) == [
         (5, 0.003, ["reference", "classical"]),

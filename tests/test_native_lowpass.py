@@ -127,7 +127,7 @@ def _differential_pair(robot, contact, weights, ref_rng, *, in_contact, terminal
     }
     ref = random_reference(ref_rng, robot, contact, in_contact)
     for dam in dams.values():
-        CommonCostHandles(dam, robot.nv).apply(ref)
+        CommonCostHandles(dam, robot.nv, weights.diag("ee_position", 3)).apply(ref)
     return dams
 
 
