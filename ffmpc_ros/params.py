@@ -339,7 +339,7 @@ NODE_SPECS: dict[str, NodeSpec] = {
         "plant",
         ("robot", "seed", "task.*"),
         (),
-        (LOCKSTEP, DURATION, START_DELAY, START_SUBSCRIBERS, WAIT_FOR_METRICS),
+        (LOCKSTEP, DURATION, START_DELAY, START_SUBSCRIBERS, WAIT_FOR_METRICS, MAX_AGE),
     ),
     "joint_sensor": NodeSpec(
         "joint_sensor", "joint_sensor", ("robot", "seed"), _TIME_STEP, (MAX_AGE,)

@@ -39,7 +39,13 @@ from std_msgs.msg import Bool, Float64MultiArray
 
 from ffmpc_core.errors import InputError
 from ffmpc_core.robots import load_robot
-from ffmpc_core.study import actuation_model, build_task, device_generator, draw_run
+from ffmpc_core.study import (
+    actuation_model,
+    build_task,
+    device_generator,
+    draw_run,
+    lowlevel_controller,
+)
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import StudyNode, run_node
 from sim_bridge.plant import Plant
@@ -73,6 +79,12 @@ class PlantNode(StudyNode):
         self.tau_hat = robot.gravity(robot.q_nominal)  # the motors hold the robot at start
         self.motor_torque = self.tau_hat.copy()  # real time: used until a command arrives
         self._motor_cycle = -1  # cycle of self.motor_torque
+        # The drives' own safe hold (real time, ``ros2 run``): when no valid motor torque came
+        # for ``max_input_age``, the robot brakes and holds (the low level's safe hold on the
+        # true joint state) instead of applying the last torque forever.
+        self._drive_hold = lowlevel_controller(s, robot)
+        self._drive_torque: np.ndarray | None = None
+        self.drive_hold_cycles = 0
         self.deadline_misses = 0
         self.latencies: list[float] = []
         self._published_at: dict[int, float] = {}
@@ -217,6 +229,19 @@ class PlantNode(StudyNode):
             return
         if self._motor_cycle != self.k:
             self.deadline_misses += 1
+        if (self.k - max(self._motor_cycle, 0)) * self.time_step > self.max_input_age:
+            if self.drive_hold_cycles == 0:
+                self._drive_hold.reset()
+                self.reject(
+                    f"{topics.MOTOR_TORQUE}:missing",
+                    f"no valid motor torque for {self.max_input_age} s: the drives brake and hold",
+                )
+            self.drive_hold_cycles += 1
+            hold = self._drive_hold.hold_torque(self.state.q, self.state.v)
+            # applied by the drives themselves: no actuation model (bias, delay) in between
+            self._drive_torque = np.clip(hold, -self.robot.torque_limit, self.robot.torque_limit)
+        else:
+            self._drive_torque = None
         self.step_plant()
 
     def step_plant(self) -> None:
@@ -227,7 +252,10 @@ class PlantNode(StudyNode):
             self.plant.apply_external_push(
                 np.array(self.scenario.plant.push_force), self.push_steps
             )
-        self.tau_hat = self.actuation.step(self.motor_torque, self.state.v)
+        if self._drive_torque is not None:
+            self.tau_hat = self._drive_torque
+        else:
+            self.tau_hat = self.actuation.step(self.motor_torque, self.state.v)
         self.plant.step(self.tau_hat)
         for old in [c for c in self._published_at if c < self.k - 1000]:
             del self._published_at[old]

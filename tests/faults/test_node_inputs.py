@@ -196,3 +196,23 @@ def test_a_node_started_by_hand_reports_localhost_discovery(module):
     finally:
         proc.terminate()
         proc.wait(timeout=10)
+
+
+def test_the_plant_brakes_and_holds_when_the_motor_torques_stop(ros, robot):
+    """Real time, plant alone: one large torque, then nothing. After ``max_input_age`` the drives'
+    safe hold takes over (one log line) instead of applying that torque for ever."""
+    from sim_bridge.node import PlantNode
+
+    params = overrides("plant", None, lockstep=False, duration=0.4, max_input_age=0.02)
+    node = ros.add(PlantNode(context=ros.context, parameter_overrides=params))
+    probe = ros.probe()
+    pub = probe.create_publisher(JointState, topics.MOTOR_TORQUE, topics.publisher_qos())
+    torque = robot.gravity(robot.q_nominal) + 0.5 * robot.torque_limit * np.array(
+        [0, 1, 0, 1, 0, 0, 0]
+    )
+    assert ros.spin_until(lambda: node.k >= 1, timeout=10)
+    pub.publish(joint_state(node, node.k, robot.q_nominal, np.zeros(7), torque))
+    assert ros.spin_until(lambda: node.done, timeout=20)
+    assert node.rejected[f"{topics.MOTOR_TORQUE}:missing"] == 1 and node.drive_hold_cycles > 300
+    v_end = np.abs(node.state.v) / robot.velocity_limit
+    assert v_end.max() < 0.05, v_end  # braked to (nearly) rest within the run
