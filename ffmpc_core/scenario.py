@@ -301,12 +301,14 @@ def config_error(name: str, value: Any, expected: str) -> ConfigError:
 
 
 def unknown_parameter(name: str, value: Any) -> ConfigError:
-    """A name that is not in :data:`SCHEMA` (with the closest known names)."""
+    """A name that is not in :data:`SCHEMA` (``name = value: unknown scenario parameter; did
+    you mean …?``)."""
     import difflib
 
     close = difflib.get_close_matches(name, list(SCHEMA), n=3, cutoff=0.6)
-    hint = f" (did you mean {', '.join(close)}?)" if close else ""
-    return config_error(name, value, f"a known scenario parameter{hint}")
+    hint = f"; did you mean {', '.join(close)}?" if close else ""
+    shown = repr(value) if len(repr(value)) <= 80 else repr(value)[:77] + "..."
+    return ConfigError(f"{name} = {shown}: unknown scenario parameter{hint}")
 
 
 INF = float("inf")

@@ -89,7 +89,7 @@ def new_path(text: str) -> str:
     if not text:
         raise argparse.ArgumentTypeError("expected a path, got ''")
     if path.exists():
-        raise argparse.ArgumentTypeError(f"{text} exists; not overwritten")
+        raise argparse.ArgumentTypeError(f"{text} already exists; never overwritten")
     if not path.parent.is_dir():
         raise argparse.ArgumentTypeError(f"{text}: no directory {str(path.parent)!r}")
     return text
@@ -199,7 +199,7 @@ def _cmd_study(args: argparse.Namespace) -> int:
     overrides = _parse_overrides(args.set)
     load_scenario(args.scenario or kind, overrides)  # refuse a bad scenario before any import
     if args.out and os.path.exists(args.out) and not args.force:
-        raise ConfigError(f"--out {args.out} exists; pass --force to write into it")
+        raise ConfigError(f"output directory {args.out} already exists; pass --force to overwrite")
     if args.plot_seed is not None and not (
         args.first_seed <= args.plot_seed < args.first_seed + args.seeds
     ):
@@ -377,7 +377,7 @@ def _cmd_study_impact(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     if args.out and os.path.exists(args.out) and not args.force:  # before importing PyBullet
-        raise ConfigError(f"--out {args.out} exists; pass --force to write into it")
+        raise ConfigError(f"{args.out} exists: choose another --out or pass --force to overwrite")
     from sim_bridge.impact_study import (
         ImpactStudyConfig,
         default_out_dir,

@@ -32,7 +32,7 @@ from ffmpc_ros.params import (
 from ffmpc_ros.pid_node import PidNode
 from sim_bridge.node import PlantNode
 
-ONE_LINE = re.compile(r"^[\w.]+ = .+: expected .+$")
+ONE_LINE = re.compile(r"^[\w.]+ = .+: (expected .+|unknown scenario parameter.*)$")
 NODES = {"mpc": MpcNode, "pid": PidNode, "joint_sensor": JointSensorNode}
 NODES |= {"ft_sensor": FtSensorNode, "plant": PlantNode}
 
@@ -69,7 +69,7 @@ def _refusal(overrides: dict) -> str:
         ("seed", -1, "seed = -1: expected an integer in [0, 2147483647]"),
         ("robot", "ur5", "robot = 'ur5': expected one of 'iiwa', 'panda'"),
         ("mpc.horizn", 3, "did you mean mpc.horizon"),
-        ("mpc.weights.rigid.force", 1.0, "expected a known scenario parameter"),
+        ("mpc.weights.rigid.force", 1.0, "= 1.0: unknown scenario parameter"),
     ],
 )
 def test_strict_types_one_line_errors(name, value, expected):
