@@ -173,36 +173,334 @@ class Scenario:
         """A copy with dotted-name overrides applied (``"mpc.formulation"``, ``"seed"``)."""
         flat = _scenario_to_flat(self)
         for key, value in overrides.items():
-            if key not in flat and not key.startswith("mpc.weights."):
-                raise ConfigError(f"unknown scenario parameter {key!r}")
+            if not isinstance(key, str) or key not in SCHEMA:
+                raise unknown_parameter(str(key), value)
             flat[key] = value
         if "pid.delay_cycles" in overrides and "mpc.command_delay" not in overrides:
             flat["mpc.command_delay"] = COMMAND_DELAY_PID  # the explicit δo in cycles wins
         return _scenario_from_flat(self.name, flat)
 
 
-def _coerce(cls, values: dict[str, Any], where: str):
-    names = {f.name: f for f in fields(cls)}
-    kwargs = {}
-    for key, value in values.items():
-        if key not in names:
-            raise ConfigError(f"{where}: unknown parameter {key!r}")
-        default = getattr(cls(), key) if key in names else None
-        if isinstance(default, tuple):
-            value = tuple(float(v) for v in value)
+# -- the schema: one declaration of every scenario parameter's type, unit and range ----------
+#: Joints of every supported robot (ffmpc_core.robots.load_robot refuses any other arm).
+N_JOINTS = 7
+#: Kinds of parameter: the Python type of the dataclass default, plus the list kinds.
+BOOL, INT, FLOAT, STR = "bool", "int", "float", "str"
+FLOATS = "floats"  # a list of exactly ``length`` numbers
+FLOAT_OR_FLOATS = "float_or_floats"  # a number, or one per entry (``length`` entries)
+DELAY = "command_delay"  # "pid" | "measured" | seconds
+#: ``length`` of the per-contact-axis lists: mpc.contact.dimension.
+CONTACT_DIMENSION = "mpc.contact.dimension"
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One scenario parameter: dotted name, kind, unit, range (closed; each entry of a list)
+    and meaning. :data:`SCHEMA` holds one per parameter; the runner (:func:`load_scenario`,
+    :meth:`Scenario.with_overrides`) and the ROS parameter descriptors are built from it."""
+
+    name: str
+    kind: str
+    description: str
+    unit: str = ""
+    range: tuple[float, float] | None = None
+    choices: tuple[Any, ...] = ()
+    length: int | str | None = None  # list length, or CONTACT_DIMENSION
+
+    def expected(self, length: int | None = None) -> str:
+        """What a value must be, in words (the end of every error message)."""
+        unit = f" {self.unit}" if self.unit else ""
+        span = ""
+        if self.range is not None:
+            lo, hi = self.range
+            span = f" in [{_num(lo)}, {_num(hi)}]" if np.isfinite(hi) else f" >= {_num(lo)}"
+        if self.choices:
+            return "one of " + ", ".join(repr(c) for c in self.choices)
+        n = length if length is not None else self.length
+        n_text = f"{n}" if isinstance(n, int) else CONTACT_DIMENSION
+        if self.length == CONTACT_DIMENSION and isinstance(n, int):
+            n_text = f"{n} ({CONTACT_DIMENSION})"
+        if self.kind == BOOL:
+            return "true or false"
+        if self.kind == INT:
+            return f"an integer{span}{unit}"
+        if self.kind == FLOAT:
+            return f"a number{span}{unit}"
+        if self.kind == STR:
+            return "a string"
+        if self.kind == FLOATS:
+            return f"a list of {n_text} numbers{span}{unit}"
+        if self.kind == FLOAT_OR_FLOATS:
+            return f"a number{span}{unit} or a list of {n_text} of them"
+        return "'pid', 'measured' or a number of seconds >= 0"  # DELAY
+
+    def error(self, value: Any, length: int | None = None) -> ConfigError:
+        return config_error(self.name, value, self.expected(length))
+
+    def check(self, value: Any, length: int | None = None) -> Any:
+        """``value`` in its canonical type (float, int, bool, str, tuple of floats), or
+        ConfigError. ``length`` resolves a list length given by another parameter."""
+        if self.kind == BOOL:
+            if not isinstance(value, bool | np.bool_):
+                raise self.error(value)
+            return bool(value)
+        if self.kind == INT:
+            if not _is_int(value):
+                raise self.error(value)
+            out: Any = int(value)
+        elif self.kind == FLOAT:
+            out = self._number(value)
+        elif self.kind == STR:
+            if not isinstance(value, str):
+                raise self.error(value)
+            out = value.strip()
+        elif self.kind in (FLOATS, FLOAT_OR_FLOATS):
+            n = length if length is not None else self.length
+            if self.kind == FLOAT_OR_FLOATS and not isinstance(value, list | tuple):
+                out = self._number(value, length)
+            else:
+                if not isinstance(value, list | tuple) or len(value) == 0:
+                    raise self.error(value, length)
+                if isinstance(n, int) and len(value) != n:
+                    raise self.error(value, length)
+                out = tuple(self._number(v, length, whole=value) for v in value)
+            return out
+        else:  # DELAY
+            return _command_delay_setting(value, self)
+        if self.choices and out not in self.choices:
+            raise self.error(value)
+        if self.range is not None and not self.range[0] <= out <= self.range[1]:
+            raise self.error(value)
+        return out
+
+    def _number(self, value: Any, length: int | None = None, whole: Any = None) -> float:
+        bad = self.error(value if whole is None else whole, length)
+        if isinstance(value, bool | np.bool_) or not isinstance(value, int | float | np.number):
+            raise bad
+        out = float(value)
+        if not np.isfinite(out):
+            raise bad
+        if self.range is not None and not self.range[0] <= out <= self.range[1]:
+            raise bad
+        return out
+
+
+def _num(x: float) -> str:
+    return str(x) if isinstance(x, int) else f"{x:g}"
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int | np.integer) and not isinstance(value, bool | np.bool_)
+
+
+def config_error(name: str, value: Any, expected: str) -> ConfigError:
+    """The one format of a bad parameter: ``name = value: expected …`` (one line)."""
+    shown = repr(value)
+    if len(shown) > 80:
+        shown = shown[:77] + "..."
+    return ConfigError(f"{name} = {shown}: expected {expected}")
+
+
+def unknown_parameter(name: str, value: Any) -> ConfigError:
+    """A name that is not in :data:`SCHEMA` (``name = value: unknown scenario parameter; did
+    you mean …?``)."""
+    import difflib
+
+    close = difflib.get_close_matches(name, list(SCHEMA), n=3, cutoff=0.6)
+    hint = f"; did you mean {', '.join(close)}?" if close else ""
+    shown = repr(value) if len(repr(value)) <= 80 else repr(value)[:77] + "..."
+    return ConfigError(f"{name} = {shown}: unknown scenario parameter{hint}")
+
+
+INF = float("inf")
+_NONNEG = (0.0, INF)
+#: name: (unit, (low, high) range or [choices], description). Kinds come from the dataclass
+#: defaults (tuples: lists); _build_schema checks that this table and the dataclasses agree.
+_TABLE: dict[str, tuple[str, Any, str]] = {
+    "robot": ("", ["iiwa", "panda"], "robot model"),
+    "seed": ("", (0, 2**31 - 1), "seed of every random draw of the run (numpy Generator spawn)"),
+    "task.name": ("", ["polishing", "force_square"], "task"),
+    "task.normal_force": ("N", (0.0, 500.0), "polishing normal force reference"),
+    "task.circle_radius": ("m", (0.0, 0.5), "circle radius"),
+    "task.angular_velocity": ("rad/s", (0.0, 50.0), "angular velocity along the circle"),
+    "task.circles": ("", (0.0, 100.0), "number of turns"),
+    "task.start_height": ("m", (0.0, 0.5), "start height above the believed table"),
+    "task.still": ("s", (0.0, 60.0), "phase duration: stand still"),
+    "task.reach": ("s", (0.0, 60.0), "phase duration: reach the table"),
+    "task.force_ramp": ("s", (0.0, 60.0), "phase duration: ramp the force"),
+    "task.stop": ("s", (0.0, 60.0), "phase duration after the circle"),
+    "task.low_force": ("N", (0.0, 500.0), "force_square low level"),
+    "task.high_force": ("N", (0.0, 500.0), "force_square high level"),
+    "task.square_period": ("s", (0.0, 60.0), "force_square period"),
+    "task.square_cycles": ("", (0, 1000), "force_square number of periods"),
+    "plant.time_step": ("s", (1e-5, 0.01), "physics step = control cycle; stamps are multiples"),
+    "plant.table_tilt_deg": ("deg", (-45.0, 45.0), "table tilt θ when random_tilt_deg is 0"),
+    "plant.table_tilt_axis": ("", (-1.0, 1.0), "horizontal tilt axis, world frame"),
+    "plant.random_tilt_deg": ("deg", (0.0, 45.0), "θ ~ U(−this, +this) per seed when > 0"),
+    "plant.table_stiffness": ("N/m", (1.0, 1e9), "table contact stiffness"),
+    "plant.table_damping": ("N·s/m", (0.0, 1e6), "table contact damping"),
+    "plant.table_friction": ("", (0.0, 10.0), "table Coulomb friction coefficient"),
+    "plant.actuation_random_bias": ("", None, "draw the actuation bias (a, b) per seed (eq 31)"),
+    "plant.actuation_delay_cycles": ("cycles", (0, 1000), "actuation delay δs (eq 31)"),
+    "plant.actuation_noise_fraction": ("", (0.0, 0.99), "σ_τ / torque limit (eq 31)"),
+    "plant.static_friction": ("N·m", (0.0, 100.0), "μs (eq 31)"),
+    "plant.viscous_friction": ("N·m·s/rad", (0.0, 100.0), "μv (eq 31)"),
+    "plant.friction_velocity": ("rad/s", (1e-6, 100.0), "v_s of the tanh friction"),
+    "plant.push_enabled": ("", None, "apply an external push on the tool"),
+    "plant.push_time": ("s", (0.0, 3600.0), "push start"),
+    "plant.push_force": ("N", (-1e4, 1e4), "push force, world frame"),
+    "plant.push_duration": ("s", (0.0, 60.0), "push duration"),
+    "joint_sensor.delay_cycles": ("cycles", (0, 1000), "sensing delay δs (eq 30)"),
+    "joint_sensor.position_noise_std": ("rad", (0.0, 1.0), "σ_q (eq 30)"),
+    "joint_sensor.velocity_noise_std": ("rad/s", (0.0, 10.0), "σ_q̇ (eq 30)"),
+    "ft_sensor.delay_cycles": ("cycles", (0, 1000), "sensing delay δs (eq 32)"),
+    "ft_sensor.force_noise_std": ("N", (0.0, 100.0), "σ_λ (eq 32)"),
+    "ft_sensor.filter_cutoff_frequency": ("Hz", (0.0, 1e4), "filtered wrench cut-off (0: none)"),
+    "ft_sensor.contact_on_force": ("N", (0.0, 1e4), "filtered normal force starting a contact"),
+    "ft_sensor.contact_off_force": ("N", (0.0, 1e4), "filtered normal force ending it"),
+    "ft_sensor.tare_samples": ("", (1, 100000), "measurements averaged by the tare service"),
+    "mpc.formulation": ("", list(FORMULATIONS), "OCP formulation"),
+    "mpc.backend": (
+        "",
+        list(BACKENDS),
+        "action models: native (C++, default) | python (reference)",
+    ),
+    "mpc.horizon": ("nodes", (1, 1000), "OCP nodes N"),
+    "mpc.dt": ("s", (1e-5, 1.0), "OCP node duration"),
+    "mpc.period": ("s", (1e-5, 1.0), "re-planning period (a multiple of plant.time_step)"),
+    "mpc.max_iterations": ("", (1, 1000), "SQP iterations per solve"),
+    "mpc.kkt_tolerance": ("", (1e-12, 1.0), "SQP KKT tolerance"),
+    "mpc.cutoff_frequency": ("Hz", (1e-3, 1e4), "low-pass actuation cut-off f_c"),
+    "mpc.riccati_feedback": ("", None, "low level applies τ* + G·Δx between solves"),
+    "mpc.delay_compensation": ("", None, "plan for t + δo (δo = pid.delay_cycles cycles)"),
+    "mpc.command_delay": ("s", None, "δo: pid (pid.delay_cycles), seconds, or measured"),
+    "mpc.contact.dimension": ("", [1, 3], "contact force entries: 1 (normal) or 3"),
+    "mpc.contact.frame_type": ("", ["LOCAL_WORLD_ALIGNED", "LOCAL"], "frame of the force"),
+    "mpc.contact.normal_axis": ("", [0, 1, 2], "axis of the 1-D force: 0 x, 1 y, 2 z"),
+    "mpc.contact.stiffness": ("N/m", (0.0, 1e9), "K of the visco-elastic contact (eq 16)"),
+    "mpc.contact.damping": ("N·s/m", (0.0, 1e6), "B of the visco-elastic contact (eq 16)"),
+    "pid.enabled": ("", None, "torque PID on (off: τ^m = τ^d(t − δo))"),
+    "pid.kp": ("", (0.0, 100.0), "K_P (eq 33)"),
+    "pid.ki": ("1/s", (0.0, 1e5), "K_I (eq 33)"),
+    "pid.kd": ("s", (0.0, 100.0), "K_D (eq 33)"),
+    "pid.integral_fraction": ("", (0.0, 1.0), "anti-windup bound on K_I·∫e / torque limit"),
+    "pid.delay_cycles": ("cycles", (0, 1000), "δo (eq 33)"),
+    "pid.stale_timeout": ("s", (1e-5, 10.0), "MPC command age that triggers the safe hold"),
+    "pid.blend_duration": ("s", (0.0, 10.0), "hold → MPC blend"),
+    "pid.hold_frequency": ("Hz", (0.0, 100.0), "natural frequency of the hold PD"),
+    "pid.hold_damping_ratio": ("", (0.0, 10.0), "damping ratio of the hold PD"),
+}
+#: List lengths of the CostWeights activation diagonals (a number broadcasts).
+_DIAG_LENGTH = {
+    "posture": N_JOINTS,
+    "joint_velocity": N_JOINTS,
+    "torque": N_JOINTS,
+    "ee_position": 3,
+    "ee_velocity": 3,
+    "force": CONTACT_DIMENSION,
+}
+_WEIGHT_UNITS = {
+    "posture": "1/rad²",
+    "joint_velocity": "s²/rad²",
+    "torque": "1/(N·m)²",
+    "ee_position": "1/m²",
+    "ee_velocity": "s²/m²",
+    "force": "1/N²",
+    "lowpass_input": "1/(N·m)²",
+    "force_rate": "s²/N²",
+}
+
+
+def _section_fields() -> dict[str, Any]:
+    """{dotted name: dataclass default} of every non-weight scenario field."""
+    out: dict[str, Any] = {"robot": "iiwa", "seed": 0}
+    for section, cls in (
+        ("task", TaskSection),
+        ("plant", PlantSection),
+        ("joint_sensor", JointSensorSection),
+        ("ft_sensor", ForceSensorSection),
+        ("mpc", MpcSection),
+        ("pid", PidSection),
+        ("mpc.contact", ContactConfig),
+    ):
+        for f in fields(cls):
+            if cls is MpcSection and f.name in ("contact", "weights"):
+                continue
+            out[f"{section}.{f.name}"] = getattr(cls(), f.name)
+    return out
+
+
+def _build_schema() -> dict[str, ParamSpec]:
+    schema: dict[str, ParamSpec] = {}
+    defaults = _section_fields()
+    if set(defaults) != set(_TABLE):
+        raise AssertionError(f"schema table vs dataclasses: {set(defaults) ^ set(_TABLE)}")
+    for name, default in defaults.items():
+        unit, limits, description = _TABLE[name]
+        choices = tuple(limits) if isinstance(limits, list) else ()
+        span = limits if isinstance(limits, tuple) else None
+        length = None
+        if name == "mpc.command_delay":
+            kind = DELAY
+        elif name in ("mpc.contact.stiffness", "mpc.contact.damping"):
+            kind, length = FLOAT_OR_FLOATS, CONTACT_DIMENSION
+        elif isinstance(default, tuple):
+            kind, length = FLOATS, len(default)
         elif isinstance(default, bool):
-            if not isinstance(value, bool):
-                raise ConfigError(f"{where}.{key} must be true or false, got {value!r}")
+            kind = BOOL
         elif isinstance(default, int):
-            if int(value) != value:
-                raise ConfigError(f"{where}.{key} must be an integer, got {value!r}")
-            value = int(value)
+            kind = INT
         elif isinstance(default, float):
-            value = float(value)
-            if not np.isfinite(value):
-                raise ConfigError(f"{where}.{key} must be finite")
-        kwargs[key] = value
-    return cls(**kwargs)
+            kind = FLOAT
+        else:
+            kind = STR
+        schema[name] = ParamSpec(name, kind, description, unit, span, choices, length)
+    for form in FORMULATIONS:
+        prefix = f"mpc.weights.{form}."
+        for f in fields(CostWeights):
+            base = f.name.removesuffix("_diag")
+            if f.name.endswith("_diag"):
+                schema[prefix + f.name] = ParamSpec(
+                    prefix + f.name,
+                    FLOAT_OR_FLOATS,
+                    f"activation diagonal Q of {base} (eq 25)",
+                    "",
+                    _NONNEG,
+                    length=_DIAG_LENGTH[base],
+                )
+            else:
+                schema[prefix + f.name] = ParamSpec(
+                    prefix + f.name, FLOAT, f"cost weight c of {base}", _WEIGHT_UNITS[base], _NONNEG
+                )
+        for phase, what in (("force_phase", "c6"), ("ee_position_phase", "c4")):
+            schema[prefix + phase] = ParamSpec(
+                prefix + phase, FLOAT, f"{what} of the task phases (ffmpc_core.tasks)", "", _NONNEG
+            )
+    return schema
+
+
+SCHEMA: dict[str, ParamSpec] = _build_schema()
+
+
+def _coerce(cls, values: dict[str, Any]):
+    """A section dataclass from values already checked by :func:`validate_flat`."""
+    return cls(**values)
+
+
+def validate_flat(flat: dict[str, Any]) -> dict[str, Any]:
+    """Every dotted-name value checked against :data:`SCHEMA`, in its canonical type
+    (ConfigError, ``name = value: expected …``, for the first bad or unknown one)."""
+    out: dict[str, Any] = {}
+    for key, value in flat.items():
+        if key not in SCHEMA:
+            raise unknown_parameter(key, value)
+        if SCHEMA[key].length != CONTACT_DIMENSION:
+            out[key] = SCHEMA[key].check(value)
+    dimension = out.get(CONTACT_DIMENSION, ContactConfig.dimension)
+    for key, value in flat.items():
+        if SCHEMA[key].length == CONTACT_DIMENSION:
+            out[key] = SCHEMA[key].check(value, dimension)
+    return out
 
 
 def _split(flat: dict[str, Any], prefix: str) -> dict[str, Any]:
@@ -211,45 +509,29 @@ def _split(flat: dict[str, Any], prefix: str) -> dict[str, Any]:
 
 
 def _scenario_from_flat(name: str, flat: dict[str, Any]) -> Scenario:
-    known_top = {"robot", "seed"}
-    for key in flat:
-        head = key.split(".", 1)[0]
-        if head not in known_top and head not in ("task", *SECTIONS):
-            raise ConfigError(f"scenario {name}: unknown parameter {key!r}")
+    flat = validate_flat(flat)
     mpc_flat = _split(flat, "mpc")
     contact = _coerce(
-        ContactConfig, {k[8:]: v for k, v in mpc_flat.items() if k.startswith("contact.")}, "mpc"
+        ContactConfig, {k[8:]: v for k, v in mpc_flat.items() if k.startswith("contact.")}
     )
     weights: dict[str, dict[str, Any]] = {}
     for key, value in mpc_flat.items():
         if key.startswith("weights."):
             form, _, wname = key[8:].partition(".")
-            if form not in FORMULATIONS:
-                raise ConfigError(f"mpc.weights: unknown formulation {form!r}")
             weights.setdefault(form, {})[wname] = value
     plain = {k: v for k, v in mpc_flat.items() if not k.startswith(("contact.", "weights."))}
-    if "command_delay" in plain:
-        plain["command_delay"] = _command_delay_setting(plain["command_delay"])
-    mpc = replace(_coerce(MpcSection, plain, "mpc"), contact=contact, weights=weights)
-    if mpc.formulation not in FORMULATIONS:
-        raise ConfigError(f"mpc.formulation must be one of {FORMULATIONS}")
-    if mpc.backend not in BACKENDS:
-        raise ConfigError(f"mpc.backend must be one of {BACKENDS}, got {mpc.backend!r}")
-    for form in weights:
-        mpc.cost_weights(form)  # validate now, not mid-run
+    mpc = replace(_coerce(MpcSection, plain), contact=contact, weights=weights)
     scenario = Scenario(
         name=name,
-        robot=str(flat.get("robot", "iiwa")),
-        seed=int(flat.get("seed", 0)),
-        task=_coerce(TaskSection, _split(flat, "task"), "task"),
-        plant=_coerce(PlantSection, _split(flat, "plant"), "plant"),
-        joint_sensor=_coerce(JointSensorSection, _split(flat, "joint_sensor"), "joint_sensor"),
-        ft_sensor=_coerce(ForceSensorSection, _split(flat, "ft_sensor"), "ft_sensor"),
+        robot=flat.get("robot", "iiwa"),
+        seed=flat.get("seed", 0),
+        task=_coerce(TaskSection, _split(flat, "task")),
+        plant=_coerce(PlantSection, _split(flat, "plant")),
+        joint_sensor=_coerce(JointSensorSection, _split(flat, "joint_sensor")),
+        ft_sensor=_coerce(ForceSensorSection, _split(flat, "ft_sensor")),
         mpc=mpc,
-        pid=_coerce(PidSection, _split(flat, "pid"), "pid"),
+        pid=_coerce(PidSection, _split(flat, "pid")),
     )
-    if scenario.task.name not in ("polishing", "force_square"):
-        raise ConfigError(f"task.name must be polishing or force_square, got {scenario.task.name}")
     fixed = command_delay_seconds(scenario.mpc.command_delay)
     if fixed is not None:  # a fixed δo sets the PID's delay line
         cycles = delay_in_plant_steps(fixed, scenario.plant.time_step)
@@ -257,20 +539,20 @@ def _scenario_from_flat(name: str, flat: dict[str, Any]) -> Scenario:
     return scenario
 
 
-def _command_delay_setting(value: Any) -> str:
+def _command_delay_setting(value: Any, spec: ParamSpec) -> str:
     """``mpc.command_delay`` as its canonical text: "pid", "measured" or seconds (``repr``)."""
     if isinstance(value, str) and value.strip() in (COMMAND_DELAY_PID, COMMAND_DELAY_MEASURED):
         return value.strip()
-    if isinstance(value, bool):
-        raise ConfigError(f"mpc.command_delay must be 'pid', 'measured' or seconds, got {value!r}")
-    try:
-        seconds = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(
-            f"mpc.command_delay must be 'pid', 'measured' or seconds, got {value!r}"
-        ) from None
+    if isinstance(value, str):
+        try:  # a ROS string parameter holding seconds ("0.005")
+            value = float(value)
+        except ValueError:
+            raise spec.error(value) from None
+    if isinstance(value, bool | np.bool_) or not isinstance(value, int | float | np.number):
+        raise spec.error(value)
+    seconds = float(value)
     if not (np.isfinite(seconds) and seconds >= 0.0):
-        raise ConfigError(f"mpc.command_delay must be finite and >= 0 s, got {value!r}")
+        raise spec.error(value)
     return repr(seconds)
 
 
@@ -285,8 +567,8 @@ def delay_in_plant_steps(delay: float, time_step: float) -> int:
     """A delay (s) as a whole number of plant steps (ConfigError if it is not one)."""
     cycles = delay / time_step
     if abs(cycles - round(cycles)) > 1e-6:
-        raise ConfigError(
-            f"mpc.command_delay = {delay} s is not a whole number of plant steps ({time_step} s)"
+        raise config_error(
+            "mpc.command_delay", delay, f"a whole number of plant steps ({time_step:g} s)"
         )
     return int(round(cycles))
 
@@ -336,14 +618,23 @@ def resolve_scenario_path(name_or_path: str | os.PathLike) -> Path:
 def load_scenario(name_or_path: str | os.PathLike, overrides: dict | None = None) -> Scenario:
     """Read a scenario file (ROS 2 parameter-file format) into a validated :class:`Scenario`."""
     path = resolve_scenario_path(name_or_path)
-    with open(path, encoding="utf-8") as fh:
-        doc = yaml.safe_load(fh) or {}
+    try:
+        with open(path, encoding="utf-8") as fh:
+            doc = yaml.safe_load(fh) or {}
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read the scenario ({exc})") from None
+    except yaml.YAMLError as exc:
+        where = getattr(exc, "problem_mark", None)
+        line = f" at line {where.line + 1}" if where is not None else ""
+        raise ConfigError(f"{path}: not a YAML file{line}") from None
     if not isinstance(doc, dict):
         raise ConfigError(f"{path}: expected a mapping of node sections")
     flat: dict[str, Any] = {}
     for section, body in doc.items():
         if not isinstance(body, dict) or set(body) != {"ros__parameters"}:
             raise ConfigError(f"{path}: section {section!r} must hold only 'ros__parameters'")
+        if not isinstance(body["ros__parameters"] or {}, dict):
+            raise ConfigError(f"{path}: {section}.ros__parameters must be a mapping")
         params = flatten(body["ros__parameters"] or {})
         if section == WILDCARD:
             flat.update(params)

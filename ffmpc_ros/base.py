@@ -34,11 +34,12 @@ import numpy as np
 import rclpy
 from builtin_interfaces.msg import Time as TimeMsg
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from ffmpc_core.errors import InputError
+from ffmpc_core.errors import FfmpcError, InputError
 from ffmpc_core.scenario import Scenario
 from ffmpc_ros.discovery import ensure_local_discovery
 from ffmpc_ros.params import NODE_SPECS, declare_node_parameters, scenario_from_parameters
@@ -252,10 +253,22 @@ class StudyNode(Node):
         return False
 
 
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
 def run_node(factory: Callable[..., StudyNode], description: str, argv=None) -> int:
-    """``main`` of a node executable: ``--help``, then spin until shutdown (Ctrl-C)."""
+    """``main`` of a node executable: ``--help``, then spin until shutdown (Ctrl-C).
+
+    Bad parameters or ROS arguments: one line on stderr naming the parameter, exit 2."""
     argv = list(sys.argv if argv is None else argv)
-    user_args = rclpy.utilities.remove_ros_args(argv)[1:]
+    try:
+        user_args = rclpy.utilities.remove_ros_args(argv)[1:]
+    except Exception as exc:  # rcl refuses malformed --ros-args (RCLInvalidROSArgsError)
+        name = argv[0].rsplit("/", 1)[-1] if argv else "node"
+        print(f"{name}: error: bad ROS arguments: {_first_line(exc)}", file=sys.stderr)
+        return 2
     parser = argparse.ArgumentParser(
         prog=argv[0].rsplit("/", 1)[-1],
         description=description,
@@ -264,10 +277,19 @@ def run_node(factory: Callable[..., StudyNode], description: str, argv=None) -> 
     )
     parser.parse_args(user_args)
     discovery = ensure_local_discovery()
-    rclpy.init(args=argv)
+    prog = parser.prog
+    try:
+        rclpy.init(args=argv)
+    except Exception as exc:  # rcl refuses malformed --ros-args (RCLError): one line, exit 2
+        print(f"{prog}: error: bad ROS arguments: {_first_line(exc)}", file=sys.stderr)
+        return 2
     node = None
     try:
-        node = factory()
+        try:
+            node = factory()
+        except (FfmpcError, ParameterException) as exc:  # bad parameters: one line, exit 2
+            print(f"{prog}: error: {_first_line(exc)}", file=sys.stderr)
+            return 2
         node.get_logger().info(
             f"started: ROS_DOMAIN_ID {os.environ.get('ROS_DOMAIN_ID', '0')}, discovery {discovery}"
         )

@@ -7,13 +7,110 @@ would fail to load.
 from __future__ import annotations
 
 import argparse
+import math
+import os
 import sys
+from pathlib import Path
 
-from ffmpc_core.errors import FfmpcError
+from ffmpc_core.errors import ConfigError, FfmpcError
 from ffmpc_ros.discovery import ensure_local_discovery
 
 #: ffmpc_core.config.FORMULATIONS, spelled out so that building the parser imports nothing heavy.
 STUDY_FORMULATIONS = ("classical", "torque_feedback", "force_feedback")
+#: Exit status of every malformed input (argparse's own for syntax errors).
+EXIT_USAGE = 2
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with a one-line error (``ffmpc run: error: …``, no usage block), exit 2."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+# -- argument types: each refuses a malformed value with argparse's one-line error -------------
+def _number(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """A finite number > 0."""
+    value = _number(text)
+    if value <= 0.0:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
+    return value
+
+
+def nonnegative_float(text: str) -> float:
+    """A finite number >= 0."""
+    value = _number(text)
+    if value < 0.0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return value
+
+
+def _integer(text: str, low: int) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if value < low:
+        raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {text!r}")
+    return value
+
+
+def positive_int(text: str) -> int:
+    """An integer >= 1."""
+    return _integer(text, 1)
+
+
+def nonnegative_int(text: str) -> int:
+    """An integer >= 0."""
+    return _integer(text, 0)
+
+
+def seed_int(text: str) -> int:
+    """A seed: an integer in [0, 2**31 - 1] (the range of the scenario's ``seed``)."""
+    value = _integer(text, 0)
+    if value > 2**31 - 1:
+        raise argparse.ArgumentTypeError(f"expected an integer in [0, 2147483647], got {text!r}")
+    return value
+
+
+def new_path(text: str) -> str:
+    """An output path that does not exist yet, in an existing directory."""
+    path = Path(text)
+    if not text:
+        raise argparse.ArgumentTypeError("expected a path, got ''")
+    if path.exists():
+        raise argparse.ArgumentTypeError(f"{text} already exists; never overwritten")
+    if not path.parent.is_dir():
+        raise argparse.ArgumentTypeError(f"{text}: no directory {str(path.parent)!r}")
+    return text
+
+
+def output_file(text: str) -> str:
+    """A file to (over)write: not a directory, in an existing directory."""
+    path = Path(text)
+    if not text or path.is_dir():
+        raise argparse.ArgumentTypeError(f"expected a file path, got {text!r}")
+    if not path.parent.is_dir():
+        raise argparse.ArgumentTypeError(f"{text}: no directory {str(path.parent)!r}")
+    return text
+
+
+def existing_file(text: str) -> str:
+    """An input file that exists."""
+    if not Path(text).is_file():
+        what = "a directory, not a file" if Path(text).is_dir() else "no such file"
+        raise argparse.ArgumentTypeError(f"{text}: {what}")
+    return text
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
@@ -73,31 +170,54 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return run_demo(seed=args.seed)
 
 
-def _parse_overrides(items: list[str] | None) -> dict:
-    """``--set name=value`` pairs; values are read as YAML scalars (``3``, ``true``, ``[1, 2]``)."""
+def _parse_overrides(items: list[str] | None, node_names: bool = False) -> dict:
+    """``--set name=value`` pairs; values are read as YAML scalars (``3``, ``true``, ``[1, 2]``)
+    and checked against the scenario schema (ConfigError ``name = value: expected …``).
+    ``node_names``: names that are not scenario names are left to the caller (``bag rerun``
+    takes a node's own parameter names)."""
     import yaml
 
-    from ffmpc_core.errors import ConfigError
+    from ffmpc_core.scenario import SCHEMA, unknown_parameter
 
     out = {}
     for item in items or []:
-        name, sep, value = item.partition("=")
+        name, sep, text = item.partition("=")
+        name = name.strip()
         if not sep or not name:
-            raise ConfigError(f"--set expects name=value, got {item!r}")
-        out[name.strip()] = yaml.safe_load(value)
+            raise ConfigError(f"--set {item!r}: expected NAME=VALUE")
+        try:
+            value = yaml.safe_load(text)
+        except yaml.YAMLError:
+            raise ConfigError(f"--set {item!r}: the value is not a YAML value") from None
+        if isinstance(value, dict):
+            raise ConfigError(f"--set {item!r}: expected one value, not a mapping")
+        if name in SCHEMA:
+            SCHEMA[name].check(value)  # the length of per-contact-axis lists is checked later
+        elif not node_names:
+            raise unknown_parameter(name, value)
+        out[name] = value
     return out
 
 
 def _cmd_study(args: argparse.Namespace) -> int:
     import shlex
 
-    from sim_bridge.study import default_out_dir, grid_specs, run_study
+    from ffmpc_core.scenario import load_scenario
 
     kind = "polishing" if args.study == "polishing" else "force_square"
-    if args.seeds < 1:
-        from ffmpc_core.errors import ConfigError
+    overrides = _parse_overrides(args.set)
+    load_scenario(args.scenario or kind, overrides)  # refuse a bad scenario before any import
+    if args.out and os.path.exists(args.out) and not args.force:
+        raise ConfigError(f"output directory {args.out} already exists; pass --force to overwrite")
+    if args.plot_seed is not None and not (
+        args.first_seed <= args.plot_seed < args.first_seed + args.seeds
+    ):
+        raise ConfigError(
+            f"--plot-seed {args.plot_seed}: expected one of the seeds "
+            f"{args.first_seed}..{args.first_seed + args.seeds - 1}"
+        )
+    from sim_bridge.study import default_out_dir, grid_specs, run_study
 
-        raise ConfigError(f"--seeds must be >= 1, got {args.seeds}")
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     pid_modes = {"on": [True], "off": [False], "both": [True, False]}[args.pid]
     plot_seed = args.first_seed if args.plot_seed is None else args.plot_seed
@@ -107,7 +227,7 @@ def _cmd_study(args: argparse.Namespace) -> int:
         pid_modes,
         seeds,
         duration=args.duration,
-        overrides=_parse_overrides(args.set),
+        overrides=overrides,
         plot_seed=plot_seed,
     )
     out = args.out or default_out_dir(kind)
@@ -147,14 +267,20 @@ def _cmd_study(args: argparse.Namespace) -> int:
 
 def _add_study_arguments(p: argparse.ArgumentParser, seeds: int, pid: str) -> None:
     p.add_argument("--scenario", help="shipped scenario name or path to a scenario file")
-    p.add_argument("--seeds", type=int, default=seeds, help=f"number of seeds (default {seeds})")
-    p.add_argument("--first-seed", type=int, default=0, help="first seed (default 0)")
-    p.add_argument("--workers", type=int, default=None, help="worker processes (default: all CPUs)")
+    p.add_argument(
+        "--seeds", type=positive_int, default=seeds, help=f"number of seeds (default {seeds})"
+    )
+    p.add_argument("--first-seed", type=seed_int, default=0, help="first seed (default 0)")
+    p.add_argument(
+        "--workers", type=positive_int, default=None, help="worker processes (default: all CPUs)"
+    )
     p.add_argument(
         "--out", help="output directory, must not exist (default benchmarks/results/...)"
     )
     p.add_argument("--force", action="store_true", help="write into an existing --out")
-    p.add_argument("--duration", type=float, help="simulated time per run, s (default: task)")
+    p.add_argument(
+        "--duration", type=positive_float, help="simulated time per run, s (default: task)"
+    )
     p.add_argument(
         "--formulations",
         nargs="+",
@@ -165,7 +291,7 @@ def _add_study_arguments(p: argparse.ArgumentParser, seeds: int, pid: str) -> No
     p.add_argument(
         "--pid", choices=("on", "off", "both"), default=pid, help=f"torque PID (default {pid})"
     )
-    p.add_argument("--plot-seed", type=int, help="seed shown in the figures (default: first)")
+    p.add_argument("--plot-seed", type=seed_int, help="seed shown in the figures (default: first)")
     p.add_argument(
         "--set",
         action="append",
@@ -259,6 +385,8 @@ def _cmd_study_impact(args: argparse.Namespace) -> int:
     import shlex
     from dataclasses import replace
 
+    if args.out and os.path.exists(args.out) and not args.force:  # before importing PyBullet
+        raise ConfigError(f"{args.out} exists: choose another --out or pass --force to overwrite")
     from sim_bridge.impact_study import (
         ImpactStudyConfig,
         default_out_dir,
@@ -326,27 +454,31 @@ def _add_impact_study_parser(study_sub) -> None:
         "--out", help="output directory, must not exist (default benchmarks/results/...)"
     )
     p.add_argument("--force", action="store_true", help="write into an existing --out")
-    p.add_argument("--duration", type=float, default=None, help="simulated s per run (default 4)")
+    p.add_argument(
+        "--duration", type=positive_float, default=None, help="simulated s per run (default 4)"
+    )
     p.add_argument(
         "--replan-period",
-        type=float,
+        type=nonnegative_float,
         default=0.0,
         help="s between eq 9-14 solves of the maximal approach (default 0: every 1 ms cycle)",
     )
     p.add_argument("--runs", nargs="+", choices=runs, default=list(runs), help="runs to do")
     p.add_argument(
         "--dice-stiffness",
-        type=float,
+        type=positive_float,
         metavar="K",
         help="true stiffness of the simulated dice, N/m (default 3000; the prior stays 2400)",
     )
     p.add_argument(
         "--dice-damping",
-        type=float,
+        type=nonnegative_float,
         metavar="B",
         help="true damping of the simulated dice, N.s/m (default 20; the prior stays 15)",
     )
-    p.add_argument("--target-force", type=float, help="force to hold after contact, N (60)")
+    p.add_argument(
+        "--target-force", type=positive_float, help="force to hold after contact, N (60)"
+    )
     p.add_argument(
         "--strategy",
         choices=("touch_first", "prior"),
@@ -354,8 +486,8 @@ def _add_impact_study_parser(study_sub) -> None:
         help="maximal approach: touch, learn, then strike (default), or plan from the prior "
         "as if it were the truth (the paper's scheme)",
     )
-    p.add_argument("--prior-stiffness", type=float, help="planner's prior stiffness, N/m")
-    p.add_argument("--prior-damping", type=float, help="planner's prior damping, N.s/m")
+    p.add_argument("--prior-stiffness", type=positive_float, help="planner's prior stiffness, N/m")
+    p.add_argument("--prior-damping", type=nonnegative_float, help="planner's prior damping, N.s/m")
     p.add_argument("--no-progress", action="store_true", help="no progress lines")
     p.set_defaults(func=_cmd_study_impact)
 
@@ -407,22 +539,25 @@ def _add_explore_study_parser(study_sub) -> None:
         default=["foam", "dice", "rubber"],
         help="objects to explore (default: all three)",
     )
-    p.add_argument("--sine-cycles", type=int, default=4, help="sine periods (default 4)")
+    p.add_argument("--sine-cycles", type=positive_int, default=4, help="sine periods (default 4)")
     p.add_argument(
         "--impact-velocities",
-        type=float,
+        type=positive_float,
         nargs="+",
         help="pre-impact velocities, m/s (default: each material's, 0.15-0.35)",
     )
     p.add_argument(
-        "--approach-speed", type=float, default=0.005, help="guarded approach, m/s (default 0.005)"
+        "--approach-speed",
+        type=positive_float,
+        default=0.005,
+        help="guarded approach, m/s (default 0.005)",
     )
     p.add_argument("--no-progress", action="store_true", help="no per-checkpoint lines")
     p.set_defaults(func=run)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="ffmpc",
         description="Force-feedback MPC and safe maximal impacts on soft contacts (ROS 2 Jazzy).",
     )
@@ -434,8 +569,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="Print installed versions, flag pin mismatches, and compare crocoddyl's free "
         "forward dynamics with pin.aba on random states of every robot. Exit 1 on any failure.",
     )
-    check.add_argument("--samples", type=int, default=20, help="random states per robot")
-    check.add_argument("--seed", type=int, default=0, help="seed of the random states")
+    check.add_argument("--samples", type=positive_int, default=20, help="random states per robot")
+    check.add_argument("--seed", type=seed_int, default=0, help="seed of the random states")
     check.set_defaults(func=_cmd_check)
 
     demo = sub.add_parser(
@@ -445,7 +580,7 @@ def build_parser() -> argparse.ArgumentParser:
         "their own dynamics, then the force-feedback MPC polishes in PyBullet with the paper's "
         "imperfections; prints forces, solve times and the study's metrics.",
     )
-    demo.add_argument("--seed", type=int, default=0)
+    demo.add_argument("--seed", type=seed_int, default=0)
     demo.set_defaults(func=_cmd_demo)
 
     bench = sub.add_parser("bench", help="benchmarks that print their figures")
@@ -458,8 +593,8 @@ def build_parser() -> argparse.ArgumentParser:
         "dt=3 ms and N=20, dt=10 ms, and the ratio to crocoddyl's built-in classical contact "
         "model on the same problem, measured in the same run.",
     )
-    bench_mpc.add_argument("--solves", type=int, default=200, help="MPC steps per case")
-    bench_mpc.add_argument("--seed", type=int, default=0)
+    bench_mpc.add_argument("--solves", type=positive_int, default=200, help="MPC steps per case")
+    bench_mpc.add_argument("--seed", type=seed_int, default=0)
     bench_mpc.add_argument(
         "--cases",
         nargs="+",
@@ -468,7 +603,9 @@ def build_parser() -> argparse.ArgumentParser:
         "restricted to one configuration with :5 or :20 (default: all); the reference always "
         "runs in each configuration used",
     )
-    bench_mpc.add_argument("--json", metavar="FILE", help='also write {"cases": [...]} to FILE')
+    bench_mpc.add_argument(
+        "--json", metavar="FILE", type=output_file, help='also write {"cases": [...]} to FILE'
+    )
     bench_mpc.set_defaults(func=_cmd_bench_mpc)
     bench_impact = bench_sub.add_parser(
         "impact",
@@ -478,15 +615,21 @@ def build_parser() -> argparse.ArgumentParser:
         "with DAQP and with the old OSQP pipeline, interleaved in the same run; prints median, "
         "p90, p99, their ratio and the solver failures.",
     )
-    bench_impact.add_argument("--cycles", type=int, default=1000, help="timed planner cycles")
-    bench_impact.add_argument("--warmup", type=int, default=50, help="untimed first cycles")
+    bench_impact.add_argument(
+        "--cycles", type=positive_int, default=1000, help="timed planner cycles"
+    )
+    bench_impact.add_argument(
+        "--warmup", type=nonnegative_int, default=50, help="untimed first cycles"
+    )
     bench_impact.add_argument(
         "--sim-duration",
-        type=float,
+        type=positive_float,
         default=1.2,
         help="simulated seconds of the study's approach to take the problems from",
     )
-    bench_impact.add_argument("--json", help="write the figures to this JSON file")
+    bench_impact.add_argument(
+        "--json", type=output_file, help="write the figures to this JSON file"
+    )
     bench_impact.set_defaults(func=_cmd_bench_impact)
 
     study = sub.add_parser(
@@ -535,18 +678,24 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument(
         "--real-time", action="store_true", help="1 kHz loop and MPC on the wall clock"
     )
-    run.add_argument("--duration", type=float, default=None, help="simulated s (default: task)")
+    run.add_argument(
+        "--duration", type=positive_float, default=None, help="simulated s (default: task)"
+    )
     run.add_argument("--formulation", choices=STUDY_FORMULATIONS, default=None)
-    run.add_argument("--seed", type=int, default=None)
+    run.add_argument("--seed", type=seed_int, default=None)
     run.add_argument("--set", action="append", metavar="NAME=VALUE", help="scenario override")
-    run.add_argument("--timeout", type=float, default=3600.0, help="wall-time limit, s")
+    run.add_argument("--timeout", type=positive_float, default=3600.0, help="wall-time limit, s")
     run.add_argument("--verbose", action="store_true", help="show the nodes' output")
     run.add_argument(
-        "--record", metavar="PATH", help="record the run (every topic and parameter) to a bag"
+        "--record",
+        metavar="PATH",
+        type=new_path,
+        help="record the run (every topic and parameter) to a bag",
     )
     run.add_argument(
         "--json",
         metavar="FILE",
+        type=output_file,
         help="write the summary (metrics_true, metrics_measured, deadline_met_fraction, "
         "fallback_time_s, latency_p50/p99/max_ms, timing details) to FILE",
     )
@@ -558,7 +707,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument(
         "--priority",
-        type=int,
+        type=nonnegative_int,
         default=None,
         help="real time: SCHED_FIFO priority of both processes, 1-99 (default 80 where "
         "permitted: root or CAP_SYS_NICE; 0: normal scheduling)",
@@ -578,16 +727,44 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return text or type(exc).__name__
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one ``ffmpc`` command. Malformed input (syntax, a bad value, a missing or existing
+    file, a bag that is not a bag) → one line on stderr and exit 2, never a traceback; an
+    unexpected failure → one line and exit 1 (``FFMPC_TRACEBACK=1`` shows the traceback)."""
     ensure_local_discovery()
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # argparse: --help (0) or a syntax error (2, already printed)
+        return exc.code if isinstance(exc.code, int) else EXIT_USAGE
     args.argv = list(sys.argv[1:] if argv is None else argv)
+    words = ["ffmpc", args.command]
+    for sub in ("study", "bench", "bag_command"):
+        if getattr(args, sub, None):
+            words.append(getattr(args, sub))
+    prog = " ".join(words)
     try:
         return int(args.func(args) or 0)
-    except FfmpcError as exc:
-        print(f"ffmpc {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+    except (FfmpcError, OSError) as exc:  # bad input: a value, a path, a file's content
+        print(f"{prog}: error: {_one_line(exc)}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # a bug, not the input: say so on one line
+        if os.environ.get("FFMPC_TRACEBACK"):
+            raise
+        print(
+            f"{prog}: internal error: {type(exc).__name__}: {_one_line(exc)} "
+            "(FFMPC_TRACEBACK=1 shows where)",
+            file=sys.stderr,
+        )
+        return 1
 
 
 if __name__ == "__main__":

@@ -183,15 +183,17 @@ class MpcNode(StudyNode):
         """Real time, instead of an executor: block on a wait set over the inputs, take the
         newest sample of each topic (older ones are worthless) and solve when it completes a
         tick; until the context shuts down (SIGINT). The collector is frozen and disabled.
-        /clock is not taken: the node's clock stays at 0, so no input is rejected as stale by
-        age (the newest sample is used, and the loop process times every command)."""
+        /clock is taken first at every wake-up (the newest sample): the node judges its inputs'
+        stamps against it like every node (stale, or from the future and never adopted)."""
         from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
         gc.collect()
         gc.freeze()
         gc.disable()
         # (subscription, handler, only on MPC ticks): measurements, then the learner's estimate
-        inputs = [
+        clock = [s for s in self.subscriptions if s.topic_name == topics.CLOCK]
+        inputs = [(sub, sub.callback, False) for sub in clock]
+        inputs += [
             (sub, handler, True)
             for sub, handler in zip(self.inputs, (self.on_joints, self.on_wrench), strict=False)
         ]

@@ -14,9 +14,11 @@ node declares:
   and ``plant.time_step`` all their parameters are graph parameters.
 
 Every parameter is read-only (nodes build their models once), has a description, and numeric
-ones a range. The node rebuilds a :class:`~ffmpc_core.scenario.Scenario` from its values with the
-same validation as the ROS-free runner (:func:`scenario_from_parameters`), so both run the same
-experiment.
+ones a range. The descriptors of scenario parameters are generated from
+:data:`ffmpc_core.scenario.SCHEMA`, the one declaration of each parameter's type, unit and range;
+the node rebuilds a :class:`~ffmpc_core.scenario.Scenario` from its values with the same
+validation as the ROS-free runner (:func:`scenario_from_parameters`), and a value rclpy refuses
+gives the same ConfigError as the runner's, so both accept and refuse the same experiments.
 """
 
 from __future__ import annotations
@@ -25,145 +27,27 @@ from dataclasses import dataclass, fields
 from typing import Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.exceptions import ParameterException
 from rclpy.parameter import Parameter
 
 from ffmpc_core.config import FORMULATIONS, CostWeights
 from ffmpc_core.errors import ConfigError
-from ffmpc_core.scenario import WILDCARD, Scenario, scenario_parameters
+from ffmpc_core.scenario import (
+    DELAY,
+    FLOAT,
+    FLOAT_OR_FLOATS,
+    FLOATS,
+    INT,
+    SCHEMA,
+    WILDCARD,
+    ParamSpec,
+    Scenario,
+    config_error,
+    scenario_parameters,
+)
 from ffmpc_core.tasks import PhaseWeights
 
 INF = 1e300  # "no upper bound" for FloatingPointRange
-
-#: Ranges of the numeric scenario parameters (dotted scenario names); a value outside is refused
-#: by rclpy when the node starts.
-RANGES: dict[str, tuple[float, float]] = {
-    "seed": (0, 2**31 - 1),
-    "task.normal_force": (0.0, 500.0),
-    "task.circle_radius": (0.0, 0.5),
-    "task.angular_velocity": (0.0, 50.0),
-    "task.circles": (0.0, 100.0),
-    "task.start_height": (0.0, 0.5),
-    "task.still": (0.0, 60.0),
-    "task.reach": (0.0, 60.0),
-    "task.force_ramp": (0.0, 60.0),
-    "task.stop": (0.0, 60.0),
-    "task.low_force": (0.0, 500.0),
-    "task.high_force": (0.0, 500.0),
-    "task.square_period": (0.0, 60.0),
-    "task.square_cycles": (0, 1000),
-    "plant.time_step": (1e-5, 0.01),
-    "plant.table_tilt_deg": (-45.0, 45.0),
-    "plant.random_tilt_deg": (0.0, 45.0),
-    "plant.table_stiffness": (1.0, 1e9),
-    "plant.table_damping": (0.0, 1e6),
-    "plant.table_friction": (0.0, 10.0),
-    "plant.actuation_delay_cycles": (0, 1000),
-    "plant.actuation_noise_fraction": (0.0, 0.99),
-    "plant.static_friction": (0.0, 100.0),
-    "plant.viscous_friction": (0.0, 100.0),
-    "plant.friction_velocity": (1e-6, 100.0),
-    "plant.push_time": (0.0, 3600.0),
-    "plant.push_duration": (0.0, 60.0),
-    "joint_sensor.delay_cycles": (0, 1000),
-    "joint_sensor.position_noise_std": (0.0, 1.0),
-    "joint_sensor.velocity_noise_std": (0.0, 10.0),
-    "ft_sensor.delay_cycles": (0, 1000),
-    "ft_sensor.force_noise_std": (0.0, 100.0),
-    "ft_sensor.filter_cutoff_frequency": (0.0, 1e4),
-    "ft_sensor.contact_on_force": (0.0, 1e4),
-    "ft_sensor.contact_off_force": (0.0, 1e4),
-    "ft_sensor.tare_samples": (1, 100000),
-    "mpc.horizon": (1, 1000),
-    "mpc.dt": (1e-5, 1.0),
-    "mpc.period": (1e-5, 1.0),
-    "mpc.max_iterations": (1, 1000),
-    "mpc.kkt_tolerance": (1e-12, 1.0),
-    "mpc.cutoff_frequency": (1e-3, 1e4),
-    "mpc.contact.dimension": (1, 3),
-    "mpc.contact.normal_axis": (0, 2),
-    "pid.kp": (0.0, 100.0),
-    "pid.ki": (0.0, 1e5),
-    "pid.kd": (0.0, 100.0),
-    "pid.integral_fraction": (0.0, 1.0),
-    "pid.delay_cycles": (0, 1000),
-    "pid.stale_timeout": (1e-5, 10.0),
-    "pid.blend_duration": (0.0, 10.0),
-    "pid.hold_frequency": (0.0, 100.0),
-    "pid.hold_damping_ratio": (0.0, 10.0),
-}
-
-DESCRIPTIONS: dict[str, str] = {
-    "robot": "robot model: iiwa | panda",
-    "seed": "seed of every random draw of the run (numpy Generator spawn)",
-    "task.name": "polishing | force_square",
-    "task.normal_force": "polishing normal force reference, N",
-    "task.circle_radius": "circle radius, m",
-    "task.angular_velocity": "angular velocity along the circle, rad/s",
-    "task.circles": "number of turns",
-    "task.start_height": "start height above the believed table, m",
-    "task.still": "phase duration: stand still, s",
-    "task.reach": "phase duration: reach the table, s",
-    "task.force_ramp": "phase duration: ramp the force, s",
-    "task.stop": "phase duration after the circle, s",
-    "task.low_force": "force_square low level, N",
-    "task.high_force": "force_square high level, N",
-    "task.square_period": "force_square period, s",
-    "task.square_cycles": "force_square number of periods",
-    "plant.time_step": "physics step = control cycle, s; every stamp is a multiple of it",
-    "plant.table_tilt_deg": "table tilt θ when random_tilt_deg is 0, deg",
-    "plant.table_tilt_axis": "horizontal tilt axis, world frame",
-    "plant.random_tilt_deg": "θ ~ U(−this, +this) per seed when > 0, deg",
-    "plant.table_stiffness": "table contact stiffness, N/m",
-    "plant.table_damping": "table contact damping, N·s/m",
-    "plant.table_friction": "table Coulomb friction coefficient",
-    "plant.actuation_random_bias": "draw the actuation bias (a, b) per seed (eq 31)",
-    "plant.actuation_delay_cycles": "actuation delay δs, cycles (eq 31)",
-    "plant.actuation_noise_fraction": "σ_τ as a fraction of the torque limits (eq 31)",
-    "plant.static_friction": "μs, N·m (eq 31)",
-    "plant.viscous_friction": "μv, N·m·s/rad (eq 31)",
-    "plant.friction_velocity": "v_s of the tanh friction, rad/s",
-    "plant.push_enabled": "apply an external push on the tool",
-    "plant.push_time": "push start, s",
-    "plant.push_force": "push force, N, world frame",
-    "plant.push_duration": "push duration, s",
-    "joint_sensor.delay_cycles": "sensing delay δs, cycles (eq 30)",
-    "joint_sensor.position_noise_std": "σ_q, rad (eq 30)",
-    "joint_sensor.velocity_noise_std": "σ_q̇, rad/s (eq 30)",
-    "ft_sensor.delay_cycles": "sensing delay δs, cycles (eq 32)",
-    "ft_sensor.force_noise_std": "σ_λ, N (eq 32)",
-    "ft_sensor.filter_cutoff_frequency": "cut-off of the filtered wrench, Hz (0: no filter)",
-    "ft_sensor.contact_on_force": "filtered normal force above which contact starts, N",
-    "ft_sensor.contact_off_force": "filtered normal force below which contact ends, N",
-    "ft_sensor.tare_samples": "measurements averaged by the tare service",
-    "mpc.formulation": "classical | torque_feedback | force_feedback",
-    "mpc.horizon": "OCP nodes N",
-    "mpc.dt": "OCP node duration, s",
-    "mpc.period": "re-planning period, s (a multiple of plant.time_step)",
-    "mpc.max_iterations": "SQP iterations per solve",
-    "mpc.kkt_tolerance": "SQP KKT tolerance",
-    "mpc.cutoff_frequency": "low-pass actuation cut-off f_c, Hz (torque-feedback)",
-    "mpc.riccati_feedback": "low level applies τ* + G·Δx between solves",
-    "mpc.delay_compensation": "plan for t + δo (δo = pid.delay_cycles cycles)",
-    "mpc.command_delay": "δo: pid (pid.delay_cycles), seconds (sets pid.delay_cycles) or measured",
-    "mpc.backend": "action models: native (C++, default) | python (the reference)",
-    "mpc.contact.dimension": "contact force entries: 1 (normal) or 3",
-    "mpc.contact.frame_type": "LOCAL_WORLD_ALIGNED (the study feeds world-aligned forces)",
-    "mpc.contact.normal_axis": "axis of the 1-D force: 0 x, 1 y, 2 z",
-    "mpc.contact.stiffness": "K of the visco-elastic contact, N/m (force-feedback)",
-    "mpc.contact.damping": "B of the visco-elastic contact, N·s/m (force-feedback)",
-    "pid.enabled": "torque PID on (off: τ^m = τ^d(t − δo))",
-    "pid.kp": "K_P (eq 33)",
-    "pid.ki": "K_I, 1/s (eq 33)",
-    "pid.kd": "K_D, s (eq 33)",
-    "pid.integral_fraction": "anti-windup bound on K_I·∫e, fraction of the torque limit",
-    "pid.delay_cycles": "δo, cycles (eq 33)",
-    "pid.stale_timeout": "MPC command age that triggers the safe hold, s",
-    "pid.blend_duration": "hold → MPC blend, s",
-    "pid.hold_frequency": "natural frequency of the hold PD, Hz",
-    "pid.hold_damping_ratio": "damping ratio of the hold PD",
-}
-
-_DYNAMIC = ("_diag", "contact.stiffness", "contact.damping")  # scalar or per-axis array
 
 
 @dataclass(frozen=True)
@@ -442,49 +326,101 @@ def _ros_value(value: Any) -> Any:
 
 
 def descriptor(
-    scenario_name: str,
+    name: str,
     value: Any,
-    description: str | None = None,
+    description: str = "",
     limits: tuple[float, float] | None = None,
 ) -> ParameterDescriptor:
-    """A read-only ParameterDescriptor with description and, for numbers, a range."""
-    desc = ParameterDescriptor(read_only=True)
-    desc.description = description or DESCRIPTIONS.get(scenario_name, "")
-    if not desc.description and ".weights." in scenario_name:
-        desc.description = "cost weight (ffmpc_core.config.CostWeights, tasks.PhaseWeights)"
-    if any(scenario_name.endswith(s) for s in _DYNAMIC):
-        desc.dynamic_typing = True
-        desc.description += " (a number or one per axis/entry)"
-        return desc
-    limits = limits or RANGES.get(scenario_name)
-    if limits is None and ".weights." in scenario_name:
-        limits = (0.0, INF)
+    """A read-only ParameterDescriptor of a graph parameter: description and, for numbers,
+    a range."""
+    desc = ParameterDescriptor(read_only=True, description=description)
     if isinstance(value, bool) or limits is None:
         return desc
     if isinstance(value, int):
         desc.integer_range = [IntegerRange(from_value=int(limits[0]), to_value=int(limits[1]))]
     elif isinstance(value, float):
-        desc.floating_point_range = [
-            FloatingPointRange(from_value=float(limits[0]), to_value=float(limits[1]))
-        ]
+        desc.floating_point_range = [_float_range(limits)]
     return desc
 
 
+def _float_range(limits: tuple[float, float]) -> FloatingPointRange:
+    lo, hi = (max(min(float(x), INF), -INF) for x in limits)
+    return FloatingPointRange(from_value=lo, to_value=hi)
+
+
+def scenario_descriptor(spec: ParamSpec) -> ParameterDescriptor:
+    """The ROS descriptor of a scenario parameter, generated from its :data:`SCHEMA` entry.
+
+    bool, int and str parameters have their ROS type (ints an integer range); numbers are
+    dynamically typed (an integer is a number, as in a scenario file: ``normal_force:=60``)
+    with a floating-point range, and lists (per axis, per joint) are dynamically typed. The
+    node checks every value against the schema when it starts (:func:`scenario_from_parameters`),
+    so rclpy and the ROS-free runner accept and refuse the same values."""
+    unit = f", {spec.unit}" if spec.unit else ""
+    desc = ParameterDescriptor(read_only=True, description=spec.description + unit)
+    desc.additional_constraints = f"{spec.expected()}"
+    if spec.kind == INT:
+        values = spec.range or (min(spec.choices), max(spec.choices))
+        desc.integer_range = [IntegerRange(from_value=int(values[0]), to_value=int(values[1]))]
+    elif spec.kind == FLOAT:
+        desc.dynamic_typing = True
+        if spec.range is not None:
+            desc.floating_point_range = [_float_range(spec.range)]
+    elif spec.kind in (FLOATS, FLOAT_OR_FLOATS, DELAY):
+        desc.dynamic_typing = True
+    return desc
+
+
+def _raw_override(node, ros: str) -> Any:
+    """The value given for ``ros`` (``-p``, ``--params-file`` or ``parameter_overrides``)."""
+    given = getattr(node, "_parameter_overrides", {}).get(ros)
+    return None if given is None else _plain(given.value)
+
+
+def _plain(value: Any) -> Any:
+    """A ROS parameter value as plain Python (array.array → list)."""
+    return list(value) if type(value).__name__ == "array" else value
+
+
 def declare_node_parameters(node, spec: NodeSpec) -> dict[str, Any]:
-    """Declare every parameter of ``spec`` on an rclpy node; returns {ROS name: value}."""
+    """Declare every parameter of ``spec`` on an rclpy node; returns {ROS name: value}.
+
+    A value rclpy refuses (wrong type, out of range) raises the schema's ConfigError
+    (``name = value: expected …``), the message the ROS-free runner gives for it."""
     flat = scenario_flat(Scenario(name="defaults"))
     values: dict[str, Any] = {}
     for ros, name in node_scenario_names(spec, flat).items():
         default = _ros_value(flat[name])
-        node.declare_parameter(ros, default, descriptor(name, default))
-        values[ros] = node.get_parameter(ros).value
+        try:
+            node.declare_parameter(ros, default, scenario_descriptor(SCHEMA[name]))
+        except ParameterException:
+            raw = _raw_override(node, ros)
+            SCHEMA[name].check(raw)  # raises the schema's error
+            raise SCHEMA[name].error(raw) from None
+        values[ros] = _plain(node.get_parameter(ros).value)
     for g in spec.graph:
         # (the declared Parameter: get_parameter raises for one declared by type and not set)
-        declared = node.declare_parameter(
-            g.name, g.default, descriptor(g.name, g.default, g.description, g.range)
-        )
+        try:
+            declared = node.declare_parameter(
+                g.name, g.default, descriptor(g.name, g.default, g.description, g.range)
+            )
+        except ParameterException:
+            raise config_error(g.name, _raw_override(node, g.name), _graph_expected(g)) from None
         values[g.name] = declared.value
     return values
+
+
+def _graph_expected(g: GraphParameter) -> str:
+    """What a graph parameter must be, in words."""
+    if isinstance(g.default, bool):
+        return "true or false"
+    if isinstance(g.default, str):
+        return "a string"
+    if isinstance(g.default, list) or not isinstance(g.default, int | float):
+        return "a list of numbers"
+    kind = "an integer" if isinstance(g.default, int) else "a number (with a decimal point)"
+    span = f" in [{g.range[0]:g}, {g.range[1]:g}]" if g.range else ""
+    return kind + span
 
 
 def scenario_from_parameters(spec: NodeSpec, values: dict[str, Any], name: str) -> Scenario:
@@ -493,10 +429,7 @@ def scenario_from_parameters(spec: NodeSpec, values: dict[str, Any], name: str) 
     mapping = node_scenario_names(spec, flat)
     overrides = {}
     for ros, scenario_name in mapping.items():
-        value = values[ros]
-        if isinstance(value, list | tuple) or type(value).__name__ == "array":
-            value = tuple(float(v) for v in value)
-        overrides[scenario_name] = value
+        overrides[scenario_name] = _plain(values[ros])
     return Scenario(name=name).with_overrides(overrides)
 
 

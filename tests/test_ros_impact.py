@@ -10,7 +10,6 @@ import pinocchio as pin
 import pytest
 from geometry_msgs.msg import TwistStamped, WrenchStamped
 from rcl_interfaces.msg import ParameterType
-from rclpy.exceptions import InvalidParameterValueException
 from ros_helpers import RosHarness, joint_state, overrides, publish_clock, recorder, wrench
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
@@ -250,7 +249,7 @@ def test_impact_parameters_are_described_read_only_and_ranged(ros):
     with pytest.raises(ConfigError, match="solver"):
         bad = overrides("impact_planner", scenario, solver="qpoases")
         ImpactPlannerNode(context=ros.context, parameter_overrides=bad, node_name="bad_solver")
-    with pytest.raises(InvalidParameterValueException):
+    with pytest.raises(ConfigError, match=r"^skip_onset_samples = -1: expected an integer"):
         bad = overrides("contact_learner", scenario, skip_onset_samples=-1)
         ContactLearnerNode(context=ros.context, parameter_overrides=bad, node_name="bad")
     with pytest.raises(ConfigError, match="direction"):

@@ -7,10 +7,10 @@ from dataclasses import replace
 
 import pytest
 from rcl_interfaces.msg import ParameterType
-from rclpy.exceptions import InvalidParameterValueException
 from ros_helpers import RosHarness, overrides
 
 from ffmpc_core.config import FORMULATIONS
+from ffmpc_core.errors import ConfigError
 from ffmpc_core.scenario import SCENARIO_DIR, load_scenario, resolve_scenario_path
 from ffmpc_ros.joint_sensor_node import JointSensorNode
 from ffmpc_ros.mpc_node import MpcNode
@@ -84,7 +84,8 @@ def test_out_of_range_and_invalid_values_are_refused_at_start(ros):
     from rclpy.parameter import Parameter
 
     bad.append(Parameter("position_noise_std", value=-1.0))
-    with pytest.raises(InvalidParameterValueException):
+    # rclpy's refusal comes out as the runner's ConfigError (ffmpc_core.scenario.SCHEMA)
+    with pytest.raises(ConfigError, match=r"joint_sensor.position_noise_std = -1.0: expected"):
         JointSensorNode(context=ros.context, parameter_overrides=bad)
     wrong = [p for p in overrides("mpc", scenario) if p.name != "formulation"]
     wrong.append(Parameter("formulation", value="rigid"))

@@ -104,7 +104,11 @@ def _cmd_rerun(args: argparse.Namespace) -> int:
 
     tolerance = RerunTolerance(args.rtol, args.atol)
     report = rerun_node(
-        args.bag, args.node, _parse_overrides(args.set), timeout=args.timeout, tolerance=tolerance
+        args.bag,
+        args.node,
+        _parse_overrides(args.set, node_names=True),
+        timeout=args.timeout,
+        tolerance=tolerance,
     )
     ok = report.identical if args.exact else report.ok
     if args.json:
@@ -153,6 +157,8 @@ def _cmd_record(args: argparse.Namespace) -> int:
 
 def add_bag_parser(sub) -> None:
     """Register ``ffmpc bag`` and its subcommands on the ``ffmpc`` subparsers."""
+    from ffmpc_ros.cli import new_path, nonnegative_float, positive_float
+
     bag = sub.add_parser(
         "bag",
         help="MCAP bags of runs: info, play, plot, metrics, rerun, recover, record",
@@ -179,15 +185,20 @@ def add_bag_parser(sub) -> None:
         "--rate), /clock included, so nodes with use_sim_time follow the bag.",
     )
     p.add_argument("bag")
-    p.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1)")
+    p.add_argument("--rate", type=positive_float, default=1.0, help="speed factor (default 1)")
     p.add_argument("--topics", nargs="+", help="recorded topics to play (default: all)")
     p.add_argument(
         "--remap", action="append", metavar="FROM:=TO", help="publish a topic under another name"
     )
     p.add_argument(
-        "--clock", type=float, metavar="HZ", help="publish /clock from the bag time at HZ instead"
+        "--clock",
+        type=positive_float,
+        metavar="HZ",
+        help="publish /clock from the bag time at HZ instead",
     )
-    p.add_argument("--delay", type=float, default=0.5, help="wall s before the first message")
+    p.add_argument(
+        "--delay", type=nonnegative_float, default=0.5, help="wall s before the first message"
+    )
     p.set_defaults(func=_cmd_play)
 
     p = bag_sub.add_parser(
@@ -198,7 +209,7 @@ def add_bag_parser(sub) -> None:
         "error.",
     )
     p.add_argument("bag")
-    p.add_argument("--out", help="PNG path, must not exist (default: BAG with .png)")
+    p.add_argument("--out", type=new_path, help="PNG path, must not exist (default: BAG with .png)")
     p.set_defaults(func=_cmd_plot)
 
     p = bag_sub.add_parser(
@@ -235,12 +246,20 @@ def add_bag_parser(sub) -> None:
         help="parameter change, scenario or node name (repeatable), e.g. "
         "mpc.weights.force_feedback.force_phase=5",
     )
-    p.add_argument("--timeout", type=float, default=10.0, help="wall s to wait at any one step")
     p.add_argument(
-        "--rtol", type=float, default=1e-6, help="relative tolerance per field (default 1e-6)"
+        "--timeout", type=positive_float, default=10.0, help="wall s to wait at any one step"
     )
     p.add_argument(
-        "--atol", type=float, default=1e-9, help="absolute tolerance per field (default 1e-9)"
+        "--rtol",
+        type=nonnegative_float,
+        default=1e-6,
+        help="relative tolerance per field (default 1e-6)",
+    )
+    p.add_argument(
+        "--atol",
+        type=nonnegative_float,
+        default=1e-9,
+        help="absolute tolerance per field (default 1e-9)",
     )
     p.add_argument(
         "--exact", action="store_true", help="require bit-identical outputs on any machine"
@@ -255,7 +274,7 @@ def add_bag_parser(sub) -> None:
         "bag that every MCAP tool opens.",
     )
     p.add_argument("bag")
-    p.add_argument("out", help="new bag path (must not exist)")
+    p.add_argument("out", type=new_path, help="new bag path (must not exist)")
     p.set_defaults(func=_cmd_recover)
 
     p = bag_sub.add_parser(
@@ -264,13 +283,13 @@ def add_bag_parser(sub) -> None:
         description="Record every topic of the graph on this ROS domain, with every node's "
         "parameters, until Ctrl-C or --duration wall seconds.",
     )
-    p.add_argument("bag", help="new bag path (must not exist)")
+    p.add_argument("bag", type=new_path, help="new bag path (must not exist)")
     p.add_argument("--topics", nargs="+", help="topics to record (default: all)")
-    p.add_argument("--duration", type=float, help="wall seconds to record")
+    p.add_argument("--duration", type=positive_float, help="wall seconds to record")
     p.add_argument("--wall-clock", action="store_true", help="log times on the system clock")
     p.add_argument(
         "--flush-interval",
-        type=float,
+        type=positive_float,
         default=1.0,
         help="wall s between chunk flushes: at most this much is lost if killed (default 1)",
     )
