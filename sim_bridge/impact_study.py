@@ -6,7 +6,9 @@ Setup (``ffmpc study impact``):
   tool pointing down, ``approach_height`` (0.46 m, as in the paper) above the top face of a soft
   dice: a 0.16 m cube whose TRUE contact stiffness and damping are set in PyBullet. The dice is
   FIXED (a static body: Bullet's mass 0; the paper's dice weighs 0.1 kg and rests on a table).
-  Fixing it makes the tool–dice contact the only compliance: the spherical tool makes one
+  Fixing it makes the tool–dice contact the only compliance: the spherical tool (radius
+  ``tool_radius``, 5 cm: larger than any penetration of the study, since Bullet adds a second
+  contact point, doubling the force, once the sphere sinks past its centre) makes one
   contact point, so the force is the box's nominal ``k·depth + d·rate`` (Bullet applies stiffness
   per contact point; a dice resting on a table would add its 4-point support, 4× stiffer, in
   series, and its own 0.1 kg mode). The values the learner must find are then exactly the ones
@@ -125,7 +127,7 @@ from ffmpc_core.impact.touch_first import (
 from ffmpc_core.mpc import ModelPredictiveController, MpcConfig, MpcMeasurement
 from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_core.tasks import PhaseWeights, PressTask
-from sim_bridge.plant import Plant, PlantConfig, SoftBoxConfig
+from sim_bridge.plant import Plant, PlantConfig, SoftBoxConfig, ToolConfig
 
 __all__ = [
     "APPROACHES",
@@ -248,6 +250,15 @@ class ImpactStudyConfig:
         handover_blend: the force-feedback MPC's torque is blended in linearly over this long,
             s, from the admittance controller's (both through the joint-limit guard, so every
             blend is admissible: q̈ is affine in τ and the admissible set is convex); 0 = switch.
+        tool_radius: radius of the simulated spherical tool, m; must exceed the deepest
+            penetration of the study (z̄ and the prior strategy's overshoot past it). Bullet's
+            sphere–box contact adds a SECOND manifold point, at the same depth, once the sphere's
+            centre sinks ~1 mm below the box face (measured with the 1 cm sphere: at 11.0 mm,
+            every contact point carries k·depth, so the force doubled from 52.8 to 105.6 N in one
+            step on the 4800 N/m dice and joint 2 took 1.7× its acceleration limit; starting
+            0.2 m above the 7200 N/m dice the same happened during the touch, 87 → 175 N, 3.9×,
+            and the doubled stiffness made the learner's estimate useless: target refused). With
+            5 cm the modelled single contact is the only one up to 51 mm.
     """
 
     dice: DiceConfig = field(default_factory=DiceConfig)
@@ -280,6 +291,7 @@ class ImpactStudyConfig:
     strategy: str = "touch_first"
     touch: TouchFirstConfig = field(default_factory=TouchFirstConfig)
     handover_blend: float = 0.05
+    tool_radius: float = 0.05
 
     def __post_init__(self) -> None:
         positive = (
@@ -319,6 +331,12 @@ class ImpactStudyConfig:
             raise ConfigError(f"strategy must be one of {STRATEGIES}, got {self.strategy!r}")
         if not (np.isfinite(self.handover_blend) and self.handover_blend >= 0):
             raise ConfigError("handover_blend must be >= 0 (s)")
+        if not (np.isfinite(self.tool_radius) and self.tool_radius > self.dice.max_penetration):
+            raise ConfigError(
+                f"tool_radius ({self.tool_radius} m) must exceed the dice's max_penetration "
+                f"({self.dice.max_penetration} m): a sphere sunk past its centre gets a second "
+                "contact point in Bullet (double force)"
+            )
 
     @property
     def prior(self) -> SoftMaterial:
@@ -684,7 +702,12 @@ def run_impact(
     vs = np.zeros((steps + 1, robot.nv))
     taus = np.zeros((steps, robot.nv))
 
-    plant_cfg = PlantConfig(time_step=dt, table=None, soft_boxes=(dice.box(),))
+    plant_cfg = PlantConfig(
+        time_step=dt,
+        table=None,
+        soft_boxes=(dice.box(),),
+        tool=ToolConfig(radius=cfg.tool_radius),
+    )
     contact_k: int | None = None
     touch_position: np.ndarray | None = None  # last force-free sample before contact
     touch_speed = float("nan")
@@ -731,7 +754,7 @@ def run_impact(
             impact_force = None
             if touch_first is not None:
                 # The current knowledge's nominal material: f ≈ (β + α Δt) ż.
-                impact_force = -touch_first.impact_force_estimate(speed, dt) * DOWN
+                impact_force = -touch_first.impact_force_estimate(speed, dt, force) * DOWN
             elif not in_contact:
                 # An impact during the next step would push back with f ≈ β ż + α ż Δt.
                 prior = cfg.prior
