@@ -224,12 +224,12 @@ def test_handover_to_the_force_feedback_mpc_keeps_every_joint_limit(robot):
 @pytest.mark.slow
 def test_touch_from_a_low_start_on_the_stiff_damped_dice(robot):
     """0.2 m above the 3×/3× dice (7200 N/m, 45 N·s/m), 1 s (touch at ≈ 0.55 s, decision at
-    ≈ 0.75 s). With the 1 cm tool the touch sank past the sphere's centre, Bullet added a second
-    contact point (87 → 175 N in one step), joint 2 took 3.9× its acceleration limit and the
-    learner, fed the doubled stiffness, was never confident: the 60 N target was refused. The
-    touch's own impact then took joint 2 to 1.06× (the guard reserved the prior's impact force,
-    8.6 N, for a 13.5 N rise). Now: no limit broken, the learner confident and within 10 %, no
-    refusal, the robot retracting for the strike."""
+    ≈ 0.75 s). With PyBullet's 1 mm dice margin the 1 cm sphere's centre passed the inner face,
+    Bullet added a second contact point (87 → 175 N in one step), joint 2 took 3.9× its
+    acceleration limit and the learner, fed the doubled stiffness, was never confident: the 60 N
+    target was refused. Without that, the touch's own impact took joint 2 to 1.06× (the guard
+    reserved the prior's impact force, 8.6 N, for a 13.5 N rise). Now: no limit broken, the
+    learner confident and within 10 %, no refusal, the robot retracting for the strike."""
     dice = replace(DiceConfig(), stiffness=3.0 * PRIOR_K, damping=3.0 * PRIOR_B)
     cfg = replace(FAST, dice=dice, approach_height=0.2, duration=1.0)
     run = run_impact("maximal", "admittance", cfg, robot)
@@ -244,8 +244,13 @@ def test_touch_from_a_low_start_on_the_stiff_damped_dice(robot):
     assert run.log["phase"][-1] in ("retract", "strike")
 
 
-def test_tool_sphere_must_be_deeper_than_the_penetration_bound():
-    """The simulated tool sphere must not sink past its centre within z̄ (second contact)."""
-    with pytest.raises(ConfigError, match="tool_radius"):
-        ImpactStudyConfig(tool_radius=0.01)
-    assert ImpactStudyConfig().tool_radius > ImpactStudyConfig().dice.max_penetration
+def test_single_contact_geometry_is_required():
+    """The tool sphere's centre must not pass the dice's inner (margin-less) face within z̄
+    (Bullet's second contact point, double force): radius + collision margin > z̄."""
+    with pytest.raises(ConfigError, match="collision_margin"):
+        ImpactStudyConfig(dice=replace(DiceConfig(), collision_margin=0.001))
+    with pytest.raises(ConfigError, match="collision_margin"):
+        DiceConfig(collision_margin=0.09)
+    cfg = ImpactStudyConfig()
+    assert cfg.tool_radius + cfg.dice.collision_margin > cfg.dice.max_penetration
+    assert cfg.dice.box().collision_margin == cfg.dice.collision_margin
