@@ -7,10 +7,11 @@ Setup (``ffmpc study impact``):
   dice: a 0.16 m cube whose TRUE contact stiffness and damping are set in PyBullet. The dice is
   FIXED (a static body: Bullet's mass 0; the paper's dice weighs 0.1 kg and rests on a table).
   Fixing it makes the tool–dice contact the only compliance: the spherical tool makes one
-  contact point, so the force is the box's nominal ``k·depth + d·rate`` (Bullet applies stiffness
-  per contact point; a dice resting on a table would add its 4-point support, 4× stiffer, in
-  series, and its own 0.1 kg mode). The values the learner must find are then exactly the ones
-  set in PyBullet.
+  contact point (the dice's 5 cm collision margin keeps it the only one in the study's depth
+  range, see :class:`DiceConfig`), so the force is the box's nominal ``k·depth + d·rate``
+  (Bullet applies stiffness per contact point; a dice resting on a table would add its 4-point
+  support, 4× stiffer, in series, and its own 0.1 kg mode). The values the learner must find
+  are then exactly the ones set in PyBullet.
 * Material (our choice; the paper's Fig. 3 values are not in our copy of the text): stiffness
   3000 N/m and damping 20 N·s/m — a foam dice that takes 60 N at 2 cm (12.5 % strain) with a
   lightly damped response (damping ratio ≈ 0.08 with the Panda's ≈ 5 kg effective mass). The
@@ -125,7 +126,7 @@ from ffmpc_core.impact.touch_first import (
 from ffmpc_core.mpc import ModelPredictiveController, MpcConfig, MpcMeasurement
 from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_core.tasks import PhaseWeights, PressTask
-from sim_bridge.plant import Plant, PlantConfig, SoftBoxConfig
+from sim_bridge.plant import Plant, PlantConfig, SoftBoxConfig, ToolConfig
 
 __all__ = [
     "APPROACHES",
@@ -172,6 +173,16 @@ class DiceConfig:
         top_height: height of the top face, m, world frame.
         max_penetration: z̄, m, the elastic-domain bound the planner keeps.
         lateral_friction: Coulomb friction of the dice (the tool's is 1; Bullet multiplies).
+        collision_margin: Bullet's collision margin of the dice, m (edges rounded with it; the
+            faces stay put). With PyBullet's 1 mm, a second contact point at the same depth
+            appeared once the 1 cm tool sphere's centre passed the inner face (11.0 mm): the
+            force doubled in one step (52.8 → 105.6 N on the 4800 N/m dice; joint 2 at 1.7× its
+            acceleration limit; starting 0.2 m above the 7200 N/m dice it happened during the
+            touch, 87 → 175 N, 3.9×, and the learner fed the doubled stiffness was never
+            confident: the 60 N target was refused). With 5 cm the single contact holds to
+            60 mm, past any penetration of the study (the prior strategy's reached 47.5 mm).
+            A 5 cm tool sphere instead also avoided it but changed the tilting contact (the
+            force-feedback MPC then broke the wrist's acceleration limit on the 7200/7.5 dice).
     """
 
     stiffness: float = 3000.0
@@ -182,6 +193,7 @@ class DiceConfig:
     top_height: float = 0.08
     max_penetration: float = 0.03
     lateral_friction: float = 0.5
+    collision_margin: float = 0.05
 
     def __post_init__(self) -> None:
         for name in ("stiffness", "size", "max_penetration"):
@@ -193,6 +205,8 @@ class DiceConfig:
             raise ConfigError(f"dice damping must be finite and >= 0, got {self.damping}")
         if self.max_penetration >= self.size:
             raise ConfigError("max_penetration must be smaller than the dice")
+        if not (np.isfinite(self.collision_margin) and 0 < self.collision_margin < 0.5 * self.size):
+            raise ConfigError("dice collision_margin must be in (0, size/2) (m)")
 
     def box(self) -> SoftBoxConfig:
         """The PyBullet box (static: mass 0)."""
@@ -204,6 +218,7 @@ class DiceConfig:
             size=(self.size, self.size, self.size),
             mass=0.0,
             lateral_friction=self.lateral_friction,
+            collision_margin=self.collision_margin,
         )
 
 
@@ -248,6 +263,8 @@ class ImpactStudyConfig:
         handover_blend: the force-feedback MPC's torque is blended in linearly over this long,
             s, from the admittance controller's (both through the joint-limit guard, so every
             blend is admissible: q̈ is affine in τ and the admissible set is convex); 0 = switch.
+        tool_radius: radius of the simulated spherical tool, m (1 cm); with the dice's
+            collision margin it must exceed z̄ (see :attr:`DiceConfig.collision_margin`).
     """
 
     dice: DiceConfig = field(default_factory=DiceConfig)
@@ -280,6 +297,7 @@ class ImpactStudyConfig:
     strategy: str = "touch_first"
     touch: TouchFirstConfig = field(default_factory=TouchFirstConfig)
     handover_blend: float = 0.05
+    tool_radius: float = 0.01
 
     def __post_init__(self) -> None:
         positive = (
@@ -319,6 +337,13 @@ class ImpactStudyConfig:
             raise ConfigError(f"strategy must be one of {STRATEGIES}, got {self.strategy!r}")
         if not (np.isfinite(self.handover_blend) and self.handover_blend >= 0):
             raise ConfigError("handover_blend must be >= 0 (s)")
+        reach = self.tool_radius + self.dice.collision_margin
+        if not (np.isfinite(reach) and self.tool_radius > 0 and reach > self.dice.max_penetration):
+            raise ConfigError(
+                f"tool_radius + dice collision_margin ({reach} m) must exceed the dice's "
+                f"max_penetration ({self.dice.max_penetration} m): a sphere whose centre passes "
+                "the box's inner face gets a second contact point in Bullet (double force)"
+            )
 
     @property
     def prior(self) -> SoftMaterial:
@@ -684,7 +709,12 @@ def run_impact(
     vs = np.zeros((steps + 1, robot.nv))
     taus = np.zeros((steps, robot.nv))
 
-    plant_cfg = PlantConfig(time_step=dt, table=None, soft_boxes=(dice.box(),))
+    plant_cfg = PlantConfig(
+        time_step=dt,
+        table=None,
+        soft_boxes=(dice.box(),),
+        tool=ToolConfig(radius=cfg.tool_radius),
+    )
     contact_k: int | None = None
     touch_position: np.ndarray | None = None  # last force-free sample before contact
     touch_speed = float("nan")
@@ -731,7 +761,7 @@ def run_impact(
             impact_force = None
             if touch_first is not None:
                 # The current knowledge's nominal material: f ≈ (β + α Δt) ż.
-                impact_force = -touch_first.impact_force_estimate(speed, dt) * DOWN
+                impact_force = -touch_first.impact_force_estimate(speed, dt, force) * DOWN
             elif not in_contact:
                 # An impact during the next step would push back with f ≈ β ż + α ż Δt.
                 prior = cfg.prior

@@ -154,6 +154,13 @@ class SoftBoxConfig:
         mass: kg (the paper's dice: 0.1 kg); 0 makes the box static.
         orientation: initial orientation as a quaternion (x, y, z, w), world frame.
         lateral_friction: friction coefficient (multiplied with the other body's).
+        collision_margin: Bullet's collision margin of the box, m (None: PyBullet's 1 mm). The
+            outer faces stay where ``size`` puts them; the margin rounds the edges with this
+            radius. Bullet's sphere–box contact switches branch once the sphere's centre passes
+            the inner (margin-less) face, at a depth of radius + margin, and the manifold then
+            keeps a SECOND point at the same depth: the force doubles in one step (measured with
+            the 1 cm tool at 11.0 mm: 52.8 → 105.6 N on a 4800 N/m box). A margin larger than
+            the deepest planned penetration minus the tool radius keeps the single contact.
     """
 
     position: tuple[float, float, float]
@@ -163,6 +170,7 @@ class SoftBoxConfig:
     mass: float = 0.1
     orientation: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
     lateral_friction: float = 0.5
+    collision_margin: float | None = None
 
     def __post_init__(self) -> None:
         _vector3(self.position, "position")
@@ -175,6 +183,10 @@ class SoftBoxConfig:
         _positive(self.damping, "damping", allow_zero=True)
         _positive(self.mass, "mass", allow_zero=True)
         _positive(self.lateral_friction, "lateral_friction", allow_zero=True)
+        if self.collision_margin is not None:
+            _positive(self.collision_margin, "collision_margin")
+            if 2.0 * self.collision_margin >= float(np.min(self.size)):
+                raise ConfigError("collision_margin must be below half the smallest edge (m)")
 
 
 @dataclass(frozen=True)
@@ -560,6 +572,8 @@ class Plant:
             restitution=0.0,
             physicsClientId=c,
         )
+        if box.collision_margin is not None:
+            pb.changeDynamics(body, -1, collisionMargin=box.collision_margin, physicsClientId=c)
         self._box_configs[body] = box
         return body
 
