@@ -74,8 +74,10 @@ IMPACT_TOPICS: tuple[tuple[str, str, str], ...] = (
     (CONTACT_ESTIMATE, "std_msgs/msg/Float64MultiArray", "contact_learner"),
 )
 
-#: History kept by every data publisher (and by lockstep subscribers), samples.
-PUBLISHER_DEPTH = 100
+#: History kept by every data publisher (and by lockstep subscribers), samples: 1 s of a 1 kHz
+#: graph, so the nodes outside the lockstep loop
+#: (metrics, recorder) may lag that much without losing a sample (msgs_notes/README.md, QoS).
+PUBLISHER_DEPTH = 1000
 
 
 def publisher_qos() -> QoSProfile:
