@@ -44,7 +44,7 @@ from ffmpc_core.errors import (
     FfmpcError,
     InputError,
 )
-from ffmpc_core.faults import Fault, active_kinds, faults_from
+from ffmpc_core.faults import RUNNER_KINDS, Fault, active_kinds, faults_from, require_kinds
 from ffmpc_core.lowlevel import LowLevelMeasurement, LowLevelMode
 from ffmpc_core.metrics import PolishingMetrics
 from ffmpc_core.mpc import ModelPredictiveController, MpcMeasurement
@@ -150,6 +150,7 @@ def run_scenario(
     """
     wall_start = time.perf_counter()
     faults = faults_from(faults)
+    require_kinds(faults, RUNNER_KINDS, "the ROS-free runner")
     robot = load_robot(scenario.robot)
     # One generator per device, spawned in a fixed order; the ROS nodes spawn the same ones.
     draw_rng, joint_rng, force_rng, act_rng = spawn_generators(scenario.seed)
