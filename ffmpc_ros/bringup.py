@@ -90,9 +90,11 @@ STALL_TIMEOUT = 30.0
 START_TIMEOUT = 180.0
 #: Lines of a dead node's log shown in the error.
 LOG_TAIL = 8
-#: Simulated s after a fault window whose MPC deadlines are not counted either (the MPC
-#: catches up with the measurements queued while it was stopped).
+#: Simulated s after an injected fault during which fallback and missed MPC deadlines are
+#: excused too (the nodes catch up with the messages queued while one was stopped).
 FAULT_RECOVERY = 0.05
+#: Wall s after the plant's last state before a run with faults fills the missing measurements.
+FILL_GRACE = 2.0
 #: Parameters several nodes declare that may differ between them (none today).
 UNSHARED_PARAMETERS: frozenset[str] = frozenset()
 #: The launcher of every child: die with the bring-up (PR_SET_PDEATHSIG), refuse to start if it
@@ -242,6 +244,8 @@ class _StatusProbe:
         if robot is not None:
             self.max_velocity_ratio = np.zeros(robot.nv)
             self.max_torque_ratio = np.zeros(robot.nv)
+            self.worst_velocity_t: float | None = None  # s, when the overall max occurred
+            self.worst_torque_t: float | None = None
             node.create_subscription(
                 JointState, topics.PLANT_JOINT_STATES, self._on_joints, topics.subscriber_qos(True)
             )
@@ -255,13 +259,14 @@ class _StatusProbe:
         v = np.abs(np.asarray(msg.velocity, dtype=float)) / self.robot.velocity_limit
         tau = np.abs(np.asarray(msg.effort, dtype=float)) / self.robot.torque_limit
         if v.shape == self.max_velocity_ratio.shape and tau.shape == v.shape:
-            # fmax would hide a NaN: a NaN state counts as a broken limit (inf)
-            self.max_velocity_ratio = np.maximum(
-                self.max_velocity_ratio, np.nan_to_num(v, nan=np.inf)
-            )
-            self.max_torque_ratio = np.maximum(
-                self.max_torque_ratio, np.nan_to_num(tau, nan=np.inf)
-            )
+            # a NaN state counts as a broken limit (inf)
+            v, tau = np.nan_to_num(v, nan=np.inf), np.nan_to_num(tau, nan=np.inf)
+            if v.max() > self.max_velocity_ratio.max():
+                self.worst_velocity_t = k * self.time_step
+            if tau.max() > self.max_torque_ratio.max():
+                self.worst_torque_t = k * self.time_step
+            self.max_velocity_ratio = np.maximum(self.max_velocity_ratio, v)
+            self.max_torque_ratio = np.maximum(self.max_torque_ratio, tau)
         if k > self.cycle:
             self.cycle = k
             if self.on_cycle is not None:
@@ -301,11 +306,11 @@ class _PidStatusProbe:
 
         steps = self.mode.size
         ticks = np.arange(0, steps, every)
-        # MPC deadlines inside a fault window (and FAULT_RECOVERY after it) are not counted
+        # MPC deadlines inside a fault window are not counted
         t_ticks = ticks * self.time_step
         excused = np.zeros(ticks.size, dtype=bool)
         for start, end in fault_windows:
-            excused |= (t_ticks >= start) & (t_ticks < end + FAULT_RECOVERY)
+            excused |= (t_ticks >= start) & (t_ticks < end)
         ticks = ticks[~excused]
         heard = self.mode[ticks] >= 0
         on_time = heard & (np.abs(self.command_age[ticks]) < 0.5 * self.time_step)
@@ -423,7 +428,8 @@ def run_graph(
     if record is not None and os.path.exists(record):
         raise ConfigError(f"bag {record} exists: give a new path")
     windows = [tuple(map(float, w)) for w in fault_windows]
-    windows += [(f.start, min(f.end, float(duration))) for f in faults]
+    # an injected fault's effects outlast it a little (queued messages): FAULT_RECOVERY
+    windows += [(f.start, min(f.end + FAULT_RECOVERY, float(duration))) for f in faults]
     if any(f.kind in PROCESS_KINDS for f in faults):
         params["pid"]["lockstep_timeout"] = FAULT_LOCKSTEP_TIMEOUT
     # the recorder and the bring-up's probe are more subscribers the plant waits for
@@ -512,6 +518,13 @@ def run_graph(
                     f"{metrics.steps} cycles recorded; {_progress(probe, pid_probe, children)}"
                 )
             _check_children(children, logs, set() if injector is None else injector.killed)
+            if faults and probe.cycle >= metrics.steps and metrics.metrics is None:
+                # A stopped sensor loses measurements the metrics node waits for: once the
+                # plant is done, fill them with the previous value (the real-time rule,
+                # counted in metrics_filled) rather than wait forever.
+                if now - last_progress > FILL_GRACE:
+                    metrics._last_state_at = time.monotonic() - 1e3  # past its grace
+                    metrics._check_finish()
             if probe.cycle > last_cycle:
                 last_cycle, last_progress = probe.cycle, now
             else:
@@ -569,7 +582,10 @@ def run_graph(
     safety = {
         "max_velocity_ratio": [float(x) for x in probe.max_velocity_ratio],
         "max_torque_ratio": [float(x) for x in probe.max_torque_ratio],
+        "max_velocity_ratio_at_s": probe.worst_velocity_t,
+        "max_torque_ratio_at_s": probe.worst_torque_t,
         "safe_hold_s": float(np.count_nonzero(hold) * time_step),
+        "metrics_filled": int(metrics.filled),
         "faults": [] if injector is None else injector.report(),
         "rejected_messages": {name: rejected.get(name) for name in [*NODES, "metrics"]},
     }
