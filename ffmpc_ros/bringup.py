@@ -83,7 +83,7 @@ NODES: dict[str, str] = {
 }
 METRICS_NODE = "ffmpc_ros.metrics_node:MetricsNode"
 #: Wall s the bring-up listens for foreign publishers on the graph's topics before starting.
-FOREIGN_DISCOVERY_WAIT = 1.0
+FOREIGN_DISCOVERY_WAIT = 2.0
 #: Default wall s without a new plant cycle before a lockstep run is stopped.
 STALL_TIMEOUT = 30.0
 #: Default wall s from the start to the first plant cycle (imports, MPC warm-up, discovery).
@@ -788,22 +788,40 @@ def _progress(probe: _StatusProbe, pid_probe: _PidStatusProbe, children) -> str:
 
 
 def _refuse_foreign(node: Node, domain: int, wait: float = FOREIGN_DISCOVERY_WAIT) -> None:
-    """GraphError naming the publishers already on the graph's topics (module docstring)."""
+    """GraphError naming the publishers already on the graph's topics and the nodes already
+    using the graph's node names (module docstring)."""
     names = [t for t, _, _ in topics.TOPICS]
+    ours = {*NODES, "metrics", "ffmpc_recorder", "ffmpc_bringup"}
+    me = node.get_fully_qualified_name()
     deadline = time.monotonic() + wait
+    first_seen = None
     while True:
         found: dict[str, set[str]] = {}
         for topic in names:
             for info in node.get_publishers_info_by_topic(topic):
                 fqn = f"{info.node_namespace.rstrip('/')}/{info.node_name}"
                 found.setdefault(fqn, set()).add(topic)
-        if found or time.monotonic() > deadline:
+        for name, namespace in node.get_node_names_and_namespaces():
+            fqn = f"{namespace.rstrip('/')}/{name}"
+            if name in ours and fqn != me:
+                found.setdefault(fqn, set())
+        now = time.monotonic()
+        if found and first_seen is None:
+            first_seen = now
+        unnamed = any("_UNKNOWN_" in n for n in found)
+        if first_seen is not None:  # gather the others a moment (and their names)
+            if now > first_seen + (2.0 if unnamed else 1.0):
+                break
+        elif now > deadline:
             break
         time.sleep(0.05)
     if found:
-        listed = "; ".join(f"{n} on {', '.join(sorted(t))}" for n, t in sorted(found.items()))
+        listed = "; ".join(
+            f"{n} on {', '.join(sorted(t))}" if t else f"{n} (node name of this graph)"
+            for n, t in sorted(found.items())
+        )
         raise GraphError(
-            f"foreign publishers on this graph's topics (ROS_DOMAIN_ID {domain}): {listed}. "
+            f"foreign nodes on this graph's topics (ROS_DOMAIN_ID {domain}): {listed}. "
             "Another graph (or the leftovers of a killed run) is on this domain: stop it or use "
             "another ROS_DOMAIN_ID (--allow-foreign-publishers starts anyway)"
         )

@@ -207,6 +207,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         faults=faults,
         allow_foreign=args.allow_foreign_publishers,
         stall_timeout=args.stall_timeout,
+        start_timeout=args.start_timeout,
         node_ros_args=node_ros_args,
         duration=args.duration,
         single_process=args.single_process,
@@ -564,6 +565,13 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         default=30.0,
         help="lockstep: stop when no plant cycle came for this many wall s (default 30)",
+    )
+    run.add_argument(
+        "--start-timeout",
+        type=float,
+        default=180.0,
+        help="lockstep: stop when the first plant cycle has not come this many wall s after the "
+        "start (default 180)",
     )
     run.add_argument(
         "--node-param",
