@@ -47,9 +47,7 @@ FUTURE_STAMP_AHEAD = 1.0
 #: The node ``node-kill`` kills unless one is named.
 DEFAULT_KILLED_NODE = "mpc"
 
-_PATTERN = re.compile(
-    r"^\s*([a-z-]+)(?::([a-z_]+))?\s*@\s*([^+\s]+)\s*(?:\+\s*(\S+))?\s*$"
-)
+_PATTERN = re.compile(r"^\s*([a-z-]+)(?::([a-z_]+))?\s*@\s*([^+\s]+)\s*(?:\+\s*(\S+))?\s*$")
 
 
 @dataclass(frozen=True)
