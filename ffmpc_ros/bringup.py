@@ -93,6 +93,8 @@ LOG_TAIL = 8
 #: Simulated s after an injected fault during which fallback and missed MPC deadlines are
 #: excused too (the nodes catch up with the messages queued while one was stopped).
 FAULT_RECOVERY = 0.05
+#: Wall s after which an unanswered parameter request is sent again.
+PARAMETER_RETRY = 3.0
 #: Wall s after the plant's last state before a run with faults fills the missing measurements.
 FILL_GRACE = 2.0
 #: Parameters several nodes declare that may differ between them (none today).
@@ -111,6 +113,28 @@ _LAUNCHER = (
 
 class GraphError(FfmpcError):
     """The graph did not finish (a node died, or the wall-time limit passed)."""
+
+
+class RunInterrupted(BaseException):  # noqa: N818  (like KeyboardInterrupt)
+    """SIGINT/SIGTERM asked the run to stop (raised from the run's loop, never from a
+    callback: see :func:`request_stop`)."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+_STOP: list[int] = []
+
+
+def request_stop(signum: int) -> None:
+    """Signal handler side: ask the running graph to stop; the loop raises RunInterrupted."""
+    _STOP.append(signum)
+
+
+def _check_stop() -> None:
+    if _STOP:
+        raise RunInterrupted(_STOP[0])
 
 
 def child_marker(parent_pid: int | None = None) -> str:
@@ -426,14 +450,17 @@ def run_graph(
     from ffmpc_core.study import steps_per_mpc_period
 
     if record is not None and os.path.exists(record):
-        raise ConfigError(f"bag {record} exists: give a new path")
+        from ffmpc_ros.bag.errors import BagExistsError
+
+        raise BagExistsError(f"{record} exists; a bag is never overwritten")
     windows = [tuple(map(float, w)) for w in fault_windows]
     # an injected fault's effects outlast it a little (queued messages): FAULT_RECOVERY
     windows += [(f.start, min(f.end + FAULT_RECOVERY, float(duration))) for f in faults]
     if any(f.kind in PROCESS_KINDS for f in faults):
         params["pid"]["lockstep_timeout"] = FAULT_LOCKSTEP_TIMEOUT
-    # the recorder and the bring-up's probe are more subscribers the plant waits for
-    params["plant"]["start_subscribers"] += 1 + (record is not None)
+    # the recorder is one more subscriber the plant waits for (the bring-up's probe subscribes
+    # before the metrics node exists, whose readiness the plant waits for too)
+    params["plant"]["start_subscribers"] += record is not None
     robot = load_robot(scenario.robot)
     time_step = scenario.plant.time_step
     context = Context()
@@ -537,6 +564,7 @@ def run_graph(
                         f"{_progress(probe, pid_probe, children)}"
                     )
             executor.spin_once(timeout_sec=0.05)
+            _check_stop()
         done = time.perf_counter()
         # The final plant status (latencies, deadline misses) follows the last state.
         while (
@@ -547,6 +575,7 @@ def run_graph(
             if time.perf_counter() > done + 2.0:
                 break
             executor.spin_once(timeout_sec=0.05)
+            _check_stop()
         if "recorder" in children:  # it closes the bag once the metrics summary is in
             with contextlib.suppress(subprocess.TimeoutExpired):
                 children["recorder"].wait(timeout=10.0)
@@ -848,6 +877,15 @@ def _fetch_parameters(
                 f"the parameters of {missing} could not be read: the run did not start"
             )
         executor.spin_once(timeout_sec=0.05)
+        _check_stop()
+        now = time.perf_counter()
+        for f in fetches.values():  # a request to a vanished server never completes: retry
+            if f.future is not None and not f.future.done():
+                asked = getattr(f, "_asked_at", None)
+                if asked is None or asked[0] is not f.future:
+                    f._asked_at = (f.future, now)
+                elif now - asked[1] > PARAMETER_RETRY:
+                    f.future = None
     for f in fetches.values():
         node.destroy_client(f.list_client)
         node.destroy_client(f.get_client)
