@@ -11,7 +11,15 @@ reuse it. Kinds:
   MPC is not solved and the low level sees the last measurement received;
 * ``torque-spike`` — the MEASURED joint torques τ̂ read by the controllers become ``value``
   (default 1e9 N·m, every joint); the torque applied to the plant is unchanged;
-* ``nan-wrench`` — the measured force λ̂ read by the controllers becomes NaN.
+* ``nan-wrench`` — the measured force λ̂ read by the controllers becomes NaN;
+* ``future-stamp`` — a message stamped far ahead (:data:`FUTURE_STAMP_AHEAD`) arrives on a
+  sensor topic: it must be rejected, never adopted (node graph only);
+* ``node-kill`` — a node's process is killed (SIGKILL) at ``start``; ``node-kill:NODE@T`` names
+  the node (default :data:`DEFAULT_KILLED_NODE`); the torque loop must hold the robot safely
+  (node graph only, multi-process).
+
+Where each kind is applied in the node graph (``ffmpc run --fault``): see
+``ffmpc_ros.fault_injector``.
 """
 
 from __future__ import annotations
@@ -24,20 +32,35 @@ from dataclasses import dataclass
 from ffmpc_core.errors import ConfigError
 
 #: The kinds of fault a run can inject.
-FAULT_KINDS = ("mpc-dropout", "sensor-dropout", "torque-spike", "nan-wrench")
+FAULT_KINDS = (
+    "mpc-dropout",
+    "sensor-dropout",
+    "torque-spike",
+    "nan-wrench",
+    "future-stamp",
+    "node-kill",
+)
+#: The kinds the ROS-free runner (``sim_bridge.runner``) applies.
+RUNNER_KINDS = ("mpc-dropout", "sensor-dropout", "torque-spike", "nan-wrench")
+#: How far ahead of the clock a ``future-stamp`` message is stamped, s.
+FUTURE_STAMP_AHEAD = 1.0
+#: The node ``node-kill`` kills unless one is named.
+DEFAULT_KILLED_NODE = "mpc"
 
-_PATTERN = re.compile(r"^\s*([a-z-]+)\s*@\s*([^+\s]+)\s*(?:\+\s*(\S+))?\s*$")
+_PATTERN = re.compile(r"^\s*([a-z-]+)(?::([a-z_]+))?\s*@\s*([^+\s]+)\s*(?:\+\s*(\S+))?\s*$")
 
 
 @dataclass(frozen=True)
 class Fault:
     """One fault: ``kind`` (one of :data:`FAULT_KINDS`), ``start`` s, ``duration`` s (None: to
-    the end of the run), ``value`` (torque-spike: the τ̂ read, N·m)."""
+    the end of the run), ``value`` (torque-spike: the τ̂ read, N·m), ``node`` (node-kill: the
+    node killed; None for the other kinds)."""
 
     kind: str
     start: float
     duration: float | None = None
     value: float = 1e9
+    node: str | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in FAULT_KINDS:
@@ -46,6 +69,13 @@ class Fault:
             raise ConfigError(f"fault start must be a finite time >= 0 s, got {self.start}")
         if self.duration is not None and not (math.isfinite(self.duration) and self.duration > 0.0):
             raise ConfigError(f"fault duration must be > 0 s (or None), got {self.duration}")
+        if self.kind == "node-kill":
+            if self.node is None:
+                object.__setattr__(self, "node", DEFAULT_KILLED_NODE)
+            if self.duration is not None:
+                raise ConfigError("node-kill takes no duration: a killed node stays dead")
+        elif self.node is not None:
+            raise ConfigError(f"only node-kill names a node (node-kill:NODE@T), got {self}")
 
     @property
     def end(self) -> float:
@@ -58,19 +88,25 @@ class Fault:
 
     def __str__(self) -> str:
         tail = "" if self.duration is None else f"+{self.duration:g}"
-        return f"{self.kind}@{self.start:g}{tail}"
+        node = "" if self.node is None else f":{self.node}"
+        return f"{self.kind}{node}@{self.start:g}{tail}"
 
 
 def parse_fault(text: str) -> Fault:
-    """``KIND@T[+DURATION]`` (seconds) → Fault; ConfigError with the expected form otherwise."""
+    """``KIND[:NODE]@T[+DURATION]`` (seconds) → Fault; ConfigError with the expected form
+    otherwise (``:NODE`` only for node-kill)."""
     match = _PATTERN.match(text)
     if match is None:
-        raise ConfigError(f"fault {text!r}: expected KIND@T[+DURATION], e.g. mpc-dropout@0.6+0.05")
-    kind, start, duration = match.groups()
+        raise ConfigError(
+            f"fault {text!r}: expected KIND@T[+DURATION] or node-kill:NODE@T, e.g. "
+            "mpc-dropout@0.6+0.05"
+        )
+    kind, node, start, duration = match.groups()
     try:
-        return Fault(kind, float(start), None if duration is None else float(duration))
+        t0, length = float(start), None if duration is None else float(duration)
     except ValueError:
         raise ConfigError(f"fault {text!r}: T and DURATION must be numbers (s)") from None
+    return Fault(kind, t0, length, node=node)
 
 
 def faults_from(items: Iterable[Fault | str] | None) -> tuple[Fault, ...]:
@@ -78,6 +114,16 @@ def faults_from(items: Iterable[Fault | str] | None) -> tuple[Fault, ...]:
     if items is None:
         return ()
     return tuple(item if isinstance(item, Fault) else parse_fault(item) for item in items)
+
+
+def require_kinds(faults: Sequence[Fault], supported: Sequence[str], where: str) -> None:
+    """ConfigError (one line) naming the first fault whose kind ``where`` cannot inject."""
+    for fault in faults:
+        if fault.kind not in supported:
+            raise ConfigError(
+                f"fault {fault}: {fault.kind} is not supported in {where} "
+                f"(supported there: {', '.join(supported) or 'none'})"
+            )
 
 
 def active_kinds(faults: Sequence[Fault], t: float) -> dict[str, Fault]:
@@ -89,4 +135,14 @@ def active_kinds(faults: Sequence[Fault], t: float) -> dict[str, Fault]:
     return out
 
 
-__all__ = ["FAULT_KINDS", "Fault", "active_kinds", "faults_from", "parse_fault"]
+__all__ = [
+    "DEFAULT_KILLED_NODE",
+    "FAULT_KINDS",
+    "FUTURE_STAMP_AHEAD",
+    "RUNNER_KINDS",
+    "Fault",
+    "active_kinds",
+    "faults_from",
+    "parse_fault",
+    "require_kinds",
+]

@@ -22,6 +22,7 @@ construction and a later change is refused with a reason (the other parameters a
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import sys
@@ -53,6 +54,8 @@ GRID_TOLERANCE_NS = 1000
 #: cycles: far above the reordering of ``/clock`` and data topics between two processes (at most
 #: a cycle or two in lockstep), far below any delay a spoofed stamp could hide behind.
 MAX_FUTURE_STAMP = 0.01
+#: Start of the line a node executable prints on stderr at exit: its rejections as JSON.
+REJECTED_MARKER = "ffmpc-rejected: "
 
 
 class StudyNode(Node):
@@ -307,6 +310,12 @@ def run_node(factory: Callable[..., StudyNode], description: str, argv=None) -> 
         pass
     finally:
         if node is not None:
+            # One line the bring-up reads from this process's log (rejected_messages).
+            print(
+                REJECTED_MARKER + json.dumps({"node": node.get_name(), **dict(node.rejected)}),
+                file=sys.stderr,
+                flush=True,
+            )
             node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()

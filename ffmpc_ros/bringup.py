@@ -10,18 +10,48 @@ The generated parameter file is the scenario itself (``scenario_parameters``) sp
 node sections with the other-section values each node declares (``ffmpc_ros.params``), plus
 ``lockstep`` and ``duration``. Every process gets the caller's environment: set
 ``ROS_DOMAIN_ID`` (and ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) to isolate a run.
+
+Safety of the run itself (lockstep):
+
+* Foreign publishers: before starting anything, the bring-up looks for publishers on the graph's
+  topics (:data:`ffmpc_ros.topics.TOPICS`) for :data:`FOREIGN_DISCOVERY_WAIT` wall s; any is
+  foreign (another graph on the domain, leftovers of a killed run) and the run is refused with
+  their node names, unless ``allow_foreign``.
+* Shared parameters: once the nodes are up and before the plant may start (the metrics node,
+  whose readiness the plant waits for, is only created after this check), every node's
+  parameters are read (the recorder's ``list_parameters``/``get_parameters`` fetch) and a
+  parameter declared by several nodes with different values stops the run, naming both nodes
+  and both values.
+* Children: one process group of their own (Ctrl-C in a terminal reaches only the bring-up,
+  which stops them); each is started through a launcher that sets PR_SET_PDEATHSIG (SIGKILL for
+  the nodes, SIGTERM for the recorder, which then finalises the bag) and exits if the bring-up
+  is already gone, so killing the bring-up, even with SIGKILL, leaves no process behind. A node
+  that dies takes the run down with its name, exit status and the last lines of its log.
+* Progress watchdog: no new plant cycle for ``stall_timeout`` wall s (``start_timeout`` before
+  the first one) stops the run with what each stage last did.
+* Recording (``record``): the recorder runs in its own child process
+  (``ffmpc_ros.bag.recorder.graph_recorder_process``) and closes the bag on SIGINT/SIGTERM or
+  once the run is complete.
+* Faults (``faults``): injected by the bring-up at the simulated time it sees
+  (``ffmpc_ros.fault_injector``); the summary gains ``max_velocity_ratio`` and
+  ``max_torque_ratio`` (per joint, max over the run of |q̇|/limit and |τ|/limit from the
+  plant's ``/plant/joint_states``: true q̇ and the torque applied), ``safe_hold_s``, ``faults``
+  and ``rejected_messages`` (per node, per kind).
 """
 
 from __future__ import annotations
 
+import contextlib
 import importlib
+import json
+import math
 import os
 import signal
 import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -30,11 +60,15 @@ import yaml
 from rclpy.context import Context
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from ffmpc_core.errors import ConfigError, FfmpcError
+from ffmpc_core.faults import Fault, faults_from
 from ffmpc_core.lowlevel import LowLevelMode
 from ffmpc_core.metrics import PolishingMetrics
+from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import Scenario
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.params import node_parameter_values, parameter_overrides
@@ -48,10 +82,64 @@ NODES: dict[str, str] = {
     "pid": "ffmpc_ros.pid_node:PidNode",
 }
 METRICS_NODE = "ffmpc_ros.metrics_node:MetricsNode"
+#: Wall s the bring-up listens for foreign publishers on the graph's topics before starting.
+FOREIGN_DISCOVERY_WAIT = 2.0
+#: Default wall s without a new plant cycle before a lockstep run is stopped.
+STALL_TIMEOUT = 30.0
+#: Default wall s from the start to the first plant cycle (imports, MPC warm-up, discovery).
+START_TIMEOUT = 180.0
+#: Lines of a dead node's log shown in the error.
+LOG_TAIL = 8
+#: Simulated s after an injected fault during which fallback and missed MPC deadlines are
+#: excused too (the nodes catch up with the messages queued while one was stopped).
+FAULT_RECOVERY = 0.05
+#: Wall s after which an unanswered parameter request is sent again.
+PARAMETER_RETRY = 3.0
+#: Wall s after the plant's last state before a run with faults fills the missing measurements.
+FILL_GRACE = 2.0
+#: Parameters several nodes declare that may differ between them (none today).
+UNSHARED_PARAMETERS: frozenset[str] = frozenset()
+#: The launcher of every child: die with the bring-up (PR_SET_PDEATHSIG), refuse to start if it
+#: is already gone, then run the module as ``python -m`` would. argv: marker, signal, module, args.
+_LAUNCHER = (
+    "import ctypes, os, runpy, sys\n"
+    "marker, sig, module = sys.argv[1:4]\n"
+    "ctypes.CDLL(None, use_errno=True).prctl(1, int(sig), 0, 0, 0)\n"
+    "if os.getppid() != int(marker.rpartition('=')[2]): sys.exit(1)\n"
+    "sys.argv = [module, *sys.argv[4:]]\n"
+    "runpy.run_module(module, run_name='__main__', alter_sys=True)\n"
+)
 
 
 class GraphError(FfmpcError):
     """The graph did not finish (a node died, or the wall-time limit passed)."""
+
+
+class RunInterrupted(BaseException):  # noqa: N818  (like KeyboardInterrupt)
+    """SIGINT/SIGTERM asked the run to stop (raised from the run's loop, never from a
+    callback: see :func:`request_stop`)."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+_STOP: list[int] = []
+
+
+def request_stop(signum: int) -> None:
+    """Signal handler side: ask the running graph to stop; the loop raises RunInterrupted."""
+    _STOP.append(signum)
+
+
+def _check_stop() -> None:
+    if _STOP:
+        raise RunInterrupted(_STOP[0])
+
+
+def child_marker(parent_pid: int | None = None) -> str:
+    """The argument in the command line of every child of the bring-up ``parent_pid``."""
+    return f"--ffmpc-bringup={os.getpid() if parent_pid is None else parent_pid}"
 
 
 @dataclass
@@ -72,6 +160,7 @@ class GraphResult:
     bag: dict | None = None  # with ``record``: path and messages recorded per topic
     timing: dict | None = None  # deadlines met, fallback time, latencies (module docstring)
     warnings: list[str] = field(default_factory=list)
+    safety: dict | None = None  # lockstep: ratios, safe_hold_s, faults, rejected_messages
 
     @property
     def real_time_factor(self) -> float:
@@ -104,7 +193,17 @@ class GraphResult:
             **{key: timing.get(key) for key in TIMING_KEYS},
             "timing": timing,
             **({"bag": self.bag} if self.bag is not None else {}),
+            **(self.safety or {}),
         }
+
+    def limit_failures(self) -> list[str]:
+        """Joint velocity or torque limits broken (ratio > 1), one line per joint."""
+        out = []
+        for key, what in (("max_velocity_ratio", "velocity"), ("max_torque_ratio", "torque")):
+            for j, ratio in enumerate((self.safety or {}).get(key) or []):
+                if ratio is None or not ratio <= 1.0:
+                    out.append(f"joint {j + 1} {what} limit broken: max |{what}|/limit = {ratio}")
+        return out
 
 
 #: Timing statistics copied to the top level of a run's summary (``ffmpc run --json``).
@@ -154,16 +253,48 @@ def write_params_file(params: dict[str, dict], path: str) -> None:
 
 
 class _StatusProbe:
-    """Keeps the newest /plant/status."""
+    """Keeps the newest /plant/status; from ``/plant/joint_states`` (true q̇ and the torque
+    applied): the newest cycle and the max over the run of |q̇|/limit and |τ|/limit per joint."""
 
-    def __init__(self, node: Node) -> None:
+    def __init__(self, node: Node, robot=None, time_step: float = 1e-3, on_cycle=None) -> None:
         self.status: dict | None = None
+        self.cycle = -1
+        self.time_step = time_step
+        self.on_cycle = on_cycle
         node.create_subscription(
             Float64MultiArray, topics.PLANT_STATUS, self._on, topics.subscriber_qos(False)
         )
+        self.robot = robot
+        if robot is not None:
+            self.max_velocity_ratio = np.zeros(robot.nv)
+            self.max_torque_ratio = np.zeros(robot.nv)
+            self.worst_velocity_t: float | None = None  # s, when the overall max occurred
+            self.worst_torque_t: float | None = None
+            node.create_subscription(
+                JointState, topics.PLANT_JOINT_STATES, self._on_joints, topics.subscriber_qos(True)
+            )
 
     def _on(self, msg: Float64MultiArray) -> None:
         self.status = layouts.PLANT_STATUS.unpack(msg)
+
+    def _on_joints(self, msg: JointState) -> None:
+        ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        k = int(round(ns * 1e-9 / self.time_step))
+        v = np.abs(np.asarray(msg.velocity, dtype=float)) / self.robot.velocity_limit
+        tau = np.abs(np.asarray(msg.effort, dtype=float)) / self.robot.torque_limit
+        if v.shape == self.max_velocity_ratio.shape and tau.shape == v.shape:
+            # a NaN state counts as a broken limit (inf)
+            v, tau = np.nan_to_num(v, nan=np.inf), np.nan_to_num(tau, nan=np.inf)
+            if v.max() > self.max_velocity_ratio.max():
+                self.worst_velocity_t = k * self.time_step
+            if tau.max() > self.max_torque_ratio.max():
+                self.worst_torque_t = k * self.time_step
+            self.max_velocity_ratio = np.maximum(self.max_velocity_ratio, v)
+            self.max_torque_ratio = np.maximum(self.max_torque_ratio, tau)
+        if k > self.cycle:
+            self.cycle = k
+            if self.on_cycle is not None:
+                self.on_cycle(k)
 
 
 class _PidStatusProbe:
@@ -173,6 +304,7 @@ class _PidStatusProbe:
         self.time_step = time_step
         self.mode = np.full(steps, -1, dtype=np.int8)
         self.command_age = np.full(steps, np.nan)
+        self.last_cycle = -1
         node.create_subscription(
             Float64MultiArray, topics.LOWLEVEL_STATUS, self._on, topics.subscriber_qos(True)
         )
@@ -183,6 +315,7 @@ class _PidStatusProbe:
         except FfmpcError:
             return
         k = int(round(status["t"] / self.time_step))
+        self.last_cycle = max(self.last_cycle, k)
         if 0 <= k < self.mode.size:
             self.mode[k] = int(status["mode"])
             self.command_age[k] = status["command_age"]
@@ -197,6 +330,12 @@ class _PidStatusProbe:
 
         steps = self.mode.size
         ticks = np.arange(0, steps, every)
+        # MPC deadlines inside a fault window are not counted
+        t_ticks = ticks * self.time_step
+        excused = np.zeros(ticks.size, dtype=bool)
+        for start, end in fault_windows:
+            excused |= (t_ticks >= start) & (t_ticks < end)
+        ticks = ticks[~excused]
         heard = self.mode[ticks] >= 0
         on_time = heard & (np.abs(self.command_age[ticks]) < 0.5 * self.time_step)
         misses = int(plant_status.get("deadline_misses", steps)) if plant_status else steps
@@ -219,6 +358,7 @@ class _PidStatusProbe:
             "latency_p99_ms": lat["p99"],
             "latency_max_ms": lat["max"],
             "status_cycles": int(np.count_nonzero(self.mode >= 0)),
+            "excused_mpc_ticks": int(np.count_nonzero(excused)),
             "unobserved_ticks": int(ticks.size - heard_ticks),
             "mode_cycles": {
                 m.name.lower(): int(np.count_nonzero(self.mode == int(m))) for m in LowLevelMode
@@ -240,6 +380,11 @@ def run_graph(
     fault_windows: Sequence[tuple[float, float]] = (),
     cpus: tuple[int, int] | None | str = "auto",
     priority: int | None = None,
+    faults: Sequence[Fault | str] = (),
+    allow_foreign: bool = False,
+    stall_timeout: float = STALL_TIMEOUT,
+    start_timeout: float = START_TIMEOUT,
+    node_ros_args: Mapping[str, Sequence[str]] | None = None,
 ) -> GraphResult:
     """Run ``scenario`` on the node graph and return the metrics node's result.
 
@@ -249,22 +394,45 @@ def run_graph(
         lockstep: lockstep (True) or real-time (False) plant.
         timeout: wall-time limit, s (GraphError beyond).
         domain_id: ROS domain of this run (default: ROS_DOMAIN_ID or 0).
-        quiet: multi-process: send the children's output to a log file instead of the terminal.
+        quiet: multi-process: the children's output stays in their log files (otherwise each
+            log is printed to stderr once the run ends).
         record: record the run into this MCAP bag (must not exist): every topic and every
             node's parameters; the plant then also waits for the recorder to see the graph.
-        fault_windows: (start, end) simulated s of injected faults: fallback inside them is
-            excused (the hook for fault injection).
+        fault_windows: (start, end) simulated s of external faults: fallback inside them is
+            excused (every ``faults`` entry adds its own window).
         cpus: real time: (loop CPU, MPC CPU) to pin the two processes to ("auto": the first
             two CPUs; None: no pinning).
         priority: real time: SCHED_FIFO priority of both processes (None:
             ``realtime.DEFAULT_PRIORITY``; 0: normal scheduling).
+        faults: faults to inject (``Fault`` or ``KIND[:NODE]@T[+DURATION]``;
+            ``ffmpc_ros.fault_injector``); ConfigError for a kind the mode cannot inject.
+        allow_foreign: start even if other publishers are on the graph's topics.
+        stall_timeout: lockstep: wall s without a new plant cycle before GraphError.
+        start_timeout: lockstep: wall s from the call to the first plant cycle.
+        node_ros_args: multi-process: extra ROS arguments per node, after the parameter file
+            (e.g. ``{"pid": ["-p", "mpc.formulation:=classical"]}``).
     """
+    from ffmpc_ros.fault_injector import (
+        FAULT_LOCKSTEP_TIMEOUT,
+        PROCESS_KINDS,
+        FaultInjector,
+        check_supported,
+    )
+
     start = time.perf_counter()
     domain = int(os.environ.get("ROS_DOMAIN_ID", "0")) if domain_id is None else domain_id
+    faults = faults_from(faults)
+    check_supported(faults, single_process, lockstep)
+    if node_ros_args and (single_process or not lockstep):
+        raise ConfigError("per-node ROS arguments need the multi-process lockstep graph")
+    unknown = sorted(set(node_ros_args or {}) - set(NODES))
+    if unknown:
+        raise ConfigError(
+            f"per-node ROS arguments for unknown nodes {unknown}; nodes: {list(NODES)}"
+        )
     metrics_cls = _load(METRICS_NODE)
     # Task duration from the metrics node's own view of the scenario when not given.
     if duration is None:
-        from ffmpc_core.robots import load_robot
         from ffmpc_core.study import build_task
 
         duration = build_task(scenario, load_robot(scenario.robot)).duration
@@ -281,51 +449,122 @@ def run_graph(
         )
     from ffmpc_core.study import steps_per_mpc_period
 
-    if record is not None:  # the recorder is one more subscriber the plant waits for
-        params["plant"]["start_subscribers"] += 1
+    if record is not None and os.path.exists(record):
+        from ffmpc_ros.bag.errors import BagExistsError
+
+        raise BagExistsError(f"{record} exists; a bag is never overwritten")
+    windows = [tuple(map(float, w)) for w in fault_windows]
+    # an injected fault's effects outlast it a little (queued messages): FAULT_RECOVERY
+    windows += [(f.start, min(f.end + FAULT_RECOVERY, float(duration))) for f in faults]
+    if any(f.kind in PROCESS_KINDS for f in faults):
+        params["pid"]["lockstep_timeout"] = FAULT_LOCKSTEP_TIMEOUT
+    # the recorder is one more subscriber the plant waits for (the bring-up's probe subscribes
+    # before the metrics node exists, whose readiness the plant waits for too)
+    params["plant"]["start_subscribers"] += record is not None
+    robot = load_robot(scenario.robot)
+    time_step = scenario.plant.time_step
     context = Context()
-    rclpy.init(context=context, domain_id=domain)
+    rclpy.init(context=context, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
     executor = EventsExecutor(context=context)
     nodes: list[Node] = []
-    children: list[subprocess.Popen] = []
+    graph_nodes: list[Node] = []
+    children: dict[str, subprocess.Popen] = {}
+    logs: dict[str, str] = {}
+    injector = None
     recorder = None
+    counts_path = None
     tmp = tempfile.TemporaryDirectory(prefix="ffmpc_graph_")
     try:
-        metrics = metrics_cls(
-            context=context, parameter_overrides=parameter_overrides(params["metrics"])
-        )
         probe_node = Node("ffmpc_bringup", context=context)
-        probe = _StatusProbe(probe_node)
-        pid_probe = _PidStatusProbe(probe_node, metrics.steps, metrics.time_step)
-        nodes += [metrics, probe_node]
-        if record is not None:
-            from ffmpc_ros.bag.recorder import graph_recorder
-
-            recorder = graph_recorder(record, context=context, scenario=scenario, run=params)
-            nodes.append(recorder)
+        nodes.append(probe_node)
+        executor.add_node(probe_node)
+        if not allow_foreign:
+            _refuse_foreign(probe_node, domain)
         if single_process:
             for name, path in NODES.items():
-                nodes.append(
+                graph_nodes.append(
                     _load(path)(
                         context=context, parameter_overrides=parameter_overrides(params[name])
                     )
                 )
+            nodes += graph_nodes
+            for node in graph_nodes:
+                executor.add_node(node)
+            values = {n.get_name(): _own_parameters(n) for n in graph_nodes}
         else:
-            children = _spawn(params, tmp.name, domain, quiet)
-        for node in nodes:
-            executor.add_node(node)
+            children, logs = _spawn(params, tmp.name, domain, node_ros_args or {})
+            if record is not None:
+                counts_path = os.path.join(tmp.name, "recorder_counts.json")
+                children["recorder"], logs["recorder"] = _spawn_recorder(
+                    record, tmp.name, domain, scenario, params, counts_path
+                )
+            values = _fetch_parameters(
+                probe_node, executor, list(NODES), children, logs, start + start_timeout
+            )
+        mismatches = parameter_mismatches(values)
+        if mismatches:
+            raise GraphError(
+                "shared parameters differ between nodes, the run was not started: "
+                + "; ".join(mismatches)
+            )
+        if faults:
+            injector = FaultInjector(probe_node, faults, children, time_step)
+            if injector.wants_sensors:
+                qos = topics.subscriber_qos(True)
+                probe_node.create_subscription(
+                    JointState, topics.SENSED_JOINT_STATES, injector.on_sensed_joints, qos
+                )
+                from geometry_msgs.msg import WrenchStamped
+
+                probe_node.create_subscription(
+                    WrenchStamped, topics.SENSED_WRENCH, injector.on_sensed_wrench, qos
+                )
+        probe = _StatusProbe(
+            probe_node, robot, time_step, None if injector is None else injector.on_cycle
+        )
+        # The plant starts once the metrics node is ready: only now, after the checks.
+        metrics = metrics_cls(
+            context=context, parameter_overrides=parameter_overrides(params["metrics"])
+        )
+        pid_probe = _PidStatusProbe(probe_node, metrics.steps, metrics.time_step)
+        nodes.append(metrics)
+        executor.add_node(metrics)
+        if record is not None and single_process:
+            from ffmpc_ros.bag.recorder import graph_recorder
+
+            recorder = graph_recorder(record, context=context, scenario=scenario, run=params)
+            nodes.append(recorder)
+            executor.add_node(recorder)
         end = start + timeout
+        last_cycle, last_progress = -1, time.perf_counter()
         while not metrics.finished():
-            if time.perf_counter() > end:
+            now = time.perf_counter()
+            if now > end:
                 raise GraphError(
                     f"the graph did not finish within {timeout} s: {metrics.recorded} of "
-                    f"{metrics.steps} cycles recorded, partial rows {len(metrics._rows)}, "
-                    f"plant status {probe.status}"
+                    f"{metrics.steps} cycles recorded; {_progress(probe, pid_probe, children)}"
                 )
-            for child in children:
-                if child.poll() is not None:
-                    raise GraphError(f"{child.args[2]} exited with {child.returncode}")
+            _check_children(children, logs, set() if injector is None else injector.killed)
+            if faults and probe.cycle >= metrics.steps and metrics.metrics is None:
+                # A stopped sensor loses measurements the metrics node waits for: once the
+                # plant is done, fill them with the previous value (the real-time rule,
+                # counted in metrics_filled) rather than wait forever.
+                if now - last_progress > FILL_GRACE:
+                    metrics._last_state_at = time.monotonic() - 1e3  # past its grace
+                    metrics._check_finish()
+            if probe.cycle > last_cycle:
+                last_cycle, last_progress = probe.cycle, now
+            else:
+                limit = stall_timeout if last_cycle >= 0 else start_timeout
+                since = now - (last_progress if last_cycle >= 0 else start)
+                if since > limit:
+                    what = "no simulated progress" if last_cycle >= 0 else "the run did not start"
+                    raise GraphError(
+                        f"{what} for {since:.1f} s (wall; limit {limit:g} s): "
+                        f"{_progress(probe, pid_probe, children)}"
+                    )
             executor.spin_once(timeout_sec=0.05)
+            _check_stop()
         done = time.perf_counter()
         # The final plant status (latencies, deadline misses) follows the last state.
         while (
@@ -336,17 +575,49 @@ def run_graph(
             if time.perf_counter() > done + 2.0:
                 break
             executor.spin_once(timeout_sec=0.05)
+            _check_stop()
+        if "recorder" in children:  # it closes the bag once the metrics summary is in
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                children["recorder"].wait(timeout=10.0)
     finally:
+        if injector is not None:
+            injector.release()
         _stop(children)
+        rejected = {n.get_name(): dict(n.rejected) for n in graph_nodes}
         for node in nodes:
             executor.remove_node(node)
             node.destroy_node()
         executor.shutdown()
         rclpy.shutdown(context=context)
+        rejected.update(_rejected_from_logs(logs))
+        if not quiet:
+            for name, path in logs.items():
+                with contextlib.suppress(OSError), open(path, encoding="utf-8") as fh:
+                    sys.stderr.write(f"--- {name} ({path}) ---\n{fh.read()}")
+        bag = None
+        if record is not None:
+            bag = {"path": str(record)}
+            if recorder is not None:
+                bag["received"] = recorder.received
+            elif counts_path is not None and os.path.exists(counts_path):
+                with open(counts_path, encoding="utf-8") as fh:
+                    bag.update(json.load(fh))
         tmp.cleanup()
+    rejected["metrics"] = dict(metrics.rejected)
     status = probe.status or {}
     stepping = status.get("wall_time", 0.0)
     true, measured = metrics.metrics
+    hold = np.isin(pid_probe.mode, [int(LowLevelMode.HOLD), int(LowLevelMode.FALLBACK)])
+    safety = {
+        "max_velocity_ratio": [float(x) for x in probe.max_velocity_ratio],
+        "max_torque_ratio": [float(x) for x in probe.max_torque_ratio],
+        "max_velocity_ratio_at_s": probe.worst_velocity_t,
+        "max_torque_ratio_at_s": probe.worst_torque_t,
+        "safe_hold_s": float(np.count_nonzero(hold) * time_step),
+        "metrics_filled": int(metrics.filled),
+        "faults": [] if injector is None else injector.report(),
+        "rejected_messages": {name: rejected.get(name) for name in [*NODES, "metrics"]},
+    }
     return GraphResult(
         formulation=scenario.mpc.formulation,
         seed=scenario.seed,
@@ -359,8 +630,9 @@ def run_graph(
         wall_time=stepping,
         startup_time=(done - start) - stepping,
         plant_status=status or None,
-        bag=None if recorder is None else {"path": str(record), "received": recorder.received},
-        timing=pid_probe.timing(steps_per_mpc_period(scenario), status, fault_windows),
+        bag=bag,
+        timing=pid_probe.timing(steps_per_mpc_period(scenario), status, windows),
+        safety=safety,
     )
 
 
@@ -405,35 +677,264 @@ def _run_real_time(
     )
 
 
-def _spawn(params: dict, directory: str, domain: int, quiet: bool) -> list[subprocess.Popen]:
+def _launch(marker: str, deathsig: int, module: str, args: Sequence[str]) -> list[str]:
+    """The command line of a child (``_LAUNCHER``): the module dies with the bring-up."""
+    return [sys.executable, "-c", _LAUNCHER, marker, str(int(deathsig)), module, *args]
+
+
+def _spawn(
+    params: dict, directory: str, domain: int, node_ros_args: Mapping[str, Sequence[str]]
+) -> tuple[dict[str, subprocess.Popen], dict[str, str]]:
+    """Start every node of NODES as a child in one new process group; output to log files."""
     path = os.path.join(directory, "graph_params.yaml")
     write_params_file({n: v for n, v in params.items() if n in NODES}, path)
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
-    children = []
+    children: dict[str, subprocess.Popen] = {}
+    logs: dict[str, str] = {}
+    marker = child_marker()
+    group = 0
     for name, target in NODES.items():
         module = target.partition(":")[0]
-        out = open(os.path.join(directory, f"{name}.log"), "w") if quiet else None  # noqa: SIM115
-        children.append(
-            subprocess.Popen(
-                [sys.executable, "-m", module, "--ros-args", "--params-file", path],
+        logs[name] = os.path.join(directory, f"{name}.log")
+        with open(logs[name], "w", encoding="utf-8") as out:
+            args = ["--ros-args", "--params-file", path, *node_ros_args.get(name, ())]
+            children[name] = subprocess.Popen(
+                _launch(marker, signal.SIGKILL, module, args),
                 env=env,
                 stdout=out,
-                stderr=subprocess.STDOUT if quiet else None,
-                start_new_session=True,
+                stderr=subprocess.STDOUT,
+                process_group=group,
             )
+        group = group or children[name].pid
+    return children, logs
+
+
+def _spawn_recorder(
+    record, directory: str, domain: int, scenario: Scenario, params: dict, counts: str
+) -> tuple[subprocess.Popen, str]:
+    """The recorder's own process (``graph_recorder_process``), in the nodes' process group."""
+    from ffmpc_ros.bag.recorder import graph_recorder_metadata
+
+    config = os.path.join(directory, "recorder.json")
+    with open(config, "w", encoding="utf-8") as fh:
+        json.dump(
+            {
+                "target": os.fspath(record),
+                "domain": domain,
+                "metadata": graph_recorder_metadata(scenario, params),
+                "counts": counts,
+            },
+            fh,
         )
-    return children
+    log = os.path.join(directory, "recorder.log")
+    with open(log, "w", encoding="utf-8") as out:
+        child = subprocess.Popen(
+            _launch(child_marker(), signal.SIGTERM, "ffmpc_ros.bag.recorder", [config]),
+            env=dict(os.environ, ROS_DOMAIN_ID=str(domain)),
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            process_group=0,
+        )
+    return child, log
 
 
-def _stop(children: list[subprocess.Popen]) -> None:
+def _stop(children: Mapping[str, subprocess.Popen]) -> None:
     """SIGINT every child, then wait (SIGKILL after 5 s)."""
-    for child in children:
+    for child in children.values():
         if child.poll() is None:
-            child.send_signal(signal.SIGINT)
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(child.pid, signal.SIGCONT)  # a stopped child cannot handle SIGINT
+                child.send_signal(signal.SIGINT)
     deadline = time.monotonic() + 5.0
-    for child in children:
+    for child in children.values():
         try:
             child.wait(timeout=max(0.1, deadline - time.monotonic()))
         except subprocess.TimeoutExpired:
             child.kill()
             child.wait()
+
+
+def _tail(path: str | None, lines: int = LOG_TAIL) -> str:
+    if path is None:
+        return ""
+    try:
+        with open(path, encoding="utf-8", errors="replace") as fh:
+            return "".join(fh.readlines()[-lines:])
+    except OSError:
+        return ""
+
+
+def _exit_status(code: int) -> str:
+    if code < 0:
+        with contextlib.suppress(ValueError):
+            return f"killed by {signal.Signals(-code).name}"
+        return f"killed by signal {-code}"
+    return f"exit status {code}"
+
+
+def _check_children(
+    children: Mapping[str, subprocess.Popen], logs: Mapping[str, str], killed: set[str]
+) -> None:
+    """GraphError naming a child that died (other than one a node-kill fault killed)."""
+    for name, child in children.items():
+        if name in killed or child.poll() is None:
+            continue
+        if name == "recorder" and child.returncode == 0:
+            continue  # it stops by itself once the run is complete
+        tail = _tail(logs.get(name)).rstrip()
+        raise GraphError(
+            f"node {name} (pid {child.pid}) died unexpectedly: {_exit_status(child.returncode)}; "
+            f"last lines of its output:\n{tail}"
+        )
+
+
+def _process_state(child: subprocess.Popen) -> str:
+    try:
+        with open(f"/proc/{child.pid}/stat", encoding="utf-8") as fh:
+            state = fh.read().rpartition(")")[2].split()[0]
+    except OSError:
+        return "gone"
+    return {"T": "stopped", "Z": "exited", "R": "running", "S": "waiting"}.get(state, state)
+
+
+def _progress(probe: _StatusProbe, pid_probe: _PidStatusProbe, children) -> str:
+    """What each stage last did, and who the plant waits for (stall and timeout messages)."""
+    k, j = probe.cycle, pid_probe.last_cycle
+    if k < 0:
+        who = "the plant has published no state (it waits for its subscribers and the metrics node)"
+    elif j < k:
+        who = (
+            f"the plant waits for the PID's torque of cycle {k}; the PID waits for the joint "
+            f"sensor's measurement or the MPC's command of cycle {k}"
+        )
+    else:
+        who = f"the PID stepped cycle {j}: the plant has not stepped past cycle {k}"
+    states = ", ".join(f"{n} {_process_state(c)}" for n, c in children.items())
+    return (
+        f"plant at cycle {k} (t = {max(k, 0) * probe.time_step:.3f} s), PID last stepped cycle "
+        f"{j}; {who}" + (f"; processes: {states}" if states else "")
+    )
+
+
+def _refuse_foreign(node: Node, domain: int, wait: float = FOREIGN_DISCOVERY_WAIT) -> None:
+    """GraphError naming the publishers already on the graph's topics and the nodes already
+    using the graph's node names (module docstring)."""
+    names = [t for t, _, _ in topics.TOPICS]
+    ours = {*NODES, "metrics", "ffmpc_recorder", "ffmpc_bringup"}
+    me = node.get_fully_qualified_name()
+    deadline = time.monotonic() + wait
+    first_seen = None
+    while True:
+        found: dict[str, set[str]] = {}
+        for topic in names:
+            for info in node.get_publishers_info_by_topic(topic):
+                fqn = f"{info.node_namespace.rstrip('/')}/{info.node_name}"
+                found.setdefault(fqn, set()).add(topic)
+        for name, namespace in node.get_node_names_and_namespaces():
+            fqn = f"{namespace.rstrip('/')}/{name}"
+            if name in ours and fqn != me:
+                found.setdefault(fqn, set())
+        now = time.monotonic()
+        if found and first_seen is None:
+            first_seen = now
+        unnamed = any("_UNKNOWN_" in n for n in found)
+        if first_seen is not None:  # gather the others a moment (and their names)
+            if now > first_seen + (2.0 if unnamed else 1.0):
+                break
+        elif now > deadline:
+            break
+        time.sleep(0.05)
+    if found:
+        listed = "; ".join(
+            f"{n} on {', '.join(sorted(t))}" if t else f"{n} (node name of this graph)"
+            for n, t in sorted(found.items())
+        )
+        raise GraphError(
+            f"foreign nodes on this graph's topics (ROS_DOMAIN_ID {domain}): {listed}. "
+            "Another graph (or the leftovers of a killed run) is on this domain: stop it or use "
+            "another ROS_DOMAIN_ID (--allow-foreign-publishers starts anyway)"
+        )
+
+
+def _own_parameters(node: Node) -> dict:
+    """{name: value} of every parameter of an in-process node."""
+    names = node.list_parameters([], 0).names
+    return {p.name: p.value for p in node.get_parameters(names)}
+
+
+def _fetch_parameters(
+    node: Node, executor, names: Sequence[str], children, logs, deadline: float
+) -> dict[str, dict]:
+    """{node: {name: value}} of the nodes ``names`` through their parameter services."""
+    from ffmpc_ros.bag.recorder import _ParameterFetch
+
+    fetches = {n: _ParameterFetch(node, f"/{n}") for n in names}
+    while not all(f.poll() for f in fetches.values()):
+        _check_children(children, logs, set())
+        if time.perf_counter() > deadline:
+            missing = [n for n, f in fetches.items() if f.values is None]
+            raise GraphError(
+                f"the parameters of {missing} could not be read: the run did not start"
+            )
+        executor.spin_once(timeout_sec=0.05)
+        _check_stop()
+        now = time.perf_counter()
+        for f in fetches.values():  # a request to a vanished server never completes: retry
+            if f.future is not None and not f.future.done():
+                asked = getattr(f, "_asked_at", None)
+                if asked is None or asked[0] is not f.future:
+                    f._asked_at = (f.future, now)
+                elif now - asked[1] > PARAMETER_RETRY:
+                    f.future = None
+    for f in fetches.values():
+        node.destroy_client(f.list_client)
+        node.destroy_client(f.get_client)
+    return {n: f.values for n, f in fetches.items()}
+
+
+def parameter_mismatches(values: Mapping[str, Mapping[str, object]]) -> list[str]:
+    """One line per parameter declared by several nodes with different values (both nodes and
+    both values named)."""
+    from ffmpc_ros.params import NODE_SPECS, node_scenario_names, scenario_flat
+
+    flat = scenario_flat(Scenario(name="names"))
+    out = []
+    # a node's own-section parameters drop their prefix (pid's delay_cycles is
+    # pid.delay_cycles): compare under the scenario's dotted name
+    owners: dict[str, list[tuple[str, str]]] = {}
+    for node, params in values.items():
+        spec = NODE_SPECS.get(node)
+        canonical = {} if spec is None else node_scenario_names(spec, flat)
+        for name in params:
+            owners.setdefault(canonical.get(name, name), []).append((node, name))
+    for key, where in sorted(owners.items()):
+        if len(where) < 2 or key in UNSHARED_PARAMETERS:
+            continue
+        first, first_name = where[0]
+        for other, other_name in where[1:]:
+            a, b = values[first][first_name], values[other][other_name]
+            if not _same(a, b):
+                out.append(f"{key} is {a!r} in {first} but {b!r} in {other}")
+                break
+    return out
+
+
+def _same(a, b) -> bool:
+    if isinstance(a, float | int) and isinstance(b, float | int):
+        return a == b or (math.isnan(a) and math.isnan(b))
+    return list(a) == list(b) if isinstance(a, list | tuple) else a == b
+
+
+def _rejected_from_logs(logs: Mapping[str, str]) -> dict[str, dict]:
+    """{node: {kind: count}} from the line every node prints at exit (base.REJECTED_MARKER)."""
+    from ffmpc_ros.base import REJECTED_MARKER
+
+    out = {}
+    for name, path in logs.items():
+        with contextlib.suppress(OSError), open(path, encoding="utf-8", errors="replace") as fh:
+            for line in fh:
+                if line.startswith(REJECTED_MARKER):
+                    counts = json.loads(line[len(REJECTED_MARKER) :])
+                    counts.pop("node", None)
+                    out[name] = counts
+    return out

@@ -341,8 +341,24 @@ def _cmd_run(args: argparse.Namespace) -> int:
             file=sys.stderr,
             flush=True,
         )
+    from ffmpc_core.faults import parse_fault
+
+    faults = [parse_fault(text) for text in args.fault or []]
+    node_ros_args: dict[str, list[str]] = {}
+    for item in args.node_param or []:
+        node, sep, assignment = item.partition(":")
+        if not sep or ":=" not in assignment:
+            raise ConfigError(f"--node-param expects NODE:NAME:=VALUE, got {item!r}")
+        node_ros_args.setdefault(node, []).extend(["-p", assignment])
+    if args.stall_timeout <= 0:
+        raise ConfigError(f"--stall-timeout must be > 0 s, got {args.stall_timeout}")
     result = run_graph(
         scenario,
+        faults=faults,
+        allow_foreign=args.allow_foreign_publishers,
+        stall_timeout=args.stall_timeout,
+        start_timeout=args.start_timeout,
+        node_ros_args=node_ros_args,
         duration=args.duration,
         single_process=args.single_process,
         lockstep=not args.real_time,
@@ -378,7 +394,52 @@ def _cmd_run(args: argparse.Namespace) -> int:
     failures = result.timing_failures()
     for failure in failures:
         print(f"FAILED: {failure}", file=sys.stderr)
-    return 1 if failures else 0
+    limits = result.limit_failures()
+    for failure in limits:
+        print(f"FAILED: {failure}", file=sys.stderr)
+    if summary.get("faults"):
+        ratios = (max(summary["max_velocity_ratio"]), max(summary["max_torque_ratio"]))
+        verdict = "broke a joint limit" if limits else "handled safely"
+        print(
+            f"faults {', '.join(f['fault'] for f in summary['faults'])}: {verdict} (max "
+            f"|q̇|/limit {ratios[0]:.3f}, max |τ|/limit {ratios[1]:.3f}, safe hold "
+            f"{summary['safe_hold_s']:.3f} s)",
+            file=sys.stderr,
+        )
+    if summary.get("faults") and failures:  # the verdict of a fault run is its safety
+        print("(timing failures of a fault run are reported, not the exit status)", file=sys.stderr)
+        return 1 if limits else 0
+    return 1 if failures or limits else 0
+
+
+def _cmd_run_guarded(args: argparse.Namespace) -> int:
+    """``ffmpc run`` with clean stops: Ctrl-C (SIGINT) and SIGTERM stop every node, close the
+    bag and print one line (exit 130 and 143). The handler only records the request; the
+    bring-up's loop raises ``RunInterrupted`` outside every ROS callback."""
+    import signal
+
+    from ffmpc_ros.bringup import RunInterrupted, request_stop
+
+    def terminate(signum, _frame):
+        for sig in (signal.SIGINT, signal.SIGTERM):  # one stop at a time: cleanup runs once
+            signal.signal(sig, signal.SIG_IGN)
+        if args.real_time:  # ffmpc_ros.realtime stops on KeyboardInterrupt
+            raise KeyboardInterrupt
+        request_stop(signum)
+
+    signal.signal(signal.SIGINT, terminate)
+    signal.signal(signal.SIGTERM, terminate)
+    what = "every node stopped" + (f", bag {args.record} closed" if args.record else "")
+    try:
+        return _cmd_run(args)
+    except RunInterrupted as stop:
+        name = "SIGTERM" if stop.signum == signal.SIGTERM else "SIGINT"
+        verb = "terminated" if stop.signum == signal.SIGTERM else "interrupted"
+        print(f"ffmpc run: {verb} ({name}): {what}", file=sys.stderr)
+        return 128 + int(stop.signum)
+    except KeyboardInterrupt:
+        print(f"ffmpc run: interrupted: {what}", file=sys.stderr)
+        return 130
 
 
 def _cmd_study_impact(args: argparse.Namespace) -> int:
@@ -720,7 +781,44 @@ def build_parser() -> argparse.ArgumentParser:
         metavar=("START", "END"),
         help="simulated s of an injected fault: fallback inside it is excused (repeatable)",
     )
-    run.set_defaults(func=_cmd_run)
+    run.add_argument(
+        "--fault",
+        action="append",
+        metavar="KIND@T[+DURATION]",
+        help="inject a fault at simulated T s for DURATION s (default: to the end), repeatable; "
+        "kinds: mpc-dropout, sensor-dropout (the F/T sensor), future-stamp, nan-wrench, "
+        "torque-spike, node-kill[:NODE] (default the MPC). Multi-process lockstep: all; "
+        "--single-process: the message kinds; real time: none (exit 2). The JSON gains "
+        "max_velocity_ratio, max_torque_ratio, safe_hold_s, faults and rejected_messages; "
+        "exit 1 when a joint limit was broken (ffmpc_ros/fault_injector.py)",
+    )
+    run.add_argument(
+        "--allow-foreign-publishers",
+        action="store_true",
+        help="start even if other nodes already publish on the graph's topics (default: "
+        "refuse, naming them)",
+    )
+    run.add_argument(
+        "--stall-timeout",
+        type=float,
+        default=30.0,
+        help="lockstep: stop when no plant cycle came for this many wall s (default 30)",
+    )
+    run.add_argument(
+        "--start-timeout",
+        type=float,
+        default=180.0,
+        help="lockstep: stop when the first plant cycle has not come this many wall s after the "
+        "start (default 180)",
+    )
+    run.add_argument(
+        "--node-param",
+        action="append",
+        metavar="NODE:NAME:=VALUE",
+        help="multi-process: one more ROS parameter of one node (after the generated file); "
+        "shared parameters that then differ between nodes stop the run before it starts",
+    )
+    run.set_defaults(func=_cmd_run_guarded)
     from ffmpc_ros.bag.cli import add_bag_parser
 
     add_bag_parser(sub)

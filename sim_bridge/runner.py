@@ -44,7 +44,7 @@ from ffmpc_core.errors import (
     FfmpcError,
     InputError,
 )
-from ffmpc_core.faults import Fault, active_kinds, faults_from
+from ffmpc_core.faults import RUNNER_KINDS, Fault, active_kinds, faults_from, require_kinds
 from ffmpc_core.lowlevel import LowLevelMeasurement, LowLevelMode
 from ffmpc_core.metrics import PolishingMetrics
 from ffmpc_core.mpc import ModelPredictiveController, MpcMeasurement
@@ -154,6 +154,7 @@ def run_scenario(
     """
     wall_start = time.perf_counter()
     faults = faults_from(faults)
+    require_kinds(faults, RUNNER_KINDS, "the ROS-free runner")
     robot = load_robot(scenario.robot)
     # mpc.command_delay: measured → time this MPC here (the studies resolve it beforehand).
     scenario, _ = resolve_command_delay(scenario, robot)

@@ -258,25 +258,13 @@ class BagRecorder(Node):
         super().destroy_node()
 
 
-def graph_recorder(
-    target: str | os.PathLike,
-    *,
-    context=None,
-    scenario=None,
-    run: Mapping[str, Mapping[str, Any]] | None = None,
-) -> BagRecorder:
-    """The recorder of ``ffmpc run --record``: every topic, gated on ``/plant/joint_states``
-    until every topic of the contract (``ffmpc_ros.topics.TOPICS``) has a publisher and the six
-    nodes' parameters are in; :attr:`BagRecorder.complete` once the metrics summary is in.
-    Metadata ``ffmpc_run`` holds the scenario file and the generated parameter file of the run
-    (``run``: {node: {name: value}}); ``ffmpc_machine`` the recording machine's fingerprint
-    (:func:`ffmpc_ros.bag.machine.machine_fingerprint`)."""
+def graph_recorder_metadata(scenario=None, run: Mapping[str, Mapping[str, Any]] | None = None):
+    """Metadata records of ``ffmpc run --record`` (see :func:`graph_recorder`), JSON-able."""
     import yaml
 
     from ffmpc_core.scenario import scenario_parameters
-    from ffmpc_ros import topics
     from ffmpc_ros.bag.machine import MACHINE_RECORD, machine_fingerprint
-    from ffmpc_ros.bringup import NODES, _nested
+    from ffmpc_ros.bringup import _nested
 
     info: dict[str, str] = {}
     if scenario is not None:
@@ -292,15 +280,92 @@ def graph_recorder(
     records = {MACHINE_RECORD: machine_fingerprint()}
     if info:
         records["ffmpc_run"] = info
+    return records
+
+
+def _graph_recorder_options() -> dict[str, Any]:
+    from ffmpc_ros import topics
+    from ffmpc_ros.bringup import NODES
+
+    return {
+        "wait_for": [t for t, _, _ in topics.TOPICS],
+        "gate_topic": topics.PLANT_JOINT_STATES,
+        "parameters_of": [*NODES, "metrics"],
+        "final_topic": topics.METRICS_SUMMARY,
+    }
+
+
+def graph_recorder(
+    target: str | os.PathLike,
+    *,
+    context=None,
+    scenario=None,
+    run: Mapping[str, Mapping[str, Any]] | None = None,
+) -> BagRecorder:
+    """The recorder of ``ffmpc run --record``: every topic, gated on ``/plant/joint_states``
+    until every topic of the contract (``ffmpc_ros.topics.TOPICS``) has a publisher and the six
+    nodes' parameters are in; :attr:`BagRecorder.complete` once the metrics summary is in.
+    Metadata ``ffmpc_run`` holds the scenario file and the generated parameter file of the run
+    (``run``: {node: {name: value}}); ``ffmpc_machine`` the recording machine's fingerprint
+    (:func:`ffmpc_ros.bag.machine.machine_fingerprint`)."""
     return BagRecorder(
         target,
         context=context,
-        wait_for=[t for t, _, _ in topics.TOPICS],
-        gate_topic=topics.PLANT_JOINT_STATES,
-        parameters_of=[*NODES, "metrics"],
-        metadata=records,
-        final_topic=topics.METRICS_SUMMARY,
+        metadata=graph_recorder_metadata(scenario, run),
+        **_graph_recorder_options(),
     )
+
+
+def graph_recorder_process(config_path: str) -> int:
+    """The graph recorder in its own process (``ffmpc run --record``, multi-process).
+
+    ``config_path``: JSON {"target": bag path, "domain": ROS domain, "metadata": records,
+    "counts": path of the JSON written at the end}. Records until the run is complete
+    (:attr:`BagRecorder.complete`) or SIGINT/SIGTERM — including the SIGTERM the kernel sends
+    when the bring-up dies (PR_SET_PDEATHSIG, set by the bring-up) — then closes the bag
+    (summary, footer: readable without recovery) and writes {"received", "complete",
+    "signal"} to ``counts``."""
+    from rclpy.context import Context
+    from rclpy.experimental import EventsExecutor
+    from rclpy.signals import SignalHandlerOptions
+
+    with open(config_path, encoding="utf-8") as fh:
+        config = json.load(fh)
+    stopping: list[int] = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda signum, _frame: stopping.append(signum))
+    context = Context()
+    rclpy.init(
+        args=[],
+        context=context,
+        domain_id=int(config["domain"]),
+        signal_handler_options=SignalHandlerOptions.NO,
+    )
+    executor = EventsExecutor(context=context)
+    recorder = BagRecorder(
+        config["target"], context=context, metadata=config["metadata"], **_graph_recorder_options()
+    )
+    executor.add_node(recorder)
+    try:
+        while not stopping and not recorder.complete:
+            executor.spin_once(timeout_sec=0.05)
+    finally:
+        complete = recorder.complete
+        recorder.close()
+        with open(config["counts"], "w", encoding="utf-8") as fh:
+            json.dump(
+                {
+                    "received": recorder.received,
+                    "complete": complete,
+                    "signal": stopping[0] if stopping else None,
+                },
+                fh,
+            )
+        executor.remove_node(recorder)
+        recorder.destroy_node()
+        executor.shutdown()
+        rclpy.shutdown(context=context)
+    return 0
 
 
 def record_bag(
@@ -348,3 +413,9 @@ def record_bag(
         executor.shutdown()
         rclpy.shutdown(context=context)
     return recorder
+
+
+if __name__ == "__main__":
+    import sys
+
+    raise SystemExit(graph_recorder_process(sys.argv[1]))
