@@ -34,9 +34,11 @@ Safety of the run itself (lockstep):
   once the run is complete.
 * Faults (``faults``): injected by the bring-up at the simulated time it sees
   (``ffmpc_ros.fault_injector``); the summary gains ``max_velocity_ratio`` and
-  ``max_torque_ratio`` (per joint, max over the run of |q̇|/limit and |τ|/limit from the
-  plant's ``/plant/joint_states``: true q̇ and the torque applied), ``safe_hold_s``, ``faults``
-  and ``rejected_messages`` (per node, per kind).
+  ``max_torque_ratio`` (per joint, max over the run of |q̇|/limit with the plant's true q̇ from
+  ``/plant/joint_states``, and |τ^m|/limit with the motor torque commanded on
+  ``/pid/motor_torque``), ``max_applied_torque_ratio`` (the torque the simulated actuation of
+  eq 31 applies, gain error and friction included), ``safe_hold_s``, ``faults`` and
+  ``rejected_messages`` (per node, per kind).
 """
 
 from __future__ import annotations
@@ -267,15 +269,29 @@ class _StatusProbe:
         self.robot = robot
         if robot is not None:
             self.max_velocity_ratio = np.zeros(robot.nv)
-            self.max_torque_ratio = np.zeros(robot.nv)
+            self.max_torque_ratio = np.zeros(robot.nv)  # the commanded motor torque τ^m
+            self.max_applied_torque_ratio = np.zeros(robot.nv)  # τ̂ of eq 31 (actuation errors)
             self.worst_velocity_t: float | None = None  # s, when the overall max occurred
             self.worst_torque_t: float | None = None
             node.create_subscription(
                 JointState, topics.PLANT_JOINT_STATES, self._on_joints, topics.subscriber_qos(True)
             )
+            node.create_subscription(
+                JointState, topics.MOTOR_TORQUE, self._on_motor, topics.subscriber_qos(True)
+            )
 
     def _on(self, msg: Float64MultiArray) -> None:
         self.status = layouts.PLANT_STATUS.unpack(msg)
+
+    def _on_motor(self, msg: JointState) -> None:
+        """|τ^m|/limit of the motor torque the PID commands (what the controllers answer for)."""
+        tau = np.abs(np.asarray(msg.effort, dtype=float)) / self.robot.torque_limit
+        if tau.shape == self.max_torque_ratio.shape:
+            tau = np.nan_to_num(tau, nan=np.inf)
+            if tau.max() > self.max_torque_ratio.max():
+                stamp = msg.header.stamp
+                self.worst_torque_t = (stamp.sec * 1_000_000_000 + stamp.nanosec) * 1e-9
+            self.max_torque_ratio = np.maximum(self.max_torque_ratio, tau)
 
     def _on_joints(self, msg: JointState) -> None:
         ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
@@ -287,10 +303,8 @@ class _StatusProbe:
             v, tau = np.nan_to_num(v, nan=np.inf), np.nan_to_num(tau, nan=np.inf)
             if v.max() > self.max_velocity_ratio.max():
                 self.worst_velocity_t = k * self.time_step
-            if tau.max() > self.max_torque_ratio.max():
-                self.worst_torque_t = k * self.time_step
             self.max_velocity_ratio = np.maximum(self.max_velocity_ratio, v)
-            self.max_torque_ratio = np.maximum(self.max_torque_ratio, tau)
+            self.max_applied_torque_ratio = np.maximum(self.max_applied_torque_ratio, tau)
         if k > self.cycle:
             self.cycle = k
             if self.on_cycle is not None:
@@ -611,6 +625,7 @@ def run_graph(
     safety = {
         "max_velocity_ratio": [float(x) for x in probe.max_velocity_ratio],
         "max_torque_ratio": [float(x) for x in probe.max_torque_ratio],
+        "max_applied_torque_ratio": [float(x) for x in probe.max_applied_torque_ratio],
         "max_velocity_ratio_at_s": probe.worst_velocity_t,
         "max_torque_ratio_at_s": probe.worst_torque_t,
         "safe_hold_s": float(np.count_nonzero(hold) * time_step),

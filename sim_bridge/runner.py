@@ -26,9 +26,12 @@ torque-feedback MPC read; a NaN wrench replaces the λ̂ they read (the log keep
 MPC that raises, or a command the low level refuses engages the safe hold on that cycle
 (``LowLevelController.engage_hold``). Whatever the faults, the results carry
 ``max_velocity_ratio`` and ``max_torque_ratio`` (per joint, max over the run of |q̇|/limit with
-the plant's q̇, and |τ̂|/limit with the torque applied to the plant) and ``safe_hold_s`` (time
-spent in the safe hold, s); ``safety_log`` holds their time series (not part of ``log``, which the
-node graph reproduces).
+the plant's q̇, and |τ^m|/limit with the motor torque the controller commands),
+``max_applied_torque_ratio`` (the same with the torque the simulated actuation applies, eq 31:
+its gain error a ∈ [0.8, 1.2], offset, friction and noise can take a saturated command past the
+limit, which no controller can prevent and a real drive's current limit would clip) and
+``safe_hold_s`` (time spent in the safe hold, s); ``safety_log`` holds their time series (not
+part of ``log``, which the node graph reproduces).
 """
 
 from __future__ import annotations
@@ -95,6 +98,7 @@ class RunResult:
     iterations_median: float = 0.0
     max_velocity_ratio: np.ndarray = field(default_factory=lambda: np.zeros(0))
     max_torque_ratio: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    max_applied_torque_ratio: np.ndarray = field(default_factory=lambda: np.zeros(0))
     safe_hold_s: float = 0.0
     mpc_failures: int = 0
     faults: tuple[Fault, ...] = ()
@@ -118,6 +122,7 @@ class RunResult:
             "iterations_median": self.iterations_median,
             "max_velocity_ratio": [float(x) for x in self.max_velocity_ratio],
             "max_torque_ratio": [float(x) for x in self.max_torque_ratio],
+            "max_applied_torque_ratio": [float(x) for x in self.max_applied_torque_ratio],
             "safe_hold_s": self.safe_hold_s,
             "mpc_failures": self.mpc_failures,
             "faults": [str(f) for f in self.faults],
@@ -183,6 +188,7 @@ def run_scenario(
     mpc_failures = 0
     nv = robot.nv
     trace_v, trace_tau = np.zeros((steps, nv)), np.zeros((steps, nv))
+    trace_applied = np.zeros((steps, nv))
     trace_mode = np.zeros(steps, dtype=int)
     formulation = config.formulation
     with Plant(robot, plant_config(scenario, task, draws.tilt_angle)) as plant:
@@ -247,7 +253,8 @@ def run_scenario(
             log.record(
                 k, t, s.q, s.normal_force, f_hat[-1], out.desired_torque, tau_hat, out.motor_torque
             )
-            trace_v[k], trace_tau[k], trace_mode[k] = s.v, tau_hat, int(out.mode)
+            trace_v[k], trace_tau[k], trace_mode[k] = s.v, out.motor_torque, int(out.mode)
+            trace_applied[k] = tau_hat
         normal = plant.table_normal
 
     metrics_true, metrics_measured = study_metrics(log.arrays, task, normal)
@@ -265,13 +272,15 @@ def run_scenario(
         iterations_median=float(np.median(iterations)) if iterations else 0.0,
         max_velocity_ratio=np.max(np.abs(trace_v) / robot.velocity_limit, axis=0),
         max_torque_ratio=np.max(np.abs(trace_tau) / robot.torque_limit, axis=0),
+        max_applied_torque_ratio=np.max(np.abs(trace_applied) / robot.torque_limit, axis=0),
         safe_hold_s=float(np.sum(np.isin(trace_mode, _HOLD_MODES)) * dt),
         mpc_failures=mpc_failures,
         faults=faults,
         safety_log={
             "t": log.arrays["t"],
             "v": trace_v,
-            "tau_applied": trace_tau,
+            "tau_motor": trace_tau,
+            "tau_applied": trace_applied,
             "mode": trace_mode,
         },
         command_delay=round(command_delay(scenario), 12),

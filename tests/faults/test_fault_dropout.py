@@ -114,3 +114,47 @@ def test_other_faults_keep_every_joint_within_its_limits(robot, fault, holds):
     assert mode[-1] == LowLevelMode.TRACK  # the MPC takes over again
     assert result.log["force_true"][-50:].min() > 1.0
     assert result.summary()["faults"] == [fault]
+
+
+def test_the_task_waits_for_an_mpc_that_comes_back_after_a_long_dropout():
+    """The issue's case, ROS-free: the polishing run with the MPC out for 0.5 s from t = 2 s (in
+    contact, circling). The MPC comes back with the task paused for the outage, so it does not
+    race after a reference that ran on (before the pause: the wrist at 5.2× its velocity limit
+    during the blend back). Every joint stays within its velocity and commanded-torque limits."""
+    result = run_scenario(load_scenario("polishing"), faults=[Fault("mpc-dropout", 2.0, 0.5)])
+    assert np.all(result.max_velocity_ratio <= 1.0), result.max_velocity_ratio
+    assert np.all(result.max_torque_ratio <= 1.0), result.max_torque_ratio
+    assert 0.49 <= result.safe_hold_s <= 0.6
+
+
+def test_an_outage_pauses_the_task_clock_of_the_mpc():
+    from ffmpc_core.mpc import RESUME_GAP_PERIODS, ModelPredictiveController, MpcMeasurement
+    from ffmpc_core.study import build_task, mpc_config
+
+    scenario = load_scenario("polishing")
+    robot = load_robot(scenario.robot)
+    seen: list[float] = []
+    task = build_task(scenario, robot)
+
+    class Spy:  # the task, recording the times the MPC asks it for
+        def reference(self, t, dimension=1):
+            seen.append(t)
+            return task.reference(t, dimension)
+
+        def reference_into(self, t, ref):
+            seen.append(t)
+            return task.reference_into(t, ref)
+
+    mpc = ModelPredictiveController(robot, mpc_config(scenario), Spy())
+    meas = MpcMeasurement(q=robot.q_nominal, v=np.zeros(7), force=np.zeros(1))
+    period = mpc.config.period
+    mpc.step(meas, 0.0)
+    mpc.step(meas, period)
+    assert mpc.task_pause == 0.0
+    gap = (RESUME_GAP_PERIODS + 1) * period
+    seen.clear()
+    mpc.step(meas, period + gap)  # back after an outage: the task resumes where it stood
+    assert mpc.task_pause == pytest.approx(gap - period)
+    assert min(seen) == pytest.approx(2 * period + mpc.config.command_delay)
+    mpc.reset()
+    assert mpc.task_pause == 0.0
