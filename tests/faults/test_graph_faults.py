@@ -80,7 +80,6 @@ def test_process_faults_are_held_safely(tmp_path, faults):
 def test_message_faults_are_rejected_never_adopted(tmp_path):
     code, err, summary = ffmpc_run(
         tmp_path,
-        timeout=120.0,
         "--duration",
         DURATION,
         "--fault",
@@ -89,6 +88,7 @@ def test_message_faults_are_rejected_never_adopted(tmp_path):
         "nan-wrench@0.15+0.05",
         "--fault",
         "torque-spike@0.22+0.03",
+        timeout=120.0,
     )
     assert code == 0, err[-3000:]
     _assert_safe(summary)
