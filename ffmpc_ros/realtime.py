@@ -84,10 +84,7 @@ from ffmpc_core.metrics import PolishingMetrics
 from ffmpc_core.robots import load_robot
 from ffmpc_core.study import (
     StudyLog,
-    actuation_model,
-    build_task,
     device_generator,
-    draw_run,
     force_sensing_model,
     joint_sensing_model,
     lowlevel_controller,
@@ -337,21 +334,15 @@ class RealtimeLoop:
         self.time_step = plant_node.time_step
         self.step_ns = plant_node.step_ns
         # plant (as sim_bridge.node.PlantNode)
-        from sim_bridge.plant import Plant
-        from sim_bridge.runner import plant_config
+        from sim_bridge.runner import simulated_robot
 
-        self.draws = draw_run(s, robot, device_generator(s.seed, "draws"))
-        self.task = build_task(s, robot)
-        self.actuation = actuation_model(
-            s, robot, self.draws, device_generator(s.seed, "actuation")
+        self.sim = simulated_robot(
+            s, robot, device_generator(s.seed, "draws"), device_generator(s.seed, "actuation")
         )
-        self.plant = Plant(robot, plant_config(s, self.task, self.draws.tilt_angle))
-        self.plant.reset(robot.q_nominal)
+        self.draws, self.task, self.actuation = self.sim.draws, self.sim.task, self.sim.actuation
+        self.plant = self.sim.plant
         duration = float(plant_node.params["duration"]) or self.task.duration
         self.steps = int(round(duration / self.time_step))
-        p = s.plant
-        self.push_at = int(round(p.push_time / self.time_step)) if p.push_enabled else -1
-        self.push_steps = int(round(p.push_duration / self.time_step))
         self.start_delay = float(plant_node.params["start_delay"])
         # sensors (as JointSensorNode, FtSensorNode)
         js = self.nodes["joint_sensor"].scenario
@@ -545,10 +536,7 @@ class RealtimeLoop:
                     out = None
                 motor = out.motor_torque if out is not None else last_motor
                 last_motor = motor
-                if k == self.push_at:
-                    self.plant.apply_external_push(
-                        np.array(self.scenario.plant.push_force), self.push_steps
-                    )
+                self.sim.push_if_due(k)
                 q_true, force_true = state.q, state.normal_force
                 tau_hat = self.actuation.step(motor, state.v)
                 self.plant.step(tau_hat)

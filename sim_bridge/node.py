@@ -40,16 +40,12 @@ from std_msgs.msg import Bool, Float64MultiArray
 from ffmpc_core.errors import InputError
 from ffmpc_core.robots import load_robot
 from ffmpc_core.study import (
-    actuation_model,
-    build_task,
     device_generator,
-    draw_run,
     lowlevel_controller,
 )
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import StudyNode, run_node
-from sim_bridge.plant import Plant
-from sim_bridge.runner import plant_config
+from sim_bridge.runner import simulated_robot
 
 STATUS_EVERY = 100  # cycles between two /plant/status messages
 
@@ -62,18 +58,13 @@ class PlantNode(StudyNode):
         s = self.scenario
         robot = self.robot = load_robot(s.robot)
         self.joint_names = list(robot.joint_names)
-        self.draws = draw_run(s, robot, device_generator(s.seed, "draws"))
-        self.task = build_task(s, robot)
-        self.actuation = actuation_model(
-            s, robot, self.draws, device_generator(s.seed, "actuation")
+        self.sim = simulated_robot(
+            s, robot, device_generator(s.seed, "draws"), device_generator(s.seed, "actuation")
         )
-        self.plant = Plant(robot, plant_config(s, self.task, self.draws.tilt_angle))
-        self.plant.reset(robot.q_nominal)
+        self.draws, self.task, self.actuation = self.sim.draws, self.sim.task, self.sim.actuation
+        self.plant = self.sim.plant
         duration = float(self.params["duration"]) or self.task.duration
         self.steps = int(round(duration / self.time_step))
-        p = s.plant
-        self.push_at = int(round(p.push_time / self.time_step)) if p.push_enabled else -1
-        self.push_steps = int(round(p.push_duration / self.time_step))
         self.lockstep = bool(self.params["lockstep"])
         self.k = 0
         self.tau_hat = robot.gravity(robot.q_nominal)  # the motors hold the robot at start
@@ -248,10 +239,7 @@ class PlantNode(StudyNode):
         """Cycle k: actuation (eq 31) of τ^m, one physics step, publish cycle k + 1."""
         if self._wall_start is None:
             self._wall_start = time.perf_counter()
-        if self.k == self.push_at:
-            self.plant.apply_external_push(
-                np.array(self.scenario.plant.push_force), self.push_steps
-            )
+        self.sim.push_if_due(self.k)
         if self._drive_torque is not None:
             self.tau_hat = self._drive_torque
         else:

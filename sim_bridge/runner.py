@@ -42,6 +42,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from ffmpc_core.actuation import ActuationModel
 from ffmpc_core.errors import (
     ConfigError,  # noqa: F401  (re-exported for callers)
     FfmpcError,
@@ -52,7 +53,7 @@ from ffmpc_core.lowlevel import LowLevelMeasurement, LowLevelMode
 from ffmpc_core.metrics import PolishingMetrics
 from ffmpc_core.mpc import ModelPredictiveController, MpcMeasurement
 from ffmpc_core.plausibility import check_force, torque_plausible
-from ffmpc_core.robots import load_robot
+from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_core.scenario import Scenario
 from ffmpc_core.study import (
     RunDraws,
@@ -145,6 +146,53 @@ def plant_config(scenario: Scenario, task, tilt: float) -> PlantConfig:
     return PlantConfig(time_step=p.time_step, table=table)
 
 
+@dataclass
+class SimulatedRobot:
+    """The simulated side of one run, built from its scenario (:func:`simulated_robot`): the
+    run's random draws, the task, the actuation model of eq 31, the PyBullet plant reset to the
+    nominal posture, and the external push (cycle ``push_at``, −1 for none; ``push_steps``
+    cycles of ``push_force`` N, world frame). The ROS-free runner, the plant node and the
+    real-time loop all build it here, so they simulate the same robot."""
+
+    draws: RunDraws
+    task: object
+    actuation: ActuationModel
+    plant: Plant
+    push_at: int
+    push_steps: int
+    push_force: np.ndarray
+
+    def push_if_due(self, k: int) -> None:
+        """Start the external push when cycle k is its cycle."""
+        if k == self.push_at:
+            self.plant.apply_external_push(self.push_force, self.push_steps)
+
+
+def simulated_robot(
+    scenario: Scenario,
+    robot: RobotModel,
+    draw_rng: np.random.Generator,
+    actuation_rng: np.random.Generator,
+) -> SimulatedRobot:
+    """Draw the run (tilt, actuation bias) and build the task, actuation and plant of a scenario;
+    the generators are the run's ``draws`` and ``actuation`` devices (``spawn_generators``)."""
+    draws = draw_run(scenario, robot, draw_rng)
+    task = build_task(scenario, robot)
+    actuation = actuation_model(scenario, robot, draws, actuation_rng)
+    plant = Plant(robot, plant_config(scenario, task, draws.tilt_angle))
+    plant.reset(robot.q_nominal)
+    p, dt = scenario.plant, scenario.plant.time_step
+    return SimulatedRobot(
+        draws=draws,
+        task=task,
+        actuation=actuation,
+        plant=plant,
+        push_at=int(round(p.push_time / dt)) if p.push_enabled else -1,
+        push_steps=int(round(p.push_duration / dt)),
+        push_force=np.array(p.push_force, dtype=float),
+    )
+
+
 def run_scenario(
     scenario: Scenario,
     duration: float | None = None,
@@ -165,8 +213,8 @@ def run_scenario(
     scenario, _ = resolve_command_delay(scenario, robot)
     # One generator per device, spawned in a fixed order; the ROS nodes spawn the same ones.
     draw_rng, joint_rng, force_rng, act_rng = spawn_generators(scenario.seed)
-    draws = draw_run(scenario, robot, draw_rng)
-    task = build_task(scenario, robot)
+    sim = simulated_robot(scenario, robot, draw_rng, act_rng)
+    draws, task, actuation = sim.draws, sim.task, sim.actuation
     duration = task.duration if duration is None else duration
     dt = scenario.plant.time_step
     every = steps_per_mpc_period(scenario)
@@ -175,12 +223,8 @@ def run_scenario(
 
     joint_sensing = joint_sensing_model(scenario, robot.nv, joint_rng)
     force_sensing = force_sensing_model(scenario, force_rng)
-    actuation = actuation_model(scenario, robot, draws, act_rng)
     lowlevel = lowlevel_controller(scenario, robot)
     mpc = ModelPredictiveController(robot, config, task)
-    p = scenario.plant
-    push_steps = int(round(p.push_duration / dt))
-    push_at = int(round(p.push_time / dt)) if p.push_enabled else -1
 
     steps = int(round(duration / dt))
     log = StudyLog(steps, robot, task)
@@ -191,15 +235,13 @@ def run_scenario(
     trace_applied = np.zeros((steps, nv))
     trace_mode = np.zeros(steps, dtype=int)
     formulation = config.formulation
-    with Plant(robot, plant_config(scenario, task, draws.tilt_angle)) as plant:
-        plant.reset(robot.q_nominal)
+    with sim.plant as plant:
         tau_hat = robot.gravity(robot.q_nominal)  # the motors hold the robot at start
         received = None  # (q̂, q̇̂, τ̂, λ̂) last read by the controllers
         last_force = None  # last plausible λ̂ (the low level's Riccati feedback)
         for k in range(steps):
             t = k * dt
-            if k == push_at:
-                plant.apply_external_push(np.array(p.push_force), push_steps)
+            sim.push_if_due(k)
             active = active_kinds(faults, t) if faults else {}
             s = plant.state()
             q_hat, v_hat, _ = joint_sensing.step(s.q, s.v)
@@ -290,6 +332,8 @@ def run_scenario(
 __all__ = [
     "Fault",
     "RunResult",
+    "SimulatedRobot",
+    "simulated_robot",
     "RunDraws",
     "run_scenario",
     "build_task",
