@@ -20,12 +20,14 @@ import numpy as np
 
 from ffmpc_core import _native
 from ffmpc_core.config import ContactConfig, CostWeights
-from ffmpc_core.errors import ConfigError, InputError, ModelError
+from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.robots import RobotModel
 from ffmpc_core.soft_contact import (
     LOCAL_WORLD_ALIGNED,
     RESIDUAL_TERMS,
     SoftContactNode,
+    check_soft_contact_robot,
+    residual_slices,
 )
 
 __all__ = [
@@ -80,16 +82,9 @@ class IntegratedActionModelSoftContactNative(_native.IntegratedActionModelSoftCo
         q_reference: np.ndarray | None = None,
     ) -> None:
         dt = _scalar(dt, "dt", ConfigError)
-        model = robot.model
-        if model.nq != model.nv:
-            raise ModelError(
-                f"{robot.name}: the soft-contact state (q, v, λ) is a vector state and needs "
-                f"nq == nv (got nq={model.nq}, nv={model.nv})"
-            )
-        if not 0 < robot.contact_frame_id < len(model.frames):
-            raise ModelError(f"{robot.name}: bad contact frame id {robot.contact_frame_id}")
+        check_soft_contact_robot(robot)
         super().__init__(
-            model,
+            robot.model,
             int(robot.contact_frame_id),
             int(contact.dimension),
             contact.frame_type == LOCAL_WORLD_ALIGNED,
@@ -98,12 +93,7 @@ class IntegratedActionModelSoftContactNative(_native.IntegratedActionModelSoftCo
             bool(terminal),
         )
         nv, nc = self.nv, self.nc
-        sizes = (nv, nv, nv, 3, 3, nc, nc)
-        offsets = np.concatenate([[0], np.cumsum(sizes)])
-        self._slices = {
-            name: slice(int(offsets[i]), int(offsets[i + 1]))
-            for i, name in enumerate(RESIDUAL_TERMS)
-        }
+        self._slices = residual_slices(nv, nc)
         self.robot = robot
         self.contact = contact
         self.weights = weights
@@ -111,7 +101,8 @@ class IntegratedActionModelSoftContactNative(_native.IntegratedActionModelSoftCo
         self.u_ub = robot.torque_limit.copy()
         for name in RESIDUAL_TERMS:
             if name != "force_rate":
-                self.set_activation(name, weights.diag(name, sizes[RESIDUAL_TERMS.index(name)]))
+                rows = self._slices[name]
+                self.set_activation(name, weights.diag(name, rows.stop - rows.start))
             self.set_weight(name, getattr(weights, name))
         q_ref = robot.q_nominal if q_reference is None else q_reference
         self._set_q_reference(_vector(q_ref, nv, "q_reference", ConfigError))

@@ -111,6 +111,28 @@ def visco_elastic_force(deflection, velocity, stiffness, damping) -> np.ndarray:
     return -K * dp - B * dv
 
 
+def check_soft_contact_robot(robot: RobotModel) -> None:
+    """ModelError unless the robot suits the state (q, v, λ): nq == nv and a valid contact frame."""
+    model = robot.model
+    if model.nq != model.nv:
+        raise ModelError(
+            f"{robot.name}: the soft-contact state (q, v, λ) is a vector state and needs "
+            f"nq == nv (got nq={model.nq}, nv={model.nv})"
+        )
+    if not 0 < robot.contact_frame_id < len(model.frames):
+        raise ModelError(f"{robot.name}: bad contact frame id {robot.contact_frame_id}")
+
+
+def residual_slices(nv: int, nc: int) -> dict[str, slice]:
+    """Rows of each term of :data:`RESIDUAL_TERMS` in the stacked residual (nv joints, nc force
+    entries)."""
+    sizes = (nv, nv, nv, 3, 3, nc, nc)
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    return {
+        name: slice(int(offsets[i]), int(offsets[i + 1])) for i, name in enumerate(RESIDUAL_TERMS)
+    }
+
+
 class SoftContactDynamicsData:
     """Preallocated workspace of :class:`SoftContactDynamics` (one per OCP node / thread).
 
@@ -205,14 +227,8 @@ class SoftContactDynamics:
     """
 
     def __init__(self, robot: RobotModel, contact: ContactConfig) -> None:
+        check_soft_contact_robot(robot)
         model = robot.model
-        if model.nq != model.nv:
-            raise ModelError(
-                f"{robot.name}: the soft-contact state (q, v, λ) is a vector state and needs "
-                f"nq == nv (got nq={model.nq}, nv={model.nv})"
-            )
-        if not 0 < robot.contact_frame_id < len(model.frames):
-            raise ModelError(f"{robot.name}: bad contact frame id {robot.contact_frame_id}")
         self.robot = robot
         self.contact = contact
         self.pin_model = model
@@ -486,13 +502,8 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
             raise ConfigError(f"dt must be positive and finite, got {dt}")
         self.dynamics = SoftContactDynamics(robot, contact)
         nv, nc = self.dynamics.nv, self.dynamics.nc
-        sizes = (nv, nv, nv, 3, 3, nc, nc)
-        offsets = np.concatenate([[0], np.cumsum(sizes)])
-        self._slices = {
-            name: slice(int(offsets[i]), int(offsets[i + 1]))
-            for i, name in enumerate(RESIDUAL_TERMS)
-        }
-        nr = int(offsets[-1])
+        self._slices = residual_slices(nv, nc)
+        nr = self._slices[RESIDUAL_TERMS[-1]].stop
         crocoddyl.ActionModelAbstract.__init__(self, crocoddyl.StateVector(2 * nv + nc), nv, nr)
         self.robot = robot
         self.contact = contact
