@@ -215,19 +215,24 @@ class ImpactController:
             raise InputError(f"time must be finite and non-decreasing, got {t}")
         return q, v, f
 
-    def step(self, measurement: ImpactMeasurement, t: float) -> CartesianCommand:
-        """One control cycle at time ``t`` (s)."""
+    def _cycle_state(self, measurement: ImpactMeasurement, t: float) -> tuple:
+        """Validate a measurement at t (s) and advance the clock: (q rad, v rad/s, Δt s, p m,
+        R, ṗ m/s of the contact frame in world, position along d from the hold point m, speed
+        along d m/s, pressing force −dᵀf N)."""
         q, v, f_world = self._validate(measurement, t)
-        cfg = self.config
-        d = cfg.direction
+        d = self.config.direction
         dt = 0.0 if self._t_prev is None else t - self._t_prev
         self._t_prev = t
         p, R, pdot = self._frame_state(q, v)
         if self._hold_position is None:
             self._hold_position, self._hold_rotation = p.copy(), R.copy()
         along = float(d @ (p - self._hold_position))
-        speed = float(d @ pdot)
-        force = float(-d @ f_world)
+        return q, v, dt, p, R, pdot, along, float(d @ pdot), float(-d @ f_world)
+
+    def step(self, measurement: ImpactMeasurement, t: float) -> CartesianCommand:
+        """One control cycle at time ``t`` (s)."""
+        q, v, dt, p, R, pdot, along, speed, force = self._cycle_state(measurement, t)
+        cfg = self.config
 
         if self.phase == APPROACH and force >= cfg.contact_threshold:
             self.phase = CONTACT

@@ -281,17 +281,9 @@ class TouchFirstImpactController(ImpactController):
     # ------------------------------------------------------------------ the cycle
     def step(self, measurement: ImpactMeasurement, t: float) -> CartesianCommand:
         """One control cycle at time ``t`` (s)."""
-        q, v, f_world = self._validate(measurement, t)
+        q, v, dt, p, R, pdot, along, speed, force = self._cycle_state(measurement, t)
         cfg = self.config
         d = cfg.direction
-        dt = 0.0 if self._t_prev is None else t - self._t_prev
-        self._t_prev = t
-        p, R, pdot = self._frame_state(q, v)
-        if self._hold_position is None:
-            self._hold_position, self._hold_rotation = p.copy(), R.copy()
-        along = float(d @ (p - self._hold_position))
-        speed = float(d @ pdot)
-        force = float(-d @ f_world)
 
         if self.phase in APPROACH_PHASES:
             if force <= 0.0 or self._free_position is None:
