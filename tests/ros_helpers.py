@@ -7,13 +7,14 @@ import os
 import time
 from collections.abc import Callable
 
+import numpy as np
 import rclpy
 from rclpy.context import Context
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 
 from ffmpc_core.scenario import load_scenario
-from ffmpc_ros import topics
+from ffmpc_ros import layouts, topics
 from ffmpc_ros.params import node_parameter_values, parameter_overrides
 
 
@@ -111,3 +112,22 @@ def publish_clock(pub, node, k: int) -> None:
     from rosgraph_msgs.msg import Clock
 
     pub.publish(Clock(clock=node.stamp_of(k)))
+
+
+def mpc_command(k: int, torque, nx: int = 14, gain=None, nv: int = 7, state=None):
+    """An ``mpc_command`` array solved at cycle k (t = k ms): torque (N·m), the state it was
+    solved from (zeros by default, nx entries) and the feedback gain (zeros by default)."""
+    values = {
+        "t": k * 1e-3,
+        "nv": nv,
+        "nx": nx,
+        "sequence": k // 2,
+        "iterations": 1,
+        "kkt": 0.0,
+        "solve_time": 0.0,
+        "converged": 1.0,
+        "torque": torque,
+        "state": np.zeros(nx) if state is None else state,
+        "feedback_gain": np.zeros((nv, nx)) if gain is None else gain,
+    }
+    return layouts.MPC_COMMAND.pack(values, nv, nx)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from geometry_msgs.msg import WrenchStamped
-from ros_helpers import RosHarness, joint_state, overrides, recorder, wrench
+from ros_helpers import RosHarness, joint_state, mpc_command, overrides, recorder, wrench
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
@@ -96,23 +96,6 @@ def _pid(ros, scenario, lockstep=True):
     return node, pub_j, pub_c, motor, desired, status
 
 
-def _command_msg(k, torque, nx=14, gain=None, nv=7):
-    values = {
-        "t": k * 1e-3,
-        "nv": nv,
-        "nx": nx,
-        "sequence": k // 2,
-        "iterations": 1,
-        "kkt": 0.0,
-        "solve_time": 0.0,
-        "converged": 1.0,
-        "torque": torque,
-        "state": np.zeros(nx),
-        "feedback_gain": np.zeros((nv, nx)) if gain is None else gain,
-    }
-    return layouts.MPC_COMMAND.pack(values, nv, nx)
-
-
 def test_pid_node_waits_for_the_command_in_lockstep_and_matches_the_core(ros, robot):
     scenario = load_scenario("polishing", {"mpc.formulation": "classical"})
     node, pub_j, pub_c, motor, desired, _ = _pid(ros, scenario)
@@ -124,7 +107,7 @@ def test_pid_node_waits_for_the_command_in_lockstep_and_matches_the_core(ros, ro
         if k % 2 == 0:
             ros.spin_for(0.03)
             assert len(motor) == k  # an MPC cycle: waits for the command of cycle k
-            pub_c.publish(_command_msg(k, torques[k]))
+            pub_c.publish(mpc_command(k, torques[k]))
             command = LowLevelCommand(torques[k], np.zeros(14), np.zeros((7, 14)))
             reference.set_command(command, k * 1e-3)
         assert ros.spin_until(lambda k=k: len(motor) == len(desired) == k + 1)
@@ -145,7 +128,7 @@ def test_pid_node_falls_back_to_hold_when_the_mpc_goes_stale(ros, robot):
     for k in range(40):
         ros.set_clock(node, k)
         if k % 2 == 0 and k <= 20:
-            pub_c.publish(_command_msg(k, gravity))
+            pub_c.publish(mpc_command(k, gravity))
             ros.spin_for(0.005)
         pub_j.publish(joint_state(node, k, q[k], v[k], tau[k]))
         assert ros.spin_until(lambda k=k: len(status) == k + 1)
@@ -161,12 +144,12 @@ def test_pid_node_rejects_bad_commands_and_saturates(ros, robot):
     scenario = load_scenario("polishing", {"mpc.formulation": "classical"})
     node, pub_j, pub_c, motor, desired, _ = _pid(ros, scenario)  # lockstep: every sample read
     q, v, tau, _ = _measurements(robot, 4, seed=4)
-    good = _command_msg(0, np.full(7, 1e3))  # 6–25× the limits: saturated, not rejected
-    nan = _command_msg(2, np.full(7, np.nan))
-    wrong_nx = _command_msg(2, np.zeros(7), nx=21)  # a torque-feedback command
-    wrong_nv = _command_msg(2, np.zeros(6), nv=6)
+    good = mpc_command(0, np.full(7, 1e3))  # 6–25× the limits: saturated, not rejected
+    nan = mpc_command(2, np.full(7, np.nan))
+    wrong_nx = mpc_command(2, np.zeros(7), nx=21)  # a torque-feedback command
+    wrong_nv = mpc_command(2, np.zeros(6), nv=6)
     wrong_label = Float64MultiArray(data=list(good.data))
-    off_grid = _command_msg(2, np.zeros(7))
+    off_grid = mpc_command(2, np.zeros(7))
     off_grid.data[0] = 0.0025
     for msg in (good, nan, wrong_nx, wrong_nv, wrong_label, off_grid):
         pub_c.publish(msg)

@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 from geometry_msgs.msg import WrenchStamped
 from rclpy.parameter import Parameter
-from ros_helpers import RosHarness, joint_state, overrides, recorder, wrench
+from ros_helpers import RosHarness, joint_state, mpc_command, overrides, recorder, wrench
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
-from ffmpc_ros import layouts, topics
+from ffmpc_ros import topics
 from ffmpc_ros.base import MAX_FUTURE_STAMP
 from ffmpc_ros.discovery import DISCOVERY_RANGE_VARIABLE, ensure_local_discovery
 from ffmpc_ros.joint_sensor_node import JointSensorNode
@@ -35,24 +35,6 @@ def ros():
 @pytest.fixture(scope="module")
 def robot():
     return load_robot("iiwa")
-
-
-def _command(k: int, torque, state, gain) -> Float64MultiArray:
-    nv, nx = gain.shape
-    values = {
-        "t": k * 1e-3,
-        "nv": nv,
-        "nx": nx,
-        "sequence": k // 2,
-        "iterations": 1,
-        "kkt": 0.0,
-        "solve_time": 0.0,
-        "converged": 1.0,
-        "torque": torque,
-        "state": state,
-        "feedback_gain": gain,
-    }
-    return layouts.MPC_COMMAND.pack(values, nv, nx)
 
 
 def test_a_stamp_from_the_future_is_rejected_and_never_becomes_the_nodes_now(ros, robot):
@@ -96,9 +78,9 @@ def test_a_command_from_the_future_is_rejected_by_the_pid(ros, robot):
     gravity = robot.gravity(robot.q_nominal)
     spoof = np.full(7, 1e3)  # would saturate every joint
     ros.set_clock(node, 4)
-    pub_c.publish(_command(4_000_000, spoof, np.zeros(14), np.zeros((7, 14))))
+    pub_c.publish(mpc_command(4_000_000, spoof))
     assert ros.spin_until(lambda: node.rejected[f"{topics.MPC_COMMAND}:future"] == 1)
-    pub_c.publish(_command(4, gravity, np.zeros(14), np.zeros((7, 14))))
+    pub_c.publish(mpc_command(4, gravity))
     pub_j.publish(joint_state(node, 4, robot.q_nominal, np.zeros(7), gravity))
     assert ros.spin_until(lambda: len(motor) == 1)
     assert node.lowlevel.command_time == pytest.approx(4e-3)  # the genuine one was taken
@@ -131,7 +113,7 @@ def test_one_rejected_wrench_does_not_stall_the_riccati_feedback_loop(ros, robot
     for k in range(12):
         ros.set_clock(node, k)
         if k % 2 == 0:
-            pub_c.publish(_command(k, gravity, state, gain))
+            pub_c.publish(mpc_command(k, gravity, nx=15, gain=gain, state=state))
         force = np.nan if k in (3, 4) else 10.0 + k
         pub_w.publish(wrench(node, k, (0.0, 0.0, force)))
         if k < 8:
