@@ -14,15 +14,6 @@ namespace ffmpc {
 
 namespace {
 
-void check_size(const Eigen::Ref<const Eigen::VectorXd>& v, std::size_t n, const char* what) {
-  if (static_cast<std::size_t>(v.size()) != n) {
-    std::ostringstream msg;
-    msg << "IntegratedActionModelLPF: " << what << " has dimension " << v.size() << ", expected "
-        << n;
-    throw InputError(msg.str());
-  }
-}
-
 /// The cost data of crocoddyl's free or contact forward-dynamics data (null for other models).
 std::shared_ptr<crocoddyl::CostDataSum> cost_data_of(
     const std::shared_ptr<crocoddyl::DifferentialActionDataAbstract>& data) {
@@ -72,8 +63,8 @@ IntegratedActionModelLPF::IntegratedActionModelLPF(
 void IntegratedActionModelLPF::calc(const std::shared_ptr<ActionDataAbstract>& data,
                                     const Eigen::Ref<const VectorXd>& x,
                                     const Eigen::Ref<const VectorXd>& u) {
-  check_size(x, 3 * nv_, "x");
-  check_size(u, nv_, "u");
+  check_size(x.size(), 3 * nv_, "IntegratedActionModelLPF: x");
+  check_size(u.size(), nv_, "IntegratedActionModelLPF: u");
   auto* d = static_cast<IntegratedActionDataLPF*>(data.get());
   if (!d->torque_residual) {
     throw ModelError("a running low-pass model needs the '" + torque_cost_ +
@@ -94,7 +85,7 @@ void IntegratedActionModelLPF::calc(const std::shared_ptr<ActionDataAbstract>& d
 
 void IntegratedActionModelLPF::calc(const std::shared_ptr<ActionDataAbstract>& data,
                                     const Eigen::Ref<const VectorXd>& x) {
-  check_size(x, 3 * nv_, "x");
+  check_size(x.size(), 3 * nv_, "IntegratedActionModelLPF: x");
   auto* d = static_cast<IntegratedActionDataLPF*>(data.get());
   differential_->calc(d->differential, x.head(2 * nv_));
   d->xnext = x;
@@ -104,8 +95,8 @@ void IntegratedActionModelLPF::calc(const std::shared_ptr<ActionDataAbstract>& d
 void IntegratedActionModelLPF::calcDiff(const std::shared_ptr<ActionDataAbstract>& data,
                                         const Eigen::Ref<const VectorXd>& x,
                                         const Eigen::Ref<const VectorXd>& u) {
-  check_size(x, 3 * nv_, "x");
-  check_size(u, nv_, "u");
+  check_size(x.size(), 3 * nv_, "IntegratedActionModelLPF: x");
+  check_size(u.size(), nv_, "IntegratedActionModelLPF: u");
   auto* d = static_cast<IntegratedActionDataLPF*>(data.get());
   if (!d->torque_residual) {
     throw ModelError("a running low-pass model needs the '" + torque_cost_ +
@@ -159,7 +150,7 @@ void IntegratedActionModelLPF::calcDiff(const std::shared_ptr<ActionDataAbstract
 void IntegratedActionModelLPF::calcDiff(const std::shared_ptr<ActionDataAbstract>& data,
                                         const Eigen::Ref<const VectorXd>& x) {
   // Terminal: x⁺ = x, cost ℓ0(q, v).
-  check_size(x, 3 * nv_, "x");
+  check_size(x.size(), 3 * nv_, "IntegratedActionModelLPF: x");
   auto* d = static_cast<IntegratedActionDataLPF*>(data.get());
   const std::size_t n2 = 2 * nv_;
   differential_->calcDiff(d->differential, x.head(n2));

@@ -17,15 +17,10 @@
 #include <pinocchio/multibody/data.hpp>
 #include <pinocchio/multibody/model.hpp>
 
+#include "errors.hpp"
+
 namespace ffmpc {
 
-/// A model is used in a way it does not support (missing contact or cost data, a running
-/// low-pass step without the torque cost of eq 25.3): ffmpc_core.errors.ModelError in Python
-/// (translator registered by expose_residuals()). Configuration and input errors use
-/// ffmpc::ConfigError / ffmpc::InputError of errors.hpp.
-struct ModelError : public std::runtime_error {
-  using std::runtime_error::runtime_error;
-};
 
 typedef crocoddyl::MathBaseTpl<double>::VectorXs VectorXd;
 typedef crocoddyl::MathBaseTpl<double>::MatrixXs MatrixXd;

@@ -495,18 +495,12 @@ void IntegratedActionModelSoftContact::add_state_hessian(IntegratedActionDataSof
 void IntegratedActionModelSoftContact::calc(const std::shared_ptr<ActionDataAbstract>& data,
                                             const Eigen::Ref<const VectorXd>& x,
                                             const Eigen::Ref<const VectorXd>& u) {
-  if (static_cast<std::size_t>(x.size()) != state_->get_nx()) {
-    throw InputError("x has " + std::to_string(x.size()) + " entries, expected " +
-                     std::to_string(state_->get_nx()));
-  }
+  check_size(x.size(), state_->get_nx(), "x");
   if (terminal_) {
     calc(data, x);
     return;
   }
-  if (static_cast<std::size_t>(u.size()) != nu_) {
-    throw InputError("u has " + std::to_string(u.size()) + " entries, expected " +
-                     std::to_string(nu_));
-  }
+  check_size(u.size(), nu_, "u");
   IntegratedActionDataSoftContact* d = static_cast<IntegratedActionDataSoftContact*>(data.get());
   SoftContactDynamicsData& dd = d->dynamics;
   const std::size_t nv = nv_, nc = nc_;
@@ -534,10 +528,7 @@ void IntegratedActionModelSoftContact::calc(const std::shared_ptr<ActionDataAbst
 
 void IntegratedActionModelSoftContact::calc(const std::shared_ptr<ActionDataAbstract>& data,
                                             const Eigen::Ref<const VectorXd>& x) {
-  if (static_cast<std::size_t>(x.size()) != state_->get_nx()) {
-    throw InputError("x has " + std::to_string(x.size()) + " entries, expected " +
-                     std::to_string(state_->get_nx()));
-  }
+  check_size(x.size(), state_->get_nx(), "x");
   IntegratedActionDataSoftContact* d = static_cast<IntegratedActionDataSoftContact*>(data.get());
   SoftContactDynamicsData& dd = d->dynamics;
   const std::size_t nv = nv_, nc = nc_;
@@ -560,18 +551,12 @@ void IntegratedActionModelSoftContact::calc(const std::shared_ptr<ActionDataAbst
 void IntegratedActionModelSoftContact::calcDiff(const std::shared_ptr<ActionDataAbstract>& data,
                                                 const Eigen::Ref<const VectorXd>& x,
                                                 const Eigen::Ref<const VectorXd>& u) {
-  if (static_cast<std::size_t>(x.size()) != state_->get_nx()) {
-    throw InputError("x has " + std::to_string(x.size()) + " entries, expected " +
-                     std::to_string(state_->get_nx()));
-  }
+  check_size(x.size(), state_->get_nx(), "x");
   if (terminal_) {
     calcDiff(data, x);
     return;
   }
-  if (static_cast<std::size_t>(u.size()) != nu_) {
-    throw InputError("u has " + std::to_string(u.size()) + " entries, expected " +
-                     std::to_string(nu_));
-  }
+  check_size(u.size(), nu_, "u");
   IntegratedActionDataSoftContact* d = static_cast<IntegratedActionDataSoftContact*>(data.get());
   SoftContactDynamicsData& dd = d->dynamics;
   const std::size_t nv = nv_, nc = nc_;
@@ -632,10 +617,7 @@ void IntegratedActionModelSoftContact::calcDiff(const std::shared_ptr<ActionData
 
 void IntegratedActionModelSoftContact::calcDiff(const std::shared_ptr<ActionDataAbstract>& data,
                                                 const Eigen::Ref<const VectorXd>& x) {
-  if (static_cast<std::size_t>(x.size()) != state_->get_nx()) {
-    throw InputError("x has " + std::to_string(x.size()) + " entries, expected " +
-                     std::to_string(state_->get_nx()));
-  }
+  check_size(x.size(), state_->get_nx(), "x");
   IntegratedActionDataSoftContact* d = static_cast<IntegratedActionDataSoftContact*>(data.get());
   SoftContactDynamicsData& dd = d->dynamics;
   const std::size_t nv = nv_;
