@@ -195,7 +195,8 @@ class PidNode(StudyNode):
             for store in (self._joints, self._forces, self._commands):
                 for old in [c for c in store if c < k - _KEEP]:
                     del store[old]
-            self._force_rejected = {c for c in self._force_rejected if c >= k - _KEEP}
+            if self._force_rejected:  # (empty on every cycle without a rejection)
+                self._force_rejected = {c for c in self._force_rejected if c >= k - _KEEP}
 
     def _step(self, k: int, meas: LowLevelMeasurement) -> None:
         try:
