@@ -86,6 +86,8 @@ NODES: dict[str, str] = {
 METRICS_NODE = "ffmpc_ros.metrics_node:MetricsNode"
 #: Wall s the bring-up listens for foreign publishers on the graph's topics before starting.
 FOREIGN_DISCOVERY_WAIT = 2.0
+#: At most this many wall s, from the first foreign node seen, to gather the others' names.
+FOREIGN_GATHER_MAX = 6.0
 #: Default wall s without a new plant cycle before a lockstep run is stopped.
 STALL_TIMEOUT = 30.0
 #: Default wall s from the start to the first plant cycle (imports, MPC warm-up, discovery).
@@ -839,6 +841,8 @@ def _refuse_foreign(node: Node, domain: int, wait: float = FOREIGN_DISCOVERY_WAI
     me = node.get_fully_qualified_name()
     deadline = time.monotonic() + wait
     first_seen = None
+    last_change = None
+    previous: dict[str, set[str]] = {}
     while True:
         found: dict[str, set[str]] = {}
         for topic in names:
@@ -852,9 +856,12 @@ def _refuse_foreign(node: Node, domain: int, wait: float = FOREIGN_DISCOVERY_WAI
         now = time.monotonic()
         if found and first_seen is None:
             first_seen = now
+        if found != previous:
+            last_change, previous = now, found
         unnamed = any("_UNKNOWN_" in n for n in found)
-        if first_seen is not None:  # gather the others a moment (and their names)
-            if now > first_seen + (2.0 if unnamed else 1.0):
+        if first_seen is not None:  # gather the others until the list settles (and their names)
+            settled = now > last_change + (2.0 if unnamed else 1.0)
+            if settled or now > first_seen + FOREIGN_GATHER_MAX:
                 break
         elif now > deadline:
             break
