@@ -3,14 +3,13 @@
 Subscribes ``/joint_sensor/joint_states`` (q̂, q̇̂, τ̂) and, for force-feedback,
 ``/ft_sensor/wrench`` (λ̂); publishes ``/mpc/command`` (layout ``mpc_command``, ffmpc_ros.layouts).
 
-It solves at cycle k once it has the measurements OF cycle k (joint state, and the wrench with
-the same stamp for force-feedback) and at least ``period`` has passed since the last solve: in
-lockstep that is every ``period / time_step`` cycles from k = 0, as the ROS-free runner does. In
-real time (``lockstep: false``) it solves on the ticks k = j·period/time_step only, on the
-newest complete one (a tick that arrives while a solve runs is skipped): the node warms up
-(``WARM_UP_SOLVES`` solves, then ``reset``) before it subscribes, and runs without an executor
-(``spin_realtime``: a wait set over its inputs, newest sample taken). The command carries the
-measurement's time t_k; the solver's wall time is reported but never used for control.
+It solves at the ticks k = j·``period / time_step`` (as the ROS-free runner does), once it has
+the measurements OF cycle k (joint state, and the wrench with the same stamp for force-
+feedback). In real time (``lockstep: false``) it solves the newest complete tick (a tick that
+arrives while a solve runs is skipped): the node warms up (``WARM_UP_SOLVES`` solves, then
+``reset``) before it subscribes, and runs without an executor (``spin_realtime``: a wait set
+over its inputs, newest sample taken). The command carries the measurement's time t_k; the
+solver's wall time is reported but never used for control.
 
 Learned contact (force-feedback only; parameter ``use_learned_contact``, default off, so the
 polishing graph is unchanged): the node also subscribes ``/contact_learner/estimate`` (layout
@@ -153,9 +152,13 @@ class MpcNode(StudyNode):
         )
 
     def _due(self, k: int) -> bool:
-        if not self.lockstep:  # real time: the ticks k = j·every, the newest one
-            return k % self.every == 0 and (self._last_solve is None or k > self._last_solve)
-        return self._last_solve is None or k - self._last_solve >= self.every
+        """Whether cycle k is an MPC tick to solve: k = j·every (the runner's grid, and the
+        cycles the PID waits on in lockstep), after the last solve. Never off the grid: after
+        an outage (a process frozen and resumed) a solve on the first cycle that completes
+        would shift every later command by a cycle from the ticks the PID waits for (measured:
+        each PID tick then timed out, the commands acted a cycle late, and the wrist went to
+        8× its velocity limit)."""
+        return k % self.every == 0 and (self._last_solve is None or k > self._last_solve)
 
     # -- real time ----------------------------------------------------------------------------
     def warm_up(self, solves: int = WARM_UP_SOLVES) -> None:

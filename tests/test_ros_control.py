@@ -80,6 +80,24 @@ def test_mpc_node_solves_every_period_with_the_runner_numbers(ros, robot):
     assert len(out) == 3
 
 
+def test_mpc_node_stays_on_the_tick_grid_after_an_outage(ros, robot):
+    """Lockstep, after cycles it never heard (a frozen and resumed process): the next solve is
+    the next tick k = j·every the PID waits on, never the first cycle that completes (5, 7)."""
+    scenario = load_scenario("polishing", {"mpc.formulation": "classical"})
+    node = ros.add(MpcNode(context=ros.context, parameter_overrides=overrides("mpc", scenario)))
+    probe = ros.probe()
+    out = recorder(probe, Float64MultiArray, topics.MPC_COMMAND)
+    pub_j = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
+    q, v, tau, _ = _measurements(robot, 9)
+    for k in (0, 5, 6, 7, 8):  # cycles 1-4 lost
+        pub_j.publish(joint_state(node, k, q[k], v[k], tau[k]))
+        ros.spin_for(0.01)
+    assert ros.spin_until(lambda: len(out) == 3, timeout=30)
+    ros.spin_for(0.05)
+    times = [layouts.MPC_COMMAND.unpack(m, 7)["t"] for m in out]
+    assert times == [0.0, 6e-3, 8e-3]
+
+
 def _pid(ros, scenario, lockstep=True):
     node = ros.add(
         PidNode(

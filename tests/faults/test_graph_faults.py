@@ -45,17 +45,7 @@ def _rejected(summary: dict, node: str, suffix: str) -> int:
 @pytest.mark.parametrize(
     "faults",
     [
-        pytest.param(
-            ("mpc-dropout@0.1+0.05", "sensor-dropout@0.2+0.05"),
-            marks=pytest.mark.xfail(
-                strict=False,
-                reason="known open bug (issue 12): an MPC process frozen and resumed "
-                "(SIGSTOP/SIGCONT) finds a backlog of queued sensor messages and a lagging /clock; "
-                "some runs then throw the wrist past its velocity limit (joint 5 at 6.7x in a "
-                "fresh clone; passes in other runs). The ROS-free runner handles the same fault.",
-            ),
-            id="dropouts",
-        ),
+        pytest.param(("mpc-dropout@0.1+0.05", "sensor-dropout@0.2+0.05"), id="dropouts"),
         pytest.param(("node-kill@0.15",), id="node-kill"),
     ],
 )
