@@ -69,13 +69,6 @@ def test_process_faults_are_held_safely(tmp_path, faults):
     assert f"faults {', '.join(report)}: handled safely" in err
 
 
-@pytest.mark.xfail(
-    strict=False,
-    raises=(AssertionError, subprocess.TimeoutExpired),
-    reason="known open bug: with forged sensor messages the lockstep graph sometimes stops "
-    "finishing (seen in a fresh clone: the run idled past its timeout after the plant's last "
-    "cycle; passes in most runs); the run must end with its reason instead",
-)
 def test_message_faults_are_rejected_never_adopted(tmp_path):
     code, err, summary = ffmpc_run(
         tmp_path,
