@@ -118,6 +118,12 @@ class LowLevelConfig:
             (brake above it; back to brake above 4× it). 2e-3 J: 0.04 rad/s on the iiwa's
             shoulder (M₁₁ ≈ 2.2 kg·m²), far above the wrist's noise jitter (~1e-4 J).
         hold_torque_fraction: fraction of each joint's torque limit the hold may use, in (0, 1].
+        force_hold_time: simulated s a plausible λ̂ is held for the Riccati feedback of
+            force-feedback (sample and hold): on a cycle whose λ̂ is missing (None: lost or
+            rejected) or not finite, the newest λ̂ at most this old is used; beyond, the cycle
+            sends the MPC torque τ* without feedback. One bad or late wrench never stops the
+            loop, and a dead sensor never feeds an old force for long. 50 ms: the graph's
+            ``max_input_age``.
     """
 
     formulation: str = "force_feedback"
@@ -130,6 +136,7 @@ class LowLevelConfig:
     hold_damping_ratio: float = 1.0
     hold_settle_energy: float = 2e-3
     hold_torque_fraction: float = 0.75
+    force_hold_time: float = 0.05
 
     def __post_init__(self) -> None:
         if self.formulation not in FORMULATIONS:
@@ -150,6 +157,8 @@ class LowLevelConfig:
             raise ConfigError("hold_settle_energy must be > 0 J")
         if not 0.0 < self.hold_torque_fraction <= 1.0:
             raise ConfigError("hold_torque_fraction must lie in (0, 1]")
+        if not (math.isfinite(self.force_hold_time) and self.force_hold_time >= 0):
+            raise ConfigError("force_hold_time must be a finite number of s >= 0")
 
 
 @dataclass
@@ -225,6 +234,8 @@ class LowLevelController:
         self._hold_q: np.ndarray | None = None
         self._hold_mass = np.zeros((self.robot.nv, self.robot.nv))
         self._t_previous: float | None = None
+        self._held_force: np.ndarray | None = None  # newest finite λ̂, N
+        self._held_force_t = -math.inf  # its time, s
         self.invalid_commands = 0
 
     @property
@@ -293,6 +304,21 @@ class LowLevelController:
             parts.append(self._vector(meas.force, self.config.force_dimension, "force"))
         return np.concatenate(parts)
 
+    def _force_for_feedback(self, force, t: float):
+        """λ̂ for this cycle's Riccati feedback: the measured one when finite (and then held),
+        else the held one if at most ``force_hold_time`` old, else None (τ* alone)."""
+        if force is not None:
+            arr = np.asarray(force, dtype=float)
+            if arr.shape != (self.config.force_dimension,) or np.all(np.isfinite(arr)):
+                if arr.shape == (self.config.force_dimension,):
+                    self._held_force, self._held_force_t = arr.copy(), t
+                return arr  # (a wrong shape is refused by state_from: a caller's error)
+        if self._held_force is not None and t - self._held_force_t <= (
+            self.config.force_hold_time + TIME_EPS
+        ):
+            return self._held_force
+        return None
+
     # -- the safe hold ------------------------------------------------------------------------
     def _start_hold(self) -> None:
         """A new hold: brake first (the posture is latched once the robot is at rest)."""
@@ -353,6 +379,10 @@ class LowLevelController:
         measured = self._vector(meas.torque, nv, "torque")
         if not math.isfinite(t) or (self._t_previous is not None and t <= self._t_previous):
             raise InputError(f"t must be finite and increasing, got {t} after {self._t_previous}")
+        if self.config.formulation == "force_feedback" and self.config.riccati_feedback:
+            force = self._force_for_feedback(meas.force, t)
+            if force is not meas.force:
+                meas = LowLevelMeasurement(meas.q, meas.v, meas.torque, force)
         age = t - self._command_t
         fresh = self._command is not None and age <= self.config.stale_timeout + TIME_EPS
         blend = 1.0

@@ -16,9 +16,9 @@ takes over). Real time: every cycle is stepped at once with the newest command.
 
 Missing force (Riccati feedback of force-feedback). Cycle k waits for the wrench of cycle k only
 while it may still come: once that wrench was rejected, a later one was accepted, the lockstep
-timeout passed, or in real time, the cycle goes on with the newest accepted λ̂ if it is at most
-``max_input_age`` old (sample and hold), else without λ̂ — the low level then sends the MPC torque
-τ* without feedback for that cycle. One bad wrench never stalls the loop.
+timeout passed, or in real time, the cycle goes on without it; the low level then holds the newest
+accepted λ̂ for ``force_hold_time`` and sends τ* without feedback after that
+(``LowLevelController``, the runner's rule too). One bad wrench never stalls the loop.
 """
 
 from __future__ import annotations
@@ -59,7 +59,7 @@ class PidNode(StudyNode):
         self._forces: dict[int, np.ndarray] = {}
         self._commands: dict[int, LowLevelCommand] = {}
         self._force_rejected: set[int] = set()  # cycles whose wrench was rejected
-        self._held_force: tuple[int, np.ndarray] | None = None  # newest accepted (k, λ̂)
+        self._newest_force: int | None = None  # cycle of the newest accepted wrench
         self._last_step: int | None = None
         self._waiting_since: float | None = None
         self._skip_wait: set[int] = set()
@@ -99,7 +99,7 @@ class PidNode(StudyNode):
             return
         k, force = got
         self._forces[k] = force
-        self._held_force = (k, force)
+        self._newest_force = k
         self._advance()
 
     def on_command(self, msg: Float64MultiArray) -> None:
@@ -138,16 +138,8 @@ class PidNode(StudyNode):
             or k in self._force_rejected
             or not self.lockstep
             or k in self._skip_wait
-            or (self._held_force is not None and self._held_force[0] > k)
+            or (self._newest_force is not None and self._newest_force > k)
         )
-
-    def _force_for(self, k: int) -> np.ndarray | None:
-        """λ̂ of cycle k, or the newest accepted one if at most max_input_age old, or None."""
-        force = self._forces.pop(k, None)
-        if force is not None or self._held_force is None:
-            return force
-        k_held, held = self._held_force
-        return held if (k - k_held) * self.time_step <= self.max_input_age else None
 
     def _ready(self, k: int) -> bool:
         if self.needs_force and not self._force_settled(k):
@@ -184,7 +176,7 @@ class PidNode(StudyNode):
             self._waiting_since = None
             self._skip_wait.discard(k)
             q, v, tau = self._joints.pop(k)
-            force = self._force_for(k) if self.needs_force else self._forces.pop(k, None)
+            force = self._forces.pop(k, None)  # None: missing (the low level's hold rule)
             self._force_rejected.discard(k)
             for kc in sorted(c for c in self._commands if c <= k):
                 try:

@@ -238,7 +238,6 @@ def run_scenario(
     with sim.plant as plant:
         tau_hat = robot.gravity(robot.q_nominal)  # the motors hold the robot at start
         received = None  # (q̂, q̇̂, τ̂, λ̂) last read by the controllers
-        last_force = None  # last plausible λ̂ (the low level's Riccati feedback)
         for k in range(steps):
             t = k * dt
             sim.push_if_due(k)
@@ -258,7 +257,6 @@ def run_scenario(
             q_read, v_read, tau_read, f_read = received
             try:
                 check_force(f_read)
-                last_force = f_read
                 force_ok = True
             except InputError:
                 force_ok = False
@@ -286,9 +284,9 @@ def run_scenario(
                         pass  # refused; a bad torque has engaged the safe hold
             # Hold / blend / track / fallback + PID (eq 33): with the MPC on time this is the
             # plain scheme (τ* on solve cycles; τ* or τ* + G·Δx in between).
-            f_low = f_read if force_ok or last_force is None else last_force
-            if f_low is not None and not np.all(np.isfinite(f_low)):
-                f_low = np.zeros_like(f_low)  # no plausible λ̂ yet: the hold does not use it
+            # An implausible λ̂ reaches the low level as missing: it holds the newest plausible
+            # one for force_hold_time, then sends τ* without feedback (LowLevelConfig).
+            f_low = f_read if force_ok else None
             out = lowlevel.step(LowLevelMeasurement(q_read, v_read, tau_read, f_low), t)
             tau_hat = actuation.step(out.motor_torque, s.v)
             plant.step(tau_hat)

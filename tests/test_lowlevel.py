@@ -338,3 +338,34 @@ def test_engage_hold_drops_the_command_and_hold_parameters_are_validated(robot):
         LowLevelConfig(hold_settle_energy=0.0)
     with pytest.raises(ConfigError):
         LowLevelConfig(hold_torque_fraction=1.5)
+
+
+def test_missing_force_is_held_for_force_hold_time_then_the_feedback_goes_without_it(robot):
+    """Force-feedback with Riccati feedback: a cycle whose λ̂ is missing (None) or not finite
+    uses the newest finite λ̂ while it is at most ``force_hold_time`` old, then τ* alone."""
+    rng = np.random.default_rng(3)
+    cfg = LowLevelConfig(
+        formulation="force_feedback", riccati_feedback=True, stale_timeout=1.0, force_hold_time=3e-3
+    )
+    low = LowLevelController(robot, cfg, _pid(robot))
+    cmd = _command(robot, rng, nx=15)
+    cmd.state[-1] = 10.0  # λ at the solve, N
+    low.set_command(cmd, 0.0)
+    q, v, tau = robot.q_nominal, np.zeros(7), np.zeros(7)
+
+    def feedback(force):
+        dx = np.concatenate([q, v, [force]]) - cmd.state
+        return robot.clip_torque(cmd.torque + cmd.feedback_gain @ dx)
+
+    low.step(LowLevelMeasurement(q, v, tau, np.array([12.0])), 0.0)  # first use: τ* alone
+    out = low.step(LowLevelMeasurement(q, v, tau, np.array([12.0])), DT)
+    np.testing.assert_array_equal(out.desired_torque, feedback(12.0))
+    for k, force in ((2, None), (3, np.array([np.nan])), (4, None)):  # held: 1–3 ms old
+        out = low.step(LowLevelMeasurement(q, v, tau, force), k * DT)
+        np.testing.assert_array_equal(out.desired_torque, feedback(12.0))
+    out = low.step(LowLevelMeasurement(q, v, tau, None), 5 * DT)  # 4 ms old: τ* alone
+    np.testing.assert_array_equal(out.desired_torque, cmd.torque)
+    out = low.step(LowLevelMeasurement(q, v, tau, np.array([9.0])), 6 * DT)  # back
+    np.testing.assert_array_equal(out.desired_torque, feedback(9.0))
+    with pytest.raises(ConfigError, match="force_hold_time"):
+        LowLevelConfig(force_hold_time=-1.0)
