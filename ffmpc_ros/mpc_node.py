@@ -160,6 +160,24 @@ class MpcNode(StudyNode):
         8× its velocity limit)."""
         return k % self.every == 0 and (self._last_solve is None or k > self._last_solve)
 
+    def _behind_clock(self, k: int) -> bool:
+        """Lockstep: whether tick k is already more than one MPC period behind this node's
+        clock (the plant's newest cycle), and is skipped (counted as ``solve:late``).
+
+        In a lockstep run the plant never passes a tick before the PID has its command, so an
+        on-time tick is never behind; a tick that is behind comes from a backlog (a process
+        frozen and resumed finds the sensor messages queued meanwhile). Its command would reach
+        the PID after the PID went on without it, and solving it would hide the outage from the
+        controller: the task's clock pauses for the time between two solves
+        (``ModelPredictiveController.step``), so the next solve must be the first live tick."""
+        if not self.lockstep:
+            return False
+        behind = self.get_clock().now().nanoseconds - k * self.step_ns
+        if behind > self.every * self.step_ns:
+            self.reject("solve:late", f"tick {k} is {behind * 1e-9:.4f} s behind the clock")
+            return True
+        return False
+
     # -- real time ----------------------------------------------------------------------------
     def warm_up(self, solves: int = WARM_UP_SOLVES) -> None:
         """Real time: solve a few times from the start posture (t = 0), then forget it all
@@ -234,6 +252,8 @@ class MpcNode(StudyNode):
             return
         q, v, tau = self._joints.pop(k)
         force = self._forces.pop(k, None)
+        if self._behind_clock(k):
+            return
         t = self.t_of(k)
         try:
             command = self.mpc.step(MpcMeasurement(q=q, v=v, force=force, torque=tau), t)

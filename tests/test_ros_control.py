@@ -96,6 +96,16 @@ def test_mpc_node_stays_on_the_tick_grid_after_an_outage(ros, robot):
     ros.spin_for(0.05)
     times = [layouts.MPC_COMMAND.unpack(m, 7)["t"] for m in out]
     assert times == [0.0, 6e-3, 8e-3]
+    # A backlog tick (within max_input_age, but more than a period behind the plant's clock)
+    # is not solved: its command would come too late and it would hide the outage.
+    ros.set_clock(node, 40)
+    for k in (34, 35, 36, 40):
+        pub_j.publish(joint_state(node, k, q[0], v[0], tau[0]))
+        ros.spin_for(0.01)
+    assert ros.spin_until(lambda: len(out) == 4, timeout=30), (len(out), node.rejected)
+    ros.spin_for(0.05)
+    assert layouts.MPC_COMMAND.unpack(out[3], 7)["t"] == 40e-3
+    assert node.rejected["solve:late"] == 2  # ticks 34 and 36 (4 and 6 ms behind)
 
 
 def _pid(ros, scenario, lockstep=True):
