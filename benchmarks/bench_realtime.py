@@ -18,7 +18,7 @@ import os
 
 from ffmpc_core.scenario import load_scenario
 from ffmpc_ros.bringup import run_graph
-from ffmpc_ros.cli import _parse_overrides
+from ffmpc_ros.cli_args import parse_overrides as _parse_overrides
 from sim_bridge.runner import run_scenario
 
 CONFIGS = (
