@@ -55,6 +55,7 @@ test: $(STAMP) $(NATIVE)
 
 lint: $(STAMP)
 	$(BIN)/ruff check ffmpc_core sim_bridge ffmpc_ros tests benchmarks
+	$(BIN)/python tests/layer_check.py  # layers ffmpc_core <- sim_bridge <- ffmpc_ros, no cycles
 	$(BIN)/ruff format --check ffmpc_core sim_bridge ffmpc_ros tests benchmarks
 
 bench: $(STAMP) $(NATIVE)

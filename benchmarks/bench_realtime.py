@@ -18,7 +18,7 @@ import os
 
 from ffmpc_core.scenario import load_scenario
 from ffmpc_ros.bringup import run_graph
-from ffmpc_ros.cli import _parse_overrides
+from ffmpc_ros.cli_args import parse_overrides
 from sim_bridge.runner import run_scenario
 
 CONFIGS = (
@@ -36,7 +36,7 @@ def main() -> int:
     parser.add_argument("--set", action="append", metavar="NAME=VALUE", default=[])
     parser.add_argument("--repeats", type=int, default=1, help="runs per configuration")
     args = parser.parse_args()
-    scenario = load_scenario(args.scenario, _parse_overrides(args.set))
+    scenario = load_scenario(args.scenario, parse_overrides(args.set))
     print(
         f"{args.scenario} {' '.join(args.set)} ({scenario.mpc.formulation}), "
         f"{args.duration:.1f} s per run, {os.cpu_count()} CPUs, load average "

@@ -78,7 +78,7 @@ from ffmpc_core.config import FORMULATIONS
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.pid import TorquePid
 from ffmpc_core.plausibility import check_torque
-from ffmpc_core.robots import RobotModel
+from ffmpc_core.robots import RobotModel, mass_matrix
 from ffmpc_core.tasks import min_jerk
 
 #: Tolerance on simulated times, s (times are multiples of the plant step).
@@ -325,8 +325,7 @@ class LowLevelController:
         self._hold_q = None
 
     def _mass(self, q: np.ndarray) -> np.ndarray:
-        mass = pin.crba(self.robot.model, self._data, q)
-        return np.triu(mass) + np.triu(mass, 1).T  # symmetric whatever the convention
+        return mass_matrix(self.robot.model, self._data, q)
 
     def _scaled(self, gravity: np.ndarray, tau_pd: np.ndarray) -> tuple[np.ndarray, float]:
         """(g + s·τ_pd, s) with the largest s ∈ [0, 1] keeping |τ_i| ≤ the hold's budget."""

@@ -32,6 +32,12 @@ import numpy as np
 
 from ffmpc_core.config import BACKENDS, FORMULATIONS, ContactConfig, CostWeights, NodeReference
 from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.lowpass import (
+    interpolate_torque,
+    interpolation_epsilon,
+    lowpass_alpha,
+    lowpass_filter_step,
+)
 from ffmpc_core.robots import RobotModel
 
 #: A step more than this many MPC periods after the previous one is a resumption after an outage
@@ -229,8 +235,8 @@ class ModelPredictiveController:
             )
             self._predictor = _node_factory(robot, pred_cfg, q_ref)(False)
             self._predictor_data = self._predictor.model.createData()
-        self._epsilon = min(1.0, config.period / config.dt)  # eq 15
-        self._alpha = float(np.exp(-2.0 * np.pi * config.cutoff_frequency * config.dt))  # eq 13
+        self._epsilon = interpolation_epsilon(config.period, config.dt)  # eq 15
+        self._alpha = lowpass_alpha(config.cutoff_frequency, config.dt)  # eq 13
         self.reset()
 
     def _make_problem(self) -> None:
@@ -399,10 +405,11 @@ class ModelPredictiveController:
         u0 = us[0]
         if self.config.formulation != "torque_feedback":
             return u0, -K0
-        # eq 15: τ̃ = τ₀ + ε(τ₁* − τ₀) with τ₁* = ατ₀ + (1 − α)w₀* (eq 13).
         tau0 = x0[2 * nv :]
+        tau1 = lowpass_filter_step(tau0, u0, self._alpha)  # eq 13: τ₁* = ατ₀ + (1 − α)w₀*
+        torque = interpolate_torque(tau0, tau1, self._epsilon)  # eq 15: τ₀ + ε(τ₁* − τ₀)
+        # ∂τ̃/∂x through both, with ∂w₀*/∂x = −K₀ (Riccati gain)
         gain_w = self._epsilon * (1.0 - self._alpha)
-        torque = tau0 + gain_w * (u0 - tau0)
         gain = -gain_w * K0
         gain[:, 2 * nv :] += (1.0 - gain_w) * np.eye(nv)
         return torque, gain

@@ -183,6 +183,17 @@ _LOADERS = {"iiwa": _load_iiwa, "panda": _load_panda}
 ROBOT_NAMES = tuple(_LOADERS)
 
 
+def mass_matrix(model: pin.Model, data: pin.Data, q: np.ndarray) -> np.ndarray:
+    """The joint-space mass matrix M(q) (kg·m², kg), symmetric, as a new array.
+
+    ``pin.crba`` fills the upper triangle (the strict lower one is left as it was in
+    ``data.M``); the upper triangle is mirrored here, so the result does not depend on that
+    convention. Also computes what ``pin.crba`` computes into ``data``.
+    """
+    M = pin.crba(model, data, q)
+    return np.triu(M) + np.triu(M, 1).T
+
+
 def load_robot(name: str) -> RobotModel:
     """Load a robot model by name (``"iiwa"`` or ``"panda"``)."""
     try:

@@ -349,7 +349,7 @@ class SoftContactDynamics:
             deflection = data.rotation.T @ deflection
             velocity = data.linear_velocity_local
         r = self.rows
-        return -self.stiffness * deflection[r] - self.damping * velocity[r]
+        return visco_elastic_force(deflection[r], velocity[r], self.stiffness, self.damping)
 
     # -------------------------------------------------------------- derivatives
     def calc_diff(

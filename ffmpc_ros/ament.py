@@ -22,7 +22,7 @@ PACKAGE = "ffmpc_ros"
 
 #: executable → module whose ``main()`` it runs.
 EXECUTABLES: dict[str, str] = {
-    "plant": "sim_bridge.node",
+    "plant": "ffmpc_ros.plant_node",
     "joint_sensor": "ffmpc_ros.joint_sensor_node",
     "ft_sensor": "ffmpc_ros.ft_sensor_node",
     "mpc": "ffmpc_ros.mpc_node",

@@ -28,7 +28,7 @@ import os
 import sys
 import time
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
 import numpy as np
@@ -254,6 +254,15 @@ class StudyNode(Node):
     def finished(self) -> bool:
         """True when the node has nothing left to do (its executable may exit)."""
         return False
+
+
+def drop_stale_cycles(stores: Iterable[dict[int, Any]], newest: int, keep: int) -> None:
+    """The cycle synchroniser's clean-up: delete from each per-cycle store (cycle k → input)
+    every entry of a cycle before ``newest − keep``, an input whose partners never came."""
+    oldest = newest - keep
+    for store in stores:
+        for old in [c for c in store if c < oldest]:
+            del store[old]
 
 
 def _first_line(exc: BaseException) -> str:

@@ -44,7 +44,6 @@ Safety of the run itself (lockstep):
 from __future__ import annotations
 
 import contextlib
-import importlib
 import json
 import math
 import os
@@ -58,7 +57,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import rclpy
-import yaml
 from rclpy.context import Context
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
@@ -73,17 +71,15 @@ from ffmpc_core.metrics import PolishingMetrics
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import Scenario
 from ffmpc_ros import layouts, topics
-from ffmpc_ros.params import node_parameter_values, parameter_overrides
+from ffmpc_ros.graph_nodes import (
+    METRICS_NODE,
+    NODES,
+    graph_parameters,
+    load_node_class,
+    write_params_file,
+)
+from ffmpc_ros.params import parameter_overrides
 
-#: node name → "module:class"; the module's ``main`` is the executable.
-NODES: dict[str, str] = {
-    "plant": "sim_bridge.node:PlantNode",
-    "joint_sensor": "ffmpc_ros.joint_sensor_node:JointSensorNode",
-    "ft_sensor": "ffmpc_ros.ft_sensor_node:FtSensorNode",
-    "mpc": "ffmpc_ros.mpc_node:MpcNode",
-    "pid": "ffmpc_ros.pid_node:PidNode",
-}
-METRICS_NODE = "ffmpc_ros.metrics_node:MetricsNode"
 #: Wall s the bring-up listens for foreign publishers on the graph's topics before starting.
 FOREIGN_DISCOVERY_WAIT = 2.0
 #: At most this many wall s, from the first foreign node seen, to gather the others' names.
@@ -218,42 +214,6 @@ TIMING_KEYS = (
     "latency_p99_ms",
     "latency_max_ms",
 )
-
-
-def _load(path: str):
-    module, _, cls = path.partition(":")
-    return getattr(importlib.import_module(module), cls)
-
-
-def graph_parameters(scenario: Scenario, lockstep: bool, duration: float) -> dict[str, dict]:
-    """{node: {ROS name: value}} of every node of the graph, metrics node included."""
-    graph = {
-        "lockstep": lockstep,
-        "duration": float(duration),
-        "start_delay": 0.5,  # wall s after the subscribers appear: discovery settles
-        "start_subscribers": 2,  # the joint-sensor and metrics nodes
-        "wait_for_metrics": True,  # the metrics node has matched every topic it records
-    }
-    names = [*NODES, "metrics"]
-    return {n: node_parameter_values(n, scenario, **graph) for n in names}
-
-
-def _nested(flat: dict) -> dict:
-    out: dict = {}
-    for key, value in flat.items():
-        parts = key.split(".")
-        d = out
-        for p in parts[:-1]:
-            d = d.setdefault(p, {})
-        d[parts[-1]] = value
-    return out
-
-
-def write_params_file(params: dict[str, dict], path: str) -> None:
-    """A ROS 2 parameter file with one section per node."""
-    doc = {node: {"ros__parameters": _nested(values)} for node, values in params.items()}
-    with open(path, "w", encoding="utf-8") as fh:
-        yaml.safe_dump(doc, fh, sort_keys=False)
 
 
 class _StatusProbe:
@@ -446,7 +406,7 @@ def run_graph(
         raise ConfigError(
             f"per-node ROS arguments for unknown nodes {unknown}; nodes: {list(NODES)}"
         )
-    metrics_cls = _load(METRICS_NODE)
+    metrics_cls = load_node_class(METRICS_NODE)
     # Task duration from the metrics node's own view of the scenario when not given.
     if duration is None:
         from ffmpc_core.study import build_task
@@ -499,7 +459,7 @@ def run_graph(
         if single_process:
             for name, path in NODES.items():
                 graph_nodes.append(
-                    _load(path)(
+                    load_node_class(path)(
                         context=context, parameter_overrides=parameter_overrides(params[name])
                     )
                 )

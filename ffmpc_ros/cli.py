@@ -7,12 +7,20 @@ would fail to load.
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
-from pathlib import Path
 
 from ffmpc_core.errors import ConfigError, FfmpcError
+from ffmpc_ros.cli_args import (
+    new_path,
+    nonnegative_float,
+    nonnegative_int,
+    output_file,
+    positive_float,
+    positive_int,
+    seed_int,
+)
+from ffmpc_ros.cli_args import parse_overrides as _parse_overrides
 from ffmpc_ros.discovery import ensure_local_discovery
 
 #: ffmpc_core.config.FORMULATIONS, spelled out so that building the parser imports nothing heavy.
@@ -26,91 +34,6 @@ class Parser(argparse.ArgumentParser):
 
     def error(self, message: str) -> None:  # type: ignore[override]
         self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
-
-
-# -- argument types: each refuses a malformed value with argparse's one-line error -------------
-def _number(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return value
-
-
-def positive_float(text: str) -> float:
-    """A finite number > 0."""
-    value = _number(text)
-    if value <= 0.0:
-        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
-    return value
-
-
-def nonnegative_float(text: str) -> float:
-    """A finite number >= 0."""
-    value = _number(text)
-    if value < 0.0:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
-    return value
-
-
-def _integer(text: str, low: int) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value < low:
-        raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {text!r}")
-    return value
-
-
-def positive_int(text: str) -> int:
-    """An integer >= 1."""
-    return _integer(text, 1)
-
-
-def nonnegative_int(text: str) -> int:
-    """An integer >= 0."""
-    return _integer(text, 0)
-
-
-def seed_int(text: str) -> int:
-    """A seed: an integer in [0, 2**31 - 1] (the range of the scenario's ``seed``)."""
-    value = _integer(text, 0)
-    if value > 2**31 - 1:
-        raise argparse.ArgumentTypeError(f"expected an integer in [0, 2147483647], got {text!r}")
-    return value
-
-
-def new_path(text: str) -> str:
-    """An output path that does not exist yet, in an existing directory."""
-    path = Path(text)
-    if not text:
-        raise argparse.ArgumentTypeError("expected a path, got ''")
-    if path.exists():
-        raise argparse.ArgumentTypeError(f"{text} already exists; never overwritten")
-    if not path.parent.is_dir():
-        raise argparse.ArgumentTypeError(f"{text}: no directory {str(path.parent)!r}")
-    return text
-
-
-def output_file(text: str) -> str:
-    """A file to (over)write: not a directory, in an existing directory."""
-    path = Path(text)
-    if not text or path.is_dir():
-        raise argparse.ArgumentTypeError(f"expected a file path, got {text!r}")
-    if not path.parent.is_dir():
-        raise argparse.ArgumentTypeError(f"{text}: no directory {str(path.parent)!r}")
-    return text
-
-
-def existing_file(text: str) -> str:
-    """An input file that exists."""
-    if not Path(text).is_file():
-        what = "a directory, not a file" if Path(text).is_dir() else "no such file"
-        raise argparse.ArgumentTypeError(f"{text}: {what}")
-    return text
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
@@ -165,38 +88,9 @@ def _cmd_bench_impact(args: argparse.Namespace) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from sim_bridge.demo import run_demo
+    from ffmpc_ros.demo import run_demo
 
     return run_demo(seed=args.seed)
-
-
-def _parse_overrides(items: list[str] | None, node_names: bool = False) -> dict:
-    """``--set name=value`` pairs; values are read as YAML scalars (``3``, ``true``, ``[1, 2]``)
-    and checked against the scenario schema (ConfigError ``name = value: expected …``).
-    ``node_names``: names that are not scenario names are left to the caller (``bag rerun``
-    takes a node's own parameter names)."""
-    import yaml
-
-    from ffmpc_core.scenario import SCHEMA, unknown_parameter
-
-    out = {}
-    for item in items or []:
-        name, sep, text = item.partition("=")
-        name = name.strip()
-        if not sep or not name:
-            raise ConfigError(f"--set {item!r}: expected NAME=VALUE")
-        try:
-            value = yaml.safe_load(text)
-        except yaml.YAMLError:
-            raise ConfigError(f"--set {item!r}: the value is not a YAML value") from None
-        if isinstance(value, dict):
-            raise ConfigError(f"--set {item!r}: expected one value, not a mapping")
-        if name in SCHEMA:
-            SCHEMA[name].check(value)  # the length of per-contact-axis lists is checked later
-        elif not node_names:
-            raise unknown_parameter(name, value)
-        out[name] = value
-    return out
 
 
 def _cmd_study(args: argparse.Namespace) -> int:

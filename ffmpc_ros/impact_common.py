@@ -1,6 +1,7 @@
 """What the impact nodes share (Dehio & Kheddar 2020): the measured joint state and wrench of
-each cycle paired by stamp, the learner's estimate on the wire (layout ``contact_estimate``), and
-the rule that says when an estimate is confident enough to be used.
+each cycle paired by stamp, and the learner's estimate on the wire (layout ``contact_estimate``).
+The rule that says when an estimate is confident enough to be used is
+``ffmpc_core.impact.learner.confident``.
 
 Pairing. The impact planner and the contact learner read ``/joint_sensor/joint_states`` (q̂, q̇̂)
 and ``/ft_sensor/wrench`` (λ̂, frame ``contact_world_aligned``). A cycle k is processed once both
@@ -22,9 +23,8 @@ from std_msgs.msg import Float64MultiArray
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.impact.deformation import unit_direction
 from ffmpc_core.impact.learner import ContactEstimate
-from ffmpc_core.impact.learner import confident as learner_confident
 from ffmpc_ros import layouts, topics
-from ffmpc_ros.base import StudyNode
+from ffmpc_ros.base import StudyNode, drop_stale_cycles
 
 #: Cycles an incomplete measurement waits for its partner before it is dropped: the publishers'
 #: history, so that a late subscriber can pair everything TRANSIENT_LOCAL hands it at once.
@@ -39,12 +39,6 @@ def direction_parameter(value) -> np.ndarray:
         return unit_direction(np.asarray(value, dtype=float))
     except InputError as exc:
         raise ConfigError(f"parameter direction: {exc}") from None
-
-
-def confident(estimate: ContactEstimate, min_samples: int, max_relative_std: float) -> bool:
-    """True when an estimate may replace a prior (``ffmpc_core.impact.learner.confident``:
-    enough samples, small standard errors, α̂ and β̂ within their plausible ranges)."""
-    return learner_confident(estimate, min_samples, max_relative_std)
 
 
 def estimate_message(
@@ -194,9 +188,7 @@ class MeasuredCycleNode(StudyNode):
         self._try_cycle(k)
 
     def _try_cycle(self, k: int) -> None:
-        for store in (self._joints, self._wrenches):
-            for old in [c for c in store if c < k - KEEP]:
-                del store[old]
+        drop_stale_cycles((self._joints, self._wrenches), k, KEEP)
         if k not in self._joints or k not in self._wrenches:
             return
         q, v = self._joints.pop(k)

@@ -55,6 +55,7 @@ from ffmpc_core.impact.control import (
     ImpactMeasurement,
 )
 from ffmpc_core.impact.deformation import SoftMaterial
+from ffmpc_core.impact.learner import confident
 from ffmpc_core.impact.limits import JointLimits, joint_limits
 from ffmpc_core.impact.planner import PlannerConfig
 from ffmpc_core.robots import load_robot
@@ -63,7 +64,6 @@ from ffmpc_ros.base import run_node
 from ffmpc_ros.impact_common import (
     DIRECTION_TOLERANCE,
     MeasuredCycleNode,
-    confident,
     direction_parameter,
     receive_estimate,
 )

@@ -34,12 +34,13 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from ffmpc_core.errors import ConfigError, FfmpcError
+from ffmpc_core.impact.learner import confident
 from ffmpc_core.mpc import ModelPredictiveController, MpcMeasurement
 from ffmpc_core.robots import load_robot
 from ffmpc_core.study import build_task, measured_force, mpc_config, steps_per_mpc_period
 from ffmpc_ros import layouts, topics
-from ffmpc_ros.base import StudyNode, run_node
-from ffmpc_ros.impact_common import DIRECTION_TOLERANCE, confident, receive_estimate
+from ffmpc_ros.base import StudyNode, drop_stale_cycles, run_node
+from ffmpc_ros.impact_common import DIRECTION_TOLERANCE, receive_estimate
 
 _KEEP = 20  # cycles of unmatched measurements kept
 WARM_UP_SOLVES = 20  # real time: solves before the node subscribes to its inputs
@@ -243,9 +244,7 @@ class MpcNode(StudyNode):
         gc.enable()
 
     def _try_solve(self, k: int) -> None:
-        for store in (self._joints, self._forces):
-            for old in [c for c in store if c < k - _KEEP]:
-                del store[old]
+        drop_stale_cycles((self._joints, self._forces), k, _KEEP)
         if not self._due(k) or k not in self._joints:
             return
         if self.needs_force and k not in self._forces:

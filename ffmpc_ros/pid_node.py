@@ -37,7 +37,7 @@ from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement
 from ffmpc_core.robots import load_robot
 from ffmpc_core.study import lowlevel_controller, measured_force, steps_per_mpc_period
 from ffmpc_ros import layouts, topics
-from ffmpc_ros.base import StudyNode, run_node
+from ffmpc_ros.base import StudyNode, drop_stale_cycles, run_node
 
 _KEEP = 50  # cycles of pending inputs kept
 
@@ -184,9 +184,7 @@ class PidNode(StudyNode):
                 except InputError as exc:
                     self.reject(f"{topics.MPC_COMMAND}:value", str(exc))
             self._step(k, LowLevelMeasurement(q, v, tau, force))
-            for store in (self._joints, self._forces, self._commands):
-                for old in [c for c in store if c < k - _KEEP]:
-                    del store[old]
+            drop_stale_cycles((self._joints, self._forces, self._commands), k, _KEEP)
             if self._force_rejected:  # (empty on every cycle without a rejection)
                 self._force_rejected = {c for c in self._force_rejected if c >= k - _KEEP}
 

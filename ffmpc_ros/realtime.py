@@ -313,7 +313,7 @@ class RealtimeLoop:
 
     Args:
         params: {node: {ROS name: value}} of ``plant``, ``joint_sensor``, ``ft_sensor``, ``pid``
-            (``ffmpc_ros.bringup.graph_parameters``; the plant's ``duration`` and
+            (``ffmpc_ros.graph_nodes.graph_parameters``; the plant's ``duration`` and
             ``start_delay`` are used).
         context: the rclpy context.
     """
@@ -333,7 +333,7 @@ class RealtimeLoop:
         self.joint_names = list(robot.joint_names)
         self.time_step = plant_node.time_step
         self.step_ns = plant_node.step_ns
-        # plant (as sim_bridge.node.PlantNode)
+        # plant (as ffmpc_ros.plant_node.PlantNode)
         from sim_bridge.runner import simulated_robot
 
         self.sim = simulated_robot(
@@ -777,14 +777,14 @@ def run_realtime(
     """Start the MPC process and the loop process, wait for the run, return its results.
 
     Args:
-        params: ``bringup.graph_parameters(scenario, lockstep=False, duration)``.
+        params: ``graph_nodes.graph_parameters(scenario, lockstep=False, duration)``.
         cpus: (loop CPU, MPC CPU) to pin each process to ("auto": :func:`default_cpus`; None:
             let the kernel place them).
         priority: SCHED_FIFO priority of both processes (0: normal scheduling); where it is
             not permitted the run goes on with normal scheduling and a warning.
         fault_windows: (start, end) simulated s in which fallback is excused.
     """
-    from ffmpc_ros.bringup import NODES, write_params_file
+    from ffmpc_ros.graph_nodes import NODES, write_params_file
 
     start = time.perf_counter()
     warnings: list[str] = []

@@ -63,8 +63,9 @@ comparison (:attr:`Checkpoint.with_onset`). All other samples fit eq 3 to 0.3 mN
 
 Joint limits: before the learner is confident, the guard is told the force an impact during the
 next step could add uncompensated, ``(β_p + α_p Δt) max(ż, 0)`` from a prior (the stiffest
-material expected); afterwards the learned model predicts the next force increase,
-``α̂ (z + ż Δt) + β̂ ż − f`` (:func:`predicted_force_increase`), with the friction force of a
+material expected; ``ffmpc_core.impact.deformation.one_step_impact_force``); afterwards the
+learned model predicts the next force increase, ``α̂ (z + ż Δt) + β̂ ż − f``
+(``ffmpc_core.impact.deformation.predicted_force_increase``), with the friction force of a
 sticking contact added (:func:`sticking_contact_force`). Violations are counted against
 the full data-sheet limits (:func:`~sim_bridge.impact_study.count_limit_violations`).
 
@@ -83,11 +84,11 @@ import pybullet as pb
 
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.impact.control import CartesianCommand
+from ffmpc_core.impact.deformation import one_step_impact_force, predicted_force_increase
 from ffmpc_core.impact.learner import (
     ContactEstimate,
     ExplorationReference,
     RecursiveContactLearner,
-    confident,
     exploration_reference,
     fit_stiffness_damping,
     stack_data,
@@ -99,7 +100,7 @@ from ffmpc_core.impact.task_space import (
     TaskSpaceGains,
     TaskSpaceInverseDynamics,
 )
-from ffmpc_core.robots import RobotModel, load_robot
+from ffmpc_core.robots import RobotModel, load_robot, mass_matrix
 from sim_bridge.impact_study import (
     DiceConfig,
     LimitViolations,
@@ -117,7 +118,6 @@ __all__ = [
     "format_checkpoints",
     "format_summary",
     "measured_deformation",
-    "predicted_force_increase",
     "run_exploration",
     "run_exploration_study",
     "sticking_contact_force",
@@ -311,25 +311,6 @@ def measured_deformation(
     return float(np.asarray(direction) @ (np.asarray(position) - np.asarray(surface)))
 
 
-def predicted_force_increase(
-    stiffness: float,
-    damping: float,
-    deformation: float,
-    deformation_rate: float,
-    force: float,
-    dt: float,
-) -> float:
-    """Eq 3 one step ahead: how much the pressing force may grow during the next step (N),
-    ``max(α (z + ż Δt) + β ż − f, 0)`` if the tool is inside the material at the end of the
-    step (``z + ż Δt > 0``), else 0. α N/m, β N·s/m, z m, ż m/s, f N (the force compensated
-    now), Δt s. It is the force the task-space law cannot compensate in time, handed to the
-    joint-limit guard as ``impact_force``."""
-    z_next = deformation + deformation_rate * dt
-    if z_next <= 0.0:
-        return 0.0
-    return max(stiffness * z_next + damping * deformation_rate - force, 0.0)
-
-
 def sticking_contact_force(
     normal_force: float,
     inverse_inertia: np.ndarray,
@@ -463,10 +444,6 @@ class ExplorationRun:
     @property
     def final(self) -> Checkpoint:
         return self.checkpoints[-1]
-
-
-def _confident(est: ContactEstimate, cfg: ExplorationConfig) -> bool:
-    return confident(est, cfg.learner_min_samples, cfg.learner_max_relative_std)
 
 
 def _tool_contact(plant: Plant, body: int) -> tuple[float, int]:
@@ -618,14 +595,14 @@ def run_exploration(
                 phase_peak, touch_speed = 0.0, float("nan")
 
             # 2. tracking, with the force the next step may add handed to the guard
-            est = _safe_estimate(learner)
-            if est is not None and _confident(est, cfg):
+            est = learner.confident_estimate(cfg.learner_min_samples, cfg.learner_max_relative_std)
+            if est is not None:
                 push = predicted_force_increase(est.stiffness, est.damping, z, speed, force, dt)
             else:
                 push = (
                     0.0
                     if in_contact
-                    else max(speed, 0.0) * (cfg.prior_damping + cfg.prior_stiffness * dt)
+                    else one_step_impact_force(cfg.prior_stiffness, cfg.prior_damping, speed, dt)
                 )
             command = CartesianCommand(
                 phase="explore",
@@ -641,8 +618,7 @@ def run_exploration(
             if push > 0.0:
                 pin.computeJointJacobians(model, data, q)
                 J = pin.getFrameJacobian(model, data, fid, _LWA)[:3]
-                M = pin.crba(model, data, q)
-                M = np.triu(M) + np.triu(M, 1).T
+                M = mass_matrix(model, data, q)
                 impact = sticking_contact_force(push, J @ np.linalg.solve(M, J.T), friction)
             tau = law.torque(command, q, v, s.wrench_world, impact_force=impact)
             taus[k] = tau
@@ -683,15 +659,6 @@ def run_exploration(
         wall_time=time.perf_counter() - wall,
         log=log,
     )
-
-
-def _safe_estimate(learner: RecursiveContactLearner) -> ContactEstimate | None:
-    if learner.samples < 3:
-        return None
-    try:
-        return learner.estimate()
-    except InputError:  # (S Sᵀ) still singular
-        return None
 
 
 def _checkpoint(

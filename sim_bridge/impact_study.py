@@ -108,8 +108,8 @@ from ffmpc_core.impact.control import (
     ImpactControllerConfig,
     ImpactMeasurement,
 )
-from ffmpc_core.impact.deformation import SoftMaterial
-from ffmpc_core.impact.learner import RecursiveContactLearner, confident
+from ffmpc_core.impact.deformation import SoftMaterial, one_step_impact_force
+from ffmpc_core.impact.learner import RecursiveContactLearner
 from ffmpc_core.impact.limits import ContactSpaceMapper, JointLimits, joint_limits
 from ffmpc_core.impact.planner import PlannerConfig
 from ffmpc_core.impact.robust import MaterialInterval, check_force_target
@@ -610,14 +610,8 @@ def _learner_ready(
     learner: RecursiveContactLearner, cfg: ImpactStudyConfig
 ) -> tuple[float, float] | None:
     """The learner's (α̂, β̂) if it is confident enough to replace the prior, else None."""
-    if learner.samples < cfg.learner_min_samples:
-        return None
-    try:
-        est = learner.estimate()
-    except InputError:  # (S Sᵀ) still singular
-        return None
-    ok = confident(est, cfg.learner_min_samples, cfg.learner_max_relative_std)
-    return (est.stiffness, est.damping) if ok else None
+    est = learner.confident_estimate(cfg.learner_min_samples, cfg.learner_max_relative_std)
+    return None if est is None else (est.stiffness, est.damping)
 
 
 def run_impact(
@@ -765,7 +759,7 @@ def run_impact(
             elif not in_contact:
                 # An impact during the next step would push back with f ≈ β ż + α ż Δt.
                 prior = cfg.prior
-                f_pred = max(speed, 0.0) * (prior.damping + prior.stiffness * dt)
+                f_pred = one_step_impact_force(prior.stiffness, prior.damping, speed, dt)
                 impact_force = -f_pred * DOWN
             if (
                 regulation == "ff_mpc"

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.impact.deformation import predicted_force_increase
 from ffmpc_core.impact.learner import fit_stiffness_damping, stack_data
 from ffmpc_core.impact.limits import motion_basis
 from sim_bridge.exploration import (
@@ -22,7 +23,6 @@ from sim_bridge.exploration import (
     Material,
     format_checkpoints,
     format_summary,
-    predicted_force_increase,
     run_exploration,
     run_exploration_study,
     sticking_contact_force,

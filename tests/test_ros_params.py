@@ -15,7 +15,7 @@ from ffmpc_core.scenario import SCENARIO_DIR, load_scenario, resolve_scenario_pa
 from ffmpc_ros.joint_sensor_node import JointSensorNode
 from ffmpc_ros.mpc_node import MpcNode
 from ffmpc_ros.params import NODE_SPECS, node_parameter_values, scenario_from_parameters
-from sim_bridge.node import PlantNode
+from ffmpc_ros.plant_node import PlantNode
 
 NUMERIC = (ParameterType.PARAMETER_DOUBLE, ParameterType.PARAMETER_INTEGER)
 

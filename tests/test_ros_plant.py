@@ -15,7 +15,7 @@ from std_msgs.msg import Float64MultiArray
 from ffmpc_core.scenario import load_scenario
 from ffmpc_core.study import actuation_model, build_task, device_generator, draw_run
 from ffmpc_ros import layouts, topics
-from sim_bridge.node import PlantNode
+from ffmpc_ros.plant_node import PlantNode
 from sim_bridge.plant import Plant
 from sim_bridge.runner import plant_config
 

@@ -30,7 +30,7 @@ from ffmpc_ros.params import (
     scenario_flat,
 )
 from ffmpc_ros.pid_node import PidNode
-from sim_bridge.node import PlantNode
+from ffmpc_ros.plant_node import PlantNode
 
 ONE_LINE = re.compile(r"^[\w.]+ = .+: (expected .+|unknown scenario parameter.*)$")
 NODES = {"mpc": MpcNode, "pid": PidNode, "joint_sensor": JointSensorNode}

@@ -45,6 +45,8 @@ __all__ = [
     "effective_mass",
     "effective_mass_from",
     "material_matrix",
+    "one_step_impact_force",
+    "predicted_force_increase",
     "simulate_deformation",
     "unit_direction",
 ]
@@ -107,6 +109,39 @@ def deformation_force(
     return stiffness * np.asarray(deformation, dtype=float) + damping * np.asarray(
         deformation_rate, dtype=float
     )
+
+
+def one_step_impact_force(
+    stiffness: float, damping: float, speed: float, dt: float, factor: float = 1.0
+) -> float:
+    """Eq 3 after one step Δt in contact from the surface: ``κ (β + α Δt) max(ż, 0)`` (N).
+
+    A contact that starts at ``z = 0`` with rate ``ż`` has, one explicit step later,
+    ``z = ż Δt`` and so ``f = α ż Δt + β ż``: the force an impact during the next control step
+    adds, which the joint-limit guard reserves before the contact is seen. α N/m, β N·s/m,
+    ż m/s along the motion direction (only approaching counts), Δt s; ``factor`` κ scales it
+    (the measured first-contact force over this one, see ``touch_first``).
+    """
+    return factor * max(speed, 0.0) * (damping + stiffness * dt)
+
+
+def predicted_force_increase(
+    stiffness: float,
+    damping: float,
+    deformation: float,
+    deformation_rate: float,
+    force: float,
+    dt: float,
+) -> float:
+    """Eq 3 one step ahead: how much the pressing force may grow during the next step (N),
+    ``max(α (z + ż Δt) + β ż − f, 0)`` if the tool is inside the material at the end of the
+    step (``z + ż Δt > 0``), else 0. α N/m, β N·s/m, z m, ż m/s, f N (the force compensated
+    now), Δt s. It is the force the task-space law cannot compensate in time, handed to the
+    joint-limit guard as ``impact_force``."""
+    z_next = deformation + deformation_rate * dt
+    if z_next <= 0.0:
+        return 0.0
+    return max(stiffness * z_next + damping * deformation_rate - force, 0.0)
 
 
 def material_matrix(stiffness: float, damping: float) -> np.ndarray:

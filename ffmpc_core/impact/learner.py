@@ -190,6 +190,23 @@ class RecursiveContactLearner:
         except np.linalg.LinAlgError as exc:
             raise InputError("eq 21: (S Sᵀ) is singular: not enough excitation yet") from exc
 
+    def confident_estimate(
+        self, min_samples: int, max_relative_std: float
+    ) -> ContactEstimate | None:
+        """The estimate if it is :func:`confident` (it may replace the prior), else None.
+
+        None too with fewer than ``min_samples`` samples (the estimate is not computed) or
+        while ``(S Sᵀ)`` is singular. The one rule every user of the learner applies: the
+        studies, the touch-first controller and the ROS nodes.
+        """
+        if self.samples < min_samples:
+            return None
+        try:
+            est = self.estimate()
+        except InputError:  # (S Sᵀ) still singular
+            return None
+        return est if confident(est, min_samples, max_relative_std) else None
+
     def estimate(self) -> ContactEstimate:
         """Eq 21 with the confidence measure of the module docstring."""
         E = self.coefficients()

@@ -36,7 +36,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from ffmpc_core.errors import ConfigError, InputError, SolverError
 from ffmpc_core.impact.deformation import effective_mass_from, unit_direction
-from ffmpc_core.robots import RobotModel
+from ffmpc_core.robots import RobotModel, mass_matrix
 
 __all__ = [
     "MAPPER_SOLVERS",
@@ -560,7 +560,6 @@ class ContactSpaceMapper:
         n = robot.nv
         self._n = n
         self._zero_nv = np.zeros(n)
-        self._strict_lower = np.tril_indices(n, -1)
         theta = 2.0 * np.pi * (np.arange(self.n_directions) + 0.5) / self.n_directions
         self._weights = np.column_stack([np.cos(theta), np.sin(theta)])  # ÷ Λ in column 1
         # eq 9: variables q̇ (n); rows [J_B; I].
@@ -624,8 +623,7 @@ class ContactSpaceMapper:
         pin.updateFramePlacements(model, data)
         JO = self._basis_T @ pin.getFrameJacobian(model, data, fid, _LWA)  # eq 2 split
         drift = self._basis_T @ pin.getFrameClassicalAcceleration(model, data, fid, _LWA).vector
-        M = pin.crba(model, data, q)  # upper triangle filled
-        M[self._strict_lower] = M.T[self._strict_lower]
+        M = mass_matrix(model, data, q)
         h = pin.nonLinearEffects(model, data, q, v).copy()
         Minv = pin.computeMinverse(model, data, q)
         return {

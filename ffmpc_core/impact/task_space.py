@@ -39,7 +39,7 @@ from scipy.optimize import lsq_linear
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.impact.control import CartesianCommand
 from ffmpc_core.impact.limits import JointLimits, _SparsePattern
-from ffmpc_core.robots import RobotModel
+from ffmpc_core.robots import RobotModel, mass_matrix
 
 __all__ = [
     "AccelerationBox",
@@ -217,8 +217,7 @@ class JointLimitGuard:
         J = pin.getFrameJacobian(model, data, fid, _LWA)
         vel = pin.getFrameVelocity(model, data, fid, _LWA)
         drift = pin.getFrameClassicalAcceleration(model, data, fid, _LWA)
-        M = pin.crba(model, data, q)
-        M = np.triu(M) + np.triu(M, 1).T
+        M = mass_matrix(model, data, q)
         h = pin.nonLinearEffects(model, data, q, v).copy()
         return data.oMf[fid], J, vel, drift, M, h
 
@@ -408,8 +407,7 @@ class TaskSpaceInverseDynamics:
         JJt = J @ J.T + g.pinv_damping * np.eye(6)
         Jpinv = J.T @ np.linalg.inv(JJt)
         qdd = Jpinv @ xdd + (np.eye(model.nv) - Jpinv @ J) @ (-g.null_damping * v)
-        M = pin.crba(model, data, q)
-        M = np.triu(M) + np.triu(M, 1).T
+        M = mass_matrix(model, data, q)
         tau = M @ qdd + pin.nonLinearEffects(model, data, q, v)
         if external_force is not None:
             tau -= external_joint_torque(J, external_force)

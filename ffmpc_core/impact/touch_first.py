@@ -56,6 +56,7 @@ from ffmpc_core.impact.control import (
     ImpactControllerConfig,
     ImpactMeasurement,
 )
+from ffmpc_core.impact.deformation import one_step_impact_force
 from ffmpc_core.impact.learner import ContactEstimate
 from ffmpc_core.impact.limits import JointLimits
 from ffmpc_core.impact.robust import (
@@ -223,19 +224,7 @@ class TouchFirstImpactController(ImpactController):
     def learner_confident(self) -> ContactEstimate | None:
         """The learner's estimate if it meets the confidence of :class:`TouchFirstConfig`."""
         tc = self.touch
-        if self.learner.samples < tc.learner_min_samples:
-            return None
-        try:
-            est = self.learner.estimate()
-        except InputError:
-            return None
-        ok = (
-            est.stiffness > 0
-            and est.damping >= 0
-            and est.stiffness_std <= tc.learner_max_relative_std * est.stiffness
-            and est.damping_std <= tc.learner_max_relative_std * max(est.damping, 1e-9)
-        )
-        return est if ok else None
+        return self.learner.confident_estimate(tc.learner_min_samples, tc.learner_max_relative_std)
 
     def impact_force_estimate(self, speed: float, dt: float, force: float = 0.0) -> float:
         """Force (N) of an impact during the next step at ``speed`` (m/s along d), for the
@@ -263,9 +252,9 @@ class TouchFirstImpactController(ImpactController):
             return 0.0
         k = self.knowledge
         if force >= self.config.contact_threshold:
-            return max(speed, 0.0) * (k.damping_upper + k.stiffness_upper * dt)
+            return one_step_impact_force(k.stiffness_upper, k.damping_upper, speed, dt)
         kappa = self.touch.impact_force_factor
-        return kappa * max(speed, 0.0) * (k.damping + k.stiffness * dt)
+        return one_step_impact_force(k.stiffness, k.damping, speed, dt, factor=kappa)
 
     def learn(self, position: np.ndarray, speed: float, force: float) -> None:
         """Eq 19–20 for a sample taken while another controller acts (e.g. the force-feedback

@@ -100,13 +100,13 @@ def _cmd_plot(args: argparse.Namespace) -> int:
 
 def _cmd_rerun(args: argparse.Namespace) -> int:
     from ffmpc_ros.bag.rerun import RerunTolerance, rerun_node
-    from ffmpc_ros.cli import _parse_overrides
+    from ffmpc_ros.cli_args import parse_overrides
 
     tolerance = RerunTolerance(args.rtol, args.atol)
     report = rerun_node(
         args.bag,
         args.node,
-        _parse_overrides(args.set, node_names=True),
+        parse_overrides(args.set, node_names=True),
         timeout=args.timeout,
         tolerance=tolerance,
     )
@@ -157,7 +157,7 @@ def _cmd_record(args: argparse.Namespace) -> int:
 
 def add_bag_parser(sub) -> None:
     """Register ``ffmpc bag`` and its subcommands on the ``ffmpc`` subparsers."""
-    from ffmpc_ros.cli import new_path, nonnegative_float, positive_float
+    from ffmpc_ros.cli_args import new_path, nonnegative_float, positive_float
 
     bag = sub.add_parser(
         "bag",

@@ -264,18 +264,20 @@ def graph_recorder_metadata(scenario=None, run: Mapping[str, Mapping[str, Any]] 
 
     from ffmpc_core.scenario import scenario_parameters
     from ffmpc_ros.bag.machine import MACHINE_RECORD, machine_fingerprint
-    from ffmpc_ros.bringup import _nested
+    from ffmpc_ros.graph_nodes import nested_parameters
 
     info: dict[str, str] = {}
     if scenario is not None:
         sections = scenario_parameters(scenario)
         info["scenario_name"] = scenario.name
         info["scenario"] = yaml.safe_dump(
-            {sec: {"ros__parameters": _nested(v)} for sec, v in sections.items()}, sort_keys=False
+            {sec: {"ros__parameters": nested_parameters(v)} for sec, v in sections.items()},
+            sort_keys=False,
         )
     if run is not None:
         info["params_file"] = yaml.safe_dump(
-            {node: {"ros__parameters": _nested(v)} for node, v in run.items()}, sort_keys=False
+            {node: {"ros__parameters": nested_parameters(v)} for node, v in run.items()},
+            sort_keys=False,
         )
     records = {MACHINE_RECORD: machine_fingerprint()}
     if info:
@@ -285,7 +287,7 @@ def graph_recorder_metadata(scenario=None, run: Mapping[str, Mapping[str, Any]] 
 
 def _graph_recorder_options() -> dict[str, Any]:
     from ffmpc_ros import topics
-    from ffmpc_ros.bringup import NODES
+    from ffmpc_ros.graph_nodes import NODES
 
     return {
         "wait_for": [t for t, _, _ in topics.TOPICS],

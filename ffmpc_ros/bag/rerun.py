@@ -398,7 +398,7 @@ def rerun_node(
         tolerance: how close outputs must be off the recording machine (default
             :class:`RerunTolerance`).
     """
-    from ffmpc_ros.bringup import NODES, _load
+    from ffmpc_ros.graph_nodes import NODES, load_node_class
     from ffmpc_ros.params import parameter_overrides
 
     if node not in RERUN_NODES:
@@ -419,7 +419,7 @@ def rerun_node(
         created: list[Node] = []
         try:
             try:
-                target = _load(NODES[node])(
+                target = load_node_class(NODES[node])(
                     context=context,
                     parameter_overrides=parameter_overrides(values),
                     node_name=f"_rerun_{node}",

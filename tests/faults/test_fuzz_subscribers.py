@@ -61,7 +61,7 @@ def _nodes():
     from ffmpc_ros.metrics_node import MetricsNode
     from ffmpc_ros.mpc_node import MpcNode
     from ffmpc_ros.pid_node import PidNode
-    from sim_bridge.node import PlantNode
+    from ffmpc_ros.plant_node import PlantNode
 
     ff_riccati = load_scenario(
         "polishing", {"mpc.formulation": "force_feedback", "mpc.riccati_feedback": True}

@@ -153,7 +153,7 @@ def test_discovery_stays_on_this_machine_unless_the_user_widens_it(monkeypatch):
 
 
 @pytest.mark.parametrize(
-    "module", ["ffmpc_ros.joint_sensor_node", "ffmpc_ros.pid_node", "sim_bridge.node"]
+    "module", ["ffmpc_ros.joint_sensor_node", "ffmpc_ros.pid_node", "ffmpc_ros.plant_node"]
 )
 def test_a_node_started_by_hand_reports_localhost_discovery(module):
     env = {k: v for k, v in os.environ.items() if k != DISCOVERY_RANGE_VARIABLE}
@@ -183,7 +183,7 @@ def test_a_node_started_by_hand_reports_localhost_discovery(module):
 def test_the_plant_brakes_and_holds_when_the_motor_torques_stop(ros, robot):
     """Real time, plant alone: one large torque, then nothing. After ``max_input_age`` the drives'
     safe hold takes over (one log line) instead of applying that torque for ever."""
-    from sim_bridge.node import PlantNode
+    from ffmpc_ros.plant_node import PlantNode
 
     params = overrides("plant", None, lockstep=False, duration=0.4, max_input_age=0.02)
     node = ros.add(PlantNode(context=ros.context, parameter_overrides=params))

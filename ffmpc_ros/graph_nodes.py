@@ -1,0 +1,65 @@
+"""The node graph as data: which node runs which class, and the parameter file they all read.
+
+Shared by the bring-up (``ffmpc_ros.bringup``), the real-time runner (``ffmpc_ros.realtime``) and
+the bag recorder and re-run (``ffmpc_ros.bag``); it imports none of them, so none of them has
+to import another for these.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Mapping
+from typing import Any
+
+import yaml
+
+from ffmpc_core.scenario import Scenario
+from ffmpc_ros.params import node_parameter_values
+
+#: node name → "module:class"; the module's ``main`` is the executable.
+NODES: dict[str, str] = {
+    "plant": "ffmpc_ros.plant_node:PlantNode",
+    "joint_sensor": "ffmpc_ros.joint_sensor_node:JointSensorNode",
+    "ft_sensor": "ffmpc_ros.ft_sensor_node:FtSensorNode",
+    "mpc": "ffmpc_ros.mpc_node:MpcNode",
+    "pid": "ffmpc_ros.pid_node:PidNode",
+}
+METRICS_NODE = "ffmpc_ros.metrics_node:MetricsNode"
+
+
+def load_node_class(path: str) -> Any:
+    """The class named by a ``"module:class"`` entry of :data:`NODES` (imports the module)."""
+    module, _, cls = path.partition(":")
+    return getattr(importlib.import_module(module), cls)
+
+
+def graph_parameters(scenario: Scenario, lockstep: bool, duration: float) -> dict[str, dict]:
+    """{node: {ROS name: value}} of every node of the graph, metrics node included."""
+    graph = {
+        "lockstep": lockstep,
+        "duration": float(duration),
+        "start_delay": 0.5,  # wall s after the subscribers appear: discovery settles
+        "start_subscribers": 2,  # the joint-sensor and metrics nodes
+        "wait_for_metrics": True,  # the metrics node has matched every topic it records
+    }
+    names = [*NODES, "metrics"]
+    return {n: node_parameter_values(n, scenario, **graph) for n in names}
+
+
+def nested_parameters(flat: Mapping[str, Any]) -> dict:
+    """``{"a.b": 1}`` → ``{"a": {"b": 1}}``: dotted ROS parameter names as a YAML tree."""
+    out: dict = {}
+    for key, value in flat.items():
+        parts = key.split(".")
+        d = out
+        for p in parts[:-1]:
+            d = d.setdefault(p, {})
+        d[parts[-1]] = value
+    return out
+
+
+def write_params_file(params: Mapping[str, Mapping[str, Any]], path: str) -> None:
+    """A ROS 2 parameter file with one section per node."""
+    doc = {node: {"ros__parameters": nested_parameters(values)} for node, values in params.items()}
+    with open(path, "w", encoding="utf-8") as fh:
+        yaml.safe_dump(doc, fh, sort_keys=False)
