@@ -508,10 +508,11 @@ def execute_specs(
         (i for i, o in enumerate(outcomes) if o is None), key=lambda i: _cost_rank(specs[i])
     )
     n_cached = len(specs) - len(todo)
-    where = "in-process"
-    if todo and scheduler is None and (workers == 1 or len(todo) == 1):
-        workers = 1
-    elif todo:
+    if not todo:
+        where, workers = "none (every run from the cache)", 0
+    elif scheduler is None and (workers == 1 or len(todo) == 1):
+        where, workers = "in-process", 1
+    else:
         where = scheduler or "LocalCluster"
     if cache is not None:
         say(f"{len(specs)} runs: {n_cached} from the cache {cache.directory}, {len(todo)} to run")

@@ -186,6 +186,7 @@ def test_a_killed_study_resumes_from_its_cache_without_rerunning_finished_runs(
         check_output_dir(out, force=False, resume=True)
     assert main([*argv, "--no-progress", "--force"]) == 0
     assert _execution(out)["cached"] == 6 and _execution(out)["executed"] == 0
+    assert _execution(out)["cluster"] == "none (every run from the cache)"
     assert _runs(out) == reference
 
 
