@@ -311,6 +311,7 @@ def test_a_resumed_study_reuses_the_measured_mpc_step_time_so_its_runs_stay_cach
         **first.document["execution"],
         "cached": 1,
         "executed": 0,
+        "cluster": "none (every run from the cache)",
     }
     record = again.document["command_delay"]["classical"]
     assert record["delta_o_s"] == first.document["command_delay"]["classical"]["delta_o_s"]
