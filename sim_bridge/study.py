@@ -95,6 +95,16 @@ DIVERGENCE_ERRORS: tuple[type[BaseException], ...] = (
 
 
 # --------------------------------------------------------------------------- runs
+def _freeze(value: Any) -> Any:
+    """Lists (nested too) as tuples, so that an override value is hashable."""
+    return tuple(_freeze(v) for v in value) if isinstance(value, list | tuple) else value
+
+
+def _thaw(value: Any) -> Any:
+    """Tuples back to the lists a scenario file would hold."""
+    return [_thaw(v) for v in value] if isinstance(value, tuple) else value
+
+
 @dataclass(frozen=True)
 class RunSpec:
     """One run of a study: a scenario (shipped name or path) with the grid's overrides.
@@ -116,8 +126,14 @@ class RunSpec:
     #: δo resolved by the study for ``mpc.command_delay: measured`` (s), else None.
     command_delay: float | None = None
 
+    def __post_init__(self) -> None:
+        # Hashable whatever the caller passed: list values (``--set axis=[1, 0, 0]``) become
+        # tuples here and lists again in :meth:`scenario_overrides`.
+        frozen = tuple((str(k), _freeze(v)) for k, v in self.overrides)
+        object.__setattr__(self, "overrides", frozen)
+
     def scenario_overrides(self) -> dict[str, Any]:
-        out = dict(self.overrides)
+        out = {k: _thaw(v) for k, v in self.overrides}
         out.update(
             {
                 "mpc.formulation": self.formulation,

@@ -319,3 +319,14 @@ def test_a_resumed_study_reuses_the_measured_mpc_step_time_so_its_runs_stay_cach
         record["measured_step_median_s"]
         == (first.document["command_delay"]["classical"]["measured_step_median_s"])
     )
+
+
+def test_a_run_spec_is_hashable_even_with_list_overrides() -> None:
+    axis = {"plant.table_tilt_axis": [1.0, 0.0, 0.0]}
+    spec = grid_specs("polishing", ["classical"], [True], [0], 0.1, axis)[0]
+    assert spec.overrides == (("plant.table_tilt_axis", (1.0, 0.0, 0.0)),)
+    assert {spec: 1}[replace(spec)] == 1
+    assert spec.scenario_overrides()["plant.table_tilt_axis"] == [1.0, 0.0, 0.0]
+    assert spec.load().plant.table_tilt_axis == (1.0, 0.0, 0.0)
+    other = replace(spec, overrides=(("plant.table_tilt_axis", (0.0, 1.0, 0.0)),))
+    assert run_key(other) != run_key(spec)
