@@ -201,6 +201,7 @@ def _parse_overrides(items: list[str] | None, node_names: bool = False) -> dict:
 
 def _cmd_study(args: argparse.Namespace) -> int:
     import shlex
+    from pathlib import Path
 
     from ffmpc_core.scenario import load_scenario
 
