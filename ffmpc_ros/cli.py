@@ -95,14 +95,28 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 def _cmd_study(args: argparse.Namespace) -> int:
     import shlex
+    from pathlib import Path
 
     from ffmpc_core.scenario import load_scenario
 
     kind = "polishing" if args.study == "polishing" else "force_square"
     overrides = _parse_overrides(args.set)
     load_scenario(args.scenario or kind, overrides)  # refuse a bad scenario before any import
-    if args.out and os.path.exists(args.out) and not args.force:
-        raise ConfigError(f"output directory {args.out} already exists; pass --force to overwrite")
+    if args.scheduler is not None and args.workers is not None:
+        raise ConfigError("--workers and --scheduler exclude each other (a cluster has workers)")
+    use_cache = not args.no_cache
+    if args.out:
+        # sim_bridge.study.check_output_dir's rule, before sim_bridge (and PyBullet) is imported:
+        # an existing --out only with --force, or when it is an interrupted study to resume.
+        out = Path(args.out)
+        interrupted = (out / "cache").is_dir() and not (out / "results.json").exists()
+        resume = use_cache and not args.fresh and interrupted
+        if out.exists() and not (args.force or resume):
+            raise ConfigError(
+                f"output directory {out} already exists; pass --force to overwrite (an "
+                "interrupted study, with a cache/ and no results.json, resumes by running the "
+                "same command)"
+            )
     if args.plot_seed is not None and not (
         args.first_seed <= args.plot_seed < args.first_seed + args.seeds
     ):
@@ -133,6 +147,10 @@ def _cmd_study(args: argparse.Namespace) -> int:
         force=args.force,
         command_line=shlex.join(["ffmpc", *args.argv]),
         progress=not args.no_progress,
+        scheduler=args.scheduler,
+        cache=use_cache,
+        cache_dir=args.cache_dir,
+        fresh=args.fresh,
     )
     print(report.tables)
     if kind == "force_square":
@@ -146,8 +164,11 @@ def _cmd_study(args: argparse.Namespace) -> int:
                 maes.append(f"{LABELS[form]} {value}")
             print(f"normal-force MAE ({'PID' if pid else 'no PID'}): " + ", ".join(maes))
     failures = report.document["failures"]
+    execution = report.document["execution"]
     print(
-        f"{len(report.document['runs'])} runs, {len(failures)} failed, wall time "
+        f"{len(report.document['runs'])} runs, {len(failures)} failed "
+        f"({execution['cached']} from the cache, {execution['executed']} run: "
+        f"{execution['cluster']}, {report.document['workers']} worker(s)), wall time "
         f"{report.document['wall_time_s']:.1f} s"
     )
     for f in failures:
@@ -166,12 +187,31 @@ def _add_study_arguments(p: argparse.ArgumentParser, seeds: int, pid: str) -> No
     )
     p.add_argument("--first-seed", type=seed_int, default=0, help="first seed (default 0)")
     p.add_argument(
-        "--workers", type=positive_int, default=None, help="worker processes (default: all CPUs)"
+        "--workers",
+        type=positive_int,
+        default=None,
+        help="worker processes of a local Dask cluster (default: all CPUs; 1: in this process)",
     )
     p.add_argument(
-        "--out", help="output directory, must not exist (default benchmarks/results/...)"
+        "--scheduler",
+        metavar="ADDRESS",
+        help="run on a running Dask cluster, e.g. tcp://127.0.0.1:8786 (its workers need ffmpc)",
+    )
+    p.add_argument(
+        "--out",
+        help="output directory, must not exist (default benchmarks/results/...); an interrupted "
+        "study's directory (cache/, no results.json) is resumed",
     )
     p.add_argument("--force", action="store_true", help="write into an existing --out")
+    p.add_argument(
+        "--cache-dir",
+        metavar="DIR",
+        help="run cache directory, one JSON file per finished run (default OUT/cache)",
+    )
+    p.add_argument(
+        "--fresh", action="store_true", help="run every run again (results still go to the cache)"
+    )
+    p.add_argument("--no-cache", action="store_true", help="neither read nor write the run cache")
     p.add_argument(
         "--duration", type=positive_float, help="simulated time per run, s (default: task)"
     )

@@ -3,15 +3,19 @@
 A study is a grid of closed-loop runs — formulations × torque PID on/off × seeds — each run being
 ``run_scenario(load_scenario(name, overrides))`` with the overrides ``mpc.formulation``,
 ``pid.enabled`` and ``seed`` (the seed draws the table tilt θ and the actuation bias (a, b), the
-same for every controller). Runs go to a pool of worker processes started with the ``spawn``
-method (PyBullet clients and crocoddyl objects must never be forked mid-state); a worker sends
-back the run's ``summary()`` and, for the one seed that is plotted, a downsampled log — never
-the full time series.
+same for every controller). A run is a pure function of its :class:`RunSpec`. Runs go to Dask
+(``distributed``): a ``LocalCluster`` of spawned single-thread worker processes by default
+(PyBullet clients and crocoddyl objects must never be forked mid-state), or the workers of a
+running scheduler (``scheduler=``, ``--scheduler``); ``workers=1`` runs in this process. A worker
+sends back the run's ``summary()`` and, for the one seed that is plotted, a downsampled log —
+never the full time series. Each finished run is cached on disk under a key of its fully
+resolved scenario (:func:`run_key`, :class:`RunCache`), so an interrupted study resumes.
 
 Outputs, in a directory that must not exist yet (unless ``force``):
 
 * ``results.json`` — every run's summary, failures, the grid, the command line, the package
-  versions, the scenario's parameters and the wall time;
+  versions, the scenario's parameters, the wall time and how many runs came from the cache;
+* ``cache/<key>.json`` — one finished run each (the default cache directory);
 * ``tables.md`` — Tables II (no PID) and III (PID) in the paper's layout, Table IV (ΔE_λ, ΔE_τ =
   no-PID − PID per seed), computed from the TRUE normal force along the tilted table normal, then
   the same tables from the MEASURED force (what the controllers see);
@@ -25,16 +29,15 @@ has and list the failures.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
-import multiprocessing
 import os
 import platform
 import re
 import sys
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
@@ -92,6 +95,16 @@ DIVERGENCE_ERRORS: tuple[type[BaseException], ...] = (
 
 
 # --------------------------------------------------------------------------- runs
+def _freeze(value: Any) -> Any:
+    """Lists (nested too) as tuples, so that an override value is hashable."""
+    return tuple(_freeze(v) for v in value) if isinstance(value, list | tuple) else value
+
+
+def _thaw(value: Any) -> Any:
+    """Tuples back to the lists a scenario file would hold."""
+    return [_thaw(v) for v in value] if isinstance(value, tuple) else value
+
+
 @dataclass(frozen=True)
 class RunSpec:
     """One run of a study: a scenario (shipped name or path) with the grid's overrides.
@@ -113,8 +126,14 @@ class RunSpec:
     #: δo resolved by the study for ``mpc.command_delay: measured`` (s), else None.
     command_delay: float | None = None
 
+    def __post_init__(self) -> None:
+        # Hashable whatever the caller passed: list values (``--set axis=[1, 0, 0]``) become
+        # tuples here and lists again in :meth:`scenario_overrides`.
+        frozen = tuple((str(k), _freeze(v)) for k, v in self.overrides)
+        object.__setattr__(self, "overrides", frozen)
+
     def scenario_overrides(self) -> dict[str, Any]:
-        out = dict(self.overrides)
+        out = {k: _thaw(v) for k, v in self.overrides}
         out.update(
             {
                 "mpc.formulation": self.formulation,
@@ -139,6 +158,8 @@ class RunOutcome:
     summary: dict | None = None
     error: str | None = None
     plot_log: dict[str, np.ndarray] | None = field(default=None, repr=False)
+    #: True when read back from the run cache instead of run now.
+    cached: bool = field(default=False, compare=False)
 
     @property
     def ok(self) -> bool:
@@ -198,13 +219,15 @@ def execute_run(spec: RunSpec) -> RunOutcome:
 
 
 def resolve_command_delays(
-    specs: Sequence[RunSpec], steps: int = 60
+    specs: Sequence[RunSpec], steps: int = 60, measured: dict[str, float] | None = None
 ) -> tuple[list[RunSpec], dict[str, dict]]:
     """Settle δo (``mpc.command_delay``) of every spec, once per formulation.
 
     With ``mpc.command_delay: measured`` the MPC of each formulation is timed on this machine
     (:func:`ffmpc_core.study.resolve_command_delay`, ``steps`` MPC steps, in this process,
-    before any run starts) and its specs get the measured δo, rounded up to the plant step.
+    before any run starts) and its specs get the measured δo, rounded up to the plant step;
+    ``measured`` (``{formulation: MPC step time, s}``, e.g. from an interrupted start of the
+    same study) is used instead of timing again.
     Returns the specs and ``{formulation: record}`` (``delta_o_s`` is the δo the runs used).
     """
     from ffmpc_core.study import resolve_command_delay
@@ -215,12 +238,44 @@ def resolve_command_delays(
     for spec in specs:
         key = (spec.scenario, spec.overrides, spec.formulation)
         if key not in resolved:
-            scenario, record = resolve_command_delay(spec.load(), steps=steps)
+            known = (measured or {}).get(spec.formulation)
+            scenario, record = resolve_command_delay(spec.load(), measured=known, steps=steps)
             measured = record["setting"] == "measured"
             resolved[key] = record["delta_o_s"] if measured else None
             records.setdefault(spec.formulation, record)
         out.append(replace(spec, command_delay=resolved[key]))
     return out, records
+
+
+def _measured_delays_path(cache: RunCache, specs: Sequence[RunSpec]) -> Path:
+    """Where a study keeps the MPC step times it measured for ``mpc.command_delay: measured``:
+    one file per (scenario, overrides) of the grid, in the cache directory."""
+    context = _canonical_json([specs[0].scenario, [list(kv) for kv in specs[0].overrides]])
+    digest = hashlib.sha256(context.encode("utf-8")).hexdigest()[:16]
+    return cache.directory / f"measured_mpc_step_time_{digest}.json"
+
+
+def _load_measured_delays(cache: RunCache, specs: Sequence[RunSpec]) -> dict[str, float]:
+    """``{formulation: MPC step time, s}`` measured by an earlier start of the study (or {})."""
+    try:
+        doc = json.loads(_measured_delays_path(cache, specs).read_text(encoding="utf-8"))
+    except (FileNotFoundError, json.JSONDecodeError):
+        return {}
+    return {str(k): float(v) for k, v in doc.items()} if isinstance(doc, dict) else {}
+
+
+def _save_measured_delays(
+    cache: RunCache, specs: Sequence[RunSpec], records: dict[str, dict], known: dict[str, float]
+) -> None:
+    """Keep the measured MPC step times so that a resumed study gives its runs the same δo
+    (the same cache keys) instead of timing the MPC again."""
+    times = dict(known)
+    for formulation, record in records.items():
+        if "measured_step_median_s" in record:
+            times[formulation] = float(record["measured_step_median_s"])
+    if times:
+        cache.directory.mkdir(parents=True, exist_ok=True)
+        write_atomic(_measured_delays_path(cache, specs), _canonical_json(times) + "\n")
 
 
 def validate_specs(specs: Sequence[RunSpec]) -> None:
@@ -238,52 +293,318 @@ def _cost_rank(spec: RunSpec) -> int:
     return {"force_feedback": 0, "torque_feedback": 1}.get(spec.formulation, 2)
 
 
+# --------------------------------------------------------------------------- run cache
+#: Version of what a cache entry holds and of how a run computes it: bump it when a code change
+#: alters run results without a change of the package version (old entries are then unused).
+CACHE_SCHEMA = 1
+
+
+def _canonical_json(doc: Any) -> str:
+    """Sorted-key, compact JSON: the same content always gives the same text."""
+    return json.dumps(doc, sort_keys=True, separators=(",", ":"), allow_nan=True)
+
+
+def _key_versions() -> dict[str, str | None]:
+    """The ffmpc version and the installed versions of the numerical packages (part of a key)."""
+    from importlib import metadata
+
+    from ffmpc_core.selfcheck import installed_versions
+
+    try:
+        own = metadata.version("ffmpc")
+    except metadata.PackageNotFoundError:
+        own = None
+    return {"ffmpc": own, **installed_versions()}
+
+
+def run_key(spec: RunSpec, versions: dict[str, str | None] | None = None) -> str:
+    """The cache key of a run: SHA-256 (hex, 32 digits) of the canonical JSON of the run's fully
+    resolved scenario (the file's parameters with every override, formulation, PID mode, seed
+    and δo applied), its duration (s), what it sends back (plot step, s, or none), the cache
+    schema and the package versions. Two specs with the same key compute the same result.
+    """
+    scenario = spec.load()
+    doc = {
+        "schema": CACHE_SCHEMA,
+        "versions": _key_versions() if versions is None else versions,
+        "scenario_name": scenario.name,
+        "scenario": scenario_parameters(scenario),
+        "duration_s": spec.duration,
+        "plot_step_s": spec.plot_step if spec.plot else None,
+    }
+    return hashlib.sha256(_canonical_json(doc).encode("utf-8")).hexdigest()[:32]
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file in the same directory and a rename:
+    a reader (or a restart after a kill) sees the old file or the whole new one, never a part."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "w", encoding="utf-8") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def _outcome_entry(key: str, outcome: RunOutcome) -> dict[str, Any]:
+    """A run's outcome as a JSON-friendly cache entry (plot logs as lists of floats)."""
+    spec = outcome.spec
+    return {
+        "schema": CACHE_SCHEMA,
+        "key": key,
+        "spec": {
+            "scenario": spec.scenario,
+            "formulation": spec.formulation,
+            "pid_enabled": spec.pid_enabled,
+            "seed": spec.seed,
+            "duration_s": spec.duration,
+            "overrides": dict(spec.overrides),
+            "command_delay_s": spec.command_delay,
+        },
+        "summary": outcome.summary,
+        "error": outcome.error,
+        "plot_log": None
+        if outcome.plot_log is None
+        else {name: np.asarray(v, dtype=float).tolist() for name, v in outcome.plot_log.items()},
+    }
+
+
+def _outcome_from_entry(spec: RunSpec, entry: dict[str, Any], cached: bool) -> RunOutcome:
+    logs = entry.get("plot_log")
+    return RunOutcome(
+        spec,
+        summary=entry.get("summary"),
+        error=entry.get("error"),
+        plot_log=None if logs is None else {k: np.array(v, dtype=float) for k, v in logs.items()},
+        cached=cached,
+    )
+
+
+class RunCache:
+    """Finished runs on disk, one ``<key>.json`` per run (see :func:`run_key`).
+
+    An entry is written atomically (:func:`write_atomic`) by the process that collects the
+    results, so a study killed at any moment leaves whole entries only; a restart reads them
+    back instead of running them again. Floats survive the JSON round trip bit for bit.
+    """
+
+    def __init__(self, directory: str | os.PathLike) -> None:
+        self.directory = Path(directory)
+
+    def path(self, key: str) -> Path:
+        return self.directory / f"{key}.json"
+
+    def get(self, key: str) -> dict[str, Any] | None:
+        """The entry of ``key``, or None if absent or unreadable (then the run is run again)."""
+        try:
+            text = self.path(key).read_text(encoding="utf-8")
+        except FileNotFoundError:
+            return None
+        try:
+            entry = json.loads(text)
+        except json.JSONDecodeError:
+            return None
+        if not isinstance(entry, dict) or entry.get("key") != key:
+            return None
+        return entry
+
+    def put(self, key: str, entry: dict[str, Any]) -> None:
+        self.directory.mkdir(parents=True, exist_ok=True)
+        write_atomic(self.path(key), json.dumps(entry, allow_nan=True) + "\n")
+
+
+# --------------------------------------------------------------------------- executing runs
+@dataclass
+class RunBatch:
+    """Outcomes of :func:`execute_specs` in the order of the specs, and how they were obtained.
+
+    ``cached`` runs were read from the cache, ``executed`` ones were run now; ``cluster`` says
+    where ("in-process", "LocalCluster" or the scheduler address), ``workers`` how many worker
+    processes it had, ``dashboard`` the Dask dashboard link (None without one).
+    """
+
+    outcomes: list[RunOutcome]
+    cached: int
+    executed: int
+    cluster: str
+    workers: int
+    dashboard: str | None = None
+
+
+def _stderr(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+#: How long to try to reach a running Dask scheduler (s).
+SCHEDULER_TIMEOUT_S = 20.0
+
+
+def _dask_client(workers: int, scheduler: str | None):
+    """A ``distributed`` client and the LocalCluster it owns (None with ``scheduler``)."""
+    from distributed import Client, LocalCluster
+
+    if scheduler is not None:
+        try:
+            client = Client(scheduler, timeout=SCHEDULER_TIMEOUT_S)
+        except (OSError, TimeoutError) as exc:
+            raise ConfigError(f"cannot reach the Dask scheduler {scheduler}: {exc}") from exc
+        return client, None
+    # Processes (PyBullet and crocoddyl are not thread-safe), one thread each, spawned; bound
+    # to this machine (the dashboard too, never 0.0.0.0).
+    cluster = LocalCluster(
+        n_workers=workers,
+        threads_per_worker=1,
+        processes=True,
+        host="127.0.0.1",
+        dashboard_address="127.0.0.1:0",
+    )
+    try:
+        return Client(cluster), cluster
+    except BaseException:
+        cluster.close()
+        raise
+
+
+def _dashboard(client) -> str | None:
+    try:
+        import bokeh  # noqa: F401  (the dashboard is served only with bokeh installed)
+    except ImportError:
+        return None
+    return client.dashboard_link
+
+
+def execute_specs(
+    specs: Sequence[RunSpec],
+    workers: int | None = None,
+    progress: bool = True,
+    runner: Callable[[RunSpec], RunOutcome] = execute_run,
+    *,
+    scheduler: str | None = None,
+    cache: RunCache | None = None,
+    fresh: bool = False,
+    announce: Callable[[str], None] | None = None,
+) -> RunBatch:
+    """Run every spec not in ``cache`` (unless ``fresh``) and store each new result there.
+
+    Args:
+        workers: worker processes of a Dask ``LocalCluster`` (default ``os.cpu_count()``);
+            ``1`` runs in this process, without a cluster. Workers are *spawned*: a script
+            calling this needs the ``if __name__ == "__main__":`` guard.
+        scheduler: address of a running Dask scheduler (``tcp://host:port``): its workers run
+            the specs (they need ffmpc installed); excludes ``workers``.
+        cache: finished runs, read before and written as each run ends (by this process).
+        fresh: run everything again (the new results still go to ``cache``).
+        progress: a tqdm bar on stderr and, by default, the lines of ``announce``.
+        announce: where the one-line messages go (cluster, dashboard, cached vs to run).
+    """
+    from tqdm import tqdm
+
+    if scheduler is not None and workers is not None:
+        raise ConfigError("--workers and --scheduler exclude each other (a cluster has workers)")
+    workers = (os.cpu_count() or 1) if workers is None else int(workers)
+    if workers < 1:
+        raise ConfigError(f"workers must be >= 1, got {workers}")
+    validate_specs(specs)
+    say = announce or (_stderr if progress else (lambda _text: None))
+    outcomes: list[RunOutcome | None] = [None] * len(specs)
+    keys: list[str | None] = [None] * len(specs)
+    if cache is not None:
+        versions = _key_versions()
+        keys = [run_key(s, versions) for s in specs]
+        if not fresh:
+            for i, (spec, key) in enumerate(zip(specs, keys, strict=True)):
+                entry = cache.get(key) if key is not None else None
+                if entry is not None:
+                    outcomes[i] = _outcome_from_entry(spec, entry, cached=True)
+    todo = sorted(
+        (i for i, o in enumerate(outcomes) if o is None), key=lambda i: _cost_rank(specs[i])
+    )
+    n_cached = len(specs) - len(todo)
+    if not todo:
+        where, workers = "none (every run from the cache)", 0
+    elif scheduler is None and (workers == 1 or len(todo) == 1):
+        where, workers = "in-process", 1
+    else:
+        where = scheduler or "LocalCluster"
+    if cache is not None:
+        say(f"{len(specs)} runs: {n_cached} from the cache {cache.directory}, {len(todo)} to run")
+
+    def finish(i: int, outcome: RunOutcome, bar) -> None:
+        # Every outcome goes through the JSON of a cache entry: a run read back from the cache
+        # and a run done now give equal objects.
+        entry = json.loads(json.dumps(_outcome_entry(keys[i] or "", outcome), allow_nan=True))
+        key = keys[i]
+        if cache is not None and key is not None:
+            cache.put(key, entry)
+        outcomes[i] = _outcome_from_entry(specs[i], entry, cached=False)
+        bar.set_postfix_str(_postfix(specs[i]), refresh=False)
+        bar.update()
+
+    def new_bar():
+        return tqdm(
+            total=len(specs),
+            initial=n_cached,
+            file=sys.stderr,
+            disable=not progress,
+            unit="run",
+            smoothing=0,
+        )
+
+    dashboard = None
+    if todo and where == "in-process":
+        with new_bar() as bar:
+            for i in todo:
+                finish(i, runner(specs[i]), bar)
+    elif todo:
+        from distributed import as_completed as dask_completed
+
+        client, cluster = _dask_client(min(workers, len(todo)), scheduler)
+        futures = []
+        try:
+            workers = len(client.scheduler_info().get("workers", {}))
+            dashboard = _dashboard(client)
+            say(
+                f"Dask {where} at {client.scheduler.address}, {workers} worker(s); "
+                f"dashboard: {dashboard or 'none (pip install bokeh to serve it)'}"
+            )
+            index = {}
+            for rank, i in enumerate(todo):
+                future = client.submit(runner, specs[i], pure=False, priority=len(todo) - rank)
+                futures.append(future)
+                index[future.key] = i
+            with new_bar() as bar:
+                for future in dask_completed(futures):
+                    finish(index[future.key], future.result(), bar)
+        finally:
+            # Done, a bug or Ctrl-C: queued runs are dropped, the finished ones are cached.
+            client.cancel(futures)
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    done = [o for o in outcomes if o is not None]
+    return RunBatch(done, n_cached, len(todo), where, workers, dashboard)
+
+
 def run_specs(
     specs: Sequence[RunSpec],
     workers: int | None = None,
     progress: bool = True,
     runner: Callable[[RunSpec], RunOutcome] = execute_run,
+    *,
+    scheduler: str | None = None,
+    cache: RunCache | None = None,
+    fresh: bool = False,
 ) -> list[RunOutcome]:
-    """Run every spec and return the outcomes in the order of ``specs``.
-
-    Args:
-        workers: worker processes (default ``os.cpu_count()``); ``1`` runs in this process.
-            Workers are *spawned*: a script calling this with ``workers > 1`` needs the
-            ``if __name__ == "__main__":`` guard.
-        progress: a tqdm bar on stderr.
-    """
-    from tqdm import tqdm
-
-    workers = (os.cpu_count() or 1) if workers is None else int(workers)
-    if workers < 1:
-        raise ConfigError(f"workers must be >= 1, got {workers}")
-    validate_specs(specs)
-    outcomes: list[RunOutcome | None] = [None] * len(specs)
-    bar = tqdm(total=len(specs), file=sys.stderr, disable=not progress, unit="run", smoothing=0)
-    order = sorted(range(len(specs)), key=lambda i: _cost_rank(specs[i]))
-    try:
-        if workers == 1 or len(specs) == 1:
-            for i in order:
-                outcomes[i] = runner(specs[i])
-                bar.set_postfix_str(_postfix(specs[i]), refresh=False)
-                bar.update()
-        else:
-            context = multiprocessing.get_context("spawn")
-            with ProcessPoolExecutor(min(workers, len(specs)), mp_context=context) as pool:
-                futures = {pool.submit(runner, specs[i]): i for i in order}
-                try:
-                    for future in as_completed(futures):
-                        i = futures[future]
-                        outcomes[i] = future.result()
-                        bar.set_postfix_str(_postfix(specs[i]), refresh=False)
-                        bar.update()
-                except BaseException:
-                    # A bug or Ctrl-C: don't wait for the queued runs.
-                    pool.shutdown(wait=True, cancel_futures=True)
-                    raise
-    finally:
-        bar.close()
-    return [o for o in outcomes if o is not None]
+    """Run every spec and return the outcomes in the order of ``specs`` (see
+    :func:`execute_specs` for the arguments: ``workers`` > 1 is a Dask LocalCluster, ``1`` this
+    process, ``scheduler`` a running Dask cluster)."""
+    return execute_specs(
+        specs, workers, progress, runner, scheduler=scheduler, cache=cache, fresh=fresh
+    ).outcomes
 
 
 def _postfix(spec: RunSpec) -> str:
@@ -328,14 +649,25 @@ def grid_specs(
 
 
 # --------------------------------------------------------------------------- results
-def prepare_output_dir(out: str | os.PathLike, force: bool = False) -> Path:
-    """Create the output directory; refuse an existing one unless ``force`` (then files in it
-    are overwritten)."""
+def check_output_dir(out: str | os.PathLike, force: bool = False, resume: bool = False) -> None:
+    """Refuse an existing output directory unless ``force``, or unless ``resume`` and it holds
+    an interrupted study (a ``cache/`` and no ``results.json``): ConfigError."""
     path = Path(out)
-    if path.exists() and not force:
-        raise ConfigError(f"output directory {path} already exists; pass --force to overwrite")
     if path.exists() and not path.is_dir():
         raise ConfigError(f"output path {path} is not a directory")
+    interrupted = (path / "cache").is_dir() and not (path / "results.json").exists()
+    if path.exists() and not force and not (resume and interrupted):
+        raise ConfigError(
+            f"output directory {path} already exists; pass --force to overwrite (an interrupted "
+            "study, with a cache/ and no results.json, resumes by running the same command)"
+        )
+
+
+def prepare_output_dir(out: str | os.PathLike, force: bool = False, resume: bool = False) -> Path:
+    """Create the output directory; refuse an existing one unless ``force`` (then files in it
+    are overwritten) or ``resume`` of an interrupted study (see :func:`check_output_dir`)."""
+    check_output_dir(out, force, resume)
+    path = Path(out)
     path.mkdir(parents=True, exist_ok=True)
     return path
 
@@ -375,9 +707,11 @@ def study_document(
     workers: int,
     wall_time: float,
     command_delays: dict[str, dict] | None = None,
+    execution: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """The content of ``results.json``: the grid, every run, failures, versions, timing, and
-    the δo each formulation ran with (``command_delay``, see :func:`resolve_command_delays`)."""
+    """The content of ``results.json``: the grid, every run, failures, versions, timing, the
+    δo each formulation ran with (``command_delay``, see :func:`resolve_command_delays`) and
+    how the runs were obtained (``execution``: cached vs run, cluster, cache directory)."""
     from ffmpc_core.selfcheck import installed_versions
 
     first = specs[0]
@@ -408,6 +742,7 @@ def study_document(
         "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "wall_time_s": wall_time,
         "workers": workers,
+        "execution": execution or {},
         "source": source_state(),
         "versions": {
             "python": platform.python_version(),
@@ -742,30 +1077,55 @@ def run_study(
     force: bool = False,
     command_line: str = "",
     progress: bool = True,
+    scheduler: str | None = None,
+    cache: bool = True,
+    cache_dir: str | os.PathLike | None = None,
+    fresh: bool = False,
 ) -> StudyReport:
     """Run a grid of specs and write ``results.json``, ``tables.md`` and the figures.
 
     Args:
         kind: "polishing" (Tables II–IV, Figs. 6–9) or "force_square" (Experiment 1, Fig. 4).
-        out_dir: created here; an existing one is refused unless ``force``.
+        out_dir: created here; an existing one is refused unless ``force``, or unless it holds
+            an interrupted study (``cache/``, no ``results.json``): that one is resumed.
+        workers, scheduler: see :func:`execute_specs` (LocalCluster, in-process, or a running
+            Dask scheduler).
+        cache: keep each finished run in ``cache_dir`` (default ``out_dir/cache``) and read the
+            runs already there instead of running them; ``fresh`` runs them all again.
     """
     if kind not in ("polishing", "force_square"):
         raise ConfigError(f"unknown study kind {kind!r}")
     validate_specs(specs)
-    out = prepare_output_dir(out_dir, force)
-    workers = (os.cpu_count() or 1) if workers is None else int(workers)
+    out = prepare_output_dir(out_dir, force, resume=cache and not fresh)
+    run_cache = None
+    if cache:
+        run_cache = RunCache(Path(cache_dir) if cache_dir is not None else out / "cache")
     start = time.perf_counter()
-    specs, delays = resolve_command_delays(specs)
-    outcomes = run_specs(specs, workers, progress)
+    measured = {}
+    if run_cache is not None and not fresh:
+        measured = _load_measured_delays(run_cache, specs)
+    specs, delays = resolve_command_delays(specs, measured=measured)
+    if run_cache is not None:
+        _save_measured_delays(run_cache, specs, delays, measured)
+    batch = execute_specs(
+        specs, workers, progress, scheduler=scheduler, cache=run_cache, fresh=fresh
+    )
+    outcomes = batch.outcomes
     wall = time.perf_counter() - start
     doc = study_document(
         kind,
         specs,
         outcomes,
         command_line=command_line,
-        workers=workers,
+        workers=batch.workers,
         wall_time=wall,
         command_delays=delays,
+        execution={
+            "cached": batch.cached,
+            "executed": batch.executed,
+            "cluster": batch.cluster,
+            "cache_dir": None if run_cache is None else str(run_cache.directory),
+        },
     )
     files = [out / "results.json", out / "tables.md"]
     _write_json(files[0], doc)
@@ -797,6 +1157,13 @@ def default_out_dir(kind: str) -> Path:
 __all__ = [
     "RunSpec",
     "RunOutcome",
+    "RunBatch",
+    "RunCache",
+    "CACHE_SCHEMA",
+    "run_key",
+    "execute_specs",
+    "write_atomic",
+    "check_output_dir",
     "StudyReport",
     "execute_run",
     "run_specs",

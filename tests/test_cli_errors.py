@@ -87,6 +87,11 @@ CASES: list[tuple[str, list[str], str]] = [
     ("study-out-exists", ["study", "polishing", "--out", "{exists_dir}"], "--force"),
     ("study-plot-seed", ["study", "polishing", "--seeds", "2", "--plot-seed", "7"], "plot-seed"),
     ("study-formulation", ["study", "polishing", "--formulations", "mpc"], "invalid choice"),
+    (
+        "study-workers-scheduler",
+        ["study", "polishing", "--workers", "2", "--scheduler", "x"],
+        "exclude",
+    ),
     ("impact-target-nan", ["study", "impact", "--target-force", "nan"], "--target-force"),
     ("impact-dice-neg", ["study", "impact", "--dice-stiffness", "-3"], "--dice-stiffness"),
     ("impact-runs", ["study", "impact", "--runs", "fast+slow"], "invalid choice"),

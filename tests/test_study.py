@@ -1,4 +1,4 @@
-"""The simulation study (sim_bridge.study, ``ffmpc study``): pool vs in-process determinism,
+"""The simulation study (sim_bridge.study, ``ffmpc study``): Dask vs in-process determinism,
 output files, tables vs the JSON runs, failures, and the shipped scenario files.
 
 Runs are short (0.3 s of simulated time with contact and circle from 0.15 s on) so the whole
@@ -47,19 +47,21 @@ def _comparable(summary: dict) -> dict:
     return {k: v for k, v in summary.items() if k not in ("wall_time_s", "solve_time_median_s")}
 
 
-def test_a_two_run_study_gives_the_same_numbers_through_the_pool_and_in_process() -> None:
+def test_a_two_run_study_gives_the_same_numbers_on_a_dask_cluster_and_in_process() -> None:
     specs = [
         RunSpec("polishing", "force_feedback", True, 3, 0.3, tuple(SHORT.items()), plot=True),
         RunSpec("polishing", "classical", False, 4, 0.3, tuple(SHORT.items())),
     ]
     pooled = run_specs(specs, workers=2, progress=False)
     local = run_specs(specs, workers=1, progress=False)
-    assert [o.spec for o in pooled] == specs  # outcomes come back in the order of the specs
+    # workers=2: a Dask LocalCluster of two spawned processes; outcomes come back in the order
+    # of the specs.
+    assert [o.spec for o in pooled] == specs
     for a, b in zip(pooled, local, strict=True):
         assert a.ok and b.ok, (a.error, b.error)
         assert _comparable(a.summary) == _comparable(b.summary)
     assert pooled[0].summary["metrics_true"]["max_force"] > 5.0  # contact happened
-    # Only the plotted run ships a (downsampled) log back through the pool.
+    # Only the plotted run ships a (downsampled) log back from the cluster.
     assert pooled[1].plot_log is None
     log = pooled[0].plot_log
     assert set(log) == {*study.PLOT_SIGNALS, "window"}
@@ -98,6 +100,7 @@ def test_study_cli_writes_files_refuses_to_overwrite_and_tables_match_the_runs(
     printed = capsys.readouterr().out
     names = sorted(p.name for p in out.iterdir())
     assert names == [
+        "cache",  # one JSON file per finished run (tests/test_study_dask.py)
         "fig_polishing_nopid.png",
         "fig_polishing_pid.png",
         "results.json",
