@@ -16,7 +16,9 @@ from sim_bridge.runner import run_scenario
 def _assert_same_run(graph, runner):
     assert set(graph.log) == set(runner.log)
     for name, values in runner.log.items():
-        np.testing.assert_array_equal(graph.log[name], values, err_msg=name)
+        # (rejections say why a run diverged, e.g. a PID that went on without a late command)
+        rejected = graph.safety["rejected_messages"]
+        np.testing.assert_array_equal(graph.log[name], values, err_msg=f"{name}; {rejected}")
     assert graph.metrics_true == runner.metrics_true
     assert graph.metrics_measured == runner.metrics_measured
 
