@@ -19,6 +19,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
+from test_study import SHORT, SHORT_SET  # the short study setup, once
 
 from ffmpc_core.errors import ConfigError
 from ffmpc_ros.cli import main
@@ -35,13 +36,6 @@ from sim_bridge.study import (
     write_atomic,
 )
 
-SHORT = {
-    "task.still": 0.0,
-    "task.reach": 0.05,
-    "task.force_ramp": 0.1,
-    "task.start_height": 0.0,
-}
-SHORT_SET = [arg for k, v in SHORT.items() for arg in ("--set", f"{k}={v}")]
 #: Two seeds, the three formulations, PID on: six runs.
 STUDY = ["study", "polishing", "--seeds", "2", "--pid", "on", "--duration", "0.3", *SHORT_SET]
 ROOT = Path(__file__).resolve().parent.parent
