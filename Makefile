@@ -56,9 +56,10 @@ test: $(STAMP) $(NATIVE)
 lint: $(STAMP)
 	$(BIN)/ruff check ffmpc_core sim_bridge ffmpc_ros tests benchmarks
 	$(BIN)/ruff format --check ffmpc_core sim_bridge ffmpc_ros tests benchmarks
+	$(BIN)/mypy  # ffmpc_core and sim_bridge, configured in pyproject.toml [tool.mypy]
 
 bench: $(STAMP) $(NATIVE)
 	$(BIN)/ffmpc bench mpc
 
 clean:
-	rm -rf $(VENV) .ros_log .pytest_cache build
+	rm -rf $(VENV) .ros_log .pytest_cache .mypy_cache build
