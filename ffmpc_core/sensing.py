@@ -55,7 +55,7 @@ class DelayLine:
     The buffer is preallocated; :meth:`step` returns a fresh array.
     """
 
-    def __init__(self, delay: int, shape: int | tuple[int, ...] = ()):
+    def __init__(self, delay: int, shape: int | tuple[int, ...] = ()) -> None:
         if isinstance(delay, bool) or int(delay) != delay or delay < 0:
             raise ConfigError(f"delay must be a whole number of cycles >= 0, got {delay!r}")
         self.delay = int(delay)

@@ -423,7 +423,7 @@ class Plant:
     measurement is due, ``plant.state()``.
     """
 
-    def __init__(self, robot: RobotModel | str = "iiwa", config: PlantConfig | None = None):
+    def __init__(self, robot: RobotModel | str = "iiwa", config: PlantConfig | None = None) -> None:
         self.robot = load_robot(robot) if isinstance(robot, str) else robot
         self.config = config if config is not None else PlantConfig()
         self.dt = float(self.config.time_step)
