@@ -57,9 +57,10 @@ lint: $(STAMP)
 	$(BIN)/ruff check ffmpc_core sim_bridge ffmpc_ros tests benchmarks
 	$(BIN)/python tests/layer_check.py  # layers ffmpc_core <- sim_bridge <- ffmpc_ros, no cycles
 	$(BIN)/ruff format --check ffmpc_core sim_bridge ffmpc_ros tests benchmarks
+	$(BIN)/mypy  # ffmpc_core and sim_bridge, configured in pyproject.toml [tool.mypy]
 
 bench: $(STAMP) $(NATIVE)
 	$(BIN)/ffmpc bench mpc
 
 clean:
-	rm -rf $(VENV) .ros_log .pytest_cache build
+	rm -rf $(VENV) .ros_log .pytest_cache .mypy_cache build

@@ -31,8 +31,10 @@ must remove, stays visible above the noise.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any, cast
 
 import numpy as np
+import numpy.typing as npt
 
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.sensing import DelayLine
@@ -74,7 +76,7 @@ def actuation_torque(
     return gain * motor_torque_delayed + offset - friction + noise
 
 
-def _broadcast(value, nv: int, name: str) -> np.ndarray:
+def _broadcast(value: npt.ArrayLike, nv: int, name: str) -> np.ndarray:
     try:
         arr = np.broadcast_to(np.asarray(value, dtype=float), (nv,)).copy()
     except ValueError:
@@ -84,7 +86,7 @@ def _broadcast(value, nv: int, name: str) -> np.ndarray:
     return arr
 
 
-def _per_joint(value, nv: int, name: str, positive: bool = False) -> np.ndarray:
+def _per_joint(value: npt.ArrayLike, nv: int, name: str, positive: bool = False) -> np.ndarray:
     arr = _broadcast(value, nv, name)
     if np.any(arr <= 0.0) if positive else np.any(arr < 0.0):
         raise ConfigError(f"{name} must be {'> 0' if positive else '>= 0'}, got {arr}")
@@ -147,7 +149,7 @@ class ActuationParams:
         gain_range: tuple[float, float] = (0.8, 1.2),
         offset_range: tuple[float, float] = (-2.0, 2.0),
         noise_fraction: float = 0.01,
-        **kwargs,
+        **kwargs: Any,
     ) -> ActuationParams:
         """Draw (a, b) per joint uniformly from ``gain_range × offset_range`` (paper: [0.8, 1.2]
         × [−2, 2] N·m), with σ_τ = ``noise_fraction`` × torque limit (N·m).
@@ -212,8 +214,9 @@ class ActuationModel:
             v,
             p.gain,
             p.offset,
-            p.static_friction,
-            p.viscous_friction,
-            p.friction_velocity,
+            # __post_init__ stored each of the three as a read-only per-joint array
+            cast(np.ndarray, p.static_friction),
+            cast(np.ndarray, p.viscous_friction),
+            cast(np.ndarray, p.friction_velocity),
             noise,
         )

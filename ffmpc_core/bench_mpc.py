@@ -22,7 +22,9 @@ import argparse
 import json
 import platform
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -30,8 +32,11 @@ from ffmpc_core.config import FORMULATIONS
 from ffmpc_core.errors import ConfigError
 from ffmpc_core.model_plant import run_model_closed_loop
 from ffmpc_core.mpc import MpcConfig
-from ffmpc_core.robots import load_robot
+from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_core.tasks import PolishingTask
+
+if TYPE_CHECKING:
+    from ffmpc_core.rigid_contact import RigidContactNode
 
 #: (N, Δt in s) of the benchmark.
 CONFIGURATIONS = ((5, 0.003), (20, 0.010))
@@ -45,7 +50,7 @@ CASES = (REFERENCE, *FORMULATIONS, *PYTHON_CASES)
 DEFAULT_CASES = (*FORMULATIONS, "force_feedback_python")
 
 
-def _task(robot) -> PolishingTask:
+def _task(robot: RobotModel) -> PolishingTask:
     p0 = robot.contact_placement(robot.q_nominal).translation
     return PolishingTask.pressing(p0, force_ramp=0.1, circle=10.0, stop=0.0)
 
@@ -61,11 +66,11 @@ def bench_case(case: str, horizon: int, dt: float, solves: int) -> dict:
     backend = "python" if case.endswith("_python") else "native"
     formulation = "classical" if case == REFERENCE else case.removesuffix("_python")
     config = MpcConfig(formulation=formulation, horizon=horizon, dt=dt, backend=backend)
-    factory = None
+    factory: Callable[[bool], RigidContactNode] | None = None
     if case == REFERENCE:
         from ffmpc_core.rigid_contact import make_rigid_contact_node
 
-        def factory(terminal: bool):
+        def factory(terminal: bool) -> RigidContactNode:
             return make_rigid_contact_node(
                 robot, config.contact, config.weights, dt, terminal, builtin_residuals=True
             )
@@ -129,7 +134,11 @@ def parse_cases(items: list[str] | None) -> list[tuple[int, float, list[str]]]:
     ]
 
 
-def run_cases(plan: list[tuple[int, float, list[str]]], solves: int, on_row=None) -> list[dict]:
+def run_cases(
+    plan: list[tuple[int, float, list[str]]],
+    solves: int,
+    on_row: Callable[[dict], object] | None = None,
+) -> list[dict]:
     """Run the planned cases; every row gets ``ratio_to_reference`` (step medians) and
     ``solve_ratio_to_reference`` (solve medians) against its configuration's reference."""
     rows: list[dict] = []

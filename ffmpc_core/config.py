@@ -13,8 +13,10 @@ horizontal table gives λ > 0. The controllers never know the table's true tilt.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import pinocchio as pin
 
 from ffmpc_core.errors import ConfigError
@@ -29,7 +31,7 @@ _FRAME_TYPES = {
 }
 
 
-def _diag(values, n: int, name: str) -> np.ndarray:
+def _diag(values: npt.ArrayLike, n: int, name: str) -> np.ndarray:
     try:
         arr = np.broadcast_to(np.asarray(values, dtype=float), (n,)).copy()
     except ValueError:
@@ -66,7 +68,7 @@ class CostWeights:
         """The activation diagonal of term ``name`` (e.g. ``"posture"``) as an array of size n."""
         return _diag(getattr(self, f"{name}_diag"), n, f"{name}_diag")
 
-    def with_(self, **changes) -> CostWeights:
+    def with_(self, **changes: Any) -> CostWeights:
         return replace(self, **changes)
 
 

@@ -70,8 +70,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import Protocol
 
 import numpy as np
+import numpy.typing as npt
 import pinocchio as pin
 
 from ffmpc_core.config import FORMULATIONS
@@ -183,6 +185,14 @@ class LowLevelCommand:
     feedback_gain: np.ndarray
 
 
+class CommandLike(Protocol):
+    """What :meth:`LowLevelController.set_command` reads (``MpcCommand``, ``LowLevelCommand``)."""
+
+    torque: np.ndarray
+    state: np.ndarray
+    feedback_gain: np.ndarray
+
+
 @dataclass
 class LowLevelOutput:
     """One cycle's result: motor torque τ^m and desired torque τ^d (N·m, saturated), the mode,
@@ -253,7 +263,7 @@ class LowLevelController:
         return None if self._hold_q is None else self._hold_q.copy()
 
     # -- inputs -----------------------------------------------------------------------------
-    def _vector(self, value, n: int, name: str) -> np.ndarray:
+    def _vector(self, value: npt.ArrayLike, n: int, name: str) -> np.ndarray:
         arr = np.asarray(value, dtype=float)
         if arr.shape != (n,) or not np.all(np.isfinite(arr)):
             raise InputError(f"{name} must be {n} finite numbers, got shape {arr.shape}")
@@ -264,7 +274,7 @@ class LowLevelController:
         before any command was used) until a new valid command arrives."""
         self._command = None
 
-    def set_command(self, command, t_command: float) -> None:
+    def set_command(self, command: CommandLike, t_command: float) -> None:
         """Take a new MPC output (``torque``, ``state``, ``feedback_gain``) solved at t_command.
 
         InputError if it is malformed or not newer than the current one (the previous command
@@ -304,7 +314,7 @@ class LowLevelController:
             parts.append(self._vector(meas.force, self.config.force_dimension, "force"))
         return np.concatenate(parts)
 
-    def _force_for_feedback(self, force, t: float):
+    def _force_for_feedback(self, force: npt.ArrayLike | None, t: float) -> np.ndarray | None:
         """λ̂ for this cycle's Riccati feedback: the measured one when finite (and then held),
         else the held one if at most ``force_hold_time`` old, else None (τ* alone)."""
         if force is not None:
@@ -363,6 +373,7 @@ class LowLevelController:
         """τ*, or τ* + G·(x̂ − x̂_solve) with the Riccati feedback; τ* alone on a cycle whose λ̂
         is missing (force-feedback: a rejected or lost wrench never stops the loop)."""
         cmd = self._command
+        assert cmd is not None  # called only when the command is fresh, hence set
         missing_force = self.config.formulation == "force_feedback" and meas.force is None
         if self._first_use or not self.config.riccati_feedback or missing_force:
             self._first_use = False

@@ -156,7 +156,9 @@ class IntegratedActionModelLPF(crocoddyl.ActionModelAbstract):
     def createData(self) -> IntegratedActionDataLPF:  # noqa: N802 (crocoddyl API)
         return IntegratedActionDataLPF(self)
 
-    def calc(self, data: IntegratedActionDataLPF, x: np.ndarray, u: np.ndarray | None = None):
+    def calc(
+        self, data: IntegratedActionDataLPF, x: np.ndarray, u: np.ndarray | None = None
+    ) -> None:
         nv, dt = self.nv, self.dt
         dd = data.differential
         if u is None:
@@ -181,7 +183,9 @@ class IntegratedActionModelLPF(crocoddyl.ActionModelAbstract):
             raise ModelError("a running low-pass model needs the 'torque' cost (eq 25.3)")
         return tau - data.torque_residual.r
 
-    def calcDiff(self, data: IntegratedActionDataLPF, x: np.ndarray, u: np.ndarray | None = None):  # noqa: N802
+    def calcDiff(  # noqa: N802 (crocoddyl API)
+        self, data: IntegratedActionDataLPF, x: np.ndarray, u: np.ndarray | None = None
+    ) -> None:
         nv, dt = self.nv, self.dt
         dd = data.differential
         if u is None:  # terminal: x⁺ = x, cost ℓ0(q, v)

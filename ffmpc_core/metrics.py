@@ -27,6 +27,7 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from ffmpc_core.errors import InputError
 
@@ -49,7 +50,7 @@ def window_mask(t: np.ndarray, start: float | None = None, end: float | None = N
     return mask
 
 
-def _signal(value, shape: tuple[int | None, ...], name: str) -> np.ndarray:
+def _signal(value: npt.ArrayLike, shape: tuple[int | None, ...], name: str) -> np.ndarray:
     """A finite float array of the given shape (None: any size along that axis)."""
     arr = np.asarray(value, dtype=float)
     ok = arr.ndim == len(shape) and all(
@@ -169,7 +170,7 @@ def polishing_metrics(
     torque = None
     if (desired_torque is None) != (measured_torque is None):
         raise InputError("give both desired_torque and measured_torque, or neither")
-    if desired_torque is not None:
+    if desired_torque is not None and measured_torque is not None:
         torque = torque_tracking_mae(t, desired_torque, measured_torque, start, end)
     return PolishingMetrics(
         position_mae_mm=1e3

@@ -14,14 +14,44 @@ formulation, integrated at ``dt`` (1 ms by default):
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Protocol, cast
 
 import numpy as np
 
 from ffmpc_core.config import ContactConfig, CostWeights, NodeReference
 from ffmpc_core.errors import ConfigError
-from ffmpc_core.mpc import ModelPredictiveController, MpcCommand, MpcConfig, MpcMeasurement
+from ffmpc_core.mpc import (
+    ModelPredictiveController,
+    MpcCommand,
+    MpcConfig,
+    MpcMeasurement,
+    OcpNode,
+    Schedule,
+)
 from ffmpc_core.robots import RobotModel
+
+if TYPE_CHECKING:
+    from ffmpc_core.lowpass import LowPassNode
+    from ffmpc_core.rigid_contact import RigidContactNode
+    from ffmpc_core.soft_contact import SoftContactNode
+
+
+class ContactSchedule(Schedule, Protocol):
+    """A task schedule that also says when the plant is in contact (:mod:`ffmpc_core.tasks`)."""
+
+    def in_contact(self, t: float) -> bool:
+        """True when the task wants contact at time t (s)."""
+        ...
+
+    def force(self, t: float) -> float:
+        """λ̄(t), N."""
+        ...
+
+    def ee_position(self, t: float) -> np.ndarray:
+        """p̄(t), m, world frame."""
+        ...
 
 
 class ModelPlant:
@@ -48,6 +78,7 @@ class ModelPlant:
         self.contact = contact
         self.dt = dt
         weights = CostWeights()
+        self._node: RigidContactNode | LowPassNode | SoftContactNode
         if formulation == "classical":
             from ffmpc_core.rigid_contact import make_rigid_contact_node
 
@@ -95,7 +126,9 @@ class ModelPlant:
             self.x[:] = self._data.xnext
             self.force[:] = self.x[2 * self.robot.nv :]
         else:
-            self.force[:] = self._node.contact_force(self._data)
+            # the two rigid-contact formulations: λ comes from the node, not the state
+            node = cast("RigidContactNode | LowPassNode", self._node)
+            self.force[:] = node.contact_force(self._data)
             self.x[:] = self._data.xnext
 
     def measurement(self) -> MpcMeasurement:
@@ -133,11 +166,11 @@ class ClosedLoopLog:
 def run_model_closed_loop(
     robot: RobotModel,
     mpc_config: MpcConfig,
-    schedule,
+    schedule: ContactSchedule,
     duration: float,
     plant_dt: float = 1e-3,
     q0: np.ndarray | None = None,
-    node_factory=None,
+    node_factory: Callable[[bool], OcpNode] | None = None,
 ) -> ClosedLoopLog:
     """Run an MPC against its own formulation's dynamics for ``duration`` s; return the log.
 
@@ -168,6 +201,7 @@ def run_model_closed_loop(
             log.iterations.append(command.iterations)
             log.solve_time.append(command.solve_time)
             log.converged.append(command.converged)
+        assert command is not None  # k = 0 solved
         control = command.us[0] if mpc_config.formulation == "torque_feedback" else command.torque
         plant.step(control, schedule.in_contact(t))
         q = plant.x[: robot.nq]

@@ -24,11 +24,12 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Protocol
+from typing import Protocol, cast
 
 import crocoddyl  # noqa: F401  (must be imported before mim_solvers: it loads boost)
 import mim_solvers
 import numpy as np
+import numpy.typing as npt
 
 from ffmpc_core.config import BACKENDS, FORMULATIONS, ContactConfig, CostWeights, NodeReference
 from ffmpc_core.errors import ConfigError, InputError
@@ -52,6 +53,13 @@ class OcpNode(Protocol):
 
     def set_reference(self, ref: NodeReference) -> bool:
         """Update the node in place; True when ``model`` is now a different object."""
+
+
+class SoftContactOcpNode(OcpNode, Protocol):
+    """A node of the force-feedback formulation: its visco-elastic contact can change."""
+
+    def set_contact_parameters(self, stiffness: npt.ArrayLike, damping: npt.ArrayLike) -> None:
+        """Stiffness K (N/m) and damping B (N·s/m), scalar or per force axis, in place."""
 
 
 class Schedule(Protocol):
@@ -160,7 +168,9 @@ class MpcCommand:
     converged: bool
 
 
-def _node_factory(robot: RobotModel, config: MpcConfig, q_ref) -> Callable[[bool], OcpNode]:
+def _node_factory(
+    robot: RobotModel, config: MpcConfig, q_ref: np.ndarray | None
+) -> Callable[[bool], OcpNode]:
     """A function terminal -> node for the configured formulation."""
     args = (robot, config.contact, config.weights, config.dt)
     if config.formulation == "classical":
@@ -268,12 +278,13 @@ class ModelPredictiveController:
         self._prev_us: np.ndarray | None = None
         self._sent: list[tuple[float, np.ndarray]] = []  # (time, model control) in flight
 
-    def set_contact_parameters(self, stiffness, damping) -> None:
+    def set_contact_parameters(self, stiffness: npt.ArrayLike, damping: npt.ArrayLike) -> None:
         """Change the force-feedback model's K (N/m) and B (N·s/m) in place, for every node."""
         if self.config.formulation != "force_feedback":
             raise ConfigError("only the force-feedback formulation has a visco-elastic contact")
         for node in (*self.nodes, self.terminal_node):
-            node.set_contact_parameters(stiffness, damping)
+            # the force-feedback formulation builds soft-contact nodes
+            cast(SoftContactOcpNode, node).set_contact_parameters(stiffness, damping)
 
     def state_from(self, meas: MpcMeasurement) -> np.ndarray:
         """The OCP state x̂ of a measurement (eq 5, 10, 19), validated."""
@@ -354,7 +365,7 @@ class ModelPredictiveController:
 
     # -- internals ---------------------------------------------------------------------------
     @staticmethod
-    def _vector(value, n: int, name: str) -> np.ndarray:
+    def _vector(value: npt.ArrayLike | None, n: int, name: str) -> np.ndarray:
         if value is None:
             raise InputError(f"measurement has no {name}")
         arr = np.asarray(value, dtype=float).reshape(-1)
@@ -392,6 +403,7 @@ class ModelPredictiveController:
             xs = [x0.copy() for _ in range(n + 1)]
             u0 = gravity if self.config.formulation != "torque_feedback" else x0[-self.robot.nv :]
             return xs, [u0.copy() for _ in range(n)]
+        assert self._prev_t is not None and self._prev_us is not None  # set with _prev_xs
         shift = (t - self._prev_t) / self.config.dt
         grid = np.arange(n + 1) + shift
         xs_arr = _interp_rows(self._prev_xs, grid)
@@ -399,7 +411,9 @@ class ModelPredictiveController:
         xs_arr[0] = x0
         return list(xs_arr), list(us_arr)
 
-    def _command(self, x0: np.ndarray, xs: np.ndarray, us: np.ndarray):
+    def _command(
+        self, x0: np.ndarray, xs: np.ndarray, us: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         nv = self.robot.nv
         K0 = np.array(self.solver.K[0])
         u0 = us[0]

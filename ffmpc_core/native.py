@@ -15,12 +15,15 @@ Same state, control, costs, frames and units as the Python model (see its docstr
 
 from __future__ import annotations
 
+from typing import Any
+
 import crocoddyl  # noqa: F401  (registers the base classes the native module derives from)
 import numpy as np
+import numpy.typing as npt
 
-from ffmpc_core import _native
+import ffmpc_core._native as _native  # (this form lets mypy skip the compiled module)
 from ffmpc_core.config import ContactConfig, CostWeights
-from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.errors import ConfigError, FfmpcError, InputError
 from ffmpc_core.robots import RobotModel
 from ffmpc_core.soft_contact import (
     LOCAL_WORLD_ALIGNED,
@@ -38,7 +41,9 @@ __all__ = [
 _EMPTY = np.zeros(0)
 
 
-def _vector(value, n: int, name: str, error=InputError) -> np.ndarray:
+def _vector(
+    value: npt.ArrayLike, n: int, name: str, error: type[FfmpcError] = InputError
+) -> np.ndarray:
     """``value`` as a float64 vector for the C++ setters; a scalar broadcasts to n entries.
 
     Sizes and finiteness are checked in C++ (same messages as the Python model)."""
@@ -53,7 +58,7 @@ def _vector(value, n: int, name: str, error=InputError) -> np.ndarray:
     return arr
 
 
-def _scalar(value, name: str, error=InputError) -> float:
+def _scalar(value: Any, name: str, error: type[FfmpcError] = InputError) -> float:
     try:
         return float(value)
     except (TypeError, ValueError):
@@ -150,7 +155,7 @@ class IntegratedActionModelSoftContactNative(_native.IntegratedActionModelSoftCo
             _EMPTY if q4 is None else q4,
         )
 
-    def set_contact_parameters(self, stiffness, damping) -> None:
+    def set_contact_parameters(self, stiffness: npt.ArrayLike, damping: npt.ArrayLike) -> None:
         """Nominal K (N/m) and B (N·s/m), scalar or per force axis; applied in place."""
         self._set_contact_parameters(
             _vector(stiffness, self.nc, "stiffness", ConfigError),

@@ -40,13 +40,14 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.plausibility import MEASURED_TORQUE_FACTOR
 from ffmpc_core.sensing import DelayLine
 
 
-def _per_joint(value, nv: int, name: str) -> np.ndarray:
+def _per_joint(value: npt.ArrayLike, nv: int, name: str) -> np.ndarray:
     try:
         arr = np.broadcast_to(np.asarray(value, dtype=float), (nv,)).copy()
     except ValueError:
@@ -165,7 +166,7 @@ class TorquePid:
         self._integral[:] = 0.0
         self._t_previous = None
 
-    def _check(self, value, name: str) -> np.ndarray:
+    def _check(self, value: npt.ArrayLike, name: str) -> np.ndarray:
         arr = np.asarray(value, dtype=float)
         if arr.shape != (self.gains.nv,) or not np.all(np.isfinite(arr)):
             raise InputError(f"{name} must be {self.gains.nv} finite numbers, got {value!r}")
@@ -196,7 +197,7 @@ class TorquePid:
                 raise InputError(f"weight must lie in [0, 1], got {weight}")
             delayed = weight * delayed + (1.0 - weight) * self._check(undelayed, "undelayed")
         first = self._t_previous is None
-        h = self.dt if first else t - self._t_previous
+        h = self.dt if self._t_previous is None else t - self._t_previous
         self._t_previous = float(t)
         g = self.gains
         if np.any(np.abs(measured) > self._plausible_max):

@@ -38,6 +38,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import numpy.typing as npt
 
 from ffmpc_core.errors import InputError
 
@@ -64,7 +65,10 @@ def torque_plausible(
 
 
 def check_torque(
-    tau, torque_limit: np.ndarray, name: str = "torque", factor: float = COMMAND_TORQUE_FACTOR
+    tau: npt.ArrayLike,
+    torque_limit: np.ndarray,
+    name: str = "torque",
+    factor: float = COMMAND_TORQUE_FACTOR,
 ) -> np.ndarray:
     """τ (N·m) as a float array; InputError if any entry is non-finite or beyond factor × its
     limit (default: a command)."""
@@ -79,7 +83,7 @@ def check_torque(
     return arr
 
 
-def check_force(force, name: str = "force") -> np.ndarray:
+def check_force(force: npt.ArrayLike, name: str = "force") -> np.ndarray:
     """λ (N) as a float array; InputError if non-finite or |λ_j| > FORCE_MAX."""
     arr = np.asarray(force, dtype=float)
     if not np.all(np.isfinite(arr)) or np.any(np.abs(arr) > FORCE_MAX):
@@ -90,7 +94,7 @@ def check_force(force, name: str = "force") -> np.ndarray:
     return arr
 
 
-def check_tare_offset(offset) -> np.ndarray:
+def check_tare_offset(offset: npt.ArrayLike) -> np.ndarray:
     """A tare offset (N) as a float array; InputError if |offset_j| > TARE_OFFSET_MAX."""
     arr = np.asarray(offset, dtype=float)
     if not np.all(np.isfinite(arr)) or np.any(np.abs(arr) > TARE_OFFSET_MAX):

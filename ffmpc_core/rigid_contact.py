@@ -72,9 +72,12 @@ change) just allocates one node's data.
 from __future__ import annotations
 
 import math
+from types import ModuleType
+from typing import Any
 
 import crocoddyl
 import numpy as np
+import numpy.typing as npt
 import pinocchio as pin
 
 from ffmpc_core.config import BACKENDS, ContactConfig, CostWeights, NodeReference
@@ -108,11 +111,11 @@ def check_backend(backend: str) -> bool:
     return backend == "native"
 
 
-def native_module():
+def native_module() -> ModuleType:
     """The compiled module ``ffmpc_core._native`` (C++ models); :class:`ModelError` when it was
     not built (``make native``)."""
     try:
-        from ffmpc_core import _native
+        import ffmpc_core._native as _native  # (this form lets mypy skip the compiled module)
     except ImportError as exc:
         raise ModelError(
             f"the native backend needs the compiled module ffmpc_core._native ({exc}); "
@@ -171,17 +174,21 @@ class ResidualModelContactGravityTorque(crocoddyl.ResidualModelAbstract):
         self._world_aligned = bool(world_aligned)
         self._eye = np.eye(nu)
 
-    def createData(self, collector):  # noqa: N802 (crocoddyl API)
+    def createData(  # noqa: N802 (crocoddyl API)
+        self, collector: Any
+    ) -> ResidualDataContactGravityTorque:
         return ResidualDataContactGravityTorque(self, collector)
 
-    def calc(self, data, x, u=None) -> None:
+    def calc(self, data: Any, x: np.ndarray, u: np.ndarray | None = None) -> None:
         q = x[: self._nq]
         if u is None:  # no control, no force: r = −g(q) (crocoddyl's convention for calc(x))
             data.r[:] = -pin.computeGeneralizedGravity(self._pin_model, data.pin_data, q)
             return
         data.r[:] = u - pin.computeStaticTorque(self._pin_model, data.pin_data, q, data.fext)
 
-    def calcDiff(self, data, x, u=None) -> None:  # noqa: N802 (crocoddyl API)
+    def calcDiff(  # noqa: N802 (crocoddyl API)
+        self, data: Any, x: np.ndarray, u: np.ndarray | None = None
+    ) -> None:
         q = x[: self._nq]
         nv = self._nv
         if u is None:
@@ -211,7 +218,7 @@ class ResidualModelContactGravityTorque(crocoddyl.ResidualModelAbstract):
 class ResidualDataContactGravityTorque(crocoddyl.ResidualDataAbstract):
     """Workspace of :class:`ResidualModelContactGravityTorque` (private pinocchio data)."""
 
-    def __init__(self, model: ResidualModelContactGravityTorque, collector) -> None:
+    def __init__(self, model: ResidualModelContactGravityTorque, collector: Any) -> None:
         super().__init__(model, collector)
         contacts = collector.contacts
         self.fext = contacts.fext  # reference to the live vector, updated by the DAM
@@ -236,16 +243,20 @@ class ResidualModelFrameLinearVelocityWorld(crocoddyl.ResidualModelAbstract):
         self._nv = state.nv
         self._zero_a = np.zeros(state.nv)
 
-    def createData(self, collector):  # noqa: N802 (crocoddyl API)
+    def createData(  # noqa: N802 (crocoddyl API)
+        self, collector: Any
+    ) -> ResidualDataFrameLinearVelocityWorld:
         return ResidualDataFrameLinearVelocityWorld(self, collector)
 
-    def calc(self, data, x, u=None) -> None:
+    def calc(self, data: Any, x: np.ndarray, u: np.ndarray | None = None) -> None:
         # The differential model has run forward kinematics with (q, v) in the shared data.
         data.r[:] = pin.getFrameVelocity(
             self._pin_model, data.shared_pin, self._frame_id, pin.LOCAL_WORLD_ALIGNED
         ).linear
 
-    def calcDiff(self, data, x, u=None) -> None:  # noqa: N802 (crocoddyl API)
+    def calcDiff(  # noqa: N802 (crocoddyl API)
+        self, data: Any, x: np.ndarray, u: np.ndarray | None = None
+    ) -> None:
         model, pd, fid, nv = self._pin_model, data.pin_data, self._frame_id, self._nv
         q, v = x[: self._nq], x[self._nq :]
         pin.computeForwardKinematicsDerivatives(model, pd, q, v, self._zero_a)
@@ -259,7 +270,7 @@ class ResidualModelFrameLinearVelocityWorld(crocoddyl.ResidualModelAbstract):
 class ResidualDataFrameLinearVelocityWorld(crocoddyl.ResidualDataAbstract):
     """Workspace of :class:`ResidualModelFrameLinearVelocityWorld` (private pinocchio data)."""
 
-    def __init__(self, model: ResidualModelFrameLinearVelocityWorld, collector) -> None:
+    def __init__(self, model: ResidualModelFrameLinearVelocityWorld, collector: Any) -> None:
         super().__init__(model, collector)
         self.shared_pin = collector.pinocchio
         self.pin_data = model._pin_model.createData()
@@ -407,7 +418,7 @@ def _check_posture(robot: RobotModel, q: np.ndarray) -> np.ndarray:
     return q.copy()
 
 
-def _is_finite_vector(value, n: int) -> bool:
+def _is_finite_vector(value: npt.ArrayLike, n: int) -> bool:
     arr = np.asarray(value, dtype=float)
     return arr.shape == (n,) and bool(np.isfinite(arr).all())
 
@@ -476,7 +487,7 @@ class CommonCostHandles:
         if (self._ee_diag != diag).any():
             self._ee_diag[:] = diag
             self._ee_activation.weights = self._ee_diag
-        if self._force_item is not None:
+        if self._force_item is not None and self._force_residual is not None:
             f = np.asarray(ref.force, dtype=float)
             linear = self._force_linear
             if f.size == 1:
@@ -515,6 +526,15 @@ class SwitchableContactNode:
     """``set_reference`` of the nodes that hold a free and an in-contact model (classical and
     torque-feedback): attributes ``robot``, ``contact``, ``terminal``, ``in_contact``, ``model``,
     ``_models`` {bool: model} and ``_handles`` {bool: cost handles of that model}."""
+
+    # Declared for the type checker; each subclass sets them in its __init__.
+    robot: RobotModel
+    contact: ContactConfig
+    terminal: bool
+    in_contact: bool
+    model: crocoddyl.ActionModelAbstract
+    _models: dict[bool, crocoddyl.ActionModelAbstract]
+    _handles: dict[bool, CommonCostHandles]
 
     def set_reference(self, ref: NodeReference) -> bool:
         """Select contact/free dynamics and update its p̄, λ̄, c4, Q4, c6 (and q̄) in place.
@@ -568,7 +588,7 @@ class RigidContactNode(SwitchableContactNode):
         self.contact = contact
         self.dt = float(dt)
         self.terminal = bool(terminal)
-        kwargs = dict(
+        kwargs: dict[str, Any] = dict(
             q_reference=q_reference,
             baumgarte_velocity_gain=baumgarte_velocity_gain,
             builtin_residuals=builtin_residuals,

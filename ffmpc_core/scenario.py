@@ -16,7 +16,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import yaml
@@ -391,7 +391,7 @@ _TABLE: dict[str, tuple[str, Any, str]] = {
     "pid.hold_damping_ratio": ("", (0.0, 10.0), "damping ratio of the hold PD"),
 }
 #: List lengths of the CostWeights activation diagonals (a number broadcasts).
-_DIAG_LENGTH = {
+_DIAG_LENGTH: dict[str, int | str] = {
     "posture": N_JOINTS,
     "joint_velocity": N_JOINTS,
     "torque": N_JOINTS,
@@ -439,7 +439,7 @@ def _build_schema() -> dict[str, ParamSpec]:
         unit, limits, description = _TABLE[name]
         choices = tuple(limits) if isinstance(limits, list) else ()
         span = limits if isinstance(limits, tuple) else None
-        length = None
+        length: int | str | None = None
         if name == "mpc.command_delay":
             kind = DELAY
         elif name in ("mpc.contact.stiffness", "mpc.contact.damping"):
@@ -482,7 +482,10 @@ def _build_schema() -> dict[str, ParamSpec]:
 SCHEMA: dict[str, ParamSpec] = _build_schema()
 
 
-def _coerce(cls, values: dict[str, Any]):
+_SectionT = TypeVar("_SectionT")
+
+
+def _coerce(cls: type[_SectionT], values: dict[str, Any]) -> _SectionT:
     """A section dataclass from values already checked by :func:`validate_flat`."""
     return cls(**values)
 

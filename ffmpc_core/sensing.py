@@ -17,6 +17,7 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.plausibility import check_force, check_tare_offset
@@ -34,7 +35,7 @@ def delay_cycles(delay: float, cycle: float) -> int:
     return int(k)
 
 
-def _as_std(value, size: int, name: str) -> np.ndarray:
+def _as_std(value: npt.ArrayLike, size: int, name: str) -> np.ndarray:
     try:
         arr = np.broadcast_to(np.asarray(value, dtype=float), (size,)).copy()
     except ValueError:
@@ -54,7 +55,7 @@ class DelayLine:
     The buffer is preallocated; :meth:`step` returns a fresh array.
     """
 
-    def __init__(self, delay: int, shape: int | tuple[int, ...] = ()):
+    def __init__(self, delay: int, shape: int | tuple[int, ...] = ()) -> None:
         if isinstance(delay, bool) or int(delay) != delay or delay < 0:
             raise ConfigError(f"delay must be a whole number of cycles >= 0, got {delay!r}")
         self.delay = int(delay)
@@ -71,7 +72,7 @@ class DelayLine:
         if initial is not None:
             self._buffer[:] = self._check(initial, "initial")
 
-    def _check(self, value, name: str) -> np.ndarray:
+    def _check(self, value: npt.ArrayLike, name: str) -> np.ndarray:
         arr = np.asarray(value, dtype=float)
         if arr.shape != self.shape or not np.all(np.isfinite(arr)):
             raise InputError(f"{name} must be finite with shape {self.shape}, got {value!r}")
@@ -201,7 +202,7 @@ class ForceSensingModel:
     """
 
     def __init__(
-        self, delay: int, force_noise_std, force_dim: int, rng: np.random.Generator
+        self, delay: int, force_noise_std: npt.ArrayLike, force_dim: int, rng: np.random.Generator
     ) -> None:
         if force_dim <= 0:
             raise ConfigError(f"force_dim must be > 0, got {force_dim}")

@@ -35,10 +35,11 @@ import math
 
 import crocoddyl
 import numpy as np
+import numpy.typing as npt
 import pinocchio as pin
 
 from ffmpc_core.config import ContactConfig, CostWeights, NodeReference
-from ffmpc_core.errors import ConfigError, InputError, ModelError
+from ffmpc_core.errors import ConfigError, FfmpcError, InputError, ModelError
 from ffmpc_core.robots import RobotModel
 
 LOCAL_WORLD_ALIGNED = "LOCAL_WORLD_ALIGNED"
@@ -58,7 +59,9 @@ RESIDUAL_TERMS = (
 )
 
 
-def _as_finite_vector(value, n: int, name: str, error=InputError) -> np.ndarray:
+def _as_finite_vector(
+    value: npt.ArrayLike, n: int, name: str, error: type[FfmpcError] = InputError
+) -> np.ndarray:
     """``value`` as a float vector of size ``n`` (a scalar broadcasts); raises on NaN/Inf/size."""
     arr = np.asarray(value, dtype=float)
     if arr.ndim == 0:
@@ -70,7 +73,7 @@ def _as_finite_vector(value, n: int, name: str, error=InputError) -> np.ndarray:
     return arr
 
 
-def _non_negative_vector(value, n: int, name: str) -> np.ndarray:
+def _non_negative_vector(value: npt.ArrayLike, n: int, name: str) -> np.ndarray:
     arr = _as_finite_vector(value, n, name, ConfigError)
     if np.any(arr < 0.0):
         raise ConfigError(f"{name} must be non-negative, got {arr}")
@@ -88,7 +91,12 @@ def _skew_into(out: np.ndarray, a: np.ndarray) -> np.ndarray:
     return out
 
 
-def visco_elastic_force(deflection, velocity, stiffness, damping) -> np.ndarray:
+def visco_elastic_force(
+    deflection: npt.ArrayLike,
+    velocity: npt.ArrayLike,
+    stiffness: npt.ArrayLike,
+    damping: npt.ArrayLike,
+) -> np.ndarray:
     """Eq 16: the visco-elastic contact force λ = −K Δp − B ṗ, in N.
 
     Args:
@@ -252,7 +260,7 @@ class SoftContactDynamics:
         """A fresh preallocated workspace."""
         return SoftContactDynamicsData(self)
 
-    def set_contact_parameters(self, stiffness, damping) -> None:
+    def set_contact_parameters(self, stiffness: npt.ArrayLike, damping: npt.ArrayLike) -> None:
         """Set K (N/m) and B (N·s/m) in place; scalar or one value per force axis (nc)."""
         K = _non_negative_vector(stiffness, self.nc, "stiffness")
         B = _non_negative_vector(damping, self.nc, "damping")
@@ -610,9 +618,9 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
             if (q4 < 0.0).any():
                 raise InputError(f"ee_position_diag must be non-negative, got {q4}")
         c4, c6 = float(ee_position_weight), float(force_weight)
-        for name, c in (("ee_position_weight", c4), ("force_weight", c6)):
-            if not math.isfinite(c) or c < 0.0:
-                raise InputError(f"{name} must be finite and non-negative, got {c}")
+        for name, weight in (("ee_position_weight", c4), ("force_weight", c6)):
+            if not math.isfinite(weight) or weight < 0.0:
+                raise InputError(f"{name} must be finite and non-negative, got {weight}")
         self.ee_position_reference[:] = p
         self.force_reference[:] = f
         if qb is not None:
@@ -638,7 +646,7 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
             self.dynamics.set_contact_parameters(0.0, 0.0)
         self._update_weights()
 
-    def set_contact_parameters(self, stiffness, damping) -> None:
+    def set_contact_parameters(self, stiffness: npt.ArrayLike, damping: npt.ArrayLike) -> None:
         """Nominal K (N/m) and B (N·s/m), scalar or per force axis; applied in place."""
         K = _non_negative_vector(stiffness, self.nc, "stiffness")
         B = _non_negative_vector(damping, self.nc, "damping")
@@ -650,7 +658,9 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
     def createData(self) -> IntegratedActionDataSoftContact:  # noqa: N802 (crocoddyl API)
         return IntegratedActionDataSoftContact(self)
 
-    def calc(self, data, x, u=None) -> None:
+    def calc(
+        self, data: IntegratedActionDataSoftContact, x: np.ndarray, u: np.ndarray | None = None
+    ) -> None:
         """Next state (eq 24) and cost at x = [q, v, λ], u = τ (N·m); u=None: state terms only."""
         nv, dyn, dd = self.nv, self.dynamics, data.dynamics
         q, v, lam = x[:nv], x[nv : 2 * nv], x[2 * nv :]
@@ -685,14 +695,16 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
         data.r[:] = data.weighted_residual
         data.cost = 0.5 * float(data.weighted_residual @ data.weighted_residual)
 
-    def calcDiff(self, data, x, u=None) -> None:  # noqa: N802 (crocoddyl API)
+    def calcDiff(  # noqa: N802 (crocoddyl API)
+        self, data: IntegratedActionDataSoftContact, x: np.ndarray, u: np.ndarray | None = None
+    ) -> None:
         """Fx, Fu (exact) and Lx, Lu, Gauss-Newton Lxx, Lxu, Luu; call :meth:`calc` first."""
         nv, dyn, dd = self.nv, self.dynamics, data.dynamics
         q, v, lam = x[:nv], x[nv : 2 * nv], x[2 * nv :]
         Rx, Ru, sl = data.Rx, data.Ru, self._slices
         s_ee_p, s_ee_v = sl["ee_position"], sl["ee_velocity"]
         state_only = self.terminal or u is None
-        if state_only:
+        if state_only or u is None:  # `or u is None` repeats state_only for the type checker
             dyn.calc_kinematics_diff(dd, q, v)
             w = self._w_state
         else:
@@ -772,7 +784,7 @@ class IntegratedActionDataSoftContact(crocoddyl.ActionDataAbstract):
 
 
 # ======================================================================= node wrapper
-def soft_contact_state(q, v, force) -> np.ndarray:
+def soft_contact_state(q: npt.ArrayLike, v: npt.ArrayLike, force: npt.ArrayLike) -> np.ndarray:
     """The force-feedback state x = [q (rad), v (rad/s), λ (N)] as one vector (validated)."""
     q = np.asarray(q, dtype=float)
     v = np.asarray(v, dtype=float)
@@ -819,11 +831,11 @@ class SoftContactNode:
         )
         return False
 
-    def set_contact_parameters(self, stiffness, damping) -> None:
+    def set_contact_parameters(self, stiffness: npt.ArrayLike, damping: npt.ArrayLike) -> None:
         """Stiffness K (N/m) and damping B (N·s/m), scalar or per force axis, in place."""
         self.model.set_contact_parameters(stiffness, damping)
 
-    def state(self, q, v, force) -> np.ndarray:
+    def state(self, q: npt.ArrayLike, v: npt.ArrayLike, force: npt.ArrayLike) -> np.ndarray:
         """x = [q, v, λ] for this node (validated against the model's sizes)."""
         x = soft_contact_state(q, v, force)
         if x.shape[0] != self.model.state.nx:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
@@ -29,6 +30,9 @@ from ffmpc_core.robots import RobotModel
 from ffmpc_core.scenario import COMMAND_DELAY_MEASURED, COMMAND_DELAY_PID, Scenario
 from ffmpc_core.sensing import ForceSensingModel, SensingModel, SensingParams
 from ffmpc_core.tasks import ForceSquareTask, PhaseWeights, PolishingTask
+
+#: The task schedules of a scenario (:func:`build_task`).
+StudyTask = PolishingTask | ForceSquareTask
 
 #: The devices owning a generator, in spawn order (see :func:`spawn_generators`).
 DEVICES = ("draws", "joint_sensor", "force_sensor", "actuation")
@@ -64,7 +68,7 @@ def steps_per_mpc_period(scenario: Scenario) -> int:
     return int(round(every))
 
 
-def build_task(scenario: Scenario, robot: RobotModel):
+def build_task(scenario: Scenario, robot: RobotModel) -> StudyTask:
     """The task schedule and the believed table point for a scenario.
 
     The tool starts at ``robot.q_nominal``; the controller believes the table is horizontal,
@@ -79,7 +83,7 @@ def build_task(scenario: Scenario, robot: RobotModel):
         contact_ee_position=mpc.phase_weight("ee_position_phase", 1e3),
         force=mpc.phase_weight("force_phase", PhaseWeights.force),
     )
-    common = dict(
+    common: dict[str, Any] = dict(
         start_position=start,
         contact_position=contact,
         still=task.still,
@@ -319,7 +323,7 @@ class StudyLog:
         "tau_motor",
     )
 
-    def __init__(self, steps: int, robot: RobotModel, task) -> None:
+    def __init__(self, steps: int, robot: RobotModel, task: StudyTask) -> None:
         if steps < 1:
             raise ConfigError(f"a run needs at least one cycle, got {steps}")
         nv = robot.nv
@@ -366,7 +370,7 @@ class StudyLog:
 
 
 def study_metrics(
-    log: dict[str, np.ndarray], task, table_normal: np.ndarray
+    log: dict[str, np.ndarray], task: StudyTask, table_normal: np.ndarray
 ) -> tuple[PolishingMetrics, PolishingMetrics]:
     """The metrics from the TRUE and from the MEASURED normal force, over the task's evaluation
     window (the circle; the whole run if the run ends before it)."""

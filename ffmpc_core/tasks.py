@@ -23,11 +23,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ffmpc_core.config import NodeReference
-from ffmpc_core.errors import ConfigError
+from ffmpc_core.errors import ConfigError, InputError
 
 
 def min_jerk(s: float) -> float:
@@ -45,6 +46,13 @@ class PhaseWeights:
     force: float = 1e-2
 
 
+def _diag_of(ref: NodeReference) -> np.ndarray:
+    """``ref.ee_position_diag``, which the tasks write in place; InputError when it is None."""
+    if ref.ee_position_diag is None:
+        raise InputError("the reference has no ee_position_diag: make it with NodeReference.empty")
+    return ref.ee_position_diag
+
+
 class _ApproachThenContact:
     """What the approach-then-contact tasks share: the tool stands still, reaches
     ``contact_position`` with a minimum-jerk path, then the contact phases begin.
@@ -54,6 +62,17 @@ class _ApproachThenContact:
     """
 
     _ee_z_weight_in_contact: float = 0.0
+
+    if TYPE_CHECKING:  # declared for the type checker only: each subclass provides them
+        start_position: np.ndarray
+        contact_position: np.ndarray
+        still: float
+        reach: float
+        weights: PhaseWeights
+
+        def force(self, t: float) -> float: ...
+
+        def ee_position(self, t: float) -> np.ndarray: ...
 
     @property
     def contact_time(self) -> float:
@@ -100,7 +119,7 @@ class _ApproachThenContact:
         ref.ee_position_weight = w.contact_ee_position if contact else w.free_ee_position
         ref.force_weight = w.force if contact else 0.0
         ref.in_contact = contact
-        diag = ref.ee_position_diag
+        diag = _diag_of(ref)
         diag[0] = diag[1] = 1.0
         diag[2] = self._ee_z_weight_in_contact if contact else 1.0
         return ref
@@ -306,5 +325,5 @@ class PressTask:
         ref.ee_position_weight = self.weights.contact_ee_position
         ref.force_weight = self.weights.force
         ref.in_contact = True
-        ref.ee_position_diag[:] = (1.0, 1.0, 0.0)
+        _diag_of(ref)[:] = (1.0, 1.0, 0.0)
         return ref

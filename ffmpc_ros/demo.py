@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ffmpc_core.config import FORMULATIONS
+from ffmpc_core.metrics import PolishingMetrics
 from ffmpc_core.model_plant import run_model_closed_loop
 from ffmpc_core.mpc import MpcConfig
 from ffmpc_core.robots import load_robot
@@ -69,7 +70,7 @@ def run_demo(seed: int = 0) -> int:
     return 0 if same else 1
 
 
-def _print_metrics(true, measured) -> None:
+def _print_metrics(true: PolishingMetrics, measured: PolishingMetrics) -> None:
     for label, m in (("true normal force", true), ("measured force", measured)):
         print(
             f"     from the {label:17}: E_P = {m.position_mae_mm:.2f} mm, "

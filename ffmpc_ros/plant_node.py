@@ -29,6 +29,8 @@ torque) is measured in both modes.
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 from geometry_msgs.msg import WrenchStamped
@@ -53,7 +55,7 @@ STATUS_EVERY = 100  # cycles between two /plant/status messages
 class PlantNode(StudyNode):
     """The simulated robot on topics (see the module docstring)."""
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__("plant", **kwargs)
         s = self.scenario
         robot = self.robot = load_robot(s.robot)
@@ -256,7 +258,7 @@ class PlantNode(StudyNode):
         super().destroy_node()
 
 
-def main(argv=None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
     return run_node(PlantNode, __doc__.splitlines()[0], argv)
 
 

@@ -30,6 +30,7 @@ import platform
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -115,7 +116,8 @@ def bench_impact(
     study = ImpactStudyConfig()
     limits = study.control_limits(joint_limits(robot))
     material = study.prior
-    pipes = {}
+    # per pipeline: its mapper, planner and learner, and the lists of the measured samples
+    pipes: dict[str, dict[str, Any]] = {}
     for solver in PIPELINES:
         pipes[solver] = {
             "mapper": ContactSpaceMapper(robot, limits, DOWN, solver=solver),

@@ -549,7 +549,10 @@ def run_exploration(
                     raise ConfigError(
                         f"no contact within {cfg.max_approach_time} s of guarded approach"
                     )
-            z = measured_deformation(p, surface if surface is not None else last_free)
+            reference = surface if surface is not None else last_free
+            if reference is None:  # touching from the first cycle on, below the threshold
+                raise ConfigError("in contact at the start: increase start_clearance")
+            z = measured_deformation(p, reference)
             log["z"][k] = z
 
             if surface is None:
@@ -557,6 +560,7 @@ def run_exploration(
                 zd_ref, zdd_ref, phase = cfg.approach_speed, 0.0, -1
                 target_z = top + cfg.start_clearance - cfg.approach_speed * t
             else:
+                assert k_start is not None  # set with surface
                 i = k - k_start
                 if i >= ref.time.size:
                     break
@@ -639,11 +643,12 @@ def run_exploration(
         np.abs(np.diff(vs[: k + 1], axis=0)) / dt / limits.acceleration, axis=1
     )
     fed = log["fed"]
-    alternatives = {}
+    alternatives: dict[str, tuple[float, float]] = {}
     for name in ("nominal top", "bullet distance"):
         depth = log["depth_nominal" if name == "nominal top" else "depth_bullet"][fed]
         S, F = stack_data(depth, log["zd"][fed], log["force"][fed])
-        alternatives[name] = tuple(float(x) for x in fit_stiffness_damping(S, F))
+        stiffness, damping = fit_stiffness_damping(S, F)
+        alternatives[name] = (float(stiffness), float(damping))
     explored = log["phase"] >= 0
     return ExplorationRun(
         material=mat,

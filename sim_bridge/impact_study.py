@@ -94,6 +94,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
@@ -650,8 +651,8 @@ def run_impact(
         ),
     )
     law = TaskSpaceInverseDynamics(robot, guard=guard)
-    impact_ctrl = None
-    baseline = None
+    impact_ctrl: ImpactController | None = None
+    baseline: _BaselineApproach | None = None
     touch_first: TouchFirstImpactController | None = None
     if approach == "maximal":
         ctrl_cfg = ImpactControllerConfig(
@@ -745,6 +746,7 @@ def run_impact(
                     contact_k = k
                     if touch_position is None:  # in contact from the start (not expected)
                         touch_position, touch_speed = p.copy(), speed
+                    assert hold_rotation is not None  # latched on the first cycle
                     admittance.start(p, hold_rotation, speed)
             in_contact = contact_k is not None
             log["in_contact_phase"][k] = in_contact
@@ -815,12 +817,16 @@ def run_impact(
                 weight = 0.0
             if weight < 1.0:
                 if approach == "maximal":
+                    assert impact_ctrl is not None  # built for the maximal approach
                     cmd = impact_ctrl.step(ImpactMeasurement(q, v, F), t)
                     log["bound"][k] = cmd.pre_impact_velocity
                     log["phase"][k] = impact_ctrl.phase
                 elif in_contact:
                     cmd = admittance.command(force, dt)
                 else:
+                    # built for the baseline approach; the hold pose is latched on the first cycle
+                    assert baseline is not None
+                    assert hold_position is not None and hold_rotation is not None
                     cmd = baseline.command(q, v, t, dt, hold_position, hold_rotation)
                 tau = law.torque(cmd, q, v, s.wrench_world, impact_force=impact_force)
                 if weight > 0.0:
@@ -858,7 +864,7 @@ def run_impact(
         learned = (est.stiffness, est.damping, (est.stiffness_std, est.damping_std))
     except InputError:  # never enough contact data
         learned = (float("nan"), float("nan"), (float("nan"), float("nan")))
-    touch = {}
+    touch: dict[str, Any] = {}
     if touch_first is not None:
         nan = float("nan")
         t_touch = nan if touch_first.touch_time is None else touch_first.touch_time
@@ -892,7 +898,7 @@ def run_impact(
         violations=count_limit_violations(qs, vs, taus, dt, limits),
         learned_stiffness=float(learned[0]),
         learned_damping=float(learned[1]),
-        learned_std=tuple(float(x) for x in learned[2]),
+        learned_std=(float(learned[2][0]), float(learned[2][1])),
         learner_samples=learner.samples,
         handover_time=float("nan") if handover_k is None else float(t_log[handover_k]),
         wall_time=time.perf_counter() - wall,

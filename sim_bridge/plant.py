@@ -51,9 +51,11 @@ import math
 import os
 import tempfile
 import xml.etree.ElementTree as ET
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
+import numpy.typing as npt
 import pinocchio as pin
 import pybullet as pb
 
@@ -67,7 +69,7 @@ TOOL_JOINT = "ffmpc_tool_joint"
 _MOVABLE_URDF_TYPES = ("revolute", "continuous", "prismatic")
 
 
-def _vector3(value, name: str) -> np.ndarray:
+def _vector3(value: npt.ArrayLike, name: str) -> np.ndarray:
     arr = np.asarray(value, dtype=float)
     if arr.shape != (3,) or not np.all(np.isfinite(arr)):
         raise ConfigError(f"{name} must be 3 finite numbers, got {value!r}")
@@ -81,7 +83,8 @@ def _positive(value: float, name: str, allow_zero: bool = False) -> None:
 
 
 def _quaternion_xyzw(rotation: np.ndarray) -> tuple[float, float, float, float]:
-    return tuple(float(c) for c in pin.Quaternion(rotation).coeffs())  # (x, y, z, w)
+    x, y, z, w = (float(c) for c in pin.Quaternion(rotation).coeffs())
+    return x, y, z, w
 
 
 @dataclass(frozen=True)
@@ -327,8 +330,17 @@ def _resolve_mesh(filename: str, urdf_dir: str) -> str:
     return filename if os.path.isabs(filename) else os.path.join(urdf_dir, filename)
 
 
-def _fmt(values) -> str:
+def _fmt(values: Iterable[float]) -> str:
     return " ".join(f"{float(x):.17g}" for x in values)
+
+
+def _joint_link(joint: ET.Element, tag: str, urdf_path: str) -> str:
+    """The ``link`` attribute of a URDF joint's ``parent`` or ``child``; ModelError if absent."""
+    element = joint.find(tag)
+    link = None if element is None else element.get("link")
+    if link is None:
+        raise ModelError(f"joint {joint.get('name')!r} of {urdf_path} has no {tag} link")
+    return link
 
 
 def tool_urdf_text(robot: RobotModel, tool: ToolConfig, visuals: bool = False) -> str:
@@ -351,8 +363,8 @@ def tool_urdf_text(robot: RobotModel, tool: ToolConfig, visuals: bool = False) -
     children: dict[str, list[str]] = {}
     locked: list[str] = []
     for joint in root.findall("joint"):
-        parent = joint.find("parent").get("link")
-        child = joint.find("child").get("link")
+        parent = _joint_link(joint, "parent", urdf_path)
+        child = _joint_link(joint, "child", urdf_path)
         children.setdefault(parent, []).append(child)
         if joint.get("type") in _MOVABLE_URDF_TYPES and joint.get("name") not in robot.joint_names:
             joint.set("type", "fixed")  # locked at 0, as pinocchio's reduced model
@@ -411,7 +423,7 @@ class Plant:
     measurement is due, ``plant.state()``.
     """
 
-    def __init__(self, robot: RobotModel | str = "iiwa", config: PlantConfig | None = None):
+    def __init__(self, robot: RobotModel | str = "iiwa", config: PlantConfig | None = None) -> None:
         self.robot = load_robot(robot) if isinstance(robot, str) else robot
         self.config = config if config is not None else PlantConfig()
         self.dt = float(self.config.time_step)
@@ -596,7 +608,7 @@ class Plant:
         return self._table_normal.copy()
 
     # ------------------------------------------------------------------ simulation
-    def _check_vector(self, value, name: str) -> np.ndarray:
+    def _check_vector(self, value: npt.ArrayLike, name: str) -> np.ndarray:
         arr = np.asarray(value, dtype=float)
         if arr.shape != (self.robot.nv,) or not np.all(np.isfinite(arr)):
             raise InputError(f"{name} must be {self.robot.nv} finite numbers, got {value!r}")
@@ -746,7 +758,7 @@ class Plant:
     def __enter__(self) -> Plant:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
     def __del__(self) -> None:

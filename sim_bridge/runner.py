@@ -58,6 +58,7 @@ from ffmpc_core.scenario import Scenario
 from ffmpc_core.study import (
     RunDraws,
     StudyLog,
+    StudyTask,
     actuation_model,
     build_task,
     command_delay,
@@ -131,7 +132,7 @@ class RunResult:
         }
 
 
-def plant_config(scenario: Scenario, task, tilt: float) -> PlantConfig:
+def plant_config(scenario: Scenario, task: StudyTask, tilt: float) -> PlantConfig:
     """Table tilted by θ about an axis through the circle centre (or the contact point)."""
     p = scenario.plant
     pivot = task.circle_center() if hasattr(task, "circle_center") else task.contact_position
@@ -155,7 +156,7 @@ class SimulatedRobot:
     real-time loop all build it here, so they simulate the same robot."""
 
     draws: RunDraws
-    task: object
+    task: StudyTask
     actuation: ActuationModel
     plant: Plant
     push_at: int
@@ -254,6 +255,7 @@ def run_scenario(
             sensors_fresh = "sensor-dropout" not in active or received is None
             if sensors_fresh:
                 received = (q_hat, v_hat, tau_read, f_read)
+            assert received is not None  # the first cycle always reads fresh sensors
             q_read, v_read, tau_read, f_read = received
             try:
                 check_force(f_read)

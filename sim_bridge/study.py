@@ -41,7 +41,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -49,6 +49,11 @@ from ffmpc_core.config import FORMULATIONS
 from ffmpc_core.errors import ConfigError, FfmpcError
 from ffmpc_core.metrics import PolishingMetrics, summarize
 from ffmpc_core.scenario import Scenario, load_scenario, resolve_scenario_path, scenario_parameters
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+
+    from sim_bridge.runner import RunResult
 
 #: Column titles of the paper's tables, per formulation.
 LABELS = {
@@ -64,7 +69,7 @@ PLOT_STEP = 0.002
 PLOT_SIGNALS = ("t", "force_true", "force_measured", "force_reference", "tangential_error_mm")
 
 #: The paper's Tables II–IV (VI-C) and Experiment 1 MAEs (VII-B), for comparison only.
-PAPER_TABLES = {
+PAPER_TABLES: dict[str, dict[str, tuple[str, ...]]] = {
     "II": {
         "classical": ("5.75 ± 0.06", "25.52 ± 4.09", "59.36", "0.51"),
         "torque_feedback": ("2.44 ± 0.01", "33.98 ± 4.42", "105.57", "32.75"),
@@ -166,7 +171,7 @@ class RunOutcome:
         return self.summary is not None
 
 
-def plot_log(result, scenario: Scenario, step: float) -> dict[str, np.ndarray]:
+def plot_log(result: RunResult, scenario: Scenario, step: float) -> dict[str, np.ndarray]:
     """The signals of :data:`PLOT_SIGNALS` from a run's log, one sample every ``step`` s.
 
     The tangential error is ‖(I − n nᵀ)(p − p̄)‖ in mm, n the TRUE (tilted) table normal, as E_P;
@@ -179,7 +184,9 @@ def plot_log(result, scenario: Scenario, step: float) -> dict[str, np.ndarray]:
     dt = scenario.plant.time_step
     every = max(1, int(round(step / dt)))
     task = build_task(scenario, load_robot(scenario.robot))
-    normal = plant_config(scenario, task, result.draws.tilt_angle).table.normal
+    table = plant_config(scenario, task, result.draws.tilt_angle).table
+    assert table is not None  # plant_config always builds the tilted table
+    normal = table.normal
     error = log["ee_position"] - log["ee_reference"]
     tangential = error - np.outer(error @ normal, normal)
     full = {
@@ -971,7 +978,7 @@ def _figure_outcomes(outcomes: Sequence[RunOutcome], pid: bool) -> list[RunOutco
     return [o for o in outcomes if o.plot_log is not None and o.spec.pid_enabled == pid]
 
 
-def _shade_window(log: dict[str, np.ndarray], axes) -> None:
+def _shade_window(log: dict[str, np.ndarray], axes: Sequence[Axes]) -> None:
     """Grey band over the metrics window (circle phase or square signal)."""
     start, end = log["window"]
     if np.isfinite(start):
@@ -994,6 +1001,7 @@ def plot_polishing(outcomes: Sequence[RunOutcome], pid: bool, path: Path, title:
     ref_drawn = False
     for o in chosen:
         log, form = o.plot_log, o.spec.formulation
+        assert log is not None  # _figure_outcomes keeps the plotted runs only
         if not ref_drawn:
             ax_f.plot(log["t"], log["force_reference"], "k--", lw=1.0, label="reference")
             ref_drawn = True
@@ -1001,7 +1009,9 @@ def plot_polishing(outcomes: Sequence[RunOutcome], pid: bool, path: Path, title:
         ax_p.plot(
             log["t"], log["tangential_error_mm"], color=COLORS[form], lw=0.8, label=LABELS[form]
         )
-    _shade_window(chosen[0].plot_log, (ax_f, ax_p))
+    first = chosen[0].plot_log
+    assert first is not None
+    _shade_window(first, (ax_f, ax_p))
     ax_f.set_ylabel("normal force λ (N)")
     ax_f.set_title(title, fontsize=9)
     ax_f.legend(loc="upper left", fontsize=8, ncol=4)
@@ -1027,10 +1037,12 @@ def plot_force_square(outcomes: Sequence[RunOutcome], path: Path, title: str) ->
 
     fig, ax = plt.subplots(figsize=(7.5, 3.5), dpi=100)
     log = chosen[0].plot_log
+    assert log is not None  # chosen holds the plotted runs only
     ax.plot(log["t"], log["force_reference"], "k--", lw=1.0, label="reference")
     for o in chosen:
         form = o.spec.formulation
         pid = "" if o.spec.pid_enabled else " (no PID)"
+        assert o.plot_log is not None
         ax.plot(
             o.plot_log["t"],
             o.plot_log["force_true"],

@@ -374,3 +374,14 @@ def test_generated_urdf_has_tool_and_no_gripper_collisions():
     assert TOOL_LINK in links
     for mesh in root.iter("mesh"):
         assert mesh.get("filename").startswith("/")
+
+
+def test_urdf_joint_without_child_link_is_a_model_error():
+    import xml.etree.ElementTree as ET
+
+    from sim_bridge.plant import _joint_link
+
+    joint = ET.fromstring('<joint name="j" type="fixed"><parent link="a"/></joint>')
+    assert _joint_link(joint, "parent", "x.urdf") == "a"
+    with pytest.raises(ModelError, match="'j' of x.urdf has no child link"):
+        _joint_link(joint, "child", "x.urdf")

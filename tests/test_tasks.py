@@ -92,3 +92,17 @@ def test_reference_into_writes_what_reference_returns(dimension):
             np.testing.assert_array_equal(ref.ee_position, task.ee_position(float(t)))
     contact = polishing.reference(polishing.circle_start + 0.1)
     np.testing.assert_array_equal(contact.ee_position_diag, [1.0, 1.0, 0.25])
+
+
+def test_reference_into_needs_an_ee_position_diag():
+    """The tasks write Q4 in place: a reference without one is refused, not a TypeError."""
+    from ffmpc_core.config import NodeReference
+    from ffmpc_core.errors import InputError
+    from ffmpc_core.tasks import PressTask
+
+    for task in (make_task(), PressTask(np.array([0.5, 0.0, 0.3]))):
+        ref = NodeReference(np.zeros(3), np.zeros(1), 0.0, 0.0, False)
+        with pytest.raises(InputError, match="ee_position_diag"):
+            task.reference_into(1.0, ref)
+        ref = NodeReference.empty(1)
+        assert task.reference_into(1.0, ref) is ref

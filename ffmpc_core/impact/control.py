@@ -229,6 +229,11 @@ class ImpactController:
         along = float(d @ (p - self._hold_position))
         return q, v, dt, p, R, pdot, along, float(d @ pdot), float(-d @ f_world)
 
+    def _hold_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """The hold pose (p m, R; world) latched by the first :meth:`_cycle_state`."""
+        assert self._hold_position is not None and self._hold_rotation is not None
+        return self._hold_position, self._hold_rotation
+
     def step(self, measurement: ImpactMeasurement, t: float) -> CartesianCommand:
         """One control cycle at time ``t`` (s)."""
         q, v, dt, p, R, pdot, along, speed, force = self._cycle_state(measurement, t)
@@ -298,12 +303,13 @@ class ImpactController:
         acc_ff = 0.0 if dt <= 0 else (self._v_ref - previous) / dt
         acc_ff = float(np.clip(acc_ff, min(acc_lo, 0.0), max(acc_hi, 0.0)))
         d = cfg.direction
+        hold_position, hold_rotation = self._hold_pose()
         return CartesianCommand(
             phase=APPROACH,
-            position=self._hold_position + along * d,
+            position=hold_position + along * d,
             velocity=self._v_ref * d,
             acceleration=acc_ff * d,
-            rotation=self._hold_rotation.copy(),
+            rotation=hold_rotation.copy(),
             pre_impact_velocity=bound,
             force=force,
             target_force=cfg.target_force,
@@ -324,14 +330,16 @@ class ImpactController:
         self._v_ref = cfg.admittance.velocity(self._v_ref, force, cfg.target_force, dt)
         self._x_ref += self._v_ref * dt
         if cfg.learn_online:
+            assert self._contact_position is not None  # latched when CONTACT began
             z = float(d @ (p - self._contact_position))
             self.learner.update(z, speed, force)
+        hold_position, hold_rotation = self._hold_pose()
         return CartesianCommand(
             phase=CONTACT,
-            position=self._hold_position + self._x_ref * d,
+            position=hold_position + self._x_ref * d,
             velocity=self._v_ref * d,
             acceleration=np.zeros(3),
-            rotation=self._hold_rotation.copy(),
+            rotation=hold_rotation.copy(),
             pre_impact_velocity=float("nan"),
             force=force,
             target_force=cfg.target_force,

@@ -18,6 +18,7 @@ the data's ``S Sᵀ`` (the default 1e-9 m²… is negligible for any real excita
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -247,7 +248,11 @@ class ExplorationReference:
     impact_velocities: np.ndarray
 
 
-def _smooth_move(z0: float, z1: float, duration: float):
+#: A piece of the excitation trajectory: τ (s, from its start) ↦ (z m, ż m/s, z̈ m/s²).
+_Segment = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
+
+
+def _smooth_move(z0: float, z1: float, duration: float) -> tuple[float, _Segment]:
     """Cosine blend from rest at z0 to rest at z1 in ``duration`` s: τ ↦ (m, m/s, m/s²)."""
     w = np.pi / duration
 
@@ -261,7 +266,9 @@ def _smooth_move(z0: float, z1: float, duration: float):
     return duration, seg
 
 
-def _constant_acceleration(z0: float, v0: float, a: float, duration: float):
+def _constant_acceleration(
+    z0: float, v0: float, a: float, duration: float
+) -> tuple[float, _Segment]:
     """``z = z0 + v0 τ + a τ²/2`` for ``duration`` s: τ ↦ (m, m/s, m/s²)."""
 
     def seg(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -317,7 +324,7 @@ def exploration_reference(
         )
 
     # (duration s, segment function, phase): the trajectory is continuous in z and ż.
-    segments = [(sine_cycles / sine_frequency, sine, 0)]
+    segments: list[tuple[float, _Segment, int]] = [(sine_cycles / sine_frequency, sine, 0)]
     for k, v in enumerate(v_imp, start=1):
         segments.append((*_smooth_move(0.0 if k == 1 else depth, -approach_height, 0.8), k))
         a_up = v * v / (2.0 * approach_height)

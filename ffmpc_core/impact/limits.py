@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TypedDict
 
 import daqp
 import numpy as np
@@ -503,6 +504,18 @@ class _SparsePattern:
         return dense[self.index]
 
 
+class ContactKinematics(TypedDict):
+    """Pinocchio quantities of :meth:`ContactSpaceMapper.kinematics` at one (q, v)."""
+
+    J_A: np.ndarray  # Jacobian row along the impact direction d (n entries)
+    J_B: np.ndarray  # Jacobian rows of the five other task directions (5 × n)
+    drift_A: float  # J̇q̇ along d, m/s²
+    drift_B: np.ndarray  # J̇q̇ of the five other directions (m/s², rad/s²)
+    M: np.ndarray  # joint-space mass matrix, kg·m²
+    h: np.ndarray  # nonlinear effects, N·m
+    effective_mass: float  # Λ along d, kg
+
+
 class ContactSpaceMapper:
     """Hot-path mapping of joint limits to contact-space bounds (eq 9–11), built once.
 
@@ -614,7 +627,7 @@ class ContactSpaceMapper:
         self.basis = motion_basis(self.direction)
         self._basis_T = np.ascontiguousarray(self.basis.T)
 
-    def kinematics(self, q: np.ndarray, v: np.ndarray) -> dict[str, np.ndarray | float]:
+    def kinematics(self, q: np.ndarray, v: np.ndarray) -> ContactKinematics:
         """Pinocchio quantities at (q rad, v rad/s): J_A, J_B, drifts J̇q̇ (m/s², rad/s²),
         M (kg·m²), h (N·m) and the effective mass Λ (kg)."""
         model, data, fid = self.robot.model, self._data, self.robot.contact_frame_id
@@ -683,7 +696,7 @@ class ContactSpaceMapper:
 
     def _daqp_vertices(
         self,
-        kin: dict[str, np.ndarray | float],
+        kin: ContactKinematics,
         reduction: tuple[np.ndarray, np.ndarray],
         weights: np.ndarray,
     ) -> np.ndarray | None:
@@ -746,6 +759,7 @@ class ContactSpaceMapper:
         lam = float(kin["effective_mass"])
         weights = self._weights.copy()
         weights[:, 1] /= lam  # = vertex_directions(self.n_directions, lam)
+        vertices: np.ndarray | None
         if self.solver == "osqp":
             zdot_lower, zdot_upper = self.velocity_bounds(J_A, J_B, q)
             lp = vertex_lp_data(

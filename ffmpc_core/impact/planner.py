@@ -482,8 +482,8 @@ class _Eq14Workspace:
         S = np.zeros((h + 1, 2, h + 1))
         S[1:, 0] = self.A[self._rows_z]
         S[:, 1] = self.A[self._rows_v]
-        S = S.reshape(2 * (h + 1), h + 1)
-        return S[:, 0].copy(), S[:, 1:].copy()
+        rows = S.reshape(2 * (h + 1), h + 1)
+        return rows[:, 0].copy(), rows[:, 1:].copy()
 
     def violation(self, x: np.ndarray) -> float:
         """Largest violation of the rows by ``x = [ż_imp, U]`` in their own units (m, m/s,
@@ -559,7 +559,9 @@ class ImpactPlanner:
         self._scale = np.concatenate([[1.0], np.full(h, cfg.input_scale)])
         self._max_A = _SparsePattern(mask)
         if cfg.cost == "qp":
-            self._max_P = _SparsePattern(np.triu(np.ones((h + 1, h + 1), dtype=bool)))
+            self._max_P: _SparsePattern | None = _SparsePattern(
+                np.triu(np.ones((h + 1, h + 1), dtype=bool))
+            )
             P0 = self._max_P.matrix
         else:
             self._max_P = None
@@ -727,6 +729,7 @@ class ImpactPlanner:
         """``(W̃, w̃, changed)`` of eq 14 (LP variant: zero Hessian, cost −ż_imp)."""
         cfg = self.config
         if cfg.cost == "lp":
+            assert self._const_hessian is not None  # zeros, set in __init__ for the LP variant
             return self._const_hessian, self._q_lp, False
         if self._const_hessian is not None:
             return self._const_hessian, self._const_cost, False

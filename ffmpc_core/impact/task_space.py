@@ -437,6 +437,7 @@ class TaskSpaceInverseDynamics:
         impact_force: np.ndarray | None,
     ) -> np.ndarray:
         guard = self.guard
+        assert guard is not None  # called only when there is a guard (torque())
         oMf, J, vel, drift, M, h = guard.kinematics(q, v)
         v = np.asarray(v, dtype=float)
         xdd = self._task_acceleration(command, oMf, vel, drift)

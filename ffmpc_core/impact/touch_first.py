@@ -340,19 +340,22 @@ class TouchFirstImpactController(ImpactController):
         self._v_ref = cfg.admittance.velocity(self._v_ref, force, target, dt)
         self._x_ref += self._v_ref * dt
         if cfg.learn_online and force > 0.0:
+            assert self._contact_position is not None  # latched when the contact began
             self.learner.update(float(d @ (p - self._contact_position)), speed, force)
+        hold_position, hold_rotation = self._hold_pose()
         return CartesianCommand(
             phase=phase,
-            position=self._hold_position + self._x_ref * d,
+            position=hold_position + self._x_ref * d,
             velocity=self._v_ref * d,
             acceleration=np.zeros(3),
-            rotation=self._hold_rotation.copy(),
+            rotation=hold_rotation.copy(),
             pre_impact_velocity=float("nan"),
             force=force,
             target_force=target,
         )
 
     def _touch_done(self, t: float) -> bool:
+        assert self.touch_time is not None  # set when the touch began
         in_contact = t - self.touch_time
         if in_contact >= self.touch.max_touch_time:
             return True
@@ -378,6 +381,7 @@ class TouchFirstImpactController(ImpactController):
         except InfeasibleTargetError as exc:
             self.refusal = exc
             self.phase = REFUSED
+        assert self._touch_surface is not None  # latched with the touch
         x1 = self._touch_surface - tc.retract_height
         try:
             acc_hi = self.mapper.update(q, v).acceleration_range(0.0)[1]
@@ -389,6 +393,7 @@ class TouchFirstImpactController(ImpactController):
 
     def _retract_step(self, force: float, t: float) -> CartesianCommand:
         """The cosine move of step 4; at its end the strike (or, refused, a hold) starts."""
+        assert self._retract is not None  # set by _decide before the RETRACT phase
         t0, x0, x1, T = self._retract
         tau = min(t - t0, T)
         w = np.pi / T
@@ -402,12 +407,13 @@ class TouchFirstImpactController(ImpactController):
             self._last_plan = None
             self._free_position = None
         d = self.config.direction
+        hold_position, hold_rotation = self._hold_pose()
         return CartesianCommand(
             phase=phase,
-            position=self._hold_position + x * d,
+            position=hold_position + x * d,
             velocity=xd * d,
             acceleration=xdd * d,
-            rotation=self._hold_rotation.copy(),
+            rotation=hold_rotation.copy(),
             pre_impact_velocity=float("nan"),
             force=force,
             target_force=self.config.target_force,
