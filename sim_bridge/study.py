@@ -51,7 +51,9 @@ from ffmpc_core.metrics import PolishingMetrics, summarize
 from ffmpc_core.scenario import Scenario, load_scenario, resolve_scenario_path, scenario_parameters
 
 if TYPE_CHECKING:
+    from distributed import Client, LocalCluster
     from matplotlib.axes import Axes
+    from tqdm import tqdm
 
     from sim_bridge.runner import RunResult
 
@@ -450,7 +452,7 @@ def _stderr(text: str) -> None:
 SCHEDULER_TIMEOUT_S = 20.0
 
 
-def _dask_client(workers: int, scheduler: str | None):
+def _dask_client(workers: int, scheduler: str | None) -> tuple[Client, LocalCluster | None]:
     """A ``distributed`` client and the LocalCluster it owns (None with ``scheduler``)."""
     from distributed import Client, LocalCluster
 
@@ -476,7 +478,7 @@ def _dask_client(workers: int, scheduler: str | None):
         raise
 
 
-def _dashboard(client) -> str | None:
+def _dashboard(client: Client) -> str | None:
     try:
         import bokeh  # noqa: F401  (the dashboard is served only with bokeh installed)
     except ImportError:
@@ -540,7 +542,7 @@ def execute_specs(
     if cache is not None:
         say(f"{len(specs)} runs: {n_cached} from the cache {cache.directory}, {len(todo)} to run")
 
-    def finish(i: int, outcome: RunOutcome, bar) -> None:
+    def finish(i: int, outcome: RunOutcome, bar: tqdm) -> None:
         # Every outcome goes through the JSON of a cache entry: a run read back from the cache
         # and a run done now give equal objects.
         entry = json.loads(json.dumps(_outcome_entry(keys[i] or "", outcome), allow_nan=True))
@@ -551,7 +553,7 @@ def execute_specs(
         bar.set_postfix_str(_postfix(specs[i]), refresh=False)
         bar.update()
 
-    def new_bar():
+    def new_bar() -> tqdm:
         return tqdm(
             total=len(specs),
             initial=n_cached,
