@@ -14,9 +14,10 @@ keys are an error (an option that silently does nothing is a bug). Overrides use
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, fields, is_dataclass, replace
 from pathlib import Path
-from typing import Any, TypeVar
+from types import UnionType
+from typing import Any, Generic, TypeVar, Union, get_args, get_origin, get_type_hints
 
 import numpy as np
 import yaml
@@ -32,6 +33,10 @@ WILDCARD = "/**"
 
 #: Where the scenario files shipped with ffmpc live.
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
+#: Shipped scenario files of the studies configured by their own dataclass tree
+#: (:class:`ConfigSchema`: ``ffmpc study impact``, ``ffmpc study explore``); the others are
+#: node-graph scenarios (:func:`load_scenario`).
+STUDY_SCENARIOS = ("impact", "explore")
 
 
 def flatten(tree: dict, prefix: str = "") -> dict[str, Any]:
@@ -205,10 +210,15 @@ class ParamSpec:
     unit: str = ""
     range: tuple[float, float] | None = None
     choices: tuple[Any, ...] = ()
-    length: int | str | None = None  # list length, or CONTACT_DIMENSION
+    length: int | str | None = None  # list length, or CONTACT_DIMENSION; None: any length
+    optional: bool = False  # null (None) is also accepted
 
     def expected(self, length: int | None = None) -> str:
         """What a value must be, in words (the end of every error message)."""
+        text = self._expected(length)
+        return f"{text} or null" if self.optional else text
+
+    def _expected(self, length: int | None = None) -> str:
         unit = f" {self.unit}" if self.unit else ""
         span = ""
         if self.range is not None:
@@ -217,7 +227,7 @@ class ParamSpec:
         if self.choices:
             return "one of " + ", ".join(repr(c) for c in self.choices)
         n = length if length is not None else self.length
-        n_text = f"{n}" if isinstance(n, int) else CONTACT_DIMENSION
+        n_text = f"{n}" if isinstance(n, int) else CONTACT_DIMENSION if n else ""
         if self.length == CONTACT_DIMENSION and isinstance(n, int):
             n_text = f"{n} ({CONTACT_DIMENSION})"
         if self.kind == BOOL:
@@ -229,9 +239,9 @@ class ParamSpec:
         if self.kind == STR:
             return "a string"
         if self.kind == FLOATS:
-            return f"a list of {n_text} numbers{span}{unit}"
+            return f"a list of {n_text} numbers{span}{unit}".replace("of  ", "of ")
         if self.kind == FLOAT_OR_FLOATS:
-            return f"a number{span}{unit} or a list of {n_text} of them"
+            return f"a number{span}{unit} or a list of {n_text or 'any number'} of them"
         return "'pid', 'measured' or a number of seconds >= 0"  # DELAY
 
     def error(self, value: Any, length: int | None = None) -> ConfigError:
@@ -240,6 +250,8 @@ class ParamSpec:
     def check(self, value: Any, length: int | None = None) -> Any:
         """``value`` in its canonical type (float, int, bool, str, tuple of floats), or
         ConfigError. ``length`` resolves a list length given by another parameter."""
+        if self.optional and value is None:
+            return None
         if self.kind == BOOL:
             if not isinstance(value, bool | np.bool_):
                 raise self.error(value)
@@ -301,12 +313,15 @@ def config_error(name: str, value: Any, expected: str) -> ConfigError:
     return ConfigError(f"{name} = {shown}: expected {expected}")
 
 
-def unknown_parameter(name: str, value: Any) -> ConfigError:
-    """A name that is not in :data:`SCHEMA` (``name = value: unknown scenario parameter; did
-    you mean …?``)."""
+def unknown_parameter(
+    name: str, value: Any, schema: dict[str, ParamSpec] | None = None
+) -> ConfigError:
+    """A name that is not in ``schema`` (default :data:`SCHEMA`) (``name = value: unknown
+    scenario parameter; did you mean …?``)."""
     import difflib
 
-    close = difflib.get_close_matches(name, list(SCHEMA), n=3, cutoff=0.6)
+    known = SCHEMA if schema is None else schema
+    close = difflib.get_close_matches(name, list(known), n=3, cutoff=0.6)
     hint = f"; did you mean {', '.join(close)}?" if close else ""
     shown = repr(value) if len(repr(value)) <= 80 else repr(value)[:77] + "..."
     return ConfigError(f"{name} = {shown}: unknown scenario parameter{hint}")
@@ -411,72 +426,150 @@ _WEIGHT_UNITS = {
 }
 
 
-def _section_fields() -> dict[str, Any]:
-    """{dotted name: dataclass default} of every non-weight scenario field."""
-    out: dict[str, Any] = {"robot": "iiwa", "seed": 0}
-    for section, cls in (
-        ("task", TaskSection),
-        ("plant", PlantSection),
-        ("joint_sensor", JointSensorSection),
-        ("ft_sensor", ForceSensorSection),
-        ("mpc", MpcSection),
-        ("pid", PidSection),
-        ("mpc.contact", ContactConfig),
-    ):
+# -- one schema builder for any tree of frozen dataclasses (every scenario and study) ---------
+#: One parameter's declaration in a schema table: (unit, (low, high) range or [choices] or
+#: None, description). The kind and the list length come from the dataclass annotation.
+FieldDecl = tuple[str, Any, str]
+
+
+def dataclass_leaves(root: type, exclude: tuple[str, ...] = ()) -> dict[str, Any]:
+    """``{field path: type annotation}`` of every non-dataclass field of the dataclass tree
+    ``root`` (nested dataclass fields are walked, ``"dice.stiffness"``); ``exclude``: paths
+    left out, with everything under them."""
+    out: dict[str, Any] = {}
+
+    def walk(cls: type, prefix: str) -> None:
+        hints = get_type_hints(cls)
         for f in fields(cls):
-            if cls is MpcSection and f.name in ("contact", "weights"):
+            path = prefix + f.name
+            if path in exclude:
                 continue
-            out[f"{section}.{f.name}"] = getattr(cls(), f.name)
+            hint = hints[f.name]
+            if isinstance(hint, type) and is_dataclass(hint):
+                walk(hint, path + ".")
+            else:
+                out[path] = hint
+
+    walk(root, "")
+    return out
+
+
+def _leaf_kind(hint: Any, path: str) -> tuple[str, int | None, bool]:
+    """(kind, list length or None for any, None allowed) of a field annotation."""
+    args = get_args(hint)
+    if get_origin(hint) in (Union, UnionType):
+        rest = tuple(a for a in args if a is not type(None))
+        optional = len(rest) < len(args)
+        if len(rest) == 1:
+            kind, length, _ = _leaf_kind(rest[0], path)
+            return kind, length, optional
+        if float in rest and any(get_origin(a) is tuple for a in rest):
+            return FLOAT_OR_FLOATS, None, optional
+    elif hint is bool:
+        return BOOL, None, False
+    elif hint is int:
+        return INT, None, False
+    elif hint is float:
+        return FLOAT, None, False
+    elif hint is str:
+        return STR, None, False
+    elif get_origin(hint) is tuple and all(a in (float, Ellipsis) for a in args):
+        return FLOATS, (None if Ellipsis in args else len(args)), False
+    raise AssertionError(f"schema: no parameter kind for {path}: {hint}")
+
+
+def _spec_from_table(
+    name: str,
+    kind: str,
+    length: int | str | None,
+    table: dict[str, FieldDecl],
+    optional: bool = False,
+) -> ParamSpec:
+    unit, limits, description = table[name]
+    choices = tuple(limits) if isinstance(limits, list) else ()
+    span = limits if isinstance(limits, tuple) else None
+    return ParamSpec(name, kind, description, unit, span, choices, length, optional)
+
+
+def public_name(path: str, names: dict[str, str]) -> str:
+    """The dotted parameter name of a field path: the longest prefix of ``path`` in ``names``
+    replaced by its value (``{"dice.": "plant.dice_"}``: ``dice.stiffness`` →
+    ``plant.dice_stiffness``); without one, the path itself."""
+    best = max((k for k in names if path.startswith(k)), key=len, default="")
+    return names[best] + path[len(best) :] if best else path
+
+
+def dataclass_schema(
+    root: type,
+    table: dict[str, FieldDecl],
+    names: dict[str, str] | None = None,
+    exclude: tuple[str, ...] = (),
+    given: dict[str, ParamSpec] | None = None,
+) -> dict[str, ParamSpec]:
+    """``{dotted name: ParamSpec}`` of the dataclass tree ``root``: one entry per leaf field
+    (:func:`dataclass_leaves`), named by :func:`public_name`, its kind from the annotation
+    and its unit, range or choices and description from ``table`` (keyed by dotted name).
+    ``given``: ready specs that replace a leaf's or add names (dict-valued fields). The table
+    must cover exactly the leaves that ``given`` does not (AssertionError otherwise)."""
+    given = given or {}
+    schema: dict[str, ParamSpec] = {}
+    for path, hint in dataclass_leaves(root, exclude).items():
+        name = public_name(path, names or {})
+        if name in schema:
+            raise AssertionError(f"schema: two fields named {name}")
+        if name in given:
+            schema[name] = given[name]
+            continue
+        if name not in table:
+            raise AssertionError(f"schema: {name} ({root.__name__}.{path}) is not declared")
+        kind, length, optional = _leaf_kind(hint, path)
+        schema[name] = _spec_from_table(name, kind, length, table, optional)
+    extra = set(table) - set(schema)
+    if extra:
+        raise AssertionError(f"schema: declared names that are no field: {sorted(extra)}")
+    schema.update({k: v for k, v in given.items() if k not in schema})
+    return schema
+
+
+def cost_weight_specs(prefix: str, force_length: int | str) -> dict[str, ParamSpec]:
+    """The :class:`CostWeights` fields under ``prefix`` (``"mpc.weights.classical."``): weights
+    c (units of :data:`_WEIGHT_UNITS`) and activation diagonals (a number or one per entry; the
+    force diagonal has ``force_length`` entries)."""
+    out: dict[str, ParamSpec] = {}
+    for f in fields(CostWeights):
+        base = f.name.removesuffix("_diag")
+        name = prefix + f.name
+        if f.name.endswith("_diag"):
+            length = force_length if base == "force" else _DIAG_LENGTH[base]
+            out[name] = ParamSpec(
+                name,
+                FLOAT_OR_FLOATS,
+                f"activation diagonal Q of {base} (eq 25)",
+                "",
+                _NONNEG,
+                length=length,
+            )
+        else:
+            out[name] = ParamSpec(
+                name, FLOAT, f"cost weight c of {base}", _WEIGHT_UNITS[base], _NONNEG
+            )
     return out
 
 
 def _build_schema() -> dict[str, ParamSpec]:
-    schema: dict[str, ParamSpec] = {}
-    defaults = _section_fields()
-    if set(defaults) != set(_TABLE):
-        raise AssertionError(f"schema table vs dataclasses: {set(defaults) ^ set(_TABLE)}")
-    for name, default in defaults.items():
-        unit, limits, description = _TABLE[name]
-        choices = tuple(limits) if isinstance(limits, list) else ()
-        span = limits if isinstance(limits, tuple) else None
-        length: int | str | None = None
-        if name == "mpc.command_delay":
-            kind = DELAY
-        elif name in ("mpc.contact.stiffness", "mpc.contact.damping"):
-            kind, length = FLOAT_OR_FLOATS, CONTACT_DIMENSION
-        elif isinstance(default, tuple):
-            kind, length = FLOATS, len(default)
-        elif isinstance(default, bool):
-            kind = BOOL
-        elif isinstance(default, int):
-            kind = INT
-        elif isinstance(default, float):
-            kind = FLOAT
-        else:
-            kind = STR
-        schema[name] = ParamSpec(name, kind, description, unit, span, choices, length)
+    given: dict[str, ParamSpec] = {
+        "mpc.command_delay": _spec_from_table("mpc.command_delay", DELAY, None, _TABLE),
+    }
+    for name in ("mpc.contact.stiffness", "mpc.contact.damping"):
+        given[name] = _spec_from_table(name, FLOAT_OR_FLOATS, CONTACT_DIMENSION, _TABLE)
     for form in FORMULATIONS:
         prefix = f"mpc.weights.{form}."
-        for f in fields(CostWeights):
-            base = f.name.removesuffix("_diag")
-            if f.name.endswith("_diag"):
-                schema[prefix + f.name] = ParamSpec(
-                    prefix + f.name,
-                    FLOAT_OR_FLOATS,
-                    f"activation diagonal Q of {base} (eq 25)",
-                    "",
-                    _NONNEG,
-                    length=_DIAG_LENGTH[base],
-                )
-            else:
-                schema[prefix + f.name] = ParamSpec(
-                    prefix + f.name, FLOAT, f"cost weight c of {base}", _WEIGHT_UNITS[base], _NONNEG
-                )
+        given.update(cost_weight_specs(prefix, CONTACT_DIMENSION))
         for phase, what in (("force_phase", "c6"), ("ee_position_phase", "c4")):
-            schema[prefix + phase] = ParamSpec(
+            given[prefix + phase] = ParamSpec(
                 prefix + phase, FLOAT, f"{what} of the task phases (ffmpc_core.tasks)", "", _NONNEG
             )
-    return schema
+    return dataclass_schema(Scenario, _TABLE, exclude=("name", "mpc.weights"), given=given)
 
 
 SCHEMA: dict[str, ParamSpec] = _build_schema()
@@ -490,19 +583,23 @@ def _coerce(cls: type[_SectionT], values: dict[str, Any]) -> _SectionT:
     return cls(**values)
 
 
-def validate_flat(flat: dict[str, Any]) -> dict[str, Any]:
-    """Every dotted-name value checked against :data:`SCHEMA`, in its canonical type
-    (ConfigError, ``name = value: expected …``, for the first bad or unknown one)."""
+def validate_flat(
+    flat: dict[str, Any], schema: dict[str, ParamSpec] | None = None
+) -> dict[str, Any]:
+    """Every dotted-name value checked against ``schema`` (default :data:`SCHEMA`), in its
+    canonical type (ConfigError, ``name = value: expected …``, for the first bad or unknown
+    one)."""
+    known = SCHEMA if schema is None else schema
     out: dict[str, Any] = {}
     for key, value in flat.items():
-        if key not in SCHEMA:
-            raise unknown_parameter(key, value)
-        if SCHEMA[key].length != CONTACT_DIMENSION:
-            out[key] = SCHEMA[key].check(value)
+        if key not in known:
+            raise unknown_parameter(key, value, known)
+        if known[key].length != CONTACT_DIMENSION:
+            out[key] = known[key].check(value)
     dimension = out.get(CONTACT_DIMENSION, ContactConfig.dimension)
     for key, value in flat.items():
-        if SCHEMA[key].length == CONTACT_DIMENSION:
-            out[key] = SCHEMA[key].check(value, dimension)
+        if known[key].length == CONTACT_DIMENSION:
+            out[key] = known[key].check(value, dimension)
     return out
 
 
@@ -618,8 +715,12 @@ def resolve_scenario_path(name_or_path: str | os.PathLike) -> Path:
     raise ConfigError(f"no scenario {str(name_or_path)!r}; shipped scenarios: {available}")
 
 
-def load_scenario(name_or_path: str | os.PathLike, overrides: dict | None = None) -> Scenario:
-    """Read a scenario file (ROS 2 parameter-file format) into a validated :class:`Scenario`."""
+def read_parameter_file(
+    name_or_path: str | os.PathLike, sections: tuple[str, ...]
+) -> tuple[Path, dict[str, Any]]:
+    """A parameter file (ROS 2 parameter-file format: ``section: {ros__parameters: {...}}``)
+    as ``(path, {dotted name: raw value})``: a section's names get its name as prefix, the
+    wildcard section ``/**``'s do not. ConfigError for a file that is not one."""
     path = resolve_scenario_path(name_or_path)
     try:
         with open(path, encoding="utf-8") as fh:
@@ -641,9 +742,94 @@ def load_scenario(name_or_path: str | os.PathLike, overrides: dict | None = None
         params = flatten(body["ros__parameters"] or {})
         if section == WILDCARD:
             flat.update(params)
-        elif section in SECTIONS:
+        elif section in sections:
             flat.update({f"{section}.{k}": v for k, v in params.items()})
         else:
-            raise ConfigError(f"{path}: unknown node section {section!r}; expected {SECTIONS}")
+            raise ConfigError(f"{path}: unknown node section {section!r}; expected {sections}")
+    return path, flat
+
+
+def load_scenario(name_or_path: str | os.PathLike, overrides: dict | None = None) -> Scenario:
+    """Read a scenario file (ROS 2 parameter-file format) into a validated :class:`Scenario`."""
+    path = resolve_scenario_path(name_or_path)
+    if path.parent == SCENARIO_DIR and path.stem in STUDY_SCENARIOS:
+        raise ConfigError(
+            f"{path.stem!r} is the scenario of 'ffmpc study {path.stem}', not of the node graph"
+        )
+    path, flat = read_parameter_file(path, SECTIONS)
     scenario = _scenario_from_flat(path.stem, flat)
     return scenario.with_overrides(overrides) if overrides else scenario
+
+
+_ConfigT = TypeVar("_ConfigT")
+
+
+@dataclass(frozen=True)
+class ConfigSchema(Generic[_ConfigT]):
+    """The schema of a study configured by one tree of frozen dataclasses (``root``, e.g. the
+    impact study's ``ImpactStudyConfig``): :func:`dataclass_schema`'s ``params`` and the name
+    map. Its scenario files have the scenario files' format; their sections are the first
+    parts of the dotted names (``plant: {ros__parameters: {dice_stiffness: 3000.0}}``), the
+    other names go in ``/**``. Values are checked by the same :class:`ParamSpec` as the
+    polishing scenarios (same messages, same "did you mean")."""
+
+    root: type[_ConfigT]
+    params: dict[str, ParamSpec]
+    paths: dict[str, str]  # dotted name → field path in the dataclass tree
+
+    @classmethod
+    def of(
+        cls,
+        root: type[_ConfigT],
+        table: dict[str, FieldDecl],
+        names: dict[str, str] | None = None,
+        exclude: tuple[str, ...] = (),
+        given: dict[str, ParamSpec] | None = None,
+    ) -> ConfigSchema[_ConfigT]:
+        """The schema of ``root`` (arguments of :func:`dataclass_schema`)."""
+        params = dataclass_schema(root, table, names, exclude, given)
+        paths = {public_name(p, names or {}): p for p in dataclass_leaves(root, exclude)}
+        if set(paths) != set(params):
+            raise AssertionError(f"schema: names without a field: {set(params) ^ set(paths)}")
+        return cls(root, params, paths)
+
+    @property
+    def sections(self) -> tuple[str, ...]:
+        """The file sections besides ``/**``: the first parts of the dotted names."""
+        return tuple(sorted({n.split(".")[0] for n in self.params if "." in n}))
+
+    def build(self, flat: dict[str, Any], base: _ConfigT | None = None) -> _ConfigT:
+        """``base`` (default: ``root()``) with the dotted-name values of ``flat``, checked
+        (ConfigError ``name = value: …``, the first bad or unknown one; the dataclasses' own
+        cross-field checks raise theirs)."""
+        checked = validate_flat(flat, self.params)
+        values = {self.paths[k]: v for k, v in checked.items()}
+        return _replace_tree(self.root() if base is None else base, values, "")
+
+    def flatten(self, config: _ConfigT) -> dict[str, Any]:
+        """``{dotted name: value}`` of every parameter of ``config``."""
+        out: dict[str, Any] = {}
+        for name, path in self.paths.items():
+            value: Any = config
+            for part in path.split("."):
+                value = getattr(value, part)
+            out[name] = value
+        return out
+
+    def load(self, name_or_path: str | os.PathLike, overrides: dict | None = None) -> _ConfigT:
+        """A scenario file (a shipped name or a path) with dotted-name ``overrides`` applied."""
+        _, flat = read_parameter_file(name_or_path, self.sections)
+        return self.build(flat | dict(overrides or {}))
+
+
+def _replace_tree(obj: Any, values: dict[str, Any], prefix: str) -> Any:
+    """A copy of the dataclass ``obj`` with ``{field path: value}`` set, nested ones too."""
+    changes: dict[str, Any] = {}
+    for f in fields(obj):
+        path = prefix + f.name
+        value = getattr(obj, f.name)
+        if is_dataclass(value) and any(k.startswith(path + ".") for k in values):
+            changes[f.name] = _replace_tree(value, values, path + ".")
+        elif path in values:
+            changes[f.name] = values[path]
+    return replace(obj, **changes) if changes else obj

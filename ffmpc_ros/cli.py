@@ -376,34 +376,54 @@ def _cmd_run_guarded(args: argparse.Namespace) -> int:
         return 130
 
 
+#: ``ffmpc study impact`` flags (argparse dest) → the scenario names they set (shorthands).
+IMPACT_SHORTHANDS = {
+    "dice_stiffness": "plant.dice_stiffness",
+    "dice_damping": "plant.dice_damping",
+    "duration": "duration",
+    "replan_period": "replan_period",
+    "strategy": "strategy",
+    "prior_stiffness": "planner.prior_stiffness",
+    "prior_damping": "planner.prior_damping",
+    "target_force": "target_force",
+}
+#: ``ffmpc study explore`` flags (argparse dest) → the scenario names they set (shorthands).
+EXPLORE_SHORTHANDS = {
+    "sine_cycles": "sine_cycles",
+    "impact_velocities": "impact_velocities",
+    "approach_speed": "approach_speed",
+}
+
+
+def _study_overrides(args: argparse.Namespace, params: dict, shorthands: dict) -> dict:
+    """The dotted-name overrides of a study: its shorthand flags, then ``--set`` (checked
+    against the study's schema ``params``; a name given both ways is refused)."""
+    overrides = {}
+    for dest, name in shorthands.items():
+        if getattr(args, dest, None) is not None:
+            overrides[name] = getattr(args, dest)
+    for name, value in _parse_overrides(args.set, schema=params).items():
+        if name in overrides:
+            flag = "--" + next(d for d, n in shorthands.items() if n == name).replace("_", "-")
+            raise ConfigError(f"--set {name}: also given by {flag}; give it once")
+        overrides[name] = value
+    return overrides
+
+
 def _cmd_study_impact(args: argparse.Namespace) -> int:
     import shlex
-    from dataclasses import replace
 
     if args.out and os.path.exists(args.out) and not args.force:  # before importing PyBullet
         raise ConfigError(f"{args.out} exists: choose another --out or pass --force to overwrite")
     from sim_bridge.impact_study import (
-        ImpactStudyConfig,
+        IMPACT_SCHEMA,
         default_out_dir,
+        load_impact_config,
         run_impact_study,
     )
 
-    base = ImpactStudyConfig()
-    dice = replace(
-        base.dice,
-        stiffness=args.dice_stiffness if args.dice_stiffness is not None else base.dice.stiffness,
-        damping=args.dice_damping if args.dice_damping is not None else base.dice.damping,
-    )
-    changes = {"dice": dice, "replan_period": args.replan_period, "strategy": args.strategy}
-    if args.duration is not None:
-        changes["duration"] = args.duration
-    if args.prior_stiffness is not None:
-        changes["prior_stiffness"] = args.prior_stiffness
-    if args.prior_damping is not None:
-        changes["prior_damping"] = args.prior_damping
-    if args.target_force is not None:
-        changes["target_force"] = args.target_force
-    config = replace(base, **changes)
+    overrides = _study_overrides(args, IMPACT_SCHEMA.params, IMPACT_SHORTHANDS)
+    config = load_impact_config(args.scenario or "impact", overrides)
     runs = tuple(tuple(name.split("+")) for name in args.runs)
     result = run_impact_study(
         config,
@@ -455,8 +475,8 @@ def _add_impact_study_parser(study_sub) -> None:
     p.add_argument(
         "--replan-period",
         type=nonnegative_float,
-        default=0.0,
-        help="s between eq 9-14 solves of the maximal approach (default 0: every 1 ms cycle)",
+        help="s between eq 9-14 solves of the maximal approach (default 0: every 1 ms cycle); "
+        "= --set replan_period=S",
     )
     p.add_argument("--runs", nargs="+", choices=runs, default=list(runs), help="runs to do")
     p.add_argument(
@@ -477,37 +497,45 @@ def _add_impact_study_parser(study_sub) -> None:
     p.add_argument(
         "--strategy",
         choices=("touch_first", "prior"),
-        default="touch_first",
         help="maximal approach: touch, learn, then strike (default), or plan from the prior "
         "as if it were the truth (the paper's scheme)",
     )
     p.add_argument("--prior-stiffness", type=positive_float, help="planner's prior stiffness, N/m")
     p.add_argument("--prior-damping", type=nonnegative_float, help="planner's prior damping, N.s/m")
+    _add_study_config_arguments(p, "impact", "plant.dice_stiffness=4800")
     p.add_argument("--no-progress", action="store_true", help="no progress lines")
     p.set_defaults(func=_cmd_study_impact)
+
+
+def _add_study_config_arguments(p: argparse.ArgumentParser, study: str, example: str) -> None:
+    """``--scenario`` and ``--set`` of a study configured by its own dataclass tree."""
+    p.add_argument(
+        "--scenario",
+        help=f"shipped scenario name or path to a scenario file (default {study}: "
+        f"ffmpc_core/scenarios/{study}.yaml); the other flags are shorthands for --set",
+    )
+    p.add_argument(
+        "--set",
+        action="append",
+        metavar="NAME=VALUE",
+        help=f"scenario override, dotted name (repeatable), e.g. {example}",
+    )
 
 
 def _add_explore_study_parser(study_sub) -> None:
     """``ffmpc study explore``: the contact learner's exploration (Dehio & Kheddar, Sec. V-VI)."""
 
     def run(args: argparse.Namespace) -> int:
-        from dataclasses import replace
-
         from sim_bridge.exploration import (
-            ExplorationConfig,
+            EXPLORATION_SCHEMA,
             format_checkpoints,
             format_summary,
+            load_exploration_config,
             run_exploration_study,
         )
 
-        base = ExplorationConfig()
-        velocities = tuple(args.impact_velocities) if args.impact_velocities else None
-        cfg = replace(
-            base,
-            sine_cycles=args.sine_cycles,
-            impact_velocities=velocities,
-            approach_speed=args.approach_speed,
-        )
+        overrides = _study_overrides(args, EXPLORATION_SCHEMA.params, EXPLORE_SHORTHANDS)
+        cfg = load_exploration_config(args.scenario or "explore", overrides)
         runs = run_exploration_study(tuple(args.materials), cfg, progress=not args.no_progress)
         for r in runs:
             print("\n" + format_checkpoints(r))
@@ -534,7 +562,7 @@ def _add_explore_study_parser(study_sub) -> None:
         default=["foam", "dice", "rubber"],
         help="objects to explore (default: all three)",
     )
-    p.add_argument("--sine-cycles", type=positive_int, default=4, help="sine periods (default 4)")
+    p.add_argument("--sine-cycles", type=positive_int, help="sine periods (default 4)")
     p.add_argument(
         "--impact-velocities",
         type=positive_float,
@@ -544,9 +572,9 @@ def _add_explore_study_parser(study_sub) -> None:
     p.add_argument(
         "--approach-speed",
         type=positive_float,
-        default=0.005,
         help="guarded approach, m/s (default 0.005)",
     )
+    _add_study_config_arguments(p, "explore", "gains.position=300")
     p.add_argument("--no-progress", action="store_true", help="no per-checkpoint lines")
     p.set_defaults(func=run)
 

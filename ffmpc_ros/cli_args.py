@@ -96,14 +96,20 @@ def existing_file(text: str) -> str:
     return text
 
 
-def parse_overrides(items: list[str] | None, node_names: bool = False) -> dict:
+def parse_overrides(
+    items: list[str] | None, node_names: bool = False, schema: dict | None = None
+) -> dict:
     """``--set name=value`` pairs; values are read as YAML scalars (``3``, ``true``, ``[1, 2]``)
-    and checked against the scenario schema (ConfigError ``name = value: expected …``).
+    and checked against ``schema`` (default: the node-graph scenarios' ``SCHEMA``; a study's
+    ``ConfigSchema.params``) (ConfigError ``name = value: expected …``).
     ``node_names``: names that are not scenario names are left to the caller (``bag rerun``
     takes a node's own parameter names)."""
     import yaml
 
-    from ffmpc_core.scenario import SCHEMA, unknown_parameter
+    from ffmpc_core.scenario import SCHEMA as GRAPH_SCHEMA
+    from ffmpc_core.scenario import unknown_parameter
+
+    SCHEMA = GRAPH_SCHEMA if schema is None else schema
 
     out = {}
     for item in items or []:
@@ -120,6 +126,6 @@ def parse_overrides(items: list[str] | None, node_names: bool = False) -> dict:
         if name in SCHEMA:
             SCHEMA[name].check(value)  # the length of per-contact-axis lists is checked later
         elif not node_names:
-            raise unknown_parameter(name, value)
+            raise unknown_parameter(name, value, SCHEMA)
         out[name] = value
     return out

@@ -77,6 +77,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
@@ -101,6 +102,7 @@ from ffmpc_core.impact.task_space import (
     TaskSpaceInverseDynamics,
 )
 from ffmpc_core.robots import RobotModel, load_robot, mass_matrix
+from ffmpc_core.scenario import ConfigSchema, FieldDecl
 from sim_bridge.impact_study import (
     DiceConfig,
     LimitViolations,
@@ -112,7 +114,9 @@ from sim_bridge.plant import Plant, PlantConfig, ToolConfig
 __all__ = [
     "MATERIALS",
     "Checkpoint",
+    "EXPLORATION_SCHEMA",
     "ExplorationConfig",
+    "load_exploration_config",
     "ExplorationRun",
     "Material",
     "format_checkpoints",
@@ -300,6 +304,54 @@ class ExplorationConfig:
             approach_height=self.impact_height,
             dwell=self.dwell,
         )
+
+
+#: Dotted parameter names of ExplorationConfig's fields (see ffmpc_core.scenario.public_name).
+#: ``material`` is not a parameter: ``ffmpc study explore --materials`` picks from MATERIALS.
+EXPLORATION_NAMES: dict[str, str] = {
+    "time_step": "plant.time_step",
+    "prior_": "guard.prior_",
+    "limit_margin": "guard.limit_margin",
+    "lateral_weight": "guard.lateral_weight",
+    "learner_": "learner.",
+}
+#: Unit, range or choices and meaning of every exploration parameter (kinds: the annotations).
+EXPLORATION_TABLE: dict[str, FieldDecl] = {
+    "start_clearance": ("m", (1e-5, 1.0), "tool height above the top face at the start"),
+    "approach_speed": ("m/s", (1e-5, 1.0), "guarded-approach speed"),
+    "contact_threshold": ("N", (0.01, 100.0), "force that ends the guarded approach"),
+    "max_approach_time": ("s", (1e-3, 600.0), "no contact by then: ConfigError"),
+    "sine_frequency": ("Hz", (1e-3, 100.0), "frequency of the sinusoidal penetration"),
+    "sine_cycles": ("", (1, 1000), "periods of the sinusoidal penetration"),
+    "impact_velocities": ("m/s", (1e-6, 10.0), "pre-impact velocities (null: the material's)"),
+    "impact_height": ("m", (1e-5, 1.0), "the impacts start from rest this far above"),
+    "dwell": ("s", (0.0, 60.0), "at the stop depth after each impact"),
+    "plant.time_step": ("s", (1e-5, 0.01), "plant step = control period"),
+    "guard.limit_margin": ("", (0.01, 1.0), "fraction of the data-sheet q̈ and q̇ limits used"),
+    "guard.lateral_weight": ("", (1e-6, 1e6), "weight of the 5 directions other than d"),
+    "gains.position": ("1/s²", (0.0, 1e6), "task-space PD: position gain"),
+    "gains.velocity": ("1/s", (0.0, 1e6), "task-space PD: velocity gain"),
+    "gains.orientation": ("1/s²", (0.0, 1e6), "task-space PD: orientation gain"),
+    "gains.angular_velocity": ("1/s", (0.0, 1e6), "task-space PD: angular velocity gain"),
+    "gains.null_damping": ("1/s", (0.0, 1e6), "null-space joint damping"),
+    "gains.pinv_damping": ("", (0.0, 1.0), "damping of the task Jacobian pseudo-inverse"),
+    "guard.prior_stiffness": ("N/m", (1.0, 1e7), "α the guard assumes before confidence"),
+    "guard.prior_damping": ("N·s/m", (0.0, 1e5), "β the guard assumes before confidence"),
+    "learner.min_samples": ("", (3, 10**6), "samples before the learner predicts the force"),
+    "learner.max_relative_std": ("", (1e-9, 10.0), "... and relative standard errors at most"),
+}
+#: The exploration study's schema: ``ffmpc study explore --scenario/--set`` and explore.yaml.
+EXPLORATION_SCHEMA: ConfigSchema[ExplorationConfig] = ConfigSchema.of(
+    ExplorationConfig, EXPLORATION_TABLE, EXPLORATION_NAMES, exclude=("material",)
+)
+
+
+def load_exploration_config(
+    name_or_path: str = "explore", overrides: dict[str, Any] | None = None
+) -> ExplorationConfig:
+    """An exploration scenario file (shipped name or path) with ``--set`` overrides (the
+    material stays the default; ``run_exploration_study`` sets each one of ``--materials``)."""
+    return EXPLORATION_SCHEMA.load(name_or_path, overrides)
 
 
 def measured_deformation(

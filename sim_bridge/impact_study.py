@@ -126,6 +126,7 @@ from ffmpc_core.impact.touch_first import (
 )
 from ffmpc_core.mpc import ModelPredictiveController, MpcConfig, MpcMeasurement
 from ffmpc_core.robots import RobotModel, load_robot
+from ffmpc_core.scenario import ConfigSchema, FieldDecl, cost_weight_specs
 from ffmpc_core.tasks import PhaseWeights, PressTask
 from sim_bridge.plant import Plant, PlantConfig, SoftBoxConfig, ToolConfig
 
@@ -134,6 +135,8 @@ __all__ = [
     "REGULATIONS",
     "DEFAULT_RUNS",
     "DiceConfig",
+    "IMPACT_SCHEMA",
+    "load_impact_config",
     "ImpactRun",
     "ImpactStudyResult",
     "ImpactStudyConfig",
@@ -360,6 +363,101 @@ class ImpactStudyConfig:
             acceleration=self.limit_margin * limits.acceleration,
             torque=limits.torque,
         )
+
+
+#: Dotted parameter names of ImpactStudyConfig's fields (field-path prefix → name prefix, see
+#: ffmpc_core.scenario.public_name): ``dice.stiffness`` → ``plant.dice_stiffness``,
+#: ``prior_stiffness`` → ``planner.prior_stiffness``, ``mpc_horizon`` → ``mpc.horizon``.
+IMPACT_NAMES: dict[str, str] = {
+    "dice.": "plant.dice_",
+    "time_step": "plant.time_step",
+    "tool_radius": "plant.tool_radius",
+    "prior_": "planner.prior_",
+    "mpc_": "mpc.",
+    "learner_": "learner.",
+}
+_INF = float("inf")
+#: Unit, range or choices and meaning of every impact-study parameter (kinds: the annotations).
+IMPACT_TABLE: dict[str, FieldDecl] = {
+    "plant.dice_stiffness": ("N/m", (1.0, 1e7), "true stiffness of the dice set in PyBullet"),
+    "plant.dice_damping": ("N·s/m", (0.0, 1e5), "true damping of the dice set in PyBullet"),
+    "plant.dice_size": ("m", (0.01, 1.0), "edge length of the dice"),
+    "plant.dice_mass": ("kg", (0.0, 100.0), "recorded only: the dice is fixed"),
+    "plant.dice_position_xy": ("m", (-2.0, 2.0), "centre of the dice, horizontal, world frame"),
+    "plant.dice_top_height": ("m", (-1.0, 2.0), "height of the top face, world frame"),
+    "plant.dice_max_penetration": ("m", (1e-4, 0.5), "z̄, the elastic-domain bound kept"),
+    "plant.dice_lateral_friction": ("", (0.0, 10.0), "Coulomb friction of the dice"),
+    "plant.dice_collision_margin": ("m", (1e-4, 0.5), "Bullet's collision margin of the dice"),
+    "plant.time_step": ("s", (1e-5, 0.01), "plant step = control period"),
+    "plant.tool_radius": ("m", (1e-3, 0.2), "radius of the spherical tool"),
+    "planner.prior_stiffness": ("N/m", (1.0, 1e7), "prior α of the planner and the MPC"),
+    "planner.prior_damping": ("N·s/m", (0.0, 1e5), "prior β of the planner and the MPC"),
+    "planner.horizon": ("steps", (2, 1000), "h of eq 12-14"),
+    "planner.dt": ("s", (1e-4, 1.0), "Δt of eq 12-14"),
+    "planner.cost": ("", ["qp", "lp"], "eq 14 (qp) or its LP variant"),
+    "planner.control_effort_weight": ("s⁴/m²", (1e-12, _INF), "weight of Σ u_i² (eq 12)"),
+    "planner.force_tracking_weight": ("1/N²", (0.0, _INF), "ω_f of eq 12"),
+    "planner.target_force": ("N", (0.0, 500.0), "f_des of eq 12 (with ω_f > 0)"),
+    "planner.velocity_weight": ("s/m", (1e-12, _INF), "−r of eq 14"),
+    "planner.velocity_regularization": ("s/m", (1e-12, _INF), "R of eq 14"),
+    "planner.max_halfplanes": ("", (3, 1000), "eq 11 rows per step"),
+    "planner.solver": ("", ["daqp", "osqp"], "QP solver of eq 9-14"),
+    "planner.eps": ("", (1e-12, 1.0), "OSQP tolerance"),
+    "planner.primal_tol": ("", (1e-15, 1.0), "DAQP primal feasibility tolerance"),
+    "planner.input_scale": ("m/s²", (1e-6, 1e6), "internal scaling of u"),
+    "approach_height": ("m", (0.01, 1.0), "tool height above the top face at the start"),
+    "target_force": ("N", (0.1, 500.0), "force held after contact"),
+    "contact_threshold": ("N", (0.01, 100.0), "force that declares the contact"),
+    "duration": ("s", (0.01, 600.0), "simulated time per run"),
+    "replan_period": ("s", (0.0, 10.0), "between eq 9-14 solves (0: every cycle)"),
+    "limit_margin": ("", (0.01, 1.0), "fraction of the data-sheet q̈ and q̇ limits used"),
+    "lateral_weight": ("", (1e-6, 1e6), "weight of the 5 other task directions in the guard"),
+    "baseline_frequency": ("rad/s", (0.01, 1000.0), "ω of the baseline's reference"),
+    "baseline_target_depth": ("m", (0.0, 0.5), "baseline's static target below the top"),
+    "admittance.admittance": ("m/(N·s)", (1e-9, 1.0), "admittance G"),
+    "admittance.max_velocity": ("m/s", (1e-6, 10.0), "v_max"),
+    "admittance.velocity_filter": ("", (0.0, 1.0), "γ per nominal_dt, in [0, 1)"),
+    "admittance.nominal_dt": ("s", (1e-6, 1.0), "step of γ"),
+    "handover_speed": ("m/s", (1e-6, 10.0), "in-contact speed below which the MPC takes over"),
+    "mpc.period": ("s", (1e-5, 1.0), "force-feedback MPC period (whole plant steps)"),
+    "mpc.horizon": ("nodes", (1, 1000), "OCP nodes N"),
+    "mpc.dt": ("s", (1e-5, 1.0), "OCP node duration"),
+    "mpc.force_weight": ("1/N²", (0.0, _INF), "c6 of the pressing nodes"),
+    "learner.min_samples": ("", (3, 10**6), "samples before the estimate replaces the prior"),
+    "learner.max_relative_std": ("", (1e-9, 10.0), "largest relative std error of α̂, β̂"),
+    "steady_band": ("", (1e-6, 1.0), "|f − target| ≤ this · target counts as steady"),
+    "steady_hold": ("s", (1e-6, 60.0), "... for at least this long"),
+    "strategy": ("", list(STRATEGIES), "maximal approach: touch_first or prior"),
+    "touch.stiffness_factors": ("", (1e-3, 1e3), "plausible α range, factors of the prior"),
+    "touch.damping_factors": ("", (1e-3, 1e3), "plausible β range, factors of the prior"),
+    "touch.touch_force": ("N", (0.01, 500.0), "force regulated during the touch"),
+    "touch.touch_dwell": ("s", (0.0, 60.0), "minimal time in contact during the touch"),
+    "touch.max_touch_time": ("s", (0.0, 60.0), "longest touch"),
+    "touch.learner_min_samples": ("", (3, 10**6), "samples before confident"),
+    "touch.learner_max_relative_std": ("", (1e-9, 10.0), "relative std errors at most this"),
+    "touch.sigmas": ("", (0.0, 100.0), "k of the learned interval α̂ ± k σ"),
+    "touch.stiffness_floor": ("", (0.0, 10.0), "least relative half-width of the α interval"),
+    "touch.damping_floor": ("", (0.0, 10.0), "least relative half-width of the β interval"),
+    "touch.retract_height": ("m", (0.0, 1.0), "height above the surface the strike starts"),
+    "touch.retract_acceleration_fraction": ("", (0.0, 1.0), "peak of the retract profile"),
+    "touch.impact_force_factor": ("", (0.0, 100.0), "κ of the guard's impact force"),
+    "touch.penetration_margin": ("m", (0.0, 0.5), "off z̄ in eq 12 for touch and strike"),
+    "handover_blend": ("s", (0.0, 10.0), "admittance → MPC torque blend (0: switch)"),
+}
+#: The impact study's schema: ``ffmpc study impact --scenario/--set`` and impact.yaml.
+IMPACT_SCHEMA: ConfigSchema[ImpactStudyConfig] = ConfigSchema.of(
+    ImpactStudyConfig,
+    IMPACT_TABLE,
+    IMPACT_NAMES,
+    given=cost_weight_specs("mpc.weights.", 1),  # the MPC's contact is 1-D (normal)
+)
+
+
+def load_impact_config(
+    name_or_path: str = "impact", overrides: dict[str, Any] | None = None
+) -> ImpactStudyConfig:
+    """An impact-study scenario file (shipped name or path) with ``--set`` overrides."""
+    return IMPACT_SCHEMA.load(name_or_path, overrides)
 
 
 def start_configuration(
