@@ -102,12 +102,13 @@ import pinocchio as pin
 from ffmpc_core.config import ContactConfig, CostWeights
 from ffmpc_core.errors import ConfigError, InputError, SolverError
 from ffmpc_core.impact.control import (
-    CONTACT,
     AdmittanceForceController,
+    AdmittanceReference,
     CartesianCommand,
     ImpactController,
     ImpactControllerConfig,
     ImpactMeasurement,
+    admittance_step,
 )
 from ffmpc_core.impact.deformation import SoftMaterial, one_step_impact_force
 from ffmpc_core.impact.learner import RecursiveContactLearner
@@ -628,9 +629,8 @@ class ImpactRun:
 
 
 class _AdmittancePhase:
-    """The post-contact admittance task of ImpactController (Sec. VI), for the baseline: the
-    reference velocity follows :class:`AdmittanceForceController`, the position reference is its
-    integral from the contact position, the lateral position and the orientation are held."""
+    """The post-contact admittance task of ImpactController (Sec. VI, :func:`admittance_step`)
+    for the baseline: from the contact position, along d = DOWN."""
 
     def __init__(self, admittance: AdmittanceForceController, target_force: float) -> None:
         self.admittance = admittance
@@ -639,22 +639,20 @@ class _AdmittancePhase:
     def start(self, position: np.ndarray, rotation: np.ndarray, speed: float) -> None:
         self.origin = position.copy()
         self.rotation = rotation.copy()
-        self.x_ref = 0.0
-        self.v_ref = speed
+        self.reference = AdmittanceReference(0.0, speed)
 
     def command(self, force: float, dt: float) -> CartesianCommand:
-        self.v_ref = self.admittance.velocity(self.v_ref, force, self.target_force, dt)
-        self.x_ref += self.v_ref * dt
-        return CartesianCommand(
-            phase=CONTACT,
-            position=self.origin + self.x_ref * DOWN,
-            velocity=self.v_ref * DOWN,
-            acceleration=np.zeros(3),
-            rotation=self.rotation,
-            pre_impact_velocity=float("nan"),
-            force=force,
-            target_force=self.target_force,
+        command, self.reference = admittance_step(
+            self.admittance,
+            self.reference,
+            self.origin,
+            self.rotation,
+            DOWN,
+            force,
+            self.target_force,
+            dt,
         )
+        return command
 
 
 class _BaselineApproach:

@@ -153,6 +153,48 @@ class CartesianCommand:
     plan: PenetrationPlan | None = None
 
 
+@dataclass(frozen=True)
+class AdmittanceReference:
+    """The post-contact admittance task's state along the push direction d: the reference
+    position (m, from the task's origin) and velocity (m/s)."""
+
+    position: float
+    velocity: float
+
+
+def admittance_step(
+    admittance: AdmittanceForceController,
+    reference: AdmittanceReference,
+    origin: np.ndarray,
+    rotation: np.ndarray,
+    direction: np.ndarray,
+    force: float,
+    target_force: float,
+    dt: float,
+    phase: str = CONTACT,
+) -> tuple[CartesianCommand, AdmittanceReference]:
+    """One cycle of the post-contact admittance task (Sec. VI), the one function every impact
+    controller uses after contact: the reference velocity along d (m/s) follows
+    :class:`AdmittanceForceController` towards ``target_force`` (N) from the measured ``force``
+    (N), the reference position along d is its integral over ``dt`` (s) from ``origin`` (m,
+    world), the lateral position and the orientation ``rotation`` are held.
+
+    Returns the Cartesian command and the new reference."""
+    velocity = admittance.velocity(reference.velocity, force, target_force, dt)
+    position = reference.position + velocity * dt
+    command = CartesianCommand(
+        phase=phase,
+        position=origin + position * direction,
+        velocity=velocity * direction,
+        acceleration=np.zeros(3),
+        rotation=rotation.copy(),
+        pre_impact_velocity=float("nan"),
+        force=force,
+        target_force=target_force,
+    )
+    return command, AdmittanceReference(position, velocity)
+
+
 class ImpactController:
     """Fig. 2 as ``reset()`` / ``step(measurement, t) -> CartesianCommand``; reads no clock.
 
@@ -327,20 +369,27 @@ class ImpactController:
     ) -> CartesianCommand:
         cfg = self.config
         d = cfg.direction
-        self._v_ref = cfg.admittance.velocity(self._v_ref, force, cfg.target_force, dt)
-        self._x_ref += self._v_ref * dt
         if cfg.learn_online:
             assert self._contact_position is not None  # latched when CONTACT began
             z = float(d @ (p - self._contact_position))
             self.learner.update(z, speed, force)
+        return self._admittance_command(force, cfg.target_force, dt, CONTACT)
+
+    def _admittance_command(
+        self, force: float, target_force: float, dt: float, phase: str
+    ) -> CartesianCommand:
+        """:func:`admittance_step` from the held pose, on this controller's reference."""
         hold_position, hold_rotation = self._hold_pose()
-        return CartesianCommand(
-            phase=CONTACT,
-            position=hold_position + self._x_ref * d,
-            velocity=self._v_ref * d,
-            acceleration=np.zeros(3),
-            rotation=hold_rotation.copy(),
-            pre_impact_velocity=float("nan"),
-            force=force,
-            target_force=cfg.target_force,
+        command, reference = admittance_step(
+            self.config.admittance,
+            AdmittanceReference(self._x_ref, self._v_ref),
+            hold_position,
+            hold_rotation,
+            self.config.direction,
+            force,
+            target_force,
+            dt,
+            phase,
         )
+        self._x_ref, self._v_ref = reference.position, reference.velocity
+        return command

@@ -337,22 +337,10 @@ class TouchFirstImpactController(ImpactController):
         sample before this contact."""
         cfg = self.config
         d = cfg.direction
-        self._v_ref = cfg.admittance.velocity(self._v_ref, force, target, dt)
-        self._x_ref += self._v_ref * dt
         if cfg.learn_online and force > 0.0:
             assert self._contact_position is not None  # latched when the contact began
             self.learner.update(float(d @ (p - self._contact_position)), speed, force)
-        hold_position, hold_rotation = self._hold_pose()
-        return CartesianCommand(
-            phase=phase,
-            position=hold_position + self._x_ref * d,
-            velocity=self._v_ref * d,
-            acceleration=np.zeros(3),
-            rotation=hold_rotation.copy(),
-            pre_impact_velocity=float("nan"),
-            force=force,
-            target_force=target,
-        )
+        return self._admittance_command(force, target, dt, phase)
 
     def _touch_done(self, t: float) -> bool:
         assert self.touch_time is not None  # set when the touch began
