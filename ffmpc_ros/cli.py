@@ -55,23 +55,24 @@ def _cmd_check(args: argparse.Namespace) -> int:
         print(f"PIN MISMATCH: {name} is {found}, ffmpc requires {wanted}")
         status = 1
     rng = np.random.default_rng(args.seed)
+    checks = (
+        (check_crocoddyl_dynamics, "crocoddyl free dynamics vs pin.aba", "max |Δq̈|", " rad/s²"),
+        (
+            check_native_soft_contact,
+            "native force-feedback model vs Python reference",
+            "max relative |Δ(x⁺, Fx)|",
+            "",
+        ),
+    )
     for robot_name in ROBOT_NAMES:
-        result = check_crocoddyl_dynamics(load_robot(robot_name), rng, samples=args.samples)
-        verdict = "ok" if result.ok else "FAILED"
-        print(
-            f"crocoddyl free dynamics vs pin.aba on {robot_name}: max |Δq̈| = "
-            f"{result.max_error:.2e} rad/s² over {result.samples} states "
-            f"(tolerance {result.tolerance:g}): {verdict}"
-        )
-        status |= 0 if result.ok else 1
-        native = check_native_soft_contact(load_robot(robot_name), rng, samples=args.samples)
-        verdict = "ok" if native.ok else "FAILED"
-        print(
-            f"native force-feedback model vs Python reference on {robot_name}: max relative "
-            f"|Δ(x⁺, Fx)| = {native.max_error:.2e} over {native.samples} states "
-            f"(tolerance {native.tolerance:g}): {verdict}"
-        )
-        status |= 0 if native.ok else 1
+        for check, what, error, unit in checks:
+            result = check(load_robot(robot_name), rng, samples=args.samples)
+            print(
+                f"{what} on {robot_name}: {error} = {result.max_error:.2e}{unit} over "
+                f"{result.samples} states (tolerance {result.tolerance:g}): "
+                f"{'ok' if result.ok else 'FAILED'}"
+            )
+            status |= 0 if result.ok else 1
     return status
 
 
