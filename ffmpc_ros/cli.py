@@ -96,7 +96,6 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 def _cmd_study(args: argparse.Namespace) -> int:
     import shlex
-    from pathlib import Path
 
     from ffmpc_core.scenario import load_scenario
 
@@ -106,18 +105,10 @@ def _cmd_study(args: argparse.Namespace) -> int:
     if args.scheduler is not None and args.workers is not None:
         raise ConfigError("--workers and --scheduler exclude each other (a cluster has workers)")
     use_cache = not args.no_cache
-    if args.out:
-        # sim_bridge.study.check_output_dir's rule, before sim_bridge (and PyBullet) is imported:
-        # an existing --out only with --force, or when it is an interrupted study to resume.
-        out = Path(args.out)
-        interrupted = (out / "cache").is_dir() and not (out / "results.json").exists()
-        resume = use_cache and not args.fresh and interrupted
-        if out.exists() and not (args.force or resume):
-            raise ConfigError(
-                f"output directory {out} already exists; pass --force to overwrite (an "
-                "interrupted study, with a cache/ and no results.json, resumes by running the "
-                "same command)"
-            )
+    if args.out:  # refused before any run (sim_bridge.study does not load PyBullet)
+        from sim_bridge.study import check_output_dir
+
+        check_output_dir(args.out, args.force, resume=use_cache and not args.fresh)
     if args.plot_seed is not None and not (
         args.first_seed <= args.plot_seed < args.first_seed + args.seeds
     ):
