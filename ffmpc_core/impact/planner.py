@@ -781,9 +781,7 @@ class ImpactPlanner:
             self._daqp = None
             self.stats["failures"] += 1
         rows, _ = self.constraints(dynamics, bounds, material)
-        self.stats["highs_fallbacks"] += 1
-        x, runtime = _highs_max_velocity(rows)
-        return self._plan(x[0], x[1:], dynamics, bounds, material, 0, runtime, "highs")
+        return self._highs_fallback(rows, dynamics, bounds, material)
 
     def _max_osqp(
         self,
@@ -810,6 +808,16 @@ class ImpactPlanner:
                 x[0], x[1:], dynamics, bounds, material, res.info.iter, res.info.solve_time, "osqp"
             )
         self.stats["failures"] += 1
+        return self._highs_fallback(rows, dynamics, bounds, material)
+
+    def _highs_fallback(
+        self,
+        rows: ConstraintRows,
+        dynamics: DeformationDynamics,
+        bounds: ContactSpaceBounds,
+        material: SoftMaterial,
+    ) -> PenetrationPlan:
+        """The eq 9–11 LP by HiGHS, when the QP solver failed (counted in ``stats``)."""
         self.stats["highs_fallbacks"] += 1
         x, runtime = _highs_max_velocity(rows)
         return self._plan(x[0], x[1:], dynamics, bounds, material, 0, runtime, "highs")
