@@ -60,16 +60,19 @@ IntegratedActionModelLPF::IntegratedActionModelLPF(
   alpha_ = std::exp(-2.0 * M_PI * cutoff_frequency * dt);  // eq 13
 }
 
+void IntegratedActionModelLPF::require_torque_residual(const IntegratedActionDataLPF& d) const {
+  if (!d.torque_residual) {
+    throw ModelError("a running low-pass model needs the '" + torque_cost_ + "' cost (eq 25.3)");
+  }
+}
+
 void IntegratedActionModelLPF::calc(const std::shared_ptr<ActionDataAbstract>& data,
                                     const Eigen::Ref<const VectorXd>& x,
                                     const Eigen::Ref<const VectorXd>& u) {
   check_size(x.size(), 3 * nv_, "IntegratedActionModelLPF: x");
   check_size(u.size(), nv_, "IntegratedActionModelLPF: u");
   auto* d = static_cast<IntegratedActionDataLPF*>(data.get());
-  if (!d->torque_residual) {
-    throw ModelError("a running low-pass model needs the '" + torque_cost_ +
-                           "' cost (eq 25.3)");
-  }
+  require_torque_residual(*d);
   const std::size_t nv = nv_;
   const auto tau = x.tail(nv);
   const auto& dd = d->differential;
@@ -98,10 +101,7 @@ void IntegratedActionModelLPF::calcDiff(const std::shared_ptr<ActionDataAbstract
   check_size(x.size(), 3 * nv_, "IntegratedActionModelLPF: x");
   check_size(u.size(), nv_, "IntegratedActionModelLPF: u");
   auto* d = static_cast<IntegratedActionDataLPF*>(data.get());
-  if (!d->torque_residual) {
-    throw ModelError("a running low-pass model needs the '" + torque_cost_ +
-                           "' cost (eq 25.3)");
-  }
+  require_torque_residual(*d);
   const std::size_t nv = nv_, n2 = 2 * nv;
   const auto tau = x.tail(nv);
   const auto& dd = d->differential;

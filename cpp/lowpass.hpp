@@ -27,6 +27,8 @@ namespace ffmpc {
 /// `torque_cost`, eq 25.3). calc(x)/calcDiff(x) (terminal): ℓ0(q, v) only, x⁺ = x.
 /// Hessians: the differential model's (Gauss–Newton) ones mapped to (q, v, τ), plus the exact
 /// Gauss–Newton term of eq 28.
+struct IntegratedActionDataLPF;
+
 class IntegratedActionModelLPF : public crocoddyl::ActionModelAbstract {
  public:
   EIGEN_MAKE_ALIGNED_OPERATOR_NEW
@@ -69,6 +71,9 @@ class IntegratedActionModelLPF : public crocoddyl::ActionModelAbstract {
   const std::string& get_torque_cost() const { return torque_cost_; }
 
  private:
+  /// ModelError unless the differential model's data has the torque cost (eq 25.3).
+  void require_torque_residual(const IntegratedActionDataLPF& d) const;
+
   std::shared_ptr<DifferentialActionModelAbstract> differential_;
   double dt_;
   double cutoff_frequency_;

@@ -508,9 +508,7 @@ void IntegratedActionModelSoftContact::calc(const std::shared_ptr<ActionDataAbst
   const auto v = x.segment(nv, nv);
   const auto lam = x.tail(nc);
   VectorXd& r = d->residual;
-  r.segment(offset_[POSTURE], nv) = q - q_reference_;
-  r.segment(offset_[JOINT_VELOCITY], nv) = v;
-  r.segment(offset_[FORCE], nc) = lam - force_reference_;
+  state_residuals(r, x);
   dynamics_.calc(dd, q, v, lam, u);
   dynamics_.calc_gravity_compensation(dd, q);
   r.segment(offset_[TORQUE], nv) = u - dd.gravity_compensation;
@@ -520,10 +518,7 @@ void IntegratedActionModelSoftContact::calc(const std::shared_ptr<ActionDataAbst
   vn = dd.ddq * dt_ + v;
   d->xnext.head(nv) = vn * dt_ + q;
   d->xnext.tail(nc) = dd.force_rate * dt_ + lam;
-  r.segment(offset_[EE_POSITION], 3) = dd.position - ee_position_reference_;
-  r.segment(offset_[EE_VELOCITY], 3) = dd.ee_velocity;
-  d->r = sqrt_w_running_.cwiseProduct(r);
-  d->cost = 0.5 * d->r.squaredNorm();
+  weighted_cost(*d, sqrt_w_running_);
 }
 
 void IntegratedActionModelSoftContact::calc(const std::shared_ptr<ActionDataAbstract>& data,
@@ -535,17 +530,29 @@ void IntegratedActionModelSoftContact::calc(const std::shared_ptr<ActionDataAbst
   const auto q = x.head(nv);
   const auto v = x.segment(nv, nv);
   VectorXd& r = d->residual;
-  r.segment(offset_[POSTURE], nv) = q - q_reference_;
-  r.segment(offset_[JOINT_VELOCITY], nv) = v;
-  r.segment(offset_[FORCE], nc) = x.tail(nc) - force_reference_;
+  state_residuals(r, x);
   dynamics_.calc_kinematics(dd, q, v);
   r.segment(offset_[TORQUE], nv).setZero();
   r.segment(offset_[FORCE_RATE], nc).setZero();
   d->xnext = x;
-  r.segment(offset_[EE_POSITION], 3) = dd.position - ee_position_reference_;
-  r.segment(offset_[EE_VELOCITY], 3) = dd.ee_velocity;
-  d->r = sqrt_w_state_.cwiseProduct(r);
-  d->cost = 0.5 * d->r.squaredNorm();
+  weighted_cost(*d, sqrt_w_state_);
+}
+
+void IntegratedActionModelSoftContact::state_residuals(VectorXd& r,
+                                                       const Eigen::Ref<const VectorXd>& x) const {
+  const std::size_t nv = nv_, nc = nc_;
+  r.segment(offset_[POSTURE], nv) = x.head(nv) - q_reference_;
+  r.segment(offset_[JOINT_VELOCITY], nv) = x.segment(nv, nv);
+  r.segment(offset_[FORCE], nc) = x.tail(nc) - force_reference_;
+}
+
+void IntegratedActionModelSoftContact::weighted_cost(IntegratedActionDataSoftContact& d,
+                                                     const VectorXd& sqrt_w) const {
+  VectorXd& r = d.residual;
+  r.segment(offset_[EE_POSITION], 3) = d.dynamics.position - ee_position_reference_;
+  r.segment(offset_[EE_VELOCITY], 3) = d.dynamics.ee_velocity;
+  d.r = sqrt_w.cwiseProduct(r);
+  d.cost = 0.5 * d.r.squaredNorm();
 }
 
 void IntegratedActionModelSoftContact::calcDiff(const std::shared_ptr<ActionDataAbstract>& data,

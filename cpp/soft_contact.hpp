@@ -186,6 +186,11 @@ class IntegratedActionModelSoftContact : public crocoddyl::ActionModelAbstractTp
 
  private:
   void update_weights();
+  /// Posture, joint-velocity and force residuals of x (rows of every node, running or not).
+  void state_residuals(VectorXd& r, const Eigen::Ref<const VectorXd>& x) const;
+  /// End-effector residuals from data.dynamics' kinematics, then r = √w ∘ residual and
+  /// cost = ½‖r‖².
+  void weighted_cost(IntegratedActionDataSoftContact& d, const VectorXd& sqrt_w) const;
   /// Gauss-Newton Lxx of the state terms (weights w), from the sparsity of data.Rx.
   void add_state_hessian(IntegratedActionDataSoftContact& d, const VectorXd& w) const;
 
