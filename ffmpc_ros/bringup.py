@@ -437,6 +437,8 @@ def run_graph(
     # the recorder is one more subscriber the plant waits for (the bring-up's probe subscribes
     # before the metrics node exists, whose readiness the plant waits for too)
     params["plant"]["start_subscribers"] += record is not None
+    # and it reads /clock twice: the topic it records and its time source (simulated log times)
+    params["plant"]["start_clock_subscribers"] += 2 * (record is not None)
     robot = load_robot(scenario.robot)
     time_step = scenario.plant.time_step
     context = Context()

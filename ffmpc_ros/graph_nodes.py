@@ -40,6 +40,8 @@ def graph_parameters(scenario: Scenario, lockstep: bool, duration: float) -> dic
         "duration": float(duration),
         "start_delay": 0.5,  # wall s after the subscribers appear: discovery settles
         "start_subscribers": 2,  # the joint-sensor and metrics nodes
+        # every node's time source: the plant's own, the other nodes' and the metrics node's
+        "start_clock_subscribers": len(NODES) + 1,
         "wait_for_metrics": True,  # the metrics node has matched every topic it records
     }
     names = [*NODES, "metrics"]

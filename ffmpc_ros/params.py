@@ -102,6 +102,13 @@ START_SUBSCRIBERS = GraphParameter(
     "subscribers of /plant/joint_states to wait for before the first state",
     (0, 1000),
 )
+START_CLOCK_SUBSCRIBERS = GraphParameter(
+    "start_clock_subscribers",
+    0,
+    "subscribers of /clock to wait for before the first state (every node judges its inputs' "
+    "stamps by /clock: one that matched late would reject them as from the future)",
+    (0, 1000),
+)
 
 WAIT_FOR_METRICS = GraphParameter(
     "wait_for_metrics",
@@ -223,7 +230,15 @@ NODE_SPECS: dict[str, NodeSpec] = {
         "plant",
         ("robot", "seed", "task.*"),
         (),
-        (LOCKSTEP, DURATION, START_DELAY, START_SUBSCRIBERS, WAIT_FOR_METRICS, MAX_AGE),
+        (
+            LOCKSTEP,
+            DURATION,
+            START_DELAY,
+            START_SUBSCRIBERS,
+            START_CLOCK_SUBSCRIBERS,
+            WAIT_FOR_METRICS,
+            MAX_AGE,
+        ),
     ),
     "joint_sensor": NodeSpec(
         "joint_sensor", "joint_sensor", ("robot", "seed"), _TIME_STEP, (MAX_AGE,)

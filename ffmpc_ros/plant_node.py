@@ -104,11 +104,14 @@ class PlantNode(StudyNode):
         self._start_timer = self.create_timer(0.01, self._try_start, clock=self._steady)
 
     def _try_start(self) -> None:
-        """Start once ``start_subscribers`` nodes read the joint states and ``start_delay``
+        """Start once ``start_subscribers`` nodes read the joint states,
+        ``start_clock_subscribers`` read /clock and ``start_delay``
         (wall time) has passed: lockstep publishes the state of cycle 0, real time starts the
         wall-clock timer."""
         wanted = int(self.params["start_subscribers"])
         if self.pub_joints.get_subscription_count() < wanted:
+            return
+        if self.pub_clock.get_subscription_count() < int(self.params["start_clock_subscribers"]):
             return
         if self.params["wait_for_metrics"] and not self.metrics_ready:
             return
