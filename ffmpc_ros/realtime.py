@@ -42,9 +42,10 @@ Deadlines (every time below is wall time, measured with ``time.perf_counter``):
   PID's delay line models the rest (δo − period, never negative; with δo < period the real
   delay is one period). A late command is applied when it arrives.
 * **fallback time** — simulated time the loop spends in ``LowLevelMode.FALLBACK`` (its input
-  older than ``pid.stale_timeout``), minus what falls inside a fault window (a list of
-  (start, end) simulated seconds during which a fault is injected on purpose: the hook for
-  fault injection, :func:`fallback_time`).
+  older than ``pid.stale_timeout`` past its use at cycle k + period/Δt, as in lockstep: one
+  missed solve is tolerated, :func:`real_time_pid_settings`), minus what falls inside a fault
+  window (a list of (start, end) simulated seconds during which a fault is injected on purpose:
+  the hook for fault injection, :func:`fallback_time`).
 
 ``ffmpc run --real-time`` exits non-zero when more than :data:`MAX_MISSED_FRACTION` of either
 kind of deadline was missed or any fallback time falls outside the fault windows.
@@ -82,6 +83,7 @@ from ffmpc_core.errors import FfmpcError, InputError
 from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement, LowLevelMode
 from ffmpc_core.metrics import PolishingMetrics
 from ffmpc_core.robots import load_robot
+from ffmpc_core.scenario import Scenario
 from ffmpc_core.study import (
     StudyLog,
     device_generator,
@@ -298,6 +300,26 @@ def _stamp(k: int, step_ns: int) -> TimeMsg:
     return TimeMsg(sec=int(sec), nanosec=int(nanosec))
 
 
+def real_time_pid_settings(scenario: Scenario) -> Scenario:
+    """The scenario the real-time loop's torque PID runs: the lockstep model shifted by the fixed
+    MPC latency of ``every`` = mpc.period/Δt cycles (a command solved at cycle k is applied at
+    cycle k + every, see the module docstring).
+
+    * ``pid.delay_cycles``: δo − every (never negative): those cycles of δo are real here, the
+      delay line models the rest.
+    * ``pid.stale_timeout``: + every·Δt. The command's age is counted from its stamp (cycle k),
+      and it is never used before it is every·Δt old, so the timeout keeps its lockstep meaning
+      (time past the command's use, s: one missed solve tolerated, two give the safe hold).
+    """
+    every = steps_per_mpc_period(scenario)
+    return scenario.with_overrides(
+        {
+            "pid.delay_cycles": max(0, scenario.pid.delay_cycles - every),
+            "pid.stale_timeout": scenario.pid.stale_timeout + every * scenario.plant.time_step,
+        }
+    )
+
+
 def command_qos() -> QoSProfile:
     """/mpc/command in the loop process: reliable, every command kept until taken."""
     return QoSProfile(
@@ -353,11 +375,11 @@ class RealtimeLoop:
         self.contact = ft.mpc.contact
         self.force_model = force_sensing_model(ft, device_generator(ft.seed, "force_sensor"))
         self.force_axes = [self.contact.normal_axis] if self.contact.dimension == 1 else [0, 1, 2]
-        # torque loop (as PidNode), with the fixed MPC latency taken out of the δo delay line
-        ps = self.nodes["pid"].scenario
+        # torque loop (as PidNode), with the fixed MPC latency counted (real_time_pid_settings)
+        ps = real_time_pid_settings(self.nodes["pid"].scenario)
         self.every = steps_per_mpc_period(ps)
-        self.modelled_delay_cycles = max(0, ps.pid.delay_cycles - self.every)
-        ps = ps.with_overrides({"pid.delay_cycles": self.modelled_delay_cycles})
+        self.modelled_delay_cycles = ps.pid.delay_cycles
+        self.stale_timeout = ps.pid.stale_timeout
         self.lowlevel = lowlevel_controller(ps, robot)
         self.needs_force = ps.mpc.riccati_feedback and ps.mpc.formulation == "force_feedback"
 
@@ -459,11 +481,13 @@ class RealtimeLoop:
         return msg
 
     def wait_for_mpc(self, limit: float = MPC_WAIT) -> None:
-        """Block until the MPC subscribes to the joint states and publishes commands, then
-        ``start_delay`` more (discovery settles both ways)."""
+        """Block until the MPC subscribes to the joint states and /clock (its time source: this
+        loop's nodes read /clock too) and publishes commands, then ``start_delay`` more
+        (discovery settles both ways)."""
         end = time.monotonic() + limit
         while (
             self.pub_joints.get_subscription_count() < 1
+            or self.pub_clock.get_subscription_count() < len(self.nodes) + 1
             or self.sub_command.get_publisher_count() < 1
         ):
             if time.monotonic() > end:
@@ -662,6 +686,7 @@ class RealtimeLoop:
         )
         timing["mpc_fixed_latency_cycles"] = self.every
         timing["pid_delay_line_cycles"] = self.modelled_delay_cycles
+        timing["pid_stale_timeout_s"] = self.stale_timeout
         timing["mode_cycles"] = {
             m.name.lower(): int(np.count_nonzero(rec["mode"] == int(m))) for m in LowLevelMode
         }

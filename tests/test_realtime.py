@@ -15,10 +15,17 @@ import numpy as np
 import pytest
 
 from ffmpc_core.errors import InputError
-from ffmpc_core.lowlevel import LowLevelMode
+from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement, LowLevelMode
+from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
+from ffmpc_core.study import lowlevel_controller, steps_per_mpc_period
 from ffmpc_ros.cli import main
-from ffmpc_ros.realtime import fallback_time, timing_failures, timing_report
+from ffmpc_ros.realtime import (
+    fallback_time,
+    real_time_pid_settings,
+    timing_failures,
+    timing_report,
+)
 from sim_bridge.runner import run_scenario
 
 TIMING_KEYS = (
@@ -40,6 +47,52 @@ def test_fallback_time_counts_cycles_and_excuses_fault_windows():
     assert fallback_time(modes, 1e-3, [(0.0, 1.0)]) == pytest.approx((0.0, 0.015))
     with pytest.raises(InputError):
         fallback_time(modes, 1e-3, [(0.5, 0.1)])
+
+
+def _real_time_modes(skipped_ticks: set[int], cycles: int = 40) -> dict[int, LowLevelMode]:
+    """Modes of the real-time loop's low-level controller when the MPC solves every tick but
+    ``skipped_ticks`` (cycles) and each command is applied ``every`` cycles after its tick,
+    stamped with its tick's time (as ``RealtimeLoop._release_commands`` does)."""
+    scenario = load_scenario("polishing", {"mpc.formulation": "classical"})
+    robot = load_robot(scenario.robot)
+    settings = real_time_pid_settings(scenario)
+    every, dt = steps_per_mpc_period(scenario), scenario.plant.time_step
+    low = lowlevel_controller(settings, robot)
+    nx = 2 * robot.nv
+    command = LowLevelCommand(
+        robot.gravity(robot.q_nominal),
+        np.concatenate([robot.q_nominal, np.zeros(robot.nv)]),
+        np.zeros((robot.nv, nx)),
+    )
+    meas = LowLevelMeasurement(robot.q_nominal, np.zeros(robot.nv), np.zeros(robot.nv))
+    modes = {}
+    for k in range(cycles):
+        tick = k - every
+        if tick >= 0 and tick % every == 0 and tick not in skipped_ticks:
+            low.set_command(command, tick * dt)
+        modes[k] = low.step(meas, k * dt).mode
+    return modes
+
+
+def test_real_time_stale_timeout_counts_the_fixed_mpc_latency():
+    """Commands are applied one MPC period after their tick: the stale timeout counts that
+    period, so one missed solve is tolerated as in lockstep, and two give the safe hold."""
+    scenario = load_scenario("polishing", {"mpc.formulation": "classical"})
+    settings = real_time_pid_settings(scenario)
+    every = steps_per_mpc_period(scenario)
+    assert every == 2
+    assert settings.pid.stale_timeout == pytest.approx(scenario.pid.stale_timeout + 2e-3)
+    assert settings.pid.delay_cycles == max(0, scenario.pid.delay_cycles - every)
+    used = (LowLevelMode.BLEND, LowLevelMode.TRACK)  # the MPC's command in use
+    modes = _real_time_modes(skipped_ticks=set())
+    assert all(modes[k] in used for k in range(every, 40))
+    one_missed = _real_time_modes(skipped_ticks={20})
+    assert all(one_missed[k] in used for k in range(every, 40))
+    two_missed = _real_time_modes(skipped_ticks={20, 22})
+    # the command of tick 18, used from cycle 20: stale once older than 4 + 2 ms (cycle 25);
+    # tick 24's command, applied at cycle 26, ends the hold
+    assert all(two_missed[k] in used for k in range(every, 25))
+    assert two_missed[25] == LowLevelMode.FALLBACK and two_missed[26] in used
 
 
 def _report(latency, arrival, modes=None, windows=()):
