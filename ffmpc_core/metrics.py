@@ -198,3 +198,16 @@ def summarize(runs: Sequence[PolishingMetrics]) -> dict[str, float | None]:
     out["max_force"] = float(max(r.max_force for r in runs))
     out["contact_break_percent"] = float(max(r.contact_break_percent for r in runs))
     return out
+
+
+def limit_ratios(values: npt.ArrayLike, limit: npt.ArrayLike) -> tuple[np.ndarray, int | None]:
+    """Per joint, the largest |value|/limit over a run (one row per cycle; a NaN counts as a
+    broken limit, inf), and the cycle of the overall largest (None for an empty run). For joint
+    velocities (rad/s against the velocity limits) and torques (N·m against the torque limits):
+    a ratio above 1 is a broken limit."""
+    limit = np.asarray(limit, dtype=float)
+    rows = np.asarray(values, dtype=float).reshape(-1, limit.size)
+    if rows.shape[0] == 0:
+        return np.zeros(limit.size), None
+    ratio = np.nan_to_num(np.abs(rows) / limit, nan=np.inf)
+    return ratio.max(axis=0), int(np.argmax(ratio.max(axis=1)))

@@ -160,7 +160,7 @@ class GraphResult:
     bag: dict | None = None  # with ``record``: path and messages recorded per topic
     timing: dict | None = None  # deadlines met, fallback time, latencies (module docstring)
     warnings: list[str] = field(default_factory=list)
-    safety: dict | None = None  # lockstep: ratios, safe_hold_s, faults, rejected_messages
+    safety: dict | None = None  # ratios, safe_hold_s; lockstep also faults, rejected_messages
 
     @property
     def real_time_factor(self) -> float:
@@ -653,6 +653,7 @@ def _run_real_time(
         plant_status=status,
         timing=timing,
         warnings=run.warnings,
+        safety=s["safety"],
     )
 
 

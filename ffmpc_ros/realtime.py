@@ -81,7 +81,7 @@ from std_msgs.msg import Float64MultiArray
 
 from ffmpc_core.errors import FfmpcError, InputError
 from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement, LowLevelMode
-from ffmpc_core.metrics import PolishingMetrics
+from ffmpc_core.metrics import PolishingMetrics, limit_ratios
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import Scenario
 from ffmpc_core.study import (
@@ -503,6 +503,7 @@ class RealtimeLoop:
         n, nv, dt = self.steps, self.robot.nv, self.time_step
         rec = {
             "q": np.zeros((n, nv)),
+            "v": np.zeros((n, nv)),
             "force_true": np.zeros(n),
             "force_measured": np.zeros(n),
             "tau_desired": np.zeros((n, nv)),
@@ -561,13 +562,14 @@ class RealtimeLoop:
                 motor = out.motor_torque if out is not None else last_motor
                 last_motor = motor
                 self.sim.push_if_due(k)
-                q_true, force_true = state.q, state.normal_force
+                q_true, v_true, force_true = state.q, state.v, state.normal_force
                 tau_hat = self.actuation.step(motor, state.v)
                 self.plant.step(tau_hat)
                 state = self.plant.state()
                 rec["cycle_latency"][k] = time.perf_counter() - release
                 # records and the observer topics (off the deadline)
                 rec["q"][k] = q_true
+                rec["v"][k] = v_true
                 rec["force_true"][k] = force_true
                 rec["force_measured"][k] = f_hat[-1]
                 rec["tau_measured"][k] = tau_hat
@@ -702,8 +704,28 @@ class RealtimeLoop:
             "metrics_measured": measured.to_dict(),
             "wall_time_s": rec["wall_time"],
             "timing": timing,
+            "safety": self.safety(rec),
         }
         return summary, arrays
+
+    def safety(self, rec: dict) -> dict:
+        """The run's joint-limit ratios (as the lockstep graph's summary): per joint the largest
+        |q̇|/velocity limit, |τ^m|/torque limit (the PID's motor torque) and |τ̂|/torque limit
+        (the actuation output), the times of the largest (s), and the time in the safe hold (s:
+        hold and fallback cycles)."""
+        robot, dt = self.robot, self.time_step
+        velocity, k_velocity = limit_ratios(rec["v"], robot.velocity_limit)
+        torque, k_torque = limit_ratios(rec["tau_motor"], robot.torque_limit)
+        applied, _ = limit_ratios(rec["tau_measured"], robot.torque_limit)
+        hold = np.isin(rec["mode"], [int(LowLevelMode.HOLD), int(LowLevelMode.FALLBACK)])
+        return {
+            "max_velocity_ratio": [float(x) for x in velocity],
+            "max_torque_ratio": [float(x) for x in torque],
+            "max_applied_torque_ratio": [float(x) for x in applied],
+            "max_velocity_ratio_at_s": None if k_velocity is None else k_velocity * dt,
+            "max_torque_ratio_at_s": None if k_torque is None else k_torque * dt,
+            "safe_hold_s": float(np.count_nonzero(hold) * dt),
+        }
 
     def close(self) -> None:
         self.plant.close()

@@ -50,7 +50,7 @@ from ffmpc_core.errors import (
 )
 from ffmpc_core.faults import RUNNER_KINDS, Fault, active_kinds, faults_from, require_kinds
 from ffmpc_core.lowlevel import LowLevelMeasurement, LowLevelMode
-from ffmpc_core.metrics import PolishingMetrics
+from ffmpc_core.metrics import PolishingMetrics, limit_ratios
 from ffmpc_core.mpc import ModelPredictiveController, MpcMeasurement
 from ffmpc_core.plausibility import check_force, torque_plausible
 from ffmpc_core.robots import RobotModel, load_robot
@@ -312,9 +312,9 @@ def run_scenario(
         wall_time=time.perf_counter() - wall_start,
         solve_time_median=float(np.median(solve_times)) if solve_times else 0.0,
         iterations_median=float(np.median(iterations)) if iterations else 0.0,
-        max_velocity_ratio=np.max(np.abs(trace_v) / robot.velocity_limit, axis=0),
-        max_torque_ratio=np.max(np.abs(trace_tau) / robot.torque_limit, axis=0),
-        max_applied_torque_ratio=np.max(np.abs(trace_applied) / robot.torque_limit, axis=0),
+        max_velocity_ratio=limit_ratios(trace_v, robot.velocity_limit)[0],
+        max_torque_ratio=limit_ratios(trace_tau, robot.torque_limit)[0],
+        max_applied_torque_ratio=limit_ratios(trace_applied, robot.torque_limit)[0],
         safe_hold_s=float(np.sum(np.isin(trace_mode, _HOLD_MODES)) * dt),
         mpc_failures=mpc_failures,
         faults=faults,

@@ -12,6 +12,7 @@ from ffmpc_core.errors import InputError
 from ffmpc_core.metrics import (
     PolishingMetrics,
     contact_break_percent,
+    limit_ratios,
     max_normal_force,
     normal_force_mae,
     polishing_metrics,
@@ -137,3 +138,15 @@ def test_bad_signals_are_rejected():
         polishing_metrics(T, reference, reference, normal, bad * 0, 50.0, np.zeros((T.size, 7)))
     with pytest.raises(InputError):
         summarize([])
+
+
+def test_limit_ratios_per_joint_with_the_worst_cycle_and_nan_as_broken():
+    limit = np.array([2.0, 4.0])
+    values = np.array([[1.0, -1.0], [-3.0, 2.0], [0.5, 3.9]])
+    ratios, worst = limit_ratios(values, limit)
+    np.testing.assert_allclose(ratios, [1.5, 0.975])
+    assert worst == 1  # |−3|/2 is the largest ratio of the run
+    ratios, worst = limit_ratios(np.array([[0.1, np.nan], [0.2, 0.1]]), limit)
+    assert ratios[1] == math.inf and worst == 0
+    ratios, worst = limit_ratios(np.zeros((0, 2)), limit)
+    assert worst is None and ratios.tolist() == [0.0, 0.0]

@@ -186,4 +186,10 @@ def test_real_time_run_json_is_consistent(tmp_path):
     assert doc["fallback_time_s"] == pytest.approx(timing["mode_cycles"]["fallback"] * 1e-3)
     assert mpc["solved"] == 0 or 0.0 < mpc["solve_p50_ms"] <= mpc["solve_max_ms"]
     assert doc["wall_time_s"] >= 0.99  # paced by the wall clock
-    assert code == (1 if timing_failures(timing) else 0)
+    # the joint-limit check of lockstep runs holds in real time too
+    assert len(doc["max_velocity_ratio"]) == 7 and len(doc["max_torque_ratio"]) == 7
+    assert 0.0 < max(doc["max_velocity_ratio"]) and 0.0 < max(doc["max_torque_ratio"])
+    assert 0.0 <= doc["max_velocity_ratio_at_s"] < 1.0
+    broken = max(doc["max_velocity_ratio"] + doc["max_torque_ratio"]) > 1.0
+    assert doc["safe_hold_s"] >= timing["mode_cycles"]["fallback"] * 1e-3
+    assert code == (1 if timing_failures(timing) or broken else 0)
