@@ -705,7 +705,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--record",
         metavar="PATH",
         type=new_path,
-        help="record the run (every topic and parameter) to a bag",
+        help="record the run (every topic and parameter) to a bag: PATH.mcap is one MCAP file, "
+        "any other PATH a rosbag2 folder (metadata.yaml + MCAP, as ros2 bag record writes)",
     )
     run.add_argument(
         "--json",

@@ -20,10 +20,11 @@ import yaml
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import Reader as Rosbag2Reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from ffmpc_ros.bag.errors import BagError, BagExistsError
-from ffmpc_ros.bag.reader import BagReader
+from ffmpc_ros.bag.reader import BagReader, recover_bag
 from ffmpc_ros.bag.schema import MessageDefinitions, qos_profile_dict
 from ffmpc_ros.bag.writer import BagWriter
 
@@ -204,6 +205,55 @@ def test_rosbags_and_mcap_ros2_decode_what_was_written(tmp_path):
         assert (w.x, w.y, w.z) == (sent.x, sent.y, sent.z)
         assert decoded["/flag"][k].data == messages["/flag"][k].data
         assert decoded["/clock"][k].clock.nanosec == messages["/clock"][k].clock.nanosec
+
+
+def test_a_folder_target_is_a_rosbag2_bag_that_rosbags_opens(tmp_path, capsys):
+    """A path without ``.mcap``: the folder ``run/`` with ``run_0.mcap`` and ``metadata.yaml``,
+    which rosbags' rosbag2 reader opens; BagReader and ``ffmpc bag info`` read both forms."""
+    folder = tmp_path / "run"
+    messages, written = _write_bag(folder, np.random.default_rng(3))
+    assert sorted(p.name for p in folder.iterdir()) == ["metadata.yaml", "run_0.mcap"]
+    info = yaml.safe_load((folder / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    with BagReader(folder) as bag:
+        assert bag.folder == folder and bag.path == folder / "run_0.mcap"
+        assert [(m.topic, m.log_time, m.data) for m in bag.messages()] == written
+        assert yaml.safe_load(bag.metadata_named("rosbag2")["serialized_metadata"]) == info
+    assert info["relative_file_paths"] == ["run_0.mcap"] and info["storage_identifier"] == "mcap"
+    with Rosbag2Reader(folder) as reader:  # rosbags' rosbag2 reader, through metadata.yaml
+        assert reader.message_count == len(written)
+        assert {c.topic: c.msgcount for c in reader.connections} == dict.fromkeys(TOPIC_TYPES, 40)
+        js = [c for c in reader.connections if c.topic == "/js"]
+        efforts = [
+            TYPESTORE.deserialize_cdr(raw, "sensor_msgs/msg/JointState").effort
+            for _, _, raw in reader.messages(connections=js)
+        ]
+    for got, sent in zip(efforts, messages["/js"], strict=True):
+        np.testing.assert_array_equal(got, sent.effort)
+    from ffmpc_ros.cli import main
+
+    assert main(["bag", "info", str(folder), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["folder"] == str(folder) and doc["messages"] == len(written)
+    with pytest.raises(BagExistsError, match="never overwritten"):
+        BagWriter(folder)
+
+
+def test_a_folder_bag_without_metadata_is_read_and_recovered(tmp_path):
+    """A killed writer leaves the folder without ``metadata.yaml``: read through its MCAP file,
+    and ``recover`` writes a complete rosbag2 folder."""
+    folder = tmp_path / "killed"
+    _, written = _write_bag(folder, np.random.default_rng(4), n=10)
+    (folder / "metadata.yaml").unlink()
+    with BagReader(folder) as bag:
+        assert bag.message_count == len(written)
+        assert "no metadata.yaml: recover it" in bag.describe()
+    report = recover_bag(folder, tmp_path / "fixed")
+    assert report.complete and report.messages == len(written)
+    with Rosbag2Reader(tmp_path / "fixed") as reader:
+        assert reader.message_count == len(written)
+    (folder / "killed_0.mcap").rename(folder / "other.txt")
+    with pytest.raises(BagError, match="0 MCAP files"):
+        BagReader(folder)
 
 
 def test_writers_never_overwrite(tmp_path):

@@ -11,6 +11,7 @@ import pytest
 import yaml
 from rclpy.publisher import Publisher
 from rclpy.serialization import deserialize_message
+from rosbags.rosbag2 import Reader as Rosbag2Reader
 from sensor_msgs.msg import JointState
 
 from ffmpc_core.scenario import load_scenario
@@ -97,9 +98,10 @@ def test_the_bag_describes_its_run(single_process_run):
 
 def test_multi_process_run_records_as_many_messages(single_process_run, tmp_path):
     """The run is deterministic, so the multi-process bag holds exactly what the single-process
-    graph published."""
+    graph published. Recorded as a rosbag2 folder (a path without ``.mcap``), which rosbags'
+    rosbag2 reader opens."""
     _, _, published = single_process_run
-    path = tmp_path / "multi.mcap"
+    path = tmp_path / "multi"
     result = run_graph(
         load_scenario("polishing", SCENARIO),
         duration=DURATION,
@@ -113,6 +115,9 @@ def test_multi_process_run_records_as_many_messages(single_process_run, tmp_path
         assert {f"/{n}" for n in [*NODES, "metrics"]} <= set(bag.parameters)
     study = bag_study(path)
     assert study.metrics_true == result.metrics_true and study.matches_recorded is True
+    with Rosbag2Reader(path) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+    assert all(counts[topic] == published[topic] for topic, _, _ in topics.TOPICS)
 
 
 def test_ffmpc_run_record_and_refusal_to_overwrite(tmp_path, capfd):

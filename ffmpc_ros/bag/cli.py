@@ -19,6 +19,7 @@ def _cmd_info(args: argparse.Namespace) -> int:
                 json.dumps(
                     {
                         "path": str(bag.path),
+                        "folder": None if bag.folder is None else str(bag.folder),
                         "size_bytes": bag.file_size,
                         "duration_s": bag.duration,
                         "start_ns": bag.start_time,
@@ -161,7 +162,8 @@ def add_bag_parser(sub) -> None:
 
     bag = sub.add_parser(
         "bag",
-        help="MCAP bags of runs: info, play, plot, metrics, rerun, recover, record",
+        help="bags of runs (one .mcap file or a rosbag2 folder): info, play, plot, metrics, "
+        "rerun, recover, record",
         description="Bags are rosbag2-compatible MCAP files (ros2 bag, Foxglove, rosbags and "
         "mcap-ros2-support read them); `ffmpc run SCENARIO --record PATH` records a run with "
         "every topic and every node's parameters.",
@@ -274,7 +276,9 @@ def add_bag_parser(sub) -> None:
         "bag that every MCAP tool opens.",
     )
     p.add_argument("bag")
-    p.add_argument("out", type=new_path, help="new bag path (must not exist)")
+    p.add_argument(
+        "out", type=new_path, help="new bag path (must not exist; .mcap: a file, else a folder)"
+    )
     p.set_defaults(func=_cmd_recover)
 
     p = bag_sub.add_parser(
@@ -283,7 +287,9 @@ def add_bag_parser(sub) -> None:
         description="Record every topic of the graph on this ROS domain, with every node's "
         "parameters, until Ctrl-C or --duration wall seconds.",
     )
-    p.add_argument("bag", type=new_path, help="new bag path (must not exist)")
+    p.add_argument(
+        "bag", type=new_path, help="new bag path (must not exist; .mcap: a file, else a folder)"
+    )
     p.add_argument("--topics", nargs="+", help="topics to record (default: all)")
     p.add_argument("--duration", type=positive_float, help="wall seconds to record")
     p.add_argument("--wall-clock", action="store_true", help="log times on the system clock")

@@ -8,6 +8,10 @@ the first incomplete or corrupt record. :attr:`BagReader.recovery` says what was
 was lost; :func:`recover_bag` writes what was kept into a new, complete bag that every MCAP tool
 opens.
 
+A rosbag2 folder (``metadata.yaml`` beside one MCAP file, as ``ros2 bag record`` and
+:class:`~ffmpc_ros.bag.writer.BagWriter` write it) is read through that file; a folder without
+``metadata.yaml`` (its writer was killed) through its only MCAP file.
+
 Messages are bytes (CDR); decode them with ``rclpy.serialization.deserialize_message`` (ROS
 side) or ``mcap_ros2.decoder`` (no ROS needed).
 """
@@ -23,6 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import yaml
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
@@ -33,6 +38,9 @@ from mcap.stream_reader import MAGIC_SIZE, breakup_chunk
 from ffmpc_ros.bag.errors import BagError
 from ffmpc_ros.bag.schema import PROFILE, parse_qos_yaml
 from ffmpc_ros.bag.writer import (
+    FOLDER_METADATA,
+    FOLDER_METADATA_KEY,
+    MCAP_SUFFIX,
     PARAMETERS_PREFIX,
     ROSBAG2_METADATA,
     BagWriter,
@@ -104,6 +112,28 @@ def _footer_ok(fh, size: int) -> bool:
     return tail[-MAGIC_SIZE:] == MAGIC and tail[0] == Opcode.FOOTER
 
 
+def folder_storage_file(folder: Path) -> Path:
+    """The MCAP file of a rosbag2 folder: the one ``metadata.yaml`` names, or without it (a
+    killed writer) the folder's only ``*.mcap`` file. BagError for anything else (this reader
+    takes single-file bags: a split bag is refused with its file count)."""
+    meta = folder / FOLDER_METADATA
+    if meta.is_file():
+        try:
+            info = yaml.safe_load(meta.read_text(encoding="utf-8"))[FOLDER_METADATA_KEY]
+            files = list(info["relative_file_paths"])
+        except (yaml.YAMLError, TypeError, KeyError) as exc:
+            raise BagError(f"{meta} is not rosbag2 bag metadata: {exc!r}") from None
+        if info.get("storage_identifier") != "mcap":
+            raise BagError(f"{folder}: storage {info.get('storage_identifier')!r}, not mcap")
+        if len(files) != 1:
+            raise BagError(f"{folder}: a bag of {len(files)} files (only single-file bags)")
+        return folder / files[0]
+    found = sorted(folder.glob("*" + MCAP_SUFFIX))
+    if len(found) != 1:
+        raise BagError(f"{folder}: no {FOLDER_METADATA} and {len(found)} MCAP files (want one)")
+    return found[0]
+
+
 class BagReader:
     """A bag file, complete or truncated (module docstring); a context manager.
 
@@ -115,7 +145,10 @@ class BagReader:
     """
 
     def __init__(self, path: str | os.PathLike) -> None:
-        self.path = Path(path)
+        self.path = Path(path)  # the MCAP file
+        self.folder: Path | None = None  # the rosbag2 folder holding it, if any
+        if self.path.is_dir():
+            self.folder, self.path = self.path, folder_storage_file(self.path)
         if not self.path.is_file():
             raise BagError(f"no bag file {self.path}")
         self._fh = open(self.path, "rb")  # noqa: SIM115  (closed by close())
@@ -340,7 +373,17 @@ class BagReader:
     def describe(self) -> str:
         """A ``ros2 bag info``-like summary."""
         lines = [
-            f"Files:             {self.path}",
+            f"Files:             {self.path}"
+            + (
+                ""
+                if self.folder is None
+                else f" (rosbag2 folder {self.folder}, "
+                + (
+                    f"with {FOLDER_METADATA})"
+                    if (self.folder / FOLDER_METADATA).is_file()
+                    else f"no {FOLDER_METADATA}: recover it)"
+                )
+            ),
             f"Bag size:          {_size(self.file_size)}",
             f"Storage id:        mcap (profile {self.profile}; chunks: "
             f"{', '.join(sorted(self.compression)) or 'none'}; written by {self.library})",

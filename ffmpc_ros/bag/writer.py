@@ -8,6 +8,14 @@ record (``serialized_metadata``) at the end. ffmpc adds metadata records of its 
 parameters of every node (``ros_parameters:<node>``, values as JSON) and whatever the caller
 adds.
 
+Two forms, chosen by the target path: ``run.mcap`` (a path ending in ``.mcap``) is a single MCAP
+file; any other path is a **rosbag2 folder** as ``ros2 bag record`` writes it: the folder
+``run/`` holds ``run_0.mcap`` and, once the bag is closed, ``metadata.yaml``
+(``rosbag2_bagfile_information``: the same BagMetadata as the record inside the MCAP file), so
+``ros2 bag info run`` and ``rosbags``' rosbag2 reader open it. A folder without
+``metadata.yaml`` is a bag whose writer was killed: :class:`~ffmpc_ros.bag.reader.BagReader`
+reads its MCAP file, and ``ffmpc bag recover`` writes a complete copy.
+
 Durability. The writer never overwrites: a path that exists is refused (the file is created
 with ``O_EXCL``), and so is a file object that already holds data after its position. Chunks go
 straight to the operating system (no user-space buffer) and a chunk is closed at least every
@@ -47,6 +55,11 @@ ROSBAG2_METADATA = "rosbag2"
 ROSBAG2_METADATA_KEY = "serialized_metadata"
 #: rosbag2 metadata version written (Jazzy).
 ROSBAG2_VERSION = 9
+#: Suffix of a single-file bag; a target path without it is a rosbag2 folder.
+MCAP_SUFFIX = ".mcap"
+#: The file of a rosbag2 folder that describes the bag, and its top-level key.
+FOLDER_METADATA = "metadata.yaml"
+FOLDER_METADATA_KEY = "rosbag2_bagfile_information"
 LIBRARY = "ffmpc bag writer (mcap-python)"
 
 _COMPRESSION = {
@@ -95,6 +108,23 @@ def _open_exclusive(path: Path, fsync: bool) -> _DirectStream:
     return _DirectStream(raw, fsync)
 
 
+def is_folder_bag(path: str | os.PathLike) -> bool:
+    """Whether a bag path names a rosbag2 folder (it does not end in ``.mcap``)."""
+    return Path(path).suffix != MCAP_SUFFIX
+
+
+def _make_folder(folder: Path) -> Path:
+    """Create the folder of a rosbag2 bag (never an existing one); returns its MCAP file path,
+    ``<folder>/<folder name>_0.mcap`` as rosbag2 names it."""
+    try:
+        folder.mkdir()
+    except FileExistsError:
+        raise BagExistsError(f"{folder} exists; a bag is never overwritten") from None
+    except OSError as exc:
+        raise BagError(f"cannot create {folder}: {exc.strerror}") from None
+    return folder / f"{folder.name}_0{MCAP_SUFFIX}"
+
+
 def _check_empty_after_position(stream: IO[bytes]) -> None:
     """Refuse a file object that holds data after its current position."""
     try:
@@ -116,7 +146,8 @@ class BagWriter:
     """Writes a rosbag2-compatible MCAP bag (module docstring); a context manager.
 
     Args:
-        target: a path (must not exist) or a binary file object (written from its position,
+        target: a path (must not exist): ``*.mcap`` is a single file, any other path a rosbag2
+            folder (module docstring); or a binary file object (written from its position,
             which must be its end; not closed by the writer).
         chunk_size: uncompressed bytes after which a chunk is closed.
         compression: ``zstd``, ``lz4`` or ``none`` (per chunk).
@@ -142,9 +173,13 @@ class BagWriter:
             raise BagError(f"chunk_size must be >= 1 byte, got {chunk_size}")
         if flush_interval is not None and not flush_interval > 0:
             raise BagError(f"flush_interval must be > 0 s or None, got {flush_interval}")
-        self.path: Path | None = None
+        self.path: Path | None = None  # the MCAP file
+        self.folder: Path | None = None  # the rosbag2 folder holding it, if any
         if isinstance(target, str | os.PathLike):
             self.path = Path(target)
+            if is_folder_bag(self.path):
+                self.folder = self.path
+                self.path = _make_folder(self.folder)
             self._stream: Any = _open_exclusive(self.path, fsync)
             self._owns_stream = True
         else:
@@ -270,13 +305,15 @@ class BagWriter:
         return sum(self.counts.values())
 
     def close(self) -> None:
-        """Write the rosbag2 metadata record, the summary and the footer; close the file."""
+        """Write the rosbag2 metadata record, the summary and the footer; close the file; in a
+        rosbag2 folder, then write ``metadata.yaml``."""
         if self.closed:
             return
         self.closed = True
+        info = self._rosbag2_info()
         try:
             self._mcap.add_metadata(
-                ROSBAG2_METADATA, {ROSBAG2_METADATA_KEY: self._rosbag2_metadata()}
+                ROSBAG2_METADATA, {ROSBAG2_METADATA_KEY: yaml.safe_dump(info, sort_keys=False)}
             )
             self._mcap.finish()
         finally:
@@ -284,13 +321,20 @@ class BagWriter:
                 self._stream.close()
             elif hasattr(self._stream, "flush"):
                 self._stream.flush()
+        if self.folder is not None:
+            out = _open_exclusive(self.folder / FOLDER_METADATA, fsync=False)
+            try:
+                out.write(yaml.safe_dump({FOLDER_METADATA_KEY: info}, sort_keys=False).encode())
+            finally:
+                out.close()
 
     def _check_open(self) -> None:
         if self.closed:
             raise BagError("the bag is closed")
 
-    def _rosbag2_metadata(self) -> str:
-        """rosbag2's BagMetadata (version 9), as its MCAP plugin stores it in the file."""
+    def _rosbag2_info(self) -> dict[str, Any]:
+        """rosbag2's BagMetadata (version 9), as its MCAP plugin stores it in the file (file
+        paths relative to the bag's folder)."""
         start = self.first_log_time or 0
         duration = (self.last_log_time or 0) - start
         name = self.path.name if self.path is not None else ""
@@ -329,4 +373,4 @@ class BagWriter:
             "custom_data": {},
             "ros_distro": "jazzy",
         }
-        return yaml.safe_dump(info, sort_keys=False)
+        return info
