@@ -2,7 +2,9 @@
 
 ``ros2 run PKG EXE`` (ros2run) resolves ``<prefix>/lib/PKG/EXE`` where ``<prefix>`` is the
 first entry of ``AMENT_PREFIX_PATH`` holding the ament index marker
-``share/ament_index/resource_index/packages/PKG``; ``share/PKG/package.xml`` is the manifest.
+``share/ament_index/resource_index/packages/PKG``; ``share/PKG/package.xml`` is the manifest,
+``share/PKG/launch/*.launch.yaml`` the launch files (``ros2 launch ffmpc_ros polishing.launch.yaml``
+or ``ffmpc launch``) and ``share/PKG/config/*.yaml`` the scenario parameter files they read.
 
 ``pip install .`` (and ``pip install -e .``) installs these files: CMakeLists.txt puts them in
 the wheel's data directory (scikit-build-core), with launchers that run ``/usr/bin/env python3``.
@@ -40,6 +42,15 @@ def manifest_path() -> Path:
     return _ROOT.parent / "package.xml"
 
 
+def share_files() -> dict[str, list[Path]]:
+    """Files installed under ``share/ffmpc_ros/<folder>``: the launch files (``launch``) and the
+    scenario parameter files (``config``), from the source tree."""
+    return {
+        "launch": sorted((_ROOT / "ros_layout" / "launch").glob("*.launch.yaml")),
+        "config": sorted((_ROOT.parent / "ffmpc_core" / "scenarios").glob("*.yaml")),
+    }
+
+
 def launcher_text(executable: str, interpreter: str | None = None) -> str:
     """The launcher of one executable; ``interpreter=None`` uses ``/usr/bin/env python3``."""
     module = EXECUTABLES[executable]
@@ -67,9 +78,15 @@ def install_ament_layout(prefix: str | os.PathLike | None = None) -> list[Path]:
             "(an editable install); a regular install gets the layout from pyproject data-files"
         )
     manifest.write_text(manifest_path().read_text(encoding="utf-8"), encoding="utf-8")
+    written = [marker, manifest]
+    for folder, sources in share_files().items():
+        (share / folder).mkdir(exist_ok=True)
+        for source in sources:
+            target = share / folder / source.name
+            target.write_text(source.read_text(encoding="utf-8"), encoding="utf-8")
+            written.append(target)
     lib = root / "lib" / PACKAGE
     lib.mkdir(parents=True, exist_ok=True)
-    written = [marker, manifest]
     for exe in EXECUTABLES:
         path = lib / exe
         path.write_text(launcher_text(exe, sys.executable), encoding="utf-8")

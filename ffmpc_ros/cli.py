@@ -775,8 +775,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.set_defaults(func=_cmd_run_guarded)
     from ffmpc_ros.bag.cli import add_bag_parser
+    from ffmpc_ros.launch import add_launch_parser
 
     add_bag_parser(sub)
+    add_launch_parser(sub)
     return parser
 
 

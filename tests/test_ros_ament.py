@@ -14,7 +14,13 @@ from pathlib import Path
 import pytest
 from ament_index_python.packages import get_package_prefix, get_package_share_directory
 
-from ffmpc_ros.ament import EXECUTABLES, PACKAGE, install_ament_layout, launcher_text
+from ffmpc_ros.ament import (
+    EXECUTABLES,
+    PACKAGE,
+    install_ament_layout,
+    launcher_text,
+    share_files,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
@@ -50,6 +56,11 @@ def _check_prefix(prefix: Path, monkeypatch) -> None:
 def test_installed_layout_resolves_like_ros2_run(tmp_path, monkeypatch):
     install_ament_layout(tmp_path)
     _check_prefix(tmp_path, monkeypatch)
+    share = Path(get_package_share_directory(PACKAGE))
+    assert (share / "launch" / "polishing.launch.yaml").is_file()  # ros2 launch ffmpc_ros ...
+    assert (share / "config" / "polishing.yaml").read_text() == (
+        ROOT / "ffmpc_core" / "scenarios" / "polishing.yaml"
+    ).read_text()
     first_line = (tmp_path / "lib" / PACKAGE / "mpc").read_text().splitlines()[0]
     assert first_line == f"#!{sys.executable}"
 
@@ -80,6 +91,10 @@ def test_the_build_ships_the_same_layout_and_console_scripts():
         '"${SKBUILD_DATA_DIR}/share/ffmpc_ros"',
         "ffmpc_ros/ros_layout/lib/*",
         '"${SKBUILD_DATA_DIR}/lib/ffmpc_ros"',
+        "ffmpc_ros/ros_layout/launch/*.launch.yaml",
+        '"${SKBUILD_DATA_DIR}/share/ffmpc_ros/launch"',
+        "ffmpc_core/scenarios/*.yaml",
+        '"${SKBUILD_DATA_DIR}/share/ffmpc_ros/config"',
     ):
         assert text in cmake, text
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())
@@ -98,6 +113,9 @@ def test_the_build_ships_the_same_layout_and_console_scripts():
     expected += [
         prefix / "share" / "ament_index" / "resource_index" / "packages" / PACKAGE,
         prefix / "share" / PACKAGE / "package.xml",
+    ]
+    expected += [
+        prefix / "share" / PACKAGE / d / f.name for d, fs in share_files().items() for f in fs
     ]
     for path in expected:
         assert path in located, path

@@ -1,0 +1,448 @@
+"""``ffmpc launch FILE``: run a ROS 2 YAML launch file without ``launch_ros``.
+
+``launch_ros`` has no wheel on the package index, so on a machine without a full ROS install
+``ros2 launch`` is missing. This runs the same files (``share/ffmpc_ros/launch/*.launch.yaml``),
+a tested subset of the YAML launch syntax (``launch_yaml``), one process per node:
+
+* ``arg``: ``name``, ``default``, ``description``; set on the command line as ``name:=value``
+  (as ``ros2 launch``); an argument without a default must be given.
+* ``node``: ``pkg``, ``exec``, ``name``, ``namespace``, ``output`` (``screen``: each line
+  prefixed ``[name]``; ``log``: into the log directory only), ``param`` (a list of
+  ``{from: FILE}`` parameter files and ``{name: N, value: V}`` entries, in order),
+  ``remap`` (``{from: A, to: B}``), ``ros_args`` (a string) and ``on_exit: shutdown``.
+* substitutions in any string: ``$(var NAME)``, ``$(env NAME)``, ``$(env NAME DEFAULT)`` and
+  ``$(find-pkg-share PKG)``, ``$(find-pkg-prefix PKG)`` (through ``ament_index_python``, as
+  ``ros2 launch`` resolves them).
+
+Anything else (another tag, another key) is refused with its name: an option that would be
+silently ignored is an error here. Executables resolve as ``ros2 run`` does
+(``<prefix of PKG>/lib/PKG/EXE``). Every node dies with the launcher (PR_SET_PDEATHSIG), a node
+with ``on_exit: shutdown`` ends the launch when it exits (its exit code is the launch's), a node
+that fails ends it too, and Ctrl-C (SIGINT) or SIGTERM stops every node with SIGINT, then SIGKILL
+after :data:`STOP_TIMEOUT` s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import ctypes
+import os
+import re
+import selectors
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import yaml
+
+from ffmpc_core.errors import FfmpcError
+
+#: Wall time a node gets to exit after SIGINT before SIGKILL, s.
+STOP_TIMEOUT = 10.0
+_SUBSTITUTION = re.compile(r"\$\(([a-z-]+)((?:\s+[^)\s]+)*)\s*\)")
+_ARG_KEYS = {"name", "default", "description"}
+_NODE_KEYS = {"pkg", "exec", "name", "namespace", "output", "param", "remap", "ros_args", "on_exit"}
+
+
+class LaunchError(FfmpcError):
+    """A launch file this launcher cannot run (unknown tag, key or argument, bad substitution)."""
+
+
+@dataclass(frozen=True)
+class LaunchNode:
+    """One ``node`` entry, substitutions resolved."""
+
+    package: str
+    executable: str
+    name: str | None = None
+    namespace: str | None = None
+    output: str = "log"
+    parameters: tuple[tuple[str, Any], ...] = ()  # ("file", path) or (name, value), in order
+    remaps: tuple[tuple[str, str], ...] = ()
+    ros_args: tuple[str, ...] = ()
+    shutdown_on_exit: bool = False
+
+    @property
+    def label(self) -> str:
+        return self.name or self.executable
+
+
+@dataclass(frozen=True)
+class LaunchDescription:
+    """What a launch file runs: its arguments' values and its nodes."""
+
+    arguments: dict[str, str] = field(default_factory=dict)
+    nodes: tuple[LaunchNode, ...] = ()
+
+
+def package_prefix(package: str) -> str:
+    """The install prefix of ``package``: the ament index of ``AMENT_PREFIX_PATH`` (as
+    ``ros2 run`` resolves it), then this environment's prefix (a venv without a sourced ROS)."""
+    from ament_index_python.packages import PackageNotFoundError, get_package_prefix
+
+    try:
+        return get_package_prefix(package)
+    except (PackageNotFoundError, OSError, LookupError):
+        marker = Path(sys.prefix, "share", "ament_index", "resource_index", "packages", package)
+        if marker.is_file():
+            return sys.prefix
+        raise LaunchError(
+            f"package {package!r} not found (AMENT_PREFIX_PATH, {sys.prefix})"
+        ) from None
+
+
+def substitute(text: str, variables: Mapping[str, str]) -> str:
+    """``text`` with its ``$(...)`` substitutions resolved (module docstring)."""
+
+    def one(match: re.Match[str]) -> str:
+        kind, args = match.group(1), match.group(2).split()
+        if kind == "var" and len(args) == 1:
+            if args[0] not in variables:
+                raise LaunchError(f"$(var {args[0]}): no such launch argument")
+            return variables[args[0]]
+        if kind == "env" and len(args) in (1, 2):
+            value = os.environ.get(args[0], args[1] if len(args) == 2 else None)
+            if value is None:
+                raise LaunchError(f"$(env {args[0]}): not set and no default")
+            return value
+        if kind == "find-pkg-prefix" and len(args) == 1:
+            return package_prefix(args[0])
+        if kind == "find-pkg-share" and len(args) == 1:
+            return os.path.join(package_prefix(args[0]), "share", args[0])
+        raise LaunchError(f"unsupported substitution $({match.group(1)}{match.group(2)})")
+
+    return _SUBSTITUTION.sub(one, text)
+
+
+def _resolve(value: Any, variables: Mapping[str, str]) -> Any:
+    """Substitute in a string; a whole-string substitution is then read as a YAML scalar (so
+    ``value: $(var duration)`` gives a float), as launch does for parameter values."""
+    if isinstance(value, str):
+        out = substitute(value, variables)
+        if out != value:
+            with contextlib.suppress(yaml.YAMLError):
+                return yaml.safe_load(out) if out.strip() else out
+        return out
+    if isinstance(value, list):
+        return [_resolve(v, variables) for v in value]
+    return value
+
+
+def _entries(doc: Any, path: str) -> list[tuple[str, dict]]:
+    if not isinstance(doc, dict) or set(doc) != {"launch"} or not isinstance(doc["launch"], list):
+        raise LaunchError(f"{path}: a YAML launch file is one mapping 'launch:' with a list")
+    out = []
+    for item in doc["launch"]:
+        if not isinstance(item, dict) or len(item) != 1:
+            raise LaunchError(f"{path}: each launch entry is one tag, got {item!r}")
+        ((tag, body),) = item.items()
+        if not isinstance(body, dict):
+            raise LaunchError(f"{path}: '{tag}' needs a mapping, got {body!r}")
+        out.append((str(tag), body))
+    return out
+
+
+def _check_keys(tag: str, body: dict, allowed: set[str]) -> None:
+    unknown = sorted(set(body) - allowed)
+    if unknown:
+        raise LaunchError(f"'{tag}': unsupported key(s) {unknown} (supported: {sorted(allowed)})")
+
+
+def _node(body: dict, variables: Mapping[str, str]) -> LaunchNode:
+    _check_keys("node", body, _NODE_KEYS)
+    for key in ("pkg", "exec"):
+        if key not in body:
+            raise LaunchError(f"'node' needs '{key}'")
+    text = {
+        k: str(_resolve(body[k], variables))
+        for k in ("pkg", "exec", "name", "namespace")
+        if k in body
+    }
+    output = str(body.get("output", "log"))
+    if output not in ("screen", "log"):
+        raise LaunchError(f"'node' output {output!r}: screen or log")
+    on_exit = body.get("on_exit")
+    if on_exit not in (None, "shutdown"):
+        raise LaunchError(f"'node' on_exit {on_exit!r}: only 'shutdown' is supported")
+    parameters: list[tuple[str, Any]] = []
+    for entry in body.get("param") or []:
+        if isinstance(entry, dict) and set(entry) == {"from"}:
+            parameters.append(("file", str(_resolve(entry["from"], variables))))
+        elif isinstance(entry, dict) and set(entry) == {"name", "value"}:
+            parameters.append((str(entry["name"]), _resolve(entry["value"], variables)))
+        else:
+            raise LaunchError(f"'param' entry {entry!r}: {{from: FILE}} or {{name: N, value: V}}")
+    remaps = []
+    for entry in body.get("remap") or []:
+        if not isinstance(entry, dict) or set(entry) != {"from", "to"}:
+            raise LaunchError(f"'remap' entry {entry!r}: {{from: A, to: B}}")
+        remaps.append(
+            (str(_resolve(entry["from"], variables)), str(_resolve(entry["to"], variables)))
+        )
+    ros_args = substitute(str(body.get("ros_args", "")), variables).split()
+    return LaunchNode(
+        package=text["pkg"],
+        executable=text["exec"],
+        name=text.get("name"),
+        namespace=text.get("namespace"),
+        output=output,
+        parameters=tuple(parameters),
+        remaps=tuple(remaps),
+        ros_args=tuple(ros_args),
+        shutdown_on_exit=on_exit == "shutdown",
+    )
+
+
+def load_launch_file(
+    path: str | os.PathLike, arguments: Mapping[str, str] | None = None
+) -> LaunchDescription:
+    """Parse a YAML launch file with ``arguments`` (``name → value``) for its ``arg`` entries."""
+    path = os.fspath(path)
+    try:
+        with open(path, encoding="utf-8") as fh:
+            doc = yaml.safe_load(fh)
+    except OSError as exc:
+        raise LaunchError(f"cannot read {path}: {exc.strerror}") from None
+    except yaml.YAMLError as exc:
+        raise LaunchError(f"{path}: not YAML: {exc}") from None
+    given = dict(arguments or {})
+    variables: dict[str, str] = {}
+    nodes = []
+    declared = set()
+    for tag, body in _entries(doc, path):
+        if tag == "arg":
+            _check_keys("arg", body, _ARG_KEYS)
+            name = str(body.get("name", ""))
+            if not name:
+                raise LaunchError("'arg' needs a name")
+            declared.add(name)
+            if name in given:
+                variables[name] = given[name]
+            elif "default" in body:
+                variables[name] = substitute(str(body["default"]), variables)
+            else:
+                raise LaunchError(f"launch argument '{name}' has no default: give {name}:=VALUE")
+        elif tag == "node":
+            nodes.append(_node(body, variables))
+        else:
+            raise LaunchError(f"unsupported launch tag '{tag}' (supported: arg, node)")
+    unknown = sorted(set(given) - declared)
+    if unknown:
+        raise LaunchError(f"unknown launch argument(s) {unknown} (declared: {sorted(declared)})")
+    return LaunchDescription(arguments=variables, nodes=tuple(nodes))
+
+
+def node_fqn(node: LaunchNode) -> str:
+    """The node's fully qualified name as a parameter file keys it (``/**`` without a name)."""
+    if not node.name:
+        return "/**"
+    namespace = (node.namespace or "").strip("/")
+    return "/" + "/".join(p for p in (namespace, node.name) if p)
+
+
+def node_command(node: LaunchNode, params_dir: str | os.PathLike) -> list[str]:
+    """The command line of a node, as ``ros2 run PKG EXE --ros-args ...`` would run it.
+
+    Parameters keep their order as launch_ros keeps it: each run of ``{name, value}`` entries
+    becomes a parameter file of its own (keyed by the node's name, written into
+    ``params_dir``), passed with ``--params-file`` between the ``from`` files, so a later entry
+    overrides an earlier one (a ``-p`` would lose against a file's node section)."""
+    from ffmpc_ros.graph_nodes import nested_parameters
+
+    exe = os.path.join(package_prefix(node.package), "lib", node.package, node.executable)
+    if not (os.path.isfile(exe) and os.access(exe, os.X_OK)):
+        raise LaunchError(f"no executable {node.executable!r} in package {node.package!r} ({exe})")
+    args = ["--ros-args"]
+    if node.name:
+        args += ["-r", f"__node:={node.name}"]
+    if node.namespace:
+        args += ["-r", f"__ns:={node.namespace}"]
+    groups: list[tuple[str, Any]] = []  # ("file", path) or ("values", {name: value})
+    for name, value in node.parameters:
+        if name == "file":
+            groups.append(("file", value))
+        elif groups and groups[-1][0] == "values":
+            groups[-1][1][name] = value
+        else:
+            groups.append(("values", {name: value}))
+    for i, (kind, item) in enumerate(groups):
+        if kind == "values":
+            path = os.path.join(params_dir, f"{node.label}_{i}.yaml")
+            with open(path, "w", encoding="utf-8") as fh:
+                tree = {node_fqn(node): {"ros__parameters": nested_parameters(item)}}
+                yaml.safe_dump(tree, fh, sort_keys=False)
+            item = path
+        args += ["--params-file", item]
+    for source, target in node.remaps:
+        args += ["-r", f"{source}:={target}"]
+    return [exe, *args, *node.ros_args]
+
+
+def _die_with_parent() -> None:
+    """In a child before exec: SIGINT when the launcher dies (no orphan node)."""
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGINT, 0, 0, 0)  # PR_SET_PDEATHSIG
+
+
+def run_launch(
+    description: LaunchDescription,
+    *,
+    log_dir: str | os.PathLike,
+    out: IO[str] | None = None,
+    timeout: float | None = None,
+) -> int:
+    """Run every node; return the exit code of the launch (module docstring).
+
+    Args:
+        log_dir: each node's output goes to ``<log_dir>/<name>.log`` (and to ``out`` for
+            ``output: screen``, each line prefixed ``[name]``); the parameter files of the
+            ``{name, value}`` entries are written there too.
+        out: where screen output goes (default: stdout).
+        timeout: wall-time limit, s (None: none); past it every node is stopped, exit 124.
+    """
+    out = out or sys.stdout
+    Path(log_dir).mkdir(parents=True, exist_ok=True)
+    commands = [(node, node_command(node, log_dir)) for node in description.nodes]
+    labels = [node.label for node in description.nodes]
+    if len(set(labels)) != len(labels):
+        raise LaunchError(f"two nodes share a name: {labels}")
+    stop: list[int] = []
+    previous = {
+        s: signal.signal(s, lambda signum, _frame: stop.append(signum))
+        for s in (signal.SIGINT, signal.SIGTERM)
+    }
+    selector = selectors.DefaultSelector()
+    children: dict[str, subprocess.Popen] = {}
+    logs: dict[str, IO[str]] = {}
+    code = 0
+    try:
+        for node, command in commands:
+            logs[node.label] = open(  # noqa: SIM115  (closed below)
+                os.path.join(log_dir, f"{node.label}.log"), "w", encoding="utf-8"
+            )
+            child = subprocess.Popen(
+                command,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT,
+                text=True,
+                bufsize=1,
+                preexec_fn=_die_with_parent,  # noqa: PLW1509  (no threads here)
+            )
+            children[node.label] = child
+            assert child.stdout is not None
+            selector.register(child.stdout, selectors.EVENT_READ, node)
+            print(f"[launch] started {node.label} (pid {child.pid})", file=out, flush=True)
+        end = None if timeout is None else time.monotonic() + timeout
+        running = dict(children)
+        while running and not stop:
+            for key, _ in selector.select(timeout=0.1):
+                node = key.data
+                line = key.fileobj.readline()  # type: ignore[union-attr]
+                if not line:
+                    selector.unregister(key.fileobj)
+                    continue
+                logs[node.label].write(line)
+                if node.output == "screen":
+                    print(f"[{node.label}] {line}", end="", file=out, flush=True)
+            for node in description.nodes:
+                child = running.get(node.label)
+                if child is None or child.poll() is None:
+                    continue
+                del running[node.label]
+                print(f"[launch] {node.label} exited with {child.returncode}", file=out, flush=True)
+                if child.returncode != 0 or node.shutdown_on_exit:
+                    code = child.returncode
+                    running.clear()
+                    break
+            if end is not None and time.monotonic() > end:
+                print(f"[launch] time limit {timeout} s: stopping", file=out, flush=True)
+                code = 124
+                break
+        if stop:
+            code = 128 + stop[0]
+    finally:
+        _stop(children)
+        for child in children.values():
+            if child.stdout is not None:
+                rest = child.stdout.read()
+                label = next(k for k, v in children.items() if v is child)
+                logs[label].write(rest)
+                child.stdout.close()
+        for fh in logs.values():
+            fh.close()
+        selector.close()
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    return code
+
+
+def _stop(children: Mapping[str, subprocess.Popen]) -> None:
+    """SIGINT every running node, then SIGKILL what is still there after STOP_TIMEOUT."""
+    for child in children.values():
+        if child.poll() is None:
+            with contextlib.suppress(ProcessLookupError):
+                child.send_signal(signal.SIGINT)
+    end = time.monotonic() + STOP_TIMEOUT
+    for child in children.values():
+        try:
+            child.wait(timeout=max(0.0, end - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.wait()
+
+
+def parse_launch_arguments(items: Sequence[str]) -> dict[str, str]:
+    """``name:=value`` items (as ``ros2 launch`` takes them)."""
+    out = {}
+    for item in items:
+        name, sep, value = item.partition(":=")
+        if not sep or not name:
+            raise LaunchError(f"launch argument {item!r}: expected NAME:=VALUE")
+        out[name] = value
+    return out
+
+
+def find_launch_file(name: str, package: str = "ffmpc_ros") -> str:
+    """A path as given, or a file name under ``share/<package>/launch`` (as ``ros2 launch PKG
+    FILE`` finds it)."""
+    if os.path.sep in name or os.path.isfile(name):
+        return name
+    path = os.path.join(package_prefix(package), "share", package, "launch", name)
+    if not os.path.isfile(path):
+        raise LaunchError(f"no launch file {name!r} in {os.path.dirname(path)}")
+    return path
+
+
+def add_launch_parser(sub: argparse._SubParsersAction) -> None:
+    """``ffmpc launch FILE [name:=value ...]``."""
+    p = sub.add_parser(
+        "launch",
+        help="run a ROS 2 YAML launch file (a subset of ros2 launch; no launch_ros needed)",
+        description=__doc__.split("\n\n")[1] if __doc__ else None,
+    )
+    p.add_argument("file", help="a .launch.yaml path, or a file name in share/ffmpc_ros/launch")
+    p.add_argument("arguments", nargs="*", metavar="NAME:=VALUE", help="launch arguments")
+    p.add_argument("--log-dir", help="the nodes' log files (default: a new temporary directory)")
+    p.add_argument("--timeout", type=float, default=None, help="wall-time limit, s")
+    p.add_argument("--show-args", action="store_true", help="print the arguments and exit")
+    p.set_defaults(func=_cmd_launch)
+
+
+def _cmd_launch(args: argparse.Namespace) -> int:
+    import tempfile
+
+    path = find_launch_file(args.file)
+    description = load_launch_file(path, parse_launch_arguments(args.arguments))
+    if args.show_args:
+        for name, value in description.arguments.items():
+            print(f"{name}:={value}")
+        return 0
+    log_dir = args.log_dir or tempfile.mkdtemp(prefix="ffmpc_launch_")
+    print(f"[launch] {path}: {len(description.nodes)} nodes, logs in {log_dir}", flush=True)
+    return run_launch(description, log_dir=log_dir, timeout=args.timeout)
