@@ -17,6 +17,14 @@ rejection and per :data:`LOG_THROTTLE` seconds (wall time), and counts every rej
 
 Fixed at start. Every node runs on the plant's ``/clock``: ``use_sim_time`` is forced true at
 construction and a later change is refused with a reason (the other parameters are read-only).
+
+Diagnostics. Every node publishes ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``, the
+topic ``diagnostic_aggregator`` and ``rqt_robot_monitor`` read) every
+:data:`DIAGNOSTICS_PERIOD` s of wall time: one status named after the node, with the rate of
+each input it accepted over the period (Hz, wall time), its rejections (total and in the
+period) and what :meth:`StudyNode.diagnostic_values` adds (the MPC's solve times, the PID's
+mode); level WARN when an input was rejected in the period, ERROR for what
+:meth:`StudyNode.diagnostic_problems` reports (the PID in its safe hold, a failed solve).
 """
 
 from __future__ import annotations
@@ -34,7 +42,9 @@ from typing import Any
 import numpy as np
 import rclpy
 from builtin_interfaces.msg import Time as TimeMsg
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -42,6 +52,7 @@ from rclpy.parameter import Parameter
 
 from ffmpc_core.errors import FfmpcError, InputError
 from ffmpc_core.scenario import Scenario
+from ffmpc_ros import topics
 from ffmpc_ros.discovery import ensure_local_discovery
 from ffmpc_ros.params import NODE_SPECS, declare_node_parameters, scenario_from_parameters
 from ffmpc_ros.topics import WRENCH_FRAME
@@ -56,6 +67,10 @@ GRID_TOLERANCE_NS = 1000
 MAX_FUTURE_STAMP = 0.01
 #: Start of the line a node executable prints on stderr at exit: its rejections as JSON.
 REJECTED_MARKER = "ffmpc-rejected: "
+#: Wall time between two /diagnostics reports of a node, s (1 Hz, as diagnostic_updater).
+DIAGNOSTICS_PERIOD = 1.0
+#: The standard diagnostics topic (absolute: the aggregator listens there).
+DIAGNOSTICS_TOPIC = topics.DIAGNOSTICS
 
 
 class StudyNode(Node):
@@ -98,6 +113,14 @@ class StudyNode(Node):
         self._last_cycle: dict[str, int] = {}
         self.max_input_age = float(self.params.get("max_input_age", math.inf))
         self.add_on_set_parameters_callback(self._refuse_fixed_parameters)
+        self.accepted: Counter[str] = Counter()  # accepted inputs per topic
+        self._diagnosed = (time.monotonic(), Counter[str](), 0)  # (wall s, accepted, rejected)
+        self._pub_diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
+        self._diagnostics_timer = self.create_timer(
+            DIAGNOSTICS_PERIOD,
+            self.publish_diagnostics,
+            clock=Clock(clock_type=ClockType.STEADY_TIME),
+        )
 
     def _refuse_fixed_parameters(self, parameters: Sequence[Parameter]) -> SetParametersResult:
         """Refuse a run-time change of ``use_sim_time`` (the graph's one clock is /clock)."""
@@ -197,6 +220,54 @@ class StudyNode(Node):
 
     def accept_cycle(self, topic: str, k: int) -> None:
         self._last_cycle[topic] = k
+        self.accepted[topic] += 1
+
+    # -- diagnostics -------------------------------------------------------------------------
+    def diagnostic_values(self, period: float) -> dict[str, str]:
+        """Node-specific values of the diagnostics report over the last ``period`` wall s."""
+        return {}
+
+    def diagnostic_problems(self) -> list[str]:
+        """Node-specific faults now (each makes the report an ERROR)."""
+        return []
+
+    def diagnostic_status(self) -> DiagnosticStatus:
+        """This node's status since the previous report (module docstring) and a new period."""
+        now = time.monotonic()
+        since, accepted, rejected = self._diagnosed
+        period = max(now - since, 1e-9)
+        total = sum(self.rejected.values())
+        self._diagnosed = (now, Counter(self.accepted), total)
+        values = {
+            f"input_rate_hz {topic}": f"{(n - accepted[topic]) / period:.1f}"
+            for topic, n in sorted(self.accepted.items())
+        }
+        values["rejected_total"] = str(total)
+        values["rejected_in_period"] = str(total - rejected)
+        values["period_s"] = f"{period:.3f}"
+        values.update(self.diagnostic_values(period))
+        problems = self.diagnostic_problems()
+        if problems:
+            level, message = DiagnosticStatus.ERROR, "; ".join(problems)
+        elif total > rejected:
+            kinds = ", ".join(sorted(self.rejected))
+            level, message = DiagnosticStatus.WARN, f"{total - rejected} inputs rejected ({kinds})"
+        else:
+            level, message = DiagnosticStatus.OK, "ok"
+        return DiagnosticStatus(
+            level=level,
+            name=self.get_fully_qualified_name(),
+            message=message,
+            hardware_id="ffmpc",
+            values=[KeyValue(key=k, value=v) for k, v in values.items()],
+        )
+
+    def publish_diagnostics(self) -> None:
+        """Publish :meth:`diagnostic_status` on /diagnostics (stamped with this node's clock)."""
+        msg = DiagnosticArray()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.status = [self.diagnostic_status()]
+        self._pub_diagnostics.publish(msg)
 
     def receive(self, topic: str, msg, parse: Callable[[Any], Any]) -> tuple[int, Any] | None:
         """Check the stamp of ``msg``, parse it, accept its cycle: ``(k, parse(msg))``, or None

@@ -63,6 +63,7 @@ class MpcNode(StudyNode):
         self._last_solve: int | None = None
         self.sequence = 0
         self.solve_times: list[float] = []
+        self._diagnosed_solves = (0, 0)  # (solves, failed solves) at the last report
         self.lockstep = bool(self.params["lockstep"])
         if not self.lockstep:
             self.warm_up()
@@ -282,6 +283,21 @@ class MpcNode(StudyNode):
             )
         )
         self.sequence += 1
+
+    def diagnostic_values(self, period: float) -> dict[str, str]:
+        """Solves over the period: rate (Hz, wall), median and max solve time (ms, wall)."""
+        new = self.solve_times[self._diagnosed_solves[0] :]
+        values = {"solves": str(len(self.solve_times)), "solve_rate_hz": f"{len(new) / period:.1f}"}
+        if new:
+            values["solve_time_p50_ms"] = f"{1e3 * float(np.median(new)):.3f}"
+            values["solve_time_max_ms"] = f"{1e3 * max(new):.3f}"
+        return values
+
+    def diagnostic_problems(self) -> list[str]:
+        """Solves that failed since the previous report (their ticks got no command)."""
+        failed = self.rejected["solve"] - self._diagnosed_solves[1]
+        self._diagnosed_solves = (len(self.solve_times), self.rejected["solve"])
+        return [f"{failed} solves failed"] if failed else []
 
 
 def main(argv=None) -> int:

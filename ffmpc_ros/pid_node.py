@@ -33,7 +33,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from ffmpc_core.errors import InputError
-from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement
+from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement, LowLevelMode
 from ffmpc_core.robots import load_robot
 from ffmpc_core.study import lowlevel_controller, measured_force, steps_per_mpc_period
 from ffmpc_ros import layouts, topics
@@ -218,6 +218,20 @@ class PidNode(StudyNode):
                 }
             )
         )
+
+    def diagnostic_values(self, period: float) -> dict[str, str]:
+        """The loop's mode (hold, blend, track, fallback) and MPC command age (s, simulated)."""
+        out = self.last_output
+        if out is None:
+            return {"mode": "none (no cycle yet)"}
+        return {"mode": out.mode.name.lower(), "command_age_s": f"{out.command_age:.4f}"}
+
+    def diagnostic_problems(self) -> list[str]:
+        """The safe hold after the MPC went stale or failed (FALLBACK)."""
+        out = self.last_output
+        if out is not None and out.mode == LowLevelMode.FALLBACK:
+            return [f"safe hold: no fresh MPC command (age {out.command_age:.4f} s)"]
+        return []
 
 
 def main(argv=None) -> int:

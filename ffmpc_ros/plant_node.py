@@ -190,6 +190,10 @@ class PlantNode(StudyNode):
     def finished(self) -> bool:
         return False  # keeps serving its transient-local history until shut down
 
+    def diagnostic_values(self, period: float) -> dict[str, str]:
+        """The plant's cycle and simulated time (s)."""
+        return {"cycle": str(self.k), "sim_time_s": f"{self.t_of(self.k):.3f}"}
+
     # -- stepping -------------------------------------------------------------------------------
     def on_motor(self, msg: JointState) -> None:
         topic = topics.MOTOR_TORQUE

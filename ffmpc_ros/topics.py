@@ -32,6 +32,9 @@ DESIRED_TORQUE = "/pid/desired_torque"
 LOWLEVEL_STATUS = "/pid/status"
 METRICS_SUMMARY = "/metrics/summary"
 METRICS_READY = "/metrics/ready"
+#: Every node's status once a second (wall), diagnostic_msgs/DiagnosticArray; absolute, as the
+#: diagnostic aggregator expects. Outside TOPICS: not part of the control chain's contract.
+DIAGNOSTICS = "/diagnostics"
 
 #: The frame of every wrench: origin at the robot's ``contact`` frame, axes of ``world``
 #: (pinocchio's LOCAL_WORLD_ALIGNED); the moment is about the contact frame origin.

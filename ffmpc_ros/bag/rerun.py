@@ -62,7 +62,9 @@ WALL_TIME_FIELDS: dict[str, tuple[str, ...]] = {
         "deadline_misses",
     ),
 }
-_IGNORED_TOPICS = ("/rosout", "/parameter_events", topics.CLOCK)
+#: Not outputs of a node's computation: logs, parameter events, the clock, and /diagnostics
+#: (a status report on the wall clock, DIAGNOSTICS_PERIOD apart).
+_IGNORED_TOPICS = ("/rosout", "/parameter_events", topics.CLOCK, topics.DIAGNOSTICS)
 _LAYOUTS_BY_LABEL = {layout.label: layout for layout in layouts.LAYOUTS.values()}
 
 
