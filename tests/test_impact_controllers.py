@@ -1,4 +1,4 @@
-"""The impact experiment's controller objects (ffmpc_core.impact.controllers).
+"""The impact experiment's controller objects (ffmpc_core.impact.controllers, .exploration).
 
 Plants: a spring along d for the admittance task; the Panda's rigid-body dynamics (pinocchio
 ABA, semi-implicit Euler at 1 kHz) above a spring-damper surface for the whole task.
@@ -25,7 +25,11 @@ from ffmpc_core.impact.controllers import (
     contact_measurement,
 )
 from ffmpc_core.impact.deformation import SoftMaterial
-from ffmpc_core.impact.learner import RecursiveContactLearner
+from ffmpc_core.impact.exploration import (
+    ExplorationController,
+    ExplorationControllerConfig,
+)
+from ffmpc_core.impact.learner import RecursiveContactLearner, exploration_reference
 from ffmpc_core.impact.limits import joint_limits
 from ffmpc_core.impact.task_space import JointLimitGuard, JointLimitGuardConfig
 from ffmpc_core.robots import load_robot
@@ -218,3 +222,76 @@ def test_impact_task_config_refuses_missing_parts():
         ContactMeasurement(
             np.zeros(7), np.zeros(7), np.full(3, np.nan), np.eye(3), 0.0, 0.0, np.zeros(6)
         )
+
+
+def _exploration_run(controller: ExplorationController, robot, gap: float, material):
+    """The Panda (ABA, 1 kHz) ``gap`` m above a spring-damper surface until the motion ends."""
+    model, data, fid = robot.model, robot.create_data(), robot.contact_frame_id
+    q, v = robot.q_nominal.copy(), np.zeros(robot.nv)
+    surface = robot.contact_placement(q).translation[2] - gap
+    lwa = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+    commands = []
+    for k in range(20000):
+        pin.forwardKinematics(model, data, q, v)
+        pin.updateFramePlacements(model, data)
+        z = surface - data.oMf[fid].translation[2]
+        zd = -pin.getFrameVelocity(model, data, fid, lwa).linear[2]
+        f = max(0.0, material.stiffness * z + material.damping * zd) if z > 0 else 0.0
+        wrench = np.concatenate([-f * DOWN, np.zeros(3)])
+        command = controller.step(contact_measurement(robot, data, q, v, wrench, DOWN), k * DT)
+        commands.append(command)
+        if command.done:
+            return commands, surface
+        J = pin.computeFrameJacobian(model, data, q, fid, lwa)
+        qdd = pin.aba(model, data, q, v, command.torque + J[:3].T @ wrench[:3])
+        v = v + qdd * DT
+        q = pin.integrate(model, q, v * DT)
+    raise AssertionError("the exploration never ended")
+
+
+def test_exploration_controller_finds_the_surface_and_learns_the_material(robot):
+    material = SoftMaterial(3000.0, 20.0, 0.03)
+    gap = 0.002
+    config = ExplorationControllerConfig(
+        reference=exploration_reference(
+            0.03, dt=DT, sine_cycles=1, impact_velocities=np.array([0.15]), dwell=0.1
+        ),
+        start_height=robot.contact_placement(robot.q_nominal).translation[2],
+        guard=JointLimitGuardConfig(dt=DT, margin=0.9),
+        start_clearance=gap,
+        approach_speed=0.005,
+        prior_stiffness=3000.0,
+        prior_damping=20.0,
+    )
+    controller = ExplorationController(robot, joint_limits(robot), config)
+    commands, surface = _exploration_run(controller, robot, gap, material)
+    assert controller.surface is not None
+    # the surface is the last force-free sample: at most one approach step above the truth
+    assert 0.0 <= controller.surface[2] - surface <= 0.005 * DT + 1e-6
+    phases = {c.phase for c in commands}
+    assert phases == {-1, 0, 1}
+    est = controller.learner.estimate()
+    assert est.stiffness == pytest.approx(3000.0, rel=0.02)
+    assert est.damping == pytest.approx(20.0, rel=0.1)
+    # the impact's first in-contact sample is not fed (the force is partial in that step)
+    onsets = [c for c in commands if c.onset]
+    assert len(onsets) == 1 and onsets[0].phase == 1 and not onsets[0].fed
+    controller.reset()
+    assert controller.surface is None and controller.learner.samples == 0
+    again, _ = _exploration_run(controller, robot, gap, material)
+    assert len(again) == len(commands)
+    for a, b in zip(commands[:500], again[:500], strict=True):
+        np.testing.assert_array_equal(a.torque, b.torque)
+
+
+def test_exploration_controller_refuses_a_start_in_contact(robot):
+    config = ExplorationControllerConfig(
+        reference=exploration_reference(0.03, dt=DT, sine_cycles=1),
+        start_height=0.5,
+        guard=JointLimitGuardConfig(dt=DT),
+    )
+    controller = ExplorationController(robot, joint_limits(robot), config)
+    m = _static_measurement(robot, robot.q_nominal)
+    pressed = ContactMeasurement(m.q, m.v, m.position, m.rotation, 0.0, 5.0, np.zeros(6))
+    with pytest.raises(ConfigError, match="in contact at the start"):
+        controller.step(pressed, 0.0)
