@@ -3,11 +3,11 @@
 ``ffmpc study explore``: the Panda explores a soft object whose TRUE stiffness and damping are
 set in PyBullet, and the recursive learner (eq 19–21) recovers them online.
 
-Set-up (reused from :mod:`sim_bridge.impact_study`): the object is a fixed 0.16 m cube
-(:class:`~sim_bridge.impact_study.DiceConfig`, Bullet mass 0) touched by the plant's spherical
+Set-up (reused from :mod:`studies.impact_study`): the object is a fixed 0.16 m cube
+(:class:`~studies.impact_study.DiceConfig`, Bullet mass 0) touched by the plant's spherical
 tool at one contact point, so the force is exactly the box's ``k·depth + d·rate``: the values
 the learner must find are the ones set in PyBullet. The tool starts ``start_clearance`` above
-the top face in :func:`~sim_bridge.impact_study.start_configuration` (tool pointing down).
+the top face in :func:`~studies.impact_study.start_configuration` (tool pointing down).
 The tool sphere has a 4 cm radius (:data:`TOOL_RADIUS`, the plant's default is 1 cm) so that
 its centre stays above the surface for any z ≤ z̄ ≤ 3 cm. Measured with the 1 cm sphere: once
 its centre was below the surface (z = 11–11.7 mm), Bullet's persistent contact manifold held a
@@ -67,7 +67,7 @@ material expected; ``ffmpc_core.impact.deformation.one_step_impact_force``); aft
 learned model predicts the next force increase, ``α̂ (z + ż Δt) + β̂ ż − f``
 (``ffmpc_core.impact.deformation.predicted_force_increase``), with the friction force of a
 sticking contact added (:func:`sticking_contact_force`). Violations are counted against
-the full data-sheet limits (:func:`~sim_bridge.impact_study.count_limit_violations`).
+the full data-sheet limits (:func:`~studies.impact_study.count_limit_violations`).
 
 Signs: ``d = (0, 0, −1)``; ``f`` is the world-z component of the force the object exerts on the
 tool (N, > 0 when pressing); ``z`` > 0 inside the object (m), ``ż`` > 0 moving in (m/s).
@@ -102,14 +102,14 @@ from ffmpc_core.impact.limits import joint_limits
 from ffmpc_core.impact.task_space import JointLimitGuardConfig, TaskSpaceGains
 from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_core.scenario import ConfigSchema, FieldDecl
-from sim_bridge.impact_study import (
+from sim_bridge.plant import Plant, PlantConfig, ToolConfig
+from studies.impact_study import (
     DOWN,
     DiceConfig,
     LimitViolations,
     count_limit_violations,
     start_configuration,
 )
-from sim_bridge.plant import Plant, PlantConfig, ToolConfig
 
 __all__ = [
     "MATERIALS",
