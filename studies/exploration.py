@@ -16,7 +16,8 @@ sine period and one 0.2 m/s impact). The run logs the number of contact points p
 (``log["contact_points"]``); with the 4 cm sphere it never exceeded 1 in any run. The paper's
 end-effector is a flat disc 0.13 m across: a larger sphere is also closer to it.
 
-Procedure:
+Procedure (the controller is :class:`~ffmpc_core.impact.exploration.ExplorationController`;
+this module runs the plant, logs and takes the checkpoints):
 
 1. **Guarded approach** at ``approach_speed`` until the measured force reaches
    ``contact_threshold``. The surface is the contact-frame position at the LAST FORCE-FREE

@@ -31,13 +31,17 @@ Setup (``ffmpc study impact``):
   learned interval. ``prior``: the paper's scheme with the prior taken as the truth (a dice
   softer than the prior then goes past z̄, a stiffer one beyond the planned force).
 
-Runs (approach × regulation):
+Runs (approach × regulation). Every controller is an object of
+:mod:`ffmpc_core.impact.controllers`; :class:`~ffmpc_core.impact.controllers.
+ImpactTaskController` composes them (built by :func:`task_config` from the study's
+configuration); this module only runs the plant, logs and summarises:
 
 * approach ``maximal``: :class:`~ffmpc_core.impact.control.ImpactController` (Sec. IV-C): every
   cycle (or every ``replan_period``) map the joint limits to the contact space (eq 9–11), solve
   eq 14 for the maximal safe pre-impact velocity and track it; contact is declared at 2 N.
 * approach ``baseline`` (the paper's comparison): the contact location as a static target. A
-  critically damped second-order reference (natural frequency ω, 5 rad/s) towards a point
+  critically damped second-order reference (:class:`~ffmpc_core.impact.controllers.
+  BaselineApproach`, natural frequency ω, 5 rad/s) towards a point
   ``baseline_target_depth`` (5 mm) below the dice's top face, its acceleration saturated at the
   contact-space acceleration bound of eq 10–11, tracked by the same task-space law. Both
   approaches start at that acceleration bound; the baseline, knowing where the dice is, then
@@ -47,8 +51,10 @@ Runs (approach × regulation):
   threshold; a target exactly on the surface is approached asymptotically, never detected).
 * regulation ``admittance`` (the paper): after contact the admittance force controller of
   :class:`~ffmpc_core.impact.control.AdmittanceForceController` drives the position reference to
-  60 N (inside ImpactController for the maximal approach; the same update law for the baseline).
-* regulation ``ff_mpc`` (beyond the paper): the force-feedback MPC
+  60 N (inside ImpactController for the maximal approach; the same update law,
+  :class:`~ffmpc_core.impact.controllers.AdmittanceRegulator`, for the baseline).
+* regulation ``ff_mpc`` (beyond the paper,
+  :class:`~ffmpc_core.impact.controllers.ForceFeedbackHandover`): the force-feedback MPC
   (:class:`~ffmpc_core.mpc.ModelPredictiveController`, visco-elastic contact in the state) with
   the task "press 60 N where you are" (:class:`~ffmpc_core.tasks.PressTask`). It takes over
   once the impact is absorbed: in contact, when the tool moves into the dice no faster than the
@@ -143,6 +149,7 @@ __all__ = [
     "run_impact",
     "run_impact_study",
     "start_configuration",
+    "task_config",
     "time_to_steady_force",
 ]
 
