@@ -54,10 +54,10 @@ test: $(STAMP) $(NATIVE)
 	$(BIN)/python -m pytest -q $(PYTEST_ARGS)
 
 lint: $(STAMP)
-	$(BIN)/ruff check ffmpc_core sim_bridge ffmpc_ros tests benchmarks
-	$(BIN)/python tests/layer_check.py  # layers ffmpc_core <- sim_bridge <- ffmpc_ros, no cycles
-	$(BIN)/ruff format --check ffmpc_core sim_bridge ffmpc_ros tests benchmarks
-	$(BIN)/mypy  # ffmpc_core and sim_bridge, configured in pyproject.toml [tool.mypy]
+	$(BIN)/ruff check ffmpc_core sim_bridge studies ffmpc_ros tests benchmarks
+	$(BIN)/python tests/layer_check.py  # ffmpc_core <- sim_bridge <- studies <- ffmpc_ros, no cycles
+	$(BIN)/ruff format --check ffmpc_core sim_bridge studies ffmpc_ros tests benchmarks
+	$(BIN)/mypy  # ffmpc_core, sim_bridge and studies, configured in pyproject.toml [tool.mypy]
 
 bench: $(STAMP) $(NATIVE)
 	$(BIN)/ffmpc bench mpc

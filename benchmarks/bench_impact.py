@@ -1,5 +1,5 @@
 """Timing of the impact planner cycle: the same as ``ffmpc bench impact`` (the logic lives in
-:mod:`sim_bridge.bench_impact`). Usage:
+:mod:`studies.bench_impact`). Usage:
 
     python benchmarks/bench_impact.py [--cycles 1000] [--warmup 50] [--sim-duration 1.2]
                                       [--json FILE]
@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from sim_bridge.bench_impact import run_bench_impact
+from studies.bench_impact import run_bench_impact
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -16,7 +16,7 @@ import argparse
 import statistics
 import time
 
-from sim_bridge.study import execute_specs, grid_specs
+from studies.study import execute_specs, grid_specs
 
 FORMULATIONS = ("classical", "torque_feedback", "force_feedback")
 #: Summary entries that are wall-clock measurements, not results.

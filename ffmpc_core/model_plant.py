@@ -30,6 +30,7 @@ from ffmpc_core.mpc import (
     OcpNode,
     Schedule,
 )
+from ffmpc_core.plant import Plant
 from ffmpc_core.robots import RobotModel
 
 if TYPE_CHECKING:
@@ -55,7 +56,8 @@ class ContactSchedule(Schedule, Protocol):
 
 
 class ModelPlant:
-    """One formulation's dynamics as a simulated plant.
+    """One formulation's dynamics as a simulated plant (the :class:`~ffmpc_core.plant.Plant`
+    shape, state :class:`~ffmpc_core.mpc.MpcMeasurement`).
 
     Args:
         robot: robot model.
@@ -118,9 +120,15 @@ class ModelPlant:
             self._data = self._node.model.createData()
         self._in_contact = in_contact
 
-    def step(self, control: np.ndarray, in_contact: bool) -> None:
-        """Integrate one step with ``control`` (τ, or w for torque-feedback), N·m."""
-        self._set_contact(in_contact)
+    def set_contact(self, in_contact: bool) -> None:
+        """Switch the contact model on (the task wants contact) or off, from the next step."""
+        self._set_contact(bool(in_contact))
+
+    def step(self, control: np.ndarray, in_contact: bool | None = None) -> None:
+        """Integrate one step with ``control`` (τ, or w for torque-feedback), N·m; with
+        ``in_contact`` (True/False) the contact model is switched first, None keeps it."""
+        if in_contact is not None:
+            self._set_contact(in_contact)
         self._node.model.calc(self._data, self.x, np.asarray(control, float))
         if self.formulation == "force_feedback":
             self.x[:] = self._data.xnext
@@ -131,7 +139,13 @@ class ModelPlant:
             self.force[:] = node.contact_force(self._data)
             self.x[:] = self._data.xnext
 
+    def state(self) -> MpcMeasurement:
+        """The state after the last step (:class:`~ffmpc_core.plant.Plant`'s shape): q rad,
+        v rad/s, the contact force N (and τ N·m for torque-feedback)."""
+        return self.measurement()
+
     def measurement(self) -> MpcMeasurement:
+        """The state as the MPC's measurement (no noise, no delay)."""
         nv = self.robot.nv
         torque = self.x[2 * nv :].copy() if self.formulation == "torque_feedback" else None
         return MpcMeasurement(
@@ -212,3 +226,8 @@ def run_model_closed_loop(
         log.ee_position.append(data.oMf[robot.contact_frame_id].translation.copy())
         log.ee_reference.append(schedule.ee_position(t + plant_dt))
     return log
+
+
+def _conforms(plant: ModelPlant) -> Plant[MpcMeasurement]:
+    """Static check (mypy): a ModelPlant is a :class:`~ffmpc_core.plant.Plant`."""
+    return plant

@@ -83,7 +83,7 @@ def _cmd_bench_mpc(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench_impact(args: argparse.Namespace) -> int:
-    from sim_bridge.bench_impact import run_bench_impact
+    from studies.bench_impact import run_bench_impact
 
     return run_bench_impact(args)
 
@@ -105,8 +105,8 @@ def _cmd_study(args: argparse.Namespace) -> int:
     if args.scheduler is not None and args.workers is not None:
         raise ConfigError("--workers and --scheduler exclude each other (a cluster has workers)")
     use_cache = not args.no_cache
-    if args.out:  # refused before any run (sim_bridge.study does not load PyBullet)
-        from sim_bridge.study import check_output_dir
+    if args.out:  # refused before any run (studies.study does not load PyBullet)
+        from studies.study import check_output_dir
 
         check_output_dir(args.out, args.force, resume=use_cache and not args.fresh)
     if args.plot_seed is not None and not (
@@ -116,7 +116,7 @@ def _cmd_study(args: argparse.Namespace) -> int:
             f"--plot-seed {args.plot_seed}: expected one of the seeds "
             f"{args.first_seed}..{args.first_seed + args.seeds - 1}"
         )
-    from sim_bridge.study import default_out_dir, grid_specs, run_study
+    from studies.study import default_out_dir, grid_specs, run_study
 
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     pid_modes = {"on": [True], "off": [False], "both": [True, False]}[args.pid]
@@ -146,7 +146,7 @@ def _cmd_study(args: argparse.Namespace) -> int:
     )
     print(report.tables)
     if kind == "force_square":
-        from sim_bridge.study import LABELS, aggregate
+        from studies.study import LABELS, aggregate
 
         for pid in pid_modes:
             maes = []
@@ -407,7 +407,7 @@ def _cmd_study_impact(args: argparse.Namespace) -> int:
 
     if args.out and os.path.exists(args.out) and not args.force:  # before importing PyBullet
         raise ConfigError(f"{args.out} exists: choose another --out or pass --force to overwrite")
-    from sim_bridge.impact_study import (
+    from studies.impact_study import (
         IMPACT_SCHEMA,
         default_out_dir,
         load_impact_config,
@@ -518,7 +518,7 @@ def _add_explore_study_parser(study_sub) -> None:
     """``ffmpc study explore``: the contact learner's exploration (Dehio & Kheddar, Sec. V-VI)."""
 
     def run(args: argparse.Namespace) -> int:
-        from sim_bridge.exploration import (
+        from studies.exploration import (
             EXPLORATION_SCHEMA,
             format_checkpoints,
             format_summary,

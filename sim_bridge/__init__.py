@@ -1,8 +1,8 @@
-"""PyBullet side of ffmpc: the simulated plant (ROS-free) and the studies run on it.
+"""PyBullet side of ffmpc: the simulated plant (ROS-free) and the closed-loop runner.
 
-The plant's names are imported on first use (``from sim_bridge import Plant``), so that
-importing a light module of the package (``sim_bridge.study``'s output-directory rule, for the
-command line's early checks) does not load PyBullet.
+The experiments run on them live one layer up, in :mod:`studies`. The plant's names are
+imported on first use (``from sim_bridge import Plant``), so that importing the package does
+not load PyBullet.
 """
 
 from __future__ import annotations

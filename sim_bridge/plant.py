@@ -60,6 +60,7 @@ import pinocchio as pin
 import pybullet as pb
 
 from ffmpc_core.errors import ConfigError, InputError, ModelError
+from ffmpc_core.plant import Plant as PlantProtocol
 from ffmpc_core.robots import RobotModel, load_robot
 
 #: Name of the link (and frame) PyBullet gets for the tool; its frame is the contact frame.
@@ -417,7 +418,8 @@ def tool_urdf_text(robot: RobotModel, tool: ToolConfig, visuals: bool = False) -
 
 class Plant:
     """A PyBullet simulation of one torque-controlled arm with a spherical tool, a table and
-    soft boxes. Use as a context manager or call :meth:`close`.
+    soft boxes (the :class:`ffmpc_core.plant.Plant` shape, state :class:`PlantState`). Use as a
+    context manager or call :meth:`close`.
 
     Typical loop: ``plant.reset(q0)``, then per physics step ``plant.step(tau)`` and, when a
     measurement is due, ``plant.state()``.
@@ -766,3 +768,8 @@ class Plant:
             self.close()
         except Exception:  # interpreter shutdown: pybullet may already be gone
             pass
+
+
+def _conforms(plant: Plant) -> PlantProtocol[PlantState]:
+    """Static check (mypy): the PyBullet plant is a :class:`ffmpc_core.plant.Plant`."""
+    return plant

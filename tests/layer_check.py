@@ -1,4 +1,4 @@
-"""Import-graph checker: the three packages' layer order and the absence of import cycles.
+"""Import-graph checker: the four packages' layer order and the absence of import cycles.
 
 Every ``import``/``from ... import`` statement of every module counts, wherever it stands
 (module level, inside a function, under ``if TYPE_CHECKING``), and so does
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 #: Lowest layer first: a package may import only packages at or before its own position.
-LAYERS: tuple[str, ...] = ("ffmpc_core", "sim_bridge", "ffmpc_ros")
+LAYERS: tuple[str, ...] = ("ffmpc_core", "sim_bridge", "studies", "ffmpc_ros")
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ from ffmpc_core.errors import ConfigError
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
 from ffmpc_core.study import mpc_config, resolve_command_delay
-from sim_bridge.study import grid_specs, run_study
+from studies.study import grid_specs, run_study
 
 DT = 1e-3  # plant.time_step of the shipped scenarios
 

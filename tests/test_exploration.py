@@ -1,4 +1,4 @@
-"""The contact learner's exploration routine in PyBullet (sim_bridge.exploration).
+"""The contact learner's exploration routine in PyBullet (studies.exploration).
 
 Two closed-loop runs (module fixture, ~10 s simulated): the dice (2 sine periods, impacts at
 0.15 and 0.35 m/s) and the rubber (1 period, an impact at 0.25 m/s, the fastest its 9 mm stop
@@ -17,7 +17,7 @@ from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.impact.deformation import predicted_force_increase
 from ffmpc_core.impact.learner import fit_stiffness_damping, stack_data
 from ffmpc_core.impact.limits import motion_basis
-from sim_bridge.exploration import (
+from studies.exploration import (
     MATERIALS,
     ExplorationConfig,
     Material,

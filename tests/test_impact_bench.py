@@ -23,8 +23,8 @@ from ffmpc_core.impact.limits import (
 )
 from ffmpc_core.impact.planner import ImpactPlanner, PlannerConfig, _highs_max_velocity
 from ffmpc_core.robots import load_robot
-from sim_bridge.bench_impact import approach_problems
-from sim_bridge.impact_study import DOWN, ImpactStudyConfig
+from studies.bench_impact import approach_problems
+from studies.impact_study import DOWN, ImpactStudyConfig
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""The safe-maximal-impact experiment in PyBullet (sim_bridge.impact_study) and the joint-limit
+"""The safe-maximal-impact experiment in PyBullet (studies.impact_study) and the joint-limit
 guard it runs with (ffmpc_core.impact.task_space.JointLimitGuard).
 
 The closed-loop runs (module fixture, ~15–30 s) re-solve eq 9–14 every 5 ms instead of every
@@ -25,7 +25,7 @@ from ffmpc_core.impact.task_space import (
 )
 from ffmpc_core.robots import load_robot
 from ffmpc_core.tasks import PressTask
-from sim_bridge.impact_study import (
+from studies.impact_study import (
     ImpactStudyConfig,
     count_limit_violations,
     format_table,

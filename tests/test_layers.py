@@ -1,4 +1,4 @@
-"""Layers read top-down: ffmpc_core ← sim_bridge ← ffmpc_ros, with no import cycle anywhere.
+"""Layers read top-down: ffmpc_core ← sim_bridge ← studies ← ffmpc_ros, with no import cycle.
 
 The checker (``tests/layer_check.py``) reads every module's AST: module-level and function-level
 imports, relative imports resolved, ``importlib.import_module("literal")``. The planted-violation
@@ -43,6 +43,21 @@ def test_no_import_goes_up_a_layer() -> None:
 def test_no_import_cycle(level: str) -> None:
     found = cycles(import_edges(ROOT), level)
     assert not found, f"{level} import cycles: {found}"
+
+
+def test_sim_bridge_holds_the_plant_and_the_runner_only() -> None:
+    """No experiment in sim_bridge: those are in studies/, one layer up."""
+    modules = {p.stem for p in (ROOT / "sim_bridge").glob("*.py")}
+    assert modules == {"__init__", "plant", "runner"}
+
+
+def test_studies_sit_between_the_simulator_and_ros() -> None:
+    edges = import_edges(ROOT)
+    studies = {e.imported.split(".")[0] for e in edges if e.importer.startswith("studies.")}
+    assert studies <= {"ffmpc_core", "sim_bridge", "studies"}
+    assert any(
+        e.importer.startswith("ffmpc_ros.") and e.imported.startswith("studies.") for e in edges
+    )  # the command line calls the studies
 
 
 def test_core_imports_neither_ros_nor_the_simulator() -> None:

@@ -1,4 +1,4 @@
-"""The simulation study (sim_bridge.study, ``ffmpc study``): Dask vs in-process determinism,
+"""The simulation study (studies.study, ``ffmpc study``): Dask vs in-process determinism,
 output files, tables vs the JSON runs, failures, and the shipped scenario files.
 
 Runs are short (0.3 s of simulated time with contact and circle from 0.15 s on) so the whole
@@ -19,9 +19,9 @@ from ffmpc_core.metrics import PolishingMetrics, summarize
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
 from ffmpc_ros.cli import main
-from sim_bridge import study
 from sim_bridge.runner import draw_run
-from sim_bridge.study import (
+from studies import study
+from studies.study import (
     RunSpec,
     execute_run,
     grid_specs,

@@ -27,12 +27,12 @@ from ffmpc_core.scenario import (
     public_name,
 )
 from ffmpc_ros.cli import main
-from sim_bridge.exploration import (
+from studies.exploration import (
     EXPLORATION_SCHEMA,
     ExplorationConfig,
     load_exploration_config,
 )
-from sim_bridge.impact_study import IMPACT_SCHEMA, ImpactStudyConfig, load_impact_config
+from studies.impact_study import IMPACT_SCHEMA, ImpactStudyConfig, load_impact_config
 
 ONE_LINE = re.compile(r"^[\w.]+ = .+: (expected .+|unknown scenario parameter.*)$")
 
@@ -194,7 +194,7 @@ def test_cli_study_impact_set_reaches_the_config(tmp_path, capsys):
 
 
 def test_cli_study_explore_set_and_shorthands_reach_the_config(monkeypatch, tmp_path, capsys):
-    import sim_bridge.exploration as exploration
+    import studies.exploration as exploration
 
     seen = {}
 

@@ -1,4 +1,4 @@
-"""Studies on Dask and the run cache (sim_bridge.study, ``ffmpc study ... --scheduler``).
+"""Studies on Dask and the run cache (studies.study, ``ffmpc study ... --scheduler``).
 
 The same short runs as tests/test_study.py (0.3 s of simulated time, contact at once, circle
 from 0.15 s). One reference study runs in this process without a cache; a LocalCluster of two
@@ -23,8 +23,8 @@ from test_study import SHORT, SHORT_SET  # the short study setup, once
 
 from ffmpc_core.errors import ConfigError
 from ffmpc_ros.cli import main
-from sim_bridge import study
-from sim_bridge.study import (
+from studies import study
+from studies.study import (
     RunCache,
     RunOutcome,
     RunSpec,

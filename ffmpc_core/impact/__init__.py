@@ -6,6 +6,9 @@ Modules:
     planner: eq 12–14 (penetration QP, maximal pre-impact velocity; DAQP, OSQP reference).
     learner: eq 15–21 (batch and recursive least squares, exploration reference).
     control: Sec. IV-C (the controller: approach at the maximal safe speed, then admittance).
+    controllers: Sec. VI's experiment as controller objects (admittance regulator, baseline
+        approach, hand-over to the force-feedback MPC, the whole run's control).
+    exploration: Sec. V–VI's exploration (guarded approach, exploration motion, learning).
     robust: eq 14 over an interval of materials (the prior's plausible range, or the learner's
         confidence interval) and the infeasible-force-target check.
     touch_first: learn before striking hard: a touch safe for every plausible material, the

@@ -37,7 +37,7 @@ from ffmpc_core.impact.robust import (
 from ffmpc_core.impact.touch_first import TouchFirstConfig, TouchFirstImpactController
 from ffmpc_core.robots import load_robot
 from ffmpc_ros.cli import main as cli_main
-from sim_bridge.impact_study import (
+from studies.impact_study import (
     DOWN,
     DiceConfig,
     ImpactStudyConfig,

@@ -1,6 +1,6 @@
 """``ffmpc bench impact``: the impact planner's control cycle on the impact study's problems.
 
-The problems are the real ones: the study's maximal approach (:func:`sim_bridge.impact_study.
+The problems are the real ones: the study's maximal approach (:func:`studies.impact_study.
 run_impact`, Panda above the soft dice in PyBullet, ``sim_duration`` s of it) is run once, and
 its joint states before contact are replayed, ``cycles`` times in order (wrapping around), through
 two planner pipelines built as in :class:`~ffmpc_core.impact.control.ImpactController` with the
@@ -70,7 +70,7 @@ class ApproachProblems:
 def approach_problems(sim_duration: float, robot: RobotModel | None = None) -> ApproachProblems:
     """Run the impact study's maximal approach (admittance regulation) for ``sim_duration`` s
     and return its pre-contact joint states and its learner samples."""
-    from sim_bridge.impact_study import ImpactStudyConfig, run_impact
+    from studies.impact_study import ImpactStudyConfig, run_impact
 
     if not (np.isfinite(sim_duration) and sim_duration > 0):
         raise ConfigError(f"sim_duration must be positive, got {sim_duration}")
@@ -108,7 +108,7 @@ def bench_impact(
     problems: ApproachProblems, cycles: int, warmup: int = 20, robot: RobotModel | None = None
 ) -> dict:
     """Time both pipelines on ``problems`` (see the module docstring); returns the figures."""
-    from sim_bridge.impact_study import DOWN, ImpactStudyConfig
+    from studies.impact_study import DOWN, ImpactStudyConfig
 
     if cycles < 1 or warmup < 0:
         raise ConfigError("cycles must be ≥ 1 and warmup ≥ 0")

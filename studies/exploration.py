@@ -3,11 +3,11 @@
 ``ffmpc study explore``: the Panda explores a soft object whose TRUE stiffness and damping are
 set in PyBullet, and the recursive learner (eq 19–21) recovers them online.
 
-Set-up (reused from :mod:`sim_bridge.impact_study`): the object is a fixed 0.16 m cube
-(:class:`~sim_bridge.impact_study.DiceConfig`, Bullet mass 0) touched by the plant's spherical
+Set-up (reused from :mod:`studies.impact_study`): the object is a fixed 0.16 m cube
+(:class:`~studies.impact_study.DiceConfig`, Bullet mass 0) touched by the plant's spherical
 tool at one contact point, so the force is exactly the box's ``k·depth + d·rate``: the values
 the learner must find are the ones set in PyBullet. The tool starts ``start_clearance`` above
-the top face in :func:`~sim_bridge.impact_study.start_configuration` (tool pointing down).
+the top face in :func:`~studies.impact_study.start_configuration` (tool pointing down).
 The tool sphere has a 4 cm radius (:data:`TOOL_RADIUS`, the plant's default is 1 cm) so that
 its centre stays above the surface for any z ≤ z̄ ≤ 3 cm. Measured with the 1 cm sphere: once
 its centre was below the surface (z = 11–11.7 mm), Bullet's persistent contact manifold held a
@@ -16,7 +16,8 @@ sine period and one 0.2 m/s impact). The run logs the number of contact points p
 (``log["contact_points"]``); with the 4 cm sphere it never exceeded 1 in any run. The paper's
 end-effector is a flat disc 0.13 m across: a larger sphere is also closer to it.
 
-Procedure:
+Procedure (the controller is :class:`~ffmpc_core.impact.exploration.ExplorationController`;
+this module runs the plant, logs and takes the checkpoints):
 
 1. **Guarded approach** at ``approach_speed`` until the measured force reaches
    ``contact_threshold``. The surface is the contact-frame position at the LAST FORCE-FREE
@@ -67,7 +68,7 @@ material expected; ``ffmpc_core.impact.deformation.one_step_impact_force``); aft
 learned model predicts the next force increase, ``α̂ (z + ż Δt) + β̂ ż − f``
 (``ffmpc_core.impact.deformation.predicted_force_increase``), with the friction force of a
 sticking contact added (:func:`sticking_contact_force`). Violations are counted against
-the full data-sheet limits (:func:`~sim_bridge.impact_study.count_limit_violations`).
+the full data-sheet limits (:func:`~studies.impact_study.count_limit_violations`).
 
 Signs: ``d = (0, 0, −1)``; ``f`` is the world-z component of the force the object exerts on the
 tool (N, > 0 when pressing); ``z`` > 0 inside the object (m), ``ż`` > 0 moving in (m/s).
@@ -80,12 +81,16 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-import pinocchio as pin
 import pybullet as pb
 
 from ffmpc_core.errors import ConfigError, InputError
-from ffmpc_core.impact.control import CartesianCommand
-from ffmpc_core.impact.deformation import one_step_impact_force, predicted_force_increase
+from ffmpc_core.impact.controllers import contact_measurement
+from ffmpc_core.impact.exploration import (
+    ExplorationController,
+    ExplorationControllerConfig,
+    measured_deformation,
+    sticking_contact_force,
+)
 from ffmpc_core.impact.learner import (
     ContactEstimate,
     ExplorationReference,
@@ -94,22 +99,18 @@ from ffmpc_core.impact.learner import (
     fit_stiffness_damping,
     stack_data,
 )
-from ffmpc_core.impact.limits import joint_limits, motion_basis
-from ffmpc_core.impact.task_space import (
-    JointLimitGuard,
-    JointLimitGuardConfig,
-    TaskSpaceGains,
-    TaskSpaceInverseDynamics,
-)
-from ffmpc_core.robots import RobotModel, load_robot, mass_matrix
+from ffmpc_core.impact.limits import joint_limits
+from ffmpc_core.impact.task_space import JointLimitGuardConfig, TaskSpaceGains
+from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_core.scenario import ConfigSchema, FieldDecl
-from sim_bridge.impact_study import (
+from sim_bridge.plant import Plant, PlantConfig, ToolConfig
+from studies.impact_study import (
+    DOWN,
     DiceConfig,
     LimitViolations,
     count_limit_violations,
     start_configuration,
 )
-from sim_bridge.plant import Plant, PlantConfig, ToolConfig
 
 __all__ = [
     "MATERIALS",
@@ -128,10 +129,8 @@ __all__ = [
     "surface_offset_bias",
 ]
 
-DOWN = np.array([0.0, 0.0, -1.0])
 #: Radius of the spherical tool, m: larger than any z̄ (3 cm), see the module docstring.
 TOOL_RADIUS = 0.04
-_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
 
 @dataclass(frozen=True)
@@ -354,46 +353,6 @@ def load_exploration_config(
     return EXPLORATION_SCHEMA.load(name_or_path, overrides)
 
 
-def measured_deformation(
-    position: np.ndarray, surface: np.ndarray, direction: np.ndarray = DOWN
-) -> float:
-    """Sec. III-A: deformation ``z = dᵀ (p − p_s)`` (m) of the contact-frame position ``p``
-    relative to the initial contact position ``p_s`` along the unit motion direction ``d``
-    (world frame); z > 0 inside the material."""
-    return float(np.asarray(direction) @ (np.asarray(position) - np.asarray(surface)))
-
-
-def sticking_contact_force(
-    normal_force: float,
-    inverse_inertia: np.ndarray,
-    friction: float,
-    direction: np.ndarray = DOWN,
-) -> np.ndarray:
-    """The force (N, world frame, on the robot) of a contact that pushes back by
-    ``normal_force`` (N) against the motion direction ``d`` and sticks.
-
-    A normal force alone would also accelerate the contact point sideways (the arm's inverse
-    operational-space inertia ``A = J_lin M⁻¹ J_linᵀ`` (m/(N·s²)) couples the directions);
-    a sticking contact prevents that with a tangential friction force: with ``n = −d`` and a
-    tangent basis ``T``, ``F = f_n n + T F_t`` where ``(Tᵀ A T) F_t = −Tᵀ A n f_n``, clipped to
-    the friction cone ``|F_t| ≤ μ f_n``. Measured at the impacts: the friction force is ~28 %
-    of the normal force, and its joint accelerations (0.16 of joint 2's limit on the rubber)
-    are what the guard must also expect from an impact.
-    """
-    A = np.asarray(inverse_inertia, dtype=float)
-    if A.shape != (3, 3) or not np.all(np.isfinite(A)):
-        raise InputError("inverse_inertia must be a finite 3×3 matrix")
-    if not (np.isfinite(normal_force) and normal_force >= 0 and friction >= 0):
-        raise InputError("normal_force and friction must be finite and >= 0")
-    basis = motion_basis(direction)[:3, :3]  # columns: d and two tangents
-    n, T = -basis[:, 0], basis[:, 1:]
-    tangential = -np.linalg.solve(T.T @ A @ T, T.T @ A @ n) * normal_force
-    norm = float(np.linalg.norm(tangential))
-    if norm > friction * normal_force:
-        tangential *= friction * normal_force / norm
-    return normal_force * n + T @ tangential
-
-
 def surface_offset_bias(
     stiffness: float, second_moment: np.ndarray, first_moment: np.ndarray, offset: float
 ) -> np.ndarray:
@@ -513,12 +472,12 @@ def run_exploration(
     robot: RobotModel | None = None,
     progress: bool = False,
 ) -> ExplorationRun:
-    """One exploration (module docstring), in lockstep simulated time. With ``progress`` the
-    estimate is printed at each checkpoint."""
+    """One exploration (module docstring), in lockstep simulated time: the plant,
+    :class:`~ffmpc_core.impact.exploration.ExplorationController`, the checkpoints and the log.
+    With ``progress`` the estimate is printed at each checkpoint."""
     cfg = config if config is not None else ExplorationConfig()
     wall = time.perf_counter()
     robot = robot if robot is not None else load_robot("panda")
-    model, fid = robot.model, robot.contact_frame_id
     data = robot.create_data()
     mat = cfg.material
     obj = mat.dice()
@@ -528,18 +487,34 @@ def run_exploration(
     limits = joint_limits(robot)
     dt = cfg.time_step
     w = cfg.lateral_weight
-    guard = JointLimitGuard(
+    plant_cfg = PlantConfig(
+        time_step=dt, table=None, soft_boxes=(obj.box(),), tool=ToolConfig(radius=TOOL_RADIUS)
+    )
+    ref = cfg.reference()
+    controller = ExplorationController(
         robot,
         limits,
-        JointLimitGuardConfig(dt=dt, margin=cfg.limit_margin, task_weights=(w, w, 1.0, w, w, w)),
+        ExplorationControllerConfig(
+            reference=ref,
+            start_height=top + cfg.start_clearance,
+            guard=JointLimitGuardConfig(
+                dt=dt, margin=cfg.limit_margin, task_weights=(w, w, 1.0, w, w, w)
+            ),
+            start_clearance=cfg.start_clearance,
+            approach_speed=cfg.approach_speed,
+            contact_threshold=cfg.contact_threshold,
+            max_approach_time=cfg.max_approach_time,
+            time_step=dt,
+            friction=obj.lateral_friction * plant_cfg.tool.lateral_friction,  # Bullet multiplies
+            prior_stiffness=cfg.prior_stiffness,
+            prior_damping=cfg.prior_damping,
+            learner_min_samples=cfg.learner_min_samples,
+            learner_max_relative_std=cfg.learner_max_relative_std,
+            gains=cfg.gains,
+        ),
     )
-    law = TaskSpaceInverseDynamics(robot, cfg.gains, guard=guard)
-    ref = cfg.reference()
-    n_approach = int(round(cfg.max_approach_time / dt))
-    n_max = n_approach + ref.time.size
-    learner = RecursiveContactLearner()
-    with_onset = RecursiveContactLearner()
-    sum_s = np.zeros(2)  # Σ [z, ż] of the samples fed to `learner` (for surface_offset_bias)
+    learner, with_onset = controller.learner, controller.with_onset
+    n_max = controller.config.approach_steps + ref.time.size
     z_error = cfg.approach_speed * dt  # bound on z_measured − z_true, m
 
     log = {
@@ -555,137 +530,77 @@ def run_exploration(
     taus = np.zeros((n_max, robot.nv))
     checkpoints: list[Checkpoint] = []
 
-    surface: np.ndarray | None = None
-    last_free: np.ndarray | None = None
-    k_start: int | None = None
-    was_in_contact = False
     pending = 0  # next checkpoint: phase 0 = sinusoid, k = impact k
     phase_peak = 0.0
     touch_speed = float("nan")
-    plant_cfg = PlantConfig(
-        time_step=dt, table=None, soft_boxes=(obj.box(),), tool=ToolConfig(radius=TOOL_RADIUS)
-    )
-    friction = obj.lateral_friction * plant_cfg.tool.lateral_friction  # Bullet multiplies
     with Plant(robot, plant_cfg) as plant:
         plant.reset(q0)
         box = plant.soft_boxes[0]
-        hold = robot.contact_placement(q0)
-        hold_xy, rotation = hold.translation[:2].copy(), hold.rotation.copy()
         k = 0
         while k < n_max:
             t = k * dt
             s = plant.state()
-            q, v = s.q, s.v
-            qs[k], vs[k] = q, v
-            force = float(s.wrench_world[2])
-            pin.forwardKinematics(model, data, q, v)
-            pin.updateFramePlacements(model, data)
-            p = data.oMf[fid].translation.copy()
-            speed = float(DOWN @ pin.getFrameVelocity(model, data, fid, _LWA).linear)
-            in_contact = force > 0.0
+            qs[k], vs[k] = s.q, s.v
+            # the pressing force is the world-z force on the tool (d = DOWN)
+            m = contact_measurement(
+                robot, data, s.q, s.v, s.wrench_world, DOWN, force=float(s.wrench_world[2])
+            )
             log["t"][k] = t
-            log["force"][k] = force
-            log["zd"][k] = speed
-            log["depth_nominal"][k] = top - p[2]
+            log["force"][k] = m.force
+            log["zd"][k] = m.speed
+            log["depth_nominal"][k] = top - m.position[2]
             log["depth_bullet"][k], log["contact_points"][k] = _tool_contact(plant, box)
-
-            if surface is None:  # 1. guarded approach
-                if not in_contact:
-                    last_free = p.copy()
-                if force >= cfg.contact_threshold:
-                    if last_free is None:
-                        raise ConfigError("in contact at the start: increase start_clearance")
-                    surface = last_free
-                    k_start = k
-                elif k >= n_approach:
-                    raise ConfigError(
-                        f"no contact within {cfg.max_approach_time} s of guarded approach"
-                    )
-            reference = surface if surface is not None else last_free
-            if reference is None:  # touching from the first cycle on, below the threshold
-                raise ConfigError("in contact at the start: increase start_clearance")
-            z = measured_deformation(p, reference)
-            log["z"][k] = z
-
-            if surface is None:
-                z_ref = -cfg.start_clearance + cfg.approach_speed * t
-                zd_ref, zdd_ref, phase = cfg.approach_speed, 0.0, -1
-                target_z = top + cfg.start_clearance - cfg.approach_speed * t
-            else:
-                assert k_start is not None  # set with surface
-                i = k - k_start
-                if i >= ref.time.size:
-                    break
-                z_ref = float(ref.deformation[i])
-                zd_ref = float(ref.deformation_rate[i])
-                zdd_ref = float(ref.deformation_acceleration[i])
-                phase = int(ref.phase[i])
-                target_z = surface[2] - z_ref
-            log["z_ref"][k] = z_ref
+            command = controller.step(m, t)
+            log["z"][k] = command.z
+            if command.done:
+                break
+            phase = command.phase
+            log["z_ref"][k] = command.z_ref
             log["phase"][k] = phase
-
-            # 3. learning (eq 19–20): every in-contact sample but the first of an episode.
-            if surface is not None and in_contact:
-                with_onset.update(z, speed, force)
-                if was_in_contact:
-                    learner.update(z, speed, force)
-                    sum_s += (z, speed)
-                    log["fed"][k] = True
-                else:
-                    log["onset"][k] = True
-                    if phase >= 1 and pending == phase:
-                        touch_speed = float(log["zd"][k - 1])
-            was_in_contact = in_contact
+            log["fed"][k] = command.fed
+            log["onset"][k] = command.onset
+            if command.onset and phase >= 1 and pending == phase:
+                touch_speed = float(log["zd"][k - 1])
             if phase >= 0:
-                phase_peak = max(phase_peak, z)
+                phase_peak = max(phase_peak, command.z)
             # a checkpoint once the phase's contact is over (reference back above the surface)
-            if phase > pending and z_ref < 0.0:
+            if phase > pending and command.z_ref < 0.0:
                 checkpoints.append(
                     _checkpoint(
-                        pending, t, learner, with_onset, sum_s, z_error, touch_speed, phase_peak
+                        pending,
+                        t,
+                        learner,
+                        with_onset,
+                        controller.first_moment,
+                        z_error,
+                        touch_speed,
+                        phase_peak,
                     )
                 )
                 if progress:
                     print(_format_checkpoint_line(checkpoints[-1], mat), flush=True)
                 pending += 1
                 phase_peak, touch_speed = 0.0, float("nan")
-
-            # 2. tracking, with the force the next step may add handed to the guard
-            est = learner.confident_estimate(cfg.learner_min_samples, cfg.learner_max_relative_std)
-            if est is not None:
-                push = predicted_force_increase(est.stiffness, est.damping, z, speed, force, dt)
-            else:
-                push = (
-                    0.0
-                    if in_contact
-                    else one_step_impact_force(cfg.prior_stiffness, cfg.prior_damping, speed, dt)
-                )
-            command = CartesianCommand(
-                phase="explore",
-                position=np.array([hold_xy[0], hold_xy[1], target_z]),
-                velocity=zd_ref * DOWN,
-                acceleration=zdd_ref * DOWN,
-                rotation=rotation,
-                pre_impact_velocity=float("nan"),
-                force=force,
-                target_force=0.0,
-            )
-            impact = None
-            if push > 0.0:
-                pin.computeJointJacobians(model, data, q)
-                J = pin.getFrameJacobian(model, data, fid, _LWA)[:3]
-                M = mass_matrix(model, data, q)
-                impact = sticking_contact_force(push, J @ np.linalg.solve(M, J.T), friction)
-            tau = law.torque(command, q, v, s.wrench_world, impact_force=impact)
-            taus[k] = tau
-            plant.step(tau)
+            assert command.torque is not None  # not done
+            taus[k] = command.torque
+            plant.step(command.torque)
             k += 1
         s = plant.state()
         qs[k], vs[k] = s.q, s.v
+    surface = controller.surface
     if surface is None:
         raise ConfigError("the exploration never found the surface")
     checkpoints.append(
-        _checkpoint(pending, k * dt, learner, with_onset, sum_s, z_error, touch_speed, phase_peak)
+        _checkpoint(
+            pending,
+            k * dt,
+            learner,
+            with_onset,
+            controller.first_moment,
+            z_error,
+            touch_speed,
+            phase_peak,
+        )
     )
     if progress:
         print(_format_checkpoint_line(checkpoints[-1], mat), flush=True)
@@ -711,7 +626,7 @@ def run_exploration(
         peak_penetration=float(np.max(log["z"][explored])),
         max_tracking_error=float(np.max(np.abs(log["z"] - log["z_ref"])[explored])),
         violations=count_limit_violations(qs[: k + 1], vs[: k + 1], taus[:k], dt, limits),
-        guard_stats=dict(guard.stats),
+        guard_stats=dict(controller.guard.stats),
         onset_samples=int(np.count_nonzero(log["onset"])),
         wall_time=time.perf_counter() - wall,
         log=log,

@@ -31,13 +31,17 @@ Setup (``ffmpc study impact``):
   learned interval. ``prior``: the paper's scheme with the prior taken as the truth (a dice
   softer than the prior then goes past z̄, a stiffer one beyond the planned force).
 
-Runs (approach × regulation):
+Runs (approach × regulation). Every controller is an object of
+:mod:`ffmpc_core.impact.controllers`; :class:`~ffmpc_core.impact.controllers.
+ImpactTaskController` composes them (built by :func:`task_config` from the study's
+configuration); this module only runs the plant, logs and summarises:
 
 * approach ``maximal``: :class:`~ffmpc_core.impact.control.ImpactController` (Sec. IV-C): every
   cycle (or every ``replan_period``) map the joint limits to the contact space (eq 9–11), solve
   eq 14 for the maximal safe pre-impact velocity and track it; contact is declared at 2 N.
 * approach ``baseline`` (the paper's comparison): the contact location as a static target. A
-  critically damped second-order reference (natural frequency ω, 5 rad/s) towards a point
+  critically damped second-order reference (:class:`~ffmpc_core.impact.controllers.
+  BaselineApproach`, natural frequency ω, 5 rad/s) towards a point
   ``baseline_target_depth`` (5 mm) below the dice's top face, its acceleration saturated at the
   contact-space acceleration bound of eq 10–11, tracked by the same task-space law. Both
   approaches start at that acceleration bound; the baseline, knowing where the dice is, then
@@ -47,8 +51,10 @@ Runs (approach × regulation):
   threshold; a target exactly on the surface is approached asymptotically, never detected).
 * regulation ``admittance`` (the paper): after contact the admittance force controller of
   :class:`~ffmpc_core.impact.control.AdmittanceForceController` drives the position reference to
-  60 N (inside ImpactController for the maximal approach; the same update law for the baseline).
-* regulation ``ff_mpc`` (beyond the paper): the force-feedback MPC
+  60 N (inside ImpactController for the maximal approach; the same update law,
+  :class:`~ffmpc_core.impact.controllers.AdmittanceRegulator`, for the baseline).
+* regulation ``ff_mpc`` (beyond the paper,
+  :class:`~ffmpc_core.impact.controllers.ForceFeedbackHandover`): the force-feedback MPC
   (:class:`~ffmpc_core.mpc.ModelPredictiveController`, visco-elastic contact in the state) with
   the task "press 60 N where you are" (:class:`~ffmpc_core.tasks.PressTask`). It takes over
   once the impact is absorbed: in contact, when the tool moves into the dice no faster than the
@@ -99,36 +105,30 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from ffmpc_core.config import ContactConfig, CostWeights
-from ffmpc_core.errors import ConfigError, InputError, SolverError
-from ffmpc_core.impact.control import (
-    AdmittanceForceController,
-    AdmittanceReference,
-    CartesianCommand,
-    ImpactController,
-    ImpactControllerConfig,
-    ImpactMeasurement,
-    admittance_step,
+from ffmpc_core.config import CostWeights
+from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.impact.control import AdmittanceForceController, ImpactControllerConfig
+from ffmpc_core.impact.controllers import (
+    APPROACHES,
+    REGULATIONS,
+    BaselineApproachConfig,
+    HandoverConfig,
+    ImpactTaskConfig,
+    ImpactTaskController,
+    contact_measurement,
 )
-from ffmpc_core.impact.deformation import SoftMaterial, one_step_impact_force
-from ffmpc_core.impact.learner import RecursiveContactLearner
-from ffmpc_core.impact.limits import ContactSpaceMapper, JointLimits, joint_limits
+from ffmpc_core.impact.deformation import SoftMaterial
+from ffmpc_core.impact.limits import JointLimits, joint_limits
 from ffmpc_core.impact.planner import PlannerConfig
 from ffmpc_core.impact.robust import MaterialInterval, check_force_target
 from ffmpc_core.impact.task_space import (
-    JointLimitGuard,
     JointLimitGuardConfig,
-    TaskSpaceInverseDynamics,
 )
 from ffmpc_core.impact.touch_first import (
-    STRIKE,
     TouchFirstConfig,
-    TouchFirstImpactController,
 )
-from ffmpc_core.mpc import ModelPredictiveController, MpcConfig, MpcMeasurement
 from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_core.scenario import ConfigSchema, FieldDecl, cost_weight_specs
-from ffmpc_core.tasks import PhaseWeights, PressTask
 from sim_bridge.plant import Plant, PlantConfig, SoftBoxConfig, ToolConfig
 
 __all__ = [
@@ -149,20 +149,15 @@ __all__ = [
     "run_impact",
     "run_impact_study",
     "start_configuration",
+    "task_config",
     "time_to_steady_force",
 ]
 
-APPROACHES = ("maximal", "baseline")
 #: How the maximal approach treats the unknown material: ``touch_first`` (touch at the bound
 #: safe for the plausible range, learn, re-plan from the learned interval, then strike) or
 #: ``prior`` (the paper's scheme with the prior as if it were the truth; the fault of issue 12).
 STRATEGIES = ("touch_first", "prior")
-REGULATIONS = ("admittance", "ff_mpc")
 DOWN = np.array([0.0, 0.0, -1.0])
-#: Directions of the contact point held by friction once the tool sticks on the dice.
-_UP = np.array([0.0, 0.0, 1.0])
-_LATERAL = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
-_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
 
 @dataclass(frozen=True)
@@ -628,87 +623,54 @@ class ImpactRun:
         return out
 
 
-class _AdmittancePhase:
-    """The post-contact admittance task of ImpactController (Sec. VI, :func:`admittance_step`)
-    for the baseline: from the contact position, along d = DOWN."""
-
-    def __init__(self, admittance: AdmittanceForceController, target_force: float) -> None:
-        self.admittance = admittance
-        self.target_force = target_force
-
-    def start(self, position: np.ndarray, rotation: np.ndarray, speed: float) -> None:
-        self.origin = position.copy()
-        self.rotation = rotation.copy()
-        self.reference = AdmittanceReference(0.0, speed)
-
-    def command(self, force: float, dt: float) -> CartesianCommand:
-        command, self.reference = admittance_step(
-            self.admittance,
-            self.reference,
-            self.origin,
-            self.rotation,
-            DOWN,
-            force,
-            self.target_force,
-            dt,
-        )
-        return command
-
-
-class _BaselineApproach:
-    """The baseline: a critically damped reference to a static target along d, its acceleration
-    saturated at the contact-space acceleration bound (eq 10–11, refreshed every
-    ``refresh`` s)."""
-
-    def __init__(
-        self,
-        robot: RobotModel,
-        limits: JointLimits,
-        distance: float,
-        frequency: float,
-        refresh: float,
-    ) -> None:
-        self.mapper = ContactSpaceMapper(robot, limits, DOWN)
-        self.distance = distance
-        self.omega = frequency
-        self.refresh = refresh
-        self.x = 0.0
-        self.v = 0.0
-        self._acc = (0.0, 0.0)
-        self._t_map: float | None = None
-
-    def command(
-        self, q: np.ndarray, v: np.ndarray, t: float, dt: float, hold: np.ndarray, rot: np.ndarray
-    ) -> CartesianCommand:
-        if self._t_map is None or t - self._t_map >= self.refresh - 1e-9:
-            try:
-                self._acc = self.mapper.update(q, v).acceleration_range(0.0)
-            except SolverError:
-                self._acc = (0.0, 0.0)  # no certified bound: do not accelerate
-            self._t_map = t
-        lo, hi = min(self._acc[0], 0.0), max(self._acc[1], 0.0)
-        w = self.omega
-        acc = float(np.clip(w * w * (self.distance - self.x) - 2.0 * w * self.v, lo, hi))
-        self.v += acc * dt
-        self.x += self.v * dt
-        return CartesianCommand(
-            phase="approach",
-            position=hold + self.x * DOWN,
-            velocity=self.v * DOWN,
-            acceleration=acc * DOWN,
-            rotation=rot,
-            pre_impact_velocity=float("nan"),
-            force=0.0,
-            target_force=0.0,
-        )
-
-
-def _learner_ready(
-    learner: RecursiveContactLearner, cfg: ImpactStudyConfig
-) -> tuple[float, float] | None:
-    """The learner's (α̂, β̂) if it is confident enough to replace the prior, else None."""
-    est = learner.confident_estimate(cfg.learner_min_samples, cfg.learner_max_relative_std)
-    return None if est is None else (est.stiffness, est.damping)
+def task_config(approach: str, regulation: str, cfg: ImpactStudyConfig) -> ImpactTaskConfig:
+    """The controller configuration of one run (:class:`ImpactTaskController`) from the
+    study's configuration."""
+    dt = cfg.time_step
+    return ImpactTaskConfig(
+        approach=approach,
+        regulation=regulation,
+        controller=ImpactControllerConfig(
+            direction=DOWN,
+            material=cfg.prior,
+            target_force=cfg.target_force,
+            contact_threshold=cfg.contact_threshold,
+            planner=cfg.planner,
+            admittance=cfg.admittance,
+            replan_period=cfg.replan_period,
+        ),
+        guard=JointLimitGuardConfig(
+            dt=dt,
+            margin=1.0,
+            task_weights=(cfg.lateral_weight, cfg.lateral_weight, 1.0) + (cfg.lateral_weight,) * 3,
+        ),
+        time_step=dt,
+        touch=cfg.touch if cfg.strategy == "touch_first" else None,
+        baseline=BaselineApproachConfig(
+            direction=DOWN,
+            distance=cfg.approach_height + cfg.baseline_target_depth,
+            frequency=cfg.baseline_frequency,
+            refresh=max(cfg.replan_period, dt),
+            time_step=dt,
+        ),
+        handover=HandoverConfig(
+            direction=DOWN,
+            target_force=cfg.target_force,
+            time_step=dt,
+            handover_speed=cfg.handover_speed,
+            symmetric_speed=cfg.strategy == "touch_first" and approach == "maximal",
+            blend=cfg.handover_blend,
+            mpc_period=cfg.mpc_period,
+            mpc_horizon=cfg.mpc_horizon,
+            mpc_dt=cfg.mpc_dt,
+            mpc_force_weight=cfg.mpc_force_weight,
+            mpc_weights=cfg.mpc_weights,
+            prior_stiffness=cfg.prior_stiffness,
+            prior_damping=cfg.prior_damping,
+            learner_min_samples=cfg.learner_min_samples,
+            learner_max_relative_std=cfg.learner_max_relative_std,
+        ),
+    )
 
 
 def run_impact(
@@ -717,7 +679,8 @@ def run_impact(
     config: ImpactStudyConfig | None = None,
     robot: RobotModel | None = None,
 ) -> ImpactRun:
-    """One run of the experiment (see the module docstring), in lockstep simulated time."""
+    """One run of the experiment (see the module docstring), in lockstep simulated time: the
+    plant, :class:`~ffmpc_core.impact.controllers.ImpactTaskController` and the log."""
     if approach not in APPROACHES:
         raise ConfigError(f"approach must be one of {APPROACHES}, got {approach!r}")
     if regulation not in REGULATIONS:
@@ -725,64 +688,20 @@ def run_impact(
     cfg = config if config is not None else ImpactStudyConfig()
     wall = time.perf_counter()
     robot = robot if robot is not None else load_robot("panda")
-    model, fid = robot.model, robot.contact_frame_id
     data = robot.create_data()
     dice = cfg.dice
     top = dice.top_height
     x0, y0 = dice.position_xy
     q0 = start_configuration(robot, np.array([x0, y0, top + cfg.approach_height]))
     limits = joint_limits(robot)
-    ctrl_limits = cfg.control_limits(limits)
     dt = cfg.time_step
     steps = int(round(cfg.duration / dt))
-    mpc_every = int(round(cfg.mpc_period / dt))
-
-    guard = JointLimitGuard(
-        robot,
-        ctrl_limits,
-        JointLimitGuardConfig(
-            dt=dt,
-            margin=1.0,
-            task_weights=(cfg.lateral_weight, cfg.lateral_weight, 1.0) + (cfg.lateral_weight,) * 3,
-        ),
+    # Raises InfeasibleTargetError here, before any motion, if no plausible material can hold
+    # the target (or the touch force is unsafe for the softest one).
+    controller = ImpactTaskController(
+        robot, cfg.control_limits(limits), task_config(approach, regulation, cfg)
     )
-    law = TaskSpaceInverseDynamics(robot, guard=guard)
-    impact_ctrl: ImpactController | None = None
-    baseline: _BaselineApproach | None = None
-    touch_first: TouchFirstImpactController | None = None
-    if approach == "maximal":
-        ctrl_cfg = ImpactControllerConfig(
-            direction=DOWN,
-            material=cfg.prior,
-            target_force=cfg.target_force,
-            contact_threshold=cfg.contact_threshold,
-            planner=cfg.planner,
-            admittance=cfg.admittance,
-            replan_period=cfg.replan_period,
-        )
-        if cfg.strategy == "touch_first":
-            # Raises InfeasibleTargetError here, before any motion, if no plausible material
-            # can hold the target (or the touch force is unsafe for the softest one).
-            touch_first = TouchFirstImpactController(robot, ctrl_limits, ctrl_cfg, cfg.touch)
-            impact_ctrl = touch_first
-        else:
-            impact_ctrl = ImpactController(robot, ctrl_limits, ctrl_cfg)
-    else:
-        baseline = _BaselineApproach(
-            robot,
-            ctrl_limits,
-            cfg.approach_height + cfg.baseline_target_depth,
-            cfg.baseline_frequency,
-            max(cfg.replan_period, dt),
-        )
-    admittance = _AdmittancePhase(cfg.admittance, cfg.target_force)
-    # The touch-first controller learns itself (during the touch and after the strike): the MPC
-    # then takes its estimate. Otherwise the run feeds its own learner from the contact on.
-    learner = touch_first.learner if touch_first is not None else RecursiveContactLearner()
-    mpc: ModelPredictiveController | None = None
-    mpc_torque = np.zeros(robot.nv)
-    solve_times: list[float] = []
-    learned_in_mpc = False
+    touch_first = controller.touch_first
 
     log = {
         "t": np.arange(steps) * dt,
@@ -806,145 +725,42 @@ def run_impact(
         soft_boxes=(dice.box(),),
         tool=ToolConfig(radius=cfg.tool_radius),
     )
-    contact_k: int | None = None
-    touch_position: np.ndarray | None = None  # last force-free sample before contact
-    touch_speed = float("nan")
-    hold_position: np.ndarray | None = None
-    hold_rotation: np.ndarray | None = None
-    prior_pair = (cfg.prior_stiffness, cfg.prior_damping)
-    handover_k: int | None = None
     with Plant(robot, plant_cfg) as plant:
         plant.reset(q0)
         for k in range(steps):
             t = k * dt
             s = plant.state()
-            q, v = s.q, s.v
-            qs[k], vs[k] = q, v
-            F = s.wrench_world[:3].copy()
-            force = float(F[2])
-            pin.forwardKinematics(model, data, q, v)
-            pin.updateFramePlacements(model, data)
-            oMf = data.oMf[fid]
-            p = oMf.translation.copy()
-            speed = float(DOWN @ pin.getFrameVelocity(model, data, fid, _LWA).linear)
-            if hold_position is None:
-                hold_position, hold_rotation = p.copy(), oMf.rotation.copy()
-            log["speed"][k] = speed
-            log["force"][k] = force
-            log["penetration"][k] = top - p[2]
-            if contact_k is None:
-                if force <= 0.0:
-                    touch_position, touch_speed = p.copy(), speed
-                elif force >= cfg.contact_threshold and (
-                    touch_first is None or touch_first.phase == STRIKE
-                ):
-                    # (the touch-first controller's exploratory touch is not the contact)
-                    contact_k = k
-                    if touch_position is None:  # in contact from the start (not expected)
-                        touch_position, touch_speed = p.copy(), speed
-                    assert hold_rotation is not None  # latched on the first cycle
-                    admittance.start(p, hold_rotation, speed)
-            in_contact = contact_k is not None
-            log["in_contact_phase"][k] = in_contact
-            if in_contact and force > 0.0 and touch_first is None:
-                # eq 19–20: deformation from the first-touch position, its rate, the force.
-                learner.update(float(DOWN @ (p - touch_position)), speed, force)
-
-            impact_force = None
-            if touch_first is not None:
-                # The current knowledge's nominal material: f ≈ (β + α Δt) ż.
-                impact_force = -touch_first.impact_force_estimate(speed, dt, force) * DOWN
-            elif not in_contact:
-                # An impact during the next step would push back with f ≈ β ż + α ż Δt.
-                prior = cfg.prior
-                f_pred = one_step_impact_force(prior.stiffness, prior.damping, speed, dt)
-                impact_force = -f_pred * DOWN
-            if (
-                regulation == "ff_mpc"
-                and in_contact
-                and handover_k is None
-                and speed <= cfg.handover_speed
-                and (touch_first is None or abs(speed) <= cfg.handover_speed)
-            ):
-                handover_k = k
-            if handover_k is not None:
-                if mpc is None:
-                    mpc = ModelPredictiveController(
-                        robot,
-                        MpcConfig(
-                            formulation="force_feedback",
-                            horizon=cfg.mpc_horizon,
-                            dt=cfg.mpc_dt,
-                            period=cfg.mpc_period,
-                            contact=ContactConfig(stiffness=prior_pair[0], damping=prior_pair[1]),
-                            weights=cfg.mpc_weights,
-                            q_reference=tuple(float(x) for x in q),
-                        ),
-                        PressTask(
-                            position=p,
-                            force=cfg.target_force,
-                            weights=PhaseWeights(force=cfg.mpc_force_weight),
-                        ),
-                    )
-                    mpc_start = k
-                    current = prior_pair
-                if (k - mpc_start) % mpc_every == 0:
-                    estimate = _learner_ready(learner, cfg)
-                    if estimate is not None:
-                        mpc.set_contact_parameters(*estimate)
-                        current = estimate
-                        learned_in_mpc = True
-                    command = mpc.step(MpcMeasurement(q=q, v=v, force=np.array([force])), t)
-                    mpc_torque = command.torque
-                    solve_times.append(command.solve_time)
-                log["mpc_stiffness"][k], log["mpc_damping"][k] = current
-                # The MPC models the normal force only: compensate that one (and the measured
-                # moment: the contact point is off the frame origin when the tool tilts) and keep
-                # the contact point's tangential acceleration at zero, so that the sticking
-                # friction carries no load (compensating the measured friction force would push
-                # the tool sideways until it slips).
-                normal = np.concatenate([force * _UP, s.wrench_world[3:]])
-                tau_mpc = guard.admissible_torque(
-                    mpc_torque, q, v, normal, held_directions=_LATERAL
-                )
-                blend = cfg.handover_blend
-                weight = 1.0 if blend <= 0 else min((k - handover_k + 1) * dt / blend, 1.0)
-            else:
-                weight = 0.0
-            if weight < 1.0:
-                if approach == "maximal":
-                    assert impact_ctrl is not None  # built for the maximal approach
-                    cmd = impact_ctrl.step(ImpactMeasurement(q, v, F), t)
-                    log["bound"][k] = cmd.pre_impact_velocity
-                    log["phase"][k] = impact_ctrl.phase
-                elif in_contact:
-                    cmd = admittance.command(force, dt)
-                else:
-                    # built for the baseline approach; the hold pose is latched on the first cycle
-                    assert baseline is not None
-                    assert hold_position is not None and hold_rotation is not None
-                    cmd = baseline.command(q, v, t, dt, hold_position, hold_rotation)
-                tau = law.torque(cmd, q, v, s.wrench_world, impact_force=impact_force)
-                if weight > 0.0:
-                    # Both torques are admissible for this state (each through the guard) and
-                    # the admissible set is convex in τ: the blend is admissible too.
-                    tau = (1.0 - weight) * tau + weight * tau_mpc
-            else:
-                tau = tau_mpc
-                log["phase"][k] = "ff_mpc"
-                if touch_first is not None:  # the controller is not stepped: keep learning
-                    touch_first.learn(p, speed, force)
-            log["mpc_weight"][k] = weight
-            taus[k] = tau
-            plant.step(tau)
+            qs[k], vs[k] = s.q, s.v
+            # the pressing force is the world-z force on the tool (d = DOWN)
+            m = contact_measurement(
+                robot, data, s.q, s.v, s.wrench_world, DOWN, force=float(s.wrench_world[2])
+            )
+            log["speed"][k] = m.speed
+            log["force"][k] = m.force
+            log["penetration"][k] = top - m.position[2]
+            command = controller.step(m, t)
+            log["in_contact_phase"][k] = command.in_contact
+            log["bound"][k] = command.pre_impact_velocity
+            log["phase"][k] = command.phase
+            log["mpc_stiffness"][k] = command.mpc_stiffness
+            log["mpc_damping"][k] = command.mpc_damping
+            log["mpc_weight"][k] = command.mpc_weight
+            taus[k] = command.torque
+            plant.step(command.torque)
         s = plant.state()
         qs[steps], vs[steps] = s.q, s.v
 
+    learner = controller.learner
+    handover = controller.handover
+    guard = controller.guard
+    approach_ctrl = controller.approach_controller
+    solve_times = [] if handover is None else handover.solve_times
+    learned_in_mpc = handover is not None and handover.learned
     t_log = log["t"]
-    contact_time = float("nan") if contact_k is None else float(t_log[contact_k])
+    contact_time = float("nan") if controller.contact_time is None else controller.contact_time
     steady = (
         float("nan")
-        if contact_k is None
+        if controller.contact_time is None
         else time_to_steady_force(
             t_log,
             log["force"],
@@ -984,7 +800,9 @@ def run_impact(
         regulation=regulation,
         strategy=cfg.strategy if approach == "maximal" else "prior",
         **touch,
-        pre_impact_velocity=float(touch_speed) if contact_k is not None else float("nan"),
+        pre_impact_velocity=(
+            float(controller.touch_speed) if controller.contact_time is not None else float("nan")
+        ),
         contact_time=contact_time,
         steady_time=steady,
         peak_force=float(log["force"].max()),
@@ -996,10 +814,12 @@ def run_impact(
         learned_damping=float(learned[1]),
         learned_std=(float(learned[2][0]), float(learned[2][1])),
         learner_samples=learner.samples,
-        handover_time=float("nan") if handover_k is None else float(t_log[handover_k]),
+        handover_time=(
+            float("nan") if controller.handover_time is None else controller.handover_time
+        ),
         wall_time=time.perf_counter() - wall,
         guard_stats=dict(guard.stats),
-        planner_failures=0 if impact_ctrl is None else impact_ctrl.solver_failures,
+        planner_failures=0 if approach_ctrl is None else approach_ctrl.solver_failures,
         mpc_solve_time_median=float(np.median(solve_times)) if solve_times else float("nan"),
         log=log | {"learned_in_mpc": np.array(learned_in_mpc), "q": qs[:steps], "v": vs[:steps]},
     )
