@@ -78,10 +78,9 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pybullet as pb
 
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.impact.controllers import contact_measurement
@@ -103,7 +102,6 @@ from ffmpc_core.impact.limits import joint_limits
 from ffmpc_core.impact.task_space import JointLimitGuardConfig, TaskSpaceGains
 from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_core.scenario import ConfigSchema, FieldDecl
-from sim_bridge.plant import Plant, PlantConfig, ToolConfig
 from studies.impact_study import (
     DOWN,
     DiceConfig,
@@ -111,6 +109,9 @@ from studies.impact_study import (
     count_limit_violations,
     start_configuration,
 )
+
+if TYPE_CHECKING:  # the plant imports PyBullet: loaded when a run starts, not to parse
+    from sim_bridge.plant import Plant
 
 __all__ = [
     "MATERIALS",
@@ -460,6 +461,8 @@ class ExplorationRun:
 def _tool_contact(plant: Plant, body: int) -> tuple[float, int]:
     """PyBullet's contact distance of the tool on ``body`` as a depth (m, > 0 inside; NaN
     without a contact point) and the number of contact points."""
+    import pybullet as pb  # (loaded with the plant; not needed to parse a study's settings)
+
     points = pb.getContactPoints(
         bodyA=plant.body, bodyB=body, linkIndexA=plant.tool_link, physicsClientId=plant.client_id
     )
@@ -487,6 +490,8 @@ def run_exploration(
     limits = joint_limits(robot)
     dt = cfg.time_step
     w = cfg.lateral_weight
+    from sim_bridge.plant import Plant, PlantConfig, ToolConfig
+
     plant_cfg = PlantConfig(
         time_step=dt, table=None, soft_boxes=(obj.box(),), tool=ToolConfig(radius=TOOL_RADIUS)
     )

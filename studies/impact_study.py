@@ -100,7 +100,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pinocchio as pin
@@ -129,7 +129,9 @@ from ffmpc_core.impact.touch_first import (
 )
 from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_core.scenario import ConfigSchema, FieldDecl, cost_weight_specs
-from sim_bridge.plant import Plant, PlantConfig, SoftBoxConfig, ToolConfig
+
+if TYPE_CHECKING:  # the plant imports PyBullet: loaded when a run starts, not to parse
+    from sim_bridge.plant import SoftBoxConfig
 
 __all__ = [
     "APPROACHES",
@@ -210,6 +212,8 @@ class DiceConfig:
 
     def box(self) -> SoftBoxConfig:
         """The PyBullet box (static: mass 0)."""
+        from sim_bridge.plant import SoftBoxConfig
+
         x, y = self.position_xy
         return SoftBoxConfig(
             position=(float(x), float(y), self.top_height - 0.5 * self.size),
@@ -718,6 +722,8 @@ def run_impact(
     qs = np.zeros((steps + 1, robot.nq))
     vs = np.zeros((steps + 1, robot.nv))
     taus = np.zeros((steps, robot.nv))
+
+    from sim_bridge.plant import Plant, PlantConfig, ToolConfig
 
     plant_cfg = PlantConfig(
         time_step=dt,

@@ -130,7 +130,9 @@ def folder_storage_file(folder: Path) -> Path:
         return folder / files[0]
     found = sorted(folder.glob("*" + MCAP_SUFFIX))
     if len(found) != 1:
-        raise BagError(f"{folder}: no {FOLDER_METADATA} and {len(found)} MCAP files (want one)")
+        raise BagError(
+            f"no bag file in {folder}: no {FOLDER_METADATA} and {len(found)} MCAP files (want one)"
+        )
     return found[0]
 
 
