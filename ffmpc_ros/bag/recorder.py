@@ -30,7 +30,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 
-from ffmpc_ros.bag.ros_types import message_class, qos_from_dicts, qos_to_dict
+from ffmpc_ros.bag.ros_types import offered_profiles, subscribe_raw
 from ffmpc_ros.bag.writer import BagWriter
 
 #: Topics not recorded unless asked for by name.
@@ -195,7 +195,7 @@ class BagRecorder(Node):
         return all(node in recorded for node in self.parameters_of)
 
     def _subscribe(self, topic: str, type_name: str, publishers) -> None:
-        profiles = [qos_to_dict(p.qos_profile) for p in publishers]
+        profiles = offered_profiles(publishers)
         channel = self.writer.add_topic(
             topic,
             type_name,
@@ -204,7 +204,6 @@ class BagRecorder(Node):
         )
         self._channels[topic] = channel
         self.received[topic] = 0
-        qos = qos_from_dicts(profiles, depth=RECORD_DEPTH)
         clock = self.get_clock()
         writer = self.writer
         received = self.received
@@ -214,8 +213,8 @@ class BagRecorder(Node):
             received[topic] += 1
             self.last_message_at = time.monotonic()
 
-        self._recording_subs[topic] = self.create_subscription(
-            message_class(type_name), topic, on_message, qos, raw=True
+        self._recording_subs[topic] = subscribe_raw(
+            self, topic, type_name, profiles, on_message, RECORD_DEPTH
         )
 
     @property
@@ -285,12 +284,13 @@ def graph_recorder_metadata(scenario=None, run: Mapping[str, Mapping[str, Any]] 
     return records
 
 
-def _graph_recorder_options() -> dict[str, Any]:
+def _graph_recorder_options(view: bool = False) -> dict[str, Any]:
     from ffmpc_ros import topics
     from ffmpc_ros.graph_nodes import NODES
 
+    extra = [t for t, _, _ in topics.VIEW_TOPICS] if view else []
     return {
-        "wait_for": [t for t, _, _ in topics.TOPICS],
+        "wait_for": [t for t, _, _ in topics.TOPICS] + extra,
         "gate_topic": topics.PLANT_JOINT_STATES,
         "parameters_of": [*NODES, "metrics"],
         "final_topic": topics.METRICS_SUMMARY,
@@ -303,18 +303,20 @@ def graph_recorder(
     context=None,
     scenario=None,
     run: Mapping[str, Mapping[str, Any]] | None = None,
+    view: bool = False,
 ) -> BagRecorder:
     """The recorder of ``ffmpc run --record``: every topic, gated on ``/plant/joint_states``
     until every topic of the contract (``ffmpc_ros.topics.TOPICS``) has a publisher and the six
     nodes' parameters are in; :attr:`BagRecorder.complete` once the metrics summary is in.
     Metadata ``ffmpc_run`` holds the scenario file and the generated parameter file of the run
     (``run``: {node: {name: value}}); ``ffmpc_machine`` the recording machine's fingerprint
-    (:func:`ffmpc_ros.bag.machine.machine_fingerprint`)."""
+    (:func:`ffmpc_ros.bag.machine.machine_fingerprint`). With ``view`` (``--view``) the gate
+    also waits for the live view's topics (``ffmpc_ros.topics.VIEW_TOPICS``)."""
     return BagRecorder(
         target,
         context=context,
         metadata=graph_recorder_metadata(scenario, run),
-        **_graph_recorder_options(),
+        **_graph_recorder_options(view),
     )
 
 
@@ -345,7 +347,10 @@ def graph_recorder_process(config_path: str) -> int:
     )
     executor = EventsExecutor(context=context)
     recorder = BagRecorder(
-        config["target"], context=context, metadata=config["metadata"], **_graph_recorder_options()
+        config["target"],
+        context=context,
+        metadata=config["metadata"],
+        **_graph_recorder_options(bool(config.get("view"))),
     )
     executor.add_node(recorder)
     try:

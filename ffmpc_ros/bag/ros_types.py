@@ -85,3 +85,24 @@ def qos_from_dicts(profiles: Sequence[Mapping[str, Any]], depth: int | None = No
         durability=DurabilityPolicy.TRANSIENT_LOCAL if transient else DurabilityPolicy.VOLATILE,
         liveliness=LivelinessPolicy.AUTOMATIC,
     )
+
+
+def offered_profiles(publishers: Sequence[Any]) -> list[dict[str, Any]]:
+    """rosbag2's dictionaries of the QoS offered by each publisher (``TopicEndpointInfo``)."""
+    return [qos_to_dict(p.qos_profile) for p in publishers]
+
+
+def subscribe_raw(
+    node: Any,
+    topic: str,
+    type_name: str,
+    profiles: Sequence[Mapping[str, Any]],
+    callback: Any,
+    depth: int,
+) -> Any:
+    """A raw subscription (the callback gets the CDR bytes, nothing deserialised) whose QoS is
+    compatible with every offered profile (:func:`qos_from_dicts`, history ``depth``): the
+    recorder's and the live view's way to take any topic as it is."""
+    return node.create_subscription(
+        message_class(type_name), topic, callback, qos_from_dicts(profiles, depth=depth), raw=True
+    )
