@@ -503,7 +503,7 @@ def run_graph(
                 counts_path = os.path.join(tmp.name, "recorder_counts.json")
                 children["recorder"], logs["recorder"] = _spawn_recorder(
                     record, tmp.name, domain, scenario, params, counts_path, view is not None
-                )
+                )  # with the view, the recorder also writes /tf (the view's robot tree)
             values = _fetch_parameters(
                 probe_node, executor, list(NODES), children, logs, start + start_timeout
             )
@@ -539,7 +539,11 @@ def run_graph(
             from ffmpc_ros.bag.recorder import graph_recorder
 
             recorder = graph_recorder(
-                record, context=context, scenario=scenario, run=params, view=view is not None
+                record,
+                context=context,
+                scenario=scenario,
+                run=params,
+                view=None if view is None else scenario.robot,
             )
             nodes.append(recorder)
             executor.add_node(recorder)
@@ -768,7 +772,7 @@ def _spawn_recorder(
                 "domain": domain,
                 "metadata": graph_recorder_metadata(scenario, params),
                 "counts": counts,
-                "view": view,
+                "view": scenario.robot if view else None,
             },
             fh,
         )

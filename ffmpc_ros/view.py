@@ -54,7 +54,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from ffmpc_core.errors import ConfigError, FfmpcError
 from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_ros import layouts, topics
-from ffmpc_ros.bag.ros_types import offered_profiles, subscribe_raw
+from ffmpc_ros.bag.ros_types import DerivedTopic, offered_profiles, subscribe_raw
 from ffmpc_ros.bag.schema import MESSAGE_ENCODING, SCHEMA_ENCODING, MessageDefinitions
 
 #: Default port of the Foxglove WebSocket server.
@@ -195,6 +195,73 @@ class TfEncoder:
         return bytes(self.store.serialize_cdr(msg, TF_MESSAGE_TYPE))
 
 
+class JointStatesToTf:
+    """``/tf`` from ``/plant/joint_states``: given a JointState's CDR bytes, the TFMessage CDR of
+    the robot's tree at that q (:func:`tree_transforms`, stamped like the joint state), once
+    every :data:`VIEW_PERIOD` s of stamps (None between, or for a bad message). Used by the view
+    node and, with ``--record --view``, by the recorder (the bag's ``/tf``)."""
+
+    def __init__(self, robot: RobotModel) -> None:
+        self.robot = robot
+        self.data = robot.create_data()
+        self.tree = link_tree(robot)
+        self.encoder = TfEncoder()
+        self.joint_index = {n: i for i, n in enumerate(robot.joint_names)}
+        self._next_ns: int | None = None
+        self.last: JointState | None = None
+
+    def __call__(self, data: bytes) -> tuple[int, bytes] | None:
+        msg = deserialize_message(data, JointState)
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        if self._next_ns is not None and stamp_ns < self._next_ns:
+            return None
+        q = self.joint_positions(msg)
+        if q is None:
+            return None
+        self._next_ns = stamp_ns + int(round(VIEW_PERIOD * 1e9))
+        self.last = msg
+        edges = tree_transforms(self.robot, self.data, q, self.tree)
+        return stamp_ns, self.encoder.encode(stamp_ns, edges)
+
+    def joint_positions(self, msg: JointState) -> np.ndarray | None:
+        """q (rad) in the model's joint order from a JointState (by name when named)."""
+        nq = self.robot.nq
+        position = np.asarray(msg.position, dtype=float)
+        if msg.name:
+            if len(msg.name) != position.size:
+                return None
+            q = np.full(nq, np.nan)
+            for name, value in zip(msg.name, position, strict=True):
+                if name in self.joint_index:
+                    q[self.joint_index[name]] = value
+        else:
+            q = position
+        if q.shape != (nq,) or not np.all(np.isfinite(q)):
+            return None
+        return q
+
+    def contact_position(self) -> np.ndarray:
+        """The contact frame origin of the last q converted (m, world frame)."""
+        return self.data.oMf[self.robot.contact_frame_id].translation.copy()
+
+
+def tf_derived_topic(robot_name: str) -> DerivedTopic:
+    """The bag's ``/tf`` (:class:`~ffmpc_ros.bag.ros_types.DerivedTopic`) for ``robot_name``."""
+    convert = JointStatesToTf(load_robot(robot_name))
+
+    def derive(data: bytes) -> bytes | None:
+        out = convert(data)
+        return None if out is None else out[1]
+
+    return DerivedTopic(
+        source=topics.PLANT_JOINT_STATES,
+        topic=topics.TF,
+        type_name=TF_MESSAGE_TYPE,
+        definition=convert.encoder.schema,
+        derive=derive,
+    )
+
+
 class ViewNode(Node):
     """The live view's node and Foxglove server (module docstring).
 
@@ -224,10 +291,8 @@ class ViewNode(Node):
             parameter_overrides=[Parameter("use_sim_time", value=use_sim_time)],
         )
         self.robot = load_robot(robot)
-        self.data = self.robot.create_data()
-        self.tree = link_tree(self.robot)
+        self.to_tf = JointStatesToTf(self.robot)
         self.root = root_link(self.robot)
-        self.joint_index = {n: i for i, n in enumerate(self.robot.joint_names)}
         self.definitions = MessageDefinitions()
         self.fox = foxglove.Context()
         self.mesh_root = Path(self.robot.urdf_path).resolve().parent
@@ -242,11 +307,12 @@ class ViewNode(Node):
         except RuntimeError as exc:
             raise ViewError(f"the live view cannot listen on {host}:{port}: {exc}") from None
         self.host, self.port = host, int(self.server.port)
-        self.tf = TfEncoder()
         self.tf_channel = foxglove.Channel(
             topics.TF,
             schema=foxglove.Schema(
-                name=TF_MESSAGE_TYPE, encoding=SCHEMA_ENCODING, data=self.tf.schema.encode()
+                name=TF_MESSAGE_TYPE,
+                encoding=SCHEMA_ENCODING,
+                data=self.to_tf.encoder.schema.encode(),
             ),
             message_encoding=MESSAGE_ENCODING,
             context=self.fox,
@@ -255,7 +321,6 @@ class ViewNode(Node):
         self._bridges: dict[str, Any] = {}
         self.forwarded: dict[str, int] = {}
         self.tf_published = 0
-        self._next_view_ns: int | None = None
         self._force = np.zeros(3)
         self._path: np.ndarray | None = None
         self._hooks: dict[str, Callable[[bytes], None]] = {
@@ -360,36 +425,15 @@ class ViewNode(Node):
         self._path = values["positions"].reshape(-1, 3)
 
     def _on_joint_states(self, data: bytes) -> None:
-        msg = deserialize_message(data, JointState)
-        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        if self._next_view_ns is not None and stamp_ns < self._next_view_ns:
+        out = self.to_tf(data)
+        if out is None:
             return
-        self._next_view_ns = stamp_ns + int(round(VIEW_PERIOD * 1e9))
-        q = self.joint_positions(msg)
-        if q is None:
-            return
-        edges = tree_transforms(self.robot, self.data, q, self.tree)
-        self.tf_channel.log(self.tf.encode(stamp_ns, edges), log_time=stamp_ns)
+        stamp_ns, tf = out
+        self.tf_channel.log(tf, log_time=stamp_ns)
         self.tf_published += 1
-        contact = self.data.oMf[self.robot.contact_frame_id].translation.copy()
-        self.pub_markers.publish(self.markers(msg.header.stamp, contact))
-
-    def joint_positions(self, msg: JointState) -> np.ndarray | None:
-        """q (rad) in the model's joint order from a JointState (by name when named)."""
-        nq = self.robot.nq
-        position = np.asarray(msg.position, dtype=float)
-        if msg.name:
-            if len(msg.name) != position.size:
-                return None
-            q = np.full(nq, np.nan)
-            for name, value in zip(msg.name, position, strict=True):
-                if name in self.joint_index:
-                    q[self.joint_index[name]] = value
-        else:
-            q = position
-        if q.shape != (nq,) or not np.all(np.isfinite(q)):
-            return None
-        return q
+        assert self.to_tf.last is not None  # set with every conversion
+        contact = self.to_tf.contact_position()
+        self.pub_markers.publish(self.markers(self.to_tf.last.header.stamp, contact))
 
     def markers(self, stamp, contact: np.ndarray) -> MarkerArray:
         """The force arrow at ``contact`` (m, world) and the planned path (module docstring),

@@ -145,6 +145,16 @@ def test_channels_are_ros_topics_with_their_full_definitions(live_run):
     assert result.view is not None and result.view["tf"] > 0
 
 
+def _edges(tf) -> dict[str, tuple[str, pin.SE3]]:
+    """{child: (parent, placement in parent)} of a decoded TFMessage."""
+    edges = {}
+    for t in tf.transforms:
+        r, p = t.transform.rotation, t.transform.translation
+        rotation = pin.Quaternion(r.w, r.x, r.y, r.z).toRotationMatrix()
+        edges[t.child_frame_id] = (t.header.frame_id, pin.SE3(rotation, np.array([p.x, p.y, p.z])))
+    return edges
+
+
 def _chain(transforms: dict[str, tuple[str, pin.SE3]], frame: str) -> pin.SE3:
     placement = pin.SE3.Identity()
     while frame != WORLD_FRAME:
@@ -172,15 +182,7 @@ def test_tf_is_the_forward_kinematics_of_the_joint_states(live_run):
         q = states.get((stamp.sec, stamp.nanosec))
         if q is None:
             continue  # its joint state came before the client's subscription
-        edges = {}
-        for t in tf.transforms:
-            r, p = t.transform.rotation, t.transform.translation
-            rotation = pin.Quaternion(r.w, r.x, r.y, r.z).toRotationMatrix()
-            edges[t.child_frame_id] = (
-                t.header.frame_id,
-                pin.SE3(rotation, np.array([p.x, p.y, p.z])),
-            )
-        tool = _chain(edges, "contact")
+        tool = _chain(_edges(tf), "contact")
         expected = robot.contact_placement(q, data)
         assert np.allclose(tool.translation, expected.translation, rtol=0, atol=1e-9)
         assert np.allclose(tool.rotation, expected.rotation, rtol=0, atol=1e-9)
@@ -221,11 +223,52 @@ def test_prediction_description_and_markers_decode_with_sane_values(live_run):
     assert len(path.points) == horizon + 1
 
 
-def test_the_bag_of_the_same_run_holds_the_view_topics(live_run):
-    _, _, bag = live_run
+def test_the_bag_of_the_same_run_holds_the_view_topics_and_tf(live_run):
+    from rosbags.rosbag2 import Reader as Rosbag2Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    _, client, bag = live_run
     with BagReader(bag) as reader:
         for topic in (topics.ROBOT_DESCRIPTION, topics.VIEW_MARKERS, topics.MPC_PREDICTION):
             assert reader.topics[topic].count > 0, topic
+        # /tf: the recorder's own, from every recorded joint state (10 ms of stamps apart)
+        assert reader.topics[topics.TF].count == -(
+            -reader.topics[topics.PLANT_JOINT_STATES].count // 10
+        )
+    store = get_typestore(Stores.ROS2_JAZZY)
+    robot = load_robot(load_scenario("polishing").robot)
+    states, tfs = {}, []
+    with Rosbag2Reader(bag) as reader:
+        wanted = [
+            c for c in reader.connections if c.topic in (topics.TF, topics.PLANT_JOINT_STATES)
+        ]
+        for connection, _, raw in reader.messages(connections=wanted):
+            msg = store.deserialize_cdr(raw, connection.msgtype)
+            if connection.topic == topics.TF:
+                tfs.append(msg)
+            else:
+                states[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = msg.position
+    for tf in tfs:
+        stamp = tf.transforms[0].header.stamp
+        tool = _chain(_edges(tf), "contact")
+        expected = robot.contact_placement(np.asarray(states[(stamp.sec, stamp.nanosec)]))
+        assert np.allclose(tool.homogeneous, expected.homogeneous, rtol=0, atol=1e-9)
+    live = {
+        store.deserialize_cdr(p, "tf2_msgs/msg/TFMessage").transforms[0].header.stamp.nanosec
+        for _, p in client.messages[topics.TF]
+    }
+    assert live & {tf.transforms[0].header.stamp.nanosec for tf in tfs}  # the same stamps
+
+
+def test_playing_the_bag_skips_the_tf_rclpy_cannot_publish(live_run):
+    from ffmpc_ros.bag.player import play_bag
+
+    _, _, bag = live_run
+    report = play_bag(bag, rate=4.0, delay=0.1)
+    assert report.skipped == [topics.TF] and "not played (type not installed): /tf" in (
+        report.describe()
+    )
+    assert report.published[topics.ROBOT_DESCRIPTION] == 1
 
 
 def test_a_busy_port_is_refused_with_a_clear_error():
