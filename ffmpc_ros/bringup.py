@@ -370,6 +370,7 @@ def run_graph(
     node_ros_args: Mapping[str, Sequence[str]] | None = None,
     view: int | None = None,
     view_host: str = "127.0.0.1",
+    view_wait: bool = False,
 ) -> GraphResult:
     """Run ``scenario`` on the node graph and return the metrics node's result.
 
@@ -398,6 +399,8 @@ def run_graph(
             (e.g. ``{"pid": ["-p", "mpc.formulation:=classical"]}``).
         view: serve the live view (Foxglove WebSocket) on this port of ``view_host`` (None:
             no view); ViewError when the port is busy.
+        view_wait: the run starts only once a Foxglove client subscribes to
+            ``/plant/joint_states`` (``start_timeout`` still applies).
     """
     from ffmpc_ros.fault_injector import (
         FAULT_LOCKSTEP_TIMEOUT,
@@ -489,7 +492,13 @@ def run_graph(
             if view is not None:
                 from ffmpc_ros.view import ViewNode
 
-                view_node = ViewNode(scenario.robot, host=view_host, port=view, context=context)
+                view_node = ViewNode(
+                    scenario.robot,
+                    host=view_host,
+                    port=view,
+                    context=context,
+                    wait_for_client=view_wait,
+                )
                 nodes.append(view_node)
                 executor.add_node(view_node)
         else:
@@ -497,7 +506,7 @@ def run_graph(
             if view is not None:
                 view_counts = os.path.join(tmp.name, "view_counts.json")
                 children["view"], logs["view"] = _spawn_view(
-                    scenario.robot, view_host, view, tmp.name, domain, view_counts
+                    scenario.robot, view_host, view, tmp.name, domain, view_counts, view_wait
                 )
             if record is not None:
                 counts_path = os.path.join(tmp.name, "recorder_counts.json")
@@ -732,13 +741,27 @@ def _spawn(
 
 
 def _spawn_view(
-    robot: str, host: str, port: int, directory: str, domain: int, counts: str
+    robot: str,
+    host: str,
+    port: int,
+    directory: str,
+    domain: int,
+    counts: str,
+    wait_for_client: bool = False,
 ) -> tuple[subprocess.Popen, str]:
     """The view node's own process (``ffmpc_ros.view.view_process``), in the nodes' group."""
     config = os.path.join(directory, "view.json")
     with open(config, "w", encoding="utf-8") as fh:
         json.dump(
-            {"robot": robot, "host": host, "port": port, "domain": domain, "counts": counts}, fh
+            {
+                "robot": robot,
+                "host": host,
+                "port": port,
+                "domain": domain,
+                "counts": counts,
+                "wait_for_client": wait_for_client,
+            },
+            fh,
         )
     log = os.path.join(directory, "view.log")
     with open(log, "w", encoding="utf-8") as out:

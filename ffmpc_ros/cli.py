@@ -266,8 +266,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise ConfigError("--cpus and --priority are real-time options (add --real-time)")
     if args.priority is not None and not 0 <= args.priority <= 99:
         raise ConfigError(f"--priority must be in 0..99, got {args.priority}")
-    if args.view_port != VIEW_PORT and not args.view:
-        raise ConfigError("--view-port needs --view")
+    if (args.view_port != VIEW_PORT or args.view_wait) and not args.view:
+        raise ConfigError("--view-port and --view-wait need --view")
     if args.view:
         if args.real_time:
             raise ConfigError("--view is a lockstep option (the real-time loop has no view)")
@@ -318,6 +318,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         cpus=cpus,
         priority=args.priority,
         view=args.view_port if args.view else None,
+        view_wait=args.view_wait,
     )
     summary = result.summary()
     summary["command_line"] = shlex.join(["ffmpc", *args.argv])
@@ -744,6 +745,12 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         default=VIEW_PORT,
         help=f"port of the live view (default {VIEW_PORT}; a busy port is refused)",
+    )
+    run.add_argument(
+        "--view-wait",
+        action="store_true",
+        help="start the run only once a Foxglove client subscribes to /plant/joint_states "
+        "(--start-timeout still applies)",
     )
     run.add_argument(
         "--json",

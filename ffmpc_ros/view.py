@@ -67,6 +67,12 @@ VIEW_PERIOD = 0.01
 FORCE_ARROW_SCALE = 0.005
 #: The root frame of /tf (pinocchio's universe: the robot's fixed base).
 WORLD_FRAME = "world"
+#: Wall s between a client's subscription to /plant/joint_states and the start of the run
+#: (``wait_for_client``): its subscriptions to the other channels arrive meanwhile.
+CLIENT_SETTLE = 0.5
+#: Latched topics: their last message goes again to each new Foxglove subscriber (Foxglove
+#: channels keep nothing; DDS reports a remote publisher's depth as 0, so the QoS cannot tell).
+LATCHED = (topics.ROBOT_DESCRIPTION,)
 #: Topics never bridged (parameter events are not data).
 EXCLUDE = ("/parameter_events",)
 #: History of every bridging subscription, messages.
@@ -270,6 +276,8 @@ class ViewNode(Node):
         host, port: where the Foxglove WebSocket server listens (port 0: any free port).
         use_sim_time: log and stamp on ``/clock``.
         discovery_period: wall s between two looks at the graph for new topics.
+        wait_for_client: hold the run (the plant waits for this node's subscription to
+            ``/plant/joint_states``) until a client subscribes to that topic.
     """
 
     def __init__(
@@ -282,6 +290,7 @@ class ViewNode(Node):
         use_sim_time: bool = True,
         discovery_period: float = 0.1,
         node_name: str = "view",
+        wait_for_client: bool = False,
     ) -> None:
         import foxglove
 
@@ -296,6 +305,8 @@ class ViewNode(Node):
         self.definitions = MessageDefinitions()
         self.fox = foxglove.Context()
         self.mesh_root = Path(self.robot.urdf_path).resolve().parent
+        self.wait_for_client = wait_for_client
+        self.listener = _Subscriptions()
         try:
             self.server = foxglove.start_server(
                 name="ffmpc",
@@ -303,6 +314,7 @@ class ViewNode(Node):
                 port=port,
                 context=self.fox,
                 asset_handler=self._asset,
+                server_listener=self.listener,
             )
         except RuntimeError as exc:
             raise ViewError(f"the live view cannot listen on {host}:{port}: {exc}") from None
@@ -318,6 +330,9 @@ class ViewNode(Node):
             context=self.fox,
         )
         self.channels: dict[str, Any] = {}
+        self._latched: dict[str, bytes] = {}  # last message of each latched topic
+        self._latched_at: dict[str, int] = {}
+        self._last_channel_at = time.monotonic()
         self._bridges: dict[str, Any] = {}
         self.forwarded: dict[str, int] = {}
         self.tf_published = 0
@@ -361,10 +376,28 @@ class ViewNode(Node):
         return resolved.read_bytes()
 
     # -- bridge --------------------------------------------------------------------------------
+    @property
+    def client_ready(self) -> bool:
+        """A client has subscribed to ``/plant/joint_states``, every topic of the graph's
+        contract (``topics.TOPICS``, ``topics.VIEW_TOPICS``) is advertised, and
+        :data:`CLIENT_SETTLE` s passed since both (the client's other subscriptions are in)."""
+        since = self.listener.subscribed.get(topics.PLANT_JOINT_STATES)
+        if since is None:
+            return False
+        contract = [t for t, _, _ in (*topics.TOPICS, *topics.VIEW_TOPICS)]
+        if not all(t in self.channels for t in contract):
+            return False
+        return time.monotonic() - max(since, self._last_channel_at) >= CLIENT_SETTLE
+
     def discover(self) -> None:
-        """A channel and a raw subscription for every new topic that has a publisher."""
+        """A channel and a raw subscription for every new topic that has a publisher (with
+        ``wait_for_client``, ``/plant/joint_states`` is subscribed, and the plant may start,
+        only once :attr:`client_ready`)."""
         import foxglove
 
+        for topic in self.listener.take_new():  # a latched message for a new subscriber
+            if topic in self._latched:
+                self.channels[topic].log(self._latched[topic], log_time=self._latched_at[topic])
         for topic, types in self.get_topic_names_and_types():
             if topic in self._bridges or topic in EXCLUDE or topic == topics.TF:
                 continue
@@ -372,39 +405,50 @@ class ViewNode(Node):
             if not publishers:
                 continue
             type_name = publishers[0].topic_type or types[0]
-            try:
-                definition = self.definitions.full_text(type_name)
-            except FfmpcError as exc:
-                self.get_logger().warning(f"{topic} not bridged: {exc}")
-                self._bridges[topic] = None
-                continue
-            channel = foxglove.Channel(
-                topic,
-                schema=foxglove.Schema(
-                    name=type_name, encoding=SCHEMA_ENCODING, data=definition.encode()
-                ),
-                message_encoding=MESSAGE_ENCODING,
-                context=self.fox,
-            )
-            self.channels[topic] = channel
-            self.forwarded[topic] = 0
+            channel = self.channels.get(topic)
+            if channel is None:
+                try:
+                    definition = self.definitions.full_text(type_name)
+                except FfmpcError as exc:
+                    self.get_logger().warning(f"{topic} not bridged: {exc}")
+                    self._bridges[topic] = None
+                    continue
+                channel = foxglove.Channel(
+                    topic,
+                    schema=foxglove.Schema(
+                        name=type_name, encoding=SCHEMA_ENCODING, data=definition.encode()
+                    ),
+                    message_encoding=MESSAGE_ENCODING,
+                    context=self.fox,
+                )
+                self.channels[topic] = channel
+                self.forwarded[topic] = 0
+                self._last_channel_at = time.monotonic()
+            if topic == topics.PLANT_JOINT_STATES and self.wait_for_client:
+                if not self.client_ready:
+                    continue  # advertised; subscribed (the plant starts) once a client is in
             self._bridges[topic] = subscribe_raw(
                 self,
                 topic,
                 type_name,
                 offered_profiles(publishers),
-                self._forwarder(topic, channel),
+                self._forwarder(topic, channel, topic in LATCHED),
                 BRIDGE_DEPTH,
             )
 
-    def _forwarder(self, topic: str, channel) -> Callable[[bytes], None]:
+    def _forwarder(self, topic: str, channel, latched: bool) -> Callable[[bytes], None]:
+        """The raw callback of a topic: forward to Foxglove while a client listens (a latched
+        topic's last message is kept and sent again to each new subscriber), then the hook."""
         clock = self.get_clock()
         hook = self._hooks.get(topic)
         forwarded = self.forwarded
 
         def on_message(data: bytes) -> None:
+            now = clock.now().nanoseconds
+            if latched:
+                self._latched[topic], self._latched_at[topic] = data, now
             if channel.has_sinks():
-                channel.log(data, log_time=clock.now().nanoseconds)
+                channel.log(data, log_time=now)
                 forwarded[topic] += 1
             if hook is not None:
                 hook(data)
@@ -472,6 +516,23 @@ class ViewNode(Node):
         super().destroy_node()
 
 
+class _Subscriptions:
+    """Server listener: the first time (monotonic s) a client subscribed to each topic, and
+    the topics subscribed since the view last looked (``take_new``)."""
+
+    def __init__(self) -> None:
+        self.subscribed: dict[str, float] = {}
+        self._new: list[str] = []
+
+    def on_subscribe(self, client, channel) -> None:
+        self.subscribed.setdefault(channel.topic, time.monotonic())
+        self._new.append(channel.topic)
+
+    def take_new(self) -> list[str]:
+        new, self._new = self._new, []
+        return new
+
+
 def _point(p: np.ndarray) -> Point:
     return Point(x=float(p[0]), y=float(p[1]), z=float(p[2]))
 
@@ -479,10 +540,10 @@ def _point(p: np.ndarray) -> Point:
 def view_process(config_path: str) -> int:
     """The view node in its own process (``ffmpc run --view``).
 
-    ``config_path``: JSON {"robot", "host", "port", "domain", "counts": path of the JSON written
-    at the end}. Serves until SIGINT/SIGTERM (the bring-up stops it once the run is over; it
-    dies with the bring-up through PR_SET_PDEATHSIG), then writes {"address", "forwarded",
-    "tf"} to ``counts``. Exit 1 with the reason if the server cannot start."""
+    ``config_path``: JSON {"robot", "host", "port", "domain", "wait_for_client", "counts": path
+    of the JSON written at the end}. Serves until SIGINT/SIGTERM (the bring-up stops it once the
+    run is over; it dies with the bring-up through PR_SET_PDEATHSIG), then writes {"address",
+    "forwarded", "tf"} to ``counts``. Exit 1 with the reason if the server cannot start."""
     from rclpy.context import Context
     from rclpy.experimental import EventsExecutor
     from rclpy.signals import SignalHandlerOptions
@@ -502,7 +563,11 @@ def view_process(config_path: str) -> int:
     executor = EventsExecutor(context=context)
     try:
         node = ViewNode(
-            config["robot"], host=config["host"], port=int(config["port"]), context=context
+            config["robot"],
+            host=config["host"],
+            port=int(config["port"]),
+            context=context,
+            wait_for_client=bool(config.get("wait_for_client")),
         )
     except FfmpcError as exc:
         print(f"view: {exc}", flush=True)

@@ -105,7 +105,12 @@ def live_run(tmp_path_factory):
     client = FoxgloveClient(port, timeout=120.0)
     client.start()
     result = run_graph(
-        load_scenario("polishing"), duration=DURATION, timeout=120, record=bag, view=port
+        load_scenario("polishing"),
+        duration=DURATION,
+        timeout=120,
+        record=bag,
+        view=port,
+        view_wait=True,  # the run starts once the client is subscribed: nothing is missed
     )
     client.join(timeout=15.0)
     assert not client.is_alive(), "the server did not close when the run ended"
