@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import json
 import re
-import signal
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -41,7 +40,6 @@ from typing import Any
 
 import numpy as np
 import pinocchio as pin
-import rclpy
 from geometry_msgs.msg import Point, WrenchStamped
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
@@ -544,51 +542,38 @@ def view_process(config_path: str) -> int:
     of the JSON written at the end}. Serves until SIGINT/SIGTERM (the bring-up stops it once the
     run is over; it dies with the bring-up through PR_SET_PDEATHSIG), then writes {"address",
     "forwarded", "tf"} to ``counts``. Exit 1 with the reason if the server cannot start."""
-    from rclpy.context import Context
-    from rclpy.experimental import EventsExecutor
-    from rclpy.signals import SignalHandlerOptions
+    from ffmpc_ros.child_process import child_ros_process
 
-    with open(config_path, encoding="utf-8") as fh:
-        config = json.load(fh)
-    stopping: list[int] = []
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda signum, _frame: stopping.append(signum))
-    context = Context()
-    rclpy.init(
-        args=[],
-        context=context,
-        domain_id=int(config["domain"]),
-        signal_handler_options=SignalHandlerOptions.NO,
-    )
-    executor = EventsExecutor(context=context)
-    try:
-        node = ViewNode(
-            config["robot"],
-            host=config["host"],
-            port=int(config["port"]),
-            context=context,
-            wait_for_client=bool(config.get("wait_for_client")),
-        )
-    except FfmpcError as exc:
-        print(f"view: {exc}", flush=True)
-        executor.shutdown()
-        rclpy.shutdown(context=context)
-        return 1
-    print(f"view: Foxglove server on {node.address}", flush=True)
-    executor.add_node(node)
-    try:
-        while not stopping:
-            executor.spin_once(timeout_sec=0.05)
-    finally:
-        counts = {"address": node.address, "forwarded": node.forwarded, "tf": node.tf_published}
-        node.close()
-        if config.get("counts"):
-            with open(config["counts"], "w", encoding="utf-8") as fh:
-                json.dump(counts, fh)
-        executor.remove_node(node)
-        node.destroy_node()
-        executor.shutdown()
-        rclpy.shutdown(context=context)
+    with child_ros_process(config_path) as child:
+        config, executor, stopping = child.config, child.executor, child.stopping
+        try:
+            node = ViewNode(
+                config["robot"],
+                host=config["host"],
+                port=int(config["port"]),
+                context=child.context,
+                wait_for_client=bool(config.get("wait_for_client")),
+            )
+        except FfmpcError as exc:
+            print(f"view: {exc}", flush=True)
+            return 1
+        print(f"view: Foxglove server on {node.address}", flush=True)
+        executor.add_node(node)
+        try:
+            while not stopping:
+                executor.spin_once(timeout_sec=0.05)
+        finally:
+            counts = {
+                "address": node.address,
+                "forwarded": node.forwarded,
+                "tf": node.tf_published,
+            }
+            node.close()
+            if config.get("counts"):
+                with open(config["counts"], "w", encoding="utf-8") as fh:
+                    json.dump(counts, fh)
+            executor.remove_node(node)
+            node.destroy_node()
     return 0
 
 

@@ -350,49 +350,34 @@ def graph_recorder_process(config_path: str) -> int:
     when the bring-up dies (PR_SET_PDEATHSIG, set by the bring-up) — then closes the bag
     (summary, footer: readable without recovery) and writes {"received", "complete",
     "signal"} to ``counts``."""
-    from rclpy.context import Context
-    from rclpy.experimental import EventsExecutor
-    from rclpy.signals import SignalHandlerOptions
+    from ffmpc_ros.child_process import child_ros_process
 
-    with open(config_path, encoding="utf-8") as fh:
-        config = json.load(fh)
-    stopping: list[int] = []
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda signum, _frame: stopping.append(signum))
-    context = Context()
-    rclpy.init(
-        args=[],
-        context=context,
-        domain_id=int(config["domain"]),
-        signal_handler_options=SignalHandlerOptions.NO,
-    )
-    executor = EventsExecutor(context=context)
-    recorder = BagRecorder(
-        config["target"],
-        context=context,
-        metadata=config["metadata"],
-        **_graph_recorder_options(config.get("view")),
-    )
-    executor.add_node(recorder)
-    try:
-        while not stopping and not recorder.complete:
-            executor.spin_once(timeout_sec=0.05)
-    finally:
-        complete = recorder.complete
-        recorder.close()
-        with open(config["counts"], "w", encoding="utf-8") as fh:
-            json.dump(
-                {
-                    "received": recorder.received,
-                    "complete": complete,
-                    "signal": stopping[0] if stopping else None,
-                },
-                fh,
-            )
-        executor.remove_node(recorder)
-        recorder.destroy_node()
-        executor.shutdown()
-        rclpy.shutdown(context=context)
+    with child_ros_process(config_path) as child:
+        config, executor, stopping = child.config, child.executor, child.stopping
+        recorder = BagRecorder(
+            config["target"],
+            context=child.context,
+            metadata=config["metadata"],
+            **_graph_recorder_options(config.get("view")),
+        )
+        executor.add_node(recorder)
+        try:
+            while not stopping and not recorder.complete:
+                executor.spin_once(timeout_sec=0.05)
+        finally:
+            complete = recorder.complete
+            recorder.close()
+            with open(config["counts"], "w", encoding="utf-8") as fh:
+                json.dump(
+                    {
+                        "received": recorder.received,
+                        "complete": complete,
+                        "signal": stopping[0] if stopping else None,
+                    },
+                    fh,
+                )
+            executor.remove_node(recorder)
+            recorder.destroy_node()
     return 0
 
 
