@@ -49,6 +49,8 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.time_source import TimeSource
+from rosgraph_msgs.msg import Clock as ClockMsg
 
 from ffmpc_core.errors import FfmpcError, InputError
 from ffmpc_core.scenario import Scenario
@@ -113,6 +115,18 @@ class StudyNode(Node):
         self._last_cycle: dict[str, int] = {}
         self.max_input_age = float(self.params.get("max_input_age", math.inf))
         self.add_on_set_parameters_callback(self._refuse_fixed_parameters)
+        # rclpy's time source reads /clock BEST_EFFORT: a sample reaches a reader only once the
+        # reader has matched the plant's writer too, so a node whose side of the match came late
+        # judged its first inputs by a clock still at 0 and rejected them as from the future
+        # (lockstep never publishes that cycle's /clock again). A RELIABLE reader gets what the
+        # writer sent since the writer matched it (resent until acknowledged); it feeds the node's
+        # clock through a second TimeSource (public rclpy API).
+        self._reliable_time = TimeSource()
+        self._reliable_time.ros_time_is_active = True
+        self._reliable_time.attach_clock(self.get_clock())
+        self.create_subscription(
+            ClockMsg, topics.CLOCK, self._reliable_time.clock_callback, topics.clock_reader_qos()
+        )
         self.accepted: Counter[str] = Counter()  # accepted inputs per topic
         self._diagnosed = (time.monotonic(), Counter[str](), 0)  # (wall s, accepted, rejected)
         self._pub_diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)

@@ -14,6 +14,7 @@ from typing import Any
 import yaml
 
 from ffmpc_core.scenario import Scenario
+from ffmpc_ros import topics
 from ffmpc_ros.params import node_parameter_values
 
 #: node name → "module:class"; the module's ``main`` is the executable.
@@ -40,8 +41,8 @@ def graph_parameters(scenario: Scenario, lockstep: bool, duration: float) -> dic
         "duration": float(duration),
         "start_delay": 0.5,  # wall s after the subscribers appear: discovery settles
         "start_subscribers": 2,  # the joint-sensor and metrics nodes
-        # every node's time source: the plant's own, the other nodes' and the metrics node's
-        "start_clock_subscribers": len(NODES) + 1,
+        # every node's two /clock readers: the plant's own, the other nodes' and the metrics'
+        "start_clock_subscribers": topics.CLOCK_READERS_PER_NODE * (len(NODES) + 1),
         "wait_for_metrics": True,  # the metrics node has matched every topic it records
     }
     names = [*NODES, "metrics"]

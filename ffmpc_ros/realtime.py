@@ -487,7 +487,8 @@ class RealtimeLoop:
         end = time.monotonic() + limit
         while (
             self.pub_joints.get_subscription_count() < 1
-            or self.pub_clock.get_subscription_count() < len(self.nodes) + 1
+            or self.pub_clock.get_subscription_count()
+            < topics.CLOCK_READERS_PER_NODE * (len(self.nodes) + 1)
             or self.sub_command.get_publisher_count() < 1
         ):
             if time.monotonic() > end:

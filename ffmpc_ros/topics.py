@@ -10,6 +10,8 @@ lockstep, whatever the start order of the processes:
   only the newest in real time (``KEEP_LAST(1)``: a late sample is worthless);
 * ``/clock`` is RELIABLE + VOLATILE with the same history (rclpy's time source subscribes
   BEST_EFFORT, depth 1: only the newest time matters to a node; the recorder keeps them all).
+  Every ffmpc node also reads it RELIABLE, depth 1 (:func:`clock_reader_qos`, feeding the same
+  clock): a best-effort sample is lost while the reader's side of the match is not yet made.
 """
 
 from __future__ import annotations
@@ -102,6 +104,21 @@ def subscriber_qos(lockstep: bool) -> QoSProfile:
         reliability=ReliabilityPolicy.RELIABLE,
         durability=DurabilityPolicy.TRANSIENT_LOCAL,
     )
+
+
+def clock_reader_qos() -> QoSProfile:
+    """Each node's own /clock reader (beside rclpy's best-effort one): RELIABLE, VOLATILE,
+    KEEP_LAST(1): only the newest time matters, but no sample sent after the match is lost."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=1,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.VOLATILE,
+    )
+
+
+#: /clock readers per node: rclpy's time source and the node's reliable one (clock_reader_qos).
+CLOCK_READERS_PER_NODE = 2
 
 
 def clock_qos() -> QoSProfile:
