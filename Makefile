@@ -30,7 +30,9 @@ install: $(STAMP) $(NATIVE)
 # rebuild of the C++ module (`make native`) run without build isolation: same ABI, ~10x faster.
 $(STAMP): pyproject.toml CMakeLists.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
+	# setuptools >= 70.1 builds wheels itself: without it (or `wheel`), pip >= 25.3 cannot build
+	# the sdists of the ROS wheels' dependencies (empy) without build isolation.
+	$(BIN)/python -m pip install --quiet --upgrade pip 'setuptools>=70.1' wheel
 	$(BIN)/python -c "$$BUILD_REQUIRES" > $(VENV)/build-requirements.txt
 	$(BIN)/python -m pip install --quiet -r $(VENV)/build-requirements.txt
 	$(BIN)/python -m pip install --quiet --no-build-isolation -e '.[dev]'
