@@ -342,8 +342,13 @@ class ModelPredictiveController:
         if self._predictor is None or not self._sent:
             return x
         delay, h = self.config.command_delay, self.config.prediction_step
-        recent = [(ts, u) for ts, u in self._sent if ts > t - delay - self.config.period]
-        self._sent = recent or self._sent[-1:]  # irregular solves (real time): newest still acts
+        # The commands acting during [t, t + δo): those sent after t − δo, and the newest one sent
+        # at or before t − δo (acting at t). Not "sent within one period before t − δo": after a
+        # tick without a solve (dropped, or skipped in real time), the command acting at t is
+        # older than that, and the prediction would apply a newer one too early.
+        cut = t - delay + 1e-12
+        acting = [c for c in self._sent if c[0] <= cut][-1:]
+        self._sent = acting + [c for c in self._sent if c[0] > cut]
         steps = int(round(delay / h))
         nv = self.robot.nv
         torque_feedback = self.config.formulation == "torque_feedback"

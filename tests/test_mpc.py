@@ -123,6 +123,30 @@ def test_delay_predictor_integrates_the_commands_in_flight(robot, formulation):
     assert np.linalg.norm(predicted[:14] - x0[:14]) > 1e-6  # the delay really changes x
 
 
+@pytest.mark.parametrize("formulation", ["classical", "force_feedback"])
+def test_delay_predictor_after_a_tick_without_a_solve(robot, formulation):
+    """Solves at 0, 2 and 6 ms (the 4 ms tick dropped, or skipped in real time): from t = 8 ms
+    the commands acting during [8, 12) ms are those of 2, 2, 6, 6 ms. (Keeping only commands
+    sent within one period before t − δo applied the 6 ms command from 8 ms: with one tick in
+    five dropped, joint 5 reached 9× its velocity limit in the polishing run.)"""
+    task = press_task(robot)
+    config = MpcConfig(formulation=formulation, command_delay=0.004, prediction_step=0.001)
+    mpc = ModelPredictiveController(robot, config, task)
+    q0 = robot.q_nominal
+    meas = MpcMeasurement(q=q0, v=np.full(7, 0.05), force=np.array([5.0]))
+    x0 = mpc.state_from(meas)
+    sent = {}
+    for t in (0.0, 0.002, 0.006):
+        sent[t] = mpc.step(meas, t).us[0]
+    predicted = mpc.predict(x0, 0.008)
+    plant = ModelPlant(robot, formulation, config.contact, dt=0.001)
+    plant.x[:] = x0
+    for i, u in enumerate([sent[0.002], sent[0.002], sent[0.006], sent[0.006]]):
+        plant.step(u, task.in_contact(0.008 + i * 0.001))
+    np.testing.assert_allclose(predicted, plant.x, atol=1e-12)
+    assert not np.allclose(sent[0.002], sent[0.006])  # the two commands differ
+
+
 def test_warm_start_shift_interpolates():
     rows = np.arange(12.0).reshape(6, 2)
     out = _interp_rows(rows, np.array([0.5, 1.0, 4.75, 7.0]))
