@@ -17,6 +17,12 @@ reuse it. Kinds:
 * ``node-kill`` — a node's process is killed (SIGKILL) at ``start``; ``node-kill:NODE@T`` names
   the node (default :data:`DEFAULT_KILLED_NODE`); the torque loop must hold the robot safely
   (node graph only, multi-process).
+* ``loop-stall`` — the real-time loop process (plant, sensors, torque loop) is frozen for
+  ``duration`` wall s from the cycle at simulated ``start``, as a preempted process would be;
+  the physical plant does not wait: it steps on under the motor torque last sent (real time
+  only, ``ffmpc_ros.realtime``);
+* ``mpc-stall`` — the real-time MPC process is stopped (SIGSTOP) for ``duration`` wall s from
+  simulated ``start`` (real time only).
 
 Where each kind is applied in the node graph (``ffmpc run --fault``): see
 ``ffmpc_ros.fault_injector``.
@@ -39,7 +45,11 @@ FAULT_KINDS = (
     "nan-wrench",
     "future-stamp",
     "node-kill",
+    "loop-stall",
+    "mpc-stall",
 )
+#: The kinds a real-time run injects (``ffmpc_ros.realtime``): process stalls, given a duration.
+REALTIME_KINDS = ("loop-stall", "mpc-stall")
 #: The kinds the ROS-free runner (``sim_bridge.runner``) applies.
 RUNNER_KINDS = ("mpc-dropout", "sensor-dropout", "torque-spike", "nan-wrench")
 #: How far ahead of the clock a ``future-stamp`` message is stamped, s.
@@ -74,6 +84,8 @@ class Fault:
                 object.__setattr__(self, "node", DEFAULT_KILLED_NODE)
             if self.duration is not None:
                 raise ConfigError("node-kill takes no duration: a killed node stays dead")
+        elif self.kind in REALTIME_KINDS and self.duration is None:
+            raise ConfigError(f"{self.kind} needs a duration ({self.kind}@T+DURATION, wall s)")
         elif self.node is not None:
             raise ConfigError(f"only node-kill names a node (node-kill:NODE@T), got {self}")
 
@@ -139,6 +151,7 @@ __all__ = [
     "DEFAULT_KILLED_NODE",
     "FAULT_KINDS",
     "FUTURE_STAMP_AHEAD",
+    "REALTIME_KINDS",
     "RUNNER_KINDS",
     "Fault",
     "active_kinds",

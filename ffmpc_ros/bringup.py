@@ -420,8 +420,10 @@ def run_graph(
                 "interpreter each, see ffmpc_ros.realtime); --single-process and --record are "
                 "lockstep options"
             )
+        windows = [tuple(map(float, w)) for w in fault_windows]
+        windows += [(f.start, min(f.end + FAULT_RECOVERY, float(duration))) for f in faults]
         return _run_real_time(
-            scenario, params, timeout, domain, quiet, fault_windows, cpus, priority
+            scenario, params, timeout, domain, quiet, windows, cpus, priority, faults
         )
     from ffmpc_core.study import steps_per_mpc_period
 
@@ -616,7 +618,7 @@ def run_graph(
 
 
 def _run_real_time(
-    scenario: Scenario, params, timeout, domain, quiet, fault_windows, cpus, priority
+    scenario: Scenario, params, timeout, domain, quiet, fault_windows, cpus, priority, faults
 ) -> GraphResult:
     """Real time (``ffmpc_ros.realtime``): the loop process and the MPC process."""
     from ffmpc_ros.realtime import DEFAULT_PRIORITY, run_realtime
@@ -629,6 +631,7 @@ def _run_real_time(
         cpus=cpus,
         priority=DEFAULT_PRIORITY if priority is None else priority,
         fault_windows=fault_windows,
+        stalls=faults,
     )
     s, timing = run.summary, run.summary["timing"]
     loop = timing["loop"]

@@ -40,7 +40,7 @@ from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
-from ffmpc_core.faults import FUTURE_STAMP_AHEAD, Fault, require_kinds
+from ffmpc_core.faults import FUTURE_STAMP_AHEAD, REALTIME_KINDS, Fault, require_kinds
 from ffmpc_ros import topics
 
 #: Kinds injected by acting on a node's process (multi-process lockstep only).
@@ -62,7 +62,7 @@ def check_supported(faults: Sequence[Fault], single_process: bool, lockstep: boo
     if not faults:
         return
     if not lockstep:
-        require_kinds(faults, (), "real time (--real-time; --fault-window marks external faults)")
+        require_kinds(faults, REALTIME_KINDS, "real time (--fault-window marks external faults)")
     elif single_process:
         require_kinds(faults, MESSAGE_KINDS, "--single-process (no process to stop or kill)")
     else:

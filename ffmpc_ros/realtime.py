@@ -25,10 +25,16 @@ Deadlines (every time below is wall time, measured with ``time.perf_counter``):
   is met when, by r_{k+1}, it has run the sensor models on the state of t_k, published the
   measurement, taken the MPC commands that arrived, computed τ^m (hold/blend/track/fallback +
   PID), applied it through the actuation model and stepped the plant to t_{k+1}: the torque of
-  cycle k is applied before the plant's step k+1 is due. A late cycle starts at once when the
-  previous one ends (the plant never skips a step), so a stall shows as several missed cycles.
+  cycle k is applied before the plant's step k+1 is due. A cycle that starts late but within
+  its period runs at once. A cycle the loop reaches a whole period after its release is
+  **missed**: the plant is physical and does not wait for its controller, so it steps on under
+  the motor torque last sent (zero-order hold, as motor drivers do) while the sensor devices
+  keep sampling; nothing is published or computed for it, and the loop resumes at the first
+  release still ahead, on the same grid. (Running the missed cycles back to back instead, faster
+  than real time, let the MPC fall behind the plant it controls: measured with an injected
+  30 ms stall of the loop, joint 5 reached 4.96x its velocity limit; 8.6x after 100 ms.)
   The **cycle latency** is the time from r_k to the end of that work (so it includes the
-  wake-up jitter).
+  wake-up jitter; inf for a missed cycle).
 * **MPC** — every ``mpc.period`` (a tick: cycles k with k % (period/Δt) = 0) the MPC must solve
   from the measurement of cycle k and its command must be in the loop when it takes commands
   in cycle k + period/Δt (just after publishing that cycle's measurement), i.e. within one MPC
@@ -49,6 +55,12 @@ Deadlines (every time below is wall time, measured with ``time.perf_counter``):
 
 ``ffmpc run --real-time`` exits non-zero when more than :data:`MAX_MISSED_FRACTION` of either
 kind of deadline was missed or any fallback time falls outside the fault windows.
+
+Injected stalls (``ffmpc run --real-time --fault loop-stall@T+D`` or ``mpc-stall@T+D``,
+:class:`_StallSchedule`): the loop thread, or the whole MPC process (SIGSTOP), is frozen for D
+wall seconds from the cycle at simulated time T, as a preempted process would be; the summary
+lists them under ``faults`` and, as for the lockstep graph's faults, the verdict of such a run
+is its safety (joint limits), its timing failures are reported.
 """
 
 from __future__ import annotations
@@ -80,7 +92,13 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from ffmpc_core.errors import FfmpcError, InputError
-from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement, LowLevelMode
+from ffmpc_core.faults import REALTIME_KINDS, Fault, parse_fault, require_kinds
+from ffmpc_core.lowlevel import (
+    LowLevelCommand,
+    LowLevelMeasurement,
+    LowLevelMode,
+    LowLevelOutput,
+)
 from ffmpc_core.metrics import PolishingMetrics, limit_ratios
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import Scenario
@@ -226,6 +244,55 @@ def timing_failures(timing: dict, max_missed: float = MAX_MISSED_FRACTION) -> li
     return out
 
 
+# -- injected stalls ----------------------------------------------------------------------------
+class _StallSchedule:
+    """The stalls a real-time run injects (``loop-stall``, ``mpc-stall``: ``ffmpc_core.faults``),
+    driven by the loop thread: :meth:`inject` at every cycle that runs, :meth:`resume_due` at
+    every release (missed cycles included).
+
+    * ``loop-stall`` — the loop thread sleeps ``duration`` wall s in the first cycle at or after
+      ``start`` that runs (after publishing that cycle's measurement, before its torque);
+    * ``mpc-stall`` — SIGSTOP of the MPC process (``mpc_pid``) at that cycle, SIGCONT at the
+      first release ``duration`` wall s later (and at the end of the run, whatever happens).
+    """
+
+    def __init__(self, stalls: Sequence[Fault], time_step: float, mpc_pid: int | None) -> None:
+        self.time_step = time_step
+        self.mpc_pid = mpc_pid
+        self.pending = sorted(stalls, key=lambda f: f.start)
+        if any(f.kind == "mpc-stall" for f in self.pending) and mpc_pid is None:
+            raise RealtimeError("an mpc-stall needs the MPC's process id (--mpc-pid)")
+        self.stopped: float | None = None  # perf_counter time to resume the MPC at, s
+        self.records: list[dict] = []
+
+    def inject(self, k: int) -> None:
+        t = k * self.time_step
+        while self.pending and self.pending[0].start <= t + 1e-9:
+            fault = self.pending.pop(0)
+            duration = float(fault.duration or 0.0)
+            self.records.append({"fault": str(fault), "injected_at": t, "ended_at": t + duration})
+            if fault.kind == "loop-stall":
+                time.sleep(duration)
+            elif self.stopped is None:
+                os.kill(self.mpc_pid, signal.SIGSTOP)
+                self.stopped = time.perf_counter() + duration
+
+    def resume_due(self) -> None:
+        if self.stopped is not None and time.perf_counter() >= self.stopped:
+            self.release()
+
+    def release(self) -> None:
+        """SIGCONT of a stopped MPC (also at the end of the run: never left stopped)."""
+        if self.stopped is not None and self.mpc_pid is not None:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(self.mpc_pid, signal.SIGCONT)
+        self.stopped = None
+
+    def report(self) -> list[dict]:
+        """Per stall: the fault, the simulated s it began and ended at (wall s = plant s)."""
+        return list(self.records)
+
+
 # -- scheduling ---------------------------------------------------------------------------------
 def set_timer_slack(ns: int = 1000) -> bool:
     """Linux: timer slack of this thread, ns (default 50 µs makes every sleep late)."""
@@ -338,15 +405,25 @@ class RealtimeLoop:
             (``ffmpc_ros.graph_nodes.graph_parameters``; the plant's ``duration`` and
             ``start_delay`` are used).
         context: the rclpy context.
+        stalls: ``loop-stall`` / ``mpc-stall`` faults to inject (:class:`_StallSchedule`).
+        mpc_pid: the MPC process (for ``mpc-stall``).
     """
 
-    def __init__(self, params: dict[str, dict], context: Context) -> None:
+    def __init__(
+        self,
+        params: dict[str, dict],
+        context: Context,
+        stalls: Sequence[Fault] = (),
+        mpc_pid: int | None = None,
+    ) -> None:
         def node(name: str) -> StudyNode:
             return StudyNode(
                 name, context=context, parameter_overrides=parameter_overrides(params[name])
             )
 
         self.context = context
+        self.stalls = tuple(stalls)
+        self.mpc_pid = mpc_pid
         self.nodes = {n: node(n) for n in ("plant", "joint_sensor", "ft_sensor", "pid")}
         plant_node = self.nodes["plant"]
         s = plant_node.scenario
@@ -500,7 +577,13 @@ class RealtimeLoop:
 
     # -- the run ---------------------------------------------------------------------------------
     def run(self) -> dict:
-        """Run every cycle on the wall clock; returns the raw per-cycle records."""
+        """Run every cycle on the wall clock; returns the raw per-cycle records.
+
+        A cycle whose release is a whole period past when the loop gets to it is **missed**
+        (:meth:`_missed_cycle`): the physical plant does not wait for a late controller, so it
+        steps on under the motor torque last sent (zero-order hold, as motor drivers do), the
+        sensor devices keep sampling, and nothing is published or computed for that cycle.
+        The loop then resumes at the first release still ahead, on the same grid."""
         n, nv, dt = self.steps, self.robot.nv, self.time_step
         rec = {
             "q": np.zeros((n, nv)),
@@ -512,6 +595,7 @@ class RealtimeLoop:
             "tau_motor": np.zeros((n, nv)),
             "mode": np.zeros(n, dtype=np.int8),
             "cycle_latency": np.zeros(n),
+            "missed": np.zeros(n, dtype=bool),
             "command_arrival": np.full(n, -1, dtype=np.int64),
             "command_latency": np.full(n, np.nan),
             "published": np.zeros(n),
@@ -519,8 +603,11 @@ class RealtimeLoop:
         solve_times: list[float] = []
         tau_hat = self.robot.gravity(self.robot.q_nominal)  # the motors hold the robot at start
         last_motor = tau_hat.copy()
+        f_hat = np.zeros(len(self.force_axes))
+        out: LowLevelOutput | None = None
         state = self.plant.state()
         contact = self.contact
+        stalls = _StallSchedule(self.stalls, dt, self.mpc_pid)
         gc.collect()
         gc.freeze()
         gc.disable()
@@ -528,9 +615,21 @@ class RealtimeLoop:
         pid_node = self.nodes["pid"]
         try:
             t0 = time.perf_counter() + 0.01
-            for k in range(n):
+            k = 0
+            while k < n:
                 release = t0 + k * dt
                 sleep_until(release)
+                stalls.resume_due()
+                if time.perf_counter() - release >= dt:  # a whole period late: missed
+                    q_true, v_true, force_true = state.q, state.v, state.normal_force
+                    tau_hat, state = self._missed_cycle(k, last_motor, state, contact)
+                    self._record(rec, k, q_true, v_true, force_true, f_hat, tau_hat, last_motor)
+                    rec["tau_desired"][k] = rec["tau_desired"][k - 1] if k else 0.0
+                    rec["mode"][k] = rec["mode"][k - 1] if k else int(LowLevelMode.HOLD)
+                    rec["cycle_latency"][k] = math.inf
+                    rec["missed"][k] = True
+                    k += 1
+                    continue
                 if k % SUBSCRIBER_CHECK_EVERY == 0:
                     if not self.context.ok():  # SIGINT (rclpy's handler shuts the context)
                         raise KeyboardInterrupt
@@ -550,6 +649,7 @@ class RealtimeLoop:
                         full[axis] = float(value)
                     self.pub_wrench.publish(self._wrench_msg(stamp, full))
                 rec["published"][k] = time.perf_counter()
+                stalls.inject(k)  # (an injected stall freezes this process here)
                 self._take_commands(
                     k, rec["command_arrival"], rec["command_latency"], rec["published"], solve_times
                 )
@@ -569,12 +669,7 @@ class RealtimeLoop:
                 state = self.plant.state()
                 rec["cycle_latency"][k] = time.perf_counter() - release
                 # records and the observer topics (off the deadline)
-                rec["q"][k] = q_true
-                rec["v"][k] = v_true
-                rec["force_true"][k] = force_true
-                rec["force_measured"][k] = f_hat[-1]
-                rec["tau_measured"][k] = tau_hat
-                rec["tau_motor"][k] = motor
+                self._record(rec, k, q_true, v_true, force_true, f_hat, tau_hat, motor)
                 if out is not None:
                     rec["tau_desired"][k] = out.desired_torque
                     rec["mode"][k] = int(out.mode)
@@ -582,7 +677,9 @@ class RealtimeLoop:
                     rec["tau_desired"][k] = rec["tau_desired"][k - 1]
                     rec["mode"][k] = rec["mode"][k - 1]
                 self._publish_observers(k, stamp, q_true, force_true, out, tau_hat, state)
+                k += 1
         finally:
+            stalls.release()
             gc.enable()
             gc.unfreeze()
         rec["solve_times"] = np.array(solve_times)
@@ -591,7 +688,28 @@ class RealtimeLoop:
         rec["rejected"] = dict(self.rejected) | {
             k: v for k, v in pid_node.rejected.items() if k not in self.rejected
         }
+        rec["stalls"] = stalls.report()
         return rec
+
+    def _missed_cycle(self, k: int, motor: np.ndarray, state, contact):
+        """Cycle k missed by the loop: the sensor devices sample (their delay lines keep time,
+        nothing is published) and the plant steps under the held motor torque through the
+        actuation model (eq 31). Returns (τ̂ applied, N·m; the plant state after the step)."""
+        self.joint_model.step(state.q, state.v)
+        self.force_model.step(measured_force(state.wrench_world, contact))
+        self.sim.push_if_due(k)
+        tau_hat = self.actuation.step(motor, state.v)
+        self.plant.step(tau_hat)
+        return tau_hat, self.plant.state()
+
+    @staticmethod
+    def _record(rec, k, q_true, v_true, force_true, f_hat, tau_hat, motor) -> None:
+        rec["q"][k] = q_true
+        rec["v"][k] = v_true
+        rec["force_true"][k] = force_true
+        rec["force_measured"][k] = f_hat[-1]
+        rec["tau_measured"][k] = tau_hat
+        rec["tau_motor"][k] = motor
 
     def _publish_observers(self, k, stamp, q_true, force_true, out, tau_hat, state) -> None:
         """The topics no controller reads, only while someone subscribes."""
@@ -662,8 +780,9 @@ class RealtimeLoop:
     def results(self, rec: dict, fault_windows: FaultWindows = ()) -> tuple[dict, dict]:
         """(summary, log arrays): the study metrics (same code as the runner) and the timing;
         the log has the runner's arrays plus, per cycle, ``mode`` (LowLevelMode),
-        ``cycle_latency`` (s) and ``command_arrival`` (the cycle at which the command solved
-        from this cycle was taken, −1 for none)."""
+        ``cycle_latency`` (s; inf for a missed cycle), ``command_arrival`` (the cycle at which the
+        command solved from this cycle was taken, −1 for none) and ``missed`` (the loop missed
+        the cycle: the plant stepped under the held torque, :meth:`run`)."""
         log = StudyLog(self.steps, self.robot, self.task)
         for k in range(self.steps):
             log.record(
@@ -694,8 +813,9 @@ class RealtimeLoop:
             m.name.lower(): int(np.count_nonzero(rec["mode"] == int(m))) for m in LowLevelMode
         }
         timing["rejected"] = rec["rejected"]
+        timing["loop"]["missed_cycles"] = int(np.count_nonzero(rec["missed"]))
         arrays = dict(log.arrays)
-        for name in ("mode", "cycle_latency", "command_arrival"):  # the run's timing per cycle
+        for name in ("mode", "cycle_latency", "command_arrival", "missed"):  # timing per cycle
             arrays[name] = rec[name]
         summary = {
             "formulation": self.scenario.mpc.formulation,
@@ -705,7 +825,7 @@ class RealtimeLoop:
             "metrics_measured": measured.to_dict(),
             "wall_time_s": rec["wall_time"],
             "timing": timing,
-            "safety": self.safety(rec),
+            "safety": self.safety(rec) | ({"faults": rec["stalls"]} if rec["stalls"] else {}),
         }
         return summary, arrays
 
@@ -735,13 +855,15 @@ class RealtimeLoop:
 
 
 def loop_main(argv: Sequence[str] | None = None) -> int:
-    """The loop process: ``python -m ffmpc_ros.realtime --out PREFIX [--cpu C] [--priority P]
-    [--fault-window START END]... --ros-args --params-file FILE``. Writes PREFIX.json (summary)
-    and PREFIX.npz (log)."""
+    """The loop process: ``python -m ffmpc_ros.realtime --out PREFIX [--fault-window START END]...
+    [--stall KIND@T+D]... [--mpc-pid PID] --ros-args --params-file FILE``. Writes PREFIX.json
+    (summary) and PREFIX.npz (log)."""
     argv = list(sys.argv if argv is None else argv)
     parser = argparse.ArgumentParser(prog="ffmpc-realtime-loop", description=loop_main.__doc__)
     parser.add_argument("--out", required=True)
     parser.add_argument("--fault-window", nargs=2, type=float, action="append", default=[])
+    parser.add_argument("--stall", action="append", default=[], help="loop-stall|mpc-stall@T+D")
+    parser.add_argument("--mpc-pid", type=int, default=None)
     user = rclpy.utilities.remove_ros_args(argv)[1:]
     args = parser.parse_args(user)
     context = Context()
@@ -751,7 +873,9 @@ def loop_main(argv: Sequence[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, signal.default_int_handler)
     loop = None
     try:
-        loop = RealtimeLoop(_params_from_args(argv), context)
+        stalls = [parse_fault(text) for text in args.stall]
+        require_kinds(stalls, REALTIME_KINDS, "the real-time loop")
+        loop = RealtimeLoop(_params_from_args(argv), context, stalls, args.mpc_pid)
         loop.wait_for_mpc()
         raise_helper_threads()
         rec = loop.run()
@@ -821,6 +945,7 @@ def run_realtime(
     cpus: tuple[int, int] | None | str = "auto",
     priority: int = DEFAULT_PRIORITY,
     fault_windows: FaultWindows = (),
+    stalls: Sequence[Fault] = (),
 ) -> RealtimeRun:
     """Start the MPC process and the loop process, wait for the run, return its results.
 
@@ -831,6 +956,8 @@ def run_realtime(
         priority: SCHED_FIFO priority of both processes (0: normal scheduling); where it is
             not permitted the run goes on with normal scheduling and a warning.
         fault_windows: (start, end) simulated s in which fallback is excused.
+        stalls: ``loop-stall`` / ``mpc-stall`` faults the loop injects (their windows are the
+            caller's to add to ``fault_windows``).
     """
     from ffmpc_ros.graph_nodes import NODES, write_params_file
 
@@ -849,6 +976,7 @@ def run_realtime(
         out = os.path.join(tmp, "loop")
         ros = ["--ros-args", "--params-file", path]
         faults = [a for w in fault_windows for a in ("--fault-window", str(w[0]), str(w[1]))]
+        faults += [a for f in stalls for a in ("--stall", str(f))]
         commands = {
             "mpc": [sys.executable, "-m", "ffmpc_ros.mpc_node", *ros],
             "loop": [sys.executable, "-m", "ffmpc_ros.realtime", "--out", out, *faults, *ros],
@@ -856,6 +984,8 @@ def run_realtime(
         children: dict[str, subprocess.Popen] = {}
         try:
             for name, cmd in commands.items():
+                if name == "loop":  # (the MPC started first: the loop may stop it, mpc-stall)
+                    cmd[-len(ros) : -len(ros)] = ["--mpc-pid", str(children["mpc"].pid)]
                 log = open(os.path.join(tmp, f"{name}.log"), "w") if quiet else None  # noqa: SIM115
                 child = subprocess.Popen(
                     cmd,

@@ -193,3 +193,47 @@ def test_real_time_run_json_is_consistent(tmp_path):
     broken = max(doc["max_velocity_ratio"] + doc["max_torque_ratio"]) > 1.0
     assert doc["safe_hold_s"] >= timing["mode_cycles"]["fallback"] * 1e-3
     assert code == (1 if timing_failures(timing) or broken else 0)
+
+
+def _stalled_run(fault: str):
+    from ffmpc_ros.bringup import run_graph
+
+    scenario = load_scenario("polishing")  # the force-feedback MPC
+    return run_graph(scenario, lockstep=False, duration=1.0, faults=[fault], timeout=180.0)
+
+
+def test_a_stalled_loop_misses_its_cycles_and_the_plant_steps_on_under_the_held_torque():
+    """loop-stall@0.5+0.03: the loop thread sleeps 30 ms wall in cycle 500. The plant is physical:
+    it does not wait, so cycles ~501-529 are missed and the plant steps on under the motor torque
+    of cycle 500 (zero-order hold); the loop then resumes on its grid. (Before: the missed cycles
+    ran back to back and the MPC fell behind its plant; this stall gave 4.96x a velocity limit.)"""
+    result = _stalled_run("loop-stall@0.5+0.03")
+    log, timing = result.log, result.timing
+    missed = log["missed"]
+    assert missed.size == 1000 and missed[502:528].all(), np.flatnonzero(missed)
+    assert not missed[500]  # the stalled cycle itself ran (late) ...
+    assert np.isinf(log["cycle_latency"][missed]).all() and log["cycle_latency"][500] >= 0.03
+    held = log["tau_motor"][501 : np.flatnonzero(~missed[501:])[0] + 501]
+    assert np.array_equal(held, np.broadcast_to(log["tau_motor"][500], held.shape))
+    assert timing["loop"]["missed_cycles"] == int(missed.sum()) >= 26
+    assert result.wall_time >= 0.99  # paced by the wall clock: the stall did not stretch it
+    (record,) = result.safety["faults"]
+    assert record == {"fault": "loop-stall@0.5+0.03", "injected_at": 0.5, "ended_at": 0.53}
+    # the injected fault excuses the fallback it causes (its window plus FAULT_RECOVERY)
+    assert timing["fault_windows"] == [[0.5, pytest.approx(0.58)]]
+
+
+def test_a_stalled_mpc_gives_the_safe_hold_then_the_mpc_takes_over_again():
+    """mpc-stall@0.4+0.1: the MPC process is stopped (SIGSTOP) for 100 ms. Its ticks are not
+    solved, the loop falls back to the safe hold once its command is older than the stale
+    timeout, and tracks again once the MPC is back (SIGCONT): within the limits throughout."""
+    result = _stalled_run("mpc-stall@0.4+0.1")
+    mode, timing = result.log["mode"], result.timing
+    fallback = np.flatnonzero(mode == FALLBACK)
+    during = fallback[(fallback >= 400) & (fallback < 520)]
+    assert during.size >= 80, fallback  # ~100 ms of hold, from ~6 ms after the stall
+    assert mode[650:].max() <= TRACK and (mode[900:] == TRACK).all()  # blended back, tracking
+    assert timing["fallback_excused_s"] >= 0.08
+    assert max(result.safety["max_velocity_ratio"]) < 1.0
+    assert max(result.safety["max_torque_ratio"]) <= 1.0
+    assert result.safety["faults"][0]["fault"] == "mpc-stall@0.4+0.1"

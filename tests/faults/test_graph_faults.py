@@ -113,6 +113,8 @@ def test_message_faults_are_rejected_never_adopted(tmp_path):
     ("args", "message"),
     [
         (["--real-time", "--fault", "nan-wrench@0.1"], "not supported in real time"),
+        (["--real-time", "--fault", "loop-stall@0.1"], "loop-stall needs a duration"),
+        (["--fault", "mpc-stall@0.1+0.05"], "mpc-stall is not supported in lockstep"),
         (["--single-process", "--fault", "node-kill@0.1"], "not supported in --single-process"),
         (["--fault", "node-kill@0.1+0.2"], "node-kill takes no duration"),
         (["--fault", "teleport@0.1"], "fault kind must be one of"),
