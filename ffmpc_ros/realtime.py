@@ -30,9 +30,11 @@ Deadlines (every time below is wall time, measured with ``time.perf_counter``):
   **missed**: the plant is physical and does not wait for its controller, so it steps on under
   the motor torque last sent (zero-order hold, as motor drivers do) while the sensor devices
   keep sampling; nothing is published or computed for it, and the loop resumes at the first
-  release still ahead, on the same grid. (Running the missed cycles back to back instead, faster
-  than real time, let the MPC fall behind the plant it controls: measured with an injected
-  30 ms stall of the loop, joint 5 reached 4.96x its velocity limit; 8.6x after 100 ms.)
+  release still ahead, on the same grid. Likewise a torque computed after its deadline reaches
+  the plant only after the steps whose start it missed (they run under the held torque).
+  (Running the missed cycles back to back instead, faster than real time, let the MPC fall
+  behind the plant it controls: measured with an injected 30 ms stall of the loop, joint 5
+  reached 4.96x its velocity limit; 8.6x after 100 ms.)
   The **cycle latency** is the time from r_k to the end of that work (so it includes the
   wake-up jitter; inf for a missed cycle).
 * **MPC** — every ``mpc.period`` (a tick: cycles k with k % (period/Δt) = 0) the MPC must solve
@@ -583,7 +585,9 @@ class RealtimeLoop:
         (:meth:`_missed_cycle`): the physical plant does not wait for a late controller, so it
         steps on under the motor torque last sent (zero-order hold, as motor drivers do), the
         sensor devices keep sampling, and nothing is published or computed for that cycle.
-        The loop then resumes at the first release still ahead, on the same grid."""
+        A torque computed past its deadline r_{k+1} missed the start of step k: that step and
+        each later one whose start passed meanwhile run under the held torque, then it is
+        delivered. The loop resumes at the first release still ahead, on the same grid."""
         n, nv, dt = self.steps, self.robot.nv, self.time_step
         rec = {
             "q": np.zeros((n, nv)),
@@ -621,13 +625,7 @@ class RealtimeLoop:
                 sleep_until(release)
                 stalls.resume_due()
                 if time.perf_counter() - release >= dt:  # a whole period late: missed
-                    q_true, v_true, force_true = state.q, state.v, state.normal_force
-                    tau_hat, state = self._missed_cycle(k, last_motor, state, contact)
-                    self._record(rec, k, q_true, v_true, force_true, f_hat, tau_hat, last_motor)
-                    rec["tau_desired"][k] = rec["tau_desired"][k - 1] if k else 0.0
-                    rec["mode"][k] = rec["mode"][k - 1] if k else int(LowLevelMode.HOLD)
-                    rec["cycle_latency"][k] = math.inf
-                    rec["missed"][k] = True
+                    tau_hat, state = self._missed_cycle(rec, k, last_motor, state, f_hat)
                     k += 1
                     continue
                 if k % SUBSCRIBER_CHECK_EVERY == 0:
@@ -661,15 +659,18 @@ class RealtimeLoop:
                     self._reject("step", f"cycle {k}: {exc}")
                     out = None
                 motor = out.motor_torque if out is not None else last_motor
-                last_motor = motor
+                # A torque past its deadline (r_{k+1}) reaches the motors after step k, and after
+                # every later step whose start it missed: those steps run under the held one.
+                late = int((time.perf_counter() - release) / dt)
+                applied = motor if late == 0 else last_motor
                 self.sim.push_if_due(k)
                 q_true, v_true, force_true = state.q, state.v, state.normal_force
-                tau_hat = self.actuation.step(motor, state.v)
+                tau_hat = self.actuation.step(applied, state.v)
                 self.plant.step(tau_hat)
                 state = self.plant.state()
                 rec["cycle_latency"][k] = time.perf_counter() - release
                 # records and the observer topics (off the deadline)
-                self._record(rec, k, q_true, v_true, force_true, f_hat, tau_hat, motor)
+                self._record(rec, k, q_true, v_true, force_true, f_hat, tau_hat, applied)
                 if out is not None:
                     rec["tau_desired"][k] = out.desired_torque
                     rec["mode"][k] = int(out.mode)
@@ -678,6 +679,10 @@ class RealtimeLoop:
                     rec["mode"][k] = rec["mode"][k - 1]
                 self._publish_observers(k, stamp, q_true, force_true, out, tau_hat, state)
                 k += 1
+                for _ in range(min(late - 1, n - k)):  # the later steps the torque missed
+                    tau_hat, state = self._missed_cycle(rec, k, applied, state, f_hat)
+                    k += 1
+                last_motor = motor  # delivered now
         finally:
             stalls.release()
             gc.enable()
@@ -691,15 +696,22 @@ class RealtimeLoop:
         rec["stalls"] = stalls.report()
         return rec
 
-    def _missed_cycle(self, k: int, motor: np.ndarray, state, contact):
+    def _missed_cycle(self, rec: dict, k: int, held: np.ndarray, state, f_hat: np.ndarray):
         """Cycle k missed by the loop: the sensor devices sample (their delay lines keep time,
-        nothing is published) and the plant steps under the held motor torque through the
-        actuation model (eq 31). Returns (τ̂ applied, N·m; the plant state after the step)."""
+        nothing is published), the plant steps under the held motor torque through the actuation
+        model (eq 31), and the cycle is recorded as missed (the mode and desired torque of the
+        previous cycle, latency inf). Returns (τ̂ applied, N·m; the plant state after the step)."""
+        q_true, v_true, force_true = state.q, state.v, state.normal_force
         self.joint_model.step(state.q, state.v)
-        self.force_model.step(measured_force(state.wrench_world, contact))
+        self.force_model.step(measured_force(state.wrench_world, self.contact))
         self.sim.push_if_due(k)
-        tau_hat = self.actuation.step(motor, state.v)
+        tau_hat = self.actuation.step(held, state.v)
         self.plant.step(tau_hat)
+        self._record(rec, k, q_true, v_true, force_true, f_hat, tau_hat, held)
+        rec["tau_desired"][k] = rec["tau_desired"][k - 1] if k else 0.0
+        rec["mode"][k] = rec["mode"][k - 1] if k else int(LowLevelMode.HOLD)
+        rec["cycle_latency"][k] = math.inf
+        rec["missed"][k] = True
         return tau_hat, self.plant.state()
 
     @staticmethod

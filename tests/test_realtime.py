@@ -203,18 +203,20 @@ def _stalled_run(fault: str):
 
 
 def test_a_stalled_loop_misses_its_cycles_and_the_plant_steps_on_under_the_held_torque():
-    """loop-stall@0.5+0.03: the loop thread sleeps 30 ms wall in cycle 500. The plant is physical:
-    it does not wait, so cycles ~501-529 are missed and the plant steps on under the motor torque
-    of cycle 500 (zero-order hold); the loop then resumes on its grid. (Before: the missed cycles
-    ran back to back and the MPC fell behind its plant; this stall gave 4.96x a velocity limit.)"""
+    """loop-stall@0.5+0.03: the loop thread sleeps 30 ms wall in cycle 500, after publishing its
+    measurement. The plant is physical: it does not wait, so its steps 500-529 run under the motor
+    torque of cycle 499 (zero-order hold: cycle 500's torque missed their start), cycles ~501-529
+    are missed, and the loop resumes on its grid. (Before: the missed cycles ran back to back and
+    the MPC fell behind its plant; this stall gave 4.96x a velocity limit.)"""
     result = _stalled_run("loop-stall@0.5+0.03")
     log, timing = result.log, result.timing
     missed = log["missed"]
     assert missed.size == 1000 and missed[502:528].all(), np.flatnonzero(missed)
     assert not missed[500]  # the stalled cycle itself ran (late) ...
     assert np.isinf(log["cycle_latency"][missed]).all() and log["cycle_latency"][500] >= 0.03
-    held = log["tau_motor"][501 : np.flatnonzero(~missed[501:])[0] + 501]
-    assert np.array_equal(held, np.broadcast_to(log["tau_motor"][500], held.shape))
+    held = log["tau_motor"][500 : np.flatnonzero(~missed[501:])[0] + 501]
+    assert held.shape[0] >= 27
+    assert np.array_equal(held[:29], np.broadcast_to(log["tau_motor"][499], (29, 7)))
     assert timing["loop"]["missed_cycles"] == int(missed.sum()) >= 26
     assert result.wall_time >= 0.99  # paced by the wall clock: the stall did not stretch it
     (record,) = result.safety["faults"]
