@@ -201,9 +201,11 @@ class TfEncoder:
 
 class JointStatesToTf:
     """``/tf`` from ``/plant/joint_states``: given a JointState's CDR bytes, the TFMessage CDR of
-    the robot's tree at that q (:func:`tree_transforms`, stamped like the joint state), once
-    every :data:`VIEW_PERIOD` s of stamps (None between, or for a bad message). Used by the view
-    node and, with ``--record --view``, by the recorder (the bag's ``/tf``)."""
+    the robot's tree at that q (:func:`tree_transforms`, stamped like the joint state), for the
+    stamps on the grid of :data:`VIEW_PERIOD` (multiples of it; the first stamp after a grid point
+    that had none), None for the others or for a bad message. Used by the view node and, with
+    ``--record --view``, by the recorder (the bag's ``/tf``): on one grid, whichever joint state
+    each saw first, the live ``/tf`` and the bag's share their stamps."""
 
     def __init__(self, robot: RobotModel) -> None:
         self.robot = robot
@@ -217,12 +219,15 @@ class JointStatesToTf:
     def __call__(self, data: bytes) -> tuple[int, bytes] | None:
         msg = deserialize_message(data, JointState)
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        if self._next_ns is not None and stamp_ns < self._next_ns:
+        period = int(round(VIEW_PERIOD * 1e9))
+        if self._next_ns is None:  # the first point of the grid at or after the first stamp
+            self._next_ns = -(-stamp_ns // period) * period
+        if stamp_ns < self._next_ns:
             return None
         q = self.joint_positions(msg)
         if q is None:
             return None
-        self._next_ns = stamp_ns + int(round(VIEW_PERIOD * 1e9))
+        self._next_ns = (stamp_ns // period + 1) * period
         self.last = msg
         edges = tree_transforms(self.robot, self.data, q, self.tree)
         return stamp_ns, self.encoder.encode(stamp_ns, edges)

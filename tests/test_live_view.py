@@ -297,3 +297,31 @@ def test_the_committed_layout_is_the_generated_one_and_fits_the_scenarios():
     text = json.dumps(committed)
     for topic in (topics.ROBOT_DESCRIPTION, topics.VIEW_MARKERS, topics.MPC_PREDICTION):
         assert f'"{topic}' in text
+
+
+def test_tf_is_derived_on_one_grid_of_stamps_whatever_the_first_joint_state():
+    """The live view and the recorder each convert the joint states they see; one that starts at
+    3 ms and one that starts at 0 ms give /tf at the same stamps (multiples of VIEW_PERIOD)."""
+    from rclpy.serialization import serialize_message
+
+    from ffmpc_ros.view import VIEW_PERIOD, JointStatesToTf
+
+    robot = load_robot("iiwa")
+
+    def stamps(first_ms: int, last_ms: int, skip: tuple[int, ...] = ()) -> list[int]:
+        convert = JointStatesToTf(robot)
+        out = []
+        for ms in range(first_ms, last_ms):
+            if ms in skip:
+                continue
+            msg = JointState(name=list(robot.joint_names), position=robot.q_nominal.tolist())
+            msg.header.stamp.sec, msg.header.stamp.nanosec = 0, ms * 1_000_000
+            result = convert(serialize_message(msg))
+            if result is not None:
+                out.append(result[0] // 1_000_000)
+        return out
+
+    assert VIEW_PERIOD == 0.01
+    assert stamps(0, 35) == [0, 10, 20, 30]
+    assert stamps(3, 35) == [10, 20, 30]
+    assert stamps(0, 35, skip=(20, 21)) == [0, 10, 22, 30]  # a missed grid point: the next one
