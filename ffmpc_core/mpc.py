@@ -62,6 +62,13 @@ class SoftContactOcpNode(OcpNode, Protocol):
         """Stiffness K (N/m) and damping B (N·s/m), scalar or per force axis, in place."""
 
 
+class RigidContactOcpNode(OcpNode, Protocol):
+    """A node of the classical or torque-feedback formulation: its rigid-contact force."""
+
+    def contact_force(self, data: crocoddyl.ActionDataAbstract) -> np.ndarray:
+        """λ^r of the node (N) from ``data`` after calc."""
+
+
 class Schedule(Protocol):
     """A task schedule (:mod:`ffmpc_core.tasks`): the reference of a node at time t (s).
 
@@ -334,6 +341,43 @@ class ModelPredictiveController:
             solve_time=solve_time,
             converged=bool(converged),
         )
+
+    def prediction(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The last solve's horizon, for display (not used for control), at its N + 1 nodes:
+        contact-frame origins (N+1 × 3, m, world frame) by forward kinematics of the predicted
+        q, contact forces λ (N+1 × nc, N: the force-feedback state's λ, else each node's
+        rigid-contact force, 0 out of contact) and the references λ̄ (N+1 × nc, N). Nodes are
+        Δt apart from t + command_delay (t: the solve's time). InputError before any solve."""
+        if self._prev_xs is None or self._prev_t is None:
+            raise InputError("no solve yet: nothing predicted")
+        import pinocchio as pin
+
+        robot, nc, nv = self.robot, self.nc, self.robot.nv
+        xs = self._prev_xs
+        data = robot.create_data()
+        positions = np.empty((xs.shape[0], 3))
+        for k, x in enumerate(xs):
+            pin.framesForwardKinematics(robot.model, data, x[: robot.nq])
+            positions[k] = data.oMf[robot.contact_frame_id].translation
+        if self.config.formulation == "force_feedback":
+            forces = xs[:, 2 * nv : 2 * nv + nc].copy()
+        else:
+            datas = [*self.problem.runningDatas, self.problem.terminalData]
+            nodes = [*self.nodes, self.terminal_node]
+            forces = np.array(
+                [
+                    cast(RigidContactOcpNode, n).contact_force(d)
+                    for n, d in zip(nodes, datas, strict=True)
+                ]
+            ).reshape(-1, nc)
+        start = self._prev_t + self.config.command_delay
+        references = np.array(
+            [
+                self._reference(start + k * self.config.dt, NodeReference.empty(nc)).force
+                for k in range(xs.shape[0])
+            ]
+        )
+        return positions, forces, references
 
     def predict(self, x: np.ndarray, t: float) -> np.ndarray:
         """The state at t + command_delay: x (measured at t) integrated with the model controls

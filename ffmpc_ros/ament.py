@@ -51,6 +51,19 @@ def share_files() -> dict[str, list[Path]]:
     }
 
 
+#: The live view's Foxglove layout, in ``share/ffmpc_ros`` (installed there by CMakeLists.txt).
+FOXGLOVE_LAYOUT = Path("foxglove") / "ffmpc_layout.json"
+
+
+def foxglove_layout_path() -> Path:
+    """The Foxglove layout of ``ffmpc run --view``: ``<sys.prefix>/share/ffmpc_ros/...`` when
+    installed, else the source tree's ``share/ffmpc_ros/...``."""
+    installed = Path(sys.prefix) / "share" / PACKAGE / FOXGLOVE_LAYOUT
+    if installed.is_file():
+        return installed
+    return _ROOT.parent / "share" / PACKAGE / FOXGLOVE_LAYOUT
+
+
 def launcher_text(executable: str, interpreter: str | None = None) -> str:
     """The launcher of one executable; ``interpreter=None`` uses ``/usr/bin/env python3``."""
     module = EXECUTABLES[executable]

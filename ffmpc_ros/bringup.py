@@ -32,6 +32,11 @@ Safety of the run itself (lockstep):
 * Recording (``record``): the recorder runs in its own child process
   (``ffmpc_ros.bag.recorder.graph_recorder_process``) and closes the bag on SIGINT/SIGTERM or
   once the run is complete.
+* Live view (``view``: a port): the view node (``ffmpc_ros.view``, a Foxglove WebSocket server
+  on ``view_host:view``) runs in its own child process; a busy port is refused before anything
+  starts, the plant waits for the view's subscription to ``/plant/joint_states``, and with
+  ``record`` the recorder also waits for ``/robot_description``, ``/view/markers`` and
+  ``/mpc/prediction`` so the bag holds them from the first cycle. Lockstep only.
 * Faults (``faults``): injected by the bring-up at the simulated time it sees
   (``ffmpc_ros.fault_injector``); the summary gains ``max_velocity_ratio`` and
   ``max_torque_ratio`` (per joint, max over the run of |q̇|/limit with the plant's true q̇ from
@@ -158,6 +163,7 @@ class GraphResult:
     startup_time: float = 0.0  # from the call to the first plant step, s
     plant_status: dict | None = None
     bag: dict | None = None  # with ``record``: path and messages recorded per topic
+    view: dict | None = None  # with ``view``: address and messages forwarded per topic
     timing: dict | None = None  # deadlines met, fallback time, latencies (module docstring)
     warnings: list[str] = field(default_factory=list)
     safety: dict | None = None  # ratios, safe_hold_s; lockstep also faults, rejected_messages
@@ -193,6 +199,7 @@ class GraphResult:
             **{key: timing.get(key) for key in TIMING_KEYS},
             "timing": timing,
             **({"bag": self.bag} if self.bag is not None else {}),
+            **({"view": self.view} if self.view is not None else {}),
             **(self.safety or {}),
         }
 
@@ -361,6 +368,9 @@ def run_graph(
     stall_timeout: float = STALL_TIMEOUT,
     start_timeout: float = START_TIMEOUT,
     node_ros_args: Mapping[str, Sequence[str]] | None = None,
+    view: int | None = None,
+    view_host: str = "127.0.0.1",
+    view_wait: bool = False,
 ) -> GraphResult:
     """Run ``scenario`` on the node graph and return the metrics node's result.
 
@@ -387,6 +397,10 @@ def run_graph(
         start_timeout: lockstep: wall s from the call to the first plant cycle.
         node_ros_args: multi-process: extra ROS arguments per node, after the parameter file
             (e.g. ``{"pid": ["-p", "mpc.formulation:=classical"]}``).
+        view: serve the live view (Foxglove WebSocket) on this port of ``view_host`` (None:
+            no view); ViewError when the port is busy.
+        view_wait: the run starts only once a Foxglove client subscribes to
+            ``/plant/joint_states`` (``start_timeout`` still applies).
     """
     from ffmpc_ros.fault_injector import (
         FAULT_LOCKSTEP_TIMEOUT,
@@ -414,11 +428,11 @@ def run_graph(
         duration = build_task(scenario, load_robot(scenario.robot)).duration
     params = graph_parameters(scenario, lockstep, duration)
     if not lockstep:
-        if single_process or record is not None:
+        if single_process or record is not None or view is not None:
             raise ConfigError(
                 "real time runs the loop nodes and the MPC node as two processes (one "
-                "interpreter each, see ffmpc_ros.realtime); --single-process and --record are "
-                "lockstep options"
+                "interpreter each, see ffmpc_ros.realtime); --single-process, --record and "
+                "--view are lockstep options"
             )
         windows = [tuple(map(float, w)) for w in fault_windows]
         windows += [(f.start, min(f.end + FAULT_RECOVERY, float(duration))) for f in faults]
@@ -436,9 +450,13 @@ def run_graph(
     windows += [(f.start, min(f.end + FAULT_RECOVERY, float(duration))) for f in faults]
     if any(f.kind in PROCESS_KINDS for f in faults):
         params["pid"]["lockstep_timeout"] = FAULT_LOCKSTEP_TIMEOUT
+    if view is not None:
+        from ffmpc_ros.view import check_port_free
+
+        check_port_free(view_host, view)
     # the recorder is one more subscriber the plant waits for (the bring-up's probe subscribes
-    # before the metrics node exists, whose readiness the plant waits for too)
-    params["plant"]["start_subscribers"] += record is not None
+    # before the metrics node exists, whose readiness the plant waits for too); so is the view
+    params["plant"]["start_subscribers"] += (record is not None) + (view is not None)
     # and it reads /clock twice: the topic it records and its time source (simulated log times)
     params["plant"]["start_clock_subscribers"] += 2 * (record is not None)
     robot = load_robot(scenario.robot)
@@ -453,6 +471,8 @@ def run_graph(
     injector = None
     recorder = None
     counts_path = None
+    view_node = None
+    view_counts = None
     tmp = tempfile.TemporaryDirectory(prefix="ffmpc_graph_")
     try:
         probe_node = Node("ffmpc_bringup", context=context)
@@ -471,13 +491,30 @@ def run_graph(
             for node in graph_nodes:
                 executor.add_node(node)
             values = {n.get_name(): _own_parameters(n) for n in graph_nodes}
+            if view is not None:
+                from ffmpc_ros.view import ViewNode
+
+                view_node = ViewNode(
+                    scenario.robot,
+                    host=view_host,
+                    port=view,
+                    context=context,
+                    wait_for_client=view_wait,
+                )
+                nodes.append(view_node)
+                executor.add_node(view_node)
         else:
             children, logs = _spawn(params, tmp.name, domain, node_ros_args or {})
+            if view is not None:
+                view_counts = os.path.join(tmp.name, "view_counts.json")
+                children["view"], logs["view"] = _spawn_view(
+                    scenario.robot, view_host, view, tmp.name, domain, view_counts, view_wait
+                )
             if record is not None:
                 counts_path = os.path.join(tmp.name, "recorder_counts.json")
                 children["recorder"], logs["recorder"] = _spawn_recorder(
-                    record, tmp.name, domain, scenario, params, counts_path
-                )
+                    record, tmp.name, domain, scenario, params, counts_path, view is not None
+                )  # with the view, the recorder also writes /tf (the view's robot tree)
             values = _fetch_parameters(
                 probe_node, executor, list(NODES), children, logs, start + start_timeout
             )
@@ -512,7 +549,13 @@ def run_graph(
         if record is not None and single_process:
             from ffmpc_ros.bag.recorder import graph_recorder
 
-            recorder = graph_recorder(record, context=context, scenario=scenario, run=params)
+            recorder = graph_recorder(
+                record,
+                context=context,
+                scenario=scenario,
+                run=params,
+                view=None if view is None else scenario.robot,
+            )
             nodes.append(recorder)
             executor.add_node(recorder)
         end = start + timeout
@@ -574,6 +617,13 @@ def run_graph(
             for name, path in logs.items():
                 with contextlib.suppress(OSError), open(path, encoding="utf-8") as fh:
                     sys.stderr.write(f"--- {name} ({path}) ---\n{fh.read()}")
+        view_result = None
+        if view_node is not None:
+            view_result = {"address": view_node.address, "forwarded": dict(view_node.forwarded)}
+            view_result["tf"] = view_node.tf_published
+        elif view_counts is not None and os.path.exists(view_counts):
+            with open(view_counts, encoding="utf-8") as fh:
+                view_result = json.load(fh)
         bag = None
         if record is not None:
             bag = {"path": str(record)}
@@ -612,6 +662,7 @@ def run_graph(
         startup_time=(done - start) - stepping,
         plant_status=status or None,
         bag=bag,
+        view=view_result,
         timing=pid_probe.timing(steps_per_mpc_period(scenario), status, windows),
         safety=safety,
     )
@@ -692,8 +743,49 @@ def _spawn(
     return children, logs
 
 
+def _spawn_view(
+    robot: str,
+    host: str,
+    port: int,
+    directory: str,
+    domain: int,
+    counts: str,
+    wait_for_client: bool = False,
+) -> tuple[subprocess.Popen, str]:
+    """The view node's own process (``ffmpc_ros.view.view_process``), in the nodes' group."""
+    config = os.path.join(directory, "view.json")
+    with open(config, "w", encoding="utf-8") as fh:
+        json.dump(
+            {
+                "robot": robot,
+                "host": host,
+                "port": port,
+                "domain": domain,
+                "counts": counts,
+                "wait_for_client": wait_for_client,
+            },
+            fh,
+        )
+    log = os.path.join(directory, "view.log")
+    with open(log, "w", encoding="utf-8") as out:
+        child = subprocess.Popen(
+            _launch(child_marker(), signal.SIGTERM, "ffmpc_ros.view", [config]),
+            env=dict(os.environ, ROS_DOMAIN_ID=str(domain)),
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            process_group=0,
+        )
+    return child, log
+
+
 def _spawn_recorder(
-    record, directory: str, domain: int, scenario: Scenario, params: dict, counts: str
+    record,
+    directory: str,
+    domain: int,
+    scenario: Scenario,
+    params: dict,
+    counts: str,
+    view: bool = False,
 ) -> tuple[subprocess.Popen, str]:
     """The recorder's own process (``graph_recorder_process``), in the nodes' process group."""
     from ffmpc_ros.bag.recorder import graph_recorder_metadata
@@ -706,6 +798,7 @@ def _spawn_recorder(
                 "domain": domain,
                 "metadata": graph_recorder_metadata(scenario, params),
                 "counts": counts,
+                "view": scenario.robot if view else None,
             },
             fh,
         )
@@ -803,7 +896,7 @@ def _refuse_foreign(node: Node, domain: int, wait: float = FOREIGN_DISCOVERY_WAI
     """GraphError naming the publishers already on the graph's topics and the nodes already
     using the graph's node names (module docstring)."""
     names = [t for t, _, _ in topics.TOPICS]
-    ours = {*NODES, "metrics", "ffmpc_recorder", "ffmpc_bringup"}
+    ours = {*NODES, "metrics", "ffmpc_recorder", "ffmpc_bringup", "view"}
     me = node.get_fully_qualified_name()
     deadline = time.monotonic() + wait
     first_seen = None

@@ -27,6 +27,8 @@ from ffmpc_ros.discovery import ensure_local_discovery
 STUDY_FORMULATIONS = ("classical", "torque_feedback", "force_feedback")
 #: Exit status of every malformed input (argparse's own for syntax errors).
 EXIT_USAGE = 2
+#: Default port of ``ffmpc run --view`` (ffmpc_ros.view.DEFAULT_PORT).
+VIEW_PORT = 8765
 
 
 class Parser(argparse.ArgumentParser):
@@ -229,6 +231,12 @@ def _add_study_arguments(p: argparse.ArgumentParser, seeds: int, pid: str) -> No
     p.set_defaults(func=_cmd_study)
 
 
+def _view_layout() -> str:
+    from ffmpc_ros.ament import foxglove_layout_path
+
+    return str(foxglove_layout_path())
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     import json
     import shlex
@@ -258,6 +266,21 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise ConfigError("--cpus and --priority are real-time options (add --real-time)")
     if args.priority is not None and not 0 <= args.priority <= 99:
         raise ConfigError(f"--priority must be in 0..99, got {args.priority}")
+    if (args.view_port != VIEW_PORT or args.view_wait) and not args.view:
+        raise ConfigError("--view-port and --view-wait need --view")
+    if args.view:
+        if args.real_time:
+            raise ConfigError("--view is a lockstep option (the real-time loop has no view)")
+        from ffmpc_ros.view import check_port_free
+
+        check_port_free("127.0.0.1", args.view_port)
+        print(
+            f"live view: Foxglove WebSocket server on ws://127.0.0.1:{args.view_port} until "
+            "the run ends (Foxglove: Open connection > Foxglove WebSocket; layout "
+            f"{_view_layout()})",
+            file=sys.stderr,
+            flush=True,
+        )
     if scenario.mpc.command_delay == "measured":
         from ffmpc_core.study import resolve_command_delay
 
@@ -294,6 +317,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         fault_windows=[tuple(w) for w in args.fault_window or []],
         cpus=cpus,
         priority=args.priority,
+        view=args.view_port if args.view else None,
+        view_wait=args.view_wait,
     )
     summary = result.summary()
     summary["command_line"] = shlex.join(["ffmpc", *args.argv])
@@ -707,6 +732,25 @@ def build_parser() -> argparse.ArgumentParser:
         type=new_path,
         help="record the run (every topic and parameter) to a bag: PATH.mcap is one MCAP file, "
         "any other PATH a rosbag2 folder (metadata.yaml + MCAP, as ros2 bag record writes)",
+    )
+    run.add_argument(
+        "--view",
+        action="store_true",
+        help="lockstep: stream the run live to Foxglove (WebSocket on 127.0.0.1:--view-port): "
+        "every topic, /tf, /robot_description, /view/markers, /mpc/prediction "
+        "(ffmpc_ros/view.py; layout share/ffmpc_ros/foxglove/ffmpc_layout.json)",
+    )
+    run.add_argument(
+        "--view-port",
+        type=int,
+        default=VIEW_PORT,
+        help=f"port of the live view (default {VIEW_PORT}; a busy port is refused)",
+    )
+    run.add_argument(
+        "--view-wait",
+        action="store_true",
+        help="start the run only once a Foxglove client subscribes to /plant/joint_states "
+        "(--start-timeout still applies)",
     )
     run.add_argument(
         "--json",

@@ -25,18 +25,18 @@ from ffmpc_core.errors import InputError
 
 @dataclass(frozen=True)
 class Field:
-    """One field of a layout: its name, its size (an int, or an expression of nv and nx such as
-    ``"nv*nx"``), its unit and its meaning."""
+    """One field of a layout: its name, its size (an int, or an expression of nv, nx and the
+    number of horizon nodes ``nodes`` such as ``"nv*nx"``), its unit and its meaning."""
 
     name: str
     size: int | str
     unit: str
     meaning: str
 
-    def length(self, nv: int = 0, nx: int = 0) -> int:
+    def length(self, nv: int = 0, nx: int = 0, nodes: int = 0) -> int:
         if isinstance(self.size, int):
             return self.size
-        symbols = {"nv": nv, "nx": nx}
+        symbols = {"nv": nv, "nx": nx, "nodes": nodes}
         n = 1
         for factor in self.size.split("*"):  # a product of integers and symbols
             n *= symbols[factor] if factor in symbols else int(factor)
@@ -55,25 +55,25 @@ class ArrayLayout:
     def label(self) -> str:
         return f"ffmpc/{self.name}/{self.version}"
 
-    def length(self, nv: int = 0, nx: int = 0) -> int:
-        return sum(f.length(nv, nx) for f in self.fields)
+    def length(self, nv: int = 0, nx: int = 0, nodes: int = 0) -> int:
+        return sum(f.length(nv, nx, nodes) for f in self.fields)
 
-    def slices(self, nv: int = 0, nx: int = 0) -> dict[str, slice]:
+    def slices(self, nv: int = 0, nx: int = 0, nodes: int = 0) -> dict[str, slice]:
         out, start = {}, 0
         for f in self.fields:
-            n = f.length(nv, nx)
+            n = f.length(nv, nx, nodes)
             out[f.name] = slice(start, start + n)
             start += n
         return out
 
-    def pack(self, values: dict, nv: int = 0, nx: int = 0) -> Float64MultiArray:
+    def pack(self, values: dict, nv: int = 0, nx: int = 0, nodes: int = 0) -> Float64MultiArray:
         """A message from {field: value} with every field (scalars or arrays, row-major)."""
         missing = {f.name for f in self.fields} - set(values)
         extra = set(values) - {f.name for f in self.fields}
         if missing or extra:
             raise InputError(f"{self.label}: missing {sorted(missing)}, unknown {sorted(extra)}")
-        data = np.empty(self.length(nv, nx))
-        for name, sl in self.slices(nv, nx).items():
+        data = np.empty(self.length(nv, nx, nodes))
+        for name, sl in self.slices(nv, nx, nodes).items():
             value = np.asarray(values[name], dtype=float).reshape(-1)
             if value.size != sl.stop - sl.start:
                 raise InputError(f"{self.label}.{name}: {value.size} values, expected a slice")
@@ -87,7 +87,8 @@ class ArrayLayout:
     def unpack(self, msg: Float64MultiArray, nv: int = 0, nx: int | None = None) -> dict:
         """The fields of a message (scalars as float, others as arrays); InputError when the
         label, the length or a value is wrong. With ``nx=None`` nx is read from the ``nx``
-        field (layouts that carry it; 0 for the others)."""
+        field (layouts that carry it; 0 for the others); ``nodes`` is always read from the
+        ``nodes`` field of the layouts that carry one."""
         dims = msg.layout.dim
         if len(dims) != 1 or dims[0].label != self.label or msg.layout.data_offset != 0:
             got = [d.label for d in dims]
@@ -101,7 +102,13 @@ class ArrayLayout:
             if data.size <= index or not math.isfinite(data[index]):
                 raise InputError(f"{self.label}: no valid nx field")
             nx = int(data[index])
-        expected = self.length(nv, nx)
+        nodes = 0
+        if "nodes" in names:
+            index = names.index("nodes")
+            if data.size <= index or not math.isfinite(data[index]) or data[index] < 0:
+                raise InputError(f"{self.label}: no valid nodes field")
+            nodes = int(data[index])
+        expected = self.length(nv, nx, nodes)
         if data.size != expected:
             raise InputError(f"{self.label}: {data.size} elements, expected {expected}")
         if dims[0].size != data.size:
@@ -111,7 +118,7 @@ class ArrayLayout:
         if not np.all(np.isfinite(data)):
             raise InputError(f"{self.label}: non-finite element(s)")
         out = {}
-        for f, (name, sl) in zip(self.fields, self.slices(nv, nx).items(), strict=True):
+        for f, (name, sl) in zip(self.fields, self.slices(nv, nx, nodes).items(), strict=True):
             out[name] = float(data[sl][0]) if f.size == 1 else data[sl].copy()
         return out
 
@@ -248,6 +255,27 @@ IMPACT_STATUS = ArrayLayout(
     ),
 )
 
+#: /mpc/prediction — the horizon of the MPC's last solve, for display (published only while
+#: something subscribes; ModelPredictiveController.prediction).
+MPC_PREDICTION = ArrayLayout(
+    "mpc_prediction",
+    1,
+    (
+        Field("t", 1, "s", "simulated time of the measurement the solve started from"),
+        Field("nodes", 1, "-", "N + 1, the OCP's nodes (the horizon's states x_0..x_N)"),
+        Field("dt", 1, "s", "Δt between two nodes; node k predicts t + command_delay + k·Δt"),
+        Field("normal_axis", 1, "-", "world axis (0 x, 1 y, 2 z) of the normal forces below"),
+        Field("normal_force", "nodes", "N", "predicted contact force along normal_axis, per node"),
+        Field("reference_force", "nodes", "N", "reference λ̄ along normal_axis, per node"),
+        Field(
+            "positions",
+            "nodes*3",
+            "m",
+            "predicted contact-frame origin per node, world frame, nodes×3 row-major",
+        ),
+    ),
+)
+
 LAYOUTS: dict[str, ArrayLayout] = {
     layout.name: layout
     for layout in (
@@ -257,5 +285,6 @@ LAYOUTS: dict[str, ArrayLayout] = {
         LOWLEVEL_STATUS,
         CONTACT_ESTIMATE,
         IMPACT_STATUS,
+        MPC_PREDICTION,
     )
 }

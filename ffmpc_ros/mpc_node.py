@@ -1,7 +1,9 @@
 """The MPC node: one of the three OCP formulations (parameter ``formulation``) in receding horizon.
 
 Subscribes ``/joint_sensor/joint_states`` (q̂, q̇̂, τ̂) and, for force-feedback,
-``/ft_sensor/wrench`` (λ̂); publishes ``/mpc/command`` (layout ``mpc_command``, ffmpc_ros.layouts).
+``/ft_sensor/wrench`` (λ̂); publishes ``/mpc/command`` (layout ``mpc_command``, ffmpc_ros.layouts)
+and, after the command and only while something subscribes, ``/mpc/prediction`` (layout
+``mpc_prediction``: the horizon's contact positions and normal forces, for the live view).
 
 It solves at the ticks k = j·``period / time_step`` (as the ROS-free runner does), once it has
 the measurements OF cycle k (joint state, and the wrench with the same stamp for force-
@@ -69,6 +71,9 @@ class MpcNode(StudyNode):
             self.warm_up()
         self.publisher = self.create_publisher(
             Float64MultiArray, topics.MPC_COMMAND, topics.publisher_qos()
+        )
+        self.prediction_publisher = self.create_publisher(
+            Float64MultiArray, topics.MPC_PREDICTION, topics.publisher_qos()
         )
         qos = topics.subscriber_qos(self.lockstep)
         self.inputs = [
@@ -283,6 +288,28 @@ class MpcNode(StudyNode):
             )
         )
         self.sequence += 1
+        if self.prediction_publisher.get_subscription_count() > 0:
+            self.publish_prediction(t)
+
+    def publish_prediction(self, t: float) -> None:
+        """``/mpc/prediction`` of the last solve (t: its time, s), after the command."""
+        positions, forces, references = self.mpc.prediction()
+        contact = self.config.contact
+        column = 0 if contact.dimension == 1 else contact.normal_axis
+        self.prediction_publisher.publish(
+            layouts.MPC_PREDICTION.pack(
+                {
+                    "t": t,
+                    "nodes": positions.shape[0],
+                    "dt": self.config.dt,
+                    "normal_axis": contact.normal_axis,
+                    "normal_force": forces[:, column],
+                    "reference_force": references[:, column],
+                    "positions": positions,
+                },
+                nodes=positions.shape[0],
+            )
+        )
 
     def diagnostic_values(self, period: float) -> dict[str, str]:
         """Solves over the period: rate (Hz, wall), median and max solve time (ms, wall)."""

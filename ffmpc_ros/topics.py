@@ -80,6 +80,31 @@ IMPACT_TOPICS: tuple[tuple[str, str, str], ...] = (
     (CONTACT_ESTIMATE, "std_msgs/msg/Float64MultiArray", "contact_learner"),
 )
 
+#: Topics of the live view (``ffmpc run --view``, ffmpc_ros.view): the MPC's horizon, which the
+#: MPC node publishes only while something subscribes, the URDF and the markers of the view node.
+MPC_PREDICTION = "/mpc/prediction"
+ROBOT_DESCRIPTION = "/robot_description"
+VIEW_MARKERS = "/view/markers"
+#: The Foxglove-only channel of the view (no tf2_msgs wheel exists for the ROS 2 of this venv).
+TF = "/tf"
+
+VIEW_TOPICS: tuple[tuple[str, str, str], ...] = (
+    (MPC_PREDICTION, "std_msgs/msg/Float64MultiArray", "mpc"),
+    (ROBOT_DESCRIPTION, "std_msgs/msg/String", "view"),
+    (VIEW_MARKERS, "visualization_msgs/msg/MarkerArray", "view"),
+)
+
+
+def latched_qos() -> QoSProfile:
+    """Latched data (``/robot_description``): RELIABLE, TRANSIENT_LOCAL, KEEP_LAST(1)."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=1,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
+
+
 #: History kept by every data publisher (and by lockstep subscribers), samples: 1 s of a 1 kHz
 #: graph, so the nodes outside the lockstep loop
 #: (metrics, recorder) may lag that much without losing a sample (msgs_notes/README.md, QoS).

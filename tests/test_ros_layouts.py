@@ -47,6 +47,7 @@ def test_every_layout_is_documented_field_by_field():
         "lowlevel_status": topics.LOWLEVEL_STATUS,
         "contact_estimate": topics.CONTACT_ESTIMATE,
         "impact_status": topics.IMPACT_STATUS,
+        "mpc_prediction": topics.MPC_PREDICTION,
     }
     for name, layout in layouts.LAYOUTS.items():
         version, topic, rows = sections[name]
@@ -60,8 +61,10 @@ def test_every_topic_is_documented_with_its_type_and_publisher():
     rows = _table_rows((NOTES / "topics.md").read_text(encoding="utf-8"))
     topic_rows = [r for r in rows if r[0].startswith("/") and len(r) == 7]
     documented = {(r[0], r[1], r[2]) for r in topic_rows}
-    assert documented == set(topics.TOPICS) | set(topics.IMPACT_TOPICS)
-    assert len(topic_rows) == len(topics.TOPICS) + len(topics.IMPACT_TOPICS)
+    assert documented == set(topics.TOPICS) | set(topics.IMPACT_TOPICS) | set(topics.VIEW_TOPICS)
+    assert len(topic_rows) == len(topics.TOPICS) + len(topics.IMPACT_TOPICS) + len(
+        topics.VIEW_TOPICS
+    )
     services = (
         topics.TARE_SERVICE,
         topics.IMPACT_RESET_SERVICE,

@@ -21,7 +21,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 
 from ffmpc_ros.bag.errors import BagError
 from ffmpc_ros.bag.reader import BagMessage, BagReader
-from ffmpc_ros.bag.ros_types import message_class, qos_from_dicts
+from ffmpc_ros.bag.ros_types import is_installed, message_class, qos_from_dicts
 
 CLOCK = "/clock"
 
@@ -46,13 +46,17 @@ class PlayReport:
     bag_time: float = 0.0  # s of bag time played
     max_lateness: float = 0.0  # s, worst delay of a message after its due time
     mean_lateness: float = 0.0
+    skipped: list[str] = field(default_factory=list)  # topics whose type rclpy lacks here
 
     def describe(self) -> str:
         total = sum(self.published.values())
+        skipped = (
+            f"; not played (type not installed): {', '.join(self.skipped)}" if self.skipped else ""
+        )
         return (
             f"published {total} messages on {len(self.published)} topics: {self.bag_time:.3f} s "
             f"of bag time in {self.wall_time:.3f} s wall; lateness mean "
-            f"{1e3 * self.mean_lateness:.2f} ms, max {1e3 * self.max_lateness:.2f} ms"
+            f"{1e3 * self.mean_lateness:.2f} ms, max {1e3 * self.max_lateness:.2f} ms{skipped}"
         )
 
 
@@ -83,7 +87,15 @@ class BagPlayer:
             raise BagError(f"rate must be > 0, got {rate}")
         if clock_rate is not None and not clock_rate > 0:
             raise BagError(f"clock_rate must be > 0 Hz, got {clock_rate}")
-        selected = list(bag.topics) if topics is None else list(topics)
+        # every topic whose type rclpy has (a --view bag's /tf has none here), or those asked
+        self.skipped = (
+            []
+            if topics is not None
+            else [t for t, info in bag.topics.items() if not is_installed(info.type)]
+        )
+        selected = (
+            [t for t in bag.topics if t not in self.skipped] if topics is None else list(topics)
+        )
         missing = sorted(set(selected) - set(bag.topics))
         if missing:
             raise BagError(f"not in the bag: {missing}; it has {sorted(bag.topics)}")
@@ -108,7 +120,7 @@ class BagPlayer:
         self.clock_publisher = None
         if clock_rate is not None:
             self.clock_publisher = node.create_publisher(ClockMsg, self.remap.get(CLOCK, CLOCK), 10)
-        self.report = PlayReport(published={t: 0 for t in selected})
+        self.report = PlayReport(published={t: 0 for t in selected}, skipped=self.skipped)
         self._messages = bag.messages(selected) if selected else iter(())
         self._next: BagMessage | None = next(self._messages, None)
         self._t0 = bag.start_time or 0

@@ -30,7 +30,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 
-from ffmpc_ros.bag.ros_types import message_class, qos_from_dicts, qos_to_dict
+from ffmpc_ros.bag.ros_types import DerivedTopic, offered_profiles, subscribe_raw
 from ffmpc_ros.bag.writer import BagWriter
 
 #: Topics not recorded unless asked for by name.
@@ -99,6 +99,7 @@ class BagRecorder(Node):
         discovery_period: wall seconds between two looks at the graph.
         final_topic: the run is over once a message of this topic is recorded and nothing came
             for ``settle`` wall seconds (:attr:`complete`).
+        derived: topics computed from recorded ones (:class:`DerivedTopic`).
     """
 
     def __init__(
@@ -118,6 +119,7 @@ class BagRecorder(Node):
         discovery_period: float = 0.05,
         final_topic: str | None = None,
         settle: float = 0.2,
+        derived: Sequence[DerivedTopic] = (),
     ) -> None:
         super().__init__(
             node_name,
@@ -131,6 +133,7 @@ class BagRecorder(Node):
         self.gate_topic = gate_topic
         self.parameters_of = list(parameters_of) if parameters_of is not None else []
         self.received: dict[str, int] = {}
+        self.derived = {d.source: d for d in derived}
         self._recording_subs: dict[str, Any] = {}
         self._channels: dict[str, int] = {}
         self._fetches: dict[str, _ParameterFetch] = {}
@@ -195,7 +198,7 @@ class BagRecorder(Node):
         return all(node in recorded for node in self.parameters_of)
 
     def _subscribe(self, topic: str, type_name: str, publishers) -> None:
-        profiles = [qos_to_dict(p.qos_profile) for p in publishers]
+        profiles = offered_profiles(publishers)
         channel = self.writer.add_topic(
             topic,
             type_name,
@@ -204,18 +207,28 @@ class BagRecorder(Node):
         )
         self._channels[topic] = channel
         self.received[topic] = 0
-        qos = qos_from_dicts(profiles, depth=RECORD_DEPTH)
         clock = self.get_clock()
         writer = self.writer
         received = self.received
 
+        derived = self.derived.get(topic)
+        if derived is not None:
+            target = writer.add_topic(
+                derived.topic, derived.type_name, definition=derived.definition
+            )
+            self.received[derived.topic] = 0
+
         def on_message(data: bytes) -> None:
-            writer.write(channel, data, clock.now().nanoseconds)
+            now = clock.now().nanoseconds
+            writer.write(channel, data, now)
             received[topic] += 1
             self.last_message_at = time.monotonic()
+            if derived is not None and (out := derived.derive(data)) is not None:
+                writer.write(target, out, now)
+                received[derived.topic] += 1
 
-        self._recording_subs[topic] = self.create_subscription(
-            message_class(type_name), topic, on_message, qos, raw=True
+        self._recording_subs[topic] = subscribe_raw(
+            self, topic, type_name, profiles, on_message, RECORD_DEPTH
         )
 
     @property
@@ -285,12 +298,19 @@ def graph_recorder_metadata(scenario=None, run: Mapping[str, Mapping[str, Any]] 
     return records
 
 
-def _graph_recorder_options() -> dict[str, Any]:
+def _graph_recorder_options(view_robot: str | None = None) -> dict[str, Any]:
     from ffmpc_ros import topics
     from ffmpc_ros.graph_nodes import NODES
 
+    extra = [t for t, _, _ in topics.VIEW_TOPICS] if view_robot else []
+    derived = []
+    if view_robot:
+        from ffmpc_ros.view import tf_derived_topic
+
+        derived.append(tf_derived_topic(view_robot))
     return {
-        "wait_for": [t for t, _, _ in topics.TOPICS],
+        "derived": derived,
+        "wait_for": [t for t, _, _ in topics.TOPICS] + extra,
         "gate_topic": topics.PLANT_JOINT_STATES,
         "parameters_of": [*NODES, "metrics"],
         "final_topic": topics.METRICS_SUMMARY,
@@ -303,18 +323,21 @@ def graph_recorder(
     context=None,
     scenario=None,
     run: Mapping[str, Mapping[str, Any]] | None = None,
+    view: str | None = None,
 ) -> BagRecorder:
     """The recorder of ``ffmpc run --record``: every topic, gated on ``/plant/joint_states``
     until every topic of the contract (``ffmpc_ros.topics.TOPICS``) has a publisher and the six
     nodes' parameters are in; :attr:`BagRecorder.complete` once the metrics summary is in.
     Metadata ``ffmpc_run`` holds the scenario file and the generated parameter file of the run
     (``run``: {node: {name: value}}); ``ffmpc_machine`` the recording machine's fingerprint
-    (:func:`ffmpc_ros.bag.machine.machine_fingerprint`)."""
+    (:func:`ffmpc_ros.bag.machine.machine_fingerprint`). With ``view`` (``--view``: the robot's
+    name) the gate also waits for the live view's topics (``ffmpc_ros.topics.VIEW_TOPICS``) and
+    the bag gains ``/tf`` from ``/plant/joint_states`` (``ffmpc_ros.view.tf_derived_topic``)."""
     return BagRecorder(
         target,
         context=context,
         metadata=graph_recorder_metadata(scenario, run),
-        **_graph_recorder_options(),
+        **_graph_recorder_options(view),
     )
 
 
@@ -335,7 +358,7 @@ def graph_recorder_process(config_path: str) -> int:
             config["target"],
             context=child.context,
             metadata=config["metadata"],
-            **_graph_recorder_options(),
+            **_graph_recorder_options(config.get("view")),
         )
         executor.add_node(recorder)
         try:

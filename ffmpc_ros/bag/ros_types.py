@@ -4,7 +4,8 @@ names, QoS profiles to and from rosbag2's dictionaries."""
 from __future__ import annotations
 
 import importlib
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 from rclpy.duration import Duration
@@ -31,6 +32,15 @@ def message_class(type_name: str):
         return getattr(importlib.import_module(f"{package}.{namespace}"), name)
     except (ImportError, AttributeError):
         raise SchemaError(f"message type {type_name} is not installed") from None
+
+
+def is_installed(type_name: str) -> bool:
+    """Whether rclpy has the message class of ``pkg/msg/Type`` here."""
+    try:
+        message_class(type_name)
+    except SchemaError:
+        return False
+    return True
 
 
 def _duration(d: Duration) -> dict[str, int]:
@@ -85,3 +95,38 @@ def qos_from_dicts(profiles: Sequence[Mapping[str, Any]], depth: int | None = No
         durability=DurabilityPolicy.TRANSIENT_LOCAL if transient else DurabilityPolicy.VOLATILE,
         liveliness=LivelinessPolicy.AUTOMATIC,
     )
+
+
+def offered_profiles(publishers: Sequence[Any]) -> list[dict[str, Any]]:
+    """rosbag2's dictionaries of the QoS offered by each publisher (``TopicEndpointInfo``)."""
+    return [qos_to_dict(p.qos_profile) for p in publishers]
+
+
+def subscribe_raw(
+    node: Any,
+    topic: str,
+    type_name: str,
+    profiles: Sequence[Mapping[str, Any]],
+    callback: Any,
+    depth: int,
+) -> Any:
+    """A raw subscription (the callback gets the CDR bytes, nothing deserialised) whose QoS is
+    compatible with every offered profile (:func:`qos_from_dicts`, history ``depth``): the
+    recorder's and the live view's way to take any topic as it is."""
+    return node.create_subscription(
+        message_class(type_name), topic, callback, qos_from_dicts(profiles, depth=depth), raw=True
+    )
+
+
+@dataclass(frozen=True)
+class DerivedTopic:
+    """A topic the recorder computes from a recorded one: ``derive`` maps each message of
+    ``source`` (CDR bytes) to one of ``topic`` (CDR bytes, type ``type_name`` with the complete
+    ``ros2msg`` ``definition``) or None; it is written with the source message's log time.
+    (The live view's ``/tf``, whose type has no rclpy support here: ffmpc_ros.view.)"""
+
+    source: str
+    topic: str
+    type_name: str
+    definition: str
+    derive: Callable[[bytes], bytes | None]

@@ -101,12 +101,17 @@ class MessageDefinitions:
 
     Args:
         search_path: ``share`` directories to look in (default :func:`share_directories`).
+        known: ``.msg`` texts of types that are not installed, {``pkg/msg/Type``: text}.
     """
 
-    def __init__(self, search_path: Sequence[os.PathLike | str] | None = None) -> None:
+    def __init__(
+        self,
+        search_path: Sequence[os.PathLike | str] | None = None,
+        known: Mapping[str, str] | None = None,
+    ) -> None:
         paths = share_directories() if search_path is None else search_path
         self.search_path = [Path(p) for p in paths]
-        self._texts: dict[str, str] = {}
+        self._texts: dict[str, str] = {normalize_type(k): v for k, v in (known or {}).items()}
 
     def msg_file(self, type_name: str) -> Path:
         """The ``.msg`` file of a type (SchemaError when none is installed)."""

@@ -1,0 +1,602 @@
+"""The live view (``ffmpc run --view``): a Foxglove WebSocket server that streams the run.
+
+The view node bridges every ROS topic of the graph to Foxglove as it is: one channel per topic,
+message encoding ``cdr``, schema ``ros2msg`` with the complete definition a bag holds
+(``ffmpc_ros.bag.schema``), the raw CDR bytes of a raw subscription forwarded unchanged (the
+recorder's subscription helper, ``ffmpc_ros.bag.ros_types.subscribe_raw``). A Foxglove layout
+that names ROS topics therefore opens the live server and a bag of ``--record`` alike.
+
+What the robot view needs, published by this node:
+
+* ``/robot_description`` (std_msgs/String, RELIABLE + TRANSIENT_LOCAL, depth 1): the URDF the
+  robot model is built from, its relative mesh paths made absolute ``file://`` URIs (which the
+  server also serves to a client that asks, ``asset_handler``);
+* ``/view/markers`` (visualization_msgs/MarkerArray, in the robot's root link frame, which is
+  pinocchio's world: it needs no ``/tf``, so a bag shows it too): the measured force
+  ``/ft_sensor/wrench`` as an arrow at the contact frame origin (:data:`FORCE_ARROW_SCALE` m per
+  N), and the MPC's planned contact-frame path (``/mpc/prediction``) as a line strip;
+* ``/tf`` (tf2_msgs/TFMessage) — a Foxglove channel only: no ``tf2_msgs`` wheel exists for the
+  ROS 2 of this environment, so rclpy cannot publish the type. Its CDR bytes are serialised with
+  ``rosbags`` (the same bytes a ROS 2 publisher would send). The tree robot_state_publisher
+  sends: every link frame of the pinocchio model (``BODY`` frames, named like the URDF links)
+  relative to its parent link, the root link relative to ``world`` (identity) and the
+  ``contact`` frame relative to its link, from ``/plant/joint_states`` by forward kinematics.
+  A Foxglove URDF layer driven by ``/plant/joint_states`` (the committed layout) computes the
+  same transforms itself, live and from a bag.
+
+``/tf`` and the markers are published every :data:`VIEW_PERIOD` s of the stamps of
+``/plant/joint_states`` (simulated time); the raw topics are forwarded whenever a client
+subscribes to them. Log times are the node's clock (simulated, ``use_sim_time``), as in a bag.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+from geometry_msgs.msg import Point, WrenchStamped
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import JointState
+from std_msgs.msg import ColorRGBA, Float64MultiArray, String
+from visualization_msgs.msg import Marker, MarkerArray
+
+from ffmpc_core.errors import ConfigError, FfmpcError
+from ffmpc_core.robots import RobotModel, load_robot
+from ffmpc_ros import layouts, topics
+from ffmpc_ros.bag.ros_types import DerivedTopic, offered_profiles, subscribe_raw
+from ffmpc_ros.bag.schema import MESSAGE_ENCODING, SCHEMA_ENCODING, MessageDefinitions
+
+#: Default port of the Foxglove WebSocket server.
+DEFAULT_PORT = 8765
+#: Host the server binds to (this machine only).
+DEFAULT_HOST = "127.0.0.1"
+#: Simulated s between two /tf and /view/markers messages (100 Hz).
+VIEW_PERIOD = 0.01
+#: Length of the force arrow, m per N (50 N → 0.25 m).
+FORCE_ARROW_SCALE = 0.005
+#: The root frame of /tf (pinocchio's universe: the robot's fixed base).
+WORLD_FRAME = "world"
+#: Wall s between a client's subscription to /plant/joint_states and the start of the run
+#: (``wait_for_client``): its subscriptions to the other channels arrive meanwhile.
+CLIENT_SETTLE = 0.5
+#: Latched topics: their last message goes again to each new Foxglove subscriber (Foxglove
+#: channels keep nothing; DDS reports a remote publisher's depth as 0, so the QoS cannot tell).
+LATCHED = (topics.ROBOT_DESCRIPTION,)
+#: Topics never bridged (parameter events are not data).
+EXCLUDE = ("/parameter_events",)
+#: History of every bridging subscription, messages.
+BRIDGE_DEPTH = 100
+#: The .msg text of tf2_msgs/msg/TFMessage (not installed: see the module docstring).
+TF_MESSAGE_MSG = "geometry_msgs/TransformStamped[] transforms\n"
+TF_MESSAGE_TYPE = "tf2_msgs/msg/TFMessage"
+
+
+class ViewError(FfmpcError):
+    """The live view cannot start (a busy port, a bad robot)."""
+
+
+def check_port_free(host: str, port: int) -> None:
+    """ViewError unless ``host:port`` can be bound now (a busy port is refused up front)."""
+    import socket
+
+    if not 0 < int(port) < 65536:
+        raise ConfigError(f"--view-port must be in 1..65535, got {port}")
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        try:
+            sock.bind((host, int(port)))
+        except OSError as exc:
+            raise ViewError(
+                f"the live view cannot listen on {host}:{port}: {exc.strerror} (choose another "
+                "port with --view-port)"
+            ) from None
+
+
+def link_tree(robot: RobotModel) -> list[tuple[str, int, str, int]]:
+    """(parent name, parent frame id, child name, child frame id) of every link frame
+    (pinocchio ``BODY`` frames) and of the contact frame, the parent being the nearest
+    ``BODY`` frame up the chain (the URDF's parent link), or ``world`` (id -1) for the root."""
+    model = robot.model
+    children = [i for i, f in enumerate(model.frames) if f.type == pin.FrameType.BODY]
+    children.append(robot.contact_frame_id)
+    out = []
+    for child in children:
+        parent = model.frames[child].parentFrame
+        while parent != 0 and model.frames[parent].type != pin.FrameType.BODY:
+            parent = model.frames[parent].parentFrame
+        parent_name = WORLD_FRAME if parent == 0 else model.frames[parent].name
+        out.append((parent_name, -1 if parent == 0 else parent, model.frames[child].name, child))
+    return out
+
+
+def root_link(robot: RobotModel) -> str:
+    """The URDF's root link (its frame is pinocchio's world)."""
+    return next(c for p, _, c, _ in link_tree(robot) if p == WORLD_FRAME)
+
+
+def tree_transforms(
+    robot: RobotModel, data: pin.Data, q: np.ndarray, tree: list[tuple[str, int, str, int]]
+) -> list[tuple[str, str, pin.SE3]]:
+    """(parent, child, placement of child in parent) of each edge of ``tree`` at configuration
+    q (rad), by pinocchio's forward kinematics (m, rad)."""
+    pin.framesForwardKinematics(robot.model, data, q)
+    out = []
+    for parent, pid, child, cid in tree:
+        placement = data.oMf[cid] if pid < 0 else data.oMf[pid].actInv(data.oMf[cid])
+        out.append((parent, child, placement))
+    return out
+
+
+def description_with_absolute_meshes(urdf_path: str) -> str:
+    """The URDF text with every relative mesh filename made an absolute ``file://`` URI and
+    every ``package://PKG/...`` one resolved on disk when found (Foxglove fetches both)."""
+    base = Path(urdf_path).resolve().parent
+    text = Path(urdf_path).read_text(encoding="utf-8")
+
+    def resolve(match: re.Match) -> str:
+        name = match.group(2)
+        if name.startswith("package://"):
+            rest = name[len("package://") :]
+            for parent in [base, *base.parents]:
+                if (parent / rest).is_file():
+                    return f"{match.group(1)}file://{parent / rest}{match.group(3)}"
+                if (parent.parent / rest).is_file():
+                    return f"{match.group(1)}file://{parent.parent / rest}{match.group(3)}"
+            return match.group(0)
+        if "://" in name:
+            return match.group(0)
+        return f"{match.group(1)}file://{(base / name).resolve()}{match.group(3)}"
+
+    return re.sub(r'(filename\s*=\s*")([^"]+)(")', resolve, text)
+
+
+class TfEncoder:
+    """tf2_msgs/msg/TFMessage CDR bytes and schema without the ROS type (rosbags)."""
+
+    def __init__(self) -> None:
+        from rosbags.typesys import Stores, get_typestore
+
+        self.store = get_typestore(Stores.ROS2_JAZZY)
+        self.types = self.store.types
+        self.schema = MessageDefinitions(known={TF_MESSAGE_TYPE: TF_MESSAGE_MSG}).full_text(
+            TF_MESSAGE_TYPE
+        )
+
+    def encode(self, stamp_ns: int, edges: list[tuple[str, str, pin.SE3]]) -> bytes:
+        """One TFMessage: every (parent, child, placement) edge, stamped ``stamp_ns``."""
+        t = self.types
+        stamp = t["builtin_interfaces/msg/Time"](
+            sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000
+        )
+        transforms = []
+        for parent, name, placement in edges:
+            header = t["std_msgs/msg/Header"](stamp=stamp, frame_id=parent)
+            p = placement.translation
+            x, y, z, w = pin.Quaternion(placement.rotation).coeffs()
+            transforms.append(
+                t["geometry_msgs/msg/TransformStamped"](
+                    header=header,
+                    child_frame_id=name,
+                    transform=t["geometry_msgs/msg/Transform"](
+                        translation=t["geometry_msgs/msg/Vector3"](
+                            x=float(p[0]), y=float(p[1]), z=float(p[2])
+                        ),
+                        rotation=t["geometry_msgs/msg/Quaternion"](
+                            x=float(x), y=float(y), z=float(z), w=float(w)
+                        ),
+                    ),
+                )
+            )
+        msg = t[TF_MESSAGE_TYPE](transforms=transforms)
+        return bytes(self.store.serialize_cdr(msg, TF_MESSAGE_TYPE))
+
+
+class JointStatesToTf:
+    """``/tf`` from ``/plant/joint_states``: given a JointState's CDR bytes, the TFMessage CDR of
+    the robot's tree at that q (:func:`tree_transforms`, stamped like the joint state), for the
+    stamps on the grid of :data:`VIEW_PERIOD` (multiples of it; the first stamp after a grid point
+    that had none), None for the others or for a bad message. Used by the view node and, with
+    ``--record --view``, by the recorder (the bag's ``/tf``): on one grid, whichever joint state
+    each saw first, the live ``/tf`` and the bag's share their stamps."""
+
+    def __init__(self, robot: RobotModel) -> None:
+        self.robot = robot
+        self.data = robot.create_data()
+        self.tree = link_tree(robot)
+        self.encoder = TfEncoder()
+        self.joint_index = {n: i for i, n in enumerate(robot.joint_names)}
+        self._next_ns: int | None = None
+        self.last: JointState | None = None
+
+    def __call__(self, data: bytes) -> tuple[int, bytes] | None:
+        msg = deserialize_message(data, JointState)
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        period = int(round(VIEW_PERIOD * 1e9))
+        if self._next_ns is None:  # the first point of the grid at or after the first stamp
+            self._next_ns = -(-stamp_ns // period) * period
+        if stamp_ns < self._next_ns:
+            return None
+        q = self.joint_positions(msg)
+        if q is None:
+            return None
+        self._next_ns = (stamp_ns // period + 1) * period
+        self.last = msg
+        edges = tree_transforms(self.robot, self.data, q, self.tree)
+        return stamp_ns, self.encoder.encode(stamp_ns, edges)
+
+    def joint_positions(self, msg: JointState) -> np.ndarray | None:
+        """q (rad) in the model's joint order from a JointState (by name when named)."""
+        nq = self.robot.nq
+        position = np.asarray(msg.position, dtype=float)
+        if msg.name:
+            if len(msg.name) != position.size:
+                return None
+            q = np.full(nq, np.nan)
+            for name, value in zip(msg.name, position, strict=True):
+                if name in self.joint_index:
+                    q[self.joint_index[name]] = value
+        else:
+            q = position
+        if q.shape != (nq,) or not np.all(np.isfinite(q)):
+            return None
+        return q
+
+    def contact_position(self) -> np.ndarray:
+        """The contact frame origin of the last q converted (m, world frame)."""
+        return self.data.oMf[self.robot.contact_frame_id].translation.copy()
+
+
+def tf_derived_topic(robot_name: str) -> DerivedTopic:
+    """The bag's ``/tf`` (:class:`~ffmpc_ros.bag.ros_types.DerivedTopic`) for ``robot_name``."""
+    convert = JointStatesToTf(load_robot(robot_name))
+
+    def derive(data: bytes) -> bytes | None:
+        out = convert(data)
+        return None if out is None else out[1]
+
+    return DerivedTopic(
+        source=topics.PLANT_JOINT_STATES,
+        topic=topics.TF,
+        type_name=TF_MESSAGE_TYPE,
+        definition=convert.encoder.schema,
+        derive=derive,
+    )
+
+
+class ViewNode(Node):
+    """The live view's node and Foxglove server (module docstring).
+
+    Args:
+        robot: robot model name (``iiwa``, ``panda``).
+        host, port: where the Foxglove WebSocket server listens (port 0: any free port).
+        use_sim_time: log and stamp on ``/clock``.
+        discovery_period: wall s between two looks at the graph for new topics.
+        wait_for_client: hold the run (the plant waits for this node's subscription to
+            ``/plant/joint_states``) until a client subscribes to that topic.
+    """
+
+    def __init__(
+        self,
+        robot: str,
+        *,
+        host: str = DEFAULT_HOST,
+        port: int = DEFAULT_PORT,
+        context=None,
+        use_sim_time: bool = True,
+        discovery_period: float = 0.1,
+        node_name: str = "view",
+        wait_for_client: bool = False,
+    ) -> None:
+        import foxglove
+
+        super().__init__(
+            node_name,
+            context=context,
+            parameter_overrides=[Parameter("use_sim_time", value=use_sim_time)],
+        )
+        self.robot = load_robot(robot)
+        self.to_tf = JointStatesToTf(self.robot)
+        self.root = root_link(self.robot)
+        self.definitions = MessageDefinitions()
+        self.fox = foxglove.Context()
+        self.mesh_root = Path(self.robot.urdf_path).resolve().parent
+        self.wait_for_client = wait_for_client
+        self.listener = _Subscriptions()
+        try:
+            self.server = foxglove.start_server(
+                name="ffmpc",
+                host=host,
+                port=port,
+                context=self.fox,
+                asset_handler=self._asset,
+                server_listener=self.listener,
+            )
+        except RuntimeError as exc:
+            raise ViewError(f"the live view cannot listen on {host}:{port}: {exc}") from None
+        self.host, self.port = host, int(self.server.port)
+        self.tf_channel = foxglove.Channel(
+            topics.TF,
+            schema=foxglove.Schema(
+                name=TF_MESSAGE_TYPE,
+                encoding=SCHEMA_ENCODING,
+                data=self.to_tf.encoder.schema.encode(),
+            ),
+            message_encoding=MESSAGE_ENCODING,
+            context=self.fox,
+        )
+        self.channels: dict[str, Any] = {}
+        self._latched: dict[str, bytes] = {}  # last message of each latched topic
+        self._latched_at: dict[str, int] = {}
+        self._last_channel_at = time.monotonic()
+        self._bridges: dict[str, Any] = {}
+        self.forwarded: dict[str, int] = {}
+        self.tf_published = 0
+        self._force = np.zeros(3)
+        self._path: np.ndarray | None = None
+        self._hooks: dict[str, Callable[[bytes], None]] = {
+            topics.PLANT_JOINT_STATES: self._on_joint_states,
+            topics.SENSED_WRENCH: self._on_wrench,
+            topics.MPC_PREDICTION: self._on_prediction,
+        }
+        self.pub_description = self.create_publisher(
+            String, topics.ROBOT_DESCRIPTION, topics.latched_qos()
+        )
+        self.pub_description.publish(
+            String(data=description_with_absolute_meshes(self.robot.urdf_path))
+        )
+        self.pub_markers = self.create_publisher(
+            MarkerArray, topics.VIEW_MARKERS, topics.publisher_qos()
+        )
+        self._timer = self.create_timer(
+            discovery_period, self.discover, clock=Clock(clock_type=ClockType.STEADY_TIME)
+        )
+        self.discover()
+
+    @property
+    def address(self) -> str:
+        """The server's WebSocket URL."""
+        return f"ws://{self.host}:{self.port}"
+
+    # -- assets --------------------------------------------------------------------------------
+    def _asset(self, uri: str) -> bytes | None:
+        """A mesh the URDF names, for a client that fetches it; only files under the URDF's
+        directory are served (None otherwise)."""
+        path = uri[len("file://") :] if uri.startswith("file://") else uri
+        try:
+            resolved = Path(path).resolve()
+        except OSError:
+            return None
+        if self.mesh_root not in resolved.parents or not resolved.is_file():
+            return None
+        return resolved.read_bytes()
+
+    # -- bridge --------------------------------------------------------------------------------
+    @property
+    def client_ready(self) -> bool:
+        """A client has subscribed to ``/plant/joint_states``, every topic of the graph's
+        contract (``topics.TOPICS``, ``topics.VIEW_TOPICS``) is advertised, and
+        :data:`CLIENT_SETTLE` s passed since both (the client's other subscriptions are in)."""
+        since = self.listener.subscribed.get(topics.PLANT_JOINT_STATES)
+        if since is None:
+            return False
+        contract = [t for t, _, _ in (*topics.TOPICS, *topics.VIEW_TOPICS)]
+        if not all(t in self.channels for t in contract):
+            return False
+        return time.monotonic() - max(since, self._last_channel_at) >= CLIENT_SETTLE
+
+    def discover(self) -> None:
+        """A channel and a raw subscription for every new topic that has a publisher (with
+        ``wait_for_client``, ``/plant/joint_states`` is subscribed, and the plant may start,
+        only once :attr:`client_ready`)."""
+        import foxglove
+
+        for topic in self.listener.take_new():  # a latched message for a new subscriber
+            if topic in self._latched:
+                self.channels[topic].log(self._latched[topic], log_time=self._latched_at[topic])
+        for topic, types in self.get_topic_names_and_types():
+            if topic in self._bridges or topic in EXCLUDE or topic == topics.TF:
+                continue
+            publishers = self.get_publishers_info_by_topic(topic)
+            if not publishers:
+                continue
+            type_name = publishers[0].topic_type or types[0]
+            channel = self.channels.get(topic)
+            if channel is None:
+                try:
+                    definition = self.definitions.full_text(type_name)
+                except FfmpcError as exc:
+                    self.get_logger().warning(f"{topic} not bridged: {exc}")
+                    self._bridges[topic] = None
+                    continue
+                channel = foxglove.Channel(
+                    topic,
+                    schema=foxglove.Schema(
+                        name=type_name, encoding=SCHEMA_ENCODING, data=definition.encode()
+                    ),
+                    message_encoding=MESSAGE_ENCODING,
+                    context=self.fox,
+                )
+                self.channels[topic] = channel
+                self.forwarded[topic] = 0
+                self._last_channel_at = time.monotonic()
+            if topic == topics.PLANT_JOINT_STATES and self.wait_for_client:
+                if not self.client_ready:
+                    continue  # advertised; subscribed (the plant starts) once a client is in
+            self._bridges[topic] = subscribe_raw(
+                self,
+                topic,
+                type_name,
+                offered_profiles(publishers),
+                self._forwarder(topic, channel, topic in LATCHED),
+                BRIDGE_DEPTH,
+            )
+
+    def _forwarder(self, topic: str, channel, latched: bool) -> Callable[[bytes], None]:
+        """The raw callback of a topic: forward to Foxglove while a client listens (a latched
+        topic's last message is kept and sent again to each new subscriber), then the hook."""
+        clock = self.get_clock()
+        hook = self._hooks.get(topic)
+        forwarded = self.forwarded
+
+        def on_message(data: bytes) -> None:
+            now = clock.now().nanoseconds
+            if latched:
+                self._latched[topic], self._latched_at[topic] = data, now
+            if channel.has_sinks():
+                channel.log(data, log_time=now)
+                forwarded[topic] += 1
+            if hook is not None:
+                hook(data)
+
+        return on_message
+
+    # -- robot view ----------------------------------------------------------------------------
+    def _on_wrench(self, data: bytes) -> None:
+        f = deserialize_message(data, WrenchStamped).wrench.force
+        self._force = np.array([f.x, f.y, f.z])
+
+    def _on_prediction(self, data: bytes) -> None:
+        try:
+            values = layouts.MPC_PREDICTION.unpack(deserialize_message(data, Float64MultiArray))
+        except FfmpcError as exc:
+            self.get_logger().warning(f"{topics.MPC_PREDICTION}: {exc}")
+            return
+        self._path = values["positions"].reshape(-1, 3)
+
+    def _on_joint_states(self, data: bytes) -> None:
+        out = self.to_tf(data)
+        if out is None:
+            return
+        stamp_ns, tf = out
+        self.tf_channel.log(tf, log_time=stamp_ns)
+        self.tf_published += 1
+        assert self.to_tf.last is not None  # set with every conversion
+        contact = self.to_tf.contact_position()
+        self.pub_markers.publish(self.markers(self.to_tf.last.header.stamp, contact))
+
+    def markers(self, stamp, contact: np.ndarray) -> MarkerArray:
+        """The force arrow at ``contact`` (m, world) and the planned path (module docstring),
+        in the root link's frame (= world)."""
+        arrow = Marker(ns="measured_force", id=0, type=Marker.ARROW, action=Marker.ADD)
+        arrow.header.stamp, arrow.header.frame_id = stamp, self.root
+        tip = contact + FORCE_ARROW_SCALE * self._force
+        arrow.points = [_point(contact), _point(tip)]
+        arrow.scale.x, arrow.scale.y, arrow.scale.z = 0.01, 0.02, 0.03
+        arrow.pose.orientation.w = 1.0
+        arrow.color = ColorRGBA(r=0.9, g=0.1, b=0.1, a=1.0)
+        path = Marker(ns="planned_path", id=1, type=Marker.LINE_STRIP)
+        path.header.stamp, path.header.frame_id = stamp, self.root
+        path.pose.orientation.w = 1.0
+        path.scale.x = 0.005
+        path.color = ColorRGBA(r=0.1, g=0.8, b=0.2, a=1.0)
+        if self._path is None:
+            path.action = Marker.DELETE
+        else:
+            path.action = Marker.ADD
+            path.points = [_point(p) for p in self._path]
+        return MarkerArray(markers=[arrow, path])
+
+    def close(self) -> None:
+        """Stop the server and the bridge. Idempotent."""
+        if self.server is not None:
+            self._timer.cancel()
+            for sub in self._bridges.values():
+                if sub is not None:
+                    self.destroy_subscription(sub)
+            self.server.stop()
+            self.server = None
+
+    def destroy_node(self) -> None:
+        self.close()
+        super().destroy_node()
+
+
+class _Subscriptions:
+    """Server listener: the first time (monotonic s) a client subscribed to each topic, and
+    the topics subscribed since the view last looked (``take_new``)."""
+
+    def __init__(self) -> None:
+        self.subscribed: dict[str, float] = {}
+        self._new: list[str] = []
+
+    def on_subscribe(self, client, channel) -> None:
+        self.subscribed.setdefault(channel.topic, time.monotonic())
+        self._new.append(channel.topic)
+
+    def take_new(self) -> list[str]:
+        new, self._new = self._new, []
+        return new
+
+
+def _point(p: np.ndarray) -> Point:
+    return Point(x=float(p[0]), y=float(p[1]), z=float(p[2]))
+
+
+def view_process(config_path: str) -> int:
+    """The view node in its own process (``ffmpc run --view``).
+
+    ``config_path``: JSON {"robot", "host", "port", "domain", "wait_for_client", "counts": path
+    of the JSON written at the end}. Serves until SIGINT/SIGTERM (the bring-up stops it once the
+    run is over; it dies with the bring-up through PR_SET_PDEATHSIG), then writes {"address",
+    "forwarded", "tf"} to ``counts``. Exit 1 with the reason if the server cannot start."""
+    from ffmpc_ros.child_process import child_ros_process
+
+    with child_ros_process(config_path) as child:
+        config, executor, stopping = child.config, child.executor, child.stopping
+        try:
+            node = ViewNode(
+                config["robot"],
+                host=config["host"],
+                port=int(config["port"]),
+                context=child.context,
+                wait_for_client=bool(config.get("wait_for_client")),
+            )
+        except FfmpcError as exc:
+            print(f"view: {exc}", flush=True)
+            return 1
+        print(f"view: Foxglove server on {node.address}", flush=True)
+        executor.add_node(node)
+        try:
+            while not stopping:
+                executor.spin_once(timeout_sec=0.05)
+        finally:
+            counts = {
+                "address": node.address,
+                "forwarded": node.forwarded,
+                "tf": node.tf_published,
+            }
+            node.close()
+            if config.get("counts"):
+                with open(config["counts"], "w", encoding="utf-8") as fh:
+                    json.dump(counts, fh)
+            executor.remove_node(node)
+            node.destroy_node()
+    return 0
+
+
+def wait_for_port(host: str, port: int, timeout: float) -> bool:
+    """Whether something accepts TCP connections on host:port within ``timeout`` wall s."""
+    import socket
+
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+            sock.settimeout(0.2)
+            if sock.connect_ex((host, int(port))) == 0:
+                return True
+        time.sleep(0.05)
+    return False
+
+
+if __name__ == "__main__":
+    import sys
+
+    raise SystemExit(view_process(sys.argv[1]))
