@@ -147,6 +147,20 @@ def test_ffmpc_run_namespace_equals_the_runner_and_records_namespaced_names(tmp_
     report = rerun_node(bag, "mpc")
     assert report.identical and report.ok, report.describe()
     assert report.inputs == {"/arm1/joint_sensor/joint_states": 201}
+    # bag play: the recorded names; with a clock rate, the player drives the bag's clock
+    from ros_helpers import RosHarness
+
+    from ffmpc_ros.bag.player import BagPlayer
+
+    ros = RosHarness()
+    try:
+        with BagReader(bag) as reader:
+            player = BagPlayer(ros.probe("player"), reader, clock_rate=100.0)
+            assert player.clock_topic == "/arm1/clock" and "/arm1/clock" not in player.publishers
+            assert player.clock_publisher.topic_name == "/arm1/clock"
+            assert "/arm1/plant/joint_states" in player.publishers
+    finally:
+        ros.close()
 
 
 def test_two_graphs_side_by_side_on_one_domain():
