@@ -110,6 +110,7 @@ class StudyNode(Node):
         self.time_step = self.scenario.plant.time_step
         self.step_ns = int(round(self.time_step * 1e9))
         self.rejected: Counter[str] = Counter()
+        self._names: dict[str, str] = {}
         self.log_lines: Counter[str] = Counter()
         self._last_log: dict[str, float] = {}
         self._last_cycle: dict[str, int] = {}
@@ -146,6 +147,17 @@ class StudyNode(Node):
                     "plant's /clock (simulated time)",
                 )
         return SetParametersResult(successful=True)
+
+    # -- names -----------------------------------------------------------------------------
+    def name_of(self, topic: str) -> str:
+        """The fully qualified name of a graph topic for this node: the relative names of
+        ``ffmpc_ros.topics`` expanded in the node's namespace (``/arm1/mpc/command``), remap
+        rules NOT applied — the name a bag records and the key of :attr:`rejected` and
+        :attr:`accepted` (``/mpc/command:stale`` at the root, as before names were relative)."""
+        name = self._names.get(topic)
+        if name is None:
+            name = self._names[topic] = self.resolve_topic_name(topic, only_expand=True)
+        return name
 
     # -- time ------------------------------------------------------------------------------
     def cycle_of(self, stamp: TimeMsg) -> int | None:
@@ -204,6 +216,7 @@ class StudyNode(Node):
         """The cycle of an input's stamp if it is on the grid and :meth:`check_cycle` accepts it;
         otherwise reject it and return None. Call :meth:`accept_cycle` once the whole message
         is accepted."""
+        topic = self.name_of(topic)
         k = self.cycle_of(stamp)
         if k is None:
             self.reject(f"{topic}:stamp", f"stamp {stamp.sec}.{stamp.nanosec:09d} off the grid")
@@ -214,6 +227,7 @@ class StudyNode(Node):
         """Whether an input of cycle k (time k·time_step) may be used: after the last accepted
         one from ``topic``, at most :data:`MAX_FUTURE_STAMP` ahead of this node's clock and at
         most ``max_input_age`` behind it. Rejects it (one throttled log line) otherwise."""
+        topic = self.name_of(topic)
         last = self._last_cycle.get(topic)
         if last is not None and k <= last:
             self.reject(f"{topic}:order", f"cycle {k} is not after the last accepted {last}")
@@ -233,6 +247,7 @@ class StudyNode(Node):
         return True
 
     def accept_cycle(self, topic: str, k: int) -> None:
+        topic = self.name_of(topic)
         self._last_cycle[topic] = k
         self.accepted[topic] += 1
 
@@ -286,6 +301,7 @@ class StudyNode(Node):
     def receive(self, topic: str, msg, parse: Callable[[Any], Any]) -> tuple[int, Any] | None:
         """Check the stamp of ``msg``, parse it, accept its cycle: ``(k, parse(msg))``, or None
         when the stamp or the values are rejected (one throttled log line, see :meth:`reject`)."""
+        topic = self.name_of(topic)
         k = self.check_stamp(topic, msg.header.stamp)
         if k is None:
             return None

@@ -11,6 +11,13 @@ node sections with the other-section values each node declares (``ffmpc_ros.para
 ``lockstep`` and ``duration``. Every process gets the caller's environment: set
 ``ROS_DOMAIN_ID`` (and ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) to isolate a run.
 
+Namespace (``namespace="/arm1"``, ``ffmpc run --namespace /arm1``): every node of the graph —
+the children, the in-process nodes, the bring-up's own probe, the metrics node and the
+recorder — runs under it with ``-r __ns:=/arm1 -r /clock:=clock``
+(:func:`ffmpc_ros.topics.graph_ros_args`): the graph's relative names resolve to
+``/arm1/plant/joint_states``, ... and its clock to ``/arm1/clock``, so two graphs run side by side
+on one ROS domain. The generated parameter file keys each node by its fully qualified name.
+
 Safety of the run itself (lockstep):
 
 * Foreign publishers: before starting anything, the bring-up looks for publishers on the graph's
@@ -155,6 +162,7 @@ class GraphResult:
     seed: int
     single_process: bool
     lockstep: bool
+    namespace: str
     metrics_true: PolishingMetrics
     metrics_measured: PolishingMetrics
     log: dict[str, np.ndarray] = field(repr=False)
@@ -190,6 +198,7 @@ class GraphResult:
             "seed": self.seed,
             "single_process": self.single_process,
             "lockstep": self.lockstep,
+            "namespace": self.namespace,
             "metrics_true": self.metrics_true.to_dict(),
             "metrics_measured": self.metrics_measured.to_dict(),
             "sim_time_s": self.sim_time,
@@ -371,6 +380,7 @@ def run_graph(
     view: int | None = None,
     view_host: str = "127.0.0.1",
     view_wait: bool = False,
+    namespace: str | None = None,
 ) -> GraphResult:
     """Run ``scenario`` on the node graph and return the metrics node's result.
 
@@ -401,6 +411,7 @@ def run_graph(
             no view); ViewError when the port is busy.
         view_wait: the run starts only once a Foxglove client subscribes to
             ``/plant/joint_states`` (``start_timeout`` still applies).
+        namespace: ROS namespace of the whole graph (module docstring; None: the root).
     """
     from ffmpc_ros.fault_injector import (
         FAULT_LOCKSTEP_TIMEOUT,
@@ -411,6 +422,7 @@ def run_graph(
 
     start = time.perf_counter()
     domain = int(os.environ.get("ROS_DOMAIN_ID", "0")) if domain_id is None else domain_id
+    namespace = topics.normalize_namespace(namespace)
     faults = faults_from(faults)
     check_supported(faults, single_process, lockstep)
     if node_ros_args and (single_process or not lockstep):
@@ -437,7 +449,7 @@ def run_graph(
         windows = [tuple(map(float, w)) for w in fault_windows]
         windows += [(f.start, min(f.end + FAULT_RECOVERY, float(duration))) for f in faults]
         return _run_real_time(
-            scenario, params, timeout, domain, quiet, windows, cpus, priority, faults
+            scenario, params, timeout, domain, quiet, windows, cpus, priority, faults, namespace
         )
     from ffmpc_core.study import steps_per_mpc_period
 
@@ -454,15 +466,25 @@ def run_graph(
         from ffmpc_ros.view import check_port_free
 
         check_port_free(view_host, view)
-    # the recorder is one more subscriber the plant waits for (the bring-up's probe subscribes
-    # before the metrics node exists, whose readiness the plant waits for too); so is the view
-    params["plant"]["start_subscribers"] += (record is not None) + (view is not None)
+    # the bring-up's probe (_StatusProbe) reads the joint states too, and subscribes before the
+    # metrics node exists, whose readiness the plant waits for: without counting it, the plant
+    # could start with the probe in the recorder's place, before the recorder's gate opened (a
+    # bag then lacked /plant/joint_states and the MPC's parameters, seen once in four runs);
+    # the recorder and the view are more subscribers the plant waits for
+    params["plant"]["start_subscribers"] += 1 + (record is not None) + (view is not None)
     # and it reads /clock twice: the topic it records and its time source (simulated log times)
     params["plant"]["start_clock_subscribers"] += 2 * (record is not None)
     robot = load_robot(scenario.robot)
     time_step = scenario.plant.time_step
     context = Context()
-    rclpy.init(context=context, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
+    # every node of this context (probe, metrics, single-process nodes, recorder) in the graph's
+    # namespace, on the graph's clock
+    rclpy.init(
+        args=["ffmpc", "--ros-args", *topics.graph_ros_args(namespace)],
+        context=context,
+        domain_id=domain,
+        signal_handler_options=SignalHandlerOptions.NO,
+    )
     executor = EventsExecutor(context=context)
     nodes: list[Node] = []
     graph_nodes: list[Node] = []
@@ -479,7 +501,7 @@ def run_graph(
         nodes.append(probe_node)
         executor.add_node(probe_node)
         if not allow_foreign:
-            _refuse_foreign(probe_node, domain)
+            _refuse_foreign(probe_node, domain, namespace)
         if single_process:
             for name, path in NODES.items():
                 graph_nodes.append(
@@ -504,17 +526,31 @@ def run_graph(
                 nodes.append(view_node)
                 executor.add_node(view_node)
         else:
-            children, logs = _spawn(params, tmp.name, domain, node_ros_args or {})
+            children, logs = _spawn(params, tmp.name, domain, node_ros_args or {}, namespace)
             if view is not None:
                 view_counts = os.path.join(tmp.name, "view_counts.json")
                 children["view"], logs["view"] = _spawn_view(
-                    scenario.robot, view_host, view, tmp.name, domain, view_counts, view_wait
+                    scenario.robot,
+                    view_host,
+                    view,
+                    tmp.name,
+                    domain,
+                    view_counts,
+                    view_wait,
+                    namespace,
                 )
             if record is not None:
                 counts_path = os.path.join(tmp.name, "recorder_counts.json")
                 children["recorder"], logs["recorder"] = _spawn_recorder(
-                    record, tmp.name, domain, scenario, params, counts_path, view is not None
-                )  # with the view, the recorder also writes /tf (the view's robot tree)
+                    record,
+                    tmp.name,
+                    domain,
+                    scenario,
+                    params,
+                    counts_path,
+                    namespace,
+                    view is not None,  # with the view, the recorder also writes /tf
+                )
             values = _fetch_parameters(
                 probe_node, executor, list(NODES), children, logs, start + start_timeout
             )
@@ -554,6 +590,7 @@ def run_graph(
                 context=context,
                 scenario=scenario,
                 run=params,
+                namespace=namespace,
                 view=None if view is None else scenario.robot,
             )
             nodes.append(recorder)
@@ -654,6 +691,7 @@ def run_graph(
         seed=scenario.seed,
         single_process=single_process,
         lockstep=lockstep,
+        namespace=namespace,
         metrics_true=true,
         metrics_measured=measured,
         log=metrics.log.arrays,
@@ -669,7 +707,16 @@ def run_graph(
 
 
 def _run_real_time(
-    scenario: Scenario, params, timeout, domain, quiet, fault_windows, cpus, priority, faults
+    scenario: Scenario,
+    params,
+    timeout,
+    domain,
+    quiet,
+    fault_windows,
+    cpus,
+    priority,
+    faults,
+    namespace,
 ) -> GraphResult:
     """Real time (``ffmpc_ros.realtime``): the loop process and the MPC process."""
     from ffmpc_ros.realtime import DEFAULT_PRIORITY, run_realtime
@@ -683,6 +730,7 @@ def _run_real_time(
         priority=DEFAULT_PRIORITY if priority is None else priority,
         fault_windows=fault_windows,
         stalls=faults,
+        namespace=namespace,
     )
     s, timing = run.summary, run.summary["timing"]
     loop = timing["loop"]
@@ -698,6 +746,7 @@ def _run_real_time(
         seed=scenario.seed,
         single_process=False,
         lockstep=False,
+        namespace=namespace,
         metrics_true=run.metrics_true,
         metrics_measured=run.metrics_measured,
         log=run.log,
@@ -717,11 +766,16 @@ def _launch(marker: str, deathsig: int, module: str, args: Sequence[str]) -> lis
 
 
 def _spawn(
-    params: dict, directory: str, domain: int, node_ros_args: Mapping[str, Sequence[str]]
+    params: dict,
+    directory: str,
+    domain: int,
+    node_ros_args: Mapping[str, Sequence[str]],
+    namespace: str = topics.ROOT_NAMESPACE,
 ) -> tuple[dict[str, subprocess.Popen], dict[str, str]]:
     """Start every node of NODES as a child in one new process group; output to log files."""
     path = os.path.join(directory, "graph_params.yaml")
-    write_params_file({n: v for n, v in params.items() if n in NODES}, path)
+    write_params_file({n: v for n, v in params.items() if n in NODES}, path, namespace)
+    graph_args = topics.graph_ros_args(namespace)
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
     children: dict[str, subprocess.Popen] = {}
     logs: dict[str, str] = {}
@@ -731,7 +785,7 @@ def _spawn(
         module = target.partition(":")[0]
         logs[name] = os.path.join(directory, f"{name}.log")
         with open(logs[name], "w", encoding="utf-8") as out:
-            args = ["--ros-args", "--params-file", path, *node_ros_args.get(name, ())]
+            args = ["--ros-args", "--params-file", path, *graph_args, *node_ros_args.get(name, ())]
             children[name] = subprocess.Popen(
                 _launch(marker, signal.SIGKILL, module, args),
                 env=env,
@@ -751,8 +805,10 @@ def _spawn_view(
     domain: int,
     counts: str,
     wait_for_client: bool = False,
+    namespace: str = topics.ROOT_NAMESPACE,
 ) -> tuple[subprocess.Popen, str]:
-    """The view node's own process (``ffmpc_ros.view.view_process``), in the nodes' group."""
+    """The view node's own process (``ffmpc_ros.view.view_process``), in the nodes' group and
+    the graph's namespace."""
     config = os.path.join(directory, "view.json")
     with open(config, "w", encoding="utf-8") as fh:
         json.dump(
@@ -763,6 +819,7 @@ def _spawn_view(
                 "domain": domain,
                 "counts": counts,
                 "wait_for_client": wait_for_client,
+                "ros_args": topics.graph_ros_args(namespace),
             },
             fh,
         )
@@ -785,6 +842,7 @@ def _spawn_recorder(
     scenario: Scenario,
     params: dict,
     counts: str,
+    namespace: str = topics.ROOT_NAMESPACE,
     view: bool = False,
 ) -> tuple[subprocess.Popen, str]:
     """The recorder's own process (``graph_recorder_process``), in the nodes' process group."""
@@ -796,7 +854,9 @@ def _spawn_recorder(
             {
                 "target": os.fspath(record),
                 "domain": domain,
-                "metadata": graph_recorder_metadata(scenario, params),
+                "ros_args": topics.graph_ros_args(namespace),
+                "namespace": namespace,
+                "metadata": graph_recorder_metadata(scenario, params, namespace),
                 "counts": counts,
                 "view": scenario.robot if view else None,
             },
@@ -892,10 +952,16 @@ def _progress(probe: _StatusProbe, pid_probe: _PidStatusProbe, children) -> str:
     )
 
 
-def _refuse_foreign(node: Node, domain: int, wait: float = FOREIGN_DISCOVERY_WAIT) -> None:
+def _refuse_foreign(
+    node: Node,
+    domain: int,
+    namespace: str = topics.ROOT_NAMESPACE,
+    wait: float = FOREIGN_DISCOVERY_WAIT,
+) -> None:
     """GraphError naming the publishers already on the graph's topics and the nodes already
-    using the graph's node names (module docstring)."""
-    names = [t for t, _, _ in topics.TOPICS]
+    using the graph's node names in its namespace (module docstring); a graph in another
+    namespace is no conflict (its names resolve elsewhere, its clock is its own)."""
+    names = [t for t, _, _ in topics.resolved_topics(namespace)]
     ours = {*NODES, "metrics", "ffmpc_recorder", "ffmpc_bringup", "view"}
     me = node.get_fully_qualified_name()
     deadline = time.monotonic() + wait
@@ -908,9 +974,9 @@ def _refuse_foreign(node: Node, domain: int, wait: float = FOREIGN_DISCOVERY_WAI
             for info in node.get_publishers_info_by_topic(topic):
                 fqn = f"{info.node_namespace.rstrip('/')}/{info.node_name}"
                 found.setdefault(fqn, set()).add(topic)
-        for name, namespace in node.get_node_names_and_namespaces():
-            fqn = f"{namespace.rstrip('/')}/{name}"
-            if name in ours and fqn != me:
+        for name, node_namespace in node.get_node_names_and_namespaces():
+            fqn = f"{node_namespace.rstrip('/')}/{name}"
+            if name in ours and namespace == node_namespace and fqn != me:
                 found.setdefault(fqn, set())
         now = time.monotonic()
         if found and first_seen is None:
@@ -931,9 +997,11 @@ def _refuse_foreign(node: Node, domain: int, wait: float = FOREIGN_DISCOVERY_WAI
             for n, t in sorted(found.items())
         )
         raise GraphError(
-            f"foreign nodes on this graph's topics (ROS_DOMAIN_ID {domain}): {listed}. "
-            "Another graph (or the leftovers of a killed run) is on this domain: stop it or use "
-            "another ROS_DOMAIN_ID (--allow-foreign-publishers starts anyway)"
+            f"foreign nodes on this graph's topics (ROS_DOMAIN_ID {domain}"
+            + ("" if namespace == topics.ROOT_NAMESPACE else f", namespace {namespace}")
+            + f"): {listed}. Another graph (or the leftovers of a killed run) is on this "
+            "domain: stop it or use another ROS_DOMAIN_ID or --namespace "
+            "(--allow-foreign-publishers starts anyway)"
         )
 
 
@@ -949,7 +1017,8 @@ def _fetch_parameters(
     """{node: {name: value}} of the nodes ``names`` through their parameter services."""
     from ffmpc_ros.bag.recorder import _ParameterFetch
 
-    fetches = {n: _ParameterFetch(node, f"/{n}") for n in names}
+    prefix = node.get_namespace().rstrip("/")  # the graph's namespace (the probe's own)
+    fetches = {n: _ParameterFetch(node, f"{prefix}/{n}") for n in names}
     while not all(f.poll() for f in fetches.values()):
         _check_children(children, logs, set())
         if time.perf_counter() > deadline:

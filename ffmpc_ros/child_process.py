@@ -20,7 +20,8 @@ from rclpy.signals import SignalHandlerOptions
 
 @dataclass
 class ChildProcess:
-    """A child's configuration (``config["domain"]`` is its ROS domain), rclpy context and
+    """A child's configuration (``config["domain"]`` is its ROS domain, ``config["ros_args"]``
+    the ROS arguments of its context, e.g. ``-r __ns:=/arm1``), rclpy context and
     executor, and the signals received so far (non-empty: stop)."""
 
     config: dict[str, Any]
@@ -39,7 +40,8 @@ def child_ros_process(config_path: str) -> Iterator[ChildProcess]:
         signal.signal(sig, lambda signum, _frame: stopping.append(signum))
     context = Context()
     rclpy.init(
-        args=[],
+        # ROS arguments of every node of the child (the graph's namespace and clock remap)
+        args=["ffmpc-child", "--ros-args", *config.get("ros_args", [])],
         context=context,
         domain_id=int(config["domain"]),
         signal_handler_options=SignalHandlerOptions.NO,

@@ -301,6 +301,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
         node_ros_args.setdefault(node, []).extend(["-p", assignment])
     if args.stall_timeout <= 0:
         raise ConfigError(f"--stall-timeout must be > 0 s, got {args.stall_timeout}")
+    from ffmpc_ros.topics import normalize_namespace
+
+    try:
+        namespace = normalize_namespace(args.namespace)
+    except ConfigError as exc:
+        raise ConfigError(f"--namespace: {exc}") from None
     result = run_graph(
         scenario,
         faults=faults,
@@ -319,6 +325,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         priority=args.priority,
         view=args.view_port if args.view else None,
         view_wait=args.view_wait,
+        namespace=namespace,
     )
     summary = result.summary()
     summary["command_line"] = shlex.join(["ffmpc", *args.argv])
@@ -790,6 +797,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--single-process: the message kinds; real time: none (exit 2). The JSON gains "
         "max_velocity_ratio, max_torque_ratio, safe_hold_s, faults and rejected_messages; "
         "exit 1 when a joint limit was broken (ffmpc_ros/fault_injector.py)",
+    )
+    run.add_argument(
+        "--namespace",
+        metavar="NS",
+        default=None,
+        help="run the whole graph under this ROS namespace (/arm1: topics /arm1/plant/..., "
+        "clock /arm1/clock; every node, the recorder and the bring-up's own subscriptions): "
+        "two graphs under different namespaces share one ROS domain (default: the root)",
     )
     run.add_argument(
         "--allow-foreign-publishers",

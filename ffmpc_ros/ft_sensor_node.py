@@ -75,7 +75,7 @@ class FtSensorNode(StudyNode):
         return out
 
     def on_wrench(self, msg: WrenchStamped) -> None:
-        topic = topics.PLANT_WRENCH
+        topic = self.name_of(topics.PLANT_WRENCH)
         got = self.receive(topic, msg, self.wrench_array)
         if got is None:
             return

@@ -61,8 +61,23 @@ def nested_parameters(flat: Mapping[str, Any]) -> dict:
     return out
 
 
-def write_params_file(params: Mapping[str, Mapping[str, Any]], path: str) -> None:
-    """A ROS 2 parameter file with one section per node."""
-    doc = {node: {"ros__parameters": nested_parameters(values)} for node, values in params.items()}
+def params_file_key(node: str, namespace: str | None = topics.ROOT_NAMESPACE) -> str:
+    """The section key of ``node`` in a parameter file for a graph under ``namespace``: the bare
+    name at the root (rcl reads ``plant`` as ``/plant``), the fully qualified name otherwise
+    (``/arm1/plant``: a bare name never matches a namespaced node)."""
+    ns = topics.normalize_namespace(namespace)
+    return node if ns == topics.ROOT_NAMESPACE else f"{ns}/{node}"
+
+
+def write_params_file(
+    params: Mapping[str, Mapping[str, Any]],
+    path: str,
+    namespace: str | None = topics.ROOT_NAMESPACE,
+) -> None:
+    """A ROS 2 parameter file with one section per node (:func:`params_file_key`)."""
+    doc = {
+        params_file_key(node, namespace): {"ros__parameters": nested_parameters(values)}
+        for node, values in params.items()
+    }
     with open(path, "w", encoding="utf-8") as fh:
         yaml.safe_dump(doc, fh, sort_keys=False)

@@ -99,7 +99,7 @@ def receive_estimate(
     last accepted one, neither from the future nor stale (``StudyNode.check_cycle``).
     ``(k, estimate, direction)``, or None after one throttled log line. The caller accepts the
     cycle (``node.accept_cycle``) once it has used the estimate."""
-    topic = topics.CONTACT_ESTIMATE
+    topic = node.name_of(topics.CONTACT_ESTIMATE)
     try:
         estimate, t, direction = estimate_from_message(msg)
     except InputError as exc:
@@ -158,7 +158,7 @@ class MeasuredCycleNode(StudyNode):
         return k
 
     def on_joints(self, msg: JointState) -> None:
-        topic = topics.SENSED_JOINT_STATES
+        topic = self.name_of(topics.SENSED_JOINT_STATES)
         k = self._checked_cycle(topic, msg.header.stamp)
         if k is None:
             return
@@ -173,7 +173,7 @@ class MeasuredCycleNode(StudyNode):
         self._try_cycle(k)
 
     def on_wrench(self, msg: WrenchStamped) -> None:
-        topic = topics.SENSED_WRENCH
+        topic = self.name_of(topics.SENSED_WRENCH)
         k = self._checked_cycle(topic, msg.header.stamp)
         if k is None:
             return

@@ -252,7 +252,7 @@ class ImpactPlannerNode(MeasuredCycleNode):
 
     # -- the learner's estimate --------------------------------------------------------------
     def on_estimate(self, msg: Float64MultiArray) -> None:
-        topic = topics.CONTACT_ESTIMATE
+        topic = self.name_of(topics.CONTACT_ESTIMATE)
         got = receive_estimate(self, msg)
         if got is None:
             return

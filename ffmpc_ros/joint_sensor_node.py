@@ -38,7 +38,7 @@ class JointSensorNode(StudyNode):
         self.published = 0
 
     def on_joint_state(self, msg: JointState) -> None:
-        topic = topics.PLANT_JOINT_STATES
+        topic = self.name_of(topics.PLANT_JOINT_STATES)
         got = self.receive(topic, msg, self.joint_fields("position", "velocity", "effort"))
         if got is None:
             return

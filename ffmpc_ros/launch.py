@@ -14,6 +14,14 @@ a tested subset of the YAML launch syntax (``launch_yaml``), one process per nod
   ``$(find-pkg-share PKG)``, ``$(find-pkg-prefix PKG)`` (through ``ament_index_python``, as
   ``ros2 launch`` resolves them).
 
+A node with a ``namespace`` (``polishing.launch.yaml namespace:=/arm1``) gets ``-r __ns:=``; its
+parameter files' section keyed by its bare name (``plant:``, which rcl reads as ``/plant`` only)
+is handed to it keyed by its fully qualified name (``/arm1/plant:``), in a copy written to the log
+directory — what a Python launch file does with nav2's ``RewrittenYaml`` (ROS 2 has no file syntax
+for "this node name in any namespace" but the ``/**/plant`` wildcard). ``ros2 launch`` passes the
+file unchanged, so there a namespaced launch needs a scenario file keyed ``/**/plant`` or
+``/arm1/plant`` (not tried here: no launch_ros).
+
 Anything else (another tag, another key) is refused with its name: an option that would be
 silently ignored is an error here. Executables resolve as ``ros2 run`` does
 (``<prefix of PKG>/lib/PKG/EXE``). Every node dies with the launcher (PR_SET_PDEATHSIG), a node
@@ -272,6 +280,8 @@ def node_command(node: LaunchNode, params_dir: str | os.PathLike) -> list[str]:
         else:
             groups.append(("values", {name: value}))
     for i, (kind, item) in enumerate(groups):
+        if kind == "file":
+            item = _namespaced_file(node, item, os.path.join(params_dir, f"{node.label}_{i}.yaml"))
         if kind == "values":
             path = os.path.join(params_dir, f"{node.label}_{i}.yaml")
             with open(path, "w", encoding="utf-8") as fh:
@@ -282,6 +292,26 @@ def node_command(node: LaunchNode, params_dir: str | os.PathLike) -> list[str]:
     for source, target in node.remaps:
         args += ["-r", f"{source}:={target}"]
     return [exe, *args, *node.ros_args]
+
+
+def _namespaced_file(node: LaunchNode, path: str, copy: str) -> str:
+    """``path``, or for a namespaced node whose bare name keys a section of it, a copy at
+    ``copy`` with that section keyed by the node's fully qualified name (module docstring)."""
+    fqn = node_fqn(node)
+    if not node.name or fqn == f"/{node.name}":
+        return path
+    try:
+        with open(path, encoding="utf-8") as fh:
+            doc = yaml.safe_load(fh)
+    except (OSError, yaml.YAMLError):
+        return path  # the node reports an unreadable file itself
+    bare = (node.name, f"/{node.name}")
+    if not isinstance(doc, dict) or not any(k in doc for k in bare):
+        return path
+    rekeyed = {(fqn if key in bare else key): value for key, value in doc.items()}
+    with open(copy, "w", encoding="utf-8") as fh:
+        yaml.safe_dump(rekeyed, fh, sort_keys=False)
+    return copy
 
 
 def _die_with_parent() -> None:

@@ -102,7 +102,7 @@ class MpcNode(StudyNode):
             )
 
     def on_joints(self, msg: JointState) -> None:
-        topic = topics.SENSED_JOINT_STATES
+        topic = self.name_of(topics.SENSED_JOINT_STATES)
         got = self.receive(topic, msg, self.joint_fields("position", "velocity", "effort"))
         if got is None:
             return
@@ -111,7 +111,7 @@ class MpcNode(StudyNode):
         self._try_solve(k)
 
     def on_wrench(self, msg: WrenchStamped) -> None:
-        topic = topics.SENSED_WRENCH
+        topic = self.name_of(topics.SENSED_WRENCH)
         got = self.receive(
             topic, msg, lambda m: measured_force(self.wrench_array(m), self.config.contact)
         )
@@ -123,7 +123,7 @@ class MpcNode(StudyNode):
 
     def on_estimate(self, msg: Float64MultiArray) -> None:
         """A learner estimate: applied to the OCP's contact model when confident."""
-        topic = topics.CONTACT_ESTIMATE
+        topic = self.name_of(topics.CONTACT_ESTIMATE)
         got = receive_estimate(self, msg)
         if got is None:
             return
@@ -219,7 +219,8 @@ class MpcNode(StudyNode):
         gc.freeze()
         gc.disable()
         # (subscription, handler, only on MPC ticks): measurements, then the learner's estimate
-        clock = [s for s in self.subscriptions if s.topic_name == topics.CLOCK]
+        clock_topic = self.resolve_topic_name(topics.CLOCK)  # remapped: /arm1/clock
+        clock = [s for s in self.subscriptions if s.topic_name == clock_topic]
         inputs = [(sub, sub.callback, False) for sub in clock]
         inputs += [
             (sub, handler, True)

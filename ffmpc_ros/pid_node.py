@@ -78,7 +78,7 @@ class PidNode(StudyNode):
 
     # -- inputs ------------------------------------------------------------------------------
     def on_joints(self, msg: JointState) -> None:
-        topic = topics.SENSED_JOINT_STATES
+        topic = self.name_of(topics.SENSED_JOINT_STATES)
         got = self.receive(topic, msg, self.joint_fields("position", "velocity", "effort"))
         if got is None:
             return
@@ -87,7 +87,7 @@ class PidNode(StudyNode):
         self._advance()
 
     def on_wrench(self, msg: WrenchStamped) -> None:
-        topic = topics.SENSED_WRENCH
+        topic = self.name_of(topics.SENSED_WRENCH)
         got = self.receive(
             topic, msg, lambda m: measured_force(self.wrench_array(m), self.scenario.mpc.contact)
         )
@@ -103,7 +103,7 @@ class PidNode(StudyNode):
         self._advance()
 
     def on_command(self, msg: Float64MultiArray) -> None:
-        topic = topics.MPC_COMMAND
+        topic = self.name_of(topics.MPC_COMMAND)
         try:
             fields = layouts.MPC_COMMAND.unpack(msg, self.robot.nv)
             if int(fields["nv"]) != self.robot.nv or int(fields["nx"]) != self.lowlevel.nx:
@@ -182,7 +182,7 @@ class PidNode(StudyNode):
                 try:
                     self.lowlevel.set_command(self._commands.pop(kc), self.t_of(kc))
                 except InputError as exc:
-                    self.reject(f"{topics.MPC_COMMAND}:value", str(exc))
+                    self.reject(f"{self.name_of(topics.MPC_COMMAND)}:value", str(exc))
             self._step(k, LowLevelMeasurement(q, v, tau, force))
             drop_stale_cycles((self._joints, self._forces, self._commands), k, _KEEP)
             if self._force_rejected:  # (empty on every cycle without a rejection)

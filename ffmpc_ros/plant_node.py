@@ -196,7 +196,7 @@ class PlantNode(StudyNode):
 
     # -- stepping -------------------------------------------------------------------------------
     def on_motor(self, msg: JointState) -> None:
-        topic = topics.MOTOR_TORQUE
+        topic = self.name_of(topics.MOTOR_TORQUE)
         k = self.check_stamp(topic, msg.header.stamp)
         if k is None:
             return
@@ -233,7 +233,7 @@ class PlantNode(StudyNode):
             if self.drive_hold_cycles == 0:
                 self._drive_hold.reset()
                 self.reject(
-                    f"{topics.MOTOR_TORQUE}:missing",
+                    f"{self.name_of(topics.MOTOR_TORQUE)}:missing",
                     f"no valid motor torque for {self.max_input_age} s: the drives brake and hold",
                 )
             self.drive_hold_cycles += 1

@@ -477,6 +477,7 @@ class RealtimeLoop:
         self.sub_command = cn.create_subscription(
             Float64MultiArray, topics.MPC_COMMAND, lambda _msg: None, command_qos()
         )
+        self._command_topic = cn.name_of(topics.MPC_COMMAND)  # /arm1/mpc/command, as keyed
         self._active: dict[str, bool] = {}
         self._pending: dict[int, LowLevelCommand] = {}
         self.rejected: dict[str, int] = {}
@@ -516,11 +517,11 @@ class RealtimeLoop:
                 if int(fields["nv"]) != nv or int(fields["nx"]) != self.lowlevel.nx:
                     raise InputError(f"command for nv={fields['nv']:.0f}, nx={fields['nx']:.0f}")
             except InputError as exc:
-                self._reject(f"{topics.MPC_COMMAND}:value", str(exc))
+                self._reject(f"{self._command_topic}:value", str(exc))
                 continue
             kc = self.nodes["pid"].cycle_of_time(fields["t"])
             if kc is None or kc > k or kc < 0 or kc >= self.steps or arrival[kc] >= 0:
-                self._reject(f"{topics.MPC_COMMAND}:stamp", f"command time {fields['t']} s")
+                self._reject(f"{self._command_topic}:stamp", f"command time {fields['t']} s")
                 continue
             arrival[kc] = k
             latency[kc] = now - sent[kc]
@@ -535,7 +536,7 @@ class RealtimeLoop:
             try:
                 self.lowlevel.set_command(command, kc * self.time_step)
             except InputError as exc:
-                self._reject(f"{topics.MPC_COMMAND}:value", str(exc))
+                self._reject(f"{self._command_topic}:value", str(exc))
 
     def _joint_msg(self, stamp, q, v, effort) -> JointState:
         msg = JointState()
@@ -915,7 +916,9 @@ def _params_from_args(argv: Sequence[str]) -> dict[str, dict]:
         doc = yaml.safe_load(fh)
     out = {}
     for node in ("plant", "joint_sensor", "ft_sensor", "pid"):
-        out[node] = _flatten(doc[node]["ros__parameters"])
+        # keyed by the bare name, or by the fully qualified one under a namespace
+        key = next(k for k in doc if k == node or k.rsplit("/", 1)[-1] == node)
+        out[node] = _flatten(doc[key]["ros__parameters"])
     return out
 
 
@@ -958,6 +961,7 @@ def run_realtime(
     priority: int = DEFAULT_PRIORITY,
     fault_windows: FaultWindows = (),
     stalls: Sequence[Fault] = (),
+    namespace: str | None = None,
 ) -> RealtimeRun:
     """Start the MPC process and the loop process, wait for the run, return its results.
 
@@ -970,6 +974,7 @@ def run_realtime(
         fault_windows: (start, end) simulated s in which fallback is excused.
         stalls: ``loop-stall`` / ``mpc-stall`` faults the loop injects (their windows are the
             caller's to add to ``fault_windows``).
+        namespace: ROS namespace of both processes' nodes (``topics.graph_ros_args``).
     """
     from ffmpc_ros.graph_nodes import NODES, write_params_file
 
@@ -979,14 +984,14 @@ def run_realtime(
         cpus = default_cpus()
     with tempfile.TemporaryDirectory(prefix="ffmpc_rt_") as tmp:
         path = os.path.join(tmp, "graph_params.yaml")
-        write_params_file({n: v for n, v in params.items() if n in NODES}, path)
+        write_params_file({n: v for n, v in params.items() if n in NODES}, path, namespace)
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
         for name in THREAD_VARIABLES:  # one BLAS/OpenMP thread: no spinning helper threads
             env.setdefault(name, "1")
         # the publishing thread sends (no asynchronous sender thread to wait for)
         env.setdefault("RMW_FASTRTPS_PUBLICATION_MODE", "SYNCHRONOUS")
         out = os.path.join(tmp, "loop")
-        ros = ["--ros-args", "--params-file", path]
+        ros = ["--ros-args", "--params-file", path, *topics.graph_ros_args(namespace)]
         faults = [a for w in fault_windows for a in ("--fault-window", str(w[0]), str(w[1]))]
         faults += [a for f in stalls for a in ("--stall", str(f))]
         commands = {

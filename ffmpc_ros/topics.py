@@ -12,31 +12,60 @@ lockstep, whatever the start order of the processes:
   BEST_EFFORT, depth 1: only the newest time matters to a node; the recorder keeps them all).
   Every ffmpc node also reads it RELIABLE, depth 1 (:func:`clock_reader_qos`, feeding the same
   clock): a best-effort sample is lost while the reader's side of the match is not yet made.
+
+Names. Every topic and service name of the graph is RELATIVE (``plant/joint_states``): it
+resolves under the namespace of the node that uses it, so ``--ros-args -r __ns:=/arm1`` (or
+``ffmpc run --namespace /arm1``) moves the whole graph to ``/arm1/plant/joint_states``, ... and
+two robot cells run side by side on one ROS domain. Three names stay absolute
+(:data:`ABSOLUTE_NAMES`):
+
+* ``/clock``, ROS's convention (rclpy's time source subscribes the absolute ``/clock``). A
+  namespaced graph remaps it to its own clock with the standard rule ``-r /clock:=clock``
+  (:func:`graph_ros_args`; ``/arm1/clock``): two lockstep graphs on one ``/clock`` would each
+  step on the other's time (measured: README, "Namespaces"). At the root the rule is the
+  identity and nothing changes.
+* ``/diagnostics``, the diagnostic aggregator's convention: every node of every graph reports
+  there, its status named by the node's fully qualified name (``/arm1/mpc``).
+* ``/tf`` of the live view, tf2's name: a Foxglove channel and a topic of the bag, never
+  published through ROS (``ffmpc_ros.view``).
+
+:func:`resolve` gives the fully qualified name of a graph name under a namespace (what a bag
+records, what ``ros2 topic list`` shows); it needs no node.
 """
 
 from __future__ import annotations
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from ffmpc_core.errors import ConfigError
+
 CLOCK = "/clock"
-PLANT_JOINT_STATES = "/plant/joint_states"
-PLANT_WRENCH = "/plant/wrench"
-PLANT_TRUTH = "/plant/truth"
-PLANT_STATUS = "/plant/status"
-SENSED_JOINT_STATES = "/joint_sensor/joint_states"
-SENSED_WRENCH = "/ft_sensor/wrench"
-FILTERED_WRENCH = "/ft_sensor/wrench_filtered"
-IN_CONTACT = "/ft_sensor/in_contact"
-TARE_SERVICE = "/ft_sensor/tare"
-MPC_COMMAND = "/mpc/command"
-MOTOR_TORQUE = "/pid/motor_torque"
-DESIRED_TORQUE = "/pid/desired_torque"
-LOWLEVEL_STATUS = "/pid/status"
-METRICS_SUMMARY = "/metrics/summary"
-METRICS_READY = "/metrics/ready"
+PLANT_JOINT_STATES = "plant/joint_states"
+PLANT_WRENCH = "plant/wrench"
+PLANT_TRUTH = "plant/truth"
+PLANT_STATUS = "plant/status"
+SENSED_JOINT_STATES = "joint_sensor/joint_states"
+SENSED_WRENCH = "ft_sensor/wrench"
+FILTERED_WRENCH = "ft_sensor/wrench_filtered"
+IN_CONTACT = "ft_sensor/in_contact"
+TARE_SERVICE = "ft_sensor/tare"
+MPC_COMMAND = "mpc/command"
+MOTOR_TORQUE = "pid/motor_torque"
+DESIRED_TORQUE = "pid/desired_torque"
+LOWLEVEL_STATUS = "pid/status"
+METRICS_SUMMARY = "metrics/summary"
+METRICS_READY = "metrics/ready"
 #: Every node's status once a second (wall), diagnostic_msgs/DiagnosticArray; absolute, as the
 #: diagnostic aggregator expects. Outside TOPICS: not part of the control chain's contract.
 DIAGNOSTICS = "/diagnostics"
+
+#: The Foxglove-only channel of the view (no tf2_msgs wheel exists for the ROS 2 of this venv);
+#: absolute, as tf2 names it (it is a Foxglove channel and a bag topic, never a ROS publication).
+TF = "/tf"
+#: The only absolute names of the graph (module docstring); every other name here is relative.
+ABSOLUTE_NAMES = frozenset({CLOCK, DIAGNOSTICS, TF})
+#: The namespace of a graph started without one.
+ROOT_NAMESPACE = "/"
 
 #: The frame of every wrench: origin at the robot's ``contact`` frame, axes of ``world``
 #: (pinocchio's LOCAL_WORLD_ALIGNED); the moment is about the contact frame origin.
@@ -64,11 +93,11 @@ TOPICS: tuple[tuple[str, str, str], ...] = (
 #: Topics and services of the impact nodes (Dehio & Kheddar 2020). They are kept out of
 #: :data:`TOPICS`: the polishing graph (and its recorder, which waits for every topic there)
 #: does not run these nodes.
-IMPACT_COMMAND = "/impact_planner/command"
-IMPACT_STATUS = "/impact_planner/status"
-IMPACT_RESET_SERVICE = "/impact_planner/reset"
-CONTACT_ESTIMATE = "/contact_learner/estimate"
-CONTACT_LEARNER_RESET_SERVICE = "/contact_learner/reset"
+IMPACT_COMMAND = "impact_planner/command"
+IMPACT_STATUS = "impact_planner/status"
+IMPACT_RESET_SERVICE = "impact_planner/reset"
+CONTACT_ESTIMATE = "contact_learner/estimate"
+CONTACT_LEARNER_RESET_SERVICE = "contact_learner/reset"
 
 #: The frame of the impact planner's twist: the velocity of the contact frame origin, world axes
 #: (the same frame as the wrenches).
@@ -82,11 +111,9 @@ IMPACT_TOPICS: tuple[tuple[str, str, str], ...] = (
 
 #: Topics of the live view (``ffmpc run --view``, ffmpc_ros.view): the MPC's horizon, which the
 #: MPC node publishes only while something subscribes, the URDF and the markers of the view node.
-MPC_PREDICTION = "/mpc/prediction"
-ROBOT_DESCRIPTION = "/robot_description"
-VIEW_MARKERS = "/view/markers"
-#: The Foxglove-only channel of the view (no tf2_msgs wheel exists for the ROS 2 of this venv).
-TF = "/tf"
+MPC_PREDICTION = "mpc/prediction"
+ROBOT_DESCRIPTION = "robot_description"
+VIEW_MARKERS = "view/markers"
 
 VIEW_TOPICS: tuple[tuple[str, str, str], ...] = (
     (MPC_PREDICTION, "std_msgs/msg/Float64MultiArray", "mpc"),
@@ -157,3 +184,64 @@ def clock_qos() -> QoSProfile:
         reliability=ReliabilityPolicy.RELIABLE,
         durability=DurabilityPolicy.VOLATILE,
     )
+
+
+# -- names under a namespace ---------------------------------------------------------------------
+def normalize_namespace(namespace: str | None) -> str:
+    """A namespace as ROS writes it: absolute, no trailing slash (``arm1`` → ``/arm1``; None,
+    ``""`` and ``/`` → ``/``). ConfigError for a name ROS refuses (rcl's own rules: letters,
+    digits and underscores, tokens not starting with a digit, no ``//``)."""
+    from rclpy.exceptions import InvalidNamespaceException
+    from rclpy.validate_namespace import validate_namespace
+
+    text = (namespace or "").strip()
+    if text in ("", ROOT_NAMESPACE):
+        return ROOT_NAMESPACE
+    full = text if text.startswith("/") else "/" + text
+    if len(full) > 1 and full.endswith("/"):
+        full = full[:-1]  # "/arm1/" is "/arm1" (a second slash is left for the check)
+    try:
+        validate_namespace(full)
+    except InvalidNamespaceException as exc:
+        reason = str(exc).splitlines()[0].rstrip(": ")
+        raise ConfigError(f"namespace {namespace!r} is not a ROS namespace: {reason}") from None
+    return full
+
+
+def resolve(name: str, namespace: str | None = ROOT_NAMESPACE) -> str:
+    """The fully qualified name of a graph topic or service in a graph under ``namespace``, with
+    the graph's clock remap (:func:`graph_ros_args`): ``resolve(MPC_COMMAND, "/arm1")`` is
+    ``/arm1/mpc/command``, ``resolve(CLOCK, "/arm1")`` ``/arm1/clock``, ``/diagnostics``
+    stays. At the root every name resolves as before (``/mpc/command``, ``/clock``)."""
+    ns = normalize_namespace(namespace)
+    if name == CLOCK:
+        name = CLOCK_REMAP_TARGET
+    elif name.startswith("/"):
+        return name
+    return f"{ns.rstrip('/')}/{name}"
+
+
+#: Where a namespaced graph's ``/clock`` goes (relative: ``<namespace>/clock``).
+CLOCK_REMAP_TARGET = "clock"
+
+
+def graph_ros_args(namespace: str | None) -> list[str]:
+    """The ROS arguments (after ``--ros-args``) that put a node or a whole rclpy context into
+    the graph under ``namespace``: ``-r __ns:=/arm1 -r /clock:=clock``; none at the root (the
+    graph then runs exactly as without a namespace)."""
+    ns = normalize_namespace(namespace)
+    if ns == ROOT_NAMESPACE:
+        return []
+    return ["-r", f"__ns:={ns}", "-r", f"{CLOCK}:={CLOCK_REMAP_TARGET}"]
+
+
+def resolved_topics(namespace: str | None = ROOT_NAMESPACE) -> tuple[tuple[str, str, str], ...]:
+    """:data:`TOPICS` with each name fully qualified under ``namespace`` (:func:`resolve`)."""
+    return tuple((resolve(t, namespace), ty, node) for t, ty, node in TOPICS)
+
+
+def namespace_of(topic_names, name: str = PLANT_JOINT_STATES) -> str:
+    """The namespace of a graph from the fully qualified topic names it used (a bag's): the
+    prefix of the one name that ends with ``/<name>``; the root when there is none or several."""
+    found = {t[: -len(name) - 1] or ROOT_NAMESPACE for t in topic_names if t.endswith("/" + name)}
+    return found.pop() if len(found) == 1 else ROOT_NAMESPACE

@@ -254,8 +254,9 @@ class JointStatesToTf:
         return self.data.oMf[self.robot.contact_frame_id].translation.copy()
 
 
-def tf_derived_topic(robot_name: str) -> DerivedTopic:
-    """The bag's ``/tf`` (:class:`~ffmpc_ros.bag.ros_types.DerivedTopic`) for ``robot_name``."""
+def tf_derived_topic(robot_name: str, namespace: str | None = None) -> DerivedTopic:
+    """The bag's ``/tf`` (:class:`~ffmpc_ros.bag.ros_types.DerivedTopic`) for ``robot_name``,
+    from the joint states of the graph under ``namespace``."""
     convert = JointStatesToTf(load_robot(robot_name))
 
     def derive(data: bytes) -> bytes | None:
@@ -263,7 +264,7 @@ def tf_derived_topic(robot_name: str) -> DerivedTopic:
         return None if out is None else out[1]
 
     return DerivedTopic(
-        source=topics.PLANT_JOINT_STATES,
+        source=topics.resolve(topics.PLANT_JOINT_STATES, namespace),
         topic=topics.TF,
         type_name=TF_MESSAGE_TYPE,
         definition=convert.encoder.schema,
@@ -302,6 +303,7 @@ class ViewNode(Node):
             context=context,
             parameter_overrides=[Parameter("use_sim_time", value=use_sim_time)],
         )
+        self.namespace = self.get_namespace()
         self.robot = load_robot(robot)
         self.to_tf = JointStatesToTf(self.robot)
         self.root = root_link(self.robot)
@@ -342,9 +344,9 @@ class ViewNode(Node):
         self._force = np.zeros(3)
         self._path: np.ndarray | None = None
         self._hooks: dict[str, Callable[[bytes], None]] = {
-            topics.PLANT_JOINT_STATES: self._on_joint_states,
-            topics.SENSED_WRENCH: self._on_wrench,
-            topics.MPC_PREDICTION: self._on_prediction,
+            self._name(topics.PLANT_JOINT_STATES): self._on_joint_states,
+            self._name(topics.SENSED_WRENCH): self._on_wrench,
+            self._name(topics.MPC_PREDICTION): self._on_prediction,
         }
         self.pub_description = self.create_publisher(
             String, topics.ROBOT_DESCRIPTION, topics.latched_qos()
@@ -359,6 +361,10 @@ class ViewNode(Node):
             discovery_period, self.discover, clock=Clock(clock_type=ClockType.STEADY_TIME)
         )
         self.discover()
+
+    def _name(self, topic: str) -> str:
+        """A graph topic's fully qualified name in this node's namespace (the graph's)."""
+        return topics.resolve(topic, self.namespace)
 
     @property
     def address(self) -> str:
@@ -384,10 +390,10 @@ class ViewNode(Node):
         """A client has subscribed to ``/plant/joint_states``, every topic of the graph's
         contract (``topics.TOPICS``, ``topics.VIEW_TOPICS``) is advertised, and
         :data:`CLIENT_SETTLE` s passed since both (the client's other subscriptions are in)."""
-        since = self.listener.subscribed.get(topics.PLANT_JOINT_STATES)
+        since = self.listener.subscribed.get(self._name(topics.PLANT_JOINT_STATES))
         if since is None:
             return False
-        contract = [t for t, _, _ in (*topics.TOPICS, *topics.VIEW_TOPICS)]
+        contract = [self._name(t) for t, _, _ in (*topics.TOPICS, *topics.VIEW_TOPICS)]
         if not all(t in self.channels for t in contract):
             return False
         return time.monotonic() - max(since, self._last_channel_at) >= CLIENT_SETTLE
@@ -427,7 +433,7 @@ class ViewNode(Node):
                 self.channels[topic] = channel
                 self.forwarded[topic] = 0
                 self._last_channel_at = time.monotonic()
-            if topic == topics.PLANT_JOINT_STATES and self.wait_for_client:
+            if topic == self._name(topics.PLANT_JOINT_STATES) and self.wait_for_client:
                 if not self.client_ready:
                     continue  # advertised; subscribed (the plant starts) once a client is in
             self._bridges[topic] = subscribe_raw(
@@ -435,7 +441,7 @@ class ViewNode(Node):
                 topic,
                 type_name,
                 offered_profiles(publishers),
-                self._forwarder(topic, channel, topic in LATCHED),
+                self._forwarder(topic, channel, topic in map(self._name, LATCHED)),
                 BRIDGE_DEPTH,
             )
 

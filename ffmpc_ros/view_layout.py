@@ -14,6 +14,7 @@ layout. Every panel names ROS topics only, so the layout opens the live server o
 
 Indices into ``/mpc/prediction`` follow layout ``mpc_prediction`` for the horizon of the shipped
 scenarios (:data:`NODES` = N + 1); another horizon moves the reference and the last node.
+The topics are those of a graph at the root namespace (``ffmpc run`` without ``--namespace``).
 """
 
 from __future__ import annotations
@@ -40,13 +41,15 @@ def foxglove_layout() -> dict:
     def series(value: str, label: str, color: str) -> fl.PlotSeries:
         return fl.PlotSeries(value=value, label=label, color=color, timestamp_method="receiveTime")
 
-    prediction = topics.MPC_PREDICTION
+    prediction = topics.resolve(topics.MPC_PREDICTION)
     force = fl.PlotPanel(
         title="Normal force (N)",
         config=fl.PlotConfig(
             paths=[
-                series(f"{topics.SENSED_WRENCH}.wrench.force.z", "measured", "#e41a1c"),
-                series(f"{topics.PLANT_TRUTH}.data[1]", "true", "#377eb8"),
+                series(
+                    f"{topics.resolve(topics.SENSED_WRENCH)}.wrench.force.z", "measured", "#e41a1c"
+                ),
+                series(f"{topics.resolve(topics.PLANT_TRUTH)}.data[1]", "true", "#377eb8"),
                 series(
                     f"{prediction}.data[{_prediction_index('reference_force', 0)}]",
                     "reference",
@@ -84,12 +87,14 @@ def foxglove_layout() -> dict:
         config=fl.ThreeDeeConfig(
             follow_tf=DISPLAY_FRAME,
             topics={
-                topics.ROBOT_DESCRIPTION: fl.BaseRendererUrdfTopicSettings(
+                topics.resolve(topics.ROBOT_DESCRIPTION): fl.BaseRendererUrdfTopicSettings(
                     visible=True,
                     control_mode="jointStates",
-                    joint_states_topic=topics.PLANT_JOINT_STATES,
+                    joint_states_topic=topics.resolve(topics.PLANT_JOINT_STATES),
                 ),
-                topics.VIEW_MARKERS: fl.BaseRendererRosMarkerTopicSettings(visible=True),
+                topics.resolve(topics.VIEW_MARKERS): fl.BaseRendererRosMarkerTopicSettings(
+                    visible=True
+                ),
             },
         ),
     )

@@ -131,3 +131,15 @@ def mpc_command(k: int, torque, nx: int = 14, gain=None, nv: int = 7, state=None
         "feedback_gain": np.zeros((nv, nx)) if gain is None else gain,
     }
     return layouts.MPC_COMMAND.pack(values, nv, nx)
+
+
+def assert_same_run(graph, runner) -> None:
+    """A graph run (``run_graph``'s GraphResult) equals the ROS-free runner's run of the same
+    scenario and seed: every logged signal bit for bit, and both metric sets."""
+    assert set(graph.log) == set(runner.log)
+    for name, values in runner.log.items():
+        # (rejections say why a run diverged, e.g. a PID that went on without a late command)
+        rejected = graph.safety["rejected_messages"]
+        np.testing.assert_array_equal(graph.log[name], values, err_msg=f"{name}; {rejected}")
+    assert graph.metrics_true == runner.metrics_true
+    assert graph.metrics_measured == runner.metrics_measured

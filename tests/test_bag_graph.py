@@ -66,15 +66,19 @@ def test_single_process_run_records_every_published_message(single_process_run):
     steps = int(round(DURATION / 1e-3))
     with BagReader(path) as bag:
         assert bag.recovery.complete
-        for topic, type_name, _ in topics.TOPICS:
+        for topic, type_name, _ in topics.resolved_topics():
             assert bag.topics[topic].type == type_name
             assert bag.topics[topic].count == published[topic] > 0, topic
             assert result.bag["received"][topic] == published[topic]
         # In lockstep every per-cycle topic carries each cycle 0..steps exactly once.
-        for topic in (topics.CLOCK, topics.PLANT_JOINT_STATES, topics.SENSED_WRENCH):
+        for topic in (
+            topics.CLOCK,
+            topics.resolve(topics.PLANT_JOINT_STATES),
+            topics.resolve(topics.SENSED_WRENCH),
+        ):
             assert _cycles(bag, topic) == list(range(steps + 1)), topic
-        assert _cycles(bag, topics.MPC_COMMAND) == list(range(0, steps + 1, 2))
-        assert _cycles(bag, topics.MOTOR_TORQUE) == list(range(steps + 1))
+        assert _cycles(bag, topics.resolve(topics.MPC_COMMAND)) == list(range(0, steps + 1, 2))
+        assert _cycles(bag, topics.resolve(topics.MOTOR_TORQUE)) == list(range(steps + 1))
         assert bag.start_time == 0 and bag.end_time == steps * 1_000_000  # simulated time
 
 
@@ -84,7 +88,9 @@ def test_the_bag_describes_its_run(single_process_run):
         params = bag.parameters
         assert {f"/{n}" for n in [*NODES, "metrics"]} <= set(params)
         assert params["/mpc"]["formulation"] == "classical"
-        assert params["/plant"]["seed"] == 3 and params["/plant"]["start_subscribers"] == 3
+        assert (
+            params["/plant"]["seed"] == 3 and params["/plant"]["start_subscribers"] == 4
+        )  # + probe, recorder
         assert params["/pid"]["plant.time_step"] == 0.001
         run = bag.metadata_named("ffmpc_run")
         scenario = yaml.safe_load(run["scenario"])
@@ -110,14 +116,14 @@ def test_multi_process_run_records_as_many_messages(single_process_run, tmp_path
         record=path,
     )
     with BagReader(path) as bag:
-        for topic, _, _ in topics.TOPICS:
+        for topic, _, _ in topics.resolved_topics():
             assert bag.topics[topic].count == published[topic], topic
         assert {f"/{n}" for n in [*NODES, "metrics"]} <= set(bag.parameters)
     study = bag_study(path)
     assert study.metrics_true == result.metrics_true and study.matches_recorded is True
     with Rosbag2Reader(path) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
-    assert all(counts[topic] == published[topic] for topic, _, _ in topics.TOPICS)
+    assert all(counts[topic] == published[topic] for topic, _, _ in topics.resolved_topics())
 
 
 def test_ffmpc_run_record_and_refusal_to_overwrite(tmp_path, capfd):
@@ -128,7 +134,7 @@ def test_ffmpc_run_record_and_refusal_to_overwrite(tmp_path, capfd):
     assert main(args) == 0
     out = capfd.readouterr().out
     summary = json.loads(out[out.index("{") :])
-    assert summary["bag"]["received"][topics.PLANT_JOINT_STATES] == 51
+    assert summary["bag"]["received"][topics.resolve(topics.PLANT_JOINT_STATES)] == 51
     size = path.stat().st_size
     assert main(args) == 2
     assert "never overwritten" in capfd.readouterr().err

@@ -84,11 +84,11 @@ def test_what_is_published_is_what_is_read_back_for_every_topic_type(ros, tmp_pa
             topic,
             topics.clock_qos() if topic == topics.CLOCK else topics.publisher_qos(),
         )
-        for topic, type_name, _ in topics.TOPICS
+        for topic, type_name, _ in topics.resolved_topics()
     }
     probe = ros.probe("bag_probe")
     wire: dict[str, list[bytes]] = {t: [] for t in publishers}
-    for topic, type_name, _ in topics.TOPICS:
+    for topic, type_name, _ in topics.resolved_topics():
         probe.create_subscription(
             message_class(type_name),
             topic,
@@ -116,7 +116,7 @@ def test_what_is_published_is_what_is_read_back_for_every_topic_type(ros, tmp_pa
     ), (recorder.received, recorder.parameters)
     sent: dict[str, list] = {t: [] for t in publishers}
     for k in range(25):
-        for topic, type_name, _ in topics.TOPICS:
+        for topic, type_name, _ in topics.resolved_topics():
             msg = _random_message(type_name, k, rng)
             publishers[topic].publish(msg)
             sent[topic].append(msg)
@@ -128,7 +128,7 @@ def test_what_is_published_is_what_is_read_back_for_every_topic_type(ros, tmp_pa
     recorder.close()
     with BagReader(path) as bag:
         assert set(bag.topics) == set(publishers)
-        for topic, type_name, _ in topics.TOPICS:
+        for topic, type_name, _ in topics.resolved_topics():
             info = bag.topics[topic]
             assert info.type == type_name and info.count == 25
             assert info.type_hash == str(infos[topic].topic_type_hash)
@@ -147,9 +147,9 @@ def test_what_is_published_is_what_is_read_back_for_every_topic_type(ros, tmp_pa
         wrenches = [
             reader.deserialize(raw, c.msgtype).wrench.force.z
             for c, _, raw in reader.messages()
-            if c.topic == topics.PLANT_WRENCH
+            if c.topic == topics.resolve(topics.PLANT_WRENCH)
         ]
-    assert wrenches == [m.wrench.force.z for m in sent[topics.PLANT_WRENCH]]
+    assert wrenches == [m.wrench.force.z for m in sent[topics.resolve(topics.PLANT_WRENCH)]]
 
 
 def test_the_gate_opens_once_the_graph_is_seen(ros, tmp_path):

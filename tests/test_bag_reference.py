@@ -35,10 +35,10 @@ def test_reference_bag_is_small_complete_and_self_describing():
     with BagReader(BAG) as bag:
         assert bag.recovery.complete
         assert {t: i.type for t, i in bag.topics.items() if t != "/rosout"} == {
-            t: ty for t, ty, _ in topics.TOPICS
+            t: ty for t, ty, _ in topics.resolved_topics()
         }
-        assert bag.topics[topics.PLANT_JOINT_STATES].count == 501
-        assert bag.topics[topics.MPC_COMMAND].count == 251
+        assert bag.topics[topics.resolve(topics.PLANT_JOINT_STATES)].count == 501
+        assert bag.topics[topics.resolve(topics.MPC_COMMAND)].count == 251
         assert bag.duration == pytest.approx(0.5)
         assert {f"/{n}" for n in [*NODES, "metrics"]} <= set(bag.parameters)
         assert bag.parameters["/mpc"]["formulation"] == "force_feedback"
@@ -55,9 +55,12 @@ def test_rosbags_and_mcap_ros2_read_every_message_of_the_reference_bag():
     assert {t: len(v) for t, v in theirs.items()} == {t: len(v) for t, v in ours.items()}
     for k in (0, 250, 500):
         js = deserialize_message(
-            ours[topics.PLANT_JOINT_STATES][k], message_class(types[topics.PLANT_JOINT_STATES])
+            ours[topics.resolve(topics.PLANT_JOINT_STATES)][k],
+            message_class(types[topics.resolve(topics.PLANT_JOINT_STATES)]),
         )
-        np.testing.assert_array_equal(theirs[topics.PLANT_JOINT_STATES][k].position, js.position)
+        np.testing.assert_array_equal(
+            theirs[topics.resolve(topics.PLANT_JOINT_STATES)][k].position, js.position
+        )
     decoded: dict[str, list] = {t: [] for t in ours}
     with open(BAG, "rb") as fh:
         for _, channel, _, msg in make_reader(
@@ -66,9 +69,10 @@ def test_rosbags_and_mcap_ros2_read_every_message_of_the_reference_bag():
             decoded[channel.topic].append(msg)
     assert {t: len(v) for t, v in decoded.items()} == {t: len(v) for t, v in ours.items()}
     command = deserialize_message(
-        ours[topics.MPC_COMMAND][100], message_class(types[topics.MPC_COMMAND])
+        ours[topics.resolve(topics.MPC_COMMAND)][100],
+        message_class(types[topics.resolve(topics.MPC_COMMAND)]),
     )
-    assert list(decoded[topics.MPC_COMMAND][100].data) == list(command.data)
+    assert list(decoded[topics.resolve(topics.MPC_COMMAND)][100].data) == list(command.data)
 
 
 def test_metrics_from_the_bag_equal_the_recorded_summary(capfd):
@@ -102,10 +106,13 @@ def test_mpc_rerun_reproduces_the_recorded_torques(capfd):
     assert report.ok and report.reproduced, report.describe()
     if report.same_machine:
         assert report.identical, report.describe()
-    command = report.comparison(topics.MPC_COMMAND)
+    command = report.comparison(topics.resolve(topics.MPC_COMMAND))
     assert command.recorded == command.rerun == command.within_tolerance == 251
     assert command.ignored == ("mpc_command.solve_time",)
-    assert report.inputs == {topics.SENSED_WRENCH: 501, topics.SENSED_JOINT_STATES: 501}
+    assert report.inputs == {
+        topics.resolve(topics.SENSED_WRENCH): 501,
+        topics.resolve(topics.SENSED_JOINT_STATES): 501,
+    }
     assert not report.rejected
     from ffmpc_ros.cli import main
 
@@ -141,8 +148,12 @@ def test_other_nodes_rerun(node):
 
 def test_player_keeps_timing_rate_selection_and_remapping():
     rate = 2.0
-    played = [topics.CLOCK, topics.PLANT_JOINT_STATES, topics.MPC_COMMAND]
-    remap = {topics.PLANT_JOINT_STATES: "/replay/joint_states"}
+    played = [
+        topics.CLOCK,
+        topics.resolve(topics.PLANT_JOINT_STATES),
+        topics.resolve(topics.MPC_COMMAND),
+    ]
+    remap = {topics.resolve(topics.PLANT_JOINT_STATES): "/replay/joint_states"}
     harness = RosHarness()
     try:
         listener = harness.probe("listener")
@@ -150,9 +161,15 @@ def test_player_keeps_timing_rate_selection_and_remapping():
         for name, type_name in (
             (topics.CLOCK, "rosgraph_msgs/msg/Clock"),
             ("/replay/joint_states", "sensor_msgs/msg/JointState"),
-            (topics.MPC_COMMAND, "std_msgs/msg/Float64MultiArray"),
-            (topics.PLANT_JOINT_STATES, "sensor_msgs/msg/JointState"),  # remapped away
-            (topics.PLANT_WRENCH, "geometry_msgs/msg/WrenchStamped"),  # not selected
+            (topics.resolve(topics.MPC_COMMAND), "std_msgs/msg/Float64MultiArray"),
+            (
+                topics.resolve(topics.PLANT_JOINT_STATES),
+                "sensor_msgs/msg/JointState",
+            ),  # remapped away
+            (
+                topics.resolve(topics.PLANT_WRENCH),
+                "geometry_msgs/msg/WrenchStamped",
+            ),  # not selected
         ):
             received[name] = []
             listener.create_subscription(
@@ -174,17 +191,24 @@ def test_player_keeps_timing_rate_selection_and_remapping():
                 player.publish_due()
                 wait = player.time_to_next()
                 harness.executor.spin_once(timeout_sec=min(max(wait or 0, 0), 0.01))
-            expected = {topics.CLOCK: 501, "/replay/joint_states": 501, topics.MPC_COMMAND: 251}
+            expected = {
+                topics.CLOCK: 501,
+                "/replay/joint_states": 501,
+                topics.resolve(topics.MPC_COMMAND): 251,
+            }
             harness.spin_until(
                 lambda: all(len(received[t]) == n for t, n in expected.items()), timeout=5
             )
         assert player.report.published == {t: len(recorded[t]) for t in played}
         for topic, name in ((topics.CLOCK, topics.CLOCK), *remap.items()):
             assert [d for _, d in received[name]] == [m.data for m in recorded[topic]]
-        assert [d for _, d in received[topics.MPC_COMMAND]] == [
-            m.data for m in recorded[topics.MPC_COMMAND]
+        assert [d for _, d in received[topics.resolve(topics.MPC_COMMAND)]] == [
+            m.data for m in recorded[topics.resolve(topics.MPC_COMMAND)]
         ]
-        assert received[topics.PLANT_JOINT_STATES] == [] and received[topics.PLANT_WRENCH] == []
+        assert (
+            received[topics.resolve(topics.PLANT_JOINT_STATES)] == []
+            and received[topics.resolve(topics.PLANT_WRENCH)] == []
+        )
         # Timing: message i arrives (log_i - log_0) / rate after the start, never early.
         t0 = recorded[topics.CLOCK][0].log_time
         due = np.array([(m.log_time - t0) * 1e-9 / rate for m in recorded[topics.CLOCK]])

@@ -58,6 +58,8 @@ CASES: list[tuple[str, list[str], str]] = [
     ("run-set-float-int", ["run", "polishing", "--set", "mpc.horizon=5.5"], "an integer"),
     ("run-set-out-of-range", ["run", "polishing", "--set", "mpc.horizon=-1"], "[1, 1000]"),
     ("run-set-nan", ["run", "polishing", "--set", "task.normal_force=.nan"], "nan"),
+    ("run-bad-namespace", ["run", "polishing", "--namespace", "/arm 1"], "not a ROS namespace"),
+    ("run-namespace-digit", ["run", "polishing", "--namespace", "1arm"], "starts with a number"),
     ("run-set-mapping", ["run", "polishing", "--set", "task={a: 1}"], "not a mapping"),
     ("run-set-list-len", ["run", "polishing", "--set", "plant.push_force=[1, 2]"], "3 numbers"),
     ("run-seed-negative", ["run", "polishing", "--seed", "-1"], "argument --seed"),

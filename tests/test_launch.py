@@ -97,8 +97,31 @@ def test_a_value_entry_overrides_the_scenario_files_node_section(tmp_path):
         rclpy.shutdown(context=context)
 
 
-def test_ffmpc_launch_runs_the_graph_and_equals_the_runner(tmp_path):
+def test_under_a_namespace_the_node_still_reads_the_scenario_files_section(tmp_path):
+    """``namespace:=/arm1``: the node runs as /arm1/mpc, whose parameters a section keyed
+    ``mpc:`` (= /mpc) would not reach: the launcher hands it that section keyed /arm1/mpc."""
+    description = load_launch_file(SOURCE, {"formulation": "classical", "namespace": "/arm1"})
+    mpc = description.nodes[3]
+    command = node_command(mpc, tmp_path)
+    assert "__ns:=/arm1" in command and "/clock:=clock" in command
+    context = Context()
+    rclpy.init(context=context, args=["mpc", *command[1:]])
+    try:
+        node = Node("mpc", context=context, automatically_declare_parameters_from_overrides=True)
+        assert node.get_fully_qualified_name() == "/arm1/mpc"
+        assert node.resolve_topic_name("/clock") == "/arm1/clock"
+        assert node.get_parameter("formulation").value == "classical"
+        horizon = load_scenario("polishing").mpc.horizon
+        assert node.get_parameter("horizon").value == horizon  # the file's mpc section
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)
+
+
+@pytest.mark.parametrize("namespace", ["", "/arm1"])
+def test_ffmpc_launch_runs_the_graph_and_equals_the_runner(tmp_path, namespace):
     args = ["polishing.launch.yaml", "formulation:=classical", "duration:=0.1"]
+    args += [f"namespace:={namespace}"] if namespace else []
     done = subprocess.run(
         [sys.executable, "-m", "ffmpc_ros.cli", "launch", *args, "--timeout", "120"]
         + ["--log-dir", str(tmp_path)],
@@ -114,6 +137,9 @@ def test_ffmpc_launch_runs_the_graph_and_equals_the_runner(tmp_path):
     assert metrics["metrics_true"] == runner.metrics_true.to_dict()
     assert metrics["metrics_measured"] == runner.metrics_measured.to_dict()
     assert "[launch] metrics exited with 0" in done.stdout
+    if namespace:  # every node under it (its log name: arm1.mpc)
+        for name in ("plant", "joint_sensor", "ft_sensor", "mpc", "pid", "metrics"):
+            assert f"[arm1.{name}]: started" in done.stdout, name
     assert sorted(p.name for p in tmp_path.glob("*.log")) == sorted(
         f"{n}.log" for n in ("plant", "joint_sensor", "ft_sensor", "mpc", "pid", "metrics")
     )

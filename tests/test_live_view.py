@@ -128,12 +128,12 @@ def test_channels_are_ros_topics_with_their_full_definitions(live_run):
     channels = _by_topic(client)
     expected = {
         topics.TF: "tf2_msgs/msg/TFMessage",
-        topics.PLANT_JOINT_STATES: "sensor_msgs/msg/JointState",
-        topics.SENSED_WRENCH: "geometry_msgs/msg/WrenchStamped",
-        topics.MPC_COMMAND: "std_msgs/msg/Float64MultiArray",
-        topics.MPC_PREDICTION: "std_msgs/msg/Float64MultiArray",
-        topics.ROBOT_DESCRIPTION: "std_msgs/msg/String",
-        topics.VIEW_MARKERS: "visualization_msgs/msg/MarkerArray",
+        topics.resolve(topics.PLANT_JOINT_STATES): "sensor_msgs/msg/JointState",
+        topics.resolve(topics.SENSED_WRENCH): "geometry_msgs/msg/WrenchStamped",
+        topics.resolve(topics.MPC_COMMAND): "std_msgs/msg/Float64MultiArray",
+        topics.resolve(topics.MPC_PREDICTION): "std_msgs/msg/Float64MultiArray",
+        topics.resolve(topics.ROBOT_DESCRIPTION): "std_msgs/msg/String",
+        topics.resolve(topics.VIEW_MARKERS): "visualization_msgs/msg/MarkerArray",
         topics.CLOCK: "rosgraph_msgs/msg/Clock",
     }
     for topic, schema_name in expected.items():
@@ -142,7 +142,7 @@ def test_channels_are_ros_topics_with_their_full_definitions(live_run):
         assert channel["schemaName"] == schema_name
         assert channel["encoding"] == "cdr" and channel["schemaEncoding"] == "ros2msg"
     definitions = MessageDefinitions()
-    assert channels[topics.PLANT_JOINT_STATES]["schema"] == definitions.full_text(
+    assert channels[topics.resolve(topics.PLANT_JOINT_STATES)]["schema"] == definitions.full_text(
         "sensor_msgs/msg/JointState"
     )
     assert "geometry_msgs/TransformStamped[] transforms" in channels[topics.TF]["schema"]
@@ -177,7 +177,7 @@ def test_tf_is_the_forward_kinematics_of_the_joint_states(live_run):
     robot = load_robot(load_scenario("polishing").robot)
     data = robot.create_data()
     states = {}
-    for _, payload in client.messages[topics.PLANT_JOINT_STATES]:
+    for _, payload in client.messages[topics.resolve(topics.PLANT_JOINT_STATES)]:
         msg = deserialize_message(payload, JointState)
         states[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = np.array(msg.position)
     compared = 0
@@ -200,10 +200,10 @@ def test_prediction_description_and_markers_decode_with_sane_values(live_run):
     scenario = load_scenario("polishing")
     robot = load_robot(scenario.robot)
     horizon = mpc_config(scenario).horizon
-    predictions = client.messages[topics.MPC_PREDICTION]
+    predictions = client.messages[topics.resolve(topics.MPC_PREDICTION)]
     assert len(predictions) >= 10
     contact_now = {}
-    for _, payload in client.messages[topics.PLANT_JOINT_STATES]:
+    for _, payload in client.messages[topics.resolve(topics.PLANT_JOINT_STATES)]:
         msg = deserialize_message(payload, JointState)
         t = round(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9, 6)
         contact_now[t] = robot.contact_placement(np.array(msg.position)).translation
@@ -219,10 +219,13 @@ def test_prediction_description_and_markers_decode_with_sane_values(live_run):
             assert np.linalg.norm(positions[0] - truth) < 0.01
             near += 1
     assert near >= 5
-    (_, description), *_ = client.messages[topics.ROBOT_DESCRIPTION]
+    (_, description), *_ = client.messages[topics.resolve(topics.ROBOT_DESCRIPTION)]
     urdf = deserialize_message(description, String).data
     assert "<robot" in urdf and "file://" in urdf
-    markers = [deserialize_message(p, MarkerArray) for _, p in client.messages[topics.VIEW_MARKERS]]
+    markers = [
+        deserialize_message(p, MarkerArray)
+        for _, p in client.messages[topics.resolve(topics.VIEW_MARKERS)]
+    ]
     assert markers and {m.ns for m in markers[-1].markers} == {"measured_force", "planned_path"}
     path = next(m for m in markers[-1].markers if m.ns == "planned_path")
     assert len(path.points) == horizon + 1
@@ -234,18 +237,24 @@ def test_the_bag_of_the_same_run_holds_the_view_topics_and_tf(live_run):
 
     _, client, bag = live_run
     with BagReader(bag) as reader:
-        for topic in (topics.ROBOT_DESCRIPTION, topics.VIEW_MARKERS, topics.MPC_PREDICTION):
+        for topic in (
+            topics.resolve(topics.ROBOT_DESCRIPTION),
+            topics.resolve(topics.VIEW_MARKERS),
+            topics.resolve(topics.MPC_PREDICTION),
+        ):
             assert reader.topics[topic].count > 0, topic
         # /tf: the recorder's own, from every recorded joint state (10 ms of stamps apart)
         assert reader.topics[topics.TF].count == -(
-            -reader.topics[topics.PLANT_JOINT_STATES].count // 10
+            -reader.topics[topics.resolve(topics.PLANT_JOINT_STATES)].count // 10
         )
     store = get_typestore(Stores.ROS2_JAZZY)
     robot = load_robot(load_scenario("polishing").robot)
     states, tfs = {}, []
     with Rosbag2Reader(bag) as reader:
         wanted = [
-            c for c in reader.connections if c.topic in (topics.TF, topics.PLANT_JOINT_STATES)
+            c
+            for c in reader.connections
+            if c.topic in (topics.TF, topics.resolve(topics.PLANT_JOINT_STATES))
         ]
         for connection, _, raw in reader.messages(connections=wanted):
             msg = store.deserialize_cdr(raw, connection.msgtype)
@@ -273,7 +282,7 @@ def test_playing_the_bag_skips_the_tf_rclpy_cannot_publish(live_run):
     assert report.skipped == [topics.TF] and "not played (type not installed): /tf" in (
         report.describe()
     )
-    assert report.published[topics.ROBOT_DESCRIPTION] == 1
+    assert report.published[topics.resolve(topics.ROBOT_DESCRIPTION)] == 1
 
 
 def test_a_busy_port_is_refused_with_a_clear_error():
@@ -295,7 +304,11 @@ def test_the_committed_layout_is_the_generated_one_and_fits_the_scenarios():
     assert committed == foxglove_layout()
     assert mpc_config(load_scenario("polishing")).horizon + 1 == NODES
     text = json.dumps(committed)
-    for topic in (topics.ROBOT_DESCRIPTION, topics.VIEW_MARKERS, topics.MPC_PREDICTION):
+    for topic in (
+        topics.resolve(topics.ROBOT_DESCRIPTION),
+        topics.resolve(topics.VIEW_MARKERS),
+        topics.resolve(topics.MPC_PREDICTION),
+    ):
         assert f'"{topic}' in text
 
 

@@ -182,7 +182,7 @@ def test_pid_node_rejects_bad_commands_and_saturates(ros, robot):
     for msg in (good, nan, wrong_nx, wrong_nv, wrong_label, off_grid):
         pub_c.publish(msg)
     assert ros.spin_until(lambda: node.rejected.total() == 5)
-    topic = topics.MPC_COMMAND
+    topic = topics.resolve(topics.MPC_COMMAND)
     assert node.rejected[f"{topic}:value"] == 4 and node.rejected[f"{topic}:stamp"] == 1
     assert node.log_lines[f"{topic}:value"] == 1
     pub_j.publish(joint_state(node, 0, q[0], v[0], tau[0]))

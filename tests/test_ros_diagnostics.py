@@ -43,13 +43,13 @@ def test_a_node_reports_its_inputs_and_rejections_once_a_period(ros):
     ros.set_clock(node, 0)
     for k in range(5):
         pub.publish(joint_state(node, k, robot.q_nominal, np.zeros(7), np.zeros(7)))
-    assert ros.spin_until(lambda: node.accepted[topics.PLANT_JOINT_STATES] == 5)
+    assert ros.spin_until(lambda: node.accepted[topics.resolve(topics.PLANT_JOINT_STATES)] == 5)
     assert ros.spin_until(lambda: len(reports) >= 1, timeout=3 * DIAGNOSTICS_PERIOD)
     (status,) = reports[-1].status
     values = _values(status)
     assert status.name == "/joint_sensor" and status.hardware_id == "ffmpc"
     assert status.level == DiagnosticStatus.OK and status.message == "ok"
-    assert float(values[f"input_rate_hz {topics.PLANT_JOINT_STATES}"]) > 0.0
+    assert float(values[f"input_rate_hz {topics.resolve(topics.PLANT_JOINT_STATES)}"]) > 0.0
     assert values["rejected_total"] == "0"
     bad = joint_state(node, 5, robot.q_nominal, np.zeros(7), np.zeros(7))
     bad.name = ["nope"] * 7  # unknown joints: rejected

@@ -5,22 +5,12 @@ exactly —, same times t = k·time_step, same generators). Real time: tests/tes
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
+from ros_helpers import assert_same_run
 
 from ffmpc_core.scenario import load_scenario
 from ffmpc_ros.bringup import graph_parameters, run_graph, write_params_file
 from sim_bridge.runner import run_scenario
-
-
-def _assert_same_run(graph, runner):
-    assert set(graph.log) == set(runner.log)
-    for name, values in runner.log.items():
-        # (rejections say why a run diverged, e.g. a PID that went on without a late command)
-        rejected = graph.safety["rejected_messages"]
-        np.testing.assert_array_equal(graph.log[name], values, err_msg=f"{name}; {rejected}")
-    assert graph.metrics_true == runner.metrics_true
-    assert graph.metrics_measured == runner.metrics_measured
 
 
 def test_single_process_graph_equals_the_runner_for_one_second():
@@ -31,7 +21,7 @@ def test_single_process_graph_equals_the_runner_for_one_second():
     )
     graph = run_graph(scenario, duration=1.0, single_process=True, timeout=120)
     runner = run_scenario(scenario, duration=1.0)
-    _assert_same_run(graph, runner)
+    assert_same_run(graph, runner)
     assert graph.log["force_true"].max() > 5.0  # the run reached the table
     status = graph.plant_status
     assert status["done"] == 1.0 and status["steps"] == 1000 and status["deadline_misses"] == 0
@@ -42,7 +32,7 @@ def test_multi_process_graph_equals_the_runner():
     scenario = load_scenario("polishing", {"seed": 1, "mpc.formulation": "classical"})
     graph = run_graph(scenario, duration=0.2, single_process=False, timeout=120)
     runner = run_scenario(scenario, duration=0.2)
-    _assert_same_run(graph, runner)
+    assert_same_run(graph, runner)
 
 
 def test_real_time_refuses_the_lockstep_only_options():

@@ -113,7 +113,9 @@ def test_planner_publishes_the_core_controller_numbers_and_takes_a_confident_est
         ros.set_clock(node, k)
         if k == 2:  # not confident (20 % standard error): ignored
             pub_e.publish(_estimate(5000.0, 30.0, 0.2, 500, 0.001))
-            assert ros.spin_until(lambda: topics.CONTACT_ESTIMATE in node._last_cycle)
+            assert ros.spin_until(
+                lambda: topics.resolve(topics.CONTACT_ESTIMATE) in node._last_cycle
+            )
         if k == 4:  # confident: the planner plans with it from this cycle on
             pub_e.publish(_estimate(5000.0, 30.0, 0.01, 500, 0.003))
             assert ros.spin_until(lambda: node.estimates_used == 1)
@@ -181,7 +183,7 @@ def test_planner_rejects_bad_input_with_one_log_line_and_stops_safely(ros, panda
         ros.set_clock(node, k)
         pub_j.publish(joint_state(node, k, nan_q, qd, np.zeros(7)))
     assert ros.spin_until(lambda: len(status) == 6)
-    kind = f"{topics.SENSED_JOINT_STATES}:value"
+    kind = f"{topics.resolve(topics.SENSED_JOINT_STATES)}:value"
     assert node.rejected[kind] == 5 and node.log_lines[kind] == 1
     got, lin = last()
     assert got["safe_stop"] == 1.0 and got["velocity"] == 0.0 and not lin.any()
@@ -191,14 +193,17 @@ def test_planner_rejects_bad_input_with_one_log_line_and_stops_safely(ros, panda
     pub_w.publish(wrench(node, 7, (0.0, 0.0, 0.0), frame="tool0"))
     pub_j.publish(joint_state(node, 8, qs[3], qd, np.zeros(7), [f"j{i}" for i in range(7)]))
     assert ros.spin_until(lambda: len(status) == 8)
-    assert node.rejected[f"{topics.SENSED_WRENCH}:value"] == 1 and last()[0]["safe_stop"] == 1
+    assert (
+        node.rejected[f"{topics.resolve(topics.SENSED_WRENCH)}:value"] == 1
+        and last()[0]["safe_stop"] == 1
+    )
     # A duplicate is rejected without a stop; a complete good cycle resumes the command.
     ros.set_clock(node, 9)
     pub_w.publish(wrench(node, 2, (0.0, 0.0, 0.0)))
     pub_w.publish(wrench(node, 9, (0.0, 0.0, 0.0)))
     pub_j.publish(joint_state(node, 9, qs[3], qd, np.zeros(7)))
     assert ros.spin_until(lambda: len(status) == 9)
-    assert node.rejected[f"{topics.SENSED_WRENCH}:order"] == 1
+    assert node.rejected[f"{topics.resolve(topics.SENSED_WRENCH)}:order"] == 1
     assert last()[0]["safe_stop"] == 0.0 and last()[0]["velocity"] > 0
     # Missing input: the clock runs on (0.2 s) without a measurement → one watchdog stop.
     clock = probe.create_publisher(Clock, topics.CLOCK, topics.clock_qos())
@@ -211,7 +216,7 @@ def test_planner_rejects_bad_input_with_one_log_line_and_stops_safely(ros, panda
     # Stale input (cycle 10 at t = 0.2 s): rejected as stale, stopped at the clock's cycle.
     pub_j.publish(joint_state(node, 10, qs[3], qd, np.zeros(7)))
     assert ros.spin_until(lambda: len(status) == 11)
-    assert node.rejected[f"{topics.SENSED_JOINT_STATES}:stale"] == 1
+    assert node.rejected[f"{topics.resolve(topics.SENSED_JOINT_STATES)}:stale"] == 1
     assert last()[0]["safe_stop"] == 1.0 and last()[0]["t"] == 200 * 1e-3
     # Estimates: NaN, another direction: rejected, the planner keeps the prior.
     bad = _estimate(5000.0, 30.0, 0.01, 500, 0.2)
@@ -221,7 +226,9 @@ def test_planner_rejects_bad_input_with_one_log_line_and_stops_safely(ros, panda
         (_estimate(5000.0, 30.0, 0.01, 500, 0.2, direction=np.array([1.0, 0, 0])), "direction"),
     ):  # one at a time: the estimate subscription keeps only the newest sample
         pub_e.publish(msg)
-        assert ros.spin_until(lambda kind=kind: node.rejected[f"{topics.CONTACT_ESTIMATE}:{kind}"])
+        assert ros.spin_until(
+            lambda kind=kind: node.rejected[f"{topics.resolve(topics.CONTACT_ESTIMATE)}:{kind}"]
+        )
     assert node.controller.material.stiffness == 2400.0 and node.estimates_used == 0
 
 
@@ -345,7 +352,7 @@ def test_learner_node_equals_the_core_rls_and_recovers_a_spring_damper(ros, pand
         ros.set_clock(node, k)
         pub_w.publish(wrench(node, k, (0.0, 0.0, np.nan)))
         pub_j.publish(joint_state(node, k, run[-1][0], run[-1][1], np.zeros(7)))
-    kind = f"{topics.SENSED_WRENCH}:value"
+    kind = f"{topics.resolve(topics.SENSED_WRENCH)}:value"
     assert ros.spin_until(lambda: node.rejected[kind] == 3)
     ros.spin_for(0.05)
     assert node.log_lines[kind] == 1 and node.published == published
@@ -399,19 +406,23 @@ def test_mpc_node_applies_a_learner_estimate_live_only_when_confident(ros):
     robot = load_robot("iiwa")
     params = overrides("mpc", scenario, use_learned_contact=True, learner_min_samples=50)
     default = MpcNode(context=ros.context, parameter_overrides=overrides("mpc"))
-    assert topics.CONTACT_ESTIMATE not in {s.topic_name for s in default.subscriptions}
+    assert topics.resolve(topics.CONTACT_ESTIMATE) not in {
+        s.topic_name for s in default.subscriptions
+    }
     default.destroy_node()  # off by default: the polishing graph is unchanged
     node = ros.add(MpcNode(context=ros.context, parameter_overrides=params))
-    assert topics.CONTACT_ESTIMATE in {s.topic_name for s in node.subscriptions}
+    assert topics.resolve(topics.CONTACT_ESTIMATE) in {s.topic_name for s in node.subscriptions}
     probe = ros.probe()
     out = recorder(probe, Float64MultiArray, topics.MPC_COMMAND)
     pub_j, pub_w, pub_e = _pubs(probe)
     assert _contact_of(node.mpc) == {(1000.0, 100.0)}
 
     def send(msg):
-        before = node._last_cycle.get(topics.CONTACT_ESTIMATE, -1)
+        before = node._last_cycle.get(topics.resolve(topics.CONTACT_ESTIMATE), -1)
         pub_e.publish(msg)
-        assert ros.spin_until(lambda: node._last_cycle.get(topics.CONTACT_ESTIMATE, -1) > before)
+        assert ros.spin_until(
+            lambda: node._last_cycle.get(topics.resolve(topics.CONTACT_ESTIMATE), -1) > before
+        )
 
     # Not confident: 10 % standard errors, then too few samples → the model is unchanged.
     send(_estimate(3000.0, 40.0, 0.10, 500, 0.001))

@@ -97,7 +97,7 @@ def test_plant_node_rejects_bad_motor_torques(ros):
     ):
         pub.publish(msg)
     assert ros.spin_until(lambda: node.rejected.total() == 4)
-    topic = topics.MOTOR_TORQUE
+    topic = topics.resolve(topics.MOTOR_TORQUE)
     assert node.rejected[f"{topic}:cycle"] == 1 and node.rejected[f"{topic}:value"] == 3
     assert node.log_lines[f"{topic}:value"] == 1
     ros.spin_for(0.05)

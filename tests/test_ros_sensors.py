@@ -83,7 +83,7 @@ def test_joint_sensor_rejects_bad_input_with_one_log_line_per_kind(ros):
     for _, msg in bad:
         pub.publish(msg)
     assert ros.spin_until(lambda: node.rejected.total() == len(bad))
-    topic = topics.PLANT_JOINT_STATES
+    topic = topics.resolve(topics.PLANT_JOINT_STATES)
     assert node.rejected[f"{topic}:value"] == 5 and node.rejected[f"{topic}:order"] == 2
     assert node.log_lines[f"{topic}:value"] == 1  # throttled: one line for five rejections
     # Stale: the clock says 1 s, the sample is from 0.9 s (max_input_age 0.05 s).
@@ -175,7 +175,7 @@ def test_ft_sensor_tare_and_rejections(ros):
     pub.publish(wrench(node, 61, (np.nan, 0.0, 40.0)))
     pub.publish(wrench(node, 59, (0.0, 0.0, 40.0)))
     assert ros.spin_until(lambda: node.rejected.total() == 3)
-    assert node.rejected[f"{topics.PLANT_WRENCH}:value"] == 2
-    assert node.rejected[f"{topics.PLANT_WRENCH}:order"] == 1
+    assert node.rejected[f"{topics.resolve(topics.PLANT_WRENCH)}:value"] == 2
+    assert node.rejected[f"{topics.resolve(topics.PLANT_WRENCH)}:order"] == 1
     ros.spin_for(0.05)
     assert len(out) == n

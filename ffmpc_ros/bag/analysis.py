@@ -25,7 +25,7 @@ from ffmpc_core.metrics import PolishingMetrics
 from ffmpc_ros import topics
 from ffmpc_ros.bag.errors import BagError
 from ffmpc_ros.bag.reader import BagReader
-from ffmpc_ros.bag.rerun import node_parameters
+from ffmpc_ros.bag.rerun import bag_namespace, node_parameters
 
 
 @dataclass
@@ -79,11 +79,13 @@ def bag_study(path: str | os.PathLike) -> BagStudy:
     with BagReader(path) as bag:
         values = node_parameters(bag, "metrics")
         values.pop("use_sim_time", None)
+        namespace = bag_namespace(bag)  # the node's names resolve to the recorded ones
+        summary_topic = topics.resolve(topics.METRICS_SUMMARY, namespace)
         recorded = None
-        if topics.METRICS_SUMMARY in bag.topics and bag.topics[topics.METRICS_SUMMARY].count:
+        if summary_topic in bag.topics and bag.topics[summary_topic].count:
             from std_msgs.msg import String
 
-            last = list(bag.messages([topics.METRICS_SUMMARY]))[-1]
+            last = list(bag.messages([summary_topic]))[-1]
             recorded = json.loads(deserialize_message(last.data, String).data)
         context = Context()
         rclpy.init(args=[], context=context, domain_id=int(os.environ.get("ROS_DOMAIN_ID", "0")))
@@ -91,8 +93,9 @@ def bag_study(path: str | os.PathLike) -> BagStudy:
         remaps = [
             a
             for t in (topics.METRICS_SUMMARY, topics.METRICS_READY)
-            for a in ("-r", f"{t}:={prefix}{t}")
+            for a in ("-r", f"{topics.resolve(t, namespace)}:={prefix}{t}")
         ]
+        remaps += topics.graph_ros_args(namespace)  # its namespace and clock, as recorded
         node = None
         try:
             node = MetricsNode(

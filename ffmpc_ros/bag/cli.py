@@ -196,7 +196,8 @@ def add_bag_parser(sub) -> None:
         "--clock",
         type=positive_float,
         metavar="HZ",
-        help="publish /clock from the bag time at HZ instead",
+        help="publish the bag's clock (/clock, or /NS/clock for a namespaced run) from the bag "
+        "time at HZ instead",
     )
     p.add_argument(
         "--delay", type=nonnegative_float, default=0.5, help="wall s before the first message"

@@ -5,7 +5,9 @@ recorded CDR bytes (no decoding), on its topic or the topic it is remapped to, w
 matches the recorded publishers' (reliable / transient-local when they all were). The recorded
 ``/clock`` is replayed like any topic, so nodes with ``use_sim_time`` follow the bag's time; with
 ``clock_rate`` the player publishes ``/clock`` itself from the bag time at that rate instead
-(for bags without one).
+(for bags without one). A bag of a graph under a namespace replays on its recorded names
+(``/arm1/plant/joint_states``, clock ``/arm1/clock``): nodes started with ``-r __ns:=/arm1 -r
+/clock:=clock`` read it.
 """
 
 from __future__ import annotations
@@ -99,8 +101,13 @@ class BagPlayer:
         missing = sorted(set(selected) - set(bag.topics))
         if missing:
             raise BagError(f"not in the bag: {missing}; it has {sorted(bag.topics)}")
-        if clock_rate is not None and CLOCK in selected:
-            selected.remove(CLOCK)  # the player drives /clock itself
+        from ffmpc_ros import topics as graph_topics
+        from ffmpc_ros.bag.rerun import bag_namespace
+
+        # the graph's clock: /clock, or /arm1/clock in a bag of a graph under /arm1
+        self.clock_topic = graph_topics.resolve(CLOCK, bag_namespace(bag))
+        if clock_rate is not None and self.clock_topic in selected:
+            selected.remove(self.clock_topic)  # the player drives the clock itself
         self.remap = dict(remap or {})
         unknown = sorted(set(self.remap) - set(bag.topics))
         if unknown:
@@ -119,7 +126,9 @@ class BagPlayer:
             )
         self.clock_publisher = None
         if clock_rate is not None:
-            self.clock_publisher = node.create_publisher(ClockMsg, self.remap.get(CLOCK, CLOCK), 10)
+            self.clock_publisher = node.create_publisher(
+                ClockMsg, self.remap.get(self.clock_topic, self.clock_topic), 10
+            )
         self.report = PlayReport(published={t: 0 for t in selected}, skipped=self.skipped)
         self._messages = bag.messages(selected) if selected else iter(())
         self._next: BagMessage | None = next(self._messages, None)

@@ -13,6 +13,13 @@ recorder subscribes to that topic only once every topic of ``wait_for`` has a ma
 and the parameters of every node of ``parameters_of`` are in. ``ffmpc run --record`` gates on
 ``/plant/joint_states`` and the plant waits for one more subscriber of it, so nothing of the run
 is missed (:func:`graph_recorder`).
+
+Namespace. With ``namespace`` (a graph run under ``/arm1``) the recorder records only the topics
+inside it (``/arm1/...``, its clock ``/arm1/clock`` included) and the domain-wide ``/diagnostics``
+and ``/rosout``, and asks only the nodes inside it for their parameters: a second graph on the
+same domain stays out of the bag. The bag's topic names are the fully qualified ones, and the
+``ffmpc_run`` metadata record names the namespace (``ffmpc bag`` resolves the graph's names
+with it).
 """
 
 from __future__ import annotations
@@ -35,6 +42,9 @@ from ffmpc_ros.bag.writer import BagWriter
 
 #: Topics not recorded unless asked for by name.
 DEFAULT_EXCLUDE = ("/parameter_events",)
+#: Absolute topics a namespaced recorder records beside its namespace's (shared by every graph
+#: on the domain; each status or log line names its node).
+DOMAIN_TOPICS = ("/diagnostics", "/rosout")
 #: History kept by every recording subscription, messages.
 RECORD_DEPTH = 1000
 #: Wall seconds between two looks at the graph once the gate is open.
@@ -100,6 +110,8 @@ class BagRecorder(Node):
         final_topic: the run is over once a message of this topic is recorded and nothing came
             for ``settle`` wall seconds (:attr:`complete`).
         derived: topics computed from recorded ones (:class:`DerivedTopic`).
+        namespace: record only this namespace's topics (and :data:`DOMAIN_TOPICS`) and nodes
+            (None or ``/``: everything on the domain).
     """
 
     def __init__(
@@ -120,6 +132,7 @@ class BagRecorder(Node):
         final_topic: str | None = None,
         settle: float = 0.2,
         derived: Sequence[DerivedTopic] = (),
+        namespace: str | None = None,
     ) -> None:
         super().__init__(
             node_name,
@@ -127,6 +140,8 @@ class BagRecorder(Node):
             parameter_overrides=[Parameter("use_sim_time", value=use_sim_time)],
         )
         self.writer = BagWriter(target, **dict(writer_options or {}))
+        ns = (namespace or "/").rstrip("/")
+        self._inside = None if not ns else ns + "/"  # prefix of the recorded names
         self.topics = set(topics) if topics is not None else None
         self.exclude = set(exclude)
         self.wait_for = set(wait_for) - {gate_topic}
@@ -155,6 +170,10 @@ class BagRecorder(Node):
     def _wanted(self, topic: str) -> bool:
         if topic == self.gate_topic and not self.gate_open:
             return False
+        if self._inside is not None and not (
+            topic.startswith(self._inside) or topic in DOMAIN_TOPICS
+        ):
+            return False
         if self.topics is not None:
             return topic in self.topics or topic == self.gate_topic
         return topic not in self.exclude
@@ -175,6 +194,8 @@ class BagRecorder(Node):
             fqn = _fqn(name, namespace)
             if fqn == me or name.startswith("_") or fqn in self._fetches:
                 continue
+            if self._inside is not None and not fqn.startswith(self._inside):
+                continue  # another graph's node
             self._fetches[fqn] = _ParameterFetch(self, fqn)
         for fqn, fetch in self._fetches.items():
             if fqn not in self.parameters and fetch.poll():
@@ -271,7 +292,9 @@ class BagRecorder(Node):
         super().destroy_node()
 
 
-def graph_recorder_metadata(scenario=None, run: Mapping[str, Mapping[str, Any]] | None = None):
+def graph_recorder_metadata(
+    scenario=None, run: Mapping[str, Mapping[str, Any]] | None = None, namespace: str = "/"
+):
     """Metadata records of ``ffmpc run --record`` (see :func:`graph_recorder`), JSON-able."""
     import yaml
 
@@ -279,7 +302,7 @@ def graph_recorder_metadata(scenario=None, run: Mapping[str, Mapping[str, Any]] 
     from ffmpc_ros.bag.machine import MACHINE_RECORD, machine_fingerprint
     from ffmpc_ros.graph_nodes import nested_parameters
 
-    info: dict[str, str] = {}
+    info: dict[str, str] = {"namespace": namespace}
     if scenario is not None:
         sections = scenario_parameters(scenario)
         info["scenario_name"] = scenario.name
@@ -293,27 +316,35 @@ def graph_recorder_metadata(scenario=None, run: Mapping[str, Mapping[str, Any]] 
             sort_keys=False,
         )
     records = {MACHINE_RECORD: machine_fingerprint()}
-    if info:
-        records["ffmpc_run"] = info
+    records["ffmpc_run"] = info
     return records
 
 
-def _graph_recorder_options(view_robot: str | None = None) -> dict[str, Any]:
+def _graph_recorder_options(
+    namespace: str | None = None, view_robot: str | None = None
+) -> dict[str, Any]:
+    """The graph recorder's topics, fully qualified under ``namespace`` (``/arm1/clock``); with
+    ``view_robot`` (``--view``) the live view's topics too, and ``/tf`` derived from the joint
+    states."""
     from ffmpc_ros import topics
     from ffmpc_ros.graph_nodes import NODES
 
-    extra = [t for t, _, _ in topics.VIEW_TOPICS] if view_robot else []
+    def name(topic: str) -> str:
+        return topics.resolve(topic, namespace)
+
+    extra = [name(t) for t, _, _ in topics.VIEW_TOPICS] if view_robot else []
     derived = []
     if view_robot:
         from ffmpc_ros.view import tf_derived_topic
 
-        derived.append(tf_derived_topic(view_robot))
+        derived.append(tf_derived_topic(view_robot, namespace))
     return {
         "derived": derived,
-        "wait_for": [t for t, _, _ in topics.TOPICS] + extra,
-        "gate_topic": topics.PLANT_JOINT_STATES,
+        "wait_for": [t for t, _, _ in topics.resolved_topics(namespace)] + extra,
+        "gate_topic": name(topics.PLANT_JOINT_STATES),
         "parameters_of": [*NODES, "metrics"],
-        "final_topic": topics.METRICS_SUMMARY,
+        "final_topic": name(topics.METRICS_SUMMARY),
+        "namespace": topics.normalize_namespace(namespace),
     }
 
 
@@ -324,20 +355,25 @@ def graph_recorder(
     scenario=None,
     run: Mapping[str, Mapping[str, Any]] | None = None,
     view: str | None = None,
+    namespace: str | None = None,
 ) -> BagRecorder:
     """The recorder of ``ffmpc run --record``: every topic, gated on ``/plant/joint_states``
     until every topic of the contract (``ffmpc_ros.topics.TOPICS``) has a publisher and the six
     nodes' parameters are in; :attr:`BagRecorder.complete` once the metrics summary is in.
     Metadata ``ffmpc_run`` holds the scenario file and the generated parameter file of the run
     (``run``: {node: {name: value}}); ``ffmpc_machine`` the recording machine's fingerprint
-    (:func:`ffmpc_ros.bag.machine.machine_fingerprint`). With ``view`` (``--view``: the robot's
-    name) the gate also waits for the live view's topics (``ffmpc_ros.topics.VIEW_TOPICS``) and
-    the bag gains ``/tf`` from ``/plant/joint_states`` (``ffmpc_ros.view.tf_derived_topic``)."""
+    (:func:`ffmpc_ros.bag.machine.machine_fingerprint`). ``namespace``: the graph's (the
+    recorder node itself takes its context's, see ``ffmpc_ros.bringup``). With ``view``
+    (``--view``: the robot's name) the gate also waits for the live view's topics
+    (``ffmpc_ros.topics.VIEW_TOPICS``) and the bag gains ``/tf`` from ``plant/joint_states``
+    (``ffmpc_ros.view.tf_derived_topic``)."""
+    from ffmpc_ros.topics import normalize_namespace
+
     return BagRecorder(
         target,
         context=context,
-        metadata=graph_recorder_metadata(scenario, run),
-        **_graph_recorder_options(view),
+        metadata=graph_recorder_metadata(scenario, run, normalize_namespace(namespace)),
+        **_graph_recorder_options(namespace, view),
     )
 
 
@@ -358,7 +394,7 @@ def graph_recorder_process(config_path: str) -> int:
             config["target"],
             context=child.context,
             metadata=config["metadata"],
-            **_graph_recorder_options(config.get("view")),
+            **_graph_recorder_options(config.get("namespace"), config.get("view")),
         )
         executor.add_node(recorder)
         try:

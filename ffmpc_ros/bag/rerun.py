@@ -19,7 +19,9 @@ bit-identity is demanded only when the bag's ``ffmpc_machine`` fingerprint equal
 above the tolerance: this is how a controller change is regression-tested against a recorded run.
 
 All topics of the re-run are remapped under a private hidden prefix, so a re-run never talks to a
-live graph on the same ROS domain.
+live graph on the same ROS domain. A bag of a namespaced graph (``ffmpc run --namespace /arm1``)
+is re-run in its namespace (:func:`bag_namespace`): the node's relative names resolve to the
+recorded ``/arm1/...`` names, its ``/clock`` to the recorded ``/arm1/clock``.
 """
 
 from __future__ import annotations
@@ -341,9 +343,22 @@ def _show(name: str, recorded, rerun) -> str:
 
 
 # -- parameters -------------------------------------------------------------------------------
+def bag_namespace(bag: BagReader) -> str:
+    """The namespace of the graph a bag recorded: the one its ``ffmpc_run`` metadata names, or
+    (another recorder's bag) the one its topic names show (``topics.namespace_of``)."""
+    run = bag.metadata_named("ffmpc_run") or {}
+    if run.get("namespace"):
+        return topics.normalize_namespace(run["namespace"])
+    return topics.namespace_of(bag.topics)
+
+
 def node_parameters(bag: BagReader, node: str) -> dict[str, Any]:
-    """The parameters ``node`` ran with, as recorded in the bag."""
+    """The parameters ``node`` ran with, as recorded in the bag (the node of the bag's graph,
+    :func:`bag_namespace`, when several namespaces hold one of that name)."""
     params = bag.parameters
+    own = f"{bag_namespace(bag).rstrip('/')}/{node}"
+    if own in params:
+        return dict(params[own])
     for fqn, values in params.items():
         if fqn == node or fqn.rsplit("/", 1)[-1] == node:
             return dict(values)
@@ -412,8 +427,14 @@ def rerun_node(
         values.pop("use_sim_time", None)
         apply_overrides(node, values, overrides)
         prefix = f"/_ffmpc_rerun_{os.getpid()}"
-        names = sorted({*bag.topics, *(t for t, _, _ in topics.TOPICS), topics.CLOCK})
-        remaps = [a for t in names for a in ("-r", f"{t}:={prefix}{t}")]
+        namespace = bag_namespace(bag)
+        clock = topics.resolve(topics.CLOCK, namespace)
+        names = sorted({*bag.topics, *(t for t, _, _ in topics.resolved_topics(namespace))})
+        # /clock (the time source's) goes to the recorded clock; rules are not chained
+        remaps = ["-r", f"{topics.CLOCK}:={prefix}{clock}"]
+        if namespace != topics.ROOT_NAMESPACE:
+            remaps += ["-r", f"__ns:={namespace}"]
+        remaps += [a for t in names if t != topics.CLOCK for a in ("-r", f"{t}:={prefix}{t}")]
         domain = int(os.environ.get("ROS_DOMAIN_ID", "0")) if domain_id is None else domain_id
         context = Context()
         rclpy.init(args=[], context=context, domain_id=domain)
@@ -435,7 +456,17 @@ def rerun_node(
             for n in created:
                 executor.add_node(n)
             report = _run(
-                bag, node, target, feeder, executor, prefix, timeout, overrides, start, tolerance
+                bag,
+                node,
+                target,
+                feeder,
+                executor,
+                prefix,
+                timeout,
+                overrides,
+                start,
+                tolerance,
+                clock,
             )
             report.same_machine = same_machine(bag.metadata_named(MACHINE_RECORD))
             return report
@@ -452,15 +483,12 @@ def _strip(prefix: str, name: str) -> str:
 
 
 def _run(
-    bag, node, target, feeder, executor, prefix, timeout, overrides, start, tolerance
+    bag, node, target, feeder, executor, prefix, timeout, overrides, start, tolerance, clock
 ) -> RerunReport:
     tolerance = tolerance or RerunTolerance()
-    inputs = sorted(
-        {_strip(prefix, s.topic_name) for s in target.subscriptions} - set(_IGNORED_TOPICS)
-    )
-    outputs = sorted(
-        {_strip(prefix, p.topic_name) for p in target.publishers} - set(_IGNORED_TOPICS)
-    )
+    ignored = {*_IGNORED_TOPICS, clock}  # clock: the bag's (/arm1/clock under a namespace)
+    inputs = sorted({_strip(prefix, s.topic_name) for s in target.subscriptions} - ignored)
+    outputs = sorted({_strip(prefix, p.topic_name) for p in target.publishers} - ignored)
     missing = [t for t in inputs if t not in bag.topics]
     if missing:
         raise RerunError(f"the bag lacks the inputs {missing} of {node}")
@@ -473,7 +501,7 @@ def _run(
             prefix + t,
             qos_from_dicts(bag.topics[t].qos_profiles),
         )
-        for t in [*inputs, *([topics.CLOCK] if topics.CLOCK in bag.topics else [])]
+        for t in [*inputs, *([clock] if clock in bag.topics else [])]
     }
     collected: dict[str, list[bytes]] = {t: [] for t in outputs}
     for t in outputs:
@@ -504,7 +532,7 @@ def _run(
         t = message_time(msg)
         k = last if t is None else int(round(t * 1e9 / step_ns))
         last = k
-        if m.topic == topics.CLOCK:
+        if m.topic == clock:
             clock_of.setdefault(k, m.data)
             continue
         by_cycle.setdefault(k, []).append((m.topic, k, m.data))
@@ -513,13 +541,13 @@ def _run(
     def rejected(topic: str) -> int:
         return sum(v for key, v in target.rejected.items() if key.startswith(topic + ":"))
 
-    clock = target.get_clock()
+    node_clock = target.get_clock()
     for k in sorted(by_cycle):
         if k in clock_of:
-            pubs[topics.CLOCK].publish(clock_of[k])
+            pubs[clock].publish(clock_of[k])
             _spin_until(
                 executor,
-                lambda k=k: clock.now().nanoseconds >= k * step_ns,
+                lambda k=k: node_clock.now().nanoseconds >= k * step_ns,
                 timeout,
                 f"the node's clock to reach cycle {k}",
             )

@@ -31,25 +31,25 @@ from ffmpc_ros import layouts, topics
 
 #: Layout of each Float64MultiArray topic a node subscribes to.
 TOPIC_LAYOUTS = {
-    topics.MPC_COMMAND: layouts.MPC_COMMAND,
-    topics.PLANT_TRUTH: layouts.PLANT_TRUTH,
-    topics.CONTACT_ESTIMATE: layouts.CONTACT_ESTIMATE,
+    topics.resolve(topics.MPC_COMMAND): layouts.MPC_COMMAND,
+    topics.resolve(topics.PLANT_TRUTH): layouts.PLANT_TRUTH,
+    topics.resolve(topics.CONTACT_ESTIMATE): layouts.CONTACT_ESTIMATE,
 }
 #: Topics carrying joint torques to the motors (checked against the torque limits).
-TORQUE_TOPICS = (topics.MOTOR_TORQUE, topics.DESIRED_TORQUE)
+TORQUE_TOPICS = (topics.resolve(topics.MOTOR_TORQUE), topics.resolve(topics.DESIRED_TORQUE))
 EXAMPLES = 25
 #: How each subscription is fed in a cycle (drawn uniformly from this list).
 HOW = ("valid",) * 6 + ("corrupt", "corrupt", "random", "skip")
 #: Topics each node must have published at least once during its fuzz (the fuzz got deep).
 OUTPUTS = {
-    "plant": (topics.PLANT_JOINT_STATES,),
-    "joint_sensor": (topics.SENSED_JOINT_STATES,),
-    "ft_sensor": (topics.SENSED_WRENCH,),
-    "mpc": (topics.MPC_COMMAND,),
-    "pid": (topics.MOTOR_TORQUE, topics.DESIRED_TORQUE),
+    "plant": (topics.resolve(topics.PLANT_JOINT_STATES),),
+    "joint_sensor": (topics.resolve(topics.SENSED_JOINT_STATES),),
+    "ft_sensor": (topics.resolve(topics.SENSED_WRENCH),),
+    "mpc": (topics.resolve(topics.MPC_COMMAND),),
+    "pid": (topics.resolve(topics.MOTOR_TORQUE), topics.resolve(topics.DESIRED_TORQUE)),
     "metrics": (),
-    "impact_planner": (topics.IMPACT_COMMAND,),
-    "contact_learner": (topics.CONTACT_ESTIMATE,),
+    "impact_planner": (topics.resolve(topics.IMPACT_COMMAND),),
+    "contact_learner": (topics.resolve(topics.CONTACT_ESTIMATE),),
 }
 
 
@@ -221,7 +221,7 @@ def _check(published: list, limits: np.ndarray) -> None:
         assert np.all(np.isfinite(values)), f"{topic} published a non-finite value: {msg}"
         if topic in TORQUE_TOPICS:
             assert np.all(np.abs(values[-len(limits) :]) <= limits), f"{topic}: {msg.effort}"
-        if topic == topics.MPC_COMMAND:
+        if topic == topics.resolve(topics.MPC_COMMAND):
             torque = layouts.MPC_COMMAND.unpack(msg, len(limits))["torque"]
             assert np.all(np.abs(torque) <= limits), f"{topic}: {torque}"
 

@@ -52,7 +52,7 @@ def test_a_stamp_from_the_future_is_rejected_and_never_becomes_the_nodes_now(ros
     ahead = int(round(MAX_FUTURE_STAMP / node.time_step)) + 1
     for k in (10 + 3_600_000, 11 + ahead):
         pub.publish(joint_state(node, k, q, v, tau))
-    kind = f"{topics.PLANT_JOINT_STATES}:future"
+    kind = f"{topics.resolve(topics.PLANT_JOINT_STATES)}:future"
     assert ros.spin_until(lambda: node.rejected[kind] == 2)
     assert node.log_lines[kind] == 1
     # Genuine messages still go through: the future stamps were never adopted.
@@ -79,7 +79,9 @@ def test_a_command_from_the_future_is_rejected_by_the_pid(ros, robot):
     spoof = np.full(7, 1e3)  # would saturate every joint
     ros.set_clock(node, 4)
     pub_c.publish(mpc_command(4_000_000, spoof))
-    assert ros.spin_until(lambda: node.rejected[f"{topics.MPC_COMMAND}:future"] == 1)
+    assert ros.spin_until(
+        lambda: node.rejected[f"{topics.resolve(topics.MPC_COMMAND)}:future"] == 1
+    )
     pub_c.publish(mpc_command(4, gravity))
     pub_j.publish(joint_state(node, 4, robot.q_nominal, np.zeros(7), gravity))
     assert ros.spin_until(lambda: len(motor) == 1)
@@ -119,7 +121,7 @@ def test_one_rejected_wrench_does_not_stall_the_riccati_feedback_loop(ros, robot
         if k < 8:
             pub_j.publish(joint_state(node, k, q, np.zeros(7), gravity))
             assert ros.spin_until(lambda k=k: len(motor) == k + 1, timeout=5.0), k
-    assert node.rejected[f"{topics.SENSED_WRENCH}:value"] == 2
+    assert node.rejected[f"{topics.resolve(topics.SENSED_WRENCH)}:value"] == 2
     # Cycles 3 and 4 used the held λ̂ of cycle 2 (12 N); the others their own.
     assert ros.spin_until(lambda: len(desired) == 8)
     tau = [np.array(m.effort) for m in desired]
@@ -195,6 +197,9 @@ def test_the_plant_brakes_and_holds_when_the_motor_torques_stop(ros, robot):
     assert ros.spin_until(lambda: node.k >= 1, timeout=10)
     pub.publish(joint_state(node, node.k, robot.q_nominal, np.zeros(7), torque))
     assert ros.spin_until(lambda: node.done, timeout=20)
-    assert node.rejected[f"{topics.MOTOR_TORQUE}:missing"] == 1 and node.drive_hold_cycles > 300
+    assert (
+        node.rejected[f"{topics.resolve(topics.MOTOR_TORQUE)}:missing"] == 1
+        and node.drive_hold_cycles > 300
+    )
     v_end = np.abs(node.state.v) / robot.velocity_limit
     assert v_end.max() < 0.05, v_end  # braked to (nearly) rest within the run
