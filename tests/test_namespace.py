@@ -36,8 +36,8 @@ def _graph_names() -> dict[str, str]:
 
 def test_every_name_is_relative_except_the_documented_absolute_ones():
     names = _graph_names()
-    assert topics.ABSOLUTE_NAMES == {"/clock", "/diagnostics"}
-    listed = {t for t, _, _ in (*topics.TOPICS, *topics.IMPACT_TOPICS)}
+    assert topics.ABSOLUTE_NAMES == {"/clock", "/diagnostics", "/tf"}
+    listed = {t for t, _, _ in (*topics.TOPICS, *topics.IMPACT_TOPICS, *topics.VIEW_TOPICS)}
     assert listed <= set(names.values())  # the tables use the constants
     assert {"TARE_SERVICE", "IMPACT_RESET_SERVICE", "CONTACT_LEARNER_RESET_SERVICE"} <= set(names)
     absolute = {k: v for k, v in names.items() if v.startswith("/")}
