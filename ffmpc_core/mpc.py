@@ -31,7 +31,14 @@ import mim_solvers
 import numpy as np
 import numpy.typing as npt
 
-from ffmpc_core.config import BACKENDS, FORMULATIONS, ContactConfig, CostWeights, NodeReference
+from ffmpc_core.config import (
+    BACKENDS,
+    FORMULATIONS,
+    LIVE_COST_WEIGHTS,
+    ContactConfig,
+    CostWeights,
+    NodeReference,
+)
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.lowpass import (
     interpolate_torque,
@@ -279,12 +286,50 @@ class ModelPredictiveController:
         self._sent: list[tuple[float, np.ndarray]] = []  # (time, model control) in flight
 
     def set_contact_parameters(self, stiffness: npt.ArrayLike, damping: npt.ArrayLike) -> None:
-        """Change the force-feedback model's K (N/m) and B (N·s/m) in place, for every node."""
+        """Change the force-feedback model's K (N/m) and B (N·s/m) in place, for every node and
+        the δo predictor, from the next solve (no rebuild of the problem). ``config.contact``
+        reads the new values back. ConfigError (nothing changed) for a bad value."""
         if self.config.formulation != "force_feedback":
             raise ConfigError("only the force-feedback formulation has a visco-elastic contact")
-        for node in (*self.nodes, self.terminal_node):
+        contact = replace(
+            self.config.contact,
+            stiffness=_as_setting(stiffness),
+            damping=_as_setting(damping),
+        )  # validates both (ConfigError) before any node changes
+        nodes = (*self.nodes, self.terminal_node)
+        if self._predictor is not None:
+            nodes += (self._predictor,)
+        for node in nodes:
             # the force-feedback formulation builds soft-contact nodes
-            cast(SoftContactOcpNode, node).set_contact_parameters(stiffness, damping)
+            cast(SoftContactOcpNode, node).set_contact_parameters(
+                contact.stiffness_vector(), contact.damping_vector()
+            )
+        self.config = replace(self.config, contact=contact)
+
+    def set_cost_weight(self, name: str, value: float) -> None:
+        """Set the scalar weight c of cost term ``name`` (a :class:`CostWeights` field among
+        :data:`LIVE_COST_WEIGHTS`) in every node, in place, from the next solve; ``config.weights``
+        reads it back. ConfigError (nothing changed) for another name, a term the formulation
+        lacks, or a value that is not finite and >= 0.
+
+        c4 (``ee_position``) and c6 (``force``) are not here: the task sets them per node
+        (its phase weights); ``lowpass_input`` (c_w) is built into the low-pass integrator."""
+        if name not in LIVE_COST_WEIGHTS:
+            raise ConfigError(
+                f"cost weight {name!r} cannot change in place; these can: {LIVE_COST_WEIGHTS}"
+            )
+        if name == "force_rate" and self.config.formulation != "force_feedback":
+            raise ConfigError("only the force-feedback formulation has the force-rate cost")
+        value = float(value)
+        if not (np.isfinite(value) and value >= 0.0):
+            raise ConfigError(f"cost weight {name} must be finite and >= 0, got {value}")
+        for node in (*self.nodes, self.terminal_node):
+            _set_node_weight(node, name, value)
+        self.config = replace(self.config, weights=replace(self.config.weights, **{name: value}))
+
+    def task_time(self, t: float) -> float:
+        """The schedule's time at controller time t, s: t minus the outages' pause."""
+        return t - self.task_pause
 
     def state_from(self, meas: MpcMeasurement) -> np.ndarray:
         """The OCP state x̂ of a measurement (eq 5, 10, 19), validated."""
@@ -432,6 +477,27 @@ class ModelPredictiveController:
         gain = -gain_w * K0
         gain[:, 2 * nv :] += (1.0 - gain_w) * np.eye(nv)
         return torque, gain
+
+
+def _as_setting(value: npt.ArrayLike) -> float | tuple[float, ...]:
+    """A scalar or per-axis ContactConfig setting from a number or a sequence."""
+    arr = np.asarray(value, dtype=float)
+    return float(arr) if arr.ndim == 0 else tuple(float(v) for v in arr.reshape(-1))
+
+
+def _set_node_weight(node: OcpNode, name: str, value: float) -> None:
+    """c of cost ``name`` in one node of any formulation (the soft-contact models' own setter;
+    the crocoddyl cost sums of the classical and torque-feedback nodes, both contact models)."""
+    model = node.model
+    if hasattr(model, "set_weight"):
+        model.set_weight(name, value)
+        return
+    models = getattr(node, "_models", {None: model}).values()
+    for m in models:
+        differential = m.differential
+        costs = differential.costs.costs
+        if name in costs:
+            costs[name].weight = value
 
 
 def _interp_rows(rows: np.ndarray, grid: np.ndarray) -> np.ndarray:
