@@ -60,8 +60,9 @@ def test_every_topic_is_documented_with_its_type_and_publisher():
     rows = _table_rows((NOTES / "topics.md").read_text(encoding="utf-8"))
     topic_rows = [r for r in rows if r[0].startswith("/") and len(r) == 7]
     documented = {(r[0], r[1], r[2]) for r in topic_rows}
-    assert documented == set(topics.TOPICS) | set(topics.IMPACT_TOPICS)
-    assert len(topic_rows) == len(topics.TOPICS) + len(topics.IMPACT_TOPICS)
+    references = {("/" + name, kind, pub) for name, kind, pub in topics.REFERENCE_TOPICS}
+    assert documented == set(topics.TOPICS) | set(topics.IMPACT_TOPICS) | references
+    assert len(topic_rows) == len(topics.TOPICS) + len(topics.IMPACT_TOPICS) + len(references)
     services = (
         topics.TARE_SERVICE,
         topics.IMPACT_RESET_SERVICE,
