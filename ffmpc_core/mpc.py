@@ -39,7 +39,7 @@ from ffmpc_core.config import (
     CostWeights,
     NodeReference,
 )
-from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.errors import ConfigError, InputError, SolverError
 from ffmpc_core.lowpass import (
     interpolate_torque,
     interpolation_epsilon,
@@ -355,6 +355,9 @@ class ModelPredictiveController:
             self.reset()
             self.task_pause = pause
         x0 = self.predict(self.state_from(meas), t)
+        if not np.all(np.isfinite(x0)):
+            self._sent.clear()  # the next solve starts from the measured state itself
+            raise SolverError(f"the δo prediction from t = {t} s is not finite")
         self._update_references(t + self.config.command_delay)
         self.problem.x0 = x0
         xs, us = self._warm_start(x0, t)
@@ -365,11 +368,18 @@ class ModelPredictiveController:
         us_opt = np.array(self.solver.us)
         self._prev_t, self._prev_xs, self._prev_us = t, xs_opt, us_opt
         torque, gain = self._command(x0, xs_opt, us_opt)
+        try:
+            clipped = self.robot.clip_torque(torque)
+        except InputError:
+            # A diverged solve (non-finite or absurd torque): nothing is sent, so nothing enters
+            # the δo prediction, and the next solve starts cold rather than from this solution.
+            self._prev_xs = self._prev_us = None
+            raise
         if self._predictor is not None:
             sent = torque if self.config.formulation == "torque_feedback" else us_opt[0]
             self._sent.append((t, sent.copy()))
         return MpcCommand(
-            torque=self.robot.clip_torque(torque),
+            torque=clipped,
             state=x0,
             feedback_gain=gain,
             xs=xs_opt,

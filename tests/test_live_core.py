@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from ffmpc_core.config import FORMULATIONS, NodeReference
-from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.errors import ConfigError, InputError, SolverError
 from ffmpc_core.mpc import ModelPredictiveController, MpcConfig, MpcMeasurement
 from ffmpc_core.pid import TorquePid, TorquePidGains
 from ffmpc_core.robots import load_robot
@@ -117,3 +117,27 @@ def test_pid_gains_change_in_place_and_the_integral_is_clamped_to_the_new_bound(
     with pytest.raises(ConfigError):
         pid.set_gains(kp=-1.0)
     assert pid.gains.kp == pytest.approx(np.full(3, 0.1))
+
+
+def test_a_diverged_solve_or_prediction_never_reaches_the_next_command(robot):
+    """A solve whose torque is non-finite raises and records nothing as sent (the δo prediction
+    never integrates it) and the next solve starts cold; a non-finite prediction raises, forgets
+    the commands in flight, and the next solve starts from the measured state."""
+    config = MpcConfig(formulation="force_feedback", command_delay=0.005)
+    mpc = ModelPredictiveController(robot, config, _task(robot))
+    q = robot.q_nominal
+    meas = MpcMeasurement(q, np.zeros(7), np.array([5.0]), robot.gravity(q))
+    mpc.step(meas, 0.4)
+    sent = list(mpc._sent)
+    good_command = mpc._command
+    mpc._command = lambda x0, xs, us: (np.full(7, np.nan), np.zeros((7, 15)))
+    with pytest.raises(InputError):
+        mpc.step(meas, 0.402)
+    assert mpc._sent == sent and mpc._prev_xs is None
+    mpc._command = good_command
+    mpc._sent.append((0.402, np.full(7, 1e300)))  # as a diverged solve would have sent
+    with pytest.raises(SolverError, match="prediction"):
+        mpc.step(meas, 0.404)
+    assert mpc._sent == []
+    command = mpc.step(meas, 0.406)
+    assert np.all(np.isfinite(command.state)) and np.all(np.isfinite(command.torque))
