@@ -412,7 +412,8 @@ def rerun_node(
         values.pop("use_sim_time", None)
         apply_overrides(node, values, overrides)
         prefix = f"/_ffmpc_rerun_{os.getpid()}"
-        names = sorted({*bag.topics, *(t for t, _, _ in topics.TOPICS), topics.CLOCK})
+        references = ("/" + t for t, _, _ in topics.REFERENCE_TOPICS)
+        names = sorted({*bag.topics, *(t for t, _, _ in topics.TOPICS), *references, topics.CLOCK})
         remaps = [a for t in names for a in ("-r", f"{t}:={prefix}{t}")]
         domain = int(os.environ.get("ROS_DOMAIN_ID", "0")) if domain_id is None else domain_id
         context = Context()
@@ -461,6 +462,9 @@ def _run(
     outputs = sorted(
         {_strip(prefix, p.topic_name) for p in target.publishers} - set(_IGNORED_TOPICS)
     )
+    # The MPC's reference inputs come from outside the graph: a bag without them had none.
+    optional = {"/" + name for name, _, _ in topics.REFERENCE_TOPICS}
+    inputs = [t for t in inputs if t in bag.topics or t not in optional]
     missing = [t for t in inputs if t not in bag.topics]
     if missing:
         raise RerunError(f"the bag lacks the inputs {missing} of {node}")
