@@ -72,6 +72,12 @@ class CostWeights:
         return replace(self, **changes)
 
 
+#: The :class:`CostWeights` scalars c that a running MPC changes in place
+#: (``ModelPredictiveController.set_cost_weight``; the MPC node's live parameters). Not c4, c6
+#: (the task sets them per node) nor c_w (built into the low-pass integrator).
+LIVE_COST_WEIGHTS = ("posture", "joint_velocity", "torque", "ee_velocity", "force_rate")
+
+
 @dataclass(frozen=True)
 class ContactConfig:
     """The contact model the OCP assumes at the robot's ``contact`` frame.

@@ -31,8 +31,15 @@ import mim_solvers
 import numpy as np
 import numpy.typing as npt
 
-from ffmpc_core.config import BACKENDS, FORMULATIONS, ContactConfig, CostWeights, NodeReference
-from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.config import (
+    BACKENDS,
+    FORMULATIONS,
+    LIVE_COST_WEIGHTS,
+    ContactConfig,
+    CostWeights,
+    NodeReference,
+)
+from ffmpc_core.errors import ConfigError, InputError, SolverError
 from ffmpc_core.lowpass import (
     interpolate_torque,
     interpolation_epsilon,
@@ -286,12 +293,50 @@ class ModelPredictiveController:
         self._sent: list[tuple[float, np.ndarray]] = []  # (time, model control) in flight
 
     def set_contact_parameters(self, stiffness: npt.ArrayLike, damping: npt.ArrayLike) -> None:
-        """Change the force-feedback model's K (N/m) and B (N·s/m) in place, for every node."""
+        """Change the force-feedback model's K (N/m) and B (N·s/m) in place, for every node and
+        the δo predictor, from the next solve (no rebuild of the problem). ``config.contact``
+        reads the new values back. ConfigError (nothing changed) for a bad value."""
         if self.config.formulation != "force_feedback":
             raise ConfigError("only the force-feedback formulation has a visco-elastic contact")
-        for node in (*self.nodes, self.terminal_node):
+        contact = replace(
+            self.config.contact,
+            stiffness=_as_setting(stiffness),
+            damping=_as_setting(damping),
+        )  # validates both (ConfigError) before any node changes
+        nodes = (*self.nodes, self.terminal_node)
+        if self._predictor is not None:
+            nodes += (self._predictor,)
+        for node in nodes:
             # the force-feedback formulation builds soft-contact nodes
-            cast(SoftContactOcpNode, node).set_contact_parameters(stiffness, damping)
+            cast(SoftContactOcpNode, node).set_contact_parameters(
+                contact.stiffness_vector(), contact.damping_vector()
+            )
+        self.config = replace(self.config, contact=contact)
+
+    def set_cost_weight(self, name: str, value: float) -> None:
+        """Set the scalar weight c of cost term ``name`` (a :class:`CostWeights` field among
+        :data:`LIVE_COST_WEIGHTS`) in every node, in place, from the next solve; ``config.weights``
+        reads it back. ConfigError (nothing changed) for another name, a term the formulation
+        lacks, or a value that is not finite and >= 0.
+
+        c4 (``ee_position``) and c6 (``force``) are not here: the task sets them per node
+        (its phase weights); ``lowpass_input`` (c_w) is built into the low-pass integrator."""
+        if name not in LIVE_COST_WEIGHTS:
+            raise ConfigError(
+                f"cost weight {name!r} cannot change in place; these can: {LIVE_COST_WEIGHTS}"
+            )
+        if name == "force_rate" and self.config.formulation != "force_feedback":
+            raise ConfigError("only the force-feedback formulation has the force-rate cost")
+        value = float(value)
+        if not (np.isfinite(value) and value >= 0.0):
+            raise ConfigError(f"cost weight {name} must be finite and >= 0, got {value}")
+        for node in (*self.nodes, self.terminal_node):
+            _set_node_weight(node, name, value)
+        self.config = replace(self.config, weights=replace(self.config.weights, **{name: value}))
+
+    def task_time(self, t: float) -> float:
+        """The schedule's time at controller time t, s: t minus the outages' pause."""
+        return t - self.task_pause
 
     def state_from(self, meas: MpcMeasurement) -> np.ndarray:
         """The OCP state x̂ of a measurement (eq 5, 10, 19), validated."""
@@ -317,6 +362,9 @@ class ModelPredictiveController:
             self.reset()
             self.task_pause = pause
         x0 = self.predict(self.state_from(meas), t)
+        if not np.all(np.isfinite(x0)):
+            self._sent.clear()  # the next solve starts from the measured state itself
+            raise SolverError(f"the δo prediction from t = {t} s is not finite")
         self._update_references(t + self.config.command_delay)
         self.problem.x0 = x0
         xs, us = self._warm_start(x0, t)
@@ -327,11 +375,18 @@ class ModelPredictiveController:
         us_opt = np.array(self.solver.us)
         self._prev_t, self._prev_xs, self._prev_us = t, xs_opt, us_opt
         torque, gain = self._command(x0, xs_opt, us_opt)
+        try:
+            clipped = self.robot.clip_torque(torque)
+        except InputError:
+            # A diverged solve (non-finite or absurd torque): nothing is sent, so nothing enters
+            # the δo prediction, and the next solve starts cold rather than from this solution.
+            self._prev_xs = self._prev_us = None
+            raise
         if self._predictor is not None:
             sent = torque if self.config.formulation == "torque_feedback" else us_opt[0]
             self._sent.append((t, sent.copy()))
         return MpcCommand(
-            torque=self.robot.clip_torque(torque),
+            torque=clipped,
             state=x0,
             feedback_gain=gain,
             xs=xs_opt,
@@ -476,6 +531,27 @@ class ModelPredictiveController:
         gain = -gain_w * K0
         gain[:, 2 * nv :] += (1.0 - gain_w) * np.eye(nv)
         return torque, gain
+
+
+def _as_setting(value: npt.ArrayLike) -> float | tuple[float, ...]:
+    """A scalar or per-axis ContactConfig setting from a number or a sequence."""
+    arr = np.asarray(value, dtype=float)
+    return float(arr) if arr.ndim == 0 else tuple(float(v) for v in arr.reshape(-1))
+
+
+def _set_node_weight(node: OcpNode, name: str, value: float) -> None:
+    """c of cost ``name`` in one node of any formulation (the soft-contact models' own setter;
+    the crocoddyl cost sums of the classical and torque-feedback nodes, both contact models)."""
+    model = node.model
+    if hasattr(model, "set_weight"):
+        model.set_weight(name, value)
+        return
+    models = getattr(node, "_models", {None: model}).values()
+    for m in models:
+        differential = m.differential
+        costs = differential.costs.costs
+        if name in costs:
+            costs[name].weight = value
 
 
 def _interp_rows(rows: np.ndarray, grid: np.ndarray) -> np.ndarray:

@@ -140,16 +140,42 @@ class TorquePid:
         self.enabled = bool(enabled)
         nv = gains.nv
         self._desired = DelayLine(delay_cycles, nv)
-        # Anti-windup bound on the integral state ∫e ds (N·m·s); inf where K_I = 0.
+        self._integral = np.zeros(nv)
+        self._integral_bound = self._bound(gains)
+        self._previous_measured = np.zeros(nv)
+        self._t_previous: float | None = None
+
+    @staticmethod
+    def _bound(gains: TorquePidGains) -> np.ndarray:
+        """Anti-windup bound on the integral state ∫e ds (N·m·s); inf where K_I = 0."""
         with np.errstate(divide="ignore"):
-            self._integral_bound = np.where(
+            return np.where(
                 gains.ki > 0.0,
                 gains.integral_limit / np.where(gains.ki > 0.0, gains.ki, 1.0),
                 np.inf,
             )
-        self._integral = np.zeros(nv)
-        self._previous_measured = np.zeros(nv)
-        self._t_previous: float | None = None
+
+    def set_gains(
+        self,
+        kp: npt.ArrayLike | None = None,
+        ki: npt.ArrayLike | None = None,
+        kd: npt.ArrayLike | None = None,
+    ) -> None:
+        """Change K_P, K_I and/or K_D (scalar or per joint; None keeps one) from the next
+        :meth:`step` on, as eq 33 reads: the state (∫e, the previous τ̂, the δo line) is kept, so
+        a new K_I scales the integral term K_I·∫e at once; ∫e is clamped to the new anti-windup
+        bound ``integral_limit / K_I``. ConfigError (nothing changed) for a value that is not
+        finite and >= 0."""
+        g = self.gains
+        gains = TorquePidGains(
+            kp=g.kp if kp is None else _per_joint(kp, g.nv, "kp"),
+            ki=g.ki if ki is None else _per_joint(ki, g.nv, "ki"),
+            kd=g.kd if kd is None else _per_joint(kd, g.nv, "kd"),
+            integral_limit=g.integral_limit,
+        )
+        self.gains = gains
+        self._integral_bound = self._bound(gains)
+        np.clip(self._integral, -self._integral_bound, self._integral_bound, out=self._integral)
 
     @property
     def delay_cycles(self) -> int:

@@ -128,6 +128,9 @@ class MpcSection:
     #: to the plant step (:func:`ffmpc_core.study.resolve_command_delay`; the studies do it).
     command_delay: str = COMMAND_DELAY_PID
     backend: str = "native"  # action models: native (C++) | python (reference), MpcConfig.backend
+    #: o, m, world frame: the MPC tracks p̄(t) + o (ffmpc_core.tasks.LiveTask); the plant's table
+    #: stays where the task puts it. Live on the MPC node (parameter ``position_offset``).
+    position_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
     contact: ContactConfig = field(default_factory=ContactConfig)
     #: per formulation: CostWeights fields plus ``force_phase`` (c6) and ``ee_position_phase``
     weights: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -389,6 +392,11 @@ _TABLE: dict[str, tuple[str, Any, str]] = {
     "mpc.riccati_feedback": ("", None, "low level applies τ* + G·Δx between solves"),
     "mpc.delay_compensation": ("", None, "plan for t + δo (δo = pid.delay_cycles cycles)"),
     "mpc.command_delay": ("s", None, "δo: pid (pid.delay_cycles), seconds, or measured"),
+    "mpc.position_offset": (
+        "m",
+        (-0.1, 0.1),
+        "offset o added to the task's position reference (the MPC tracks p̄(t) + o), world frame",
+    ),
     "mpc.contact.dimension": ("", [1, 3], "contact force entries: 1 (normal) or 3"),
     "mpc.contact.frame_type": ("", ["LOCAL_WORLD_ALIGNED", "LOCAL"], "frame of the force"),
     "mpc.contact.normal_axis": ("", [0, 1, 2], "axis of the 1-D force: 0 x, 1 y, 2 z"),

@@ -29,7 +29,7 @@ from ffmpc_core.pid import TorquePid, TorquePidGains
 from ffmpc_core.robots import RobotModel
 from ffmpc_core.scenario import COMMAND_DELAY_MEASURED, COMMAND_DELAY_PID, Scenario
 from ffmpc_core.sensing import ForceSensingModel, SensingModel, SensingParams
-from ffmpc_core.tasks import ForceSquareTask, PhaseWeights, PolishingTask
+from ffmpc_core.tasks import ForceSquareTask, LiveTask, PhaseWeights, PolishingTask
 
 #: The task schedules of a scenario (:func:`build_task`).
 StudyTask = PolishingTask | ForceSquareTask
@@ -108,6 +108,13 @@ def build_task(scenario: Scenario, robot: RobotModel) -> StudyTask:
         cycles=task.square_cycles,
         **common,
     )
+
+
+def mpc_schedule(task: StudyTask, scenario: Scenario) -> LiveTask:
+    """The MPC's schedule: ``task`` (:func:`build_task`) with the scenario's position offset
+    ``mpc.position_offset`` (m, world frame; the plant's table does not move), changeable while
+    it runs (:class:`~ffmpc_core.tasks.LiveTask`: the MPC node's live parameters)."""
+    return LiveTask(task, scenario.mpc.position_offset)
 
 
 def draw_run(scenario: Scenario, robot: RobotModel, rng: np.random.Generator) -> RunDraws:

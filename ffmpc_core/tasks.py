@@ -17,15 +17,19 @@ Two tasks of the force-feedback paper:
 And one for the impact study (Dehio & Kheddar 2020, Sec. VI, after the contact):
 
 * :class:`PressTask`: hold the tool where it touched and press with a constant force.
+
+:class:`LiveTask` wraps any of them for the MPC: a position offset and a force set-point that
+change while the task runs (live parameters, reference topics), blended in with a minimum jerk.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
 
 from ffmpc_core.config import NodeReference
 from ffmpc_core.errors import ConfigError, InputError
@@ -327,3 +331,139 @@ class PressTask:
         ref.in_contact = True
         _diag_of(ref)[:] = (1.0, 1.0, 0.0)
         return ref
+
+
+#: Time over which a live retarget (:class:`LiveTask`) blends from the old to the new target, s
+#: (minimum jerk). A 0.1 m offset change then moves p̄ at most 0.375 m/s, below twice the
+#: polishing circle's own speed (0.07 m × 6 rad/s on the fast variant).
+RETARGET_BLEND = 0.5
+
+
+class _Blend:
+    """A value that moves from ``start`` to ``target`` with a minimum-jerk blend of ``duration``
+    s from time ``t0`` (s, the schedule's time); before any change it is ``target``."""
+
+    def __init__(self, value: np.ndarray, duration: float) -> None:
+        self.start = np.array(value, dtype=float)
+        self.target = self.start.copy()
+        self.t0 = -math.inf
+        self.duration = float(duration)
+
+    def at(self, t: float) -> np.ndarray:
+        s = min_jerk((t - self.t0) / self.duration) if self.duration > 0 else 1.0
+        return self.start + s * (self.target - self.start)
+
+    def settled(self, t: float) -> bool:
+        return t >= self.t0 + self.duration
+
+    def retarget(self, value: np.ndarray, t: float) -> None:
+        self.start = self.at(t)
+        self.target = np.array(value, dtype=float)
+        self.t0 = float(t)
+
+
+class LiveTask:
+    """A task schedule whose position offset and force set-point change while it runs (the MPC
+    node's live parameters ``position_offset`` and ``task.normal_force`` and its reference
+    topics).
+
+    ``reference_into(t, ref)`` is the wrapped task's, then:
+
+    * p̄(t) ← p̄(t) + o(t): o is the position offset (m, world frame);
+    * λ̄(t) ← λ̄(t)·f(t)/f₀ (the normal entry): f is the force set-point (N), f₀ the wrapped
+      task's own (``normal_force`` of :class:`PolishingTask`, ``force`` of :class:`PressTask`),
+      so the task's profile (zero before contact, the ramp) keeps its shape and reaches f.
+
+    A change at time t₀ (s, the schedule's time) blends o and f from their values at t₀ to the
+    new ones with a minimum jerk over ``blend`` s (:data:`RETARGET_BLEND`). Until the first
+    change the references are the wrapped task's, bit for bit. Everything else (``duration``,
+    ``in_circle``, …) is the wrapped task's.
+
+    Args:
+        task: the task schedule (any with ``reference_into``).
+        position_offset: initial o, m, world frame (``mpc.position_offset``).
+        blend: blend time of a change, s.
+    """
+
+    def __init__(
+        self,
+        task: Any,
+        position_offset: npt.ArrayLike = (0.0, 0.0, 0.0),
+        blend: float = RETARGET_BLEND,
+    ) -> None:
+        offset = np.asarray(position_offset, dtype=float)
+        if offset.shape != (3,) or not np.all(np.isfinite(offset)):
+            raise ConfigError(
+                f"position_offset must be 3 finite numbers (m), got {position_offset!r}"
+            )
+        if not (math.isfinite(blend) and blend >= 0.0):
+            raise ConfigError(f"blend must be a finite time >= 0 s, got {blend}")
+        self.task = task
+        self.nominal_force = _task_force(task)
+        self._offset = _Blend(offset, blend)
+        self._force = _Blend(np.array([self.nominal_force or 0.0]), blend)
+        self._shifted = bool(np.any(offset != 0.0))
+        self._scaled = False
+
+    def __getattr__(self, name: str) -> Any:
+        if name == "task":  # (not set yet: copy and pickle look attributes up before __init__)
+            raise AttributeError(name)
+        return getattr(self.task, name)
+
+    # -- what changes ---------------------------------------------------------------------------
+    @property
+    def position_offset(self) -> np.ndarray:
+        """The offset o the blend ends at, m, world frame (a copy)."""
+        return self._offset.target.copy()
+
+    @property
+    def force_setpoint(self) -> float | None:
+        """The set-point f the blend ends at, N (None: the task has no single force)."""
+        return None if self.nominal_force is None else float(self._force.target[0])
+
+    def set_position_offset(self, offset: npt.ArrayLike, t: float) -> None:
+        """Move o to ``offset`` (3 entries, m, world) from time t (s, schedule time)."""
+        value = np.asarray(offset, dtype=float)
+        if value.shape != (3,) or not np.all(np.isfinite(value)):
+            raise InputError(f"position offset must be 3 finite numbers (m), got {offset!r}")
+        self._offset.retarget(value, t)
+        self._shifted = True
+
+    def set_force(self, force: float, t: float) -> None:
+        """Move the force set-point to ``force`` (N, >= 0) from time t (s, schedule time)."""
+        if self.nominal_force is None or self.nominal_force <= 0.0:
+            raise InputError(
+                f"{type(self.task).__name__} has no single positive force set-point to change"
+            )
+        if not (math.isfinite(force) and force >= 0.0):
+            raise InputError(f"force set-point must be finite and >= 0 N, got {force}")
+        self._force.retarget(np.array([float(force)]), t)
+        self._scaled = True
+
+    def set_phase_weights(self, weights: PhaseWeights) -> None:
+        """Replace the wrapped task's per-phase c4 and c6 (applies to every later reference)."""
+        if not hasattr(self.task, "weights"):
+            raise InputError(f"{type(self.task).__name__} has no phase weights")
+        self.task = replace(self.task, weights=weights)
+
+    # -- schedule ---------------------------------------------------------------------------
+    def reference(self, t: float, dimension: int = 1) -> NodeReference:
+        return self.reference_into(t, NodeReference.empty(dimension))
+
+    def reference_into(self, t: float, ref: NodeReference) -> NodeReference:
+        self.task.reference_into(t, ref)
+        if self._shifted:
+            ref.ee_position += self._offset.at(t)
+        if self._scaled:
+            assert self.nominal_force is not None  # set_force refuses a task without one
+            ref.force[-1] *= float(self._force.at(t)[0]) / self.nominal_force
+        return ref
+
+
+def _task_force(task: Any) -> float | None:
+    """The single force set-point of a task, N (None for a task without one)."""
+    if isinstance(task, PolishingTask):
+        return float(task.normal_force)
+    if isinstance(task, PressTask):
+        return float(task.force)
+    return None

@@ -16,7 +16,22 @@ rejection and per :data:`LOG_THROTTLE` seconds (wall time), and counts every rej
 :attr:`StudyNode.rejected`.
 
 Fixed at start. Every node runs on the plant's ``/clock``: ``use_sim_time`` is forced true at
-construction and a later change is refused with a reason (the other parameters are read-only).
+construction and a later change is refused with a reason.
+
+Live parameters. The parameters of :attr:`NodeSpec.live <ffmpc_ros.params.NodeSpec.live>` are
+writable while the node runs; every other one is read-only. A request is checked before rclpy
+applies its descriptors (a pre-set callback): the schema's type and range
+(:data:`ffmpc_core.scenario.SCHEMA`, the one declaration), then the node's own rule
+(:meth:`StudyNode.check_live`, e.g. a stiffness for a formulation without a soft contact). A
+refused request logs ONE warning line and returns ``successful=False`` with the reason (rclpy's
+own when the descriptor's range refuses it first, the schema's otherwise); it is counted in
+:attr:`StudyNode.refused_parameters`. An accepted one logs one info line and waits in
+:attr:`StudyNode.pending_parameters` until the node's next computation: the MPC's next solve, the
+PID's next cycle (:meth:`StudyNode.apply_pending`, recorded in :attr:`StudyNode.live_changes`
+with the cycle it took effect at). In lockstep that is a well-defined cycle: the first MPC tick
+(PID cycle) the node computes after the request was accepted; which tick that is depends on when
+the request arrives, and both the accepting log line (the node's clock) and ``live_changes``
+(the tick) say it.
 
 Diagnostics. Every node publishes ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``, the
 topic ``diagnostic_aggregator`` and ``rqt_robot_monitor`` read) every
@@ -52,11 +67,18 @@ from rclpy.parameter import Parameter
 from rclpy.time_source import TimeSource
 from rosgraph_msgs.msg import Clock as ClockMsg
 
-from ffmpc_core.errors import FfmpcError, InputError
-from ffmpc_core.scenario import Scenario
+from ffmpc_core.errors import ConfigError, FfmpcError, InputError
+from ffmpc_core.scenario import CONTACT_DIMENSION, SCHEMA, Scenario
 from ffmpc_ros import topics
 from ffmpc_ros.discovery import ensure_local_discovery
-from ffmpc_ros.params import NODE_SPECS, declare_node_parameters, scenario_from_parameters
+from ffmpc_ros.params import (
+    NODE_SPECS,
+    declare_node_parameters,
+    node_scenario_names,
+    plain_value,
+    scenario_flat,
+    scenario_from_parameters,
+)
 from ffmpc_ros.topics import WRENCH_FRAME
 
 #: Minimum wall time between two log lines of the same kind of rejection, s.
@@ -115,7 +137,13 @@ class StudyNode(Node):
         self._last_log: dict[str, float] = {}
         self._last_cycle: dict[str, int] = {}
         self.max_input_age = float(self.params.get("max_input_age", math.inf))
-        self.add_on_set_parameters_callback(self._refuse_fixed_parameters)
+        self.refused_parameters: Counter[str] = Counter()  # refused requests per parameter
+        self.pending_parameters: dict[str, Any] = {}  # accepted, not applied yet {ROS name: value}
+        self.live_changes: list[tuple[int, str, Any]] = []  # (cycle applied, ROS name, value)
+        self._scenario_names = node_scenario_names(self.spec, scenario_flat(Scenario("defaults")))
+        self.add_pre_set_parameters_callback(self._check_parameter_request)
+        self.add_on_set_parameters_callback(self._parameter_verdict)
+        self.add_post_set_parameters_callback(self._stage_parameters)
         # rclpy's time source reads /clock BEST_EFFORT: a sample reaches a reader only once the
         # reader has matched the plant's writer too, so a node whose side of the match came late
         # judged its first inputs by a clock still at 0 and rejected them as from the future
@@ -137,16 +165,110 @@ class StudyNode(Node):
             clock=Clock(clock_type=ClockType.STEADY_TIME),
         )
 
-    def _refuse_fixed_parameters(self, parameters: Sequence[Parameter]) -> SetParametersResult:
-        """Refuse a run-time change of ``use_sim_time`` (the graph's one clock is /clock)."""
+    # -- live parameters (module docstring) -----------------------------------------------------
+    def parameter_refusal(self, parameters: Sequence[Parameter]) -> str | None:
+        """Why a request to set ``parameters`` must be refused, or None when it may go on."""
         for p in parameters:
-            if p.name == "use_sim_time" and p.value is not True:
-                return SetParametersResult(
-                    successful=False,
-                    reason="use_sim_time is fixed at start: every ffmpc node runs on the "
-                    "plant's /clock (simulated time)",
-                )
-        return SetParametersResult(successful=True)
+            if p.name == "use_sim_time":
+                if p.value is not True:
+                    return (
+                        "use_sim_time is fixed at start: every ffmpc node runs on the plant's "
+                        "/clock (simulated time)"
+                    )
+                continue
+            if not self.has_parameter(p.name):
+                return f"{p.name}: no such parameter of {self.get_name()}"
+            if not self.spec.is_live(p.name):
+                if self.describe_parameter(p.name).read_only:
+                    return f"{p.name} is fixed at start (read-only); live: {self.live_names()}"
+                continue
+            try:
+                value = self.live_value(p.name, plain_value(p.value))
+            except FfmpcError as exc:
+                return str(exc)
+            reason = self.check_live(p.name, value)
+            if reason is not None:
+                return f"{p.name} = {value!r}: {reason}"
+        return None
+
+    def live_names(self) -> str:
+        """The node's live parameters, comma-separated (for messages)."""
+        names = [n for n in self._scenario_names if self.spec.is_live(n)]
+        return ", ".join(sorted(names)) or "none"
+
+    def live_value(self, name: str, value: Any) -> Any:
+        """``value`` of live parameter ``name`` checked against the schema, in its canonical
+        type (float, tuple of floats); ConfigError (``name = value: expected …``) otherwise."""
+        spec = SCHEMA[self._scenario_names[name]]
+        length = self.scenario.mpc.contact.dimension if spec.length == CONTACT_DIMENSION else None
+        try:
+            return spec.check(value, length)
+        except ConfigError as exc:
+            raise ConfigError(str(exc).replace(spec.name, name, 1)) from None
+
+    def check_live(self, name: str, value: Any) -> str | None:
+        """The node's own rule for live parameter ``name`` (value already schema-checked):
+        the reason to refuse it, or None. Nodes with live parameters override it."""
+        return None
+
+    def apply_live(self, changes: dict[str, Any], k: int) -> None:
+        """Apply accepted live parameters ``{ROS name: value}`` at cycle k (before computing
+        it). Nodes with live parameters override it."""
+
+    def apply_pending(self, k: int) -> None:
+        """Apply the live parameters accepted since the last call, at cycle k."""
+        if not self.pending_parameters:
+            return
+        changes, self.pending_parameters = self.pending_parameters, {}
+        self.apply_live(changes, k)
+        self.live_changes += [(k, name, value) for name, value in changes.items()]
+
+    def _check_parameter_request(self, parameters: list[Parameter]) -> list[Parameter]:
+        """Pre-set callback (it runs before rclpy's descriptor checks, which refuse without
+        calling back): log ONE line for a request :meth:`parameter_refusal` refuses (the schema
+        has the descriptors' ranges, so rclpy refuses nothing it lets through); changes
+        nothing."""
+        reason = self.parameter_refusal(parameters)
+        if reason is not None:
+            for p in parameters:
+                self.refused_parameters[p.name] += 1
+            self._log_line(f"parameter refused: {reason}", warning=True)
+        return list(parameters)
+
+    def _parameter_verdict(self, parameters: list[Parameter]) -> SetParametersResult:
+        """On-set callback: refuse with the reason of :meth:`parameter_refusal`."""
+        declared = [p for p in parameters if self.has_parameter(p.name)]
+        reason = self.parameter_refusal(declared)
+        return SetParametersResult(successful=reason is None, reason=reason or "")
+
+    def _stage_parameters(self, parameters: list[Parameter]) -> None:
+        """Post-set callback: queue the accepted live values for the next computation (one
+        info line)."""
+        staged = []
+        for p in parameters:
+            if self.spec.is_live(p.name):
+                value = self.live_value(p.name, plain_value(p.value))
+                self.pending_parameters[p.name] = value
+                staged.append(f"{p.name} = {value!r}")
+        if staged:
+            now = self.get_clock().now().nanoseconds * 1e-9
+            self._log_line(
+                f"parameter accepted: {', '.join(staged)}; applies from the {self.applies_at} "
+                f"after t = {now:.4f} s"
+            )
+
+    #: When an accepted live parameter takes effect (for the log line).
+    applies_at = "next cycle"
+
+    def _log_line(self, text: str, warning: bool = False) -> None:
+        # (two call sites: rclpy refuses a second severity from the same line of code)
+        try:
+            if warning:
+                self.get_logger().warning(text)
+            else:
+                self.get_logger().info(text)
+        except Exception:  # noqa: BLE001  (shutting down: the logger's context is gone)
+            pass
 
     # -- names -----------------------------------------------------------------------------
     def name_of(self, topic: str) -> str:

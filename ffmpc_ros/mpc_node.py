@@ -23,6 +23,31 @@ entry of K and B (``contact.normal_axis``; the only one of a 1-D contact), and w
 LOCAL_WORLD_ALIGNED contact an estimate whose direction is not ±that axis is rejected. Each
 accepted update is logged (at most one line per 2 s). Estimates are not synchronised with the
 lockstep cycle: one applies from the first solve after its arrival.
+
+Live parameters (``ffmpc_ros.params.MPC_LIVE``; checked, logged and queued by
+:class:`~ffmpc_ros.base.StudyNode`), applied in place at the next solve (no rebuild of the OCP):
+
+* ``contact.stiffness``, ``contact.damping``: K (N/m), B (N·s/m) of the force-feedback OCP
+  (``ModelPredictiveController.set_contact_parameters``; refused for the other formulations);
+  with ``use_learned_contact`` the learner's next confident estimate overrides the normal entry;
+* ``weights.<formulation>.{posture,joint_velocity,torque,ee_velocity,force_rate}``: the cost
+  weights c (``set_cost_weight``), of the formulation the node runs only;
+  ``weights.<formulation>.{force_phase,ee_position_phase}``: the task's phase weights c6, c4;
+* ``task.normal_force`` (N) and ``position_offset`` (m, world): the force set-point and the offset
+  of the position reference (:class:`ffmpc_core.tasks.LiveTask`), blended in with a minimum jerk
+  over ``RETARGET_BLEND`` s from the time of the solve that applies them.
+
+Reference topics (relative names, ``msgs_notes/topics.md``): ``mpc/reference``
+(``geometry_msgs/PoseStamped``: the target of the contact frame, world frame, m: the polishing
+circle's centre, the contact point of the other tasks; the orientation is not used) and
+``mpc/force_setpoint`` (``std_msgs/Float64``, N). Each valid message sets ``position_offset`` =
+target − the scenario's target (or ``task.normal_force``) through the node's own parameters, so
+it is applied, logged and read back (``get_parameter``) like a live parameter. A message with a
+non-finite value, a frame_id other than ``world``, a stamp from the future, a target farther
+than the schema's bound on ``mpc.position_offset`` (0.1 m per axis) from the scenario's, or a
+force outside ``task.normal_force``'s range is rejected and counted (:meth:`StudyNode.reject`).
+In real time the node serves the reference topics from its wait set, but not the parameter
+services (it has no executor).
 """
 
 from __future__ import annotations
@@ -31,17 +56,26 @@ import contextlib
 import gc
 
 import numpy as np
-from geometry_msgs.msg import WrenchStamped
+from geometry_msgs.msg import PoseStamped, WrenchStamped
+from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray
+from std_msgs.msg import Float64, Float64MultiArray
 
 from ffmpc_core.errors import ConfigError, FfmpcError
 from ffmpc_core.impact.learner import confident
 from ffmpc_core.mpc import ModelPredictiveController, MpcMeasurement
 from ffmpc_core.robots import load_robot
-from ffmpc_core.study import build_task, measured_force, mpc_config, steps_per_mpc_period
+from ffmpc_core.scenario import SCHEMA
+from ffmpc_core.study import (
+    build_task,
+    measured_force,
+    mpc_config,
+    mpc_schedule,
+    steps_per_mpc_period,
+)
+from ffmpc_core.tasks import PhaseWeights
 from ffmpc_ros import layouts, topics
-from ffmpc_ros.base import StudyNode, drop_stale_cycles, run_node
+from ffmpc_ros.base import MAX_FUTURE_STAMP, StudyNode, drop_stale_cycles, run_node
 from ffmpc_ros.impact_common import DIRECTION_TOLERANCE, receive_estimate
 
 _KEEP = 20  # cycles of unmatched measurements kept
@@ -57,7 +91,15 @@ class MpcNode(StudyNode):
         self.robot = load_robot(s.robot)
         self.joint_names = list(self.robot.joint_names)
         self.config = mpc_config(s)
-        self.mpc = ModelPredictiveController(self.robot, self.config, build_task(s, self.robot))
+        self.task = build_task(s, self.robot)
+        self.schedule = mpc_schedule(self.task, s)
+        self.mpc = ModelPredictiveController(self.robot, self.config, self.schedule)
+        # The reference topics' target without an offset: the circle's centre, else the contact
+        # point (m, world); position_offset = target − this.
+        centre = getattr(self.task, "circle_center", None)
+        self.nominal_target = (
+            centre() if centre is not None else np.asarray(self.task.contact_position, float)
+        )
         self.every = steps_per_mpc_period(s)
         self.needs_force = self.config.formulation == "force_feedback"
         self._joints: dict[int, tuple] = {}
@@ -83,6 +125,13 @@ class MpcNode(StudyNode):
             self.inputs.append(
                 self.create_subscription(WrenchStamped, topics.SENSED_WRENCH, self.on_wrench, qos)
             )
+        ref_qos = topics.reference_qos()
+        self.references = [
+            self.create_subscription(PoseStamped, topics.MPC_REFERENCE, self.on_reference, ref_qos),
+            self.create_subscription(
+                Float64, topics.MPC_FORCE_SETPOINT, self.on_force_setpoint, ref_qos
+            ),
+        ]
         self.use_learned_contact = bool(self.params["use_learned_contact"])
         self.learner_min_samples = int(self.params["learner_min_samples"])
         self.learner_max_relative_std = float(self.params["learner_max_relative_std"])
@@ -158,6 +207,112 @@ class MpcNode(StudyNode):
             f"{self.contact_updates})",
         )
 
+    # -- live parameters and reference topics ------------------------------------------------
+    applies_at = "next solve"
+
+    def check_live(self, name: str, value) -> str | None:
+        """The MPC's own rules (module docstring): which formulation and task can take it."""
+        formulation = self.config.formulation
+        if name.startswith("contact.") and formulation != "force_feedback":
+            return f"the {formulation} formulation has no visco-elastic contact (K, B unused)"
+        if name.startswith("weights."):
+            form, _, term = name[len("weights.") :].partition(".")
+            if form != formulation:
+                return f"this node runs the {formulation} formulation, not {form}"
+            if term == "force_rate" and formulation != "force_feedback":
+                return "only the force-feedback formulation has the force-rate cost"
+        if name == "task.normal_force" and not self.schedule.nominal_force:
+            return (
+                f"the {self.scenario.task.name} task has no single positive force set-point "
+                f"(task.normal_force is {self.scenario.task.normal_force} N at start)"
+            )
+        return None
+
+    def apply_live(self, changes: dict, k: int) -> None:
+        """Apply accepted live parameters before the solve of tick k (module docstring)."""
+        t_task = self.mpc.task_time(self.t_of(k))
+        contact = self.mpc.config.contact
+        stiffness = changes.get("contact.stiffness", contact.stiffness)
+        damping = changes.get("contact.damping", contact.damping)
+        phase = False
+        try:
+            if "contact.stiffness" in changes or "contact.damping" in changes:
+                self.mpc.set_contact_parameters(stiffness, damping)
+                if self.use_learned_contact:
+                    self.contact_stiffness = self.mpc.config.contact.stiffness_vector().copy()
+                    self.contact_damping = self.mpc.config.contact.damping_vector().copy()
+            for name, value in changes.items():
+                if name.startswith("weights."):
+                    term = name.rpartition(".")[2]
+                    if term in ("force_phase", "ee_position_phase"):
+                        phase = True
+                    else:
+                        self.mpc.set_cost_weight(term, value)
+            if phase:
+                form = self.config.formulation
+                force = self.get_parameter(f"weights.{form}.force_phase").value
+                ee = self.get_parameter(f"weights.{form}.ee_position_phase").value
+                self.schedule.set_phase_weights(
+                    PhaseWeights(free_ee_position=ee, contact_ee_position=ee, force=force)
+                )
+            if "task.normal_force" in changes:
+                self.schedule.set_force(changes["task.normal_force"], t_task)
+            if "position_offset" in changes:
+                self.schedule.set_position_offset(changes["position_offset"], t_task)
+        except FfmpcError as exc:  # (checked when accepted: not expected)
+            self.reject("parameter", f"cycle {k}: {exc}")
+
+    def on_reference(self, msg: PoseStamped) -> None:
+        """A target position of the contact frame (module docstring)."""
+        topic = topics.MPC_REFERENCE
+        if msg.header.frame_id != topics.WORLD_FRAME:
+            self.reject(
+                f"{topic}:frame",
+                f"frame_id {msg.header.frame_id!r}, expected {topics.WORLD_FRAME!r}",
+            )
+            return
+        stamp_ns = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+        ahead = (stamp_ns - self.get_clock().now().nanoseconds) * 1e-9
+        if ahead > MAX_FUTURE_STAMP:
+            self.reject(f"{topic}:future", f"stamp {stamp_ns * 1e-9:.6f} s is {ahead:.4f} s ahead")
+            return
+        p = msg.pose.position
+        target = np.array([p.x, p.y, p.z], dtype=float)
+        if not np.all(np.isfinite(target)):
+            self.reject(f"{topic}:value", f"target position is not finite: {target}")
+            return
+        offset = target - self.nominal_target
+        bound = SCHEMA["mpc.position_offset"].range
+        assert bound is not None  # the schema bounds it
+        if np.any(offset < bound[0]) or np.any(offset > bound[1]):
+            self.reject(
+                f"{topic}:workspace",
+                f"target {np.round(target, 4).tolist()} m is {np.round(offset, 4).tolist()} m "
+                f"from the task's {np.round(self.nominal_target, 4).tolist()} m (bound "
+                f"[{bound[0]:g}, {bound[1]:g}] m per axis)",
+            )
+            return
+        self._set_from_topic(topic, Parameter("position_offset", value=offset.tolist()))
+
+    def on_force_setpoint(self, msg: Float64) -> None:
+        """A force set-point, N (module docstring)."""
+        self._set_from_topic(
+            topics.MPC_FORCE_SETPOINT, Parameter("task.normal_force", value=float(msg.data))
+        )
+
+    def _set_from_topic(self, topic: str, param: Parameter) -> None:
+        """Set a live parameter from a reference topic: checked first (a refusal is a rejected
+        message, counted, one throttled line), then set like any parameter request."""
+        reason = self.parameter_refusal([param])
+        if reason is not None:
+            self.reject(f"{topic}:value", reason)
+            return
+        result = self.set_parameters([param])[0]
+        if not result.successful:
+            self.reject(f"{topic}:value", result.reason)
+            return
+        self.accepted[topic] += 1
+
     def _due(self, k: int) -> bool:
         """Whether cycle k is an MPC tick to solve: k = j·every (the runner's grid, and the
         cycles the PID waits on in lockstep), after the last solve. Never off the grid: after
@@ -228,6 +383,7 @@ class MpcNode(StudyNode):
         ]
         if self.use_learned_contact:
             inputs.append((self.estimates, self.on_estimate, False))
+        inputs += [(sub, sub.callback, False) for sub in self.references]
         with contextlib.ExitStack() as stack:
             for sub, _, _ in inputs:
                 stack.enter_context(sub.handle)
@@ -261,6 +417,7 @@ class MpcNode(StudyNode):
         if self._behind_clock(k):
             return
         t = self.t_of(k)
+        self.apply_pending(k)
         try:
             command = self.mpc.step(MpcMeasurement(q=q, v=v, force=force, torque=tau), t)
         except FfmpcError as exc:

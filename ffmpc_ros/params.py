@@ -13,8 +13,14 @@ node declares:
   nodes (``impact_planner``, ``contact_learner``) have no scenario section: apart from ``robot``
   and ``plant.time_step`` all their parameters are graph parameters.
 
-Every parameter is read-only (nodes build their models once), has a description, and numeric
-ones a range. The descriptors of scenario parameters are generated from
+Every parameter has a description and numeric ones a range. Most are read-only (nodes build
+their models once); the few a node applies in place while it runs are **live**
+(:attr:`NodeSpec.live`: the MPC's contact K and B, its scalar cost weights and phase weights, the
+force reference ``task.normal_force`` and ``position_offset``; the PID's gains): writable, with
+the same schema range, checked again by the node (:class:`ffmpc_ros.base.StudyNode`, "Live
+parameters"), and applied from the node's next solve or cycle.
+
+The descriptors of scenario parameters are generated from
 :data:`ffmpc_core.scenario.SCHEMA`, the one declaration of each parameter's type, unit and range;
 the node rebuilds a :class:`~ffmpc_core.scenario.Scenario` from its values with the same
 validation as the ROS-free runner (:func:`scenario_from_parameters`), and a value rclpy refuses
@@ -24,13 +30,14 @@ gives the same ConfigError as the runner's, so both accept and refuse the same e
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from fnmatch import fnmatchcase
 from typing import Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.exceptions import ParameterException
 from rclpy.parameter import Parameter
 
-from ffmpc_core.config import FORMULATIONS, CostWeights
+from ffmpc_core.config import FORMULATIONS, LIVE_COST_WEIGHTS, CostWeights
 from ffmpc_core.errors import ConfigError
 from ffmpc_core.scenario import (
     DELAY,
@@ -70,6 +77,13 @@ class NodeSpec:
     shared: tuple[str, ...]
     foreign: tuple[str, ...]
     graph: tuple[GraphParameter, ...] = ()
+    #: ROS names (``fnmatch`` patterns) of the scenario parameters the node applies in place
+    #: while it runs: writable, every other one read-only.
+    live: tuple[str, ...] = ()
+
+    def is_live(self, ros_name: str) -> bool:
+        """Whether the node changes ``ros_name`` while it runs (see :attr:`live`)."""
+        return any(fnmatchcase(ros_name, pattern) for pattern in self.live)
 
 
 LOCKSTEP = GraphParameter(
@@ -224,6 +238,18 @@ CONTACT_LEARNER_GRAPH: tuple[GraphParameter, ...] = (
     GraphParameter("regularization", 1e-9, "λ of (S Sᵀ)_0 = λI (eq 19), m² and m²/s²", (0.0, 1.0)),
 )
 
+#: The MPC's live parameters: contact K (N/m) and B (N·s/m), the force set-point (N), the
+#: position offset (m) and the cost weights it can change in place (of the formulation it runs).
+MPC_LIVE: tuple[str, ...] = (
+    "contact.stiffness",
+    "contact.damping",
+    "task.normal_force",
+    "position_offset",
+    *(f"weights.*.{name}" for name in (*LIVE_COST_WEIGHTS, "force_phase", "ee_position_phase")),
+)
+#: The PID's live parameters: the gains of eq 33.
+PID_LIVE: tuple[str, ...] = ("kp", "ki", "kd")
+
 NODE_SPECS: dict[str, NodeSpec] = {
     "plant": NodeSpec(
         "plant",
@@ -250,6 +276,7 @@ NODE_SPECS: dict[str, NodeSpec] = {
         ("robot", "task.*"),
         _TIME_STEP + ("pid.delay_cycles",),
         (LOCKSTEP, MAX_AGE, USE_LEARNED_CONTACT, LEARNER_MIN_SAMPLES, LEARNER_MAX_RELATIVE_STD),
+        MPC_LIVE,
     ),
     "pid": NodeSpec(
         "pid",
@@ -257,6 +284,7 @@ NODE_SPECS: dict[str, NodeSpec] = {
         ("robot",),
         _TIME_STEP + _CONTACT + ("mpc.period", "mpc.formulation", "mpc.riccati_feedback"),
         (LOCKSTEP, LOCKSTEP_TIMEOUT, MAX_AGE),
+        PID_LIVE,
     ),
     "metrics": NodeSpec(
         "metrics",
@@ -363,25 +391,27 @@ def _float_range(limits: tuple[float, float]) -> FloatingPointRange:
     return FloatingPointRange(from_value=lo, to_value=hi)
 
 
-def scenario_descriptor(spec: ParamSpec) -> ParameterDescriptor:
-    """The ROS descriptor of a scenario parameter, generated from its :data:`SCHEMA` entry.
+def scenario_descriptor(spec: ParamSpec, live: bool = False) -> ParameterDescriptor:
+    """The ROS descriptor of a scenario parameter, generated from its :data:`SCHEMA` entry;
+    read-only unless ``live`` (the node applies it while it runs).
 
     bool, int and str parameters have their ROS type (ints an integer range); numbers are
     dynamically typed (an integer is a number, as in a scenario file: ``normal_force:=60``)
-    with a floating-point range, and lists (per axis, per joint) are dynamically typed. The
+    with a floating-point range, and lists (per axis, per joint) are dynamically typed with the
+    range of each entry (rclpy applies it to a single number; the node checks lists). The
     node checks every value against the schema when it starts (:func:`scenario_from_parameters`),
     so rclpy and the ROS-free runner accept and refuse the same values."""
     unit = f", {spec.unit}" if spec.unit else ""
-    desc = ParameterDescriptor(read_only=True, description=spec.description + unit)
+    desc = ParameterDescriptor(read_only=not live, description=spec.description + unit)
     desc.additional_constraints = f"{spec.expected()}"
     if spec.kind == INT:
         values = spec.range or (min(spec.choices), max(spec.choices))
         desc.integer_range = [IntegerRange(from_value=int(values[0]), to_value=int(values[1]))]
-    elif spec.kind == FLOAT:
+    elif spec.kind in (FLOAT, FLOATS, FLOAT_OR_FLOATS):
         desc.dynamic_typing = True
         if spec.range is not None:
             desc.floating_point_range = [_float_range(spec.range)]
-    elif spec.kind in (FLOATS, FLOAT_OR_FLOATS, DELAY):
+    elif spec.kind == DELAY:
         desc.dynamic_typing = True
     return desc
 
@@ -389,10 +419,10 @@ def scenario_descriptor(spec: ParamSpec) -> ParameterDescriptor:
 def _raw_override(node, ros: str) -> Any:
     """The value given for ``ros`` (``-p``, ``--params-file`` or ``parameter_overrides``)."""
     given = getattr(node, "_parameter_overrides", {}).get(ros)
-    return None if given is None else _plain(given.value)
+    return None if given is None else plain_value(given.value)
 
 
-def _plain(value: Any) -> Any:
+def plain_value(value: Any) -> Any:
     """A ROS parameter value as plain Python (array.array → list)."""
     return list(value) if type(value).__name__ == "array" else value
 
@@ -407,12 +437,14 @@ def declare_node_parameters(node, spec: NodeSpec) -> dict[str, Any]:
     for ros, name in node_scenario_names(spec, flat).items():
         default = _ros_value(flat[name])
         try:
-            node.declare_parameter(ros, default, scenario_descriptor(SCHEMA[name]))
+            node.declare_parameter(
+                ros, default, scenario_descriptor(SCHEMA[name], spec.is_live(ros))
+            )
         except ParameterException:
             raw = _raw_override(node, ros)
             SCHEMA[name].check(raw)  # raises the schema's error
             raise SCHEMA[name].error(raw) from None
-        values[ros] = _plain(node.get_parameter(ros).value)
+        values[ros] = plain_value(node.get_parameter(ros).value)
     for g in spec.graph:
         # (the declared Parameter: get_parameter raises for one declared by type and not set)
         try:
@@ -444,7 +476,7 @@ def scenario_from_parameters(spec: NodeSpec, values: dict[str, Any], name: str) 
     mapping = node_scenario_names(spec, flat)
     overrides = {}
     for ros, scenario_name in mapping.items():
-        overrides[scenario_name] = _plain(values[ros])
+        overrides[scenario_name] = plain_value(values[ros])
     return Scenario(name=name).with_overrides(overrides)
 
 

@@ -19,6 +19,12 @@ while it may still come: once that wrench was rejected, a later one was accepted
 timeout passed, or in real time, the cycle goes on without it; the low level then holds the newest
 accepted λ̂ for ``force_hold_time`` and sends τ* without feedback after that
 (``LowLevelController``, the runner's rule too). One bad wrench never stalls the loop.
+
+Live parameters (``ffmpc_ros.params.PID_LIVE``): the gains ``kp``, ``ki`` (1/s), ``kd`` (s) of
+eq 33, applied from the next cycle the node steps (``TorquePid.set_gains``: the integral state
+is kept, clamped to the new anti-windup bound). The low level has no joint torque or velocity
+limit fraction among its parameters (torques are saturated to the robot's limits), so there is
+nothing else to tune live.
 """
 
 from __future__ import annotations
@@ -188,7 +194,16 @@ class PidNode(StudyNode):
             if self._force_rejected:  # (empty on every cycle without a rejection)
                 self._force_rejected = {c for c in self._force_rejected if c >= k - _KEEP}
 
+    applies_at = "next cycle"
+
+    def apply_live(self, changes: dict, k: int) -> None:
+        """New PID gains from cycle k on (module docstring)."""
+        self.lowlevel.pid.set_gains(
+            kp=changes.get("kp"), ki=changes.get("ki"), kd=changes.get("kd")
+        )
+
     def _step(self, k: int, meas: LowLevelMeasurement) -> None:
+        self.apply_pending(k)
         try:
             out = self.lowlevel.step(meas, self.t_of(k))
         except InputError as exc:

@@ -59,6 +59,17 @@ METRICS_READY = "metrics/ready"
 #: diagnostic aggregator expects. Outside TOPICS: not part of the control chain's contract.
 DIAGNOSTICS = "/diagnostics"
 
+#: The MPC's reference inputs (relative names: ``/mpc/…`` in the root namespace, under the
+#: graph's namespace otherwise), published by an operator or a higher-level planner. Outside
+#: :data:`TOPICS`: no node of the graph publishes them (the recorder does not wait for them).
+MPC_REFERENCE = "mpc/reference"
+MPC_FORCE_SETPOINT = "mpc/force_setpoint"
+REFERENCE_TOPICS: tuple[tuple[str, str, str], ...] = (
+    (MPC_REFERENCE, "geometry_msgs/msg/PoseStamped", "(operator)"),
+    (MPC_FORCE_SETPOINT, "std_msgs/msg/Float64", "(operator)"),
+)
+#: The world frame (the frame_id of a reference pose).
+WORLD_FRAME = "world"
 #: The Foxglove-only channel of the view (no tf2_msgs wheel exists for the ROS 2 of this venv);
 #: absolute, as tf2 names it (it is a Foxglove channel and a bag topic, never a ROS publication).
 TF = "/tf"
@@ -153,6 +164,17 @@ def subscriber_qos(lockstep: bool) -> QoSProfile:
     return QoSProfile(
         history=HistoryPolicy.KEEP_LAST,
         depth=PUBLISHER_DEPTH if lockstep else 1,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
+
+
+def reference_qos() -> QoSProfile:
+    """The MPC's reference inputs: RELIABLE, TRANSIENT_LOCAL, KEEP_LAST(1): only the newest
+    target matters, and a node that starts after it was published still gets it."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=1,
         reliability=ReliabilityPolicy.RELIABLE,
         durability=DurabilityPolicy.TRANSIENT_LOCAL,
     )

@@ -68,6 +68,7 @@ from ffmpc_core.study import (
     lowlevel_controller,
     measured_force,
     mpc_config,
+    mpc_schedule,
     resolve_command_delay,
     spawn_generators,
     steps_per_mpc_period,
@@ -225,7 +226,7 @@ def run_scenario(
     joint_sensing = joint_sensing_model(scenario, robot.nv, joint_rng)
     force_sensing = force_sensing_model(scenario, force_rng)
     lowlevel = lowlevel_controller(scenario, robot)
-    mpc = ModelPredictiveController(robot, config, task)
+    mpc = ModelPredictiveController(robot, config, mpc_schedule(task, scenario))
 
     steps = int(round(duration / dt))
     log = StudyLog(steps, robot, task)

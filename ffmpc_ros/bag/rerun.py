@@ -429,7 +429,9 @@ def rerun_node(
         prefix = f"/_ffmpc_rerun_{os.getpid()}"
         namespace = bag_namespace(bag)
         clock = topics.resolve(topics.CLOCK, namespace)
-        names = sorted({*bag.topics, *(t for t, _, _ in topics.resolved_topics(namespace))})
+        references = (topics.resolve(t, namespace) for t, _, _ in topics.REFERENCE_TOPICS)
+        graph = (t for t, _, _ in topics.resolved_topics(namespace))
+        names = sorted({*bag.topics, *graph, *references})
         # /clock (the time source's) goes to the recorded clock; rules are not chained
         remaps = ["-r", f"{topics.CLOCK}:={prefix}{clock}"]
         if namespace != topics.ROOT_NAMESPACE:
@@ -489,6 +491,10 @@ def _run(
     ignored = {*_IGNORED_TOPICS, clock}  # clock: the bag's (/arm1/clock under a namespace)
     inputs = sorted({_strip(prefix, s.topic_name) for s in target.subscriptions} - ignored)
     outputs = sorted({_strip(prefix, p.topic_name) for p in target.publishers} - ignored)
+    # The MPC's reference inputs come from outside the graph: a bag without them had none.
+    namespace = bag_namespace(bag)
+    optional = {topics.resolve(name, namespace) for name, _, _ in topics.REFERENCE_TOPICS}
+    inputs = [t for t in inputs if t in bag.topics or t not in optional]
     missing = [t for t in inputs if t not in bag.topics]
     if missing:
         raise RerunError(f"the bag lacks the inputs {missing} of {node}")

@@ -17,13 +17,13 @@ import math
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Time as TimeMsg
-from geometry_msgs.msg import TwistStamped, WrenchStamped
+from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from ros_helpers import RosHarness, overrides
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Bool, Float64MultiArray
+from std_msgs.msg import Bool, Float64, Float64MultiArray
 
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
@@ -191,7 +191,21 @@ def _message(sub, node, base_k: int):
         return st.builds(Bool, data=st.booleans())
     if sub.msg_type is Float64MultiArray:
         return _array(TOPIC_LAYOUTS[sub.topic_name], node, base_k * step_ns)
+    if sub.msg_type is PoseStamped:
+        frames = st.sampled_from([topics.WORLD_FRAME, topics.WORLD_FRAME, "", "base_link"])
+        return st.builds(_pose, stamp, frames, st.tuples(*[FLOATS] * 3))
+    if sub.msg_type is Float64:
+        return st.builds(Float64, data=st.one_of(st.floats(0.0, 100.0), FLOATS))
     raise AssertionError(f"no strategy for {sub.msg_type} on {sub.topic_name}")
+
+
+def _pose(stamp, frame: str, position) -> PoseStamped:
+    msg = PoseStamped()
+    msg.header.stamp = stamp
+    msg.header.frame_id = frame
+    msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = map(float, position)
+    msg.pose.orientation.w = 1.0
+    return msg
 
 
 def node_joint_names(node) -> list[str]:
@@ -250,6 +264,11 @@ def _valid(sub, node, k: int, data) -> object:
         return msg
     if sub.msg_type is Bool:
         return Bool(data=data.draw(st.booleans()))
+    if sub.msg_type is PoseStamped:  # the MPC's target, within 5 cm of the task's
+        target = node.nominal_target + [data.draw(small) for _ in range(3)]
+        return _pose(stamp, topics.WORLD_FRAME, target)
+    if sub.msg_type is Float64:  # the MPC's force set-point, N
+        return Float64(data=data.draw(st.floats(0.0, 60.0)))
     layout = TOPIC_LAYOUTS[sub.topic_name]
     nv = _robot(node).nv
     nx = _nx(node)
@@ -283,6 +302,10 @@ def _corrupt(msg, data):
         setattr(msg, field, values)
     elif isinstance(msg, WrenchStamped):
         setattr(msg.wrench.force, data.draw(st.sampled_from("xyz")), data.draw(ADVERSARIAL))
+    elif isinstance(msg, PoseStamped):
+        setattr(msg.pose.position, data.draw(st.sampled_from("xyz")), data.draw(ADVERSARIAL))
+    elif isinstance(msg, Float64):
+        msg.data = data.draw(ADVERSARIAL)
     if hasattr(msg, "header") and data.draw(st.booleans()):
         msg.header.stamp = data.draw(_stamp(1_000_000, 0))
     return msg
