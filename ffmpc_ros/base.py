@@ -291,8 +291,9 @@ class StudyNode(Node):
         return k
 
     def cycle_of_time(self, t: float) -> int | None:
-        """The cycle k of a time t = k·time_step (s), or None when t is off the grid."""
-        if not math.isfinite(t) or t < 0:
+        """The cycle k of a time t = k·time_step (s), or None when t is off the grid (or not a
+        time a ROS stamp can hold: negative, non-finite, or 2³¹ s and beyond)."""
+        if not math.isfinite(t) or t < 0 or t >= 2.0**31:
             return None
         k = int(round(t / self.time_step))
         return k if abs(t - k * self.time_step) <= 1e-6 * self.time_step else None
