@@ -67,8 +67,8 @@ class CostWeights:
     #: inside the bounds, quadratic outside (1/rad² on the position excess, s²/rad² on the
     #: velocity excess). Every formulation has it (running and terminal nodes); the bounds are
     #: ``RobotModel.state_limit_bounds(state_limit_fraction)``. The node-graph scenario files set
-    #: it per formulation (classical 1, torque-feedback 100, force-feedback 0.03: README).
-    state_limit: float = 3e-2
+    #: it per formulation (classical 1, torque-feedback 100, force-feedback 0.01: README).
+    state_limit: float = 1e-2
     #: Fraction of the limits inside which the barrier is zero: |v| ≤ fraction·velocity_limit
     #: (rad/s), q within fraction of the position range about its middle (rad; joints with finite
     #: position limits only). In (0, 1].
