@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <iostream>
+#include <limits>
 #include <sstream>
 
 #include <boost/python.hpp>
@@ -26,7 +27,7 @@ namespace {
 
 const char* const kTermNames[kNumTerms] = {"posture",     "joint_velocity", "torque",
                                            "ee_position", "ee_velocity",    "force",
-                                           "force_rate"};
+                                           "force_rate",  "state_limit"};
 
 /// [a]x, the cross-product matrix ([a]x b = a x b).
 inline Eigen::Matrix3d skew(const Eigen::Vector3d& a) {
@@ -41,7 +42,7 @@ std::size_t term_index(const std::string& name) {
   }
   std::ostringstream msg;
   msg << "unknown cost term '" << name << "'; choose one of (posture, joint_velocity, torque, "
-      << "ee_position, ee_velocity, force, force_rate)";
+      << "ee_position, ee_velocity, force, force_rate, state_limit)";
   throw ConfigError(msg.str());
 }
 
@@ -347,7 +348,7 @@ IntegratedActionModelSoftContact::IntegratedActionModelSoftContact(
     const pinocchio::Model& model, std::size_t frame_id, std::size_t nc, bool world_aligned,
     std::size_t normal_axis, double dt, bool terminal)
     : Base(std::make_shared<crocoddyl::StateVector>(2 * model.nv + nc), model.nv,
-           3 * model.nv + 6 + 2 * nc),
+           5 * model.nv + 6 + 2 * nc),
       dynamics_(model, frame_id, nc, world_aligned, normal_axis),
       nv_(model.nv),
       nc_(nc),
@@ -360,7 +361,7 @@ IntegratedActionModelSoftContact::IntegratedActionModelSoftContact(
     msg << "dt must be positive and finite, got " << dt;
     throw ConfigError(msg.str());
   }
-  size_ = {nv_, nv_, nv_, 3, 3, nc_, nc_};
+  size_ = {nv_, nv_, nv_, 3, 3, nc_, nc_, 2 * nv_};
   std::size_t offset = 0;
   for (std::size_t k = 0; k < kNumTerms; ++k) {
     offset_[k] = offset;
@@ -374,6 +375,8 @@ IntegratedActionModelSoftContact::IntegratedActionModelSoftContact(
   force_reference_ = VectorXd::Zero(nc_);
   nominal_stiffness_ = VectorXd::Zero(nc_);
   nominal_damping_ = VectorXd::Zero(nc_);
+  state_limit_lower_ = VectorXd::Constant(2 * nv_, -std::numeric_limits<double>::infinity());
+  state_limit_upper_ = VectorXd::Constant(2 * nv_, std::numeric_limits<double>::infinity());
   w_running_ = VectorXd::Zero(nr_);
   w_state_ = VectorXd::Zero(nr_);
   sqrt_w_running_ = VectorXd::Zero(nr_);
@@ -472,6 +475,34 @@ void IntegratedActionModelSoftContact::set_q_reference(const VectorXd& q_referen
   q_reference_ = finite_vector<ConfigError>(q_reference, nv_, "q_reference", false);
 }
 
+void IntegratedActionModelSoftContact::set_state_limit_bounds(const VectorXd& lower,
+                                                              const VectorXd& upper) {
+  const std::size_t n = 2 * nv_;
+  if (static_cast<std::size_t>(lower.size()) != n || static_cast<std::size_t>(upper.size()) != n) {
+    std::ostringstream msg;
+    msg << "state-limit bounds must have " << n << " entries, got " << lower.size() << ", "
+        << upper.size();
+    throw ConfigError(msg.str());
+  }
+  for (std::size_t i = 0; i < n; ++i) {
+    if (std::isnan(lower[i]) || std::isnan(upper[i]) || lower[i] > upper[i]) {
+      throw ConfigError("state-limit bounds must be ordered and not NaN, got " + format(lower) +
+                        ", " + format(upper));
+    }
+  }
+  state_limit_lower_ = lower;
+  state_limit_upper_ = upper;
+}
+
+void IntegratedActionModelSoftContact::state_limit_jacobian(
+    IntegratedActionDataSoftContact& d, const Eigen::Ref<const VectorXd>& x) const {
+  const std::size_t offset = offset_[STATE_LIMIT];
+  for (std::size_t i = 0; i < 2 * nv_; ++i) {
+    const double xi = x[i];
+    d.Rx(offset + i, i) = (xi <= state_limit_lower_[i] || xi >= state_limit_upper_[i]) ? 1.0 : 0.0;
+  }
+}
+
 void IntegratedActionModelSoftContact::add_state_hessian(IntegratedActionDataSoftContact& d,
                                                          const VectorXd& w) const {
   // Lxx of the state terms: posture (d/dq = I), joint velocity (d/dv = I), force
@@ -482,6 +513,9 @@ void IntegratedActionModelSoftContact::add_state_hessian(IntegratedActionDataSof
   d.Lxx.diagonal().head(nv) = w.segment(offset_[POSTURE], nv);
   d.Lxx.diagonal().segment(nv, nv) = w.segment(offset_[JOINT_VELOCITY], nv);
   d.Lxx.diagonal().tail(nc) = w.segment(offset_[FORCE], nc);
+  // Joint-limit barrier: diagonal, w on the entries at or beyond a bound (Rx holds 1 there).
+  d.Lxx.diagonal().head(2 * nv) += w.segment(offset_[STATE_LIMIT], 2 * nv).cwiseProduct(
+      d.Rx.block(offset_[STATE_LIMIT], 0, 2 * nv, 2 * nv).diagonal());
   for (std::size_t i = 0; i < 3; ++i) {
     const double wp = w[offset_[EE_POSITION] + i];
     const auto rp = d.Rx.row(offset_[EE_POSITION] + i).head(nv);
@@ -544,6 +578,10 @@ void IntegratedActionModelSoftContact::state_residuals(VectorXd& r,
   r.segment(offset_[POSTURE], nv) = x.head(nv) - q_reference_;
   r.segment(offset_[JOINT_VELOCITY], nv) = x.segment(nv, nv);
   r.segment(offset_[FORCE], nc) = x.tail(nc) - force_reference_;
+  // Joint-limit barrier: the excess x - clip(x, lower, upper) on (q, v), zero inside the bounds.
+  const auto xqv = x.head(2 * nv);
+  r.segment(offset_[STATE_LIMIT], 2 * nv) =
+      xqv - xqv.cwiseMax(state_limit_lower_).cwiseMin(state_limit_upper_);
 }
 
 void IntegratedActionModelSoftContact::weighted_cost(IntegratedActionDataSoftContact& d,
@@ -577,6 +615,7 @@ void IntegratedActionModelSoftContact::calcDiff(const std::shared_ptr<ActionData
   Rx.block(offset_[EE_VELOCITY], 0, 3, 2 * nv) = dd.ee_velocity_dqv;
   Rx.block(offset_[TORQUE], 0, nv, nv) = -dd.gravity_compensation_dq;
   Rx.block(offset_[TORQUE], 2 * nv, nv, nc) = dd.contact_jacobian.transpose();
+  state_limit_jacobian(*d, x);
   Rx.middleRows(offset_[FORCE_RATE], nc) = dd.force_rate_dxu.leftCols(ndx_);
   Ru.middleRows(offset_[FORCE_RATE], nc) = dd.force_rate_dxu.rightCols(nv);
   // Costs (Gauss-Newton): Lx = Rx^T W r, Lu = Ru^T W r, Lxx = Rx^T W Rx, Lxu = Rx^T W Ru,
@@ -632,6 +671,7 @@ void IntegratedActionModelSoftContact::calcDiff(const std::shared_ptr<ActionData
   MatrixXd& Rx = d->Rx;
   Rx.block(offset_[EE_POSITION], 0, 3, nv) = dd.position_dq;
   Rx.block(offset_[EE_VELOCITY], 0, 3, 2 * nv) = dd.ee_velocity_dqv;
+  state_limit_jacobian(*d, x);
   const VectorXd& w = w_state_;  // torque and force-rate weights are zero
   d->wr = w.cwiseProduct(d->residual);
   d->Lx.noalias() = Rx.transpose() * d->wr;
@@ -778,6 +818,15 @@ void expose_soft_contact() {
       .def("_set_contact_parameters", &Model::set_contact_parameters,
            bp::args("self", "stiffness", "damping"))
       .def("_set_q_reference", &Model::set_q_reference, bp::args("self", "q_reference"))
+      .def("_set_state_limit_bounds", &Model::set_state_limit_bounds,
+           bp::args("self", "lower", "upper"),
+           "Joint-limit barrier bounds on (q, v), 2 nv entries each (rad, rad/s).")
+      .add_property("state_limit_lower",
+                    +[](const Model& m) { return copy_vector(m.get_state_limit_lower()); },
+                    "Lower bounds of the joint-limit barrier on (q, v), rad and rad/s (copy).")
+      .add_property("state_limit_upper",
+                    +[](const Model& m) { return copy_vector(m.get_state_limit_upper()); },
+                    "Upper bounds of the joint-limit barrier on (q, v), rad and rad/s (copy).")
       .add_property("dt", &Model::get_dt, "Node duration, s.")
       .add_property("terminal", &Model::get_terminal)
       .add_property("in_contact", &Model::get_in_contact)

@@ -115,9 +115,19 @@ class SoftContactDynamics {
   VectorXd stiffness_, damping_;
 };
 
-/// Residual blocks, in the order of ffmpc_core.soft_contact.RESIDUAL_TERMS.
-enum Term { POSTURE = 0, JOINT_VELOCITY, TORQUE, EE_POSITION, EE_VELOCITY, FORCE, FORCE_RATE };
-constexpr std::size_t kNumTerms = 7;
+/// Residual blocks, in the order of ffmpc_core.soft_contact.RESIDUAL_TERMS. STATE_LIMIT: the
+/// joint-limit barrier on (q, v), 2 nv rows, the excess x - clip(x, lower, upper) (rad, rad/s).
+enum Term {
+  POSTURE = 0,
+  JOINT_VELOCITY,
+  TORQUE,
+  EE_POSITION,
+  EE_VELOCITY,
+  FORCE,
+  FORCE_RATE,
+  STATE_LIMIT
+};
+constexpr std::size_t kNumTerms = 8;
 
 struct IntegratedActionDataSoftContact;
 
@@ -166,6 +176,9 @@ class IntegratedActionModelSoftContact : public crocoddyl::ActionModelAbstractTp
   void set_contact_parameters(const VectorXd& stiffness, const VectorXd& damping);
   /// q_bar (rad, nv entries; ConfigError on a bad value): configuration-time posture reference.
   void set_q_reference(const VectorXd& q_reference);
+  /// Bounds of the joint-limit barrier on (q, v): 2 nv entries each (rad, then rad/s),
+  /// lower <= upper, no NaN (+-inf: no bound); ConfigError leaves them unchanged. Default +-inf.
+  void set_state_limit_bounds(const VectorXd& lower, const VectorXd& upper);
 
   const SoftContactDynamics& dynamics() const { return dynamics_; }
   double get_dt() const { return dt_; }
@@ -183,6 +196,8 @@ class IntegratedActionModelSoftContact : public crocoddyl::ActionModelAbstractTp
   const VectorXd& get_nominal_damping() const { return nominal_damping_; }
   const VectorXd& get_weights_running() const { return w_running_; }
   const VectorXd& get_weights_state() const { return w_state_; }
+  const VectorXd& get_state_limit_lower() const { return state_limit_lower_; }
+  const VectorXd& get_state_limit_upper() const { return state_limit_upper_; }
 
  private:
   void update_weights();
@@ -191,6 +206,10 @@ class IntegratedActionModelSoftContact : public crocoddyl::ActionModelAbstractTp
   /// End-effector residuals from data.dynamics' kinematics, then r = √w ∘ residual and
   /// cost = ½‖r‖².
   void weighted_cost(IntegratedActionDataSoftContact& d, const VectorXd& sqrt_w) const;
+  /// The joint-limit barrier's Jacobian block of data.Rx: 1 on the diagonal where x is at or
+  /// beyond a bound (crocoddyl's ActivationModelQuadraticBarrier rule), 0 elsewhere.
+  void state_limit_jacobian(IntegratedActionDataSoftContact& d,
+                            const Eigen::Ref<const VectorXd>& x) const;
   /// Gauss-Newton Lxx of the state terms (weights w), from the sparsity of data.Rx.
   void add_state_hessian(IntegratedActionDataSoftContact& d, const VectorXd& w) const;
 
@@ -205,6 +224,7 @@ class IntegratedActionModelSoftContact : public crocoddyl::ActionModelAbstractTp
   VectorXd default_ee_position_diag_;
   VectorXd q_reference_, ee_position_reference_, force_reference_;
   VectorXd nominal_stiffness_, nominal_damping_;
+  VectorXd state_limit_lower_, state_limit_upper_;  // 2 nv: rad, then rad/s
   VectorXd w_running_, w_state_, sqrt_w_running_, sqrt_w_state_;
 };
 

@@ -63,6 +63,16 @@ class CostWeights:
     force_diag: tuple[float, ...] | float = 1.0
     lowpass_input: float = 1e-4  # c_w on ‖w − τ_g(q, λ)‖², 1/(N·m)² (eq 28, torque-feedback)
     force_rate: float = 1e-6  # c_λ on ‖λ̇‖², s²/N² (eq 29, force-feedback)
+    #: c_lim of the joint-limit barrier on x = (q, v): c_lim·½·‖x − clip(x, x_lb, x_ub)‖², zero
+    #: inside the bounds, quadratic outside (1/rad² on the position excess, s²/rad² on the
+    #: velocity excess). Every formulation has it (running and terminal nodes); the bounds are
+    #: ``RobotModel.state_limit_bounds(state_limit_fraction)``. The node-graph scenario files set
+    #: it per formulation (classical 1, torque-feedback 100, force-feedback 0.01: README).
+    state_limit: float = 1e-2
+    #: Fraction of the limits inside which the barrier is zero: |v| ≤ fraction·velocity_limit
+    #: (rad/s), q within fraction of the position range about its middle (rad; joints with finite
+    #: position limits only). In (0, 1].
+    state_limit_fraction: float = 0.9
 
     def diag(self, name: str, n: int) -> np.ndarray:
         """The activation diagonal of term ``name`` (e.g. ``"posture"``) as an array of size n."""

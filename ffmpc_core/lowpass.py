@@ -25,9 +25,13 @@ v⁺ = v + Δt·q̈, q⁺ = q + Δt·v⁺; the filter under zero-order hold τ�
 Running cost: Δt·[ℓ0(q, v, τ) + c_w·½·‖w − τ_g(q, λ^r)‖²] (eq 28, Q_w = I: ``CostWeights`` has
 no diagonal for it), with τ_g = g(q) − J(q)ᵀλ^r the same gravity-under-contact torque as in
 eq 25.3. Terminal cost: the state terms of ℓ0 on (q, v) (no Δt factor, no τ term), as in the
-classical formulation. All first derivatives are exact (chain rule through the differential
-model's Fx, Fu and its cost derivatives: ℓ0's derivatives w.r.t. its control become derivatives
-w.r.t. the τ part of the state). Hessians are crocoddyl's Gauss-Newton ones, mapped the same way.
+classical formulation. ℓ0 includes the joint-limit barrier of the classical formulation
+(``state_limit``: crocoddyl's ``ResidualModelState`` under ``ActivationModelQuadraticBarrier``,
+:func:`ffmpc_core.rigid_contact.make_state_limit_cost`), so in this state it acts on the (q, v)
+part; the filtered torque τ has no barrier (the torque limits saturate the command instead).
+All first derivatives are exact (chain rule through the differential model's Fx, Fu and its
+cost derivatives: ℓ0's derivatives w.r.t. its control become derivatives w.r.t. the τ part of
+the state). Hessians are crocoddyl's Gauss-Newton ones, mapped the same way.
 """
 
 from __future__ import annotations

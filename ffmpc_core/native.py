@@ -71,7 +71,8 @@ class IntegratedActionModelSoftContactNative(_native.IntegratedActionModelSoftCo
     Same constructor and interface as the Python reference
     :class:`ffmpc_core.soft_contact.IntegratedActionModelSoftContact`
     (``set_reference_values``, ``set_contact_parameters``, ``set_in_contact``, ``set_weight``,
-    ``weight``, ``residual_slice``, ``terminal``, ``dt``, ``nv``, ``nc``, ``ndx``,
+    ``weight``, ``residual_slice``, ``set_state_limit_bounds``, ``state_limit_lower``,
+    ``state_limit_upper``, ``terminal``, ``dt``, ``nv``, ``nc``, ``ndx``,
     ``q_reference``, ``ee_position_reference``, ``force_reference``, ``in_contact``, control
     limits ``u_lb``/``u_ub``). References and parameters read back as copies; change them with
     the setters. ``data.dynamics`` exposes the dynamics workspace (``ddq``, ``force_rate``, ...).
@@ -105,10 +106,11 @@ class IntegratedActionModelSoftContactNative(_native.IntegratedActionModelSoftCo
         self.u_lb = -robot.torque_limit
         self.u_ub = robot.torque_limit.copy()
         for name in RESIDUAL_TERMS:
-            if name != "force_rate":
+            if name not in ("force_rate", "state_limit"):  # no activation diagonal
                 rows = self._slices[name]
                 self.set_activation(name, weights.diag(name, rows.stop - rows.start))
             self.set_weight(name, getattr(weights, name))
+        self.set_state_limit_bounds(*robot.state_limit_bounds(weights.state_limit_fraction))
         q_ref = robot.q_nominal if q_reference is None else q_reference
         self._set_q_reference(_vector(q_ref, nv, "q_reference", ConfigError))
         self._set_reference_values(
@@ -165,6 +167,15 @@ class IntegratedActionModelSoftContactNative(_native.IntegratedActionModelSoftCo
     def set_weight(self, name: str, value: float) -> None:
         """Set the scalar weight c of term ``name`` (in place)."""
         super().set_weight(str(name), _scalar(value, f"weight {name}", ConfigError))
+
+    def set_state_limit_bounds(self, lower: npt.ArrayLike, upper: npt.ArrayLike) -> None:
+        """Bounds of the joint-limit barrier on (q, v): 2·nv entries each (rad, then rad/s),
+        lower ≤ upper, no NaN (±inf: no bound); ConfigError changes nothing."""
+        n = 2 * self.nv
+        self._set_state_limit_bounds(
+            _vector(lower, n, "state-limit lower bounds", ConfigError),
+            _vector(upper, n, "state-limit upper bounds", ConfigError),
+        )
 
 
 def make_native_soft_contact_node(

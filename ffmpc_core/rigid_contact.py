@@ -37,9 +37,13 @@ horizon of the paper (5 nodes × 3 ms), and K_d·Δt = 0.15 ≪ 1, so the discre
 ``ee_position``    eq 25.4, ``ResidualModelFrameTranslation`` of the contact frame, weight c4
 ``ee_velocity``    eq 25.5, linear velocity of the contact point in world axes, weight c5
 ``force``          eq 25.6 / 7, ``ResidualModelContactForce`` (running, in contact only), c6
+``state_limit``    joint-limit barrier on (q, v): ``ResidualModelState`` under crocoddyl's
+                   ``ActivationModelQuadraticBarrier`` (bounds: ``state_limit_fraction`` of the
+                   robot's position range and velocity limits), weight c_lim; not in the paper
 =================  ========================================================================
 
-Terminal nodes keep the state terms only (posture, joint_velocity, ee_position, ee_velocity).
+Terminal nodes keep the state terms only (posture, joint_velocity, ee_position, ee_velocity,
+state_limit).
 
 Two crocoddyl 3.2.1 built-ins are *not* used because they are wrong (measured against finite
 differences in ``tests/test_rigid_contact.py``):
@@ -102,6 +106,8 @@ COST_TORQUE = "torque"
 COST_EE_POSITION = "ee_position"
 COST_EE_VELOCITY = "ee_velocity"
 COST_FORCE = "force"
+#: Name of the joint-limit barrier on x = (q, v) (``CostWeights.state_limit``).
+COST_STATE_LIMIT = "state_limit"
 
 
 def check_backend(backend: str) -> bool:
@@ -280,6 +286,20 @@ def _quad(weights: np.ndarray) -> crocoddyl.ActivationModelWeightedQuad:
     return crocoddyl.ActivationModelWeightedQuad(np.asarray(weights, dtype=float))
 
 
+def make_state_limit_cost(
+    state: crocoddyl.StateMultibody, robot: RobotModel, weights: CostWeights
+) -> crocoddyl.CostModelResidual:
+    """The joint-limit barrier on x = (q, v) (rad, rad/s): crocoddyl's ``ResidualModelState``
+    (r = x ⊖ 0 = x for these arms' revolute joints) under ``ActivationModelQuadraticBarrier``
+    with the bounds of ``robot.state_limit_bounds(weights.state_limit_fraction)``. Its cost is
+    ½·Σ (r_i − clip(r_i, lb_i, ub_i))² (times c_lim = ``weights.state_limit`` in the cost sum):
+    zero inside the bounds, quadratic in the excess outside."""
+    lower, upper = robot.state_limit_bounds(weights.state_limit_fraction)
+    residual = crocoddyl.ResidualModelState(state, state.zero(), state.nv)
+    activation = crocoddyl.ActivationModelQuadraticBarrier(crocoddyl.ActivationBounds(lower, upper))
+    return crocoddyl.CostModelResidual(state, activation, residual)
+
+
 def make_costs(
     state: crocoddyl.StateMultibody,
     robot: RobotModel,
@@ -341,6 +361,10 @@ def make_costs(
         act = _quad(q5)
     costs.addCost(
         COST_EE_VELOCITY, crocoddyl.CostModelResidual(state, act, ee_vel), weights.ee_velocity
+    )
+
+    costs.addCost(
+        COST_STATE_LIMIT, make_state_limit_cost(state, robot, weights), weights.state_limit
     )
 
     if terminal:

@@ -30,6 +30,9 @@ IIWA7_VELOCITY_LIMIT = np.deg2rad([98.0, 98.0, 100.0, 130.0, 140.0, 180.0, 180.0
 
 #: The contact frame of every robot model is called so.
 CONTACT_FRAME = "contact"
+#: A joint limit at or beyond this magnitude (rad, rad/s) means "no limit" (pinocchio fills
+#: unlimited joints with the largest double).
+_NO_LIMIT = 1e10
 
 
 @dataclass(frozen=True)
@@ -85,6 +88,33 @@ class RobotModel:
         """Gravity torque g(q), N·m."""
         data = data if data is not None else self.create_data()
         return pin.computeGeneralizedGravity(self.model, data, q).copy()
+
+    def state_limit_bounds(self, fraction: float) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds (lower, upper) on the state x = (q, v) of the joint-limit barrier cost, each of
+        2·nv entries: q (rad) within ``fraction`` of the position range about its middle, for
+        joints with finite position limits (±inf otherwise), and v (rad/s) within
+        ±``fraction``·``velocity_limit`` (±inf for a joint without a finite velocity limit).
+
+        ``fraction`` in (0, 1] (ConfigError otherwise): 0.9 leaves 10 % of each limit as margin.
+        """
+        fraction = float(fraction)
+        if not (0.0 < fraction <= 1.0):  # also rejects NaN
+            raise ConfigError(f"state_limit_fraction must be in (0, 1], got {fraction}")
+        lower_q, upper_q = self.position_lower, self.position_upper
+        finite_q = (
+            np.isfinite(lower_q)
+            & np.isfinite(upper_q)
+            & (upper_q > lower_q)
+            & (np.abs(lower_q) < _NO_LIMIT)
+            & (np.abs(upper_q) < _NO_LIMIT)
+        )
+        middle = np.where(finite_q, 0.5 * (lower_q + upper_q), 0.0)
+        half_range = np.where(finite_q, 0.5 * fraction * (upper_q - lower_q), np.inf)
+        finite_v = np.isfinite(self.velocity_limit) & (self.velocity_limit < _NO_LIMIT)
+        v_bound = np.where(finite_v, fraction * np.abs(self.velocity_limit), np.inf)
+        lower = np.concatenate([middle - half_range, -v_bound])
+        upper = np.concatenate([middle + half_range, v_bound])
+        return lower, upper
 
     def clip_torque(self, tau: np.ndarray) -> np.ndarray:
         """Saturate a torque to the joint torque limits (N·m).

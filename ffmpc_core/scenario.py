@@ -431,6 +431,12 @@ _WEIGHT_UNITS = {
     "force": "1/N²",
     "lowpass_input": "1/(N·m)²",
     "force_rate": "s²/N²",
+    "state_limit": "1/rad², s²/rad²",  # on the position excess, on the velocity excess
+}
+#: The CostWeights fields that are neither a weight c nor an activation diagonal: the fraction
+#: of the joint limits inside which the joint-limit barrier is zero (dimensionless, (0, 1]).
+_WEIGHT_FRACTIONS = {
+    "state_limit_fraction": "fraction of the joint limits where the state_limit barrier starts",
 }
 
 
@@ -541,13 +547,16 @@ def dataclass_schema(
 
 def cost_weight_specs(prefix: str, force_length: int | str) -> dict[str, ParamSpec]:
     """The :class:`CostWeights` fields under ``prefix`` (``"mpc.weights.classical."``): weights
-    c (units of :data:`_WEIGHT_UNITS`) and activation diagonals (a number or one per entry; the
-    force diagonal has ``force_length`` entries)."""
+    c (units of :data:`_WEIGHT_UNITS`), activation diagonals (a number or one per entry; the
+    force diagonal has ``force_length`` entries) and the fractions of :data:`_WEIGHT_FRACTIONS`
+    (a number in [0.001, 1])."""
     out: dict[str, ParamSpec] = {}
     for f in fields(CostWeights):
         base = f.name.removesuffix("_diag")
         name = prefix + f.name
-        if f.name.endswith("_diag"):
+        if f.name in _WEIGHT_FRACTIONS:
+            out[name] = ParamSpec(name, FLOAT, _WEIGHT_FRACTIONS[f.name], "", (1e-3, 1.0))
+        elif f.name.endswith("_diag"):
             length = force_length if base == "force" else _DIAG_LENGTH[base]
             out[name] = ParamSpec(
                 name,

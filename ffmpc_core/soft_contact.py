@@ -47,7 +47,8 @@ LOCAL = "LOCAL"
 
 #: Residual blocks of the force-feedback cost, in the order they are stacked in ``data.r``.
 #: posture (eq 25.1), joint velocity (25.2), torque (25.3), end-effector position (25.4),
-#: end-effector velocity (25.5), force (25.6/21), force rate (29).
+#: end-effector velocity (25.5), force (25.6/21), force rate (29), and the joint-limit barrier
+#: on (q, v) (not in the paper; 2·nv rows: the excess x − clip(x, x_lb, x_ub), rad and rad/s).
 RESIDUAL_TERMS = (
     "posture",
     "joint_velocity",
@@ -56,7 +57,10 @@ RESIDUAL_TERMS = (
     "ee_velocity",
     "force",
     "force_rate",
+    "state_limit",
 )
+#: Terms of a running node only (zero weight in a terminal node or a call without u).
+RUNNING_ONLY_TERMS = ("torque", "force_rate")
 
 
 def _as_finite_vector(
@@ -119,6 +123,20 @@ def visco_elastic_force(
     return -K * dp - B * dv
 
 
+def _state_limit_bounds(
+    lower: npt.ArrayLike, upper: npt.ArrayLike, n: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Joint-limit barrier bounds as two float vectors of ``n`` entries, lower ≤ upper, no NaN
+    (±inf allowed: no bound); ConfigError otherwise."""
+    lb = np.asarray(lower, dtype=float)
+    ub = np.asarray(upper, dtype=float)
+    if lb.shape != (n,) or ub.shape != (n,):
+        raise ConfigError(f"state-limit bounds must have {n} entries, got {lb.shape}, {ub.shape}")
+    if np.isnan(lb).any() or np.isnan(ub).any() or (lb > ub).any():
+        raise ConfigError(f"state-limit bounds must be ordered and not NaN, got {lb}, {ub}")
+    return lb.copy(), ub.copy()
+
+
 def check_soft_contact_robot(robot: RobotModel) -> None:
     """ModelError unless the robot suits the state (q, v, λ): nq == nv and a valid contact frame."""
     model = robot.model
@@ -134,7 +152,7 @@ def check_soft_contact_robot(robot: RobotModel) -> None:
 def residual_slices(nv: int, nc: int) -> dict[str, slice]:
     """Rows of each term of :data:`RESIDUAL_TERMS` in the stacked residual (nv joints, nc force
     entries)."""
-    sizes = (nv, nv, nv, 3, 3, nc, nc)
+    sizes = (nv, nv, nv, 3, 3, nc, nc, 2 * nv)
     offsets = np.concatenate([[0], np.cumsum(sizes)])
     return {
         name: slice(int(offsets[i]), int(offsets[i + 1])) for i, name in enumerate(RESIDUAL_TERMS)
@@ -489,8 +507,14 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
 
     Costs (weights from :class:`CostWeights`): c1‖q − q̄‖² (rad), c2‖v‖² (rad/s),
     c3‖τ − τ_g(q, λ)‖² (N·m), c4‖p(q) − p̄‖² (m, world), c5‖ṗ‖² (m/s, world axes),
-    c6‖λ − λ̄‖² (N) and c_λ‖λ̇‖² (N/s, eq 29, Q_λ = identity). Control limits u_lb/u_ub are the
-    robot's torque limits (N·m) for solvers that use them.
+    c6‖λ − λ̄‖² (N), c_λ‖λ̇‖² (N/s, eq 29, Q_λ = identity) and the joint-limit barrier
+    c_lim‖x_qv − clip(x_qv, x_lb, x_ub)‖² on x_qv = (q, v) (rad, rad/s; bounds
+    :attr:`state_limit_lower` / :attr:`state_limit_upper` from
+    ``robot.state_limit_bounds(weights.state_limit_fraction)``, ±inf where a joint has no
+    limit). The barrier is crocoddyl's ``ActivationModelQuadraticBarrier`` on the state, as in
+    the other formulations: its Jacobian is the identity on the entries at or outside a bound
+    and zero inside, so its Gauss-Newton Hessian is the barrier's own. Control limits u_lb/u_ub
+    are the robot's torque limits (N·m) for solvers that use them.
 
     References and weights are changed in place with :meth:`set_reference_values`,
     :meth:`set_contact_parameters` and :meth:`set_in_contact`.
@@ -530,6 +554,7 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
             "ee_velocity": weights.diag("ee_velocity", 3),
             "force": weights.diag("force", nc),
             "force_rate": np.ones(nc),
+            "state_limit": np.ones(2 * nv),
         }
         self._default_ee_position_diag = self._diag["ee_position"].copy()
         self._c = {
@@ -540,6 +565,7 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
             "ee_velocity": weights.ee_velocity,
             "force": weights.force,
             "force_rate": weights.force_rate,
+            "state_limit": weights.state_limit,
         }
         for name, c in self._c.items():
             if not np.isfinite(c) or c < 0.0:
@@ -549,6 +575,10 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
         self.q_reference = _as_finite_vector(q_ref, nv, "q_reference", ConfigError).copy()
         self.ee_position_reference = robot.contact_placement(self.q_reference).translation.copy()
         self.force_reference = np.zeros(nc)
+        # Joint-limit barrier bounds on (q, v), rad and rad/s (2·nv entries each).
+        lower, upper = robot.state_limit_bounds(weights.state_limit_fraction)
+        self.state_limit_lower = lower
+        self.state_limit_upper = upper
         # Contact parameters: nominal (from the config / learner) and in-contact flag.
         self.nominal_stiffness = self.dynamics.stiffness.copy()
         self.nominal_damping = self.dynamics.damping.copy()
@@ -569,13 +599,20 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
                 c = 0.0
             w = c * self._diag[name]
             self._w_running[s] = self.dt * w
-            self._w_state[s] = 0.0 if name in ("torque", "force_rate") else w
+            self._w_state[s] = 0.0 if name in RUNNING_ONLY_TERMS else w
         np.sqrt(self._w_running, out=self._sqrt_w_running)
         np.sqrt(self._w_state, out=self._sqrt_w_state)
 
     def residual_slice(self, name: str) -> slice:
         """Rows of term ``name`` (see :data:`RESIDUAL_TERMS`) in ``data.r``."""
         return self._slices[name]
+
+    def set_state_limit_bounds(self, lower: npt.ArrayLike, upper: npt.ArrayLike) -> None:
+        """Bounds of the joint-limit barrier on (q, v): 2·nv entries each (rad, then rad/s),
+        lower ≤ upper, no NaN (±inf: no bound); ConfigError changes nothing."""
+        lb, ub = _state_limit_bounds(lower, upper, 2 * self.nv)
+        self.state_limit_lower[:] = lb
+        self.state_limit_upper[:] = ub
 
     def weight(self, name: str) -> float:
         """The scalar weight c of term ``name`` as currently set (before the in-contact rule)."""
@@ -668,6 +705,9 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
         np.subtract(q, self.q_reference, out=r[sl["posture"]])
         r[sl["joint_velocity"]] = v
         np.subtract(lam, self.force_reference, out=r[sl["force"]])
+        excess = r[sl["state_limit"]]  # x − clip(x, lb, ub) on (q, v): zero inside the bounds
+        np.clip(x[: 2 * nv], self.state_limit_lower, self.state_limit_upper, out=excess)
+        np.subtract(x[: 2 * nv], excess, out=excess)
         if self.terminal or u is None:
             dyn.calc_kinematics(dd, q, v)
             r[sl["torque"]] = 0.0
@@ -714,6 +754,10 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
         Rx[s_ee_p, :nv] = dd.position_dq
         Rx[s_ee_v, :nv] = dd.ee_velocity_dq
         Rx[s_ee_v, nv : 2 * nv] = dd.ee_velocity_dv
+        # Barrier: ∂(excess)/∂x = 1 at or beyond a bound, 0 inside (crocoddyl's rule).
+        xqv = x[: 2 * nv]
+        active = (xqv <= self.state_limit_lower) | (xqv >= self.state_limit_upper)
+        Rx[data.state_limit_rows, data.state_limit_cols] = active
         if not state_only:
             s_tau, s_fr = sl["torque"], sl["force_rate"]
             np.negative(dd.gravity_compensation_dq, out=Rx[s_tau, :nv])
@@ -773,6 +817,9 @@ class IntegratedActionDataSoftContact(crocoddyl.ActionDataAbstract):
         self.Rx[sl["joint_velocity"], nv : 2 * nv] = np.eye(nv)
         self.Rx[sl["force"], 2 * nv :] = np.eye(nc)
         self.Ru[sl["torque"]] = np.eye(nv)
+        # Diagonal of the joint-limit barrier's Jacobian block (set per calcDiff).
+        self.state_limit_rows = np.arange(sl["state_limit"].start, sl["state_limit"].stop)
+        self.state_limit_cols = np.arange(2 * nv)
         self.xnext_buffer = np.zeros(ndx)
         self.identity_ndx = np.eye(ndx)
         self.Fxu_base = np.zeros((ndx, ndx + nv))

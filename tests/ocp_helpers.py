@@ -29,7 +29,32 @@ def rich_weights(
         force=0.2,
         force_diag=(1.0, 0.5, 2.0)[:nc] if nc > 1 else 1.5,
         lowpass_input=lowpass_input,
+        state_limit=4.0,
+        state_limit_fraction=RICH_STATE_LIMIT_FRACTION,
     )
+
+
+#: ``state_limit_fraction`` of :func:`rich_weights` (not the default 0.9: a fraction mix-up shows).
+RICH_STATE_LIMIT_FRACTION = 0.8
+
+
+def beyond_state_limits(
+    rng: np.random.Generator, robot, x: np.ndarray, fraction: float = RICH_STATE_LIMIT_FRACTION
+) -> np.ndarray:
+    """A copy of the state ``x`` (q, v first) with one joint velocity 5–30 % beyond its bound of
+    the joint-limit barrier (``robot.state_limit_bounds(fraction)``, random sign) and another
+    joint's position 0.02–0.1 rad beyond its upper or lower bound: the barrier is active there
+    (and far from its kink, for finite differences)."""
+    lower, upper = robot.state_limit_bounds(fraction)
+    nv = robot.nv
+    out = np.array(x, dtype=float)
+    jv, jq = rng.choice(nv, 2, replace=False)
+    out[nv + jv] = rng.choice([-1.0, 1.0]) * upper[nv + jv] * rng.uniform(1.05, 1.3)
+    if rng.random() < 0.5:
+        out[jq] = upper[jq] + rng.uniform(0.02, 0.1)
+    else:
+        out[jq] = lower[jq] - rng.uniform(0.02, 0.1)
+    return out
 
 
 #: Q4 of :func:`random_reference`: differs from ``rich_weights``' (1, 2, 0.5), so the derivative

@@ -11,6 +11,7 @@ import pinocchio as pin
 import pytest
 from ocp_helpers import (
     assert_close_rel,
+    beyond_state_limits,
     random_reference,
     random_state,
     rich_weights,
@@ -65,8 +66,12 @@ def test_derivatives_match_numdiff(robot, contact_name, mode):
         model = node.model
         numdiff = crocoddyl.ActionModelNumDiff(model, False)
         data, nd_data = model.createData(), numdiff.createData()
-        for _ in range(2):
+        for k in range(2):
             x = random_state(rng, robot, with_torque=True)
+            if k == 1:  # the joint-limit barrier on (q, v) active on a position and a velocity
+                x = beyond_state_limits(rng, robot, x)
+                model.calc(data, x)
+                assert data.differential.costs.costs["state_limit"].cost > 1e-4
             if mode == "terminal":
                 model.calc(data, x)
                 model.calcDiff(data, x)

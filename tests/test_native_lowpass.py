@@ -16,7 +16,13 @@ import zlib
 import crocoddyl  # noqa: I001 (crocoddyl first: it registers the base classes of _native)
 import numpy as np
 import pytest
-from ocp_helpers import assert_close_rel, random_reference, random_state, rich_weights
+from ocp_helpers import (
+    assert_close_rel,
+    beyond_state_limits,
+    random_reference,
+    random_state,
+    rich_weights,
+)
 
 from ffmpc_core import _native
 from ffmpc_core.config import BACKENDS, ContactConfig, CostWeights
@@ -91,8 +97,10 @@ def test_lowpass_native_equals_python(robot, contact_name, mode):
         assert native.alpha == python.alpha and native.dt == python.dt
         assert native.lowpass_input_weight == python.lowpass_input_weight
         d_nat, d_py = native.createData(), python.createData()
-        for _ in range(3):
+        for k in range(3):
             x = random_state(rng, robot, with_torque=True)
+            if k == 0:  # the joint-limit barrier active
+                x = beyond_state_limits(rng, robot, x)
             if terminal:
                 native.calc(d_nat, x)
                 native.calcDiff(d_nat, x)
@@ -242,7 +250,7 @@ def test_native_models_match_numdiff(robot, contact_name, mode):
     numdiff = crocoddyl.ActionModelNumDiff(model, False)
     data, nd_data = model.createData(), numdiff.createData()
     nv = robot.nv
-    x = random_state(rng, robot, with_torque=True)
+    x = beyond_state_limits(rng, robot, random_state(rng, robot, with_torque=True))
     w = x[2 * nv :] + 5.0 * rng.standard_normal(nv)
     args = (x,) if terminal else (x, w)
     for m, d in ((model, data), (numdiff, nd_data)):
@@ -262,6 +270,7 @@ def test_native_models_match_numdiff(robot, contact_name, mode):
         m.calcDiff(d, *args)
     for name in ("Lx",) if terminal else ("Fx", "Fu", "Lx", "Lu"):
         assert_close_rel(getattr(dd, name), getattr(dnd, name), 1e-4, f"DAM {name}")
+    assert dd.costs.costs["state_limit"].cost > 1e-4  # the joint-limit barrier is active
 
 
 def test_classical_node_native_equals_python(robot):

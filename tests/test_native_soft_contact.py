@@ -26,7 +26,7 @@ from ffmpc_core.soft_contact import (
     make_soft_contact_node,
 )
 from ffmpc_core.tasks import PolishingTask
-from tests.ocp_helpers import rich_weights
+from tests.ocp_helpers import beyond_state_limits, rich_weights
 
 ROBOTS = ("iiwa", "panda")
 # (dimension, frame type, normal axis): the 1-D normal along x, y and z of the force frame.
@@ -120,6 +120,10 @@ def test_native_equals_python_reference(robots, robot_name, dim, frame, axis, te
     x, u = _random_x_u(rng, robot, dim)
     _compare(python, native, x, u, "as built")
     _compare(python, native, x, None, "no u")
+    x = beyond_state_limits(rng, robot, x)  # the joint-limit barrier active
+    dp, _ = _compare(python, native, x, u, "beyond the state limits")
+    assert np.abs(dp.r[python.residual_slice("state_limit")]).max() > 1e-3
+    _compare(python, native, x, None, "beyond the state limits, no u")
 
     # In place: references (out of and back into contact), K/B, weights; same objects.
     for in_contact in (False, True):
@@ -139,12 +143,17 @@ def test_native_equals_python_reference(robots, robot_name, dim, frame, axis, te
         model.set_contact_parameters(stiffness, damping)
         model.set_weight("force_rate", 3e-3)
         model.set_weight("ee_velocity", 0.5)
+        model.set_weight("state_limit", 11.0)
+        model.set_state_limit_bounds(*robot.state_limit_bounds(0.6))
     np.testing.assert_array_equal(native.stiffness, stiffness)
     np.testing.assert_array_equal(native.nominal_damping, damping)
     assert native.weight("force_rate") == 3e-3
-    for _ in range(3):
+    np.testing.assert_array_equal(native.state_limit_upper, python.state_limit_upper)
+    for k in range(3):
         x, u = _random_x_u(rng, robot, dim)
-        _compare(python, native, x, u, "after K/B and weight changes")
+        if k == 0:
+            x = beyond_state_limits(rng, robot, x, fraction=0.6)
+        _compare(python, native, x, u, "after K/B, weight and bound changes")
 
 
 @pytest.mark.parametrize("robot_name", ROBOTS)
@@ -191,6 +200,7 @@ def test_native_matches_numdiff(robots, robot_name, dim, frame, axis, terminal):
     )
     model = node.model
     x, u = _random_x_u(rng, robot, dim)
+    x = beyond_state_limits(rng, robot, x)  # the joint-limit barrier active
     data = model.createData()
     model.calc(data, x, u)
     model.calcDiff(data, x, u)
@@ -202,7 +212,7 @@ def test_native_matches_numdiff(robots, robot_name, dim, frame, axis, terminal):
     assert data.cost == pytest.approx(0.5 * data.r @ data.r, rel=1e-12)
     for name in ("Fx", "Fu", "Lx", "Lu", "Lxx", "Lxu", "Luu"):
         _close(getattr(data, name), getattr(ndata, name), name, rtol=1e-5)
-    expected = {"posture", "joint_velocity", "ee_position", "ee_velocity", "force"}
+    expected = {"posture", "joint_velocity", "ee_position", "ee_velocity", "force", "state_limit"}
     if not terminal:
         expected |= {"torque", "force_rate"}
     for term in RESIDUAL_TERMS:

@@ -10,6 +10,7 @@ import pinocchio as pin
 import pytest
 from ocp_helpers import (
     assert_close_rel,
+    beyond_state_limits,
     random_reference,
     random_state,
     rich_weights,
@@ -58,8 +59,12 @@ def test_derivatives_match_numdiff(robot, contact_name, mode):
         model = node.model
         numdiff = crocoddyl.ActionModelNumDiff(model, False)
         data, nd_data = model.createData(), numdiff.createData()
-        for _ in range(2):
+        for k in range(2):
             x = random_state(rng, robot)
+            if k == 1:  # the joint-limit barrier active on a position and a velocity
+                x = beyond_state_limits(rng, robot, x)
+                model.calc(data, x)
+                assert data.differential.costs.costs["state_limit"].cost > 1e-4
             if mode == "terminal":
                 model.calc(data, x)
                 model.calcDiff(data, x)
@@ -154,6 +159,10 @@ def eq25_cost(robot, contact, weights, ref, x, tau, lam, terminal):
     cost += term(weights.joint_velocity, "joint_velocity", v)
     cost += term(ref.ee_position_weight, "ee_position", p - ref.ee_position)
     cost += term(weights.ee_velocity, "ee_velocity", pdot)
+    # The joint-limit barrier: the excess of (q, v) beyond the bounds, hand-written.
+    lower, upper = robot.state_limit_bounds(weights.state_limit_fraction)
+    excess = np.maximum(x - upper, 0.0) + np.minimum(x - lower, 0.0)
+    cost += weights.state_limit * 0.5 * float(excess @ excess)
     if terminal:
         return cost
     g = pin.computeGeneralizedGravity(model, data, q)
@@ -184,6 +193,8 @@ def test_cost_is_eq25(robot, contact_name, mode):
         node.set_reference(ref)
         data = node.model.createData()
         x = random_state(rng, robot)
+        if isotropic:  # and the joint-limit barrier active
+            x = beyond_state_limits(rng, robot, x)
         tau = 20.0 * rng.standard_normal(robot.nv)
         if mode == "terminal":
             node.model.calc(data, x)

@@ -19,6 +19,7 @@ from ffmpc_core.soft_contact import (
     soft_contact_state,
     visco_elastic_force,
 )
+from tests.ocp_helpers import beyond_state_limits
 
 ROBOTS = ("iiwa", "panda")
 CONTACTS = [
@@ -155,6 +156,7 @@ def _weights() -> CostWeights:
         ee_velocity_diag=(3.0, 2.0, 1.0),
         force=0.1,
         force_rate=1e-3,
+        state_limit=2.0,
     )
 
 
@@ -181,7 +183,8 @@ def test_action_model_matches_numdiff(robots, robot_name, dim, frame, terminal):
     model = node.model
     np.testing.assert_array_equal(model.q_reference, q_bar)
     q, v, force, tau = _random_point(robot, dim, rng)
-    x = node.state(q, v, force)
+    # The joint-limit barrier active on a position and a velocity (bounds: fraction 0.9).
+    x = beyond_state_limits(rng, robot, node.state(q, v, force), fraction=0.9)
 
     data = model.createData()
     model.calc(data, x, tau)
@@ -200,7 +203,7 @@ def test_action_model_matches_numdiff(robots, robot_name, dim, frame, terminal):
         assert err <= 1e-5 * scale, f"{name}: error {err:.2e} (scale {scale:.1e})"
 
     # Every term of this node contributes (so the check above covers each one).
-    expected = {"posture", "joint_velocity", "ee_position", "ee_velocity", "force"}
+    expected = {"posture", "joint_velocity", "ee_position", "ee_velocity", "force", "state_limit"}
     if not terminal:
         expected |= {"torque", "force_rate"}
     for term in RESIDUAL_TERMS:
@@ -220,7 +223,14 @@ def test_action_model_matches_numdiff(robots, robot_name, dim, frame, terminal):
         np.testing.assert_array_equal(d2.xnext, x)
         state_only = sum(
             0.5 * float(data.r[model.residual_slice(t)] @ data.r[model.residual_slice(t)])
-            for t in ("posture", "joint_velocity", "ee_position", "ee_velocity", "force")
+            for t in (
+                "posture",
+                "joint_velocity",
+                "ee_position",
+                "ee_velocity",
+                "force",
+                "state_limit",
+            )
         )
         assert d2.cost == pytest.approx(state_only / model.dt, rel=1e-10)
 
