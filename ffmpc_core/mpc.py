@@ -51,6 +51,21 @@ from ffmpc_core.robots import RobotModel
 #: A step more than this many MPC periods after the previous one is a resumption after an outage
 #: (a dropout, a killed and restarted MPC): see :meth:`ModelPredictiveController.step`.
 RESUME_GAP_PERIODS = 10
+#: After an outage, the schedule's clock comes back to speed over this time, s (its rate follows
+#: a minimum-jerk ramp from 0 to 1: :func:`resume_lag`).
+RESUME_RAMP = 0.3
+
+
+def resume_lag(elapsed: float, ramp: float = RESUME_RAMP) -> float:
+    """How far the task's clock lags behind the controller's, s, ``elapsed`` s after it resumed
+    from an outage: the task time advances at the rate w(s) = 10s³ − 15s⁴ + 6s⁵ (s = elapsed /
+    ramp, the minimum-jerk profile), so the reference starts AT REST where the task stood (the
+    robot was held still meanwhile) and is back to full speed after ``ramp``; the lag is
+    elapsed − ramp·(2.5s⁴ − 3s⁵ + s⁶) during the ramp and ramp/2 after it."""
+    if ramp <= 0.0:
+        return 0.0
+    x = min(max(elapsed / ramp, 0.0), 1.0)
+    return max(elapsed, 0.0) - ramp * x**4 * (2.5 - 3.0 * x + x * x) if x < 1.0 else 0.5 * ramp
 
 
 class OcpNode(Protocol):
@@ -287,6 +302,7 @@ class ModelPredictiveController:
     def reset(self) -> None:
         """Forget the warm start and any task pause; the next step starts from a static guess."""
         self.task_pause = 0.0  # s the task's clock stood still for outages (see step)
+        self._resumed_at: float | None = None  # controller time of the last resumption, s
         self._prev_t: float | None = None
         self._prev_xs: np.ndarray | None = None
         self._prev_us: np.ndarray | None = None
@@ -335,8 +351,11 @@ class ModelPredictiveController:
         self.config = replace(self.config, weights=replace(self.config.weights, **{name: value}))
 
     def task_time(self, t: float) -> float:
-        """The schedule's time at controller time t, s: t minus the outages' pause."""
-        return t - self.task_pause
+        """The schedule's time at controller time t, s: t minus the outages' pause and, after the
+        last one, the lag of the task clock's ramp back to speed (:func:`resume_lag`)."""
+        if self._resumed_at is None:
+            return t - self.task_pause
+        return t - self.task_pause - resume_lag(t - self._resumed_at)
 
     def state_from(self, meas: MpcMeasurement) -> np.ndarray:
         """The OCP state x̂ of a measurement (eq 5, 10, 19), validated."""
@@ -355,12 +374,17 @@ class ModelPredictiveController:
         starts cold and the task resumes where it was left: the schedule's clock is paused for
         the outage (:attr:`task_pause`, s), because meanwhile the low level held the robot still
         and a reference that ran on would make the MPC race to catch up (measured: the iiwa's
-        wrist at 5.2× its velocity limit after a 0.5 s dropout, without the pause).
+        wrist at 5.2× its velocity limit after a 0.5 s dropout, without the pause). Its clock
+        then comes back to speed over :data:`RESUME_RAMP` (:func:`resume_lag`): a reference
+        resuming at full speed from a robot at rest took joint 3 to 1.14× its velocity limit
+        after a 50 ms stall of the MPC process mid-circle (real time, ``mpc-stall@1.0+0.05``).
         """
         if self._prev_t is not None and t - self._prev_t > RESUME_GAP_PERIODS * self.config.period:
-            pause = self.task_pause + (t - self._prev_t) - self.config.period
+            lag = self._prev_t - self.task_time(self._prev_t)  # the outages' lag so far
+            pause = lag + (t - self._prev_t) - self.config.period
             self.reset()
             self.task_pause = pause
+            self._resumed_at = t
         x0 = self.predict(self.state_from(meas), t)
         if not np.all(np.isfinite(x0)):
             self._sent.clear()  # the next solve starts from the measured state itself
@@ -480,9 +504,9 @@ class ModelPredictiveController:
         return arr
 
     def _reference(self, t: float, ref: NodeReference) -> NodeReference:
-        """The schedule's reference at t (minus the outages' :attr:`task_pause`), written into
+        """The schedule's reference at controller time t (at :meth:`task_time`), written into
         ``ref`` when the schedule can."""
-        t = t - self.task_pause
+        t = self.task_time(t)
         if self._reference_into is not None:
             return self._reference_into(t, ref)
         return self.schedule.reference(t, self.nc)

@@ -128,7 +128,13 @@ def test_the_task_waits_for_an_mpc_that_comes_back_after_a_long_dropout():
 
 
 def test_an_outage_pauses_the_task_clock_of_the_mpc():
-    from ffmpc_core.mpc import RESUME_GAP_PERIODS, ModelPredictiveController, MpcMeasurement
+    from ffmpc_core.mpc import (
+        RESUME_GAP_PERIODS,
+        RESUME_RAMP,
+        ModelPredictiveController,
+        MpcMeasurement,
+        resume_lag,
+    )
     from ffmpc_core.study import build_task, mpc_config
 
     scenario = load_scenario("polishing")
@@ -155,6 +161,23 @@ def test_an_outage_pauses_the_task_clock_of_the_mpc():
     seen.clear()
     mpc.step(meas, period + gap)  # back after an outage: the task resumes where it stood
     assert mpc.task_pause == pytest.approx(gap - period)
-    assert min(seen) == pytest.approx(2 * period + mpc.config.command_delay)
+    delay = mpc.config.command_delay  # (the first node's reference is at t + δo)
+    assert min(seen) == pytest.approx(2 * period + delay - resume_lag(delay))
+    # the task's clock comes back to speed: rate 0 at the resumption, 1 after RESUME_RAMP
+    t_back = period + gap
+    h = 1e-6
+    assert mpc.task_time(t_back) == pytest.approx(2 * period)
+    assert (mpc.task_time(t_back + h) - mpc.task_time(t_back)) / h == pytest.approx(0, abs=1e-6)
+    rate_mid = (
+        mpc.task_time(t_back + RESUME_RAMP / 2 + h) - mpc.task_time(t_back + RESUME_RAMP / 2)
+    ) / h
+    assert rate_mid == pytest.approx(0.5, rel=1e-4)
+    after = t_back + RESUME_RAMP + 0.1
+    assert mpc.task_time(after) == pytest.approx(after - (gap - period) - RESUME_RAMP / 2)
+    # a second outage adds its gap to the lag so far (ramp included), and ramps again
+    mpc.step(meas, after)
+    task_before = mpc.task_time(after)
+    mpc.step(meas, after + gap)
+    assert mpc.task_time(after + gap) == pytest.approx(task_before + period)
     mpc.reset()
-    assert mpc.task_pause == 0.0
+    assert mpc.task_pause == 0.0 and mpc.task_time(1.0) == 1.0
