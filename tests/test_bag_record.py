@@ -16,7 +16,6 @@ import pytest
 from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
-from ros_helpers import RosHarness
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 from rosgraph_msgs.msg import Clock
@@ -30,13 +29,6 @@ from ffmpc_ros.bag.recorder import BagRecorder
 from ffmpc_ros.bag.ros_types import message_class
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-@pytest.fixture
-def ros():
-    harness = RosHarness()
-    yield harness
-    harness.close()
 
 
 def _random_message(type_name: str, k: int, rng: np.random.Generator):

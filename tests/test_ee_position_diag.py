@@ -12,18 +12,12 @@ from ffmpc_core.config import ContactConfig, CostWeights, NodeReference
 from ffmpc_core.errors import InputError
 from ffmpc_core.lowpass import make_lowpass_node
 from ffmpc_core.rigid_contact import make_rigid_contact_node
-from ffmpc_core.robots import load_robot
 from ffmpc_core.soft_contact import make_soft_contact_node
 
 DT = 0.01
 C4 = 40.0
 DZ = 0.02  # m, the z error of the reference
 FORMULATIONS = ("classical", "torque_feedback", "force_feedback")
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("iiwa")
 
 
 def _node(robot, formulation: str, terminal: bool = False):

@@ -10,13 +10,7 @@ from ffmpc_core.config import FORMULATIONS, NodeReference
 from ffmpc_core.errors import ConfigError, InputError, SolverError
 from ffmpc_core.mpc import ModelPredictiveController, MpcConfig, MpcMeasurement
 from ffmpc_core.pid import TorquePid, TorquePidGains
-from ffmpc_core.robots import load_robot
 from ffmpc_core.tasks import RETARGET_BLEND, ForceSquareTask, LiveTask, PolishingTask, min_jerk
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("iiwa")
 
 
 def _task(robot):

@@ -17,15 +17,9 @@ from ffmpc_core.lowlevel import (
     LowLevelMode,
 )
 from ffmpc_core.pid import TorquePid, TorquePidGains
-from ffmpc_core.robots import load_robot
 from ffmpc_core.tasks import min_jerk
 
 DT = 1e-3
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("iiwa")
 
 
 def _pid(robot, delay=5):

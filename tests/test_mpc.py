@@ -9,13 +9,7 @@ from ffmpc_core.config import FORMULATIONS
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.model_plant import ModelPlant, run_model_closed_loop
 from ffmpc_core.mpc import ModelPredictiveController, MpcConfig, MpcMeasurement, _interp_rows
-from ffmpc_core.robots import load_robot
 from ffmpc_core.tasks import PolishingTask
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("iiwa")
 
 
 def press_task(robot, circle=0.0):

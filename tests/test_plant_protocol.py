@@ -3,19 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from ffmpc_core.config import ContactConfig
 from ffmpc_core.model_plant import ModelPlant
 from ffmpc_core.plant import Plant
-from ffmpc_core.robots import load_robot
 from sim_bridge.plant import Plant as BulletPlant
 from sim_bridge.plant import PlantConfig
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("iiwa")
 
 
 def _hold_by_gravity(plant: Plant, robot, q0: np.ndarray, steps: int) -> np.ndarray:

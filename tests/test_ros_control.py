@@ -6,30 +6,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from geometry_msgs.msg import WrenchStamped
-from ros_helpers import RosHarness, joint_state, mpc_command, overrides, recorder, wrench
+from ros_helpers import joint_state, mpc_command, overrides, recorder, wrench
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement, LowLevelMode
 from ffmpc_core.mpc import ModelPredictiveController, MpcMeasurement
-from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
 from ffmpc_core.study import build_task, lowlevel_controller, mpc_config
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.mpc_node import MpcNode
 from ffmpc_ros.pid_node import PidNode
-
-
-@pytest.fixture
-def ros():
-    harness = RosHarness()
-    yield harness
-    harness.close()
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("iiwa")
 
 
 def _measurements(robot, n, seed=0):

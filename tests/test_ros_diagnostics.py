@@ -5,9 +5,8 @@ solve or the safe hold)."""
 from __future__ import annotations
 
 import numpy as np
-import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from ros_helpers import RosHarness, joint_state, overrides
+from ros_helpers import joint_state, overrides
 from sensor_msgs.msg import JointState
 
 from ffmpc_core.lowlevel import LowLevelMode, LowLevelOutput
@@ -18,13 +17,6 @@ from ffmpc_ros.base import DIAGNOSTICS_PERIOD, DIAGNOSTICS_TOPIC
 from ffmpc_ros.joint_sensor_node import JointSensorNode
 from ffmpc_ros.mpc_node import MpcNode
 from ffmpc_ros.pid_node import PidNode
-
-
-@pytest.fixture
-def ros():
-    harness = RosHarness()
-    yield harness
-    harness.close()
 
 
 def _values(status: DiagnosticStatus) -> dict[str, str]:

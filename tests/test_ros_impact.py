@@ -10,7 +10,7 @@ import pinocchio as pin
 import pytest
 from geometry_msgs.msg import TwistStamped, WrenchStamped
 from rcl_interfaces.msg import ParameterType
-from ros_helpers import RosHarness, joint_state, overrides, publish_clock, recorder, wrench
+from ros_helpers import joint_state, overrides, publish_clock, recorder, wrench
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
@@ -38,13 +38,6 @@ from ffmpc_ros.mpc_node import MpcNode
 
 DOWN = np.array([0.0, 0.0, -1.0])
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-
-
-@pytest.fixture
-def ros():
-    harness = RosHarness()
-    yield harness
-    harness.close()
 
 
 @pytest.fixture(scope="module")

@@ -12,30 +12,17 @@ import pytest
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
-from ros_helpers import RosHarness, joint_state, mpc_command, overrides, recorder, wrench
+from ros_helpers import joint_state, mpc_command, overrides, recorder, wrench
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray
 
 from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement
-from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
 from ffmpc_core.study import lowlevel_controller
 from ffmpc_ros import topics
 from ffmpc_ros.mpc_node import MpcNode
 from ffmpc_ros.params import NODE_SPECS
 from ffmpc_ros.pid_node import PidNode
-
-
-@pytest.fixture
-def ros():
-    harness = RosHarness()
-    yield harness
-    harness.close()
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("iiwa")
 
 
 def _client(ros, node_name: str) -> AsyncParameterClient:

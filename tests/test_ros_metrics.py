@@ -7,9 +7,8 @@ from __future__ import annotations
 import json
 
 import numpy as np
-import pytest
 from geometry_msgs.msg import WrenchStamped
-from ros_helpers import RosHarness, joint_state, overrides, recorder, wrench
+from ros_helpers import joint_state, overrides, recorder, wrench
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 
@@ -20,13 +19,6 @@ from ffmpc_ros import layouts, topics
 from ffmpc_ros.metrics_node import MetricsNode
 
 N = 30
-
-
-@pytest.fixture
-def ros():
-    harness = RosHarness()
-    yield harness
-    harness.close()
 
 
 def _signals(seed=0):

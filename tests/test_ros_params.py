@@ -8,7 +8,7 @@ from dataclasses import replace
 
 import pytest
 from rcl_interfaces.msg import ParameterType
-from ros_helpers import RosHarness, overrides
+from ros_helpers import overrides
 
 from ffmpc_core.config import FORMULATIONS
 from ffmpc_core.errors import ConfigError
@@ -24,13 +24,6 @@ from ffmpc_ros.params import NODE_SPECS, node_parameter_values, scenario_from_pa
 from ffmpc_ros.plant_node import PlantNode
 
 NUMERIC = (ParameterType.PARAMETER_DOUBLE, ParameterType.PARAMETER_INTEGER)
-
-
-@pytest.fixture
-def ros():
-    harness = RosHarness()
-    yield harness
-    harness.close()
 
 
 def _params_file_args(name="polishing"):

@@ -5,9 +5,8 @@ deadline misses counted and published."""
 from __future__ import annotations
 
 import numpy as np
-import pytest
 from geometry_msgs.msg import WrenchStamped
-from ros_helpers import RosHarness, joint_state, overrides, recorder
+from ros_helpers import joint_state, overrides, recorder
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
@@ -18,13 +17,6 @@ from ffmpc_ros import layouts, topics
 from ffmpc_ros.plant_node import PlantNode
 from sim_bridge.plant import Plant
 from sim_bridge.runner import plant_config
-
-
-@pytest.fixture
-def ros():
-    harness = RosHarness()
-    yield harness
-    harness.close()
 
 
 def _plant(ros, scenario, **graph):

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from geometry_msgs.msg import WrenchStamped
-from ros_helpers import RosHarness, joint_state, overrides, publish_clock, recorder, wrench
+from ros_helpers import joint_state, overrides, publish_clock, recorder, wrench
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
@@ -17,13 +17,6 @@ from ffmpc_core.study import device_generator, force_sensing_model, joint_sensin
 from ffmpc_ros import topics
 from ffmpc_ros.ft_sensor_node import FtSensorNode
 from ffmpc_ros.joint_sensor_node import JointSensorNode
-
-
-@pytest.fixture
-def ros():
-    harness = RosHarness()
-    yield harness
-    harness.close()
 
 
 def test_joint_sensor_reproduces_eq_30_with_its_generator(ros):

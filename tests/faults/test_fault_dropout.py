@@ -45,11 +45,6 @@ STOP_BOUND = 15e-3
 STILL_BOUND = 20e-3
 
 
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("iiwa")
-
-
 def _scenario(formulation: str):
     return load_scenario("polishing", {**EARLY_CONTACT, "seed": 0, "mpc.formulation": formulation})
 

@@ -12,29 +12,16 @@ import numpy as np
 import pytest
 from geometry_msgs.msg import WrenchStamped
 from rclpy.parameter import Parameter
-from ros_helpers import RosHarness, joint_state, mpc_command, overrides, recorder, wrench
+from ros_helpers import joint_state, mpc_command, overrides, recorder, wrench
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
 from ffmpc_ros import topics
 from ffmpc_ros.base import MAX_FUTURE_STAMP
 from ffmpc_ros.discovery import DISCOVERY_RANGE_VARIABLE, ensure_local_discovery
 from ffmpc_ros.joint_sensor_node import JointSensorNode
 from ffmpc_ros.pid_node import PidNode
-
-
-@pytest.fixture
-def ros():
-    harness = RosHarness()
-    yield harness
-    harness.close()
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("iiwa")
 
 
 def test_a_stamp_from_the_future_is_rejected_and_never_becomes_the_nodes_now(ros, robot):
