@@ -809,24 +809,30 @@ def _spawn_view(
 ) -> tuple[subprocess.Popen, str]:
     """The view node's own process (``ffmpc_ros.view.view_process``), in the nodes' group and
     the graph's namespace."""
-    config = os.path.join(directory, "view.json")
-    with open(config, "w", encoding="utf-8") as fh:
-        json.dump(
-            {
-                "robot": robot,
-                "host": host,
-                "port": port,
-                "domain": domain,
-                "counts": counts,
-                "wait_for_client": wait_for_client,
-                "ros_args": topics.graph_ros_args(namespace),
-            },
-            fh,
-        )
-    log = os.path.join(directory, "view.log")
+    config = {
+        "robot": robot,
+        "host": host,
+        "port": port,
+        "domain": domain,
+        "counts": counts,
+        "wait_for_client": wait_for_client,
+        "ros_args": topics.graph_ros_args(namespace),
+    }
+    return _spawn_child("view", "ffmpc_ros.view", config, directory, domain)
+
+
+def _spawn_child(
+    name: str, module: str, config: dict, directory: str, domain: int
+) -> tuple[subprocess.Popen, str]:
+    """``python -m module DIRECTORY/NAME.json`` (``config`` written there) in the nodes' process
+    group and ROS domain, its output in DIRECTORY/NAME.log; (process, log path)."""
+    path = os.path.join(directory, f"{name}.json")
+    with open(path, "w", encoding="utf-8") as fh:
+        json.dump(config, fh)
+    log = os.path.join(directory, f"{name}.log")
     with open(log, "w", encoding="utf-8") as out:
         child = subprocess.Popen(
-            _launch(child_marker(), signal.SIGTERM, "ffmpc_ros.view", [config]),
+            _launch(child_marker(), signal.SIGTERM, module, [path]),
             env=dict(os.environ, ROS_DOMAIN_ID=str(domain)),
             stdout=out,
             stderr=subprocess.STDOUT,
@@ -848,30 +854,16 @@ def _spawn_recorder(
     """The recorder's own process (``graph_recorder_process``), in the nodes' process group."""
     from ffmpc_ros.bag.recorder import graph_recorder_metadata
 
-    config = os.path.join(directory, "recorder.json")
-    with open(config, "w", encoding="utf-8") as fh:
-        json.dump(
-            {
-                "target": os.fspath(record),
-                "domain": domain,
-                "ros_args": topics.graph_ros_args(namespace),
-                "namespace": namespace,
-                "metadata": graph_recorder_metadata(scenario, params, namespace),
-                "counts": counts,
-                "view": scenario.robot if view else None,
-            },
-            fh,
-        )
-    log = os.path.join(directory, "recorder.log")
-    with open(log, "w", encoding="utf-8") as out:
-        child = subprocess.Popen(
-            _launch(child_marker(), signal.SIGTERM, "ffmpc_ros.bag.recorder", [config]),
-            env=dict(os.environ, ROS_DOMAIN_ID=str(domain)),
-            stdout=out,
-            stderr=subprocess.STDOUT,
-            process_group=0,
-        )
-    return child, log
+    config = {
+        "target": os.fspath(record),
+        "domain": domain,
+        "ros_args": topics.graph_ros_args(namespace),
+        "namespace": namespace,
+        "metadata": graph_recorder_metadata(scenario, params, namespace),
+        "counts": counts,
+        "view": scenario.robot if view else None,
+    }
+    return _spawn_child("recorder", "ffmpc_ros.bag.recorder", config, directory, domain)
 
 
 def _stop(children: Mapping[str, subprocess.Popen]) -> None:
