@@ -153,9 +153,9 @@ class StudyNode(Node):
         self._reliable_time = TimeSource()
         self._reliable_time.ros_time_is_active = True
         self._reliable_time.attach_clock(self.get_clock())
-        self.create_subscription(
-            ClockMsg, topics.CLOCK, self._reliable_time.clock_callback, topics.clock_reader_qos()
-        )
+        # the reliable reader got a /clock sample (the best-effort one moves the clock off 0)
+        self._clock_received = False
+        self.create_subscription(ClockMsg, topics.CLOCK, self._on_clock, topics.clock_reader_qos())
         self.accepted: Counter[str] = Counter()  # accepted inputs per topic
         self._diagnosed = (time.monotonic(), Counter[str](), 0)  # (wall s, accepted, rejected)
         self._pub_diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
@@ -346,6 +346,10 @@ class StudyNode(Node):
             return None
         return k if self.check_cycle(topic, k) else None
 
+    def _on_clock(self, msg: ClockMsg) -> None:
+        self._clock_received = True
+        self._reliable_time.clock_callback(msg)
+
     def check_cycle(self, topic: str, k: int) -> bool:
         """Whether an input of cycle k (time k·time_step) may be used: after the last accepted
         one from ``topic``, at most :data:`MAX_FUTURE_STAMP` ahead of this node's clock and at
@@ -357,7 +361,12 @@ class StudyNode(Node):
             return False
         now_ns = self.get_clock().now().nanoseconds
         ahead = (k * self.step_ns - now_ns) * 1e-9
-        if ahead > MAX_FUTURE_STAMP:
+        # A node that has no time yet (no /clock sample on either reader, the clock at 0) cannot
+        # tell a stamp from the future: it judges from its first /clock on. Seen: a lockstep
+        # MPC whose clock stayed at 0 for 11 cycles rejected genuine inputs, and the run
+        # diverged from the runner (3 of 20 launches under load).
+        no_time_yet = now_ns == 0 and not self._clock_received
+        if ahead > MAX_FUTURE_STAMP and not no_time_yet:
             self.reject(
                 f"{topic}:future",
                 f"stamp {k * self.time_step:.6f} s is {ahead:.4f} s ahead of this node's clock "

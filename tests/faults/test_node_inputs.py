@@ -53,6 +53,24 @@ def test_a_stamp_from_the_future_is_rejected_and_never_becomes_the_nodes_now(ros
     assert ros.spin_until(lambda: len(out) == 4)
 
 
+def test_a_node_without_a_time_yet_judges_stamps_from_its_first_clock_on(ros):
+    """Before any /clock sample the node's clock is 0: it cannot tell a stamp from the future,
+    and accepts it (a lockstep MPC whose clock stayed at 0 for 11 cycles rejected genuine
+    inputs as from the future, and the run left the runner's). From the first /clock on, a
+    stamp beyond the tolerance is rejected again, even one of time 0."""
+    from rosgraph_msgs.msg import Clock
+
+    node = ros.add(
+        JointSensorNode(context=ros.context, parameter_overrides=overrides("joint_sensor"))
+    )
+    ahead = int(round(MAX_FUTURE_STAMP / node.time_step)) + 1
+    assert node.get_clock().now().nanoseconds == 0
+    assert node.check_cycle("plant/joint_states", ahead)  # no time yet: accepted
+    node._on_clock(Clock())  # the first /clock, t = 0
+    assert not node.check_cycle("other/topic", ahead)
+    assert node.rejected[f"{node.name_of('other/topic')}:future"] == 1
+
+
 def test_a_command_from_the_future_is_rejected_by_the_pid(ros, robot):
     scenario = load_scenario("polishing", {"mpc.formulation": "classical"})
     node = ros.add(
