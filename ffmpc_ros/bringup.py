@@ -439,6 +439,9 @@ def run_graph(
 
         duration = build_task(scenario, load_robot(scenario.robot)).duration
     params = graph_parameters(scenario, lockstep, duration)
+    windows = [tuple(map(float, w)) for w in fault_windows]
+    # an injected fault's effects outlast it a little (queued messages): FAULT_RECOVERY
+    windows += [(f.start, min(f.end + FAULT_RECOVERY, float(duration))) for f in faults]
     if not lockstep:
         if single_process or record is not None or view is not None:
             raise ConfigError(
@@ -446,8 +449,6 @@ def run_graph(
                 "interpreter each, see ffmpc_ros.realtime); --single-process, --record and "
                 "--view are lockstep options"
             )
-        windows = [tuple(map(float, w)) for w in fault_windows]
-        windows += [(f.start, min(f.end + FAULT_RECOVERY, float(duration))) for f in faults]
         return _run_real_time(
             scenario, params, timeout, domain, quiet, windows, cpus, priority, faults, namespace
         )
@@ -457,9 +458,6 @@ def run_graph(
         from ffmpc_ros.bag.errors import BagExistsError
 
         raise BagExistsError(f"{record} exists; a bag is never overwritten")
-    windows = [tuple(map(float, w)) for w in fault_windows]
-    # an injected fault's effects outlast it a little (queued messages): FAULT_RECOVERY
-    windows += [(f.start, min(f.end + FAULT_RECOVERY, float(duration))) for f in faults]
     if any(f.kind in PROCESS_KINDS for f in faults):
         params["pid"]["lockstep_timeout"] = FAULT_LOCKSTEP_TIMEOUT
     if view is not None:
