@@ -40,6 +40,24 @@ each input it accepted over the period (Hz, wall time), its rejections (total an
 period) and what :meth:`StudyNode.diagnostic_values` adds (the MPC's solve times, the PID's
 mode); level WARN when an input was rejected in the period, ERROR for what
 :meth:`StudyNode.diagnostic_problems` reports (the PID in its safe hold, a failed solve).
+
+Lifecycle. Every node is a ROS 2 managed node (``rclpy.lifecycle.LifecycleNode``: the services
+``<node>/change_state``, ``get_state``, ... that ``ros2 lifecycle`` and launch_ros use). Its
+resources (parameters, models, the OCP, publishers, subscriptions) are built at construction,
+as ros2/examples do; the states say what the node does with them:
+
+* unconfigured → ``configure`` → inactive: :meth:`StudyNode.configure` checks the node may run
+  (a refusal fails the transition with one log line and the node stays unconfigured);
+* inactive → ``activate`` → active: the node processes its inputs and publishes (the plant
+  starts its first cycle only when active);
+* ``deactivate``: back to inactive; ``cleanup``: back to unconfigured; ``shutdown``: finalized,
+  the executable exits (:meth:`StudyNode.finished`).
+
+While not active, every stamped input is rejected (kind ``<topic>:inactive``, one throttled
+log line) and nothing is computed from it. A node with ``autostart`` true (the default: ``ros2
+run``, ``ffmpc launch``, tests) configures and activates itself once constructed, before it
+can receive anything; the bring-up of ``ffmpc run`` starts its processes with ``autostart``
+false and drives the transitions itself, the plant last (:func:`ffmpc_ros.bringup.run_graph`).
 """
 
 from __future__ import annotations
@@ -62,7 +80,7 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
-from rclpy.node import Node
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from rclpy.time_source import TimeSource
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -97,8 +115,18 @@ DIAGNOSTICS_PERIOD = 1.0
 DIAGNOSTICS_TOPIC = topics.DIAGNOSTICS
 
 
-class StudyNode(Node):
-    """An rclpy node that runs part of a scenario (see the module docstring).
+class _StartsOnceBuilt(type):
+    """Metaclass of :class:`StudyNode`: runs ``_after_construction`` once the most derived
+    ``__init__`` returned (autostart must not run a transition on a half-built node)."""
+
+    def __call__(cls, *args, **kwargs):
+        node = super().__call__(*args, **kwargs)
+        node._after_construction()
+        return node
+
+
+class StudyNode(LifecycleNode, metaclass=_StartsOnceBuilt):
+    """An rclpy managed node that runs part of a scenario (see the module docstring).
 
     Args:
         spec: key of :data:`ffmpc_ros.params.NODE_SPECS` (also the default node name).
@@ -128,6 +156,8 @@ class StudyNode(Node):
         )
         self.spec = NODE_SPECS[spec]
         self.params = declare_node_parameters(self, self.spec)
+        self.lifecycle_state = "unconfigured"  # the state machine's label (module docstring)
+        self._refusal: str | None = None  # the last refused configure's reason
         self.scenario: Scenario = scenario_from_parameters(self.spec, self.params, self.get_name())
         self.time_step = self.scenario.plant.time_step
         self.step_ns = int(round(self.time_step * 1e9))
@@ -164,6 +194,62 @@ class StudyNode(Node):
             self.publish_diagnostics,
             clock=Clock(clock_type=ClockType.STEADY_TIME),
         )
+
+    # -- lifecycle (module docstring) -------------------------------------------------------------
+    @property
+    def active(self) -> bool:
+        """Whether the node is in the lifecycle state ``active`` (it processes its inputs)."""
+        return self.lifecycle_state == "active"
+
+    def _after_construction(self) -> None:
+        """Autostart (parameter ``autostart``): configure, then activate; a refused configure
+        raises ConfigError (the executable exits 2 with that line)."""
+        if not self.params.get("autostart", True):
+            self.get_logger().info("unconfigured: waiting for the configure transition")
+            return
+        if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
+            raise ConfigError(f"{self.get_name()}: configure refused: {self._refusal}")
+        self.trigger_activate()
+
+    def destroy_node(self) -> None:
+        """Destroy the node and its lifecycle state machine: rclpy's LifecycleNode (7.1.6) leaves
+        the state machine, which holds the node's handle, so the node stayed on the ROS graph
+        after its context shut down (seen by the next graph of the same process as foreign)."""
+        super().destroy_node()
+        self._state_machine.destroy_when_not_in_use()
+
+    def configure(self) -> str | None:
+        """Why the node may not run (the configure transition then fails), or None. A node
+        overrides it to check what must hold before it runs; the base has nothing to check."""
+        return None
+
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._refusal = self.configure()
+        if self._refusal is not None:
+            self.get_logger().error(f"configure refused: {self._refusal}")
+            return TransitionCallbackReturn.FAILURE
+        return self._enter("inactive", "configured")
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        return self._enter("active", "active: processing inputs")
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        return self._enter("inactive", "deactivated: inputs are ignored until activate")
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        return self._enter("unconfigured", "cleaned up")
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        return self._enter("finalized", "shut down")
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.get_logger().error(f"lifecycle error in {state.label}")
+        return self._enter("unconfigured", "back to unconfigured after an error")
+
+    def _enter(self, label: str, message: str) -> TransitionCallbackReturn:
+        self.lifecycle_state = label
+        self.get_logger().info(message)
+        return TransitionCallbackReturn.SUCCESS
 
     # -- live parameters (module docstring) -----------------------------------------------------
     def parameter_refusal(self, parameters: Sequence[Parameter]) -> str | None:
@@ -340,6 +426,9 @@ class StudyNode(Node):
         otherwise reject it and return None. Call :meth:`accept_cycle` once the whole message
         is accepted."""
         topic = self.name_of(topic)
+        if not self.active:
+            self.reject(f"{topic}:inactive", f"{topic} ignored: the node is {self.lifecycle_state}")
+            return None
         k = self.cycle_of(stamp)
         if k is None:
             self.reject(f"{topic}:stamp", f"stamp {stamp.sec}.{stamp.nanosec:09d} off the grid")
@@ -546,7 +635,7 @@ def run_node(factory: Callable[..., StudyNode], description: str, argv=None) -> 
         else:
             executor = EventsExecutor()
             executor.add_node(node)
-            while rclpy.ok() and not node.finished():
+            while rclpy.ok() and not node.finished() and node.lifecycle_state != "finalized":
                 executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

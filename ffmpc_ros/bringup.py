@@ -558,6 +558,8 @@ def run_graph(
                 "shared parameters differ between nodes, the run was not started: "
                 + "; ".join(mismatches)
             )
+        if children:
+            _bring_up(probe_node, executor, list(NODES), children, logs, start + start_timeout)
         if faults:
             injector = FaultInjector(probe_node, faults, children, time_step)
             if injector.wants_sensors:
@@ -784,6 +786,7 @@ def _spawn(
         logs[name] = os.path.join(directory, f"{name}.log")
         with open(logs[name], "w", encoding="utf-8") as out:
             args = ["--ros-args", "--params-file", path, *graph_args, *node_ros_args.get(name, ())]
+            args += ["-p", "autostart:=false"]  # the bring-up drives the lifecycle (run_graph)
             children[name] = subprocess.Popen(
                 _launch(marker, signal.SIGKILL, module, args),
                 env=env,
@@ -1030,6 +1033,49 @@ def _fetch_parameters(
         node.destroy_client(f.list_client)
         node.destroy_client(f.get_client)
     return {n: f.values for n, f in fetches.items()}
+
+
+#: Lifecycle transitions of the bring-up, in order (lifecycle_msgs/msg/Transition labels).
+BRING_UP_TRANSITIONS = ("configure", "activate")
+
+
+def _bring_up(node: Node, executor, names: Sequence[str], children, logs, deadline: float) -> None:
+    """Configure every node of ``names``, then activate them, the plant last (its first cycle
+    waits for its own activation: every reader is active by then), through their
+    ``<node>/change_state`` services; one log line per node and transition. GraphError when a
+    transition fails (the node's log says why) or the deadline passes."""
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState
+
+    prefix = node.get_namespace().rstrip("/")
+    order = [n for n in names if n != "plant"] + [n for n in names if n == "plant"]
+    clients = {n: node.create_client(ChangeState, f"{prefix}/{n}/change_state") for n in order}
+    try:
+        for label in BRING_UP_TRANSITIONS:
+            for name in order if label == "activate" else names:
+                client = clients[name]
+                request = ChangeState.Request(transition=Transition(label=label))
+                asked = time.perf_counter()
+                future = None
+                while future is None or not future.done():
+                    _check_children(children, logs, set())
+                    if time.perf_counter() > deadline:
+                        raise GraphError(f"{name} did not {label} in time: the run did not start")
+                    if future is None and client.service_is_ready():
+                        future = client.call_async(request)
+                    executor.spin_once(timeout_sec=0.05)
+                    _check_stop()
+                if not future.result().success:
+                    raise GraphError(
+                        f"{name} refused the {label} transition (its log says why): the run "
+                        "did not start"
+                    )
+                node.get_logger().debug(
+                    f"{name}: {label} in {1e3 * (time.perf_counter() - asked):.0f} ms"
+                )
+    finally:
+        for client in clients.values():
+            node.destroy_client(client)
 
 
 def parameter_mismatches(values: Mapping[str, Mapping[str, object]]) -> list[str]:

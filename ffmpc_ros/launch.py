@@ -398,11 +398,16 @@ def run_launch(
             code = 128 + stop[0]
     finally:
         _stop(children)
-        for child in children.values():
+        screen = {node.label for node in description.nodes if node.output == "screen"}
+        for label, child in children.items():
             if child.stdout is not None:
+                # what the pipe (or the reader's buffer: select does not see it) still holds
                 rest = child.stdout.read()
-                label = next(k for k, v in children.items() if v is child)
                 logs[label].write(rest)
+                if label in screen:
+                    for line in rest.splitlines(keepends=True):
+                        print(f"[{label}] {line}", end="", file=out)
+                    out.flush()
                 child.stdout.close()
         for fh in logs.values():
             fh.close()

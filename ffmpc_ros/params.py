@@ -81,6 +81,11 @@ class NodeSpec:
     #: while it runs: writable, every other one read-only.
     live: tuple[str, ...] = ()
 
+    @property
+    def graph_parameters(self) -> tuple[GraphParameter, ...]:
+        """Every graph parameter the node declares: its own and :data:`COMMON_GRAPH`."""
+        return (*self.graph, *COMMON_GRAPH)
+
     def is_live(self, ros_name: str) -> bool:
         """Whether the node changes ``ros_name`` while it runs (see :attr:`live`)."""
         return any(fnmatchcase(ros_name, pattern) for pattern in self.live)
@@ -123,6 +128,16 @@ START_CLOCK_SUBSCRIBERS = GraphParameter(
     "stamps by /clock: one that matched late would reject them as from the future)",
     (0, 1000),
 )
+
+AUTOSTART = GraphParameter(
+    "autostart",
+    True,
+    "configure and activate the node as soon as it is built (false: it stays unconfigured "
+    "until a lifecycle transition, `ros2 lifecycle set NODE configure` then `activate`, or "
+    "the bring-up's)",
+)
+#: Graph parameters every node declares (lifecycle start, ffmpc_ros.base).
+COMMON_GRAPH: tuple[GraphParameter, ...] = (AUTOSTART,)
 
 WAIT_FOR_METRICS = GraphParameter(
     "wait_for_metrics",
@@ -357,7 +372,7 @@ def node_parameter_values(node: str, scenario: Scenario, **graph: Any) -> dict[s
     spec = NODE_SPECS[node]
     flat = scenario_flat(scenario)
     values = {ros: _ros_value(flat[name]) for ros, name in node_scenario_names(spec, flat).items()}
-    known = {g.name for g in spec.graph}
+    known = {g.name for g in spec.graph_parameters}
     for key, value in graph.items():
         if key in known:
             values[key] = value
@@ -445,7 +460,7 @@ def declare_node_parameters(node, spec: NodeSpec) -> dict[str, Any]:
             SCHEMA[name].check(raw)  # raises the schema's error
             raise SCHEMA[name].error(raw) from None
         values[ros] = plain_value(node.get_parameter(ros).value)
-    for g in spec.graph:
+    for g in spec.graph_parameters:
         # (the declared Parameter: get_parameter raises for one declared by type and not set)
         try:
             declared = node.declare_parameter(

@@ -104,10 +104,12 @@ class PlantNode(StudyNode):
         self._start_timer = self.create_timer(0.01, self._try_start, clock=self._steady)
 
     def _try_start(self) -> None:
-        """Start once ``start_subscribers`` nodes read the joint states,
+        """Start once active (lifecycle), ``start_subscribers`` nodes read the joint states,
         ``start_clock_subscribers`` read /clock and ``start_delay``
         (wall time) has passed: lockstep publishes the state of cycle 0, real time starts the
         wall-clock timer."""
+        if not self.active:  # lifecycle: the first cycle waits for the activate transition
+            return
         wanted = int(self.params["start_subscribers"])
         if self.pub_joints.get_subscription_count() < wanted:
             return

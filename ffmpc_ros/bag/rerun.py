@@ -425,6 +425,7 @@ def rerun_node(
     with BagReader(path) as bag:
         values = node_parameters(bag, node)
         values.pop("use_sim_time", None)
+        values.pop("autostart", None)  # recorded false under the bring-up: the re-run starts itself
         apply_overrides(node, values, overrides)
         prefix = f"/_ffmpc_rerun_{os.getpid()}"
         namespace = bag_namespace(bag)
