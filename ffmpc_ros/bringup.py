@@ -769,17 +769,19 @@ def _spawn(
     domain: int,
     node_ros_args: Mapping[str, Sequence[str]],
     namespace: str = topics.ROOT_NAMESPACE,
+    nodes: Mapping[str, str] = NODES,
 ) -> tuple[dict[str, subprocess.Popen], dict[str, str]]:
-    """Start every node of NODES as a child in one new process group; output to log files."""
+    """Start every node of ``nodes`` (name → "module:class"; default the polishing graph's
+    NODES) as a child in one new process group; output to log files."""
     path = os.path.join(directory, "graph_params.yaml")
-    write_params_file({n: v for n, v in params.items() if n in NODES}, path, namespace)
+    write_params_file({n: v for n, v in params.items() if n in nodes}, path, namespace)
     graph_args = topics.graph_ros_args(namespace)
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
     children: dict[str, subprocess.Popen] = {}
     logs: dict[str, str] = {}
     marker = child_marker()
     group = 0
-    for name, target in NODES.items():
+    for name, target in nodes.items():
         module = target.partition(":")[0]
         logs[name] = os.path.join(directory, f"{name}.log")
         with open(logs[name], "w", encoding="utf-8") as out:
