@@ -114,6 +114,7 @@ def impact_node_parameters(
     ConfigError when the settings cannot run as a graph: the touch-first strategy with the
     maximal approach, or a planner setting the planner node has no parameter for."""
     from ffmpc_core.impact.deformation import SoftMaterial
+    from ffmpc_core.impact.limits import PANDA_ACCELERATION_LIMIT
     from ffmpc_ros.cli_args import parse_overrides
     from ffmpc_ros.impact_planner_node import controller_config
     from studies.impact_study import (
@@ -199,6 +200,9 @@ def impact_node_parameters(
             "prior_damping": cfg.prior_damping,
             "max_penetration": cfg.dice.max_penetration,
             "limit_margin": cfg.limit_margin,
+            # the Panda's data-sheet values, given (an unset array parameter has no value the
+            # recorder's parameter fetch can read)
+            "acceleration_limit": [float(a) for a in PANDA_ACCELERATION_LIMIT],
             "solver": cfg.planner.solver,
             "replan_period": cfg.replan_period,
             "admittance": adm.admittance,
