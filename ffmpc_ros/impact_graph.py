@@ -379,7 +379,7 @@ def _recorder_options(nodes: Sequence[str], approach: str, namespace: str) -> di
         if node != "impact_planner" or approach == "maximal"
     ]
     return {
-        "wait_for": [topics.resolve(t, namespace) for t in [*names, topics.IMPACT_SUMMARY]],
+        "wait_for": [topics.resolve(t, namespace) for t in names],
         "gate_topic": topics.resolve(topics.PLANT_JOINT_STATES, namespace),
         "parameters_of": list(nodes),
         "final_topic": topics.resolve(topics.IMPACT_SUMMARY, namespace),

@@ -148,6 +148,7 @@ IMPACT_GRAPH_TOPICS: tuple[tuple[str, str, str], ...] = (
     (FILTERED_WRENCH, "geometry_msgs/msg/WrenchStamped", "ft_sensor"),
     (IN_CONTACT, "std_msgs/msg/Bool", "ft_sensor"),
     *IMPACT_TOPICS,
+    (IMPACT_SUMMARY, "std_msgs/msg/String", "ffmpc_bringup"),
 )
 
 #: Topics of the live view (``ffmpc run --view``, ffmpc_ros.view): the MPC's horizon, which the
