@@ -14,7 +14,8 @@ impact_study_config`). For every cycle k it publishes, stamped t_k = k·time_ste
   ``contact_world_aligned`` (N, N·m);
 * ``plant/status`` (layout ``plant_status``) every 100 cycles and at the end.
 
-Subscribes ``impact_controller/torque`` (sensor_msgs/JointState, effort N·m): the torque of
+With ``exit_when_done`` the process exits 1 s (wall) after the last state (the launch file's
+``on_exit: shutdown``). Subscribes ``impact_controller/torque`` (sensor_msgs/JointState, effort N·m): the torque of
 cycle k is applied for one step (the plant saturates it to the torque limits, as the ROS-free
 run's plant does; a non-finite or absurd torque is rejected). Lockstep only: the plant steps
 once the torque of its current cycle has arrived, so a run does not depend on the CPU speed.
@@ -63,6 +64,7 @@ class DicePlantNode(StudyNode):
         self.latencies: list[float] = []
         self._published_at: float | None = None
         self._wall_start: float | None = None
+        self._done_at: float | None = None
         self.state = self.plant.state()
         qos = topics.publisher_qos()
         self.pub_clock = self.create_publisher(ClockMsg, topics.CLOCK, topics.clock_qos())
@@ -149,13 +151,21 @@ class DicePlantNode(StudyNode):
         self.state = self.plant.state()
         self.applied = self.state.tau
         self.publish_state()
+        if self.done:
+            self.get_logger().info(f"done: {self.k} cycles, {self.t_of(self.k):.3f} s simulated")
 
     def diagnostic_values(self, period: float) -> dict[str, str]:
         """The plant's cycle and simulated time (s)."""
         return {"cycle": str(self.k), "sim_time_s": f"{self.t_of(self.k):.3f}"}
 
     def finished(self) -> bool:
-        return False  # keeps serving its transient-local history until shut down
+        """With ``exit_when_done``: 1 s (wall) after the last state; otherwise never (the
+        plant keeps serving its transient-local history until it is shut down)."""
+        if not (self.done and self.params["exit_when_done"]):
+            return False
+        if self._done_at is None:
+            self._done_at = time.monotonic()
+        return time.monotonic() - self._done_at > 1.0
 
     def destroy_node(self) -> None:
         self.plant.close()

@@ -253,6 +253,11 @@ APPROACH = GraphParameter("approach", "maximal", "approach before contact: maxim
 REGULATION = GraphParameter(
     "regulation", "admittance", "regulation after contact: admittance or ff_mpc"
 )
+EXIT_WHEN_DONE = GraphParameter(
+    "exit_when_done",
+    False,
+    "exit 1 s (wall) after the last state (a launch file's on_exit: shutdown ends the run)",
+)
 MEASURE_MOMENTS = GraphParameter(
     "measure_moments",
     False,
@@ -337,6 +342,7 @@ NODE_SPECS: dict[str, NodeSpec] = {
             MAX_AGE,
             IMPACT_SCENARIO,
             IMPACT_SET,
+            EXIT_WHEN_DONE,
         ),
     ),
     "impact_controller": NodeSpec(

@@ -196,3 +196,21 @@ def test_controller_node_rejects_a_bad_reference_with_one_log_line_and_holds(ros
     assert np.all(np.isfinite(hold)) and np.all(np.abs(hold) < robot.torque_limit)
     # the hold differs from the tracking commands (it does not track the reference's motion)
     assert not np.array_equal(hold, status[2]["torque"])
+
+
+def test_the_launch_file_starts_the_nodes_ffmpc_run_impact_derives():
+    """impact.launch.yaml's parameters are the ones run_impact_graph gives the same settings
+    (but for what only a launch needs: no bring-up probe, exit at the end)."""
+    from ffmpc_ros.launch import load_launch_file
+
+    path = topics.__file__.replace("topics.py", "ros_layout/launch/impact.launch.yaml")
+    description = load_launch_file(path, {"regulation": "ff_mpc", "duration": "0.5"})
+    launched = {n.name: dict(n.parameters) for n in description.nodes}
+    items = ["strategy=prior", "duration=0.5", "approach_height=0.46"]
+    _, params = impact_node_parameters("maximal", "ff_mpc", overrides=items)
+    assert set(launched) == set(params)
+    assert launched["dice_plant"].pop("exit_when_done") is True
+    assert launched["dice_plant"].pop("start_subscribers") == 1  # no bring-up probe
+    assert params["dice_plant"].pop("start_subscribers") == 2
+    for name, values in params.items():
+        assert launched[name] == values, name
