@@ -14,10 +14,11 @@ impact_study_config`). For every cycle k it publishes, stamped t_k = k·time_ste
   ``contact_world_aligned`` (N, N·m);
 * ``plant/status`` (layout ``plant_status``) every 100 cycles and at the end.
 
-With ``exit_when_done`` the process exits 1 s (wall) after the last state (the launch file's
-``on_exit: shutdown``). Subscribes ``impact_controller/torque`` (sensor_msgs/JointState, effort N·m): the torque of
+Subscribes ``impact_controller/torque`` (sensor_msgs/JointState, effort N·m): the torque of
 cycle k is applied for one step (the plant saturates it to the torque limits, as the ROS-free
-run's plant does; a non-finite or absurd torque is rejected). Lockstep only: the plant steps
+run's plant does; a non-finite or absurd torque is rejected). With ``exit_when_done`` the
+process exits 1 s (wall) after the last state (the launch file's ``on_exit: shutdown``).
+Lockstep only: the plant steps
 once the torque of its current cycle has arrived, so a run does not depend on the CPU speed.
 """
 
@@ -104,7 +105,9 @@ class DicePlantNode(StudyNode):
         stamp = self.stamp_of(k)
         self.pub_clock.publish(ClockMsg(clock=stamp))
         self._published_at = time.perf_counter()
-        self.pub_joints.publish(joint_state_message(stamp, self.joint_names, s.q, s.v, self.applied))
+        self.pub_joints.publish(
+            joint_state_message(stamp, self.joint_names, s.q, s.v, self.applied)
+        )
         self.pub_wrench.publish(wrench_message(stamp, s.wrench_world))
         if k % STATUS_EVERY == 0 or self.done:
             lat = np.array(self.latencies) if self.latencies else np.zeros(1)
@@ -121,7 +124,8 @@ class DicePlantNode(StudyNode):
                         "latency_p50": float(np.percentile(lat, 50)),
                         "latency_p99": float(np.percentile(lat, 99)),
                         "latency_max": float(lat.max()),
-                        "wall_time": time.perf_counter() - (self._wall_start or time.perf_counter()),
+                        "wall_time": time.perf_counter()
+                        - (self._wall_start or time.perf_counter()),
                     }
                 )
             )

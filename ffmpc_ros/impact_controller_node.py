@@ -174,7 +174,9 @@ class ImpactControllerNode(MeasuredCycleNode):
         self.last_command: ImpactTaskCommand | None = None
         qos = topics.publisher_qos()
         self.pub_torque = self.create_publisher(JointState, topics.IMPACT_TORQUE, qos)
-        self.pub_status = self.create_publisher(Float64MultiArray, topics.IMPACT_CONTROL_STATUS, qos)
+        self.pub_status = self.create_publisher(
+            Float64MultiArray, topics.IMPACT_CONTROL_STATUS, qos
+        )
         lockstep_qos = topics.subscriber_qos(True)
         self.subscribe_measurements(lockstep_qos)
         if self.external:

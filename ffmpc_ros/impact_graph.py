@@ -52,7 +52,7 @@ from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 
-from ffmpc_core.errors import ConfigError, FfmpcError
+from ffmpc_core.errors import ConfigError
 from ffmpc_core.scenario import Scenario
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.params import node_parameter_values
@@ -466,8 +466,12 @@ def run_impact_graph(
             counts_path = os.path.join(tmp.name, "recorder_counts.json")
             metadata = graph_recorder_metadata(None, params, namespace)
             metadata["ffmpc_run"]["impact"] = json.dumps(
-                {"approach": approach, "regulation": regulation, "scenario": scenario,
-                 "overrides": list(overrides)}
+                {
+                    "approach": approach,
+                    "regulation": regulation,
+                    "scenario": scenario,
+                    "overrides": list(overrides),
+                }
             )
             children["recorder"], logs["recorder"] = _spawn_child(
                 "recorder",
@@ -563,4 +567,3 @@ def compare_with_runner(result: ImpactGraphResult, run) -> dict[str, tuple[Any, 
         if not _same(a, b):
             out[name] = (a, b)
     return out
-

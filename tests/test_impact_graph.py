@@ -12,8 +12,8 @@ import json
 
 import numpy as np
 import pytest
-from ros_helpers import joint_state, wrench
 from rclpy.serialization import deserialize_message
+from ros_helpers import joint_state, wrench
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
@@ -21,13 +21,13 @@ from ffmpc_core.robots import load_robot
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.bag.reader import BagReader
 from ffmpc_ros.bag.ros_types import message_class
+from ffmpc_ros.impact_controller_node import ImpactControllerNode
 from ffmpc_ros.impact_graph import (
     COMPARED,
     compare_with_runner,
     impact_node_parameters,
     run_impact_graph,
 )
-from ffmpc_ros.impact_controller_node import ImpactControllerNode
 from ffmpc_ros.params import parameter_overrides
 from studies.impact_study import load_impact_config, run_impact, start_pose
 
@@ -96,12 +96,16 @@ def test_the_bag_holds_the_planner_learner_controller_and_mpc(maximal_ff_mpc, ca
         for topic, type_name, _ in topics.IMPACT_GRAPH_TOPICS:
             assert bag.topics[topics.resolve(topic)].type == type_name, topic
         # the planner's pre-impact velocity (eq 14 bound) until the contact
-        refs = [layouts.IMPACT_REFERENCE.unpack(m) for m in _messages(bag, "/impact_planner/reference")]
+        refs = [
+            layouts.IMPACT_REFERENCE.unpack(m) for m in _messages(bag, "/impact_planner/reference")
+        ]
         assert len(refs) == steps + 1
         bounds = [r["pre_impact_velocity"] for r in refs if r["bound_valid"] > 0]
         assert len(bounds) == 178 and max(bounds) > 0.4  # every cycle before the contact
         # the learner's stiffness and damping with their uncertainty
-        est = [layouts.CONTACT_ESTIMATE.unpack(m) for m in _messages(bag, "/contact_learner/estimate")]
+        est = [
+            layouts.CONTACT_ESTIMATE.unpack(m) for m in _messages(bag, "/contact_learner/estimate")
+        ]
         last = [e for e in est if e["t"] < steps * 1e-3][-1]
         assert last["stiffness"] == runner.learned_stiffness
         assert (last["stiffness_std"], last["damping_std"]) == runner.learned_std
@@ -132,7 +136,9 @@ def test_the_graph_refuses_what_it_cannot_run():
     with pytest.raises(ConfigError, match="touch-first"):
         impact_node_parameters("maximal", "admittance", overrides=["strategy=touch_first"])
     with pytest.raises(ConfigError, match="cannot express"):
-        impact_node_parameters("maximal", "admittance", overrides=["strategy=prior", "planner.cost=lp"])
+        impact_node_parameters(
+            "maximal", "admittance", overrides=["strategy=prior", "planner.cost=lp"]
+        )
     cfg, params = impact_node_parameters("baseline", "ff_mpc", overrides=["duration=1"])
     assert "impact_planner" not in params and cfg.duration == 1.0
     assert params["ft_sensor"]["measure_moments"] is True
@@ -162,7 +168,8 @@ def test_controller_node_rejects_a_bad_reference_with_one_log_line_and_holds(ros
     _, params = impact_node_parameters("maximal", "admittance", overrides=MAXIMAL)
     node = ros.add(
         ImpactControllerNode(
-            context=ros.context, parameter_overrides=parameter_overrides(params["impact_controller"])
+            context=ros.context,
+            parameter_overrides=parameter_overrides(params["impact_controller"]),
         )
     )
     robot = load_robot("panda")
