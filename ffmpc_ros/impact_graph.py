@@ -31,11 +31,9 @@ JSON) — the last topic of the bag with ``record``.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import os
-import sys
 import tempfile
 import time
 from collections.abc import Sequence
@@ -45,10 +43,7 @@ from typing import Any
 import numpy as np
 import rclpy
 from geometry_msgs.msg import WrenchStamped
-from rclpy.context import Context
-from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
-from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 
@@ -417,6 +412,7 @@ def run_impact_graph(
     from ffmpc_core.robots import load_robot
     from ffmpc_ros.bringup import (
         GraphError,
+        ProgressWatch,
         _check_children,
         _check_stop,
         _refuse_foreign,
@@ -424,6 +420,8 @@ def run_impact_graph(
         _spawn,
         _spawn_child,
         _stop,
+        graph_context,
+        print_logs,
     )
 
     start = time.perf_counter()
@@ -439,14 +437,7 @@ def run_impact_graph(
     nodes = graph_nodes(approach)
     robot = load_robot(ROBOT)
     steps = int(round(cfg.duration / cfg.time_step))
-    context = Context()
-    rclpy.init(
-        args=["ffmpc", "--ros-args", *topics.graph_ros_args(namespace)],
-        context=context,
-        domain_id=domain,
-        signal_handler_options=SignalHandlerOptions.NO,
-    )
-    executor = EventsExecutor(context=context)
+    context, executor = graph_context(namespace, domain)
     children: dict = {}
     logs: dict[str, str] = {}
     counts_path = None
@@ -489,7 +480,7 @@ def run_impact_graph(
                 domain,
             )
         end = start + timeout
-        last_cycle, last_progress, first_step = -1, time.perf_counter(), None
+        watch = ProgressWatch(start, stall_timeout, start_timeout)
         while not probe.complete:
             now = time.perf_counter()
             if now > end:
@@ -498,19 +489,11 @@ def run_impact_graph(
                     f"{probe.cycle} of {steps}, {len(probe.status)} controller cycles"
                 )
             _check_children(children, logs, set())
-            if probe.cycle > last_cycle:
-                if first_step is None and probe.cycle >= 0:
-                    first_step = now
-                last_cycle, last_progress = probe.cycle, now
-            else:
-                limit = stall_timeout if last_cycle >= 0 else start_timeout
-                since = now - (last_progress if last_cycle >= 0 else start)
-                if since > limit:
-                    what = "no simulated progress" if last_cycle >= 0 else "the run did not start"
-                    raise GraphError(
-                        f"{what} for {since:.1f} s (wall; limit {limit:g} s): plant at cycle "
-                        f"{probe.cycle}, controller cycles {len(probe.status)}"
-                    )
+            watch.check(
+                probe.cycle,
+                now,
+                lambda: f"plant at cycle {probe.cycle}, controller cycles {len(probe.status)}",
+            )
             executor.spin_once(timeout_sec=0.05)
             _check_stop()
         done = time.perf_counter()
@@ -533,9 +516,7 @@ def run_impact_graph(
         rclpy.shutdown(context=context)
         rejected = _rejected_from_logs(logs)
         if not quiet:
-            for name, path in logs.items():
-                with contextlib.suppress(OSError), open(path, encoding="utf-8") as fh:
-                    sys.stderr.write(f"--- {name} ({path}) ---\n{fh.read()}")
+            print_logs(logs)
         bag = None
         if record is not None:
             bag = {"path": str(record)}
@@ -543,7 +524,7 @@ def run_impact_graph(
                 with open(counts_path, encoding="utf-8") as fh:
                     bag.update(json.load(fh))
         tmp.cleanup()
-    stepping = done - (first_step or done)
+    stepping = done - (watch.first_step or done)
     return ImpactGraphResult(
         approach=approach,
         regulation=regulation,
