@@ -61,8 +61,11 @@ def test_maximal_graph_equals_the_ros_free_run_through_impact_and_handover(maxim
 
 
 def test_baseline_graph_equals_the_ros_free_run():
-    """No planner node: the controller node runs the baseline approach and the admittance."""
-    graph = run_impact_graph("baseline", "admittance", overrides=BASELINE, timeout=180)
+    """No planner node: the controller node runs the baseline approach and the admittance; the
+    whole graph under a namespace (its clock too)."""
+    graph = run_impact_graph(
+        "baseline", "admittance", overrides=BASELINE, timeout=180, namespace="/cell_b"
+    )
     runner = _runner("baseline", "admittance", BASELINE)
     assert runner.contact_time == pytest.approx(0.630)
     assert compare_with_runner(graph, runner) == {}
@@ -221,3 +224,15 @@ def test_the_launch_file_starts_the_nodes_ffmpc_run_impact_derives():
     assert params["dice_plant"].pop("start_subscribers") == 2
     for name, values in params.items():
         assert launched[name] == values, name
+
+
+def test_ffmpc_run_refuses_the_other_graphs_options(capsys):
+    """Options of one graph given to the other: one line, exit 2, nothing started."""
+    from ffmpc_ros.cli import main
+
+    assert main(["run", "impact", "--single-process"]) == 2
+    assert "--single-process: polishing-graph options" in capsys.readouterr().err
+    assert main(["run", "polishing", "--approach", "baseline"]) == 2
+    assert "--approach: options of ffmpc run impact only" in capsys.readouterr().err
+    assert main(["run", "impact", "--set", "strategy=touch_first"]) == 2
+    assert "touch-first" in capsys.readouterr().err
