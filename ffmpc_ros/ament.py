@@ -32,6 +32,8 @@ EXECUTABLES: dict[str, str] = {
     "metrics": "ffmpc_ros.metrics_node",
     "impact_planner": "ffmpc_ros.impact_planner_node",
     "contact_learner": "ffmpc_ros.contact_learner_node",
+    "dice_plant": "ffmpc_ros.dice_plant_node",
+    "impact_controller": "ffmpc_ros.impact_controller_node",
 }
 
 _ROOT = Path(__file__).resolve().parent

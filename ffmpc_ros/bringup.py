@@ -232,6 +232,55 @@ TIMING_KEYS = (
 )
 
 
+def graph_context(namespace: str, domain: int) -> tuple[Context, EventsExecutor]:
+    """A bring-up's own rclpy context (in the graph's namespace, on its clock; no signal
+    handlers: the bring-up stops the run itself) and its executor."""
+    context = Context()
+    rclpy.init(
+        args=["ffmpc", "--ros-args", *topics.graph_ros_args(namespace)],
+        context=context,
+        domain_id=domain,
+        signal_handler_options=SignalHandlerOptions.NO,
+    )
+    return context, EventsExecutor(context=context)
+
+
+def print_logs(logs: Mapping[str, str]) -> None:
+    """Each child's log file on stderr (``quiet=False``)."""
+    for name, path in logs.items():
+        with contextlib.suppress(OSError), open(path, encoding="utf-8") as fh:
+            sys.stderr.write(f"--- {name} ({path}) ---\n{fh.read()}")
+
+
+class ProgressWatch:
+    """The lockstep watchdog: GraphError when no new plant cycle came for ``stall_timeout``
+    wall s (``start_timeout`` from ``start``, a ``time.perf_counter()``, before the first one).
+
+    Attributes: last_cycle, last_progress (wall s of the newest new cycle), first_step (wall s
+    of the first cycle seen, None before)."""
+
+    def __init__(self, start: float, stall_timeout: float, start_timeout: float) -> None:
+        self.start, self.stall_timeout, self.start_timeout = start, stall_timeout, start_timeout
+        self.last_cycle = -1
+        self.last_progress = time.perf_counter()
+        self.first_step: float | None = None
+
+    def check(self, cycle: int, now: float, progress) -> None:
+        """The newest plant cycle seen at wall time ``now``; ``progress()``: what each stage
+        last did, for the error."""
+        if cycle > self.last_cycle:
+            if self.first_step is None and cycle >= 0:
+                self.first_step = now
+            self.last_cycle, self.last_progress = cycle, now
+            return
+        started = self.last_cycle >= 0
+        limit = self.stall_timeout if started else self.start_timeout
+        since = now - (self.last_progress if started else self.start)
+        if since > limit:
+            what = "no simulated progress" if started else "the run did not start"
+            raise GraphError(f"{what} for {since:.1f} s (wall; limit {limit:g} s): {progress()}")
+
+
 class _StatusProbe:
     """Keeps the newest /plant/status; from ``/plant/joint_states`` (true q̇ and the torque
     applied): the newest cycle and the max over the run of |q̇|/limit and |τ|/limit per joint."""
@@ -474,16 +523,9 @@ def run_graph(
     params["plant"]["start_clock_subscribers"] += 2 * (record is not None)
     robot = load_robot(scenario.robot)
     time_step = scenario.plant.time_step
-    context = Context()
     # every node of this context (probe, metrics, single-process nodes, recorder) in the graph's
     # namespace, on the graph's clock
-    rclpy.init(
-        args=["ffmpc", "--ros-args", *topics.graph_ros_args(namespace)],
-        context=context,
-        domain_id=domain,
-        signal_handler_options=SignalHandlerOptions.NO,
-    )
-    executor = EventsExecutor(context=context)
+    context, executor = graph_context(namespace, domain)
     nodes: list[Node] = []
     graph_nodes: list[Node] = []
     children: dict[str, subprocess.Popen] = {}
@@ -596,7 +638,7 @@ def run_graph(
             nodes.append(recorder)
             executor.add_node(recorder)
         end = start + timeout
-        last_cycle, last_progress = -1, time.perf_counter()
+        watch = ProgressWatch(start, stall_timeout, start_timeout)
         while not metrics.finished():
             now = time.perf_counter()
             if now > end:
@@ -609,20 +651,10 @@ def run_graph(
                 # A stopped sensor loses measurements the metrics node waits for: once the
                 # plant is done, fill them with the previous value (the real-time rule,
                 # counted in metrics_filled) rather than wait forever.
-                if now - last_progress > FILL_GRACE:
+                if now - watch.last_progress > FILL_GRACE:
                     metrics._last_state_at = time.monotonic() - 1e3  # past its grace
                     metrics._check_finish()
-            if probe.cycle > last_cycle:
-                last_cycle, last_progress = probe.cycle, now
-            else:
-                limit = stall_timeout if last_cycle >= 0 else start_timeout
-                since = now - (last_progress if last_cycle >= 0 else start)
-                if since > limit:
-                    what = "no simulated progress" if last_cycle >= 0 else "the run did not start"
-                    raise GraphError(
-                        f"{what} for {since:.1f} s (wall; limit {limit:g} s): "
-                        f"{_progress(probe, pid_probe, children)}"
-                    )
+            watch.check(probe.cycle, now, lambda: _progress(probe, pid_probe, children))
             executor.spin_once(timeout_sec=0.05)
             _check_stop()
         done = time.perf_counter()
@@ -651,9 +683,7 @@ def run_graph(
         rclpy.shutdown(context=context)
         rejected.update(_rejected_from_logs(logs))
         if not quiet:
-            for name, path in logs.items():
-                with contextlib.suppress(OSError), open(path, encoding="utf-8") as fh:
-                    sys.stderr.write(f"--- {name} ({path}) ---\n{fh.read()}")
+            print_logs(logs)
         view_result = None
         if view_node is not None:
             view_result = {"address": view_node.address, "forwarded": dict(view_node.forwarded)}
@@ -771,17 +801,19 @@ def _spawn(
     domain: int,
     node_ros_args: Mapping[str, Sequence[str]],
     namespace: str = topics.ROOT_NAMESPACE,
+    nodes: Mapping[str, str] = NODES,
 ) -> tuple[dict[str, subprocess.Popen], dict[str, str]]:
-    """Start every node of NODES as a child in one new process group; output to log files."""
+    """Start every node of ``nodes`` (name → "module:class"; default the polishing graph's
+    NODES) as a child in one new process group; output to log files."""
     path = os.path.join(directory, "graph_params.yaml")
-    write_params_file({n: v for n, v in params.items() if n in NODES}, path, namespace)
+    write_params_file({n: v for n, v in params.items() if n in nodes}, path, namespace)
     graph_args = topics.graph_ros_args(namespace)
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
     children: dict[str, subprocess.Popen] = {}
     logs: dict[str, str] = {}
     marker = child_marker()
     group = 0
-    for name, target in NODES.items():
+    for name, target in nodes.items():
         module = target.partition(":")[0]
         logs[name] = os.path.join(directory, f"{name}.log")
         with open(logs[name], "w", encoding="utf-8") as out:

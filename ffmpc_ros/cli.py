@@ -237,6 +237,73 @@ def _view_layout() -> str:
     return str(foxglove_layout_path())
 
 
+#: ``ffmpc run`` options of the polishing graph only (argparse dest → flag).
+POLISHING_ONLY = {
+    "single_process": "--single-process",
+    "real_time": "--real-time",
+    "formulation": "--formulation",
+    "view": "--view",
+    "cpus": "--cpus",
+    "priority": "--priority",
+    "fault_window": "--fault-window",
+    "fault": "--fault",
+    "node_param": "--node-param",
+}
+#: ``ffmpc run`` options of the impact graph only (argparse dest → flag).
+IMPACT_ONLY = {"approach": "--approach", "regulation": "--regulation"}
+
+
+def _cmd_run_impact(args: argparse.Namespace) -> int:
+    """``ffmpc run impact``: the impact experiment on the node graph (ffmpc_ros.impact_graph)."""
+    import json
+    import shlex
+
+    from ffmpc_core.errors import ConfigError
+    from ffmpc_ros.impact_graph import run_impact_graph
+    from ffmpc_ros.topics import normalize_namespace
+
+    given = [flag for dest, flag in POLISHING_ONLY.items() if getattr(args, dest, None)]
+    if given:
+        raise ConfigError(f"{', '.join(given)}: polishing-graph options (not for ffmpc run impact)")
+    overrides = ["strategy=prior", *(args.set or [])]
+    if args.duration is not None:
+        overrides.append(f"duration={args.duration!r}")
+    try:
+        namespace = normalize_namespace(args.namespace)
+    except ConfigError as exc:
+        raise ConfigError(f"--namespace: {exc}") from None
+    result = run_impact_graph(
+        args.approach or "maximal",
+        args.regulation or "admittance",
+        overrides=overrides,
+        record=args.record,
+        timeout=args.timeout,
+        stall_timeout=args.stall_timeout,
+        start_timeout=args.start_timeout,
+        quiet=not args.verbose,
+        namespace=namespace,
+        allow_foreign=args.allow_foreign_publishers,
+    )
+    summary = result.summary()
+    summary["seed"] = args.seed
+    summary["command_line"] = shlex.join(["ffmpc", *args.argv])
+    summary = json.loads(json.dumps(summary, default=float))
+    print(json.dumps(summary, indent=2))
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as fh:
+            json.dump(summary, fh, indent=2)
+    m = result.metrics
+    print(
+        f"impact graph {result.approach}+{result.regulation}: contact {m['contact_time']:.3f} s at "
+        f"{m['pre_impact_velocity']:.3f} m/s, peak force {m['peak_force']:.1f} N, peak "
+        f"penetration {1e3 * m['peak_penetration']:.1f} mm, final force {m['final_force']:.2f} N,"
+        f" {m['violations'].total} limit violations; simulated {result.sim_time:.2f} s in "
+        f"{result.wall_time:.1f} s wall: {'safe' if result.safe else 'NOT SAFE'}",
+        file=sys.stderr,
+    )
+    return 0 if result.safe else 1
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     import json
     import shlex
@@ -245,6 +312,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from ffmpc_core.scenario import load_scenario
     from ffmpc_ros.bringup import run_graph
 
+    if args.scenario == "impact":
+        return _cmd_run_impact(args)
+    given = [flag for dest, flag in IMPACT_ONLY.items() if getattr(args, dest, None)]
+    if given:
+        raise ConfigError(f"{', '.join(given)}: options of ffmpc run impact only")
     overrides = _parse_overrides(args.set)
     if args.formulation:
         overrides["mpc.formulation"] = args.formulation
@@ -720,7 +792,23 @@ def build_parser() -> argparse.ArgumentParser:
         "than 1 % of either kind of deadline was missed or the loop fell back outside a "
         "--fault-window.",
     )
-    run.add_argument("scenario", help="a shipped scenario name or a scenario YAML path")
+    run.add_argument(
+        "scenario",
+        help="a shipped scenario name or a scenario YAML path; 'impact': the safe-maximal-impact "
+        "experiment (Dehio & Kheddar 2020) as a node graph (dice plant, sensors, impact planner, "
+        "contact learner, impact controller; ffmpc_ros/impact_graph.py) with --approach, "
+        "--regulation, --set (impact-study names, strategy=prior by default), --duration, "
+        "--record, --json; exit 1 when a joint limit was broken",
+    )
+    run.add_argument(
+        "--approach", choices=("maximal", "baseline"), default=None, help="impact: approach"
+    )
+    run.add_argument(
+        "--regulation",
+        choices=("admittance", "ff_mpc"),
+        default=None,
+        help="impact: regulation after contact",
+    )
     run.add_argument("--single-process", action="store_true", help="all nodes on one executor")
     run.add_argument(
         "--real-time", action="store_true", help="1 kHz loop and MPC on the wall clock"
@@ -729,7 +817,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--duration", type=positive_float, default=None, help="simulated s (default: task)"
     )
     run.add_argument("--formulation", choices=STUDY_FORMULATIONS, default=None)
-    run.add_argument("--seed", type=seed_int, default=None)
+    run.add_argument(
+        "--seed",
+        type=seed_int,
+        default=None,
+        help="scenario seed (impact: recorded only — the impact run draws no random number)",
+    )
     run.add_argument("--set", action="append", metavar="NAME=VALUE", help="scenario override")
     run.add_argument("--timeout", type=positive_float, default=3600.0, help="wall-time limit, s")
     run.add_argument("--verbose", action="store_true", help="show the nodes' output")

@@ -8,6 +8,8 @@ publishes, with the same stamp:
   generator of the ``force_sensor`` device). The sensor measures the axes of the MPC's contact
   model: 1-D → the ``normal_axis`` component (a one-axis load cell), 3-D → the three forces;
   the components it does not measure are published as 0. This is what the MPC reads.
+  With ``measure_moments`` (the impact graph) its moments are the plant's, delayed like the
+  force and without noise (eq 32 models forces only); otherwise they are 0.
 * ``/ft_sensor/wrench_filtered`` — the same through a first-order low-pass filter of cut-off
   ``filter_cutoff_frequency`` (y ← y + α(λ̂ − y), α = 1 − exp(−2π·f_c·Δt); 0 Hz: no filter).
 * ``/ft_sensor/in_contact`` — std_msgs/Bool: true once the filtered normal force exceeds
@@ -28,7 +30,7 @@ from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
 from ffmpc_core.errors import ConfigError, InputError
-from ffmpc_core.sensing import ForceTare
+from ffmpc_core.sensing import DelayLine, ForceTare
 from ffmpc_core.study import device_generator, force_sensing_model, measured_force
 from ffmpc_ros import topics
 from ffmpc_ros.base import StudyNode, run_node
@@ -54,6 +56,7 @@ class FtSensorNode(StudyNode):
         self.filtered: np.ndarray | None = None
         self.in_contact = False
         self.force_tare = ForceTare(fs.tare_samples, dim)
+        self.moments = DelayLine(fs.delay_cycles, 3) if self.params["measure_moments"] else None
         qos = topics.publisher_qos()
         self.pub_wrench = self.create_publisher(WrenchStamped, topics.SENSED_WRENCH, qos)
         self.pub_filtered = self.create_publisher(WrenchStamped, topics.FILTERED_WRENCH, qos)
@@ -64,7 +67,7 @@ class FtSensorNode(StudyNode):
         self.create_service(Trigger, topics.TARE_SERVICE, self.on_tare)
         self.published = 0
 
-    def _message(self, stamp, force: np.ndarray) -> WrenchStamped:
+    def _message(self, stamp, force: np.ndarray, moment: np.ndarray | None = None) -> WrenchStamped:
         out = WrenchStamped()
         out.header.stamp = stamp
         out.header.frame_id = topics.WRENCH_FRAME
@@ -72,6 +75,8 @@ class FtSensorNode(StudyNode):
         for axis, value in zip(self.axes, force, strict=True):
             full[axis] = float(value)
         out.wrench.force.x, out.wrench.force.y, out.wrench.force.z = full
+        if moment is not None:
+            out.wrench.torque.x, out.wrench.torque.y, out.wrench.torque.z = map(float, moment)
         return out
 
     def on_wrench(self, msg: WrenchStamped) -> None:
@@ -93,7 +98,8 @@ class FtSensorNode(StudyNode):
             self.in_contact = False
         elif not self.in_contact and normal > fs.contact_on_force:
             self.in_contact = True
-        self.pub_wrench.publish(self._message(msg.header.stamp, measured))
+        moment = None if self.moments is None else self.moments.step(wrench[3:])
+        self.pub_wrench.publish(self._message(msg.header.stamp, measured, moment))
         self.pub_filtered.publish(self._message(msg.header.stamp, self.filtered))
         self.pub_contact.publish(Bool(data=self.in_contact))
         self.published += 1

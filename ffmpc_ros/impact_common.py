@@ -41,6 +41,26 @@ def direction_parameter(value) -> np.ndarray:
         raise ConfigError(f"parameter direction: {exc}") from None
 
 
+def impact_study_config(params: dict):
+    """The impact study's configuration (``studies.impact_study.ImpactStudyConfig``) of a node of
+    the impact graph: its ``impact_scenario`` with the ``impact_set`` overrides (NAME=VALUE, as
+    ``ffmpc study impact --set``), checked against the study's schema; ConfigError otherwise,
+    and when ``plant.time_step`` (the graph's clock grid) differs from the study's time step."""
+    from ffmpc_ros.cli_args import parse_overrides
+    from studies.impact_study import IMPACT_SCHEMA, load_impact_config
+
+    items = [str(item) for item in params["impact_set"] if str(item).strip()]
+    config = load_impact_config(
+        str(params["impact_scenario"]), parse_overrides(items, schema=IMPACT_SCHEMA.params)
+    )
+    if config.time_step != float(params["plant.time_step"]):
+        raise ConfigError(
+            f"plant.time_step = {params['plant.time_step']} s but the impact scenario's time "
+            f"step is {config.time_step} s: give both the same value"
+        )
+    return config
+
+
 def estimate_message(
     estimate: ContactEstimate,
     t: float,

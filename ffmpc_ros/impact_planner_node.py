@@ -12,6 +12,10 @@ Subscribes ``/joint_sensor/joint_states`` (q̂, q̇̂) and ``/ft_sensor/wrench``
   In the approach v_ref tracks the eq 14 bound, ramped at the contact-space acceleration bound;
   once the pressing force −dᵀλ̂ reaches ``contact_threshold`` (2 N) the admittance controller
   regulates it to ``target_force`` (60 N);
+* ``impact_planner/reference`` — layout ``impact_reference``: the whole Cartesian command
+  (position, velocity, feed-forward acceleration, held orientation; world frame), what the
+  impact controller node tracks (on a safe stop: zero velocity and acceleration at the last
+  reference position);
 * ``/impact_planner/status`` — layout ``impact_status``: phase, the maximal safe pre-impact
   velocity of the cycle, the commanded velocity/acceleration along d, the reference position,
   the force, the material used, the contact time and speed, failures and rejections.
@@ -145,6 +149,7 @@ class ImpactPlannerNode(MeasuredCycleNode):
         qos = topics.publisher_qos()
         self.pub_command = self.create_publisher(TwistStamped, topics.IMPACT_COMMAND, qos)
         self.pub_status = self.create_publisher(Float64MultiArray, topics.IMPACT_STATUS, qos)
+        self.pub_reference = self.create_publisher(Float64MultiArray, topics.IMPACT_REFERENCE, qos)
         self.subscribe_measurements(topics.subscriber_qos(bool(p["lockstep"])))
         self.create_subscription(
             Float64MultiArray,
@@ -206,6 +211,22 @@ class ImpactPlannerNode(MeasuredCycleNode):
             **fields,
         }
         self.pub_status.publish(layouts.IMPACT_STATUS.pack(status))
+        stop = fields["safe_stop"] > 0
+        bound = command.pre_impact_velocity
+        reference = {
+            "t": self.t_of(k),
+            "safe_stop": fields["safe_stop"],
+            "phase": float(command.phase == CONTACT),
+            "bound_valid": float(math.isfinite(bound) and not stop),
+            "pre_impact_velocity": bound if math.isfinite(bound) and not stop else 0.0,
+            "position": command.position,
+            "velocity": velocity,
+            "acceleration": np.zeros(3) if stop else command.acceleration,
+            "rotation": command.rotation,
+            "force": command.force,
+            "target_force": command.target_force,
+        }
+        self.pub_reference.publish(layouts.IMPACT_REFERENCE.pack(reference))
         self._last_output = k
 
     # -- safe output -------------------------------------------------------------------------

@@ -255,6 +255,52 @@ IMPACT_STATUS = ArrayLayout(
     ),
 )
 
+#: /impact_planner/reference — the whole Cartesian command of the impact planner each cycle
+#: (what the task-space controller node tracks; the twist of /impact_planner/command is its
+#: velocity part).
+IMPACT_REFERENCE = ArrayLayout(
+    "impact_reference",
+    1,
+    (
+        Field("t", 1, "s", "simulated time of the measurement the command is computed from"),
+        Field("safe_stop", 1, "-", "1: zero-velocity stop after bad, stale or missing input"),
+        Field("phase", 1, "-", "0 approach, 1 contact"),
+        Field("bound_valid", 1, "-", "1 when pre_impact_velocity is this cycle's eq 14 bound"),
+        Field("pre_impact_velocity", 1, "m/s", "eq 14 bound of this cycle along d (0 if none)"),
+        Field("position", 3, "m", "reference position of the contact frame, world frame"),
+        Field("velocity", 3, "m/s", "reference velocity of the contact frame, world frame"),
+        Field("acceleration", 3, "m/s²", "feed-forward acceleration, world frame"),
+        Field("rotation", 9, "-", "held orientation of the contact frame, 3×3 row-major"),
+        Field("force", 1, "N", "measured pressing force along d, −dᵀλ̂"),
+        Field("target_force", 1, "N", "force regulated in contact"),
+    ),
+)
+
+#: /impact_controller/status — the impact experiment's controller each cycle (Sec. VI).
+IMPACT_CONTROL = ArrayLayout(
+    "impact_control",
+    1,
+    (
+        Field("t", 1, "s", "simulated time of the measurement the torque is computed from"),
+        Field("safe_hold", 1, "-", "1: the torque holds the pose after a rejected reference"),
+        Field("in_contact", 1, "-", "1 once the contact is declared (force ≥ contact_threshold)"),
+        Field("phase", 1, "-", "-1 none (baseline), 0 approach, 1 contact, 2 force-feedback MPC"),
+        Field("pre_impact_velocity", 1, "m/s", "the maximal approach's eq 14 bound (0 if none)"),
+        Field("contact_time", 1, "s", "time the contact was declared (−1 before)"),
+        Field("touch_speed", 1, "m/s", "speed along d at the last force-free sample before it"),
+        Field("handover_time", 1, "s", "time the force-feedback MPC took over (−1 before)"),
+        Field("mpc_weight", 1, "-", "share of the MPC's torque in the blend, [0, 1]"),
+        Field("mpc_stiffness", 1, "N/m", "the MPC's contact stiffness (0 before the hand-over)"),
+        Field("mpc_damping", 1, "N·s/m", "the MPC's contact damping (0 before the hand-over)"),
+        Field("mpc_learned", 1, "-", "1 when that contact model is the learner's estimate"),
+        Field("mpc_force", 1, "N", "the MPC's predicted contact force at its next node (0 before)"),
+        Field("learner_samples", 1, "-", "samples fed to the contact learner so far"),
+        Field("rejected", 1, "-", "inputs rejected by the node so far"),
+        Field("nv", 1, "-", "number of joints (7)"),
+        Field("torque", "nv", "N·m", "the joint torque sent (impact_controller/torque)"),
+    ),
+)
+
 #: /mpc/prediction — the horizon of the MPC's last solve, for display (published only while
 #: something subscribes; ModelPredictiveController.prediction).
 MPC_PREDICTION = ArrayLayout(
@@ -285,6 +331,8 @@ LAYOUTS: dict[str, ArrayLayout] = {
         LOWLEVEL_STATUS,
         CONTACT_ESTIMATE,
         IMPACT_STATUS,
+        IMPACT_REFERENCE,
+        IMPACT_CONTROL,
         MPC_PREDICTION,
     )
 }

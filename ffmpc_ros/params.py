@@ -253,6 +253,33 @@ CONTACT_LEARNER_GRAPH: tuple[GraphParameter, ...] = (
     GraphParameter("regularization", 1e-9, "λ of (S Sᵀ)_0 = λI (eq 19), m² and m²/s²", (0.0, 1.0)),
 )
 
+# -- the impact graph (``ffmpc run impact``): the dice plant and the impact controller build
+# their configuration from the impact study's scenario (studies.impact_study.IMPACT_SCHEMA), so
+# that the graph and the ROS-free run are built from the one declaration.
+IMPACT_SCENARIO = GraphParameter(
+    "impact_scenario", "impact", "impact-study scenario: a shipped name or a YAML path"
+)
+IMPACT_SET = GraphParameter(
+    "impact_set",
+    [""],
+    "impact-study overrides NAME=VALUE (as ffmpc study impact --set); '' entries are ignored",
+)
+APPROACH = GraphParameter("approach", "maximal", "approach before contact: maximal or baseline")
+REGULATION = GraphParameter(
+    "regulation", "admittance", "regulation after contact: admittance or ff_mpc"
+)
+EXIT_WHEN_DONE = GraphParameter(
+    "exit_when_done",
+    False,
+    "exit 1 s (wall) after the last state (a launch file's on_exit: shutdown ends the run)",
+)
+MEASURE_MOMENTS = GraphParameter(
+    "measure_moments",
+    False,
+    "also measure the moments of the wrench (with the force's delay, no noise): the impact "
+    "controller compensates the whole wrench",
+)
+
 #: The MPC's live parameters: contact K (N/m) and B (N·s/m), the force set-point (N), the
 #: position offset (m) and the cost weights it can change in place (of the formulation it runs).
 MPC_LIVE: tuple[str, ...] = (
@@ -284,7 +311,9 @@ NODE_SPECS: dict[str, NodeSpec] = {
     "joint_sensor": NodeSpec(
         "joint_sensor", "joint_sensor", ("robot", "seed"), _TIME_STEP, (MAX_AGE,)
     ),
-    "ft_sensor": NodeSpec("ft_sensor", "ft_sensor", ("seed",), _TIME_STEP + _CONTACT, (MAX_AGE,)),
+    "ft_sensor": NodeSpec(
+        "ft_sensor", "ft_sensor", ("seed",), _TIME_STEP + _CONTACT, (MAX_AGE, MEASURE_MOMENTS)
+    ),
     "mpc": NodeSpec(
         "mpc",
         "mpc",
@@ -313,6 +342,38 @@ NODE_SPECS: dict[str, NodeSpec] = {
     ),
     "contact_learner": NodeSpec(
         "contact_learner", None, ("robot",), _TIME_STEP, (MAX_AGE, *CONTACT_LEARNER_GRAPH)
+    ),
+    "dice_plant": NodeSpec(
+        "dice_plant",
+        None,
+        ("robot",),
+        _TIME_STEP,
+        (
+            LOCKSTEP,
+            DURATION,
+            START_DELAY,
+            START_SUBSCRIBERS,
+            START_CLOCK_SUBSCRIBERS,
+            MAX_AGE,
+            IMPACT_SCENARIO,
+            IMPACT_SET,
+            EXIT_WHEN_DONE,
+        ),
+    ),
+    "impact_controller": NodeSpec(
+        "impact_controller",
+        None,
+        ("robot",),
+        _TIME_STEP,
+        (
+            LOCKSTEP,
+            LOCKSTEP_TIMEOUT,
+            MAX_AGE,
+            IMPACT_SCENARIO,
+            IMPACT_SET,
+            APPROACH,
+            REGULATION,
+        ),
     ),
 }
 

@@ -52,6 +52,30 @@ from sim_bridge.runner import simulated_robot
 STATUS_EVERY = 100  # cycles between two /plant/status messages
 
 
+def joint_state_message(
+    stamp, names: Sequence[str], q: np.ndarray, v: np.ndarray, effort: np.ndarray
+) -> JointState:
+    """``plant/joint_states`` of one cycle: q (rad), q̇ (rad/s), applied torque (N·m)."""
+    msg = JointState()
+    msg.header.stamp = stamp
+    msg.name = list(names)
+    msg.position = np.asarray(q, dtype=float).tolist()
+    msg.velocity = np.asarray(v, dtype=float).tolist()
+    msg.effort = np.asarray(effort, dtype=float).tolist()
+    return msg
+
+
+def wrench_message(stamp, wrench_world: np.ndarray) -> WrenchStamped:
+    """``plant/wrench`` of one cycle: [f; m] on the tool (N, N·m), ``contact_world_aligned``."""
+    msg = WrenchStamped()
+    msg.header.stamp = stamp
+    msg.header.frame_id = topics.WRENCH_FRAME
+    f, m = wrench_world[:3], wrench_world[3:]
+    msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z = map(float, f)
+    msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z = map(float, m)
+    return msg
+
+
 class PlantNode(StudyNode):
     """The simulated robot on topics (see the module docstring)."""
 
@@ -135,18 +159,8 @@ class PlantNode(StudyNode):
         k, s = self.k, self.state
         stamp = self.stamp_of(k)
         self.pub_clock.publish(ClockMsg(clock=stamp))
-        joints = JointState()
-        joints.header.stamp = stamp
-        joints.name = self.joint_names
-        joints.position = s.q.tolist()
-        joints.velocity = s.v.tolist()
-        joints.effort = np.asarray(self.tau_hat, dtype=float).tolist()
-        wrench = WrenchStamped()
-        wrench.header.stamp = stamp
-        wrench.header.frame_id = topics.WRENCH_FRAME
-        f, m = s.wrench_world[:3], s.wrench_world[3:]
-        wrench.wrench.force.x, wrench.wrench.force.y, wrench.wrench.force.z = map(float, f)
-        wrench.wrench.torque.x, wrench.wrench.torque.y, wrench.wrench.torque.z = map(float, m)
+        joints = joint_state_message(stamp, self.joint_names, s.q, s.v, self.tau_hat)
+        wrench = wrench_message(stamp, s.wrench_world)
         truth = layouts.PLANT_TRUTH.pack(
             {
                 "t": self.t_of(k),

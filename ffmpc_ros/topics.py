@@ -114,10 +114,41 @@ CONTACT_LEARNER_RESET_SERVICE = "contact_learner/reset"
 #: (the same frame as the wrenches).
 COMMAND_FRAME = WRENCH_FRAME
 
+#: The planner's whole Cartesian command (pose, twist, feed-forward acceleration) each cycle,
+#: what the impact controller tracks.
+IMPACT_REFERENCE = "impact_planner/reference"
+#: The impact controller's joint torque (JointState effort, N·m) for the plant of the impact
+#: graph, and its status (layout ``impact_control``).
+IMPACT_TORQUE = "impact_controller/torque"
+IMPACT_CONTROL_STATUS = "impact_controller/status"
+
 IMPACT_TOPICS: tuple[tuple[str, str, str], ...] = (
     (IMPACT_COMMAND, "geometry_msgs/msg/TwistStamped", "impact_planner"),
     (IMPACT_STATUS, "std_msgs/msg/Float64MultiArray", "impact_planner"),
+    (IMPACT_REFERENCE, "std_msgs/msg/Float64MultiArray", "impact_planner"),
     (CONTACT_ESTIMATE, "std_msgs/msg/Float64MultiArray", "contact_learner"),
+    (IMPACT_TORQUE, "sensor_msgs/msg/JointState", "impact_controller"),
+    (IMPACT_CONTROL_STATUS, "std_msgs/msg/Float64MultiArray", "impact_controller"),
+)
+
+#: The impact graph's summary (std_msgs/String, JSON: the run's metrics), published once by the
+#: bring-up at the end (the recorder's last topic).
+IMPACT_SUMMARY = "impact_graph/summary"
+
+#: Every topic of the impact graph (``ffmpc run impact``, ``ffmpc_ros.impact_graph``): the
+#: dice plant's, the two sensors' and the impact nodes'. The planner's topics are absent from a
+#: baseline run (no planner node).
+IMPACT_GRAPH_TOPICS: tuple[tuple[str, str, str], ...] = (
+    (CLOCK, "rosgraph_msgs/msg/Clock", "dice_plant"),
+    (PLANT_JOINT_STATES, "sensor_msgs/msg/JointState", "dice_plant"),
+    (PLANT_WRENCH, "geometry_msgs/msg/WrenchStamped", "dice_plant"),
+    (PLANT_STATUS, "std_msgs/msg/Float64MultiArray", "dice_plant"),
+    (SENSED_JOINT_STATES, "sensor_msgs/msg/JointState", "joint_sensor"),
+    (SENSED_WRENCH, "geometry_msgs/msg/WrenchStamped", "ft_sensor"),
+    (FILTERED_WRENCH, "geometry_msgs/msg/WrenchStamped", "ft_sensor"),
+    (IN_CONTACT, "std_msgs/msg/Bool", "ft_sensor"),
+    *IMPACT_TOPICS,
+    (IMPACT_SUMMARY, "std_msgs/msg/String", "ffmpc_bringup"),
 )
 
 #: Topics of the live view (``ffmpc run --view``, ffmpc_ros.view): the MPC's horizon, which the

@@ -112,6 +112,7 @@ from ffmpc_core.impact.controllers import (
     APPROACHES,
     REGULATIONS,
     BaselineApproachConfig,
+    ContactMeasurement,
     HandoverConfig,
     ImpactTaskConfig,
     ImpactTaskController,
@@ -131,7 +132,7 @@ from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_core.scenario import ConfigSchema, FieldDecl, cost_weight_specs
 
 if TYPE_CHECKING:  # the plant imports PyBullet: loaded when a run starts, not to parse
-    from sim_bridge.plant import SoftBoxConfig
+    from sim_bridge.plant import PlantConfig, SoftBoxConfig
 
 __all__ = [
     "APPROACHES",
@@ -146,11 +147,15 @@ __all__ = [
     "LimitViolations",
     "count_limit_violations",
     "default_out_dir",
+    "dice_measurement",
     "format_table",
     "plot_runs",
     "run_impact",
     "run_impact_study",
+    "plant_config",
+    "run_metrics",
     "start_configuration",
+    "start_pose",
     "task_config",
     "time_to_steady_force",
 ]
@@ -627,6 +632,46 @@ class ImpactRun:
         return out
 
 
+def run_metrics(
+    cfg: ImpactStudyConfig,
+    log: dict[str, np.ndarray],
+    qs: np.ndarray,
+    vs: np.ndarray,
+    taus: np.ndarray,
+    limits: JointLimits,
+    contact_time: float | None,
+    touch_speed: float,
+) -> dict[str, Any]:
+    """A run's metrics from its log (``t`` s, ``force`` N, ``penetration`` m per step), the
+    joint positions and velocities of steps 0..K (rad, rad/s), the torques sent at steps
+    0..K−1 (N·m), the data-sheet limits, the contact time (s, None: never) and the speed along
+    d at the last force-free sample before it (m/s): ``pre_impact_velocity``,
+    ``contact_time``, ``steady_time``, ``peak_force``, ``peak_penetration``, ``final_force``,
+    ``final_force_error``, ``violations`` (see :class:`ImpactRun`). The ROS-free run and the
+    impact graph both summarise with it."""
+    t_log, force = log["t"], log["force"]
+    nan = float("nan")
+    contact = nan if contact_time is None else float(contact_time)
+    steady = (
+        nan
+        if contact_time is None
+        else time_to_steady_force(
+            t_log, force, cfg.target_force, cfg.steady_band, cfg.steady_hold, contact
+        )
+    )
+    tail = t_log >= t_log[-1] - 0.2
+    return dict(
+        pre_impact_velocity=float(touch_speed) if contact_time is not None else nan,
+        contact_time=contact,
+        steady_time=steady,
+        peak_force=float(force.max()),
+        peak_penetration=float(log["penetration"].max()),
+        final_force=float(force[tail].mean()),
+        final_force_error=float(np.abs(force[tail] - cfg.target_force).max()),
+        violations=count_limit_violations(qs, vs, taus, cfg.time_step, limits),
+    )
+
+
 def task_config(approach: str, regulation: str, cfg: ImpactStudyConfig) -> ImpactTaskConfig:
     """The controller configuration of one run (:class:`ImpactTaskController`) from the
     study's configuration."""
@@ -677,6 +722,34 @@ def task_config(approach: str, regulation: str, cfg: ImpactStudyConfig) -> Impac
     )
 
 
+def dice_measurement(
+    robot: RobotModel, data: pin.Data, q: np.ndarray, v: np.ndarray, wrench: np.ndarray
+) -> ContactMeasurement:
+    """One cycle's measurement of the experiment from q (rad), q̇ (rad/s) and the wrench on the
+    tool ([f; m], N and N·m, world axes): the pressing force is the world-z force (d = DOWN).
+    The ROS-free run and the impact graph's controller node both measure with it."""
+    return contact_measurement(robot, data, q, v, wrench, DOWN, force=float(wrench[2]))
+
+
+def start_pose(cfg: ImpactStudyConfig, robot: RobotModel) -> np.ndarray:
+    """The start joint positions (rad): the tool ``approach_height`` above the dice's centre."""
+    x0, y0 = cfg.dice.position_xy
+    top = cfg.dice.top_height
+    return start_configuration(robot, np.array([x0, y0, top + cfg.approach_height]))
+
+
+def plant_config(cfg: ImpactStudyConfig) -> PlantConfig:
+    """The PyBullet plant of the experiment: no table, the dice, the spherical tool."""
+    from sim_bridge.plant import PlantConfig, ToolConfig
+
+    return PlantConfig(
+        time_step=cfg.time_step,
+        table=None,
+        soft_boxes=(cfg.dice.box(),),
+        tool=ToolConfig(radius=cfg.tool_radius),
+    )
+
+
 def run_impact(
     approach: str,
     regulation: str,
@@ -695,8 +768,7 @@ def run_impact(
     data = robot.create_data()
     dice = cfg.dice
     top = dice.top_height
-    x0, y0 = dice.position_xy
-    q0 = start_configuration(robot, np.array([x0, y0, top + cfg.approach_height]))
+    q0 = start_pose(cfg, robot)
     limits = joint_limits(robot)
     dt = cfg.time_step
     steps = int(round(cfg.duration / dt))
@@ -723,24 +795,15 @@ def run_impact(
     vs = np.zeros((steps + 1, robot.nv))
     taus = np.zeros((steps, robot.nv))
 
-    from sim_bridge.plant import Plant, PlantConfig, ToolConfig
+    from sim_bridge.plant import Plant
 
-    plant_cfg = PlantConfig(
-        time_step=dt,
-        table=None,
-        soft_boxes=(dice.box(),),
-        tool=ToolConfig(radius=cfg.tool_radius),
-    )
-    with Plant(robot, plant_cfg) as plant:
+    with Plant(robot, plant_config(cfg)) as plant:
         plant.reset(q0)
         for k in range(steps):
             t = k * dt
             s = plant.state()
             qs[k], vs[k] = s.q, s.v
-            # the pressing force is the world-z force on the tool (d = DOWN)
-            m = contact_measurement(
-                robot, data, s.q, s.v, s.wrench_world, DOWN, force=float(s.wrench_world[2])
-            )
+            m = dice_measurement(robot, data, s.q, s.v, s.wrench_world)
             log["speed"][k] = m.speed
             log["force"][k] = m.force
             log["penetration"][k] = top - m.position[2]
@@ -763,20 +826,9 @@ def run_impact(
     solve_times = [] if handover is None else handover.solve_times
     learned_in_mpc = handover is not None and handover.learned
     t_log = log["t"]
-    contact_time = float("nan") if controller.contact_time is None else controller.contact_time
-    steady = (
-        float("nan")
-        if controller.contact_time is None
-        else time_to_steady_force(
-            t_log,
-            log["force"],
-            cfg.target_force,
-            cfg.steady_band,
-            cfg.steady_hold,
-            contact_time,
-        )
+    metrics = run_metrics(
+        cfg, log, qs, vs, taus, limits, controller.contact_time, controller.touch_speed
     )
-    tail = t_log >= t_log[-1] - 0.2
     try:
         est = learner.estimate()
         learned = (est.stiffness, est.damping, (est.stiffness_std, est.damping_std))
@@ -806,16 +858,7 @@ def run_impact(
         regulation=regulation,
         strategy=cfg.strategy if approach == "maximal" else "prior",
         **touch,
-        pre_impact_velocity=(
-            float(controller.touch_speed) if controller.contact_time is not None else float("nan")
-        ),
-        contact_time=contact_time,
-        steady_time=steady,
-        peak_force=float(log["force"].max()),
-        peak_penetration=float(log["penetration"].max()),
-        final_force=float(log["force"][tail].mean()),
-        final_force_error=float(np.abs(log["force"][tail] - cfg.target_force).max()),
-        violations=count_limit_violations(qs, vs, taus, dt, limits),
+        **metrics,
         learned_stiffness=float(learned[0]),
         learned_damping=float(learned[1]),
         learned_std=(float(learned[2][0]), float(learned[2][1])),

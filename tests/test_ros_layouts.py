@@ -47,6 +47,8 @@ def test_every_layout_is_documented_field_by_field():
         "lowlevel_status": topics.LOWLEVEL_STATUS,
         "contact_estimate": topics.CONTACT_ESTIMATE,
         "impact_status": topics.IMPACT_STATUS,
+        "impact_reference": topics.IMPACT_REFERENCE,
+        "impact_control": topics.IMPACT_CONTROL_STATUS,
         "mpc_prediction": topics.MPC_PREDICTION,
     }
     for name, layout in layouts.LAYOUTS.items():
@@ -62,7 +64,12 @@ def test_every_topic_is_documented_with_its_type_and_publisher():
     topic_rows = [r for r in rows if len(r) == 7 and "/msg/" in r[1]]
     documented = {(r[0], r[1], r[2]) for r in topic_rows}
     references = set(topics.REFERENCE_TOPICS)
-    documented_sets = set(topics.TOPICS) | set(topics.IMPACT_TOPICS) | set(topics.VIEW_TOPICS)
+    documented_sets = (
+        set(topics.TOPICS)
+        | set(topics.IMPACT_TOPICS)
+        | set(topics.IMPACT_GRAPH_TOPICS)
+        | set(topics.VIEW_TOPICS)
+    )
     assert documented == documented_sets | references
     assert len(topic_rows) == len(documented_sets) + len(references)
     services = (

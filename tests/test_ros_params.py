@@ -75,6 +75,8 @@ def test_every_parameter_has_a_description_and_numbers_a_range(ros):
         "metrics",
         "impact_planner",
         "contact_learner",
+        "dice_plant",
+        "impact_controller",
     }
 
 

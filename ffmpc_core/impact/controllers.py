@@ -376,13 +376,15 @@ class HandoverConfig:
 class HandoverCommand:
     """The hand-over's output: ``torque`` (N·m, admissible for the guard's limits), its blend
     ``weight`` in [0, 1] against the controller it takes over from, and the contact model the
-    MPC used (stiffness N/m, damping N·s/m; ``learned``: from the learner, not the prior)."""
+    MPC used (stiffness N/m, damping N·s/m; ``learned``: from the learner, not the prior);
+    ``force``: the contact force (N) the MPC's last solve predicts at its next node."""
 
     torque: np.ndarray
     weight: float
     stiffness: float
     damping: float
     learned: bool
+    force: float = float("nan")
 
 
 class ForceFeedbackHandover:
@@ -427,6 +429,7 @@ class ForceFeedbackHandover:
         self._steps = 0
         self._torque = np.zeros(self.robot.nv)
         self._contact = (self.config.prior_stiffness, self.config.prior_damping)
+        self._force = float("nan")
         self.learned = False
         self.solve_times: list[float] = []
         self._t_prev: float | None = None
@@ -483,6 +486,7 @@ class ForceFeedbackHandover:
                 self.learned = True
             command = self.mpc.step(MpcMeasurement(q=m.q, v=m.v, force=np.array([m.force])), t)
             self._torque = command.torque
+            self._force = float(command.xs[min(1, len(command.xs) - 1)][2 * self.robot.nv])
             self.solve_times.append(command.solve_time)
         # The MPC models the normal force only: compensate that one (and the measured moment:
         # the contact point is off the frame origin when the tool tilts) and keep the contact
@@ -495,7 +499,9 @@ class ForceFeedbackHandover:
         self._steps += 1
         blend = cfg.blend
         weight = 1.0 if blend <= 0 else min(self._steps * cfg.time_step / blend, 1.0)
-        return HandoverCommand(torque, weight, *self._contact, learned=self.learned)
+        return HandoverCommand(
+            torque, weight, *self._contact, learned=self.learned, force=self._force
+        )
 
 
 # ---------------------------------------------------------------------------- the whole task
@@ -547,7 +553,9 @@ class ImpactTaskCommand:
         phase: the maximal approach's phase, ``ff_mpc`` once the MPC alone acts, else "".
         pre_impact_velocity: the maximal approach's eq 14 bound this cycle, m/s (else NaN).
         mpc_weight: the MPC's share of the torque. mpc_stiffness, mpc_damping: its contact
-            model (N/m, N·s/m; NaN before the hand-over).
+            model (N/m, N·s/m; NaN before the hand-over). mpc_learned: that model is the
+            learner's. mpc_force: the MPC's predicted contact force at its next node (N; NaN
+            before the hand-over).
     """
 
     torque: np.ndarray
@@ -557,6 +565,8 @@ class ImpactTaskCommand:
     mpc_weight: float
     mpc_stiffness: float
     mpc_damping: float
+    mpc_learned: bool = False
+    mpc_force: float = float("nan")
 
 
 class ImpactTaskController:
@@ -574,6 +584,12 @@ class ImpactTaskController:
         robot: the robot model (contact frame = end-effector).
         limits: the control limits the planner and the guard use.
         config: see :class:`ImpactTaskConfig`.
+        learner: the learner the hand-over reads and this controller feeds (default: its own
+            :class:`RecursiveContactLearner`; the impact graph's controller node gives one
+            that holds the contact learner node's estimates).
+        external_approach: the maximal approach runs elsewhere (the impact planner node):
+            :meth:`step` then takes its command of the cycle; only with the paper's scheme
+            (no touch-first) and a given ``learner``.
 
     Raises:
         InfeasibleTargetError: touch-first, before any motion, when no plausible material can
@@ -585,7 +601,15 @@ class ImpactTaskController:
     force-free sample before contact), ``handover_time`` (s).
     """
 
-    def __init__(self, robot: RobotModel, limits: JointLimits, config: ImpactTaskConfig) -> None:
+    def __init__(
+        self,
+        robot: RobotModel,
+        limits: JointLimits,
+        config: ImpactTaskConfig,
+        *,
+        learner: RecursiveContactLearner | None = None,
+        external_approach: bool = False,
+    ) -> None:
         self.robot = robot
         self.config = config
         ctrl = config.controller
@@ -594,13 +618,20 @@ class ImpactTaskController:
         self.approach_controller: ImpactController | None = None
         self.touch_first: TouchFirstImpactController | None = None
         self.baseline: BaselineApproach | None = None
-        if config.approach == "maximal":
+        self.external_approach = external_approach and config.approach == "maximal"
+        if self.external_approach and (config.touch is not None or learner is None):
+            raise ConfigError(
+                "an external maximal approach (the impact planner node) needs the paper's "
+                "scheme (strategy prior: the touch-first controller learns inside itself) and "
+                "the learner the hand-over reads"
+            )
+        if config.approach == "maximal" and not self.external_approach:
             if config.touch is not None:
                 self.touch_first = TouchFirstImpactController(robot, limits, ctrl, config.touch)
                 self.approach_controller = self.touch_first
             else:
                 self.approach_controller = ImpactController(robot, limits, ctrl)
-        else:
+        elif config.approach == "baseline":
             assert config.baseline is not None  # checked by ImpactTaskConfig
             self.baseline = BaselineApproach(robot, limits, config.baseline)
         self.admittance = AdmittanceRegulator(
@@ -613,8 +644,12 @@ class ImpactTaskController:
         )
         # The touch-first controller learns itself (during the touch and after the strike):
         # the MPC then takes its estimate. Otherwise this controller feeds its own learner.
+        if learner is not None and self.touch_first is not None:
+            raise ConfigError("the touch-first strategy learns itself: no learner can be given")
         self.learner = (
-            self.touch_first.learner if self.touch_first is not None else RecursiveContactLearner()
+            self.touch_first.learner
+            if self.touch_first is not None
+            else (learner if learner is not None else RecursiveContactLearner())
         )
         self.handover: ForceFeedbackHandover | None = None
         if config.regulation == "ff_mpc":
@@ -651,9 +686,20 @@ class ImpactTaskController:
             return -one_step_impact_force(prior.stiffness, prior.damping, m.speed, dt) * d
         return None
 
-    def step(self, measurement: ContactMeasurement, t: float) -> ImpactTaskCommand:
-        """One cycle at ``t`` (s)."""
+    def step(
+        self,
+        measurement: ContactMeasurement,
+        t: float,
+        approach: CartesianCommand | None = None,
+    ) -> ImpactTaskCommand:
+        """One cycle at ``t`` (s). ``approach``: with ``external_approach``, the maximal
+        approach's command of this cycle (the impact planner's, computed from the same
+        measurement); required then, refused otherwise."""
         m = measurement
+        if (approach is not None) != self.external_approach:
+            raise InputError(
+                "an approach command is required with an external maximal approach, and only then"
+            )
         ctrl = self.config.controller
         if self._hold_rotation is None:
             self._hold_rotation = m.rotation.copy()
@@ -685,7 +731,10 @@ class ImpactTaskController:
         weight = 0.0 if mpc is None else mpc.weight
         phase, bound = "", nan
         if weight < 1.0:
-            if self.approach_controller is not None:
+            if approach is not None:
+                cmd = approach
+                bound, phase = cmd.pre_impact_velocity, cmd.phase
+            elif self.approach_controller is not None:
                 F = m.wrench[:3].copy()
                 cmd = self.approach_controller.step(ImpactMeasurement(m.q, m.v, F), t)
                 bound, phase = cmd.pre_impact_velocity, self.approach_controller.phase
@@ -712,4 +761,6 @@ class ImpactTaskController:
             mpc_weight=weight,
             mpc_stiffness=nan if mpc is None else mpc.stiffness,
             mpc_damping=nan if mpc is None else mpc.damping,
+            mpc_learned=mpc is not None and mpc.learned,
+            mpc_force=nan if mpc is None else mpc.force,
         )

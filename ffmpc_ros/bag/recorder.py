@@ -381,7 +381,8 @@ def graph_recorder_process(config_path: str) -> int:
     """The graph recorder in its own process (``ffmpc run --record``, multi-process).
 
     ``config_path``: JSON {"target": bag path, "domain": ROS domain, "metadata": records,
-    "counts": path of the JSON written at the end}. Records until the run is complete
+    "counts": path of the JSON written at the end, optionally "options": the BagRecorder
+    keyword arguments (default: the polishing graph's)}. Records until the run is complete
     (:attr:`BagRecorder.complete`) or SIGINT/SIGTERM — including the SIGTERM the kernel sends
     when the bring-up dies (PR_SET_PDEATHSIG, set by the bring-up) — then closes the bag
     (summary, footer: readable without recovery) and writes {"received", "complete",
@@ -390,11 +391,13 @@ def graph_recorder_process(config_path: str) -> int:
 
     with child_ros_process(config_path) as child:
         config, executor, stopping = child.config, child.executor, child.stopping
+        # "options": the BagRecorder options of another graph (the impact graph's); default
+        # the polishing graph's
+        options = config.get("options") or _graph_recorder_options(
+            config.get("namespace"), config.get("view")
+        )
         recorder = BagRecorder(
-            config["target"],
-            context=child.context,
-            metadata=config["metadata"],
-            **_graph_recorder_options(config.get("namespace"), config.get("view")),
+            config["target"], context=child.context, metadata=config["metadata"], **options
         )
         executor.add_node(recorder)
         try:

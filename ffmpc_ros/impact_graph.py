@@ -1,0 +1,550 @@
+"""Bring-up of the impact graph (``ffmpc run impact``): the safe-maximal-impact experiment of
+Dehio & Kheddar 2020 (Sec. VI) as separate node processes in lockstep.
+
+Nodes (each its own process, started like the polishing graph's, ``ffmpc_ros.bringup``):
+
+* ``dice_plant`` (:mod:`ffmpc_ros.dice_plant_node`): the Panda and the soft dice in PyBullet,
+  ``/clock``;
+* ``joint_sensor`` and ``ft_sensor``: the polishing graph's sensor nodes, without noise or delay
+  (the ROS-free impact study measures the true state), the F/T sensor measuring the three
+  forces and the moments (``measure_moments``);
+* ``impact_planner`` (maximal approach only): eq 9–14 every 1 ms cycle, its Cartesian
+  command on ``impact_planner/reference``;
+* ``contact_learner``: eq 19–21 from the first contact on;
+* ``impact_controller`` (:mod:`ffmpc_ros.impact_controller_node`): the joint-limit guard and
+  task-space law, the admittance task or the baseline approach, and the hand-over to the
+  force-feedback MPC (inside it: see that module); its torque goes to the plant.
+
+The nodes build their configuration from the impact study's scenario (``impact_scenario`` and
+the ``impact_set`` overrides) or, for the planner, learner and sensors, from parameters this
+module derives from it; :func:`impact_node_parameters` checks that the planner's parameters
+give the ROS-free run's planner configuration (a setting the planner node cannot express is
+refused). Each node calls the same core objects in the same order as
+``studies.impact_study.run_impact`` with the same numbers (ROS carries float64 exactly), so the
+metrics are the ROS-free run's bit for bit (tests/test_impact_graph.py).
+
+The bring-up's own node reads the plant's true state and wrench, the controller's status and
+the learner's estimates, computes the metrics with ``studies.impact_study.run_metrics`` (the
+ROS-free run's code), and publishes them once on ``impact_graph/summary`` (std_msgs/String,
+JSON) — the last topic of the bag with ``record``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field, fields, is_dataclass
+from typing import Any
+
+import numpy as np
+import rclpy
+from geometry_msgs.msg import WrenchStamped
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray, String
+
+from ffmpc_core.errors import ConfigError
+from ffmpc_core.scenario import Scenario
+from ffmpc_ros import layouts, topics
+from ffmpc_ros.params import node_parameter_values
+
+#: The impact graph's nodes: name → "module:class" (the planner only for the maximal approach).
+IMPACT_NODES: dict[str, str] = {
+    "dice_plant": "ffmpc_ros.dice_plant_node:DicePlantNode",
+    "joint_sensor": "ffmpc_ros.joint_sensor_node:JointSensorNode",
+    "ft_sensor": "ffmpc_ros.ft_sensor_node:FtSensorNode",
+    "impact_planner": "ffmpc_ros.impact_planner_node:ImpactPlannerNode",
+    "contact_learner": "ffmpc_ros.contact_learner_node:ContactLearnerNode",
+    "impact_controller": "ffmpc_ros.impact_controller_node:ImpactControllerNode",
+}
+#: The robot of the experiment.
+ROBOT = "panda"
+#: Metrics compared between the graph and the ROS-free run (``ImpactRun`` fields).
+COMPARED = (
+    "contact_time",
+    "pre_impact_velocity",
+    "steady_time",
+    "peak_force",
+    "peak_penetration",
+    "final_force",
+    "final_force_error",
+    "violations",
+    "learned_stiffness",
+    "learned_damping",
+    "learner_samples",
+    "handover_time",
+)
+
+
+def graph_nodes(approach: str) -> dict[str, str]:
+    """The nodes of a run: every node of :data:`IMPACT_NODES`, the planner only for the
+    maximal approach (the baseline plans nothing)."""
+    return {n: c for n, c in IMPACT_NODES.items() if n != "impact_planner" or approach == "maximal"}
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Equality of configurations (dataclasses, arrays, floats with NaN)."""
+    if is_dataclass(a) and is_dataclass(b) and type(a) is type(b):
+        return all(_same(getattr(a, f.name), getattr(b, f.name)) for f in fields(a))
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return bool(np.array_equal(np.asarray(a), np.asarray(b)))
+    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+        return True
+    return bool(a == b)
+
+
+def impact_node_parameters(
+    approach: str,
+    regulation: str,
+    scenario: str = "impact",
+    overrides: Sequence[str] = (),
+    record: bool = False,
+) -> tuple[Any, dict[str, dict]]:
+    """(the ImpactStudyConfig, {node: {ROS name: value}}) of a run of the impact graph.
+
+    ConfigError when the settings cannot run as a graph: the touch-first strategy with the
+    maximal approach, or a planner setting the planner node has no parameter for."""
+    from ffmpc_core.impact.deformation import SoftMaterial
+    from ffmpc_core.impact.limits import PANDA_ACCELERATION_LIMIT
+    from ffmpc_ros.cli_args import parse_overrides
+    from ffmpc_ros.impact_planner_node import controller_config
+    from studies.impact_study import (
+        APPROACHES,
+        IMPACT_SCHEMA,
+        REGULATIONS,
+        load_impact_config,
+        task_config,
+    )
+
+    if approach not in APPROACHES or regulation not in REGULATIONS:
+        raise ConfigError(
+            f"approach must be one of {APPROACHES} and regulation one of {REGULATIONS}, got "
+            f"{approach!r}, {regulation!r}"
+        )
+    items = [str(i) for i in overrides]
+    cfg = load_impact_config(scenario, parse_overrides(items, schema=IMPACT_SCHEMA.params))
+    if approach == "maximal" and cfg.strategy != "prior":
+        raise ConfigError(
+            f"strategy {cfg.strategy!r}: the impact graph runs the paper's scheme (--set "
+            "strategy=prior, the default of ffmpc run impact); the touch-first controller "
+            "learns inside itself, so its planner and learner are not separate nodes"
+        )
+    nodes = graph_nodes(approach)
+    common = {"robot": ROBOT, "plant.time_step": cfg.time_step}
+    impact = {"impact_scenario": scenario, "impact_set": items or [""]}
+    # the sensors: the ROS-free study measures the true state and the whole world wrench
+    sensing = Scenario(name="impact_graph").with_overrides(
+        {
+            "robot": ROBOT,
+            "plant.time_step": cfg.time_step,
+            "joint_sensor.delay_cycles": 0,
+            "joint_sensor.position_noise_std": 0.0,
+            "joint_sensor.velocity_noise_std": 0.0,
+            "ft_sensor.delay_cycles": 0,
+            "ft_sensor.force_noise_std": 0.0,
+            "mpc.contact.dimension": 3,
+        }
+    )
+    # /clock readers: two per node (rclpy's and the node's reliable one), the recorder's two
+    clock_readers = topics.CLOCK_READERS_PER_NODE * (len(nodes) + int(record))
+    d = [0.0, 0.0, -1.0]  # studies.impact_study.DOWN
+    params: dict[str, dict] = {
+        "dice_plant": {
+            **common,
+            **impact,
+            "lockstep": True,
+            "start_delay": 0.5,
+            # the joint sensor, the bring-up's probe and the recorder
+            "start_subscribers": 2 + int(record),
+            "start_clock_subscribers": clock_readers,
+        },
+        "joint_sensor": node_parameter_values("joint_sensor", sensing),
+        "ft_sensor": {**node_parameter_values("ft_sensor", sensing), "measure_moments": True},
+        "contact_learner": {
+            **common,
+            "direction": d,
+            "contact_threshold": cfg.contact_threshold,
+            "surface_force": 0.0,  # the last force-free sample (ImpactTaskController's rule)
+            "feed_force": 0.0,
+            "skip_onset_samples": 0,
+            "regularization": 1e-9,  # RecursiveContactLearner's default
+        },
+        "impact_controller": {
+            **common,
+            **impact,
+            "lockstep": True,
+            "approach": approach,
+            "regulation": regulation,
+        },
+    }
+    if approach == "maximal":
+        adm = cfg.admittance
+        planner = {
+            **common,
+            "lockstep": True,
+            "direction": d,
+            "target_force": cfg.target_force,
+            "contact_threshold": cfg.contact_threshold,
+            "preview_horizon": cfg.planner.horizon,
+            "preview_dt": cfg.planner.dt,
+            "prior_stiffness": cfg.prior_stiffness,
+            "prior_damping": cfg.prior_damping,
+            "max_penetration": cfg.dice.max_penetration,
+            "limit_margin": cfg.limit_margin,
+            # the Panda's data-sheet values, given (an unset array parameter has no value the
+            # recorder's parameter fetch can read)
+            "acceleration_limit": [float(a) for a in PANDA_ACCELERATION_LIMIT],
+            "solver": cfg.planner.solver,
+            "replan_period": cfg.replan_period,
+            "admittance": adm.admittance,
+            "admittance_max_velocity": adm.max_velocity,
+            "admittance_velocity_filter": adm.velocity_filter,
+            "use_learned_material": False,  # the paper's scheme plans with the prior
+        }
+        prior = SoftMaterial(cfg.prior_stiffness, cfg.prior_damping, cfg.dice.max_penetration)
+        planner_defaults = {"n_directions": 8, "max_approach_velocity": 0.0}
+        built = controller_config({**planner_defaults, **planner}, prior)
+        wanted = task_config(approach, regulation, cfg).controller
+        if not _same(built, wanted):
+            raise ConfigError(
+                "the impact planner node's parameters cannot express this planner "
+                f"configuration (ROS-free: {wanted}; node: {built})"
+            )
+        params["impact_planner"] = planner
+    # (no shared objects: the parameter file is YAML without aliases, which rcl refuses)
+    return cfg, json.loads(json.dumps(params))
+
+
+@dataclass
+class ImpactGraphResult:
+    """A run of the impact graph: its metrics (``run_metrics`` plus the learner's), the log and
+    timing."""
+
+    approach: str
+    regulation: str
+    metrics: dict[str, Any]
+    log: dict[str, np.ndarray] = field(repr=False)
+    sim_time: float = 0.0
+    wall_time: float = 0.0
+    startup_time: float = 0.0
+    bag: dict | None = None
+    safe: bool = False
+    rejected: dict = field(default_factory=dict)
+
+    def summary(self) -> dict:
+        return {
+            "graph": "impact",
+            "approach": self.approach,
+            "regulation": self.regulation,
+            **json.loads(json.dumps(metrics_summary(self.metrics), default=float)),
+            "safe": self.safe,
+            "sim_time_s": self.sim_time,
+            "wall_time_s": self.wall_time,
+            "startup_time_s": self.startup_time,
+            "rejected_messages": self.rejected,
+            **({"bag": self.bag} if self.bag is not None else {}),
+        }
+
+
+def metrics_summary(metrics: dict[str, Any]) -> dict[str, Any]:
+    """JSON-friendly metrics (violations as a dict with its total)."""
+    from dataclasses import asdict
+
+    out = dict(metrics)
+    v = out.get("violations")
+    if v is not None and is_dataclass(v):
+        out["violations"] = {**asdict(v), "total": v.total}  # type: ignore[arg-type]
+    return out
+
+
+class _Probe:
+    """The bring-up's view of the run: the plant's true state and wrench, the controller's
+    status and the learner's estimates, per cycle."""
+
+    def __init__(self, node: Node, steps: int, nv: int, time_step: float) -> None:
+        self.steps, self.time_step = steps, time_step
+        self.q = np.full((steps + 1, nv), np.nan)
+        self.v = np.full((steps + 1, nv), np.nan)
+        self.wrench = np.full((steps + 1, 6), np.nan)
+        self.tau = np.full((steps, nv), np.nan)
+        self.status: dict[int, dict] = {}
+        self.estimate: dict | None = None
+        self.cycle = -1
+        qos = topics.subscriber_qos(True)
+        node.create_subscription(JointState, topics.PLANT_JOINT_STATES, self._on_joints, qos)
+        node.create_subscription(WrenchStamped, topics.PLANT_WRENCH, self._on_wrench, qos)
+        node.create_subscription(
+            Float64MultiArray, topics.IMPACT_CONTROL_STATUS, self._on_status, qos
+        )
+        node.create_subscription(Float64MultiArray, topics.CONTACT_ESTIMATE, self._on_estimate, qos)
+        self.nv = nv
+
+    def _k(self, stamp) -> int:
+        return int(round((stamp.sec * 1_000_000_000 + stamp.nanosec) * 1e-9 / self.time_step))
+
+    def _on_joints(self, msg: JointState) -> None:
+        k = self._k(msg.header.stamp)
+        if 0 <= k <= self.steps:
+            self.q[k], self.v[k] = msg.position, msg.velocity
+            self.cycle = max(self.cycle, k)
+
+    def _on_wrench(self, msg: WrenchStamped) -> None:
+        k = self._k(msg.header.stamp)
+        if 0 <= k <= self.steps:
+            f, m = msg.wrench.force, msg.wrench.torque
+            self.wrench[k] = (f.x, f.y, f.z, m.x, m.y, m.z)
+
+    def _on_status(self, msg: Float64MultiArray) -> None:
+        status = layouts.IMPACT_CONTROL.unpack(msg, nv=self.nv)
+        k = int(round(status["t"] / self.time_step))
+        if 0 <= k < self.steps:
+            self.status[k] = status
+            self.tau[k] = status["torque"]
+
+    def _on_estimate(self, msg: Float64MultiArray) -> None:
+        estimate = layouts.CONTACT_ESTIMATE.unpack(msg)
+        if int(round(estimate["t"] / self.time_step)) < self.steps:  # not the final state's
+            self.estimate = estimate
+
+    @property
+    def complete(self) -> bool:
+        """Every state, every controller cycle, and the learner's estimate after the last
+        sample fed (the learner publishes from its third sample on)."""
+        if len(self.status) < self.steps or np.isnan(self.q).any() or np.isnan(self.wrench).any():
+            return False
+        fed = int(self.status[self.steps - 1]["learner_samples"])
+        return fed < 3 or (self.estimate is not None and self.estimate["samples"] == fed)
+
+
+def _graph_metrics(cfg, probe: _Probe, robot) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """The run's metrics with the ROS-free run's code (``dice_measurement``, ``run_metrics``)."""
+    from ffmpc_core.impact.limits import joint_limits
+    from studies.impact_study import dice_measurement, run_metrics
+
+    data = robot.create_data()
+    steps = probe.steps
+    log = {
+        "t": np.arange(steps) * cfg.time_step,
+        "speed": np.zeros(steps),
+        "force": np.zeros(steps),
+        "penetration": np.zeros(steps),
+    }
+    for k in range(steps):
+        m = dice_measurement(robot, data, probe.q[k], probe.v[k], probe.wrench[k])
+        log["speed"][k], log["force"][k] = m.speed, m.force
+        log["penetration"][k] = cfg.dice.top_height - m.position[2]
+    last = probe.status[steps - 1]
+    contact = None if last["contact_time"] < 0 else last["contact_time"]
+    metrics = run_metrics(
+        cfg, log, probe.q, probe.v, probe.tau, joint_limits(robot), contact, last["touch_speed"]
+    )
+    est = probe.estimate
+    nan = float("nan")
+    metrics.update(
+        learned_stiffness=nan if est is None else est["stiffness"],
+        learned_damping=nan if est is None else est["damping"],
+        learned_std=(nan, nan) if est is None else (est["stiffness_std"], est["damping_std"]),
+        learner_samples=int(last["learner_samples"]),
+        handover_time=nan if last["handover_time"] < 0 else last["handover_time"],
+        safe_hold_cycles=int(sum(s["safe_hold"] > 0 for s in probe.status.values())),
+    )
+    log["in_contact"] = np.array([probe.status[k]["in_contact"] for k in range(steps)])
+    log["mpc_weight"] = np.array([probe.status[k]["mpc_weight"] for k in range(steps)])
+    return metrics, log
+
+
+def is_safe(metrics: dict[str, Any]) -> bool:
+    """A run is safe when no data-sheet joint limit was broken (position, velocity,
+    acceleration, torque: ``violations``) and no cycle needed the controller's safe hold. The
+    penetration is reported against z̄ (``within_max_penetration``), not part of the verdict:
+    the paper's scheme plans with the prior material, whose certificate the true dice need not
+    keep (the ROS-free study shows the same numbers)."""
+    return metrics["violations"].total == 0 and metrics["safe_hold_cycles"] == 0
+
+
+def _recorder_options(nodes: Sequence[str], approach: str, namespace: str) -> dict[str, Any]:
+    """BagRecorder options of the impact graph (``graph_recorder_process``'s "options")."""
+    names = [
+        t
+        for t, _, node in (*topics.IMPACT_GRAPH_TOPICS,)
+        if node != "impact_planner" or approach == "maximal"
+    ]
+    return {
+        "wait_for": [topics.resolve(t, namespace) for t in names],
+        "gate_topic": topics.resolve(topics.PLANT_JOINT_STATES, namespace),
+        "parameters_of": list(nodes),
+        "final_topic": topics.resolve(topics.IMPACT_SUMMARY, namespace),
+        "namespace": namespace,
+    }
+
+
+def run_impact_graph(
+    approach: str = "maximal",
+    regulation: str = "admittance",
+    *,
+    scenario: str = "impact",
+    overrides: Sequence[str] = (),
+    record: str | os.PathLike | None = None,
+    timeout: float = 900.0,
+    stall_timeout: float = 60.0,
+    start_timeout: float = 180.0,
+    domain_id: int | None = None,
+    quiet: bool = True,
+    namespace: str | None = None,
+    allow_foreign: bool = False,
+) -> ImpactGraphResult:
+    """Run the impact experiment on the node graph (module docstring) and return its metrics.
+
+    Args:
+        approach, regulation: as ``ffmpc study impact`` (maximal|baseline, admittance|ff_mpc).
+        scenario, overrides: the impact study's scenario and NAME=VALUE overrides.
+        record: record every topic and parameter to this bag (must not exist).
+        timeout: wall-time limit, s; stall_timeout: wall s without a plant cycle;
+        start_timeout: wall s to the first plant cycle (GraphError beyond).
+        domain_id: ROS domain (default ROS_DOMAIN_ID or 0). quiet: keep the nodes' output in
+            their logs (otherwise printed to stderr at the end). namespace: of the whole graph.
+        allow_foreign: start even if other nodes publish on the graph's topics.
+    """
+    from ffmpc_core.robots import load_robot
+    from ffmpc_ros.bringup import (
+        GraphError,
+        ProgressWatch,
+        _check_children,
+        _check_stop,
+        _refuse_foreign,
+        _rejected_from_logs,
+        _spawn,
+        _spawn_child,
+        _stop,
+        graph_context,
+        print_logs,
+    )
+
+    start = time.perf_counter()
+    domain = int(os.environ.get("ROS_DOMAIN_ID", "0")) if domain_id is None else domain_id
+    namespace = topics.normalize_namespace(namespace)
+    cfg, params = impact_node_parameters(
+        approach, regulation, scenario, overrides, record is not None
+    )
+    if record is not None and os.path.exists(record):
+        from ffmpc_ros.bag.errors import BagExistsError
+
+        raise BagExistsError(f"{record} exists; a bag is never overwritten")
+    nodes = graph_nodes(approach)
+    robot = load_robot(ROBOT)
+    steps = int(round(cfg.duration / cfg.time_step))
+    context, executor = graph_context(namespace, domain)
+    children: dict = {}
+    logs: dict[str, str] = {}
+    counts_path = None
+    node = None
+    tmp = tempfile.TemporaryDirectory(prefix="ffmpc_impact_graph_")
+    try:
+        node = Node("ffmpc_bringup", context=context)
+        executor.add_node(node)
+        if not allow_foreign:
+            _refuse_foreign(node, domain, namespace)
+        summary_pub = node.create_publisher(String, topics.IMPACT_SUMMARY, topics.latched_qos())
+        probe = _Probe(node, steps, robot.nv, cfg.time_step)
+        children, logs = _spawn(params, tmp.name, domain, {}, namespace, nodes)
+        if record is not None:
+            from ffmpc_ros.bag.recorder import graph_recorder_metadata
+
+            counts_path = os.path.join(tmp.name, "recorder_counts.json")
+            metadata = graph_recorder_metadata(None, params, namespace)
+            metadata["ffmpc_run"]["impact"] = json.dumps(
+                {
+                    "approach": approach,
+                    "regulation": regulation,
+                    "scenario": scenario,
+                    "overrides": list(overrides),
+                }
+            )
+            children["recorder"], logs["recorder"] = _spawn_child(
+                "recorder",
+                "ffmpc_ros.bag.recorder",
+                {
+                    "target": os.fspath(record),
+                    "domain": domain,
+                    "ros_args": topics.graph_ros_args(namespace),
+                    "namespace": namespace,
+                    "metadata": metadata,
+                    "counts": counts_path,
+                    "options": _recorder_options(list(nodes), approach, namespace),
+                },
+                tmp.name,
+                domain,
+            )
+        end = start + timeout
+        watch = ProgressWatch(start, stall_timeout, start_timeout)
+        while not probe.complete:
+            now = time.perf_counter()
+            if now > end:
+                raise GraphError(
+                    f"the impact graph did not finish within {timeout} s: plant at cycle "
+                    f"{probe.cycle} of {steps}, {len(probe.status)} controller cycles"
+                )
+            _check_children(children, logs, set())
+            watch.check(
+                probe.cycle,
+                now,
+                lambda: f"plant at cycle {probe.cycle}, controller cycles {len(probe.status)}",
+            )
+            executor.spin_once(timeout_sec=0.05)
+            _check_stop()
+        done = time.perf_counter()
+        metrics, log = _graph_metrics(cfg, probe, robot)
+        metrics["within_max_penetration"] = metrics["peak_penetration"] <= cfg.dice.max_penetration
+        safe = is_safe(metrics)
+        payload = {"approach": approach, "regulation": regulation, "safe": safe}
+        payload.update(metrics_summary(metrics))
+        summary_pub.publish(String(data=json.dumps(payload, default=float)))
+        if "recorder" in children:  # it closes the bag once the summary is in
+            settle = time.perf_counter() + 15.0
+            while children["recorder"].poll() is None and time.perf_counter() < settle:
+                executor.spin_once(timeout_sec=0.05)
+    finally:
+        _stop(children)
+        if node is not None:
+            executor.remove_node(node)
+            node.destroy_node()
+        executor.shutdown()
+        rclpy.shutdown(context=context)
+        rejected = _rejected_from_logs(logs)
+        if not quiet:
+            print_logs(logs)
+        bag = None
+        if record is not None:
+            bag = {"path": str(record)}
+            if counts_path is not None and os.path.exists(counts_path):
+                with open(counts_path, encoding="utf-8") as fh:
+                    bag.update(json.load(fh))
+        tmp.cleanup()
+    stepping = done - (watch.first_step or done)
+    return ImpactGraphResult(
+        approach=approach,
+        regulation=regulation,
+        metrics=metrics,
+        log=log,
+        sim_time=steps * cfg.time_step,
+        wall_time=stepping,
+        startup_time=(done - start) - stepping,
+        bag=bag,
+        safe=safe,
+        rejected=rejected,
+    )
+
+
+def compare_with_runner(result: ImpactGraphResult, run) -> dict[str, tuple[Any, Any]]:
+    """{metric: (graph, ROS-free)} of every :data:`COMPARED` metric that differs (bit for bit;
+    NaN equals NaN) between a graph run and ``studies.impact_study.run_impact``'s ImpactRun."""
+    out = {}
+    for name in COMPARED:
+        a, b = result.metrics.get(name), getattr(run, name)
+        if not _same(a, b):
+            out[name] = (a, b)
+    return out

@@ -1,0 +1,238 @@
+"""The impact experiment as a node graph (``ffmpc run impact``, ffmpc_ros.impact_graph) against
+the ROS-free study (``studies.impact_study.run_impact``): same settings, same metrics bit for
+bit; the bag of the run; the impact controller node's handling of a bad reference.
+
+Short runs: the tool starts 5 cm (maximal approach) or 2 cm (baseline) above the dice instead
+of 46 cm, so the contact comes at 0.178 s and 0.630 s, and the hand-over to the
+force-feedback MPC at 0.282 s."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from rclpy.serialization import deserialize_message
+from ros_helpers import joint_state, wrench
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+
+from ffmpc_core.robots import load_robot
+from ffmpc_ros import layouts, topics
+from ffmpc_ros.bag.reader import BagReader
+from ffmpc_ros.bag.ros_types import message_class
+from ffmpc_ros.impact_controller_node import ImpactControllerNode
+from ffmpc_ros.impact_graph import (
+    COMPARED,
+    compare_with_runner,
+    impact_node_parameters,
+    run_impact_graph,
+)
+from ffmpc_ros.params import parameter_overrides
+from studies.impact_study import load_impact_config, run_impact, start_pose
+
+MAXIMAL = ["strategy=prior", "approach_height=0.05", "duration=0.35"]
+BASELINE = ["strategy=prior", "approach_height=0.02", "duration=0.7"]
+
+
+def _runner(approach: str, regulation: str, items: list[str]):
+    values = {k: float(v) if k != "strategy" else v for k, v in (i.split("=") for i in items)}
+    return run_impact(approach, regulation, load_impact_config("impact", values))
+
+
+@pytest.fixture(scope="module")
+def maximal_ff_mpc(tmp_path_factory):
+    """maximal + ff_mpc on the graph, recorded, and the same run ROS-free."""
+    bag = tmp_path_factory.mktemp("impact_graph") / "run"
+    graph = run_impact_graph("maximal", "ff_mpc", overrides=MAXIMAL, record=bag, timeout=180)
+    return graph, _runner("maximal", "ff_mpc", MAXIMAL), bag
+
+
+def test_maximal_graph_equals_the_ros_free_run_through_impact_and_handover(maximal_ff_mpc):
+    graph, runner, _ = maximal_ff_mpc
+    # the run covers what the metrics are about: the impact, the learner, the hand-over
+    assert runner.contact_time == pytest.approx(0.178)
+    assert runner.handover_time == pytest.approx(0.282)
+    assert runner.learner_samples > 100 and runner.violations.total == 0
+    assert compare_with_runner(graph, runner) == {}
+    assert graph.metrics["peak_force"] == runner.peak_force  # (bit for bit, e.g.)
+    assert graph.safe and graph.metrics["safe_hold_cycles"] == 0
+    assert all(not counts for counts in graph.rejected.values()), graph.rejected
+
+
+def test_baseline_graph_equals_the_ros_free_run():
+    """No planner node: the controller node runs the baseline approach and the admittance; the
+    whole graph under a namespace (its clock too)."""
+    graph = run_impact_graph(
+        "baseline", "admittance", overrides=BASELINE, timeout=180, namespace="/cell_b"
+    )
+    runner = _runner("baseline", "admittance", BASELINE)
+    assert runner.contact_time == pytest.approx(0.630)
+    assert compare_with_runner(graph, runner) == {}
+    assert set(graph.rejected) == {
+        "dice_plant",
+        "joint_sensor",
+        "ft_sensor",
+        "contact_learner",
+        "impact_controller",
+    }
+
+
+def test_comparison_sees_a_different_run(maximal_ff_mpc):
+    """compare_with_runner is not blind: a run with another target force differs."""
+    graph, _, _ = maximal_ff_mpc
+    other = _runner("maximal", "ff_mpc", [*MAXIMAL, "target_force=50"])
+    assert set(compare_with_runner(graph, other)) & {"final_force", "peak_force"}
+    assert set(COMPARED) >= {"contact_time", "pre_impact_velocity", "peak_force"}
+
+
+def _messages(bag: BagReader, topic: str) -> list:
+    cls = message_class(bag.topics[topic].type)
+    return [deserialize_message(m.data, cls) for m in bag.messages([topic])]
+
+
+def test_the_bag_holds_the_planner_learner_controller_and_mpc(maximal_ff_mpc, capsys):
+    graph, runner, path = maximal_ff_mpc
+    steps = 350
+    with BagReader(path) as bag:
+        assert bag.recovery.complete
+        for topic, type_name, _ in topics.IMPACT_GRAPH_TOPICS:
+            assert bag.topics[topics.resolve(topic)].type == type_name, topic
+        # the planner's pre-impact velocity (eq 14 bound) until the contact
+        refs = [
+            layouts.IMPACT_REFERENCE.unpack(m) for m in _messages(bag, "/impact_planner/reference")
+        ]
+        assert len(refs) == steps + 1
+        bounds = [r["pre_impact_velocity"] for r in refs if r["bound_valid"] > 0]
+        assert len(bounds) == 178 and max(bounds) > 0.4  # every cycle before the contact
+        # the learner's stiffness and damping with their uncertainty
+        est = [
+            layouts.CONTACT_ESTIMATE.unpack(m) for m in _messages(bag, "/contact_learner/estimate")
+        ]
+        last = [e for e in est if e["t"] < steps * 1e-3][-1]
+        assert last["stiffness"] == runner.learned_stiffness
+        assert (last["stiffness_std"], last["damping_std"]) == runner.learned_std
+        # the controller's commands, and the MPC's force after the hand-over
+        torques = _messages(bag, "/impact_controller/torque")
+        assert len(torques) == steps + 1 and isinstance(torques[0], JointState)
+        status = [
+            layouts.IMPACT_CONTROL.unpack(m, nv=7)
+            for m in _messages(bag, "/impact_controller/status")
+        ]
+        assert np.array_equal(status[100]["torque"], np.asarray(torques[100].effort))
+        after = [s for s in status if s["t"] >= runner.handover_time and s["t"] < steps * 1e-3]
+        assert after and all(s["mpc_force"] > 0 for s in after[4:])
+        assert max(s["mpc_weight"] for s in status) == 1.0
+        summary = json.loads(_messages(bag, "/impact_graph/summary")[0].data)
+        assert summary["peak_force"] == runner.peak_force and summary["safe"] is True
+        assert set(bag.parameters) >= {"/impact_controller", "/impact_planner", "/dice_plant"}
+    from ffmpc_ros.cli import main
+
+    assert main(["bag", "info", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "/impact_planner/reference" in out and "/contact_learner/estimate" in out
+
+
+def test_the_graph_refuses_what_it_cannot_run():
+    from ffmpc_core.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="touch-first"):
+        impact_node_parameters("maximal", "admittance", overrides=["strategy=touch_first"])
+    with pytest.raises(ConfigError, match="cannot express"):
+        impact_node_parameters(
+            "maximal", "admittance", overrides=["strategy=prior", "planner.cost=lp"]
+        )
+    cfg, params = impact_node_parameters("baseline", "ff_mpc", overrides=["duration=1"])
+    assert "impact_planner" not in params and cfg.duration == 1.0
+    assert params["ft_sensor"]["measure_moments"] is True
+
+
+def _reference(k: int, position, rotation, velocity=(0.0, 0.0, -0.1)) -> Float64MultiArray:
+    return layouts.IMPACT_REFERENCE.pack(
+        {
+            "t": k * 1e-3,
+            "safe_stop": 0.0,
+            "phase": 0.0,
+            "bound_valid": 1.0,
+            "pre_impact_velocity": 0.5,
+            "position": position,
+            "velocity": velocity,
+            "acceleration": np.zeros(3),
+            "rotation": rotation,
+            "force": 0.0,
+            "target_force": 60.0,
+        }
+    )
+
+
+def test_controller_node_rejects_a_bad_reference_with_one_log_line_and_holds(ros):
+    """A reference whose twist is NaN: one log line, a safe hold torque (finite, within the
+    limits, safe_hold = 1) for that cycle; the next good reference is tracked again."""
+    _, params = impact_node_parameters("maximal", "admittance", overrides=MAXIMAL)
+    node = ros.add(
+        ImpactControllerNode(
+            context=ros.context,
+            parameter_overrides=parameter_overrides(params["impact_controller"]),
+        )
+    )
+    robot = load_robot("panda")
+    cfg = load_impact_config("impact", {"approach_height": 0.05})
+    q = start_pose(cfg, robot)
+    pose = robot.contact_placement(q)
+    probe = ros.probe()
+    out: list = []
+    probe.create_subscription(
+        Float64MultiArray, topics.IMPACT_CONTROL_STATUS, out.append, topics.subscriber_qos(True)
+    )
+    qos = topics.publisher_qos()
+    pub_j = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, qos)
+    from geometry_msgs.msg import WrenchStamped
+
+    pub_w = probe.create_publisher(WrenchStamped, topics.SENSED_WRENCH, qos)
+    pub_r = probe.create_publisher(Float64MultiArray, topics.IMPACT_REFERENCE, qos)
+    zeros = np.zeros(robot.nv)
+    for k in range(3):
+        ros.set_clock(node, k)
+        velocity = (0.0, 0.0, float("nan")) if k == 1 else (0.0, 0.0, -0.1)
+        pub_r.publish(_reference(k, pose.translation, pose.rotation.reshape(-1), velocity))
+        pub_j.publish(joint_state(node, k, q, zeros, zeros))
+        pub_w.publish(wrench(node, k, (0.0, 0.0, 0.0)))
+        assert ros.spin_until(lambda k=k: len(out) == k + 1), f"no command for cycle {k}"
+    status = [layouts.IMPACT_CONTROL.unpack(m, nv=7) for m in out]
+    assert [s["safe_hold"] for s in status] == [0.0, 1.0, 0.0]
+    kind = "/impact_planner/reference:value"
+    assert node.rejected[kind] == 1 and node.log_lines[kind] == 1
+    hold = status[1]["torque"]
+    assert np.all(np.isfinite(hold)) and np.all(np.abs(hold) < robot.torque_limit)
+    # the hold differs from the tracking commands (it does not track the reference's motion)
+    assert not np.array_equal(hold, status[2]["torque"])
+
+
+def test_the_launch_file_starts_the_nodes_ffmpc_run_impact_derives():
+    """impact.launch.yaml's parameters are the ones run_impact_graph gives the same settings
+    (but for what only a launch needs: no bring-up probe, exit at the end)."""
+    from ffmpc_ros.launch import load_launch_file
+
+    path = topics.__file__.replace("topics.py", "ros_layout/launch/impact.launch.yaml")
+    description = load_launch_file(path, {"regulation": "ff_mpc", "duration": "0.5"})
+    launched = {n.name: dict(n.parameters) for n in description.nodes}
+    items = ["strategy=prior", "duration=0.5", "approach_height=0.46"]
+    _, params = impact_node_parameters("maximal", "ff_mpc", overrides=items)
+    assert set(launched) == set(params)
+    assert launched["dice_plant"].pop("exit_when_done") is True
+    assert launched["dice_plant"].pop("start_subscribers") == 1  # no bring-up probe
+    assert params["dice_plant"].pop("start_subscribers") == 2
+    for name, values in params.items():
+        assert launched[name] == values, name
+
+
+def test_ffmpc_run_refuses_the_other_graphs_options(capsys):
+    """Options of one graph given to the other: one line, exit 2, nothing started."""
+    from ffmpc_ros.cli import main
+
+    assert main(["run", "impact", "--single-process"]) == 2
+    assert "--single-process: polishing-graph options" in capsys.readouterr().err
+    assert main(["run", "polishing", "--approach", "baseline"]) == 2
+    assert "--approach: options of ffmpc run impact only" in capsys.readouterr().err
+    assert main(["run", "impact", "--set", "strategy=touch_first"]) == 2
+    assert "touch-first" in capsys.readouterr().err
