@@ -1071,16 +1071,24 @@ def _fetch_parameters(
 BRING_UP_TRANSITIONS = ("configure", "activate")
 
 
-def _bring_up(node: Node, executor, names: Sequence[str], children, logs, deadline: float) -> None:
-    """Configure every node of ``names``, then activate them, the plant last (its first cycle
-    waits for its own activation: every reader is active by then), through their
+def _bring_up(
+    node: Node,
+    executor,
+    names: Sequence[str],
+    children,
+    logs,
+    deadline: float,
+    plant: str = "plant",
+) -> None:
+    """Configure every node of ``names``, then activate them, the node ``plant`` last (its
+    first cycle waits for its own activation: every reader is active by then), through their
     ``<node>/change_state`` services; one log line per node and transition. GraphError when a
     transition fails (the node's log says why) or the deadline passes."""
     from lifecycle_msgs.msg import Transition
     from lifecycle_msgs.srv import ChangeState
 
     prefix = node.get_namespace().rstrip("/")
-    order = [n for n in names if n != "plant"] + [n for n in names if n == "plant"]
+    order = [n for n in names if n != plant] + [n for n in names if n == plant]
     clients = {n: node.create_client(ChangeState, f"{prefix}/{n}/change_state") for n in order}
     try:
         for label in BRING_UP_TRANSITIONS:

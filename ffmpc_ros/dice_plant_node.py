@@ -82,8 +82,10 @@ class DicePlantNode(StudyNode):
         )
 
     def _try_start(self) -> None:
-        """Publish cycle 0 once ``start_subscribers`` read the joint states,
+        """Publish cycle 0 once active (lifecycle), ``start_subscribers`` read the joint states,
         ``start_clock_subscribers`` read /clock and ``start_delay`` (wall s) has passed."""
+        if not self.active:
+            return
         if self.pub_joints.get_subscription_count() < int(self.params["start_subscribers"]):
             return
         if self.pub_clock.get_subscription_count() < int(self.params["start_clock_subscribers"]):

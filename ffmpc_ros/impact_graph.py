@@ -417,6 +417,7 @@ def run_impact_graph(
         _check_stop,
         _refuse_foreign,
         _rejected_from_logs,
+        _bring_up,
         _spawn,
         _spawn_child,
         _stop,
@@ -451,6 +452,7 @@ def run_impact_graph(
         summary_pub = node.create_publisher(String, topics.IMPACT_SUMMARY, topics.latched_qos())
         probe = _Probe(node, steps, robot.nv, cfg.time_step)
         children, logs = _spawn(params, tmp.name, domain, {}, namespace, nodes)
+        _bring_up(node, executor, list(nodes), children, logs, start + start_timeout, "dice_plant")
         if record is not None:
             from ffmpc_ros.bag.recorder import graph_recorder_metadata
 
