@@ -413,11 +413,11 @@ def run_impact_graph(
     from ffmpc_ros.bringup import (
         GraphError,
         ProgressWatch,
+        _bring_up,
         _check_children,
         _check_stop,
         _refuse_foreign,
         _rejected_from_logs,
-        _bring_up,
         _spawn,
         _spawn_child,
         _stop,
