@@ -4,11 +4,16 @@ validation with one throttled log line per kind of rejection, and the executable
 Time. Every stamp of the graph is a plant cycle: t_k = k·``plant.time_step`` (the plant publishes
 the state of cycle k with stamp t_k, and everything computed from it carries the same stamp).
 Nodes turn a stamp back into the cycle index k and compute t as ``k * time_step``, exactly as
-the ROS-free runner does, so both paths hand bit-identical times to the controllers.
+the ROS-free runner does, so both paths hand bit-identical times to the controllers. A stamp
+off the grid (a driver's own clock: t_k + 0.37 ms) belongs to the newest cycle at or before it,
+t_k ≤ stamp < t_{k+1}, a stamp less than :data:`GRID_TOLERANCE_NS` before t_{k+1} counting as
+cycle k + 1 (:func:`cycle_at`); the controllers then take it as the measurement of t_k. Its own
+stamp, not t_k, is judged against the node's clock (stale, from the future).
 
 Rejections. A message is rejected when it is malformed (NaN/Inf, wrong length, unknown or
-missing joint names, wrong frame_id), off the cycle grid, not newer than the last accepted one
-from the same topic (out of order or duplicate), older than ``max_input_age`` on the node's
+missing joint names, wrong frame_id), stamped with no time (negative, nanosec ≥ 10⁹), of a cycle
+not after the last accepted one from the same topic (out of order, duplicate, or a second sample
+within one cycle), older than ``max_input_age`` on the node's
 simulated clock (stale), or stamped more than :data:`MAX_FUTURE_STAMP` ahead of the node's clock
 (from the future: never adopted, so a spoofed or corrupted stamp cannot make every genuine
 message look old). A rejected message changes nothing; the node logs one warning per kind of
@@ -45,13 +50,14 @@ mode); level WARN when an input was rejected in the period, ERROR for what
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
 import sys
 import time
 from collections import Counter
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -64,6 +70,8 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import QoSPolicyKind
+from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
 from rclpy.time_source import TimeSource
 from rosgraph_msgs.msg import Clock as ClockMsg
 
@@ -81,9 +89,17 @@ from ffmpc_ros.params import (
 )
 from ffmpc_ros.topics import WRENCH_FRAME
 
+#: The QoS policies every ffmpc publisher and subscription lets ROS 2's override parameters set
+#: (``qos_overrides.<topic>.<publisher|subscription>.<policy>``): rclpy's defaults (history,
+#: depth, reliability, ``QoSOverridingOptions.with_default_policies``) and durability, which
+#: the lockstep bring-up sets (``ffmpc_ros.topics.LOCKSTEP_OVERRIDES``).
+_OVERRIDABLE = QoSOverridingOptions(
+    [*QoSOverridingOptions.with_default_policies().policy_kinds, QoSPolicyKind.DURABILITY]
+)
 #: Minimum wall time between two log lines of the same kind of rejection, s.
 LOG_THROTTLE = 2.0
-#: A stamp farther than this from the cycle grid is rejected, ns.
+#: A stamp less than this before a cycle belongs to that cycle (a driver's clock rounded to the
+#: grid), ns; every other stamp belongs to the newest cycle at or before it.
 GRID_TOLERANCE_NS = 1000
 #: A stamp more than this ahead of the node's clock is rejected (from the future), s. Ten plant
 #: cycles: far above the reordering of ``/clock`` and data topics between two processes (at most
@@ -126,6 +142,9 @@ class StudyNode(Node):
             parameter_overrides=overrides,
             cli_args=list(cli_args) if cli_args is not None else None,
         )
+        # from here on, every publisher and subscription takes ROS 2's QoS override parameters
+        # (rclpy's own, made in Node.__init__, keep rclpy's profiles, as in any rclpy node)
+        self._qos_overridable = True
         self.spec = NODE_SPECS[spec]
         self.params = declare_node_parameters(self, self.spec)
         self.scenario: Scenario = scenario_from_parameters(self.spec, self.params, self.get_name())
@@ -155,7 +174,12 @@ class StudyNode(Node):
         self._reliable_time.attach_clock(self.get_clock())
         # the reliable reader got a /clock sample (the best-effort one moves the clock off 0)
         self._clock_received = False
-        self.create_subscription(ClockMsg, topics.CLOCK, self._on_clock, topics.clock_reader_qos())
+        self.create_subscription(
+            ClockMsg,
+            topics.CLOCK,
+            self._on_clock,
+            topics.clock_reader_qos(),
+        )
         self.accepted: Counter[str] = Counter()  # accepted inputs per topic
         self._diagnosed = (time.monotonic(), Counter[str](), 0)  # (wall s, accepted, rejected)
         self._pub_diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
@@ -164,6 +188,29 @@ class StudyNode(Node):
             self.publish_diagnostics,
             clock=Clock(clock_type=ClockType.STEADY_TIME),
         )
+
+    # -- QoS (ffmpc_ros.topics) -----------------------------------------------------------------
+    def create_publisher(self, msg_type, topic, qos_profile, **kwargs):  # type: ignore[override]
+        """rclpy's, with ROS 2's QoS override parameters (history, depth, reliability:
+        ``qos_overrides.<topic>.publisher.<policy>``) unless the caller chose its own options;
+        ConfigError for an override rclpy cannot apply."""
+        if getattr(self, "_qos_overridable", False):  # not rclpy's own (parameter events)
+            kwargs.setdefault("qos_overriding_options", _OVERRIDABLE)
+        with _qos_override_errors(self, topic, "publisher"):
+            return super().create_publisher(msg_type, topic, qos_profile, **kwargs)
+
+    def create_subscription(self, msg_type, topic, callback, qos_profile, **kwargs):  # type: ignore[override]
+        """rclpy's, with ROS 2's QoS override parameters (history, depth, reliability:
+        ``qos_overrides.<topic>.subscription.<policy>``) unless the caller chose its own
+        options; ConfigError for an override rclpy cannot apply."""
+        if getattr(self, "_qos_overridable", False):  # not rclpy's own (its time source)
+            kwargs.setdefault("qos_overriding_options", _OVERRIDABLE)
+        with _qos_override_errors(self, topic, "subscription"):
+            return super().create_subscription(msg_type, topic, callback, qos_profile, **kwargs)
+
+    def graph_publisher(self, msg_type, topic: str):
+        """A publisher of graph topic ``topic``, its class's profile (``topics.publisher_qos``)."""
+        return self.create_publisher(msg_type, topic, topics.publisher_qos(topic))
 
     # -- live parameters (module docstring) -----------------------------------------------------
     def parameter_refusal(self, parameters: Sequence[Parameter]) -> str | None:
@@ -283,12 +330,12 @@ class StudyNode(Node):
 
     # -- time ------------------------------------------------------------------------------
     def cycle_of(self, stamp: TimeMsg) -> int | None:
-        """The cycle k of a stamp, or None when it is off the grid or negative."""
-        ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-        k = int(round(ns / self.step_ns))
-        if ns < 0 or abs(ns - k * self.step_ns) > GRID_TOLERANCE_NS:
-            return None
-        return k
+        """The cycle k a stamp belongs to (module docstring, "Time"): the newest cycle at or
+        before it, t_k ≤ stamp < t_{k+1}, a stamp less than :data:`GRID_TOLERANCE_NS` before
+        t_{k+1} counting as cycle k + 1 (a driver's clock rounded to the grid); None for a stamp
+        no ROS time can be (negative, or nanosec ≥ 10⁹)."""
+        ns = stamp_ns(stamp)
+        return None if ns is None else cycle_at(ns, self.step_ns)
 
     def cycle_of_time(self, t: float) -> int | None:
         """The cycle k of a time t = k·time_step (s), or None when t is off the grid (or not a
@@ -336,31 +383,34 @@ class StudyNode(Node):
                 pass
 
     def check_stamp(self, topic: str, stamp: TimeMsg) -> int | None:
-        """The cycle of an input's stamp if it is on the grid and :meth:`check_cycle` accepts it;
-        otherwise reject it and return None. Call :meth:`accept_cycle` once the whole message
-        is accepted."""
+        """The cycle of an input's stamp (:meth:`cycle_of`) if :meth:`check_cycle` accepts it
+        (judged by the stamp itself: from the future, stale); otherwise reject it and return
+        None. Call :meth:`accept_cycle` once the whole message is accepted."""
         topic = self.name_of(topic)
-        k = self.cycle_of(stamp)
-        if k is None:
-            self.reject(f"{topic}:stamp", f"stamp {stamp.sec}.{stamp.nanosec:09d} off the grid")
+        ns = stamp_ns(stamp)
+        if ns is None:
+            self.reject(f"{topic}:stamp", f"stamp {stamp.sec}.{stamp.nanosec:09d} is no time")
             return None
-        return k if self.check_cycle(topic, k) else None
+        k = cycle_at(ns, self.step_ns)
+        return k if self.check_cycle(topic, k, ns) else None
 
     def _on_clock(self, msg: ClockMsg) -> None:
         self._clock_received = True
         self._reliable_time.clock_callback(msg)
 
-    def check_cycle(self, topic: str, k: int) -> bool:
-        """Whether an input of cycle k (time k·time_step) may be used: after the last accepted
-        one from ``topic``, at most :data:`MAX_FUTURE_STAMP` ahead of this node's clock and at
-        most ``max_input_age`` behind it. Rejects it (one throttled log line) otherwise."""
+    def check_cycle(self, topic: str, k: int, stamp: int | None = None) -> bool:
+        """Whether an input of cycle k (time k·time_step) stamped ``stamp`` (ns; default t_k)
+        may be used: of a cycle after the last accepted one from ``topic``, stamped at most
+        :data:`MAX_FUTURE_STAMP` ahead of this node's clock and at most ``max_input_age`` behind
+        it. Rejects it (one throttled log line) otherwise."""
         topic = self.name_of(topic)
         last = self._last_cycle.get(topic)
         if last is not None and k <= last:
             self.reject(f"{topic}:order", f"cycle {k} is not after the last accepted {last}")
             return False
         now_ns = self.get_clock().now().nanoseconds
-        ahead = (k * self.step_ns - now_ns) * 1e-9
+        stamp = k * self.step_ns if stamp is None else stamp
+        ahead = (stamp - now_ns) * 1e-9
         # A node that has no time yet (no /clock sample on either reader, the clock at 0) cannot
         # tell a stamp from the future: it judges from its first /clock on. Seen: a lockstep
         # MPC whose clock stayed at 0 for 11 cycles rejected genuine inputs, and the run
@@ -369,12 +419,12 @@ class StudyNode(Node):
         if ahead > MAX_FUTURE_STAMP and not no_time_yet:
             self.reject(
                 f"{topic}:future",
-                f"stamp {k * self.time_step:.6f} s is {ahead:.4f} s ahead of this node's clock "
+                f"stamp {stamp * 1e-9:.6f} s is {ahead:.4f} s ahead of this node's clock "
                 f"({now_ns * 1e-9:.6f} s; tolerance {MAX_FUTURE_STAMP} s)",
             )
             return False
         if now_ns > 0 and -ahead > self.max_input_age:
-            self.reject(f"{topic}:stale", f"stamp {k * self.time_step:.6f} s is {-ahead:.4f} s old")
+            self.reject(f"{topic}:stale", f"stamp {stamp * 1e-9:.6f} s is {-ahead:.4f} s old")
             return False
         return True
 
@@ -487,6 +537,34 @@ class StudyNode(Node):
     def finished(self) -> bool:
         """True when the node has nothing left to do (its executable may exit)."""
         return False
+
+
+@contextlib.contextmanager
+def _qos_override_errors(node: Node, topic: str, role: str) -> Iterator[None]:
+    """A QoS override parameter rclpy cannot apply (``reliability:=bogus``, a depth of 0 on
+    KEEP_LAST) becomes a ConfigError naming the parameter (one line, exit 2 from ``run_node``)."""
+    try:
+        yield
+    except (RuntimeError, InvalidQosOverridesError, ValueError, TypeError) as exc:
+        text = str(exc)
+        if "override" not in text.lower() and "qos" not in text.lower():
+            raise
+        name = f"qos_overrides.{node.resolve_topic_name(topic)}.{role}"
+        raise ConfigError(f"{name}: {_first_line(exc)}") from None
+
+
+def stamp_ns(stamp: TimeMsg) -> int | None:
+    """A ROS stamp in ns, or None when it is no time (negative, or nanosec ≥ 10⁹)."""
+    sec, nanosec = int(stamp.sec), int(stamp.nanosec)
+    if sec < 0 or not 0 <= nanosec < 1_000_000_000:
+        return None
+    return sec * 1_000_000_000 + nanosec
+
+
+def cycle_at(ns: int, step_ns: int) -> int:
+    """The cycle a time of ``ns`` ≥ 0 belongs to on a grid of ``step_ns``: the newest cycle at
+    or before it, within :data:`GRID_TOLERANCE_NS` (module docstring, "Time")."""
+    return (ns + GRID_TOLERANCE_NS) // step_ns
 
 
 def drop_stale_cycles(stores: Iterable[dict[int, Any]], newest: int, keep: int) -> None:

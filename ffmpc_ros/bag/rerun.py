@@ -39,6 +39,7 @@ from rclpy.context import Context
 from rclpy.exceptions import ParameterException
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy
 from rclpy.serialization import deserialize_message
 
 from ffmpc_core.errors import ConfigError
@@ -511,12 +512,13 @@ def _run(
     }
     collected: dict[str, list[bytes]] = {t: [] for t in outputs}
     for t in outputs:
+        qos = qos_from_dicts(bag.topics[t].qos_profiles, depth=10000)
+        # the re-run node has its default QoS (the graph's overrides name the graph's topics,
+        # not the re-run's remapped ones): a volatile reader matches it whatever the bag's
+        # durability, and nothing is lost, the inputs go out once it is matched
+        qos.durability = DurabilityPolicy.VOLATILE
         feeder.create_subscription(
-            message_class(bag.topics[t].type),
-            prefix + t,
-            collected[t].append,
-            qos_from_dicts(bag.topics[t].qos_profiles, depth=10000),
-            raw=True,
+            message_class(bag.topics[t].type), prefix + t, collected[t].append, qos, raw=True
         )
     _spin_until(
         executor,
