@@ -113,7 +113,21 @@ DIAGNOSTICS_PERIOD = 1.0
 DIAGNOSTICS_TOPIC = topics.DIAGNOSTICS
 
 
-class StudyNode(Node):
+class _ClockLast(type):
+    """Metaclass of :class:`StudyNode`: once a node of any subclass is fully constructed, it
+    subscribes its reliable /clock reader (:meth:`StudyNode._subscribe_clock`), its last entity.
+    The start handshake of the lockstep graph rests on it: the plant publishes cycle 0 only once
+    ``start_clock_subscribers`` /clock readers are matched to it, and a node's second reader now
+    exists only after its data readers do (an MPC that builds its OCP for seconds after its
+    time source subscribed no longer lets the plant start before it reads the joint states)."""
+
+    def __call__(cls, *args, **kwargs):
+        node = super().__call__(*args, **kwargs)
+        node._subscribe_clock()
+        return node
+
+
+class StudyNode(Node, metaclass=_ClockLast):
     """An rclpy node that runs part of a scenario (see the module docstring).
 
     Args:
@@ -174,12 +188,9 @@ class StudyNode(Node):
         self._reliable_time.attach_clock(self.get_clock())
         # the reliable reader got a /clock sample (the best-effort one moves the clock off 0)
         self._clock_received = False
-        self.create_subscription(
-            ClockMsg,
-            topics.CLOCK,
-            self._on_clock,
-            topics.clock_reader_qos(),
-        )
+        # The reliable reader itself is the node's LAST entity (_ClockLast, once the subclass's
+        # __init__ is done): the plant waits for every node's two /clock readers
+        # (``start_clock_subscribers``), so it starts only once every node has all its readers.
         self.accepted: Counter[str] = Counter()  # accepted inputs per topic
         self._diagnosed = (time.monotonic(), Counter[str](), 0)  # (wall s, accepted, rejected)
         self._pub_diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
@@ -393,6 +404,10 @@ class StudyNode(Node):
             return None
         k = cycle_at(ns, self.step_ns)
         return k if self.check_cycle(topic, k, ns) else None
+
+    def _subscribe_clock(self) -> None:
+        """The node's reliable /clock reader (see __init__ and :class:`_ClockLast`)."""
+        self.create_subscription(ClockMsg, topics.CLOCK, self._on_clock, topics.clock_reader_qos())
 
     def _on_clock(self, msg: ClockMsg) -> None:
         self._clock_received = True

@@ -113,9 +113,11 @@ class PlantNode(StudyNode):
         states and ``start_clock_subscribers`` of /clock are matched to this node's writers and
         the metrics node is ready (``wait_for_metrics``: it has matched every topic it
         records): lockstep publishes the state of cycle 0, real time starts the wall-clock
-        timer. The delay runs from the moment all three hold: the graph's topics are VOLATILE
-        (``ffmpc_ros.topics``), so the other nodes' writers must have matched their readers
-        too, which their own participants do within milliseconds of this one's view."""
+        timer. A node's reliable /clock reader is its last entity (``base._ClockLast``), so
+        the /clock count means every node has all its readers. The delay runs from the moment
+        all three hold, for the other nodes' writers to make their side of each match; a
+        sample sent before that reaches a late-matched reader only because the lockstep
+        graph's data topics are TRANSIENT_LOCAL (``ffmpc_ros.topics.LOCKSTEP_OVERRIDES``)."""
         ready = (
             self.pub_joints.get_subscription_count() >= int(self.params["start_subscribers"])
             and self.pub_clock.get_subscription_count()
