@@ -438,6 +438,7 @@ def rerun_node(
         if namespace != topics.ROOT_NAMESPACE:
             remaps += ["-r", f"__ns:={namespace}"]
         remaps += [a for t in names if t != topics.CLOCK for a in ("-r", f"{t}:={prefix}{t}")]
+        values.update(_rerun_qos(bag, names, prefix))
         domain = int(os.environ.get("ROS_DOMAIN_ID", "0")) if domain_id is None else domain_id
         context = Context()
         rclpy.init(args=[], context=context, domain_id=domain)
@@ -479,6 +480,21 @@ def rerun_node(
                 n.destroy_node()
             executor.shutdown()
             rclpy.shutdown(context=context)
+
+
+def _rerun_qos(bag, names, prefix: str) -> dict[str, str | int]:
+    """QoS override parameters of the re-run node's remapped topics: its readers as reliable as
+    the recording's publishers were (a reliable reader would not match a best-effort feeder),
+    its writers reliable with the graph's history (the collectors must get every output)."""
+    out: dict[str, str | int] = {}
+    for t in names:
+        profiles = bag.topics[t].qos_profiles if t in bag.topics else []
+        reliable = bool(profiles) and all(p.get("reliability") == "reliable" for p in profiles)
+        base = f"qos_overrides.{prefix}{t}"
+        out[f"{base}.subscription.reliability"] = "reliable" if reliable else "best_effort"
+        out[f"{base}.publisher.reliability"] = "reliable"
+        out[f"{base}.publisher.depth"] = topics.PUBLISHER_DEPTH
+    return out
 
 
 def _strip(prefix: str, name: str) -> str:
