@@ -4,11 +4,16 @@ validation with one throttled log line per kind of rejection, and the executable
 Time. Every stamp of the graph is a plant cycle: t_k = k·``plant.time_step`` (the plant publishes
 the state of cycle k with stamp t_k, and everything computed from it carries the same stamp).
 Nodes turn a stamp back into the cycle index k and compute t as ``k * time_step``, exactly as
-the ROS-free runner does, so both paths hand bit-identical times to the controllers.
+the ROS-free runner does, so both paths hand bit-identical times to the controllers. A stamp
+off the grid (a driver's own clock: t_k + 0.37 ms) belongs to the newest cycle at or before it,
+t_k ≤ stamp < t_{k+1}, a stamp less than :data:`GRID_TOLERANCE_NS` before t_{k+1} counting as
+cycle k + 1 (:func:`cycle_at`); the controllers then take it as the measurement of t_k. Its own
+stamp, not t_k, is judged against the node's clock (stale, from the future).
 
 Rejections. A message is rejected when it is malformed (NaN/Inf, wrong length, unknown or
-missing joint names, wrong frame_id), off the cycle grid, not newer than the last accepted one
-from the same topic (out of order or duplicate), older than ``max_input_age`` on the node's
+missing joint names, wrong frame_id), stamped with no time (negative, nanosec ≥ 10⁹), of a cycle
+not after the last accepted one from the same topic (out of order, duplicate, or a second sample
+within one cycle), older than ``max_input_age`` on the node's
 simulated clock (stale), or stamped more than :data:`MAX_FUTURE_STAMP` ahead of the node's clock
 (from the future: never adopted, so a spoofed or corrupted stamp cannot make every genuine
 message look old). A rejected message changes nothing; the node logs one warning per kind of
@@ -63,13 +68,14 @@ false and drives the transitions itself, the plant last (:func:`ffmpc_ros.bringu
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
 import sys
 import time
 from collections import Counter
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -81,7 +87,10 @@ from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import QoSPolicyKind
+from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
 from rclpy.time_source import TimeSource
 from rosgraph_msgs.msg import Clock as ClockMsg
 
@@ -99,9 +108,17 @@ from ffmpc_ros.params import (
 )
 from ffmpc_ros.topics import WRENCH_FRAME
 
+#: The QoS policies every ffmpc publisher and subscription lets ROS 2's override parameters set
+#: (``qos_overrides.<topic>.<publisher|subscription>.<policy>``): rclpy's defaults (history,
+#: depth, reliability, ``QoSOverridingOptions.with_default_policies``) and durability, which
+#: the lockstep bring-up sets (``ffmpc_ros.topics.LOCKSTEP_OVERRIDES``).
+_OVERRIDABLE = QoSOverridingOptions(
+    [*QoSOverridingOptions.with_default_policies().policy_kinds, QoSPolicyKind.DURABILITY]
+)
 #: Minimum wall time between two log lines of the same kind of rejection, s.
 LOG_THROTTLE = 2.0
-#: A stamp farther than this from the cycle grid is rejected, ns.
+#: A stamp less than this before a cycle belongs to that cycle (a driver's clock rounded to the
+#: grid), ns; every other stamp belongs to the newest cycle at or before it.
 GRID_TOLERANCE_NS = 1000
 #: A stamp more than this ahead of the node's clock is rejected (from the future), s. Ten plant
 #: cycles: far above the reordering of ``/clock`` and data topics between two processes (at most
@@ -115,17 +132,35 @@ DIAGNOSTICS_PERIOD = 1.0
 DIAGNOSTICS_TOPIC = topics.DIAGNOSTICS
 
 
-class _StartsOnceBuilt(type):
-    """Metaclass of :class:`StudyNode`: runs ``_after_construction`` once the most derived
-    ``__init__`` returned (autostart must not run a transition on a half-built node)."""
+class _Constructed(type):
+    """Metaclass of :class:`StudyNode`: once a node of any subclass is fully constructed (the
+    most derived ``__init__`` returned), it
+
+    * subscribes its reliable /clock reader (:meth:`StudyNode._subscribe_clock`), its last
+      entity. The start handshake of the lockstep graph rests on it: the plant publishes cycle
+      0 only once ``start_clock_subscribers`` /clock readers are matched to it, and a node's
+      second reader exists only after its data readers do (an MPC that builds its OCP for
+      seconds after its time source subscribed no longer lets the plant start before it reads
+      the joint states);
+    * then starts its lifecycle (``_after_construction``: autostart must not run a transition
+      on a half-built node)."""
 
     def __call__(cls, *args, **kwargs):
-        node = super().__call__(*args, **kwargs)
-        node._after_construction()
+        node = cls.__new__(cls)
+        try:
+            node.__init__(*args, **kwargs)
+            node._subscribe_clock()
+            node._after_construction()
+        except BaseException:
+            # a node refused at construction (a bad parameter or QoS override) leaves the ROS
+            # graph now, not when its context ends (a later graph saw it as foreign)
+            with contextlib.suppress(Exception):
+                node.destroy_node()
+            raise
         return node
 
 
-class StudyNode(LifecycleNode, metaclass=_StartsOnceBuilt):
+class StudyNode(LifecycleNode, metaclass=_Constructed):
     """An rclpy managed node that runs part of a scenario (see the module docstring).
 
     Args:
@@ -154,6 +189,9 @@ class StudyNode(LifecycleNode, metaclass=_StartsOnceBuilt):
             parameter_overrides=overrides,
             cli_args=list(cli_args) if cli_args is not None else None,
         )
+        # from here on, every publisher and subscription takes ROS 2's QoS override parameters
+        # (rclpy's own, made in Node.__init__, keep rclpy's profiles, as in any rclpy node)
+        self._qos_overridable = True
         self.spec = NODE_SPECS[spec]
         self.params = declare_node_parameters(self, self.spec)
         self.lifecycle_state = "unconfigured"  # the state machine's label (module docstring)
@@ -185,7 +223,9 @@ class StudyNode(LifecycleNode, metaclass=_StartsOnceBuilt):
         self._reliable_time.attach_clock(self.get_clock())
         # the reliable reader got a /clock sample (the best-effort one moves the clock off 0)
         self._clock_received = False
-        self.create_subscription(ClockMsg, topics.CLOCK, self._on_clock, topics.clock_reader_qos())
+        # The reliable reader itself is the node's LAST entity (_Constructed, once the subclass's
+        # __init__ is done): the plant waits for every node's two /clock readers
+        # (``start_clock_subscribers``), so it starts only once every node has all its readers.
         self.accepted: Counter[str] = Counter()  # accepted inputs per topic
         self._diagnosed = (time.monotonic(), Counter[str](), 0)  # (wall s, accepted, rejected)
         self._pub_diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
@@ -250,6 +290,29 @@ class StudyNode(LifecycleNode, metaclass=_StartsOnceBuilt):
         self.lifecycle_state = label
         self.get_logger().info(message)
         return TransitionCallbackReturn.SUCCESS
+
+    # -- QoS (ffmpc_ros.topics) -----------------------------------------------------------------
+    def create_publisher(self, msg_type, topic, qos_profile, **kwargs):  # type: ignore[override]
+        """rclpy's, with ROS 2's QoS override parameters (history, depth, reliability:
+        ``qos_overrides.<topic>.publisher.<policy>``) unless the caller chose its own options;
+        ConfigError for an override rclpy cannot apply."""
+        if getattr(self, "_qos_overridable", False):  # not rclpy's own (parameter events)
+            kwargs.setdefault("qos_overriding_options", _OVERRIDABLE)
+        with _qos_override_errors(self, topic, "publisher"):
+            return super().create_publisher(msg_type, topic, qos_profile, **kwargs)
+
+    def create_subscription(self, msg_type, topic, callback, qos_profile, **kwargs):  # type: ignore[override]
+        """rclpy's, with ROS 2's QoS override parameters (history, depth, reliability:
+        ``qos_overrides.<topic>.subscription.<policy>``) unless the caller chose its own
+        options; ConfigError for an override rclpy cannot apply."""
+        if getattr(self, "_qos_overridable", False):  # not rclpy's own (its time source)
+            kwargs.setdefault("qos_overriding_options", _OVERRIDABLE)
+        with _qos_override_errors(self, topic, "subscription"):
+            return super().create_subscription(msg_type, topic, callback, qos_profile, **kwargs)
+
+    def graph_publisher(self, msg_type, topic: str):
+        """A publisher of graph topic ``topic``, its class's profile (``topics.publisher_qos``)."""
+        return self.create_publisher(msg_type, topic, topics.publisher_qos(topic))
 
     # -- live parameters (module docstring) -----------------------------------------------------
     def parameter_refusal(self, parameters: Sequence[Parameter]) -> str | None:
@@ -369,12 +432,12 @@ class StudyNode(LifecycleNode, metaclass=_StartsOnceBuilt):
 
     # -- time ------------------------------------------------------------------------------
     def cycle_of(self, stamp: TimeMsg) -> int | None:
-        """The cycle k of a stamp, or None when it is off the grid or negative."""
-        ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-        k = int(round(ns / self.step_ns))
-        if ns < 0 or abs(ns - k * self.step_ns) > GRID_TOLERANCE_NS:
-            return None
-        return k
+        """The cycle k a stamp belongs to (module docstring, "Time"): the newest cycle at or
+        before it, t_k ≤ stamp < t_{k+1}, a stamp less than :data:`GRID_TOLERANCE_NS` before
+        t_{k+1} counting as cycle k + 1 (a driver's clock rounded to the grid); None for a stamp
+        no ROS time can be (negative, or nanosec ≥ 10⁹)."""
+        ns = stamp_ns(stamp)
+        return None if ns is None else cycle_at(ns, self.step_ns)
 
     def cycle_of_time(self, t: float) -> int | None:
         """The cycle k of a time t = k·time_step (s), or None when t is off the grid (or not a
@@ -422,34 +485,41 @@ class StudyNode(LifecycleNode, metaclass=_StartsOnceBuilt):
                 pass
 
     def check_stamp(self, topic: str, stamp: TimeMsg) -> int | None:
-        """The cycle of an input's stamp if it is on the grid and :meth:`check_cycle` accepts it;
-        otherwise reject it and return None. Call :meth:`accept_cycle` once the whole message
-        is accepted."""
+        """The cycle of an input's stamp (:meth:`cycle_of`) if :meth:`check_cycle` accepts it
+        (judged by the stamp itself: from the future, stale); otherwise reject it and return
+        None. Call :meth:`accept_cycle` once the whole message is accepted."""
         topic = self.name_of(topic)
         if not self.active:
             self.reject(f"{topic}:inactive", f"{topic} ignored: the node is {self.lifecycle_state}")
             return None
-        k = self.cycle_of(stamp)
-        if k is None:
-            self.reject(f"{topic}:stamp", f"stamp {stamp.sec}.{stamp.nanosec:09d} off the grid")
+        ns = stamp_ns(stamp)
+        if ns is None:
+            self.reject(f"{topic}:stamp", f"stamp {stamp.sec}.{stamp.nanosec:09d} is no time")
             return None
-        return k if self.check_cycle(topic, k) else None
+        k = cycle_at(ns, self.step_ns)
+        return k if self.check_cycle(topic, k, ns) else None
+
+    def _subscribe_clock(self) -> None:
+        """The node's reliable /clock reader (see __init__ and :class:`_Constructed`)."""
+        self.create_subscription(ClockMsg, topics.CLOCK, self._on_clock, topics.clock_reader_qos())
 
     def _on_clock(self, msg: ClockMsg) -> None:
         self._clock_received = True
         self._reliable_time.clock_callback(msg)
 
-    def check_cycle(self, topic: str, k: int) -> bool:
-        """Whether an input of cycle k (time k·time_step) may be used: after the last accepted
-        one from ``topic``, at most :data:`MAX_FUTURE_STAMP` ahead of this node's clock and at
-        most ``max_input_age`` behind it. Rejects it (one throttled log line) otherwise."""
+    def check_cycle(self, topic: str, k: int, stamp: int | None = None) -> bool:
+        """Whether an input of cycle k (time k·time_step) stamped ``stamp`` (ns; default t_k)
+        may be used: of a cycle after the last accepted one from ``topic``, stamped at most
+        :data:`MAX_FUTURE_STAMP` ahead of this node's clock and at most ``max_input_age`` behind
+        it. Rejects it (one throttled log line) otherwise."""
         topic = self.name_of(topic)
         last = self._last_cycle.get(topic)
         if last is not None and k <= last:
             self.reject(f"{topic}:order", f"cycle {k} is not after the last accepted {last}")
             return False
         now_ns = self.get_clock().now().nanoseconds
-        ahead = (k * self.step_ns - now_ns) * 1e-9
+        stamp = k * self.step_ns if stamp is None else stamp
+        ahead = (stamp - now_ns) * 1e-9
         # A node that has no time yet (no /clock sample on either reader, the clock at 0) cannot
         # tell a stamp from the future: it judges from its first /clock on. Seen: a lockstep
         # MPC whose clock stayed at 0 for 11 cycles rejected genuine inputs, and the run
@@ -458,12 +528,12 @@ class StudyNode(LifecycleNode, metaclass=_StartsOnceBuilt):
         if ahead > MAX_FUTURE_STAMP and not no_time_yet:
             self.reject(
                 f"{topic}:future",
-                f"stamp {k * self.time_step:.6f} s is {ahead:.4f} s ahead of this node's clock "
+                f"stamp {stamp * 1e-9:.6f} s is {ahead:.4f} s ahead of this node's clock "
                 f"({now_ns * 1e-9:.6f} s; tolerance {MAX_FUTURE_STAMP} s)",
             )
             return False
         if now_ns > 0 and -ahead > self.max_input_age:
-            self.reject(f"{topic}:stale", f"stamp {k * self.time_step:.6f} s is {-ahead:.4f} s old")
+            self.reject(f"{topic}:stale", f"stamp {stamp * 1e-9:.6f} s is {-ahead:.4f} s old")
             return False
         return True
 
@@ -576,6 +646,34 @@ class StudyNode(LifecycleNode, metaclass=_StartsOnceBuilt):
     def finished(self) -> bool:
         """True when the node has nothing left to do (its executable may exit)."""
         return False
+
+
+@contextlib.contextmanager
+def _qos_override_errors(node: Node, topic: str, role: str) -> Iterator[None]:
+    """A QoS override parameter rclpy cannot apply (``reliability:=bogus``, a depth of 0 on
+    KEEP_LAST) becomes a ConfigError naming the parameter (one line, exit 2 from ``run_node``)."""
+    try:
+        yield
+    except (RuntimeError, InvalidQosOverridesError, ValueError, TypeError) as exc:
+        text = str(exc)
+        if "override" not in text.lower() and "qos" not in text.lower():
+            raise
+        name = f"qos_overrides.{node.resolve_topic_name(topic)}.{role}"
+        raise ConfigError(f"{name}: {_first_line(exc)}") from None
+
+
+def stamp_ns(stamp: TimeMsg) -> int | None:
+    """A ROS stamp in ns, or None when it is no time (negative, or nanosec ≥ 10⁹)."""
+    sec, nanosec = int(stamp.sec), int(stamp.nanosec)
+    if sec < 0 or not 0 <= nanosec < 1_000_000_000:
+        return None
+    return sec * 1_000_000_000 + nanosec
+
+
+def cycle_at(ns: int, step_ns: int) -> int:
+    """The cycle a time of ``ns`` ≥ 0 belongs to on a grid of ``step_ns``: the newest cycle at
+    or before it, within :data:`GRID_TOLERANCE_NS` (module docstring, "Time")."""
+    return (ns + GRID_TOLERANCE_NS) // step_ns
 
 
 def drop_stale_cycles(stores: Iterable[dict[int, Any]], newest: int, keep: int) -> None:

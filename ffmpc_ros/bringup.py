@@ -291,7 +291,10 @@ class _StatusProbe:
         self.time_step = time_step
         self.on_cycle = on_cycle
         node.create_subscription(
-            Float64MultiArray, topics.PLANT_STATUS, self._on, topics.subscriber_qos(False)
+            Float64MultiArray,
+            topics.PLANT_STATUS,
+            self._on,
+            topics.subscriber_qos(False, topics.PLANT_STATUS),
         )
         self.robot = robot
         if robot is not None:
@@ -301,10 +304,16 @@ class _StatusProbe:
             self.worst_velocity_t: float | None = None  # s, when the overall max occurred
             self.worst_torque_t: float | None = None
             node.create_subscription(
-                JointState, topics.PLANT_JOINT_STATES, self._on_joints, topics.subscriber_qos(True)
+                JointState,
+                topics.PLANT_JOINT_STATES,
+                self._on_joints,
+                topics.graph_qos(topics.PLANT_JOINT_STATES, "subscription"),
             )
             node.create_subscription(
-                JointState, topics.MOTOR_TORQUE, self._on_motor, topics.subscriber_qos(True)
+                JointState,
+                topics.MOTOR_TORQUE,
+                self._on_motor,
+                topics.graph_qos(topics.MOTOR_TORQUE, "subscription"),
             )
 
     def _on(self, msg: Float64MultiArray) -> None:
@@ -347,7 +356,10 @@ class _PidStatusProbe:
         self.command_age = np.full(steps, np.nan)
         self.last_cycle = -1
         node.create_subscription(
-            Float64MultiArray, topics.LOWLEVEL_STATUS, self._on, topics.subscriber_qos(True)
+            Float64MultiArray,
+            topics.LOWLEVEL_STATUS,
+            self._on,
+            topics.graph_qos(topics.LOWLEVEL_STATUS, "subscription"),
         )
 
     def _on(self, msg: Float64MultiArray) -> None:
@@ -487,7 +499,7 @@ def run_graph(
         from ffmpc_core.study import build_task
 
         duration = build_task(scenario, load_robot(scenario.robot)).duration
-    params = graph_parameters(scenario, lockstep, duration)
+    params = graph_parameters(scenario, lockstep, duration, namespace)
     windows = [tuple(map(float, w)) for w in fault_windows]
     # an injected fault's effects outlast it a little (queued messages): FAULT_RECOVERY
     windows += [(f.start, min(f.end + FAULT_RECOVERY, float(duration))) for f in faults]
@@ -605,14 +617,19 @@ def run_graph(
         if faults:
             injector = FaultInjector(probe_node, faults, children, time_step)
             if injector.wants_sensors:
-                qos = topics.subscriber_qos(True)
                 probe_node.create_subscription(
-                    JointState, topics.SENSED_JOINT_STATES, injector.on_sensed_joints, qos
+                    JointState,
+                    topics.SENSED_JOINT_STATES,
+                    injector.on_sensed_joints,
+                    topics.graph_qos(topics.SENSED_JOINT_STATES, "subscription"),
                 )
                 from geometry_msgs.msg import WrenchStamped
 
                 probe_node.create_subscription(
-                    WrenchStamped, topics.SENSED_WRENCH, injector.on_sensed_wrench, qos
+                    WrenchStamped,
+                    topics.SENSED_WRENCH,
+                    injector.on_sensed_wrench,
+                    topics.graph_qos(topics.SENSED_WRENCH, "subscription"),
                 )
         probe = _StatusProbe(
             probe_node, robot, time_step, None if injector is None else injector.on_cycle

@@ -65,9 +65,11 @@ class ContactLearnerNode(MeasuredCycleNode):
         self._data = self.robot.create_data()
         self.published = 0
         self.publisher = self.create_publisher(
-            Float64MultiArray, topics.CONTACT_ESTIMATE, topics.publisher_qos()
+            Float64MultiArray,
+            topics.CONTACT_ESTIMATE,
+            topics.publisher_qos(topics.CONTACT_ESTIMATE),
         )
-        self.subscribe_measurements(topics.subscriber_qos(True))
+        self.subscribe_measurements(True)
         self.create_service(Trigger, topics.CONTACT_LEARNER_RESET_SERVICE, self.on_reset)
         self.forget()
 

@@ -67,13 +67,15 @@ class DicePlantNode(StudyNode):
         self._wall_start: float | None = None
         self._done_at: float | None = None
         self.state = self.plant.state()
-        qos = topics.publisher_qos()
         self.pub_clock = self.create_publisher(ClockMsg, topics.CLOCK, topics.clock_qos())
-        self.pub_joints = self.create_publisher(JointState, topics.PLANT_JOINT_STATES, qos)
-        self.pub_wrench = self.create_publisher(WrenchStamped, topics.PLANT_WRENCH, qos)
-        self.pub_status = self.create_publisher(Float64MultiArray, topics.PLANT_STATUS, qos)
+        self.pub_joints = self.graph_publisher(JointState, topics.PLANT_JOINT_STATES)
+        self.pub_wrench = self.graph_publisher(WrenchStamped, topics.PLANT_WRENCH)
+        self.pub_status = self.graph_publisher(Float64MultiArray, topics.PLANT_STATUS)
         self.create_subscription(
-            JointState, topics.IMPACT_TORQUE, self.on_torque, topics.subscriber_qos(True)
+            JointState,
+            topics.IMPACT_TORQUE,
+            self.on_torque,
+            topics.subscriber_qos(True, topics.IMPACT_TORQUE),
         )
         self._created = time.monotonic()
         self.started = False

@@ -98,14 +98,22 @@ class FaultInjector:
     def __post_init__(self) -> None:
         self.applied = [_Applied(f) for f in self.faults]
         kinds = {f.kind for f in self.faults}
-        qos = topics.publisher_qos()
+        # it stands in for the sensor nodes: their QoS in the graph (reliable, lockstep)
         self._pub_joints = (
-            self.node.create_publisher(JointState, topics.SENSED_JOINT_STATES, qos)
+            self.node.create_publisher(
+                JointState,
+                topics.SENSED_JOINT_STATES,
+                topics.graph_qos(topics.SENSED_JOINT_STATES, "publisher"),
+            )
             if kinds & {"future-stamp", "torque-spike"}
             else None
         )
         self._pub_wrench = (
-            self.node.create_publisher(WrenchStamped, topics.SENSED_WRENCH, qos)
+            self.node.create_publisher(
+                WrenchStamped,
+                topics.SENSED_WRENCH,
+                topics.graph_qos(topics.SENSED_WRENCH, "publisher"),
+            )
             if kinds & {"future-stamp", "nan-wrench"}
             else None
         )

@@ -57,12 +57,14 @@ class FtSensorNode(StudyNode):
         self.in_contact = False
         self.force_tare = ForceTare(fs.tare_samples, dim)
         self.moments = DelayLine(fs.delay_cycles, 3) if self.params["measure_moments"] else None
-        qos = topics.publisher_qos()
-        self.pub_wrench = self.create_publisher(WrenchStamped, topics.SENSED_WRENCH, qos)
-        self.pub_filtered = self.create_publisher(WrenchStamped, topics.FILTERED_WRENCH, qos)
-        self.pub_contact = self.create_publisher(Bool, topics.IN_CONTACT, qos)
+        self.pub_wrench = self.graph_publisher(WrenchStamped, topics.SENSED_WRENCH)
+        self.pub_filtered = self.graph_publisher(WrenchStamped, topics.FILTERED_WRENCH)
+        self.pub_contact = self.graph_publisher(Bool, topics.IN_CONTACT)
         self.create_subscription(
-            WrenchStamped, topics.PLANT_WRENCH, self.on_wrench, topics.subscriber_qos(True)
+            WrenchStamped,
+            topics.PLANT_WRENCH,
+            self.on_wrench,
+            topics.subscriber_qos(True, topics.PLANT_WRENCH),
         )
         self.create_service(Trigger, topics.TARE_SERVICE, self.on_tare)
         self.published = 0

@@ -34,19 +34,27 @@ def load_node_class(path: str) -> Any:
     return getattr(importlib.import_module(module), cls)
 
 
-def graph_parameters(scenario: Scenario, lockstep: bool, duration: float) -> dict[str, dict]:
-    """{node: {ROS name: value}} of every node of the graph, metrics node included."""
+def graph_parameters(
+    scenario: Scenario,
+    lockstep: bool,
+    duration: float,
+    namespace: str | None = topics.ROOT_NAMESPACE,
+) -> dict[str, dict]:
+    """{node: {ROS name: value}} of every node of the graph under ``namespace``, metrics node
+    included, with the graph's QoS overrides (``topics.graph_qos_overrides``: the sensor topics
+    reliable, lockstep and real time alike)."""
     graph = {
         "lockstep": lockstep,
         "duration": float(duration),
-        "start_delay": 0.5,  # wall s after the subscribers appear: discovery settles
+        "start_delay": 0.5,  # wall s after the readers are matched: discovery settles
         "start_subscribers": 2,  # the joint-sensor and metrics nodes
         # every node's two /clock readers: the plant's own, the other nodes' and the metrics'
         "start_clock_subscribers": topics.CLOCK_READERS_PER_NODE * (len(NODES) + 1),
         "wait_for_metrics": True,  # the metrics node has matched every topic it records
     }
     names = [*NODES, "metrics"]
-    return {n: node_parameter_values(n, scenario, **graph) for n in names}
+    qos = topics.graph_qos_overrides(namespace, lockstep)
+    return {n: {**node_parameter_values(n, scenario, **graph), **qos} for n in names}
 
 
 def nested_parameters(flat: Mapping[str, Any]) -> dict:

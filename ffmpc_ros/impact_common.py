@@ -155,9 +155,15 @@ class MeasuredCycleNode(StudyNode):
         self.processed = 0
         self.step_times: deque[float] = deque(maxlen=100_000)
 
-    def subscribe_measurements(self, qos) -> None:
-        self.create_subscription(JointState, topics.SENSED_JOINT_STATES, self.on_joints, qos)
-        self.create_subscription(WrenchStamped, topics.SENSED_WRENCH, self.on_wrench, qos)
+    def subscribe_measurements(self, lockstep: bool) -> None:
+        """Subscribe the measured joint state and wrench (SENSOR QoS, ``ffmpc_ros.topics``)."""
+        for msg_type, topic, callback in (
+            (JointState, topics.SENSED_JOINT_STATES, self.on_joints),
+            (WrenchStamped, topics.SENSED_WRENCH, self.on_wrench),
+        ):
+            self.create_subscription(
+                msg_type, topic, callback, topics.subscriber_qos(lockstep, topic)
+            )
 
     # -- hooks -------------------------------------------------------------------------------
     def process_cycle(self, k: int, q: np.ndarray, v: np.ndarray, wrench: np.ndarray) -> None:

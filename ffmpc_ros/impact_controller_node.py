@@ -172,20 +172,22 @@ class ImpactControllerNode(MeasuredCycleNode):
         self.safe_holds = 0
         self.published = 0
         self.last_command: ImpactTaskCommand | None = None
-        qos = topics.publisher_qos()
-        self.pub_torque = self.create_publisher(JointState, topics.IMPACT_TORQUE, qos)
-        self.pub_status = self.create_publisher(
-            Float64MultiArray, topics.IMPACT_CONTROL_STATUS, qos
-        )
-        lockstep_qos = topics.subscriber_qos(True)
-        self.subscribe_measurements(lockstep_qos)
+        self.pub_torque = self.graph_publisher(JointState, topics.IMPACT_TORQUE)
+        self.pub_status = self.graph_publisher(Float64MultiArray, topics.IMPACT_CONTROL_STATUS)
+        self.subscribe_measurements(True)
         if self.external:
             self.create_subscription(
-                Float64MultiArray, topics.IMPACT_REFERENCE, self.on_reference, lockstep_qos
+                Float64MultiArray,
+                topics.IMPACT_REFERENCE,
+                self.on_reference,
+                topics.subscriber_qos(True, topics.IMPACT_REFERENCE),
             )
         if self.uses_learner:
             self.create_subscription(
-                Float64MultiArray, topics.CONTACT_ESTIMATE, self.on_estimate, lockstep_qos
+                Float64MultiArray,
+                topics.CONTACT_ESTIMATE,
+                self.on_estimate,
+                topics.subscriber_qos(True, topics.CONTACT_ESTIMATE),
             )
         self.create_timer(
             WATCHDOG_PERIOD, self._watchdog, clock=Clock(clock_type=ClockType.STEADY_TIME)

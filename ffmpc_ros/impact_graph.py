@@ -103,8 +103,11 @@ def impact_node_parameters(
     scenario: str = "impact",
     overrides: Sequence[str] = (),
     record: bool = False,
+    namespace: str = topics.ROOT_NAMESPACE,
 ) -> tuple[Any, dict[str, dict]]:
-    """(the ImpactStudyConfig, {node: {ROS name: value}}) of a run of the impact graph.
+    """(the ImpactStudyConfig, {node: {ROS name: value}}) of a run of the impact graph under
+    ``namespace``, each node with the lockstep graph's QoS overrides
+    (``topics.graph_qos_overrides``: reliable sensor topics, transient local data topics).
 
     ConfigError when the settings cannot run as a graph: the touch-first strategy with the
     maximal approach, or a planner setting the planner node has no parameter for."""
@@ -215,6 +218,8 @@ def impact_node_parameters(
                 f"configuration (ROS-free: {wanted}; node: {built})"
             )
         params["impact_planner"] = planner
+    qos = topics.graph_qos_overrides(namespace, lockstep=True)
+    params = {name: {**values, **qos} for name, values in params.items()}
     # (no shared objects: the parameter file is YAML without aliases, which rcl refuses)
     return cfg, json.loads(json.dumps(params))
 
@@ -274,13 +279,28 @@ class _Probe:
         self.status: dict[int, dict] = {}
         self.estimate: dict | None = None
         self.cycle = -1
-        qos = topics.subscriber_qos(True)
-        node.create_subscription(JointState, topics.PLANT_JOINT_STATES, self._on_joints, qos)
-        node.create_subscription(WrenchStamped, topics.PLANT_WRENCH, self._on_wrench, qos)
+
+        def qos(topic: str):
+            return topics.graph_qos(topic, "subscription", True)
+
         node.create_subscription(
-            Float64MultiArray, topics.IMPACT_CONTROL_STATUS, self._on_status, qos
+            JointState, topics.PLANT_JOINT_STATES, self._on_joints, qos(topics.PLANT_JOINT_STATES)
         )
-        node.create_subscription(Float64MultiArray, topics.CONTACT_ESTIMATE, self._on_estimate, qos)
+        node.create_subscription(
+            WrenchStamped, topics.PLANT_WRENCH, self._on_wrench, qos(topics.PLANT_WRENCH)
+        )
+        node.create_subscription(
+            Float64MultiArray,
+            topics.IMPACT_CONTROL_STATUS,
+            self._on_status,
+            qos(topics.IMPACT_CONTROL_STATUS),
+        )
+        node.create_subscription(
+            Float64MultiArray,
+            topics.CONTACT_ESTIMATE,
+            self._on_estimate,
+            qos(topics.CONTACT_ESTIMATE),
+        )
         self.nv = nv
 
     def _k(self, stamp) -> int:
@@ -429,7 +449,7 @@ def run_impact_graph(
     domain = int(os.environ.get("ROS_DOMAIN_ID", "0")) if domain_id is None else domain_id
     namespace = topics.normalize_namespace(namespace)
     cfg, params = impact_node_parameters(
-        approach, regulation, scenario, overrides, record is not None
+        approach, regulation, scenario, overrides, record is not None, namespace
     )
     if record is not None and os.path.exists(record):
         from ffmpc_ros.bag.errors import BagExistsError

@@ -28,12 +28,13 @@ is confident (``learner_min_samples``, ``learner_max_relative_std``; parameter
 Limits: the robot's position/torque limits, and ``limit_margin`` × its velocity and acceleration
 limits (``acceleration_limit``, rad/s²; unset: the Panda data sheet, any other robot needs it).
 
-Safe output. A rejected measurement (NaN/Inf, wrong names or frame, off the grid, stale — not a
-duplicate or out-of-order one) makes the node publish a zero twist with ``safe_stop`` = 1, stamped
-with the newest of: the rejected message's cycle, the node's clock, the last output. So does a
-watchdog (every 50 ms of wall time) when no complete cycle came for ``max_input_age`` of
-simulated time. Nothing is published before the first complete cycle. The controller keeps its
-state: the next complete cycle resumes its command (a consumer ramps as its own limits require).
+Safe output. A rejected measurement (NaN/Inf, wrong names or frame, a stamp that is no time,
+stale — not a duplicate or out-of-order one) makes the node publish a zero twist with
+``safe_stop`` = 1, stamped with the newest of: the rejected message's cycle, the node's clock,
+the last output. So does a watchdog (every 50 ms of wall time) when no complete cycle came for
+``max_input_age`` of simulated time. Nothing is published before the first complete cycle. The
+controller keeps its state: the next complete cycle resumes its command (a consumer ramps as its
+own limits require).
 
 Service ``/impact_planner/reset`` (std_srvs/Trigger): back to the approach phase; the next
 cycle's pose becomes the hold pose (the learned material, if any, is kept).
@@ -146,16 +147,15 @@ class ImpactPlannerNode(MeasuredCycleNode):
         self._stopped = False
         self.safe_stops = 0
         self.estimates_used = 0
-        qos = topics.publisher_qos()
-        self.pub_command = self.create_publisher(TwistStamped, topics.IMPACT_COMMAND, qos)
-        self.pub_status = self.create_publisher(Float64MultiArray, topics.IMPACT_STATUS, qos)
-        self.pub_reference = self.create_publisher(Float64MultiArray, topics.IMPACT_REFERENCE, qos)
-        self.subscribe_measurements(topics.subscriber_qos(bool(p["lockstep"])))
+        self.pub_command = self.graph_publisher(TwistStamped, topics.IMPACT_COMMAND)
+        self.pub_status = self.graph_publisher(Float64MultiArray, topics.IMPACT_STATUS)
+        self.pub_reference = self.graph_publisher(Float64MultiArray, topics.IMPACT_REFERENCE)
+        self.subscribe_measurements(bool(p["lockstep"]))
         self.create_subscription(
             Float64MultiArray,
             topics.CONTACT_ESTIMATE,
             self.on_estimate,
-            topics.subscriber_qos(False),
+            topics.subscriber_qos(False, topics.CONTACT_ESTIMATE),
         )
         self.create_service(Trigger, topics.IMPACT_RESET_SERVICE, self.on_reset)
         self.create_timer(

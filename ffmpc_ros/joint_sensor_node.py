@@ -27,13 +27,13 @@ class JointSensorNode(StudyNode):
         self.model = joint_sensing_model(s, self.robot.nv, device_generator(s.seed, "joint_sensor"))
         lockstep = True  # the sensor processes every sample it gets
         self.publisher = self.create_publisher(
-            JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos()
+            JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos(topics.SENSED_JOINT_STATES)
         )
         self.create_subscription(
             JointState,
             topics.PLANT_JOINT_STATES,
             self.on_joint_state,
-            topics.subscriber_qos(lockstep),
+            topics.subscriber_qos(lockstep, topics.PLANT_JOINT_STATES),
         )
         self.published = 0
 

@@ -183,7 +183,8 @@ def _node(body: dict, variables: Mapping[str, str]) -> LaunchNode:
         if isinstance(entry, dict) and set(entry) == {"from"}:
             parameters.append(("file", str(_resolve(entry["from"], variables))))
         elif isinstance(entry, dict) and set(entry) == {"name", "value"}:
-            parameters.append((str(entry["name"]), _resolve(entry["value"], variables)))
+            name = substitute(str(entry["name"]), variables)  # qos_overrides.$(var namespace)/…
+            parameters.append((name, _resolve(entry["value"], variables)))
         else:
             raise LaunchError(f"'param' entry {entry!r}: {{from: FILE}} or {{name: N, value: V}}")
     remaps = []

@@ -60,18 +60,20 @@ class MetricsNode(StudyNode):
         self._q = np.zeros((self.steps, self.robot.nv))
         self._last_state_at: float | None = None
         self.pub_summary = self.create_publisher(
-            String, topics.METRICS_SUMMARY, topics.publisher_qos()
+            String, topics.METRICS_SUMMARY, topics.publisher_qos(topics.METRICS_SUMMARY)
         )
-        self.pub_ready = self.create_publisher(Bool, topics.METRICS_READY, topics.publisher_qos())
-        qos = topics.subscriber_qos(True)
+        self.pub_ready = self.create_publisher(
+            Bool, topics.METRICS_READY, topics.publisher_qos(topics.METRICS_READY)
+        )
         self._subs = [
-            self.create_subscription(
-                JointState, topics.PLANT_JOINT_STATES, self.on_plant_joints, qos
-            ),
-            self.create_subscription(Float64MultiArray, topics.PLANT_TRUTH, self.on_truth, qos),
-            self.create_subscription(WrenchStamped, topics.SENSED_WRENCH, self.on_wrench, qos),
-            self.create_subscription(JointState, topics.DESIRED_TORQUE, self.on_desired, qos),
-            self.create_subscription(JointState, topics.MOTOR_TORQUE, self.on_motor, qos),
+            self.create_subscription(msg_type, topic, callback, topics.subscriber_qos(True, topic))
+            for msg_type, topic, callback in (
+                (JointState, topics.PLANT_JOINT_STATES, self.on_plant_joints),
+                (Float64MultiArray, topics.PLANT_TRUTH, self.on_truth),
+                (WrenchStamped, topics.SENSED_WRENCH, self.on_wrench),
+                (JointState, topics.DESIRED_TORQUE, self.on_desired),
+                (JointState, topics.MOTOR_TORQUE, self.on_motor),
+            )
         ]
         self.ready = False
         steady = Clock(clock_type=ClockType.STEADY_TIME)

@@ -112,12 +112,12 @@ class MpcNode(StudyNode):
         if not self.lockstep:
             self.warm_up()
         self.publisher = self.create_publisher(
-            Float64MultiArray, topics.MPC_COMMAND, topics.publisher_qos()
+            Float64MultiArray, topics.MPC_COMMAND, topics.publisher_qos(topics.MPC_COMMAND)
         )
         self.prediction_publisher = self.create_publisher(
-            Float64MultiArray, topics.MPC_PREDICTION, topics.publisher_qos()
+            Float64MultiArray, topics.MPC_PREDICTION, topics.publisher_qos(topics.MPC_PREDICTION)
         )
-        qos = topics.subscriber_qos(self.lockstep)
+        qos = topics.subscriber_qos(self.lockstep, topics.SENSED_JOINT_STATES)  # SENSOR, both
         self.inputs = [
             self.create_subscription(JointState, topics.SENSED_JOINT_STATES, self.on_joints, qos)
         ]
@@ -147,7 +147,7 @@ class MpcNode(StudyNode):
                 Float64MultiArray,
                 topics.CONTACT_ESTIMATE,
                 self.on_estimate,
-                topics.subscriber_qos(False),
+                topics.subscriber_qos(False, topics.CONTACT_ESTIMATE),
             )
 
     def on_joints(self, msg: JointState) -> None:
@@ -360,7 +360,7 @@ class MpcNode(StudyNode):
     def _is_tick(self, stamp) -> bool:
         """Real time: whether a stamp is an MPC tick (other cycles are not parsed at all)."""
         k = self.cycle_of(stamp)
-        return k is None or k % self.every == 0  # (off-grid stamps: rejected by the handler)
+        return k is None or k % self.every == 0  # (a stamp that is no time: rejected there)
 
     def spin_realtime(self) -> None:
         """Real time, instead of an executor: block on a wait set over the inputs, take the

@@ -70,13 +70,17 @@ class PidNode(StudyNode):
         self._waiting_since: float | None = None
         self._skip_wait: set[int] = set()
         self.last_output = None
-        qos = topics.publisher_qos()
-        self.pub_motor = self.create_publisher(JointState, topics.MOTOR_TORQUE, qos)
-        self.pub_desired = self.create_publisher(JointState, topics.DESIRED_TORQUE, qos)
-        self.pub_status = self.create_publisher(Float64MultiArray, topics.LOWLEVEL_STATUS, qos)
-        sub_qos = topics.subscriber_qos(self.lockstep)
+        self.pub_motor = self.graph_publisher(JointState, topics.MOTOR_TORQUE)
+        self.pub_desired = self.graph_publisher(JointState, topics.DESIRED_TORQUE)
+        self.pub_status = self.graph_publisher(Float64MultiArray, topics.LOWLEVEL_STATUS)
+        sub_qos = topics.subscriber_qos(self.lockstep, topics.SENSED_JOINT_STATES)  # SENSOR
         self.create_subscription(JointState, topics.SENSED_JOINT_STATES, self.on_joints, sub_qos)
-        self.create_subscription(Float64MultiArray, topics.MPC_COMMAND, self.on_command, sub_qos)
+        self.create_subscription(
+            Float64MultiArray,
+            topics.MPC_COMMAND,
+            self.on_command,
+            topics.subscriber_qos(self.lockstep, topics.MPC_COMMAND),
+        )
         if self.needs_force:
             self.create_subscription(WrenchStamped, topics.SENSED_WRENCH, self.on_wrench, sub_qos)
         if self.lockstep:

@@ -109,39 +109,53 @@ class PlantNode(StudyNode):
         self.state = self.plant.state()
 
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
-        qos = topics.publisher_qos()
         self.pub_clock = self.create_publisher(ClockMsg, topics.CLOCK, topics.clock_qos())
-        self.pub_joints = self.create_publisher(JointState, topics.PLANT_JOINT_STATES, qos)
-        self.pub_wrench = self.create_publisher(WrenchStamped, topics.PLANT_WRENCH, qos)
-        self.pub_truth = self.create_publisher(Float64MultiArray, topics.PLANT_TRUTH, qos)
-        self.pub_status = self.create_publisher(Float64MultiArray, topics.PLANT_STATUS, qos)
+        self.pub_joints = self.graph_publisher(JointState, topics.PLANT_JOINT_STATES)
+        self.pub_wrench = self.graph_publisher(WrenchStamped, topics.PLANT_WRENCH)
+        self.pub_truth = self.graph_publisher(Float64MultiArray, topics.PLANT_TRUTH)
+        self.pub_status = self.graph_publisher(Float64MultiArray, topics.PLANT_STATUS)
         self.create_subscription(
-            JointState, topics.MOTOR_TORQUE, self.on_motor, topics.subscriber_qos(self.lockstep)
+            JointState,
+            topics.MOTOR_TORQUE,
+            self.on_motor,
+            topics.subscriber_qos(self.lockstep, topics.MOTOR_TORQUE),
         )
         self.metrics_ready = False
         if self.params["wait_for_metrics"]:
             self.create_subscription(
-                Bool, topics.METRICS_READY, self._on_metrics_ready, topics.subscriber_qos(True)
+                Bool,
+                topics.METRICS_READY,
+                self._on_metrics_ready,
+                topics.subscriber_qos(True, topics.METRICS_READY),
             )
-        self._created = time.monotonic()
+        self._ready_since: float | None = None  # wall s the start conditions hold since
         self.started = False
         self._start_timer = self.create_timer(0.01, self._try_start, clock=self._steady)
 
     def _try_start(self) -> None:
-        """Start once active (lifecycle), ``start_subscribers`` nodes read the joint states,
-        ``start_clock_subscribers`` read /clock and ``start_delay``
-        (wall time) has passed: lockstep publishes the state of cycle 0, real time starts the
-        wall-clock timer."""
-        if not self.active:  # lifecycle: the first cycle waits for the activate transition
+        """Start ``start_delay`` (wall s) after the node is active (lifecycle: the bring-up
+        activates the plant last), ``start_subscribers`` readers of the joint
+        states and ``start_clock_subscribers`` of /clock are matched to this node's writers and
+        the metrics node is ready (``wait_for_metrics``: it has matched every topic it
+        records): lockstep publishes the state of cycle 0, real time starts the wall-clock
+        timer. A node's reliable /clock reader is its last entity (``base._Constructed``), so
+        the /clock count means every node has all its readers. The delay runs from the moment
+        all three hold, for the other nodes' writers to make their side of each match; a
+        sample sent before that reaches a late-matched reader only because the lockstep
+        graph's data topics are TRANSIENT_LOCAL (``ffmpc_ros.topics.LOCKSTEP_OVERRIDES``)."""
+        ready = (
+            self.active
+            and self.pub_joints.get_subscription_count() >= int(self.params["start_subscribers"])
+            and self.pub_clock.get_subscription_count()
+            >= int(self.params["start_clock_subscribers"])
+            and (self.metrics_ready or not self.params["wait_for_metrics"])
+        )
+        if not ready:
+            self._ready_since = None
             return
-        wanted = int(self.params["start_subscribers"])
-        if self.pub_joints.get_subscription_count() < wanted:
-            return
-        if self.pub_clock.get_subscription_count() < int(self.params["start_clock_subscribers"]):
-            return
-        if self.params["wait_for_metrics"] and not self.metrics_ready:
-            return
-        if time.monotonic() - self._created < float(self.params["start_delay"]):
+        if self._ready_since is None:
+            self._ready_since = time.monotonic()
+        if time.monotonic() - self._ready_since < float(self.params["start_delay"]):
             return
         self._start_timer.cancel()
         self.started = True

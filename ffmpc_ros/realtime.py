@@ -463,17 +463,17 @@ class RealtimeLoop:
         self.needs_force = ps.mpc.riccati_feedback and ps.mpc.formulation == "force_feedback"
 
         pn, jn, fn, cn = (self.nodes[n] for n in ("plant", "joint_sensor", "ft_sensor", "pid"))
-        qos = topics.publisher_qos()
+
         self.pub_clock = pn.create_publisher(ClockMsg, topics.CLOCK, topics.clock_qos())
-        self.pub_plant_joints = pn.create_publisher(JointState, topics.PLANT_JOINT_STATES, qos)
-        self.pub_plant_wrench = pn.create_publisher(WrenchStamped, topics.PLANT_WRENCH, qos)
-        self.pub_truth = pn.create_publisher(Float64MultiArray, topics.PLANT_TRUTH, qos)
-        self.pub_status = pn.create_publisher(Float64MultiArray, topics.PLANT_STATUS, qos)
-        self.pub_joints = jn.create_publisher(JointState, topics.SENSED_JOINT_STATES, qos)
-        self.pub_wrench = fn.create_publisher(WrenchStamped, topics.SENSED_WRENCH, qos)
-        self.pub_motor = cn.create_publisher(JointState, topics.MOTOR_TORQUE, qos)
-        self.pub_desired = cn.create_publisher(JointState, topics.DESIRED_TORQUE, qos)
-        self.pub_pid_status = cn.create_publisher(Float64MultiArray, topics.LOWLEVEL_STATUS, qos)
+        self.pub_plant_joints = pn.graph_publisher(JointState, topics.PLANT_JOINT_STATES)
+        self.pub_plant_wrench = pn.graph_publisher(WrenchStamped, topics.PLANT_WRENCH)
+        self.pub_truth = pn.graph_publisher(Float64MultiArray, topics.PLANT_TRUTH)
+        self.pub_status = pn.graph_publisher(Float64MultiArray, topics.PLANT_STATUS)
+        self.pub_joints = jn.graph_publisher(JointState, topics.SENSED_JOINT_STATES)
+        self.pub_wrench = fn.graph_publisher(WrenchStamped, topics.SENSED_WRENCH)
+        self.pub_motor = cn.graph_publisher(JointState, topics.MOTOR_TORQUE)
+        self.pub_desired = cn.graph_publisher(JointState, topics.DESIRED_TORQUE)
+        self.pub_pid_status = cn.graph_publisher(Float64MultiArray, topics.LOWLEVEL_STATUS)
         self.sub_command = cn.create_subscription(
             Float64MultiArray, topics.MPC_COMMAND, lambda _msg: None, command_qos()
         )

@@ -1,17 +1,30 @@
 """Topic names, message types, frames and QoS of the node graph (``msgs_notes/topics.md``).
 
-QoS. The control chain of the study (plant → sensors → MPC → PID → plant) must lose nothing in
-lockstep, whatever the start order of the processes:
+QoS, as ROS 2 users expect (every profile is a function of this module; msgs_notes/README.md):
 
-* every data topic is published RELIABLE + TRANSIENT_LOCAL with a history of
-  :data:`PUBLISHER_DEPTH` samples, so a node that starts late still receives the samples it
-  missed, and a slow recorder (the metrics node) can lag without losing any;
-* subscribers keep :data:`PUBLISHER_DEPTH` samples in lockstep (every sample is processed) and
-  only the newest in real time (``KEEP_LAST(1)``: a late sample is worthless);
-* ``/clock`` is RELIABLE + VOLATILE with the same history (rclpy's time source subscribes
-  BEST_EFFORT, depth 1: only the newest time matters to a node; the recorder keeps them all).
-  Every ffmpc node also reads it RELIABLE, depth 1 (:func:`clock_reader_qos`, feeding the same
-  clock): a best-effort sample is lost while the reader's side of the match is not yet made.
+* SENSOR — joint states, wrenches, the contact flag: the simulated devices publish
+  ``SensorDataQoS`` (BEST_EFFORT, VOLATILE, KEEP_LAST(5)) and every reader subscribes
+  BEST_EFFORT, VOLATILE, so a standard driver's best-effort publisher connects;
+* COMMAND — ``mpc/command``, the PID's torques, the impact planner's twist: RELIABLE, VOLATILE;
+* STATE — status, truth, estimates, predictions, markers: RELIABLE, VOLATILE;
+* LATCHED — ``robot_description``, ``metrics/*``, the MPC's reference inputs: RELIABLE,
+  TRANSIENT_LOCAL, KEEP_LAST(1), the only replayed data;
+* ``/clock``: RELIABLE, VOLATILE with a history of :data:`PUBLISHER_DEPTH` (rclpy's time source
+  subscribes BEST_EFFORT, depth 1: only the newest time matters to a node; the recorder keeps
+  them all). Every ffmpc node also reads it RELIABLE, depth 1 (:func:`clock_reader_qos`,
+  feeding the same clock): a best-effort sample is lost while the reader's side of the match is
+  not yet made.
+
+Subscribers keep :data:`PUBLISHER_DEPTH` samples in lockstep (every sample is processed) and
+only the newest in real time (``KEEP_LAST(1)``: a late sample is worthless). Every publisher and
+subscription of an ffmpc node takes ROS 2's standard QoS override parameters (history, depth,
+reliability: ``--ros-args -p qos_overrides./ft_sensor/wrench.subscription.reliability:=reliable``).
+The graph's bring-up sets :func:`graph_qos_overrides` on its own nodes: the sensor topics become
+RELIABLE with a history of :data:`PUBLISHER_DEPTH` on both ends, so the lockstep loop, the
+metrics node and the recorder lose nothing; nothing is replayed: the plant publishes its first
+state only once the graph's readers are matched (plant_node, ``start_delay`` after the last
+condition), and a reliable VOLATILE writer delivers every sample it sent since it matched a
+reader.
 
 Names. Every topic and service name of the graph is RELATIVE (``plant/joint_states``): it
 resolves under the namespace of the node that uses it, so ``--ros-args -r __ns:=/arm1`` (or
@@ -164,62 +177,169 @@ VIEW_TOPICS: tuple[tuple[str, str, str], ...] = (
 )
 
 
-def latched_qos() -> QoSProfile:
-    """Latched data (``/robot_description``): RELIABLE, TRANSIENT_LOCAL, KEEP_LAST(1)."""
-    return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST,
-        depth=1,
-        reliability=ReliabilityPolicy.RELIABLE,
-        durability=DurabilityPolicy.TRANSIENT_LOCAL,
-    )
-
-
-#: History kept by every data publisher (and by lockstep subscribers), samples: 1 s of a 1 kHz
-#: graph, so the nodes outside the lockstep loop
-#: (metrics, recorder) may lag that much without losing a sample (msgs_notes/README.md, QoS).
+#: History of the publishers that must lose nothing (commands, states; the sensor topics' in the
+#: graph, through :func:`graph_qos_overrides`) and of lockstep subscribers, samples: 1 s of a
+#: 1 kHz graph, so the readers outside the lockstep loop (metrics node, recorder) may lag that
+#: much without losing a sample (a reliable KEEP_LAST writer drops what a slow reader has not
+#: taken once its history is full; msgs_notes/README.md, QoS).
 PUBLISHER_DEPTH = 1000
+#: History of a SensorDataQoS publisher (rclpy's ``qos_profile_sensor_data``: KEEP_LAST(5)).
+SENSOR_DEPTH = 5
+
+#: The QoS classes (module docstring, msgs_notes/README.md "QoS").
+SENSOR, COMMAND, STATE, LATCHED = "sensor", "command", "state", "latched"
+#: The class of every topic of the graph but ``/clock`` (:func:`clock_qos`). A topic not listed
+#: (a new node's) is a STATE topic: reliable, volatile.
+QOS_CLASSES: dict[str, str] = {
+    PLANT_JOINT_STATES: SENSOR,
+    PLANT_WRENCH: SENSOR,
+    SENSED_JOINT_STATES: SENSOR,
+    SENSED_WRENCH: SENSOR,
+    FILTERED_WRENCH: SENSOR,
+    IN_CONTACT: SENSOR,
+    MPC_COMMAND: COMMAND,
+    MOTOR_TORQUE: COMMAND,
+    DESIRED_TORQUE: COMMAND,
+    IMPACT_COMMAND: COMMAND,
+    IMPACT_REFERENCE: COMMAND,
+    IMPACT_TORQUE: COMMAND,
+    IMPACT_CONTROL_STATUS: STATE,
+    PLANT_TRUTH: STATE,
+    PLANT_STATUS: STATE,
+    LOWLEVEL_STATUS: STATE,
+    IMPACT_STATUS: STATE,
+    CONTACT_ESTIMATE: STATE,
+    MPC_PREDICTION: STATE,
+    VIEW_MARKERS: STATE,
+    METRICS_SUMMARY: LATCHED,
+    IMPACT_SUMMARY: LATCHED,
+    METRICS_READY: LATCHED,
+    ROBOT_DESCRIPTION: LATCHED,
+    MPC_REFERENCE: LATCHED,
+    MPC_FORCE_SETPOINT: LATCHED,
+}
 
 
-def publisher_qos() -> QoSProfile:
-    """Data topics: RELIABLE, TRANSIENT_LOCAL, KEEP_LAST(PUBLISHER_DEPTH)."""
+def qos_class(topic: str | None) -> str:
+    """The QoS class of a graph topic (relative name, as in this module); STATE when unknown."""
+    return QOS_CLASSES.get(topic or "", STATE)
+
+
+def _profile(reliable: bool, depth: int, latched: bool = False) -> QoSProfile:
     return QoSProfile(
         history=HistoryPolicy.KEEP_LAST,
-        depth=PUBLISHER_DEPTH,
-        reliability=ReliabilityPolicy.RELIABLE,
-        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+        depth=depth,
+        reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
     )
 
 
-def subscriber_qos(lockstep: bool) -> QoSProfile:
-    """Data topics: as the publisher; depth 1 in real time (only the newest sample matters)."""
-    return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST,
-        depth=PUBLISHER_DEPTH if lockstep else 1,
-        reliability=ReliabilityPolicy.RELIABLE,
-        durability=DurabilityPolicy.TRANSIENT_LOCAL,
-    )
+def publisher_qos(topic: str | None = None) -> QoSProfile:
+    """The default publisher profile of ``topic``'s class: SENSOR is ``SensorDataQoS``
+    (BEST_EFFORT, VOLATILE, KEEP_LAST(5)), COMMAND and STATE RELIABLE, VOLATILE,
+    KEEP_LAST(PUBLISHER_DEPTH), LATCHED RELIABLE, TRANSIENT_LOCAL, KEEP_LAST(1)."""
+    kind = qos_class(topic)
+    if kind == SENSOR:
+        return _profile(False, SENSOR_DEPTH)
+    if kind == LATCHED:
+        return latched_qos()
+    return _profile(True, PUBLISHER_DEPTH)
+
+
+def subscriber_qos(lockstep: bool, topic: str | None = None) -> QoSProfile:
+    """The default subscription profile of ``topic``'s class: SENSOR BEST_EFFORT, VOLATILE
+    (it matches a SensorDataQoS driver and a reliable publisher alike), COMMAND and STATE
+    RELIABLE, VOLATILE; history PUBLISHER_DEPTH in lockstep (every sample is processed), 1 in
+    real time (only the newest matters); LATCHED as its publisher (the last sample, also to a
+    late reader)."""
+    kind = qos_class(topic)
+    if kind == LATCHED:
+        return latched_qos()
+    return _profile(kind != SENSOR, PUBLISHER_DEPTH if lockstep else 1)
+
+
+def latched_qos() -> QoSProfile:
+    """Latched data (``robot_description``, ``metrics/*``, the reference inputs): RELIABLE,
+    TRANSIENT_LOCAL, KEEP_LAST(1): a reader that comes late still gets the last sample."""
+    return _profile(True, 1, latched=True)
 
 
 def reference_qos() -> QoSProfile:
-    """The MPC's reference inputs: RELIABLE, TRANSIENT_LOCAL, KEEP_LAST(1): only the newest
-    target matters, and a node that starts after it was published still gets it."""
-    return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST,
-        depth=1,
-        reliability=ReliabilityPolicy.RELIABLE,
-        durability=DurabilityPolicy.TRANSIENT_LOCAL,
-    )
+    """The MPC's reference inputs (LATCHED): only the newest target matters, and a node that
+    starts after it was published still gets it."""
+    return latched_qos()
+
+
+#: What the bring-up overrides on the graph's own nodes (``ffmpc run``, ``ffmpc launch``), per
+#: class, through ROS 2's QoS override parameters, in both modes: the simulated devices' sensor
+#: topics become RELIABLE both ways with a history of PUBLISHER_DEPTH, so the lockstep loop and
+#: the metrics node and recorder lose nothing.
+GRAPH_OVERRIDES: dict[str, dict[str, dict[str, str | int]]] = {
+    SENSOR: {
+        "publisher": {"reliability": "reliable", "depth": PUBLISHER_DEPTH},
+        "subscription": {"reliability": "reliable"},
+    },
+}
+#: And in lockstep only, on every SENSOR, COMMAND and STATE topic, both ends: TRANSIENT_LOCAL.
+#: The plant starts by a handshake (every node's readers exist, its own writers matched, the
+#: metrics node ready, then ``start_delay``: plant_node, base._Constructed), but a sample a writer
+#: sends before ITS side of a match is made is lost for that reader, and the lockstep graph
+#: stalls at cycle 0. Measured with VOLATILE topics (msgs_notes/README.md, QoS): 20 of 20 runs
+#: of the graph test on a quiet domain, but beside two busy loops 2 of 27 runs of the graph,
+#: launch, namespace and bag-graph tests failed (a stall at cycle 0, a launch that never
+#: finished). A transient-local writer hands a late-matched reader what it missed; in lockstep
+#: at most one sample per control topic is in flight, so that is the start only.
+LOCKSTEP_OVERRIDES: dict[str, str] = {"durability": "transient_local"}
+
+
+def qos_override_name(topic: str, role: str, policy: str, namespace: str | None = None) -> str:
+    """ROS 2's parameter that overrides ``policy`` of the ``role`` ("publisher" or
+    "subscription") of ``topic`` in a graph under ``namespace``:
+    ``qos_overrides./ft_sensor/wrench.subscription.reliability``."""
+    return f"qos_overrides.{resolve(topic, namespace)}.{role}.{policy}"
+
+
+def _graph_policies(topic: str, role: str, lockstep: bool) -> dict[str, str | int]:
+    kind = qos_class(topic)
+    policies: dict[str, str | int] = dict(GRAPH_OVERRIDES.get(kind, {}).get(role, {}))
+    if lockstep and kind in (SENSOR, COMMAND, STATE):
+        policies.update(LOCKSTEP_OVERRIDES)
+    return policies
+
+
+def graph_qos_overrides(
+    namespace: str | None = None, lockstep: bool = True
+) -> dict[str, str | int]:
+    """{parameter: value} of :data:`GRAPH_OVERRIDES` (and :data:`LOCKSTEP_OVERRIDES` in
+    lockstep) for every topic of the graph under ``namespace`` (a node ignores the ones of
+    topics it does not use)."""
+    out: dict[str, str | int] = {}
+    for topic in QOS_CLASSES:
+        for role in ("publisher", "subscription"):
+            for policy, value in _graph_policies(topic, role, lockstep).items():
+                out[qos_override_name(topic, role, policy, namespace)] = value
+    return out
+
+
+def graph_qos(topic: str, role: str, lockstep: bool = True) -> QoSProfile:
+    """The profile a graph node's ``role`` ("publisher" or "subscription") of ``topic`` has with
+    :func:`graph_qos_overrides` applied: for the bring-up's own readers and writers (status
+    probe, fault injector), made without those parameters."""
+    qos = publisher_qos(topic) if role == "publisher" else subscriber_qos(lockstep, topic)
+    for policy, value in _graph_policies(topic, role, lockstep).items():
+        if policy == "reliability":
+            qos.reliability = ReliabilityPolicy[str(value).upper()]
+        elif policy == "durability":
+            qos.durability = DurabilityPolicy[str(value).upper()]
+        elif policy == "depth":
+            qos.depth = int(value)
+    return qos
 
 
 def clock_reader_qos() -> QoSProfile:
     """Each node's own /clock reader (beside rclpy's best-effort one): RELIABLE, VOLATILE,
     KEEP_LAST(1): only the newest time matters, but no sample sent after the match is lost."""
-    return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST,
-        depth=1,
-        reliability=ReliabilityPolicy.RELIABLE,
-        durability=DurabilityPolicy.VOLATILE,
-    )
+    return _profile(True, 1)
 
 
 #: /clock readers per node: rclpy's time source and the node's reliable one (clock_reader_qos).
@@ -231,12 +351,7 @@ def clock_qos() -> QoSProfile:
     slow reader has not taken once its history is full: with a history of 1 the recorder (its
     own process) lost 30 of 201 /clock samples of a lockstep run on a loaded machine. rclpy's
     time source still subscribes with its own depth-1 best-effort profile (the newest time)."""
-    return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST,
-        depth=PUBLISHER_DEPTH,
-        reliability=ReliabilityPolicy.RELIABLE,
-        durability=DurabilityPolicy.VOLATILE,
-    )
+    return _profile(True, PUBLISHER_DEPTH)
 
 
 # -- names under a namespace ---------------------------------------------------------------------

@@ -355,7 +355,7 @@ class ViewNode(Node):
             String(data=description_with_absolute_meshes(self.robot.urdf_path))
         )
         self.pub_markers = self.create_publisher(
-            MarkerArray, topics.VIEW_MARKERS, topics.publisher_qos()
+            MarkerArray, topics.VIEW_MARKERS, topics.publisher_qos(topics.VIEW_MARKERS)
         )
         self._timer = self.create_timer(
             discovery_period, self.discover, clock=Clock(clock_type=ClockType.STEADY_TIME)

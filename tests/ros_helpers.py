@@ -78,7 +78,7 @@ def overrides(node: str, scenario=None, **graph):
 def recorder(probe: Node, msg_type, topic: str, lockstep: bool = True) -> list:
     """Subscribe ``probe`` to ``topic`` and return the list the messages go to."""
     out: list = []
-    probe.create_subscription(msg_type, topic, out.append, topics.subscriber_qos(lockstep))
+    probe.create_subscription(msg_type, topic, out.append, topics.subscriber_qos(lockstep, topic))
     return out
 
 

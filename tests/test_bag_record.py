@@ -124,8 +124,7 @@ def test_what_is_published_is_what_is_read_back_for_every_topic_type(ros, tmp_pa
             info = bag.topics[topic]
             assert info.type == type_name and info.count == 25
             assert info.type_hash == str(infos[topic].topic_type_hash)
-            durability = "volatile" if topic == topics.CLOCK else "transient_local"
-            assert [q["durability"] for q in info.qos_profiles] == [durability]
+            assert [q["durability"] for q in info.qos_profiles] == ["volatile"]
             assert [q["reliability"] for q in info.qos_profiles] == ["reliable"]
             recorded = [m.data for m in bag.messages([topic])]
             assert recorded == wire[topic], topic  # the bytes on the wire

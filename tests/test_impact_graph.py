@@ -182,14 +182,24 @@ def test_controller_node_rejects_a_bad_reference_with_one_log_line_and_holds(ros
     probe = ros.probe()
     out: list = []
     probe.create_subscription(
-        Float64MultiArray, topics.IMPACT_CONTROL_STATUS, out.append, topics.subscriber_qos(True)
+        Float64MultiArray,
+        topics.IMPACT_CONTROL_STATUS,
+        out.append,
+        topics.graph_qos(topics.IMPACT_CONTROL_STATUS, "subscription"),
     )
-    qos = topics.publisher_qos()
-    pub_j = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, qos)
+
+    def qos(topic: str):  # the node runs with the graph's overrides: publish as the graph does
+        return topics.graph_qos(topic, "publisher")
+
+    pub_j = probe.create_publisher(
+        JointState, topics.SENSED_JOINT_STATES, qos(topics.SENSED_JOINT_STATES)
+    )
     from geometry_msgs.msg import WrenchStamped
 
-    pub_w = probe.create_publisher(WrenchStamped, topics.SENSED_WRENCH, qos)
-    pub_r = probe.create_publisher(Float64MultiArray, topics.IMPACT_REFERENCE, qos)
+    pub_w = probe.create_publisher(WrenchStamped, topics.SENSED_WRENCH, qos(topics.SENSED_WRENCH))
+    pub_r = probe.create_publisher(
+        Float64MultiArray, topics.IMPACT_REFERENCE, qos(topics.IMPACT_REFERENCE)
+    )
     zeros = np.zeros(robot.nv)
     for k in range(3):
         ros.set_clock(node, k)
@@ -223,7 +233,11 @@ def test_the_launch_file_starts_the_nodes_ffmpc_run_impact_derives():
     assert launched["dice_plant"].pop("start_subscribers") == 1  # no bring-up probe
     assert params["dice_plant"].pop("start_subscribers") == 2
     for name, values in params.items():
-        assert launched[name] == values, name
+        # QoS: the launch names only the topics the node uses, each as the bring-up sets it
+        qos = {k: v for k, v in launched[name].items() if k.startswith("qos_overrides.")}
+        assert qos and all(values[k] == v for k, v in qos.items()), name
+        plain = {k: v for k, v in values.items() if not k.startswith("qos_overrides.")}
+        assert {k: v for k, v in launched[name].items() if k not in qos} == plain, name
 
 
 def test_ffmpc_run_refuses_the_other_graphs_options(capsys):

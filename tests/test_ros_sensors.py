@@ -70,22 +70,32 @@ def test_joint_sensor_rejects_bad_input_with_one_log_line_per_kind(ros):
         ("order", joint_state(node, 5, ok, ok, ok)),  # duplicate stamp
         ("order", joint_state(node, 3, ok, ok, ok)),  # out of order
     ]
-    off_grid = joint_state(node, 6, ok, ok, ok)
-    off_grid.header.stamp.nanosec += 400_000  # 6.4 ms: not a cycle
-    bad.append(("stamp", off_grid))
+    no_time = joint_state(node, 6, ok, ok, ok)
+    no_time.header.stamp.nanosec = 1_000_000_000  # not a ROS time (nanosec < 10⁹)
+    bad.append(("stamp", no_time))
     for _, msg in bad:
         pub.publish(msg)
     assert ros.spin_until(lambda: node.rejected.total() == len(bad))
     topic = topics.resolve(topics.PLANT_JOINT_STATES)
     assert node.rejected[f"{topic}:value"] == 5 and node.rejected[f"{topic}:order"] == 2
+    assert node.rejected[f"{topic}:stamp"] == 1
     assert node.log_lines[f"{topic}:value"] == 1  # throttled: one line for five rejections
+    # Off the grid: 6.4 ms belongs to cycle 6 (the newest at or before it); the sensor model
+    # passes its stamp through.
+    off_grid = joint_state(node, 6, ok, ok, ok)
+    off_grid.header.stamp.nanosec += 400_000
+    pub.publish(off_grid)
+    assert ros.spin_until(lambda: len(out) == 2)
+    assert (out[-1].header.stamp.sec, out[-1].header.stamp.nanosec) == (0, 6_400_000)
+    assert node.cycle_of(out[-1].header.stamp) == 6
+    assert node.rejected.total() == len(bad)
     # Stale: the clock says 1 s, the sample is from 0.9 s (max_input_age 0.05 s).
     publish_clock(clock, node, 1000)
     assert ros.spin_until(lambda: node.get_clock().now().nanoseconds == 1_000_000_000)
     pub.publish(joint_state(node, 900, ok, ok, ok))
     assert ros.spin_until(lambda: node.rejected[f"{topic}:stale"] == 1)
     pub.publish(joint_state(node, 1000, ok, ok, ok))  # a good sample still goes through
-    assert ros.spin_until(lambda: len(out) == 2)
+    assert ros.spin_until(lambda: len(out) == 3)
     assert node.cycle_of(out[-1].header.stamp) == 1000
 
 

@@ -39,6 +39,7 @@ from rclpy.context import Context
 from rclpy.exceptions import ParameterException
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy
 from rclpy.serialization import deserialize_message
 
 from ffmpc_core.errors import ConfigError
@@ -438,6 +439,7 @@ def rerun_node(
         if namespace != topics.ROOT_NAMESPACE:
             remaps += ["-r", f"__ns:={namespace}"]
         remaps += [a for t in names if t != topics.CLOCK for a in ("-r", f"{t}:={prefix}{t}")]
+        values.update(_rerun_qos(bag, names, prefix))
         domain = int(os.environ.get("ROS_DOMAIN_ID", "0")) if domain_id is None else domain_id
         context = Context()
         rclpy.init(args=[], context=context, domain_id=domain)
@@ -481,6 +483,21 @@ def rerun_node(
             rclpy.shutdown(context=context)
 
 
+def _rerun_qos(bag, names, prefix: str) -> dict[str, str | int]:
+    """QoS override parameters of the re-run node's remapped topics: its readers as reliable as
+    the recording's publishers were (a reliable reader would not match a best-effort feeder),
+    its writers reliable with the graph's history (the collectors must get every output)."""
+    out: dict[str, str | int] = {}
+    for t in names:
+        profiles = bag.topics[t].qos_profiles if t in bag.topics else []
+        reliable = bool(profiles) and all(p.get("reliability") == "reliable" for p in profiles)
+        base = f"qos_overrides.{prefix}{t}"
+        out[f"{base}.subscription.reliability"] = "reliable" if reliable else "best_effort"
+        out[f"{base}.publisher.reliability"] = "reliable"
+        out[f"{base}.publisher.depth"] = topics.PUBLISHER_DEPTH
+    return out
+
+
 def _strip(prefix: str, name: str) -> str:
     return name[len(prefix) :] if name.startswith(prefix) else name
 
@@ -512,12 +529,13 @@ def _run(
     }
     collected: dict[str, list[bytes]] = {t: [] for t in outputs}
     for t in outputs:
+        qos = qos_from_dicts(bag.topics[t].qos_profiles, depth=10000)
+        # the re-run node has its default QoS (the graph's overrides name the graph's topics,
+        # not the re-run's remapped ones): a volatile reader matches it whatever the bag's
+        # durability, and nothing is lost, the inputs go out once it is matched
+        qos.durability = DurabilityPolicy.VOLATILE
         feeder.create_subscription(
-            message_class(bag.topics[t].type),
-            prefix + t,
-            collected[t].append,
-            qos_from_dicts(bag.topics[t].qos_profiles, depth=10000),
-            raw=True,
+            message_class(bag.topics[t].type), prefix + t, collected[t].append, qos, raw=True
         )
     _spin_until(
         executor,
