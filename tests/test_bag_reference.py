@@ -34,8 +34,9 @@ def test_reference_bag_is_small_complete_and_self_describing():
     assert BAG.stat().st_size < 1_000_000
     with BagReader(BAG) as bag:
         assert bag.recovery.complete
-        # Besides the contract topics: /rosout and /diagnostics (not contract topics).
-        extra = ("/rosout", "/diagnostics")
+        # Besides the contract topics: /rosout and /diagnostics (not contract topics), and
+        # mpc/prediction (published while something subscribes: the recorder does).
+        extra = ("/rosout", "/diagnostics", topics.resolve(topics.MPC_PREDICTION))
         assert {t: i.type for t, i in bag.topics.items() if t not in extra} == {
             t: ty for t, ty, _ in topics.resolved_topics()
         }
@@ -136,7 +137,12 @@ def test_a_changed_cost_weight_is_reported(capfd):
     out = json.loads(capfd.readouterr().out)
     assert out["identical"] is False and out["reproduced"] is False and out["ok"] is False
     assert out["overrides"] == {name: 5}
-    (command,) = out["outputs"]
+    outputs = {o["topic"]: o for o in out["outputs"]}
+    assert set(outputs) == {
+        topics.resolve(topics.MPC_COMMAND),
+        topics.resolve(topics.MPC_PREDICTION),
+    }
+    command = outputs[topics.resolve(topics.MPC_COMMAND)]
     assert command["max_difference"]["feedforward"] > 1e-3
     # The weight acts only once the force phase (t >= still + reach = 0.25 s) enters the
     # horizon (15 ms, planned 5 ms ahead): every command before that is unchanged.

@@ -186,3 +186,22 @@ def test_a_typed_command_of_another_robot_is_refused_by_the_pid(ros, robot):
     topic = topics.resolve(topics.MPC_COMMAND)
     assert ros.spin_until(lambda: node.rejected.total() == 1)
     assert node.rejected[f"{topic}:value"] == 1
+
+
+def test_rerun_refuses_a_bag_recorded_with_the_array_layout(ros):
+    """A bag from before the typed command (mpc/command as std_msgs/Float64MultiArray, version
+    1) is refused by ``ffmpc bag rerun`` with the reason, never fed to a node that cannot take
+    it (the real version-1 bag gives the same line: README, "Typed messages")."""
+    from dataclasses import replace
+
+    from ffmpc_ros.bag.reader import BagReader
+    from ffmpc_ros.bag.rerun import RerunError, _check_types
+
+    node = ros.add(PidNode(context=ros.context, parameter_overrides=overrides("pid")))
+    name = topics.resolve(topics.MPC_COMMAND)
+    with BagReader(ROOT / "bags" / "polishing_short.mcap") as bag:
+        _check_types(bag, "pid", node, "", [name])  # the committed bag: version 2
+        bag.topics[name] = replace(bag.topics[name], type="std_msgs/msg/Float64MultiArray")
+        reason = "recorded as std_msgs/msg/Float64MultiArray; this pid node uses " + TYPE_NAME
+        with pytest.raises(RerunError, match=reason):
+            _check_types(bag, "pid", node, "", [name])
