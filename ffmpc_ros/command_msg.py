@@ -32,8 +32,6 @@ TYPE_NAME = "ffmpc_msgs/msg/MpcCommand"
 #: The definition version this code writes and reads (``MpcCommand.VERSION``); version 1 was
 #: the ``std_msgs/Float64MultiArray`` layout ``ffmpc/mpc_command/1``.
 VERSION = int(MpcCommand.VERSION)
-#: The label of the retired array layout (old bags): recognised only to refuse it clearly.
-LEGACY_LABEL = "ffmpc/mpc_command/1"
 #: The formulations and the augmented part of their state after (q, v).
 FORMULATIONS = ("classical", "torque_feedback", "force_feedback")
 #: Fields that carry wall-clock time (never reproducible).
