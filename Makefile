@@ -40,11 +40,12 @@ $(STAMP): pyproject.toml CMakeLists.txt
 	$(BIN)/ffmpc check
 	touch $(STAMP) $(NATIVE)
 
-# Rebuild the C++ module ffmpc_core._native after editing cpp/ (incremental, in build/); the
-# targets below do it on their own when a cpp/ file is newer than the last build.
+# Rebuild the C++ module ffmpc_core._native after editing cpp/, and the message package
+# ffmpc_msgs after editing msg/ (incremental, in build/); the targets below do it on their own
+# when a cpp/ or msg/ file is newer than the last build.
 native: $(NATIVE)
 
-$(NATIVE): $(STAMP) $(wildcard cpp/*.cpp cpp/*.hpp)
+$(NATIVE): $(STAMP) $(wildcard cpp/*.cpp cpp/*.hpp msg/*.msg msg/CMakeLists.txt)
 	$(BIN)/python -m pip install --quiet --no-build-isolation --no-deps -e .
 	$(BIN)/python -m ffmpc_ros.ament >/dev/null  # pip rewrote the launchers (env python3)
 	touch $(NATIVE)

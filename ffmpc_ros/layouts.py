@@ -1,10 +1,13 @@
 """The layouts of every ``std_msgs/Float64MultiArray`` payload of the graph (the one code copy).
 
+``mpc/command`` is no longer one of them: it is the typed ``ffmpc_msgs/msg/MpcCommand``
+(``ffmpc_ros.command_msg``; its array layout ``ffmpc/mpc_command/1`` is retired).
+
 ``msgs_notes/`` documents the same layouts for humans; ``tests/test_ros_layouts.py`` checks that
 the notes and this module agree field by field.
 
 Convention (all layouts): the array is 1-D; ``layout.dim`` has exactly one entry whose ``label``
-is the layout's name and version (e.g. ``"ffmpc/mpc_command/1"``), ``size`` and ``stride`` the
+is the layout's name and version (e.g. ``"ffmpc/plant_truth/1"``), ``size`` and ``stride`` the
 number of elements, ``data_offset`` 0. Receivers check the label, the total length and that
 every element is finite. Sizes may depend on the robot's number of joints ``nv`` and on the
 MPC's state dimension ``nx`` (2·nv classical, 3·nv torque-feedback, 2·nv + nc force-feedback);
@@ -122,30 +125,6 @@ class ArrayLayout:
             out[name] = float(data[sl][0]) if f.size == 1 else data[sl].copy()
         return out
 
-
-#: /mpc/command — one MPC solution (MpcCommand), published by the MPC node after each solve.
-MPC_COMMAND = ArrayLayout(
-    "mpc_command",
-    1,
-    (
-        Field("t", 1, "s", "simulated time of the measurement the solve started from"),
-        Field("nv", 1, "-", "number of joints (7)"),
-        Field("nx", 1, "-", "OCP state dimension: 2nv classical, 3nv torque-fb, 2nv+nc force-fb"),
-        Field("sequence", 1, "-", "solve counter, 0 for the first solve"),
-        Field("iterations", 1, "-", "SQP iterations used"),
-        Field("kkt", 1, "-", "final KKT residual"),
-        Field("solve_time", 1, "s", "wall time of the solve (statistics only)"),
-        Field("converged", 1, "-", "1 if the KKT tolerance was reached, else 0"),
-        Field("torque", "nv", "N·m", "torque to send now (saturated), joint order of joint_names"),
-        Field("state", "nx", "rad, rad/s, N·m or N", "x̂ the solve started from (Δx reference)"),
-        Field(
-            "feedback_gain",
-            "nv*nx",
-            "N·m per state unit",
-            "G, nv×nx row-major: torque + G·(x − state) is the local optimum at x",
-        ),
-    ),
-)
 
 #: /plant/truth — ground truth of the simulator that no controller reads (metrics only).
 PLANT_TRUTH = ArrayLayout(
@@ -325,7 +304,6 @@ MPC_PREDICTION = ArrayLayout(
 LAYOUTS: dict[str, ArrayLayout] = {
     layout.name: layout
     for layout in (
-        MPC_COMMAND,
         PLANT_TRUTH,
         PLANT_STATUS,
         LOWLEVEL_STATUS,

@@ -1,9 +1,10 @@
 """The MPC node: one of the three OCP formulations (parameter ``formulation``) in receding horizon.
 
 Subscribes ``/joint_sensor/joint_states`` (q̂, q̇̂, τ̂) and, for force-feedback,
-``/ft_sensor/wrench`` (λ̂); publishes ``/mpc/command`` (layout ``mpc_command``, ffmpc_ros.layouts)
-and, after the command and only while something subscribes, ``/mpc/prediction`` (layout
-``mpc_prediction``: the horizon's contact positions and normal forces, for the live view).
+``/ft_sensor/wrench`` (λ̂); publishes ``/mpc/command`` (``ffmpc_msgs/MpcCommand``:
+``ffmpc_ros.command_msg``) and, after the command and only while something subscribes,
+``/mpc/prediction`` (layout ``mpc_prediction``: the horizon's contact positions and normal
+forces, for the live view).
 
 It solves at the ticks k = j·``period / time_step`` (as the ROS-free runner does), once it has
 the measurements OF cycle k (joint state, and the wrench with the same stamp for force-
@@ -56,6 +57,7 @@ import contextlib
 import gc
 
 import numpy as np
+from ffmpc_msgs.msg import MpcCommand as MpcCommandMsg
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
@@ -76,6 +78,7 @@ from ffmpc_core.study import (
 from ffmpc_core.tasks import PhaseWeights
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import MAX_FUTURE_STAMP, StudyNode, drop_stale_cycles, run_node
+from ffmpc_ros.command_msg import command_message
 from ffmpc_ros.impact_common import DIRECTION_TOLERANCE, receive_estimate
 
 _KEEP = 20  # cycles of unmatched measurements kept
@@ -112,7 +115,7 @@ class MpcNode(StudyNode):
         if not self.lockstep:
             self.warm_up()
         self.publisher = self.create_publisher(
-            Float64MultiArray, topics.MPC_COMMAND, topics.publisher_qos(topics.MPC_COMMAND)
+            MpcCommandMsg, topics.MPC_COMMAND, topics.publisher_qos(topics.MPC_COMMAND)
         )
         self.prediction_publisher = self.create_publisher(
             Float64MultiArray, topics.MPC_PREDICTION, topics.publisher_qos(topics.MPC_PREDICTION)
@@ -425,24 +428,9 @@ class MpcNode(StudyNode):
             return
         self._last_solve = k
         self.solve_times.append(command.solve_time)
-        nv = self.robot.nv
         self.publisher.publish(
-            layouts.MPC_COMMAND.pack(
-                {
-                    "t": t,
-                    "nv": nv,
-                    "nx": self.mpc.nx,
-                    "sequence": self.sequence,
-                    "iterations": command.iterations,
-                    "kkt": command.kkt,
-                    "solve_time": command.solve_time,
-                    "converged": float(command.converged),
-                    "torque": command.torque,
-                    "state": command.state,
-                    "feedback_gain": command.feedback_gain,
-                },
-                nv,
-                self.mpc.nx,
+            command_message(
+                self.stamp_of(k), self.config.formulation, self.joint_names, self.sequence, command
             )
         )
         self.sequence += 1

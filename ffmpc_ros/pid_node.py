@@ -33,6 +33,7 @@ import math
 import time
 
 import numpy as np
+from ffmpc_msgs.msg import MpcCommand as MpcCommandMsg
 from geometry_msgs.msg import WrenchStamped
 from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import JointState
@@ -44,6 +45,7 @@ from ffmpc_core.robots import load_robot
 from ffmpc_core.study import lowlevel_controller, measured_force, steps_per_mpc_period
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import StudyNode, drop_stale_cycles, run_node
+from ffmpc_ros.command_msg import command_fields
 
 _KEEP = 50  # cycles of pending inputs kept
 
@@ -76,7 +78,7 @@ class PidNode(StudyNode):
         sub_qos = topics.subscriber_qos(self.lockstep, topics.SENSED_JOINT_STATES)  # SENSOR
         self.create_subscription(JointState, topics.SENSED_JOINT_STATES, self.on_joints, sub_qos)
         self.create_subscription(
-            Float64MultiArray,
+            MpcCommandMsg,
             topics.MPC_COMMAND,
             self.on_command,
             topics.subscriber_qos(self.lockstep, topics.MPC_COMMAND),
@@ -112,28 +114,28 @@ class PidNode(StudyNode):
         self._newest_force = k
         self._advance()
 
-    def on_command(self, msg: Float64MultiArray) -> None:
+    def on_command(self, msg: MpcCommandMsg) -> None:
         topic = self.name_of(topics.MPC_COMMAND)
         try:
-            fields = layouts.MPC_COMMAND.unpack(msg, self.robot.nv)
-            if int(fields["nv"]) != self.robot.nv or int(fields["nx"]) != self.lowlevel.nx:
+            fields = command_fields(msg, self.robot.nv, self.robot.joint_names)
+            if fields["nx"] != self.lowlevel.nx:
                 raise InputError(
-                    f"command for nv={fields['nv']:.0f}, nx={fields['nx']:.0f}; "
-                    f"this loop has nv={self.robot.nv}, nx={self.lowlevel.nx}"
+                    f"command for nx={fields['nx']}; this loop has nx={self.lowlevel.nx}"
                 )
         except InputError as exc:
             self.reject(f"{topic}:value", str(exc))
             self.lowlevel.engage_hold()  # an invalid command: safe hold from the next cycle
             return
-        k = self.cycle_of_time(fields["t"])
+        k = self.cycle_of(fields["stamp"])
         if k is None:
             self.reject(f"{topic}:stamp", f"command time {fields['t']} s off the grid")
             return
         if not self.check_cycle(topic, k):
             return
-        gain = fields["feedback_gain"].reshape(self.robot.nv, self.lowlevel.nx)
         self.accept_cycle(topic, k)
-        self._commands[k] = LowLevelCommand(fields["torque"], fields["state"], gain)
+        self._commands[k] = LowLevelCommand(
+            fields["torque"], fields["state"], fields["feedback_gain"]
+        )
         self._advance()
 
     # -- the loop ----------------------------------------------------------------------------

@@ -86,6 +86,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import rclpy
 from builtin_interfaces.msg import Time as TimeMsg
+from ffmpc_msgs.msg import MpcCommand as MpcCommandMsg
 from geometry_msgs.msg import WrenchStamped
 from rclpy.context import Context
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -116,6 +117,7 @@ from ffmpc_core.study import (
 )
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import StudyNode
+from ffmpc_ros.command_msg import command_fields
 from ffmpc_ros.params import parameter_overrides
 
 #: A run fails when more than this fraction of the loop's or the MPC's deadlines was missed.
@@ -475,7 +477,7 @@ class RealtimeLoop:
         self.pub_desired = cn.graph_publisher(JointState, topics.DESIRED_TORQUE)
         self.pub_pid_status = cn.graph_publisher(Float64MultiArray, topics.LOWLEVEL_STATUS)
         self.sub_command = cn.create_subscription(
-            Float64MultiArray, topics.MPC_COMMAND, lambda _msg: None, command_qos()
+            MpcCommandMsg, topics.MPC_COMMAND, lambda _msg: None, command_qos()
         )
         self._command_topic = cn.name_of(topics.MPC_COMMAND)  # /arm1/mpc/command, as keyed
         self._active: dict[str, bool] = {}
@@ -513,21 +515,22 @@ class RealtimeLoop:
             msg = taken[0]
             nv = self.robot.nv
             try:
-                fields = layouts.MPC_COMMAND.unpack(msg, nv)
-                if int(fields["nv"]) != nv or int(fields["nx"]) != self.lowlevel.nx:
-                    raise InputError(f"command for nv={fields['nv']:.0f}, nx={fields['nx']:.0f}")
+                fields = command_fields(msg, nv, self.robot.joint_names)
+                if fields["nx"] != self.lowlevel.nx:
+                    raise InputError(f"command for nx={fields['nx']}")
             except InputError as exc:
                 self._reject(f"{self._command_topic}:value", str(exc))
                 continue
-            kc = self.nodes["pid"].cycle_of_time(fields["t"])
+            kc = self.nodes["pid"].cycle_of(fields["stamp"])
             if kc is None or kc > k or kc < 0 or kc >= self.steps or arrival[kc] >= 0:
                 self._reject(f"{self._command_topic}:stamp", f"command time {fields['t']} s")
                 continue
             arrival[kc] = k
             latency[kc] = now - sent[kc]
             solve.append(float(fields["solve_time"]))
-            gain = fields["feedback_gain"].reshape(nv, self.lowlevel.nx)
-            self._pending[kc] = LowLevelCommand(fields["torque"], fields["state"], gain)
+            self._pending[kc] = LowLevelCommand(
+                fields["torque"], fields["state"], fields["feedback_gain"]
+            )
 
     def _release_commands(self, k: int) -> None:
         """Apply, in order, the commands solved at least one MPC period before cycle k."""

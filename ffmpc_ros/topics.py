@@ -106,7 +106,7 @@ TOPICS: tuple[tuple[str, str, str], ...] = (
     (SENSED_WRENCH, "geometry_msgs/msg/WrenchStamped", "ft_sensor"),
     (FILTERED_WRENCH, "geometry_msgs/msg/WrenchStamped", "ft_sensor"),
     (IN_CONTACT, "std_msgs/msg/Bool", "ft_sensor"),
-    (MPC_COMMAND, "std_msgs/msg/Float64MultiArray", "mpc"),
+    (MPC_COMMAND, "ffmpc_msgs/msg/MpcCommand", "mpc"),
     (MOTOR_TORQUE, "sensor_msgs/msg/JointState", "pid"),
     (DESIRED_TORQUE, "sensor_msgs/msg/JointState", "pid"),
     (LOWLEVEL_STATUS, "std_msgs/msg/Float64MultiArray", "pid"),

@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable
+from types import SimpleNamespace
 
 import numpy as np
 import rclpy
@@ -14,7 +15,7 @@ from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 
 from ffmpc_core.scenario import load_scenario
-from ffmpc_ros import layouts, topics
+from ffmpc_ros import topics
 from ffmpc_ros.params import node_parameter_values, parameter_overrides
 
 
@@ -114,23 +115,27 @@ def publish_clock(pub, node, k: int) -> None:
     pub.publish(Clock(clock=node.stamp_of(k)))
 
 
-def mpc_command(k: int, torque, nx: int = 14, gain=None, nv: int = 7, state=None):
-    """An ``mpc_command`` array solved at cycle k (t = k ms): torque (N·m), the state it was
-    solved from (zeros by default, nx entries) and the feedback gain (zeros by default)."""
-    values = {
-        "t": k * 1e-3,
-        "nv": nv,
-        "nx": nx,
-        "sequence": k // 2,
-        "iterations": 1,
-        "kkt": 0.0,
-        "solve_time": 0.0,
-        "converged": 1.0,
-        "torque": torque,
-        "state": np.zeros(nx) if state is None else state,
-        "feedback_gain": np.zeros((nv, nx)) if gain is None else gain,
-    }
-    return layouts.MPC_COMMAND.pack(values, nv, nx)
+def mpc_command(k: int, torque, nx: int = 14, gain=None, nv: int = 7, state=None, names=()):
+    """An ``mpc/command`` (ffmpc_msgs/MpcCommand) solved at cycle k (stamp k ms): torque (N·m),
+    the state it was solved from (zeros by default, nx entries: the formulation follows from
+    nx, 2nv classical, 3nv torque feedback, else force feedback), the feedback gain (zeros by
+    default) and the joint names (none by default: the receiver's order)."""
+    from builtin_interfaces.msg import Time
+
+    from ffmpc_ros.command_msg import command_message
+
+    formulation = {2 * nv: "classical", 3 * nv: "torque_feedback"}.get(nx, "force_feedback")
+    solution = SimpleNamespace(
+        torque=np.asarray(torque, dtype=float),
+        state=np.zeros(nx) if state is None else state,
+        feedback_gain=np.zeros((nv, nx)) if gain is None else gain,
+        iterations=1,
+        kkt=0.0,
+        solve_time=0.0,
+        converged=True,
+    )
+    stamp = Time(sec=k // 1000, nanosec=(k % 1000) * 1_000_000)
+    return command_message(stamp, formulation, list(names), k // 2, solution)
 
 
 def assert_same_run(graph, runner) -> None:

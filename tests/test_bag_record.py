@@ -10,9 +10,11 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from builtin_interfaces.msg import Time as TimeMsg
 from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
@@ -27,6 +29,7 @@ from ffmpc_ros.bag.errors import BagExistsError
 from ffmpc_ros.bag.reader import BagReader
 from ffmpc_ros.bag.recorder import BagRecorder
 from ffmpc_ros.bag.ros_types import message_class
+from ffmpc_ros.command_msg import command_message
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -57,6 +60,19 @@ def _random_message(type_name: str, k: int, rng: np.random.Generator):
         msg = Float64MultiArray(data=data)
         msg.layout.dim = [MultiArrayDimension(label="ffmpc/test/1", size=len(data))]
         return msg
+    if type_name == "ffmpc_msgs/msg/MpcCommand":
+        solution = SimpleNamespace(
+            torque=rng.normal(size=7),
+            state=rng.normal(size=15),
+            feedback_gain=rng.normal(size=(7, 15)),
+            iterations=int(rng.integers(1, 9)),
+            kkt=float(rng.random()),
+            solve_time=float(rng.random()) * 1e-3,
+            converged=bool(rng.integers(2)),
+        )
+        stamp = TimeMsg(sec=sec, nanosec=nanosec)
+        names = [f"lbr_iiwa_joint_{i}" for i in range(1, 8)]
+        return command_message(stamp, "force_feedback", names, k, solution)
     if type_name == "std_msgs/msg/Bool":
         return Bool(data=bool(rng.integers(2)))
     if type_name == "std_msgs/msg/String":

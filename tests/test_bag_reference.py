@@ -34,8 +34,9 @@ def test_reference_bag_is_small_complete_and_self_describing():
     assert BAG.stat().st_size < 1_000_000
     with BagReader(BAG) as bag:
         assert bag.recovery.complete
-        # Besides the contract topics: /rosout and /diagnostics (not contract topics).
-        extra = ("/rosout", "/diagnostics")
+        # Besides the contract topics: /rosout and /diagnostics (not contract topics), and
+        # mpc/prediction (published while something subscribes: the recorder does).
+        extra = ("/rosout", "/diagnostics", topics.resolve(topics.MPC_PREDICTION))
         assert {t: i.type for t, i in bag.topics.items() if t not in extra} == {
             t: ty for t, ty, _ in topics.resolved_topics()
         }
@@ -70,11 +71,16 @@ def test_rosbags_and_mcap_ros2_read_every_message_of_the_reference_bag():
         ).iter_decoded_messages():
             decoded[channel.topic].append(msg)
     assert {t: len(v) for t, v in decoded.items()} == {t: len(v) for t, v in ours.items()}
-    command = deserialize_message(
-        ours[topics.resolve(topics.MPC_COMMAND)][100],
-        message_class(types[topics.resolve(topics.MPC_COMMAND)]),
-    )
-    assert list(decoded[topics.resolve(topics.MPC_COMMAND)][100].data) == list(command.data)
+    # mpc/command, ffmpc_msgs/MpcCommand: decoded by both from the definition in the bag alone
+    name = topics.resolve(topics.MPC_COMMAND)
+    assert types[name] == "ffmpc_msgs/msg/MpcCommand"
+    command = deserialize_message(ours[name][100], message_class(types[name]))
+    for other in (decoded[name][100], theirs[name][100]):
+        assert other.version == command.version == 2 and other.formulation == "force_feedback"
+        assert list(other.feedforward) == list(command.feedforward)
+        assert list(other.feedback_gain.data) == list(command.feedback_gain.data)
+        assert list(other.initial_state.force) == list(command.initial_state.force)
+        assert (other.header.stamp.sec, other.header.stamp.nanosec) == (0, 200_000_000)
 
 
 def test_metrics_from_the_bag_equal_the_recorded_summary(capfd):
@@ -110,7 +116,7 @@ def test_mpc_rerun_reproduces_the_recorded_torques(capfd):
         assert report.identical, report.describe()
     command = report.comparison(topics.resolve(topics.MPC_COMMAND))
     assert command.recorded == command.rerun == command.within_tolerance == 251
-    assert command.ignored == ("mpc_command.solve_time",)
+    assert command.ignored == ("solve_time",)
     assert report.inputs == {
         topics.resolve(topics.SENSED_WRENCH): 501,
         topics.resolve(topics.SENSED_JOINT_STATES): 501,
@@ -131,8 +137,13 @@ def test_a_changed_cost_weight_is_reported(capfd):
     out = json.loads(capfd.readouterr().out)
     assert out["identical"] is False and out["reproduced"] is False and out["ok"] is False
     assert out["overrides"] == {name: 5}
-    (command,) = out["outputs"]
-    assert command["max_difference"]["mpc_command.torque"] > 1e-3
+    outputs = {o["topic"]: o for o in out["outputs"]}
+    assert set(outputs) == {
+        topics.resolve(topics.MPC_COMMAND),
+        topics.resolve(topics.MPC_PREDICTION),
+    }
+    command = outputs[topics.resolve(topics.MPC_COMMAND)]
+    assert command["max_difference"]["feedforward"] > 1e-3
     # The weight acts only once the force phase (t >= still + reach = 0.25 s) enters the
     # horizon (15 ms, planned 5 ms ahead): every command before that is unchanged.
     first = command["first_difference"]
@@ -163,7 +174,7 @@ def test_player_keeps_timing_rate_selection_and_remapping():
         for name, type_name in (
             (topics.CLOCK, "rosgraph_msgs/msg/Clock"),
             ("/replay/joint_states", "sensor_msgs/msg/JointState"),
-            (topics.resolve(topics.MPC_COMMAND), "std_msgs/msg/Float64MultiArray"),
+            (topics.resolve(topics.MPC_COMMAND), "ffmpc_msgs/msg/MpcCommand"),
             (
                 topics.resolve(topics.PLANT_JOINT_STATES),
                 "sensor_msgs/msg/JointState",

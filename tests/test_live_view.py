@@ -130,7 +130,7 @@ def test_channels_are_ros_topics_with_their_full_definitions(live_run):
         topics.TF: "tf2_msgs/msg/TFMessage",
         topics.resolve(topics.PLANT_JOINT_STATES): "sensor_msgs/msg/JointState",
         topics.resolve(topics.SENSED_WRENCH): "geometry_msgs/msg/WrenchStamped",
-        topics.resolve(topics.MPC_COMMAND): "std_msgs/msg/Float64MultiArray",
+        topics.resolve(topics.MPC_COMMAND): "ffmpc_msgs/msg/MpcCommand",
         topics.resolve(topics.MPC_PREDICTION): "std_msgs/msg/Float64MultiArray",
         topics.resolve(topics.ROBOT_DESCRIPTION): "std_msgs/msg/String",
         topics.resolve(topics.VIEW_MARKERS): "visualization_msgs/msg/MarkerArray",

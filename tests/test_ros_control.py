@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from ffmpc_msgs.msg import MpcCommand
 from geometry_msgs.msg import WrenchStamped
 from ros_helpers import joint_state, mpc_command, overrides, recorder, wrench
 from sensor_msgs.msg import JointState
@@ -15,6 +16,7 @@ from ffmpc_core.mpc import ModelPredictiveController, MpcMeasurement
 from ffmpc_core.scenario import load_scenario
 from ffmpc_core.study import build_task, lowlevel_controller, mpc_config
 from ffmpc_ros import layouts, topics
+from ffmpc_ros.command_msg import command_fields
 from ffmpc_ros.mpc_node import MpcNode
 from ffmpc_ros.pid_node import PidNode
 
@@ -34,7 +36,7 @@ def test_mpc_node_solves_every_period_with_the_runner_numbers(ros, robot):
     scenario = load_scenario("polishing")
     node = ros.add(MpcNode(context=ros.context, parameter_overrides=overrides("mpc", scenario)))
     probe = ros.probe()
-    out = recorder(probe, Float64MultiArray, topics.MPC_COMMAND)
+    out = recorder(probe, MpcCommand, topics.MPC_COMMAND)
     pub_j = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
     pub_w = probe.create_publisher(WrenchStamped, topics.SENSED_WRENCH, topics.publisher_qos())
     q, v, tau, force = _measurements(robot, 6)
@@ -53,7 +55,7 @@ def test_mpc_node_solves_every_period_with_the_runner_numbers(ros, robot):
     for i, k in enumerate((0, 2, 4)):
         meas = MpcMeasurement(q=q[k], v=v[k], force=force[k : k + 1], torque=tau[k])
         expected = mpc.step(meas, k * 1e-3)
-        got = layouts.MPC_COMMAND.unpack(out[i], 7)
+        got = command_fields(out[i], 7)
         assert got["t"] == k * 1e-3 and got["sequence"] == i and got["nx"] == 15
         np.testing.assert_array_equal(got["torque"], expected.torque)
         np.testing.assert_array_equal(got["state"], expected.state)
@@ -73,7 +75,7 @@ def test_mpc_node_stays_on_the_tick_grid_after_an_outage(ros, robot):
     scenario = load_scenario("polishing", {"mpc.formulation": "classical"})
     node = ros.add(MpcNode(context=ros.context, parameter_overrides=overrides("mpc", scenario)))
     probe = ros.probe()
-    out = recorder(probe, Float64MultiArray, topics.MPC_COMMAND)
+    out = recorder(probe, MpcCommand, topics.MPC_COMMAND)
     pub_j = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
     q, v, tau, _ = _measurements(robot, 9)
     for k in (0, 5, 6, 7, 8):  # cycles 1-4 lost
@@ -81,7 +83,7 @@ def test_mpc_node_stays_on_the_tick_grid_after_an_outage(ros, robot):
         ros.spin_for(0.01)
     assert ros.spin_until(lambda: len(out) == 3, timeout=30)
     ros.spin_for(0.05)
-    times = [layouts.MPC_COMMAND.unpack(m, 7)["t"] for m in out]
+    times = [command_fields(m, 7)["t"] for m in out]
     assert times == [0.0, 6e-3, 8e-3]
     # A backlog tick (within max_input_age, but more than a period behind the plant's clock)
     # is not solved: its command would come too late and it would hide the outage.
@@ -91,7 +93,7 @@ def test_mpc_node_stays_on_the_tick_grid_after_an_outage(ros, robot):
         ros.spin_for(0.01)
     assert ros.spin_until(lambda: len(out) == 4, timeout=30), (len(out), node.rejected)
     ros.spin_for(0.05)
-    assert layouts.MPC_COMMAND.unpack(out[3], 7)["t"] == 40e-3
+    assert command_fields(out[3], 7)["t"] == 40e-3
     assert node.rejected["solve:late"] == 2  # ticks 34 and 36 (4 and 6 ms behind)
 
 
@@ -104,7 +106,7 @@ def _pid(ros, scenario, lockstep=True):
     )
     probe = ros.probe()
     pub_j = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
-    pub_c = probe.create_publisher(Float64MultiArray, topics.MPC_COMMAND, topics.publisher_qos())
+    pub_c = probe.create_publisher(MpcCommand, topics.MPC_COMMAND, topics.publisher_qos())
     motor = recorder(probe, JointState, topics.MOTOR_TORQUE)
     desired = recorder(probe, JointState, topics.DESIRED_TORQUE)
     status = recorder(probe, Float64MultiArray, topics.LOWLEVEL_STATUS)
@@ -163,18 +165,23 @@ def test_pid_node_rejects_bad_commands_and_saturates(ros, robot):
     nan = mpc_command(2, np.full(7, np.nan))
     wrong_nx = mpc_command(2, np.zeros(7), nx=21)  # a torque-feedback command
     wrong_nv = mpc_command(2, np.zeros(6), nv=6)
-    wrong_label = Float64MultiArray(data=list(good.data))
+    old_version = mpc_command(2, np.zeros(7))
+    old_version.version = 1  # the retired array layout's version
+    other_joints = mpc_command(2, np.zeros(7), names=[f"j{i}" for i in range(7)])
+    no_gain = mpc_command(2, np.zeros(7))
+    no_gain.feedback_gain.data = no_gain.feedback_gain.data[:-1]
     off_grid = mpc_command(2, np.zeros(7))
-    off_grid.data[0] = 0.0025
-    for msg in (good, nan, wrong_nx, wrong_nv, wrong_label, off_grid):
+    off_grid.header.stamp.nanosec = 2_500_000
+    bad = (nan, wrong_nx, wrong_nv, old_version, other_joints, no_gain)
+    for msg in (good, *bad, off_grid):
         pub_c.publish(msg)
-    assert ros.spin_until(lambda: node.rejected.total() == 5)
+    assert ros.spin_until(lambda: node.rejected.total() == 7)
     topic = topics.resolve(topics.MPC_COMMAND)
-    assert node.rejected[f"{topic}:value"] == 4 and node.rejected[f"{topic}:stamp"] == 1
+    assert node.rejected[f"{topic}:value"] == 6 and node.rejected[f"{topic}:stamp"] == 1
     assert node.log_lines[f"{topic}:value"] == 1
     pub_j.publish(joint_state(node, 0, q[0], v[0], tau[0]))
     pub_j.publish(joint_state(node, 1, q[1], v[1], tau[1][:3], list(node.joint_names)))
-    assert ros.spin_until(lambda: len(motor) == len(desired) == 1 and node.rejected.total() == 6)
+    assert ros.spin_until(lambda: len(motor) == len(desired) == 1 and node.rejected.total() == 8)
     np.testing.assert_array_equal(desired[0].effort, robot.torque_limit)
     assert np.all(np.abs(motor[0].effort) <= robot.torque_limit)
 
@@ -196,7 +203,7 @@ def test_mpc_node_real_time_path_solves_on_ticks_only(ros, robot):
     spinner.start()
     try:
         probe = ros.probe()
-        out = recorder(probe, Float64MultiArray, topics.MPC_COMMAND)
+        out = recorder(probe, MpcCommand, topics.MPC_COMMAND)
         pub = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
         assert ros.spin_until(lambda: pub.get_subscription_count() > 0, timeout=10)
         q, v, tau, _ = _measurements(robot, 6)
@@ -205,7 +212,7 @@ def test_mpc_node_real_time_path_solves_on_ticks_only(ros, robot):
             done = ros.spin_until(lambda k=k: len(out) == k // 2, timeout=10)
             ros.spin_for(0.05)  # an odd cycle would have been solved by now
             assert done and len(out) == k // 2, k
-        got = [layouts.MPC_COMMAND.unpack(m, 7) for m in out]
+        got = [command_fields(m, 7) for m in out]
         assert [g["t"] for g in got] == [0.002, 0.004] and [g["sequence"] for g in got] == [0, 1]
         assert all(np.all(np.isfinite(g["torque"])) for g in got)
         assert node.mpc.nx == 14 and len(node.solve_times) == 2

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 import pytest
+from ffmpc_msgs.msg import MpcCommand
 from geometry_msgs.msg import TwistStamped, WrenchStamped
 from rcl_interfaces.msg import ParameterType
 from ros_helpers import joint_state, overrides, publish_clock, recorder, wrench
@@ -31,6 +32,7 @@ from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
 from ffmpc_core.study import build_task, mpc_config
 from ffmpc_ros import layouts, topics
+from ffmpc_ros.command_msg import command_fields
 from ffmpc_ros.contact_learner_node import ContactLearnerNode
 from ffmpc_ros.impact_common import estimate_message
 from ffmpc_ros.impact_planner_node import ImpactPlannerNode, scaled_limits
@@ -406,7 +408,7 @@ def test_mpc_node_applies_a_learner_estimate_live_only_when_confident(ros):
     node = ros.add(MpcNode(context=ros.context, parameter_overrides=params))
     assert topics.resolve(topics.CONTACT_ESTIMATE) in {s.topic_name for s in node.subscriptions}
     probe = ros.probe()
-    out = recorder(probe, Float64MultiArray, topics.MPC_COMMAND)
+    out = recorder(probe, MpcCommand, topics.MPC_COMMAND)
     pub_j, pub_w, pub_e = _pubs(probe)
     assert _contact_of(node.mpc) == {(1000.0, 100.0)}
 
@@ -447,7 +449,7 @@ def test_mpc_node_applies_a_learner_estimate_live_only_when_confident(ros):
     mpc = ModelPredictiveController(robot, mpc_config(scenario), build_task(scenario, robot))
     mpc.set_contact_parameters(3100.0, 42.0)
     expected = mpc.step(MpcMeasurement(q=q, v=v, force=np.array([5.0]), torque=tau), 0.0)
-    got = layouts.MPC_COMMAND.unpack(out[0], 7)
+    got = command_fields(out[0], 7)
     np.testing.assert_array_equal(got["torque"], expected.torque)
     np.testing.assert_array_equal(got["feedback_gain"].reshape(7, 15), expected.feedback_gain)
 

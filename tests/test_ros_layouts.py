@@ -41,7 +41,6 @@ def test_every_layout_is_documented_field_by_field():
     sections = _layout_sections()
     assert set(sections) == set(layouts.LAYOUTS)
     topic_of = {
-        "mpc_command": topics.MPC_COMMAND,
         "plant_truth": topics.PLANT_TRUTH,
         "plant_status": topics.PLANT_STATUS,
         "lowlevel_status": topics.LOWLEVEL_STATUS,
@@ -83,31 +82,6 @@ def test_every_topic_is_documented_with_its_type_and_publisher():
     assert topics.WRENCH_FRAME in readme and str(topics.PUBLISHER_DEPTH) in readme
 
 
-def test_mpc_command_round_trip_and_sizes():
-    nv, nx = 7, 15
-    rng = np.random.default_rng(0)
-    values = {
-        "t": 0.004,
-        "nv": nv,
-        "nx": nx,
-        "sequence": 2,
-        "iterations": 3,
-        "kkt": 1e-5,
-        "solve_time": 0.001,
-        "converged": 1.0,
-        "torque": rng.normal(size=nv),
-        "state": rng.normal(size=nx),
-        "feedback_gain": rng.normal(size=(nv, nx)),
-    }
-    msg = layouts.MPC_COMMAND.pack(values, nv, nx)
-    assert len(msg.data) == 8 + nv + nx + nv * nx == layouts.MPC_COMMAND.length(nv, nx)
-    assert msg.layout.dim[0].label == "ffmpc/mpc_command/1"
-    out = layouts.MPC_COMMAND.unpack(msg, nv)  # nx read from the array
-    assert out["t"] == 0.004 and out["nx"] == nx
-    np.testing.assert_array_equal(out["feedback_gain"].reshape(nv, nx), values["feedback_gain"])
-    np.testing.assert_array_equal(out["state"], values["state"])
-
-
 def test_layouts_reject_wrong_label_length_and_non_finite():
     values = {f.name: np.zeros(f.length()) for f in layouts.LOWLEVEL_STATUS.fields}
     msg = layouts.LOWLEVEL_STATUS.pack(values)
@@ -122,3 +96,35 @@ def test_layouts_reject_wrong_label_length_and_non_finite():
         layouts.LOWLEVEL_STATUS.unpack(bad)
     with pytest.raises(InputError, match="missing"):
         layouts.LOWLEVEL_STATUS.pack({"t": 0.0})
+
+
+def test_the_typed_command_is_documented_field_by_field():
+    """msgs_notes/messages.md lists every field of the generated ffmpc_msgs/MpcCommand (nested
+    ones by their path) with its ROS type."""
+    from ffmpc_msgs.msg import MpcCommand
+
+    def fields(cls, prefix: str = "") -> list[tuple[str, str]]:
+        out = []
+        for name, ros_type in cls.get_fields_and_field_types().items():
+            nested = {"ffmpc_msgs/Matrix", "ffmpc_msgs/LinearizationState"}
+            if ros_type in nested:
+                sub = getattr(MpcCommand(), name).__class__
+                out += fields(sub, f"{prefix}{name}.")
+            elif ros_type == "std_msgs/Header":
+                out += [(f"{prefix}{name}.stamp", "builtin_interfaces/Time")]
+                out += [(f"{prefix}{name}.frame_id", "string")]
+            else:
+                ros_type = ros_type.replace("sequence<double>", "float64[]")
+                ros_type = ros_type.replace("sequence<string>", "string[]")
+                ros_type = {"double": "float64", "octet": "uint8", "boolean": "bool"}.get(
+                    ros_type, ros_type
+                )
+                out.append((f"{prefix}{name}", ros_type))
+        return out
+
+    text = (NOTES / "messages.md").read_text(encoding="utf-8")
+    section = text[text.index("## MpcCommand (version 2) — `mpc/command`") :]
+    rows = [r for r in _table_rows(section) if len(r) == 5][1:]
+    documented = [(r[0], r[1]) for r in rows if r[0] != "VERSION"]
+    assert documented == fields(MpcCommand)
+    assert MpcCommand.VERSION == 2

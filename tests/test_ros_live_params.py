@@ -9,12 +9,13 @@ import math
 
 import numpy as np
 import pytest
+from ffmpc_msgs.msg import MpcCommand
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from ros_helpers import joint_state, mpc_command, overrides, recorder, wrench
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64, Float64MultiArray
+from std_msgs.msg import Float64
 
 from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement
 from ffmpc_core.scenario import load_scenario
@@ -62,7 +63,7 @@ def test_stiffness_set_on_a_running_mpc_changes_the_ocp_from_the_next_solve(ros,
     a string are refused with a reason, one log line each, and change nothing."""
     node = ros.add(MpcNode(context=ros.context, parameter_overrides=overrides("mpc")))
     probe = ros.probe()
-    commands = recorder(probe, Float64MultiArray, topics.MPC_COMMAND)
+    commands = recorder(probe, MpcCommand, topics.MPC_COMMAND)
     pub_j = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
     pub_w = probe.create_publisher(WrenchStamped, topics.SENSED_WRENCH, topics.publisher_qos())
     client = _client(ros, "mpc")
@@ -127,7 +128,7 @@ def test_pid_gains_change_the_motor_torque_of_the_next_cycle_as_eq_33(ros, robot
     node = ros.add(PidNode(context=ros.context, parameter_overrides=overrides("pid", scenario)))
     probe = ros.probe()
     pub_j = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
-    pub_c = probe.create_publisher(Float64MultiArray, topics.MPC_COMMAND, topics.publisher_qos())
+    pub_c = probe.create_publisher(MpcCommand, topics.MPC_COMMAND, topics.publisher_qos())
     motor = recorder(probe, JointState, topics.MOTOR_TORQUE)
     client = _client(ros, "pid")
     rng = np.random.default_rng(3)
@@ -176,7 +177,7 @@ def test_bad_references_are_rejected_and_counted_a_good_one_retargets(ros, robot
     applied at the next solve."""
     node = ros.add(MpcNode(context=ros.context, parameter_overrides=overrides("mpc")))
     probe = ros.probe()
-    commands = recorder(probe, Float64MultiArray, topics.MPC_COMMAND)
+    commands = recorder(probe, MpcCommand, topics.MPC_COMMAND)
     pub_j = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
     pub_w = probe.create_publisher(WrenchStamped, topics.SENSED_WRENCH, topics.publisher_qos())
     pub_ref = probe.create_publisher(PoseStamped, "mpc/reference", topics.reference_qos())

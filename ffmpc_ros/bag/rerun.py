@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 import rclpy
+from ffmpc_msgs.msg import MpcCommand as MpcCommandMsg
 from rclpy.context import Context
 from rclpy.exceptions import ParameterException
 from rclpy.experimental import EventsExecutor
@@ -44,7 +45,7 @@ from rclpy.serialization import deserialize_message
 
 from ffmpc_core.errors import ConfigError
 from ffmpc_core.scenario import Scenario
-from ffmpc_ros import layouts, topics
+from ffmpc_ros import command_msg, layouts, topics
 from ffmpc_ros.bag.errors import BagError
 from ffmpc_ros.bag.machine import MACHINE_RECORD, same_machine
 from ffmpc_ros.bag.reader import BagMessage, BagReader
@@ -52,9 +53,10 @@ from ffmpc_ros.bag.ros_types import message_class, qos_from_dicts
 
 #: Nodes that can be re-run from a bag.
 RERUN_NODES = ("joint_sensor", "ft_sensor", "mpc", "pid")
+#: Fields of typed messages that carry wall-clock time (never reproducible), by message class.
+TYPED_WALL_TIME_FIELDS: dict[type, tuple[str, ...]] = {MpcCommandMsg: command_msg.WALL_TIME_FIELDS}
 #: Layout fields that carry wall-clock time (never reproducible), by layout name.
 WALL_TIME_FIELDS: dict[str, tuple[str, ...]] = {
-    "mpc_command": ("solve_time",),
     "plant_status": (
         "latency_mean",
         "latency_p50",
@@ -146,11 +148,15 @@ def flatten_message(msg) -> dict[str, Any]:
             out[key] = np.asarray(value, dtype=float).reshape(-1)
 
     walk(msg, "")
+    for name in TYPED_WALL_TIME_FIELDS.get(type(msg), ()):
+        del out[name]
     return out
 
 
 def ignored_fields(msg) -> tuple[str, ...]:
     """The wall-time fields :func:`flatten_message` leaves out of this message."""
+    if type(msg) in TYPED_WALL_TIME_FIELDS:
+        return TYPED_WALL_TIME_FIELDS[type(msg)]
     if hasattr(msg, "layout") and len(getattr(msg.layout, "dim", [])) == 1:
         layout = _LAYOUTS_BY_LABEL.get(msg.layout.dim[0].label)
         if layout is not None:
@@ -502,6 +508,26 @@ def _strip(prefix: str, name: str) -> str:
     return name[len(prefix) :] if name.startswith(prefix) else name
 
 
+def _type_name(cls: type) -> str:
+    """``pkg/msg/Type`` of an rclpy message class."""
+    return f"{cls.__module__.split('.')[0]}/msg/{cls.__name__}"
+
+
+def _check_types(bag, node: str, target, prefix: str, names: list[str]) -> None:
+    """RerunError when a topic was recorded with another type than the node uses now (a bag
+    from before ``mpc/command`` became ``ffmpc_msgs/msg/MpcCommand``: record it again)."""
+    ours = {
+        _strip(prefix, e.topic_name): _type_name(e.msg_type)
+        for e in (*target.subscriptions, *target.publishers)
+    }
+    for t in names:
+        if t in ours and bag.topics[t].type != ours[t]:
+            raise RerunError(
+                f"{t} was recorded as {bag.topics[t].type}; this {node} node uses {ours[t]} "
+                f"(the bag predates that message: record it again with this version)"
+            )
+
+
 def _run(
     bag, node, target, feeder, executor, prefix, timeout, overrides, start, tolerance, clock
 ) -> RerunReport:
@@ -517,6 +543,7 @@ def _run(
     if missing:
         raise RerunError(f"the bag lacks the inputs {missing} of {node}")
     outputs = [t for t in outputs if t in bag.topics]
+    _check_types(bag, node, target, prefix, [*inputs, *outputs])
     step_ns = target.step_ns
     # Publishers of the recorded inputs and /clock, collectors of the outputs.
     pubs = {

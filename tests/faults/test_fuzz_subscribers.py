@@ -13,25 +13,27 @@ and then the clock jumps. The test also asserts that the fuzz reached the nodes'
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Time as TimeMsg
+from ffmpc_msgs.msg import MpcCommand
 from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from ros_helpers import RosHarness, overrides
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Bool, Float64, Float64MultiArray
+from std_msgs.msg import Bool, Float64, Float64MultiArray, MultiArrayDimension
 
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
 from ffmpc_ros import layouts, topics
+from ffmpc_ros.command_msg import command_fields, command_message
 
 #: Layout of each Float64MultiArray topic a node subscribes to.
 TOPIC_LAYOUTS = {
-    topics.resolve(topics.MPC_COMMAND): layouts.MPC_COMMAND,
     topics.resolve(topics.PLANT_TRUTH): layouts.PLANT_TRUTH,
     topics.resolve(topics.CONTACT_ESTIMATE): layouts.CONTACT_ESTIMATE,
 }
@@ -160,10 +162,7 @@ def _array(layout, node, stamp_ns):
 
     def build(label, data, mutations) -> Float64MultiArray:
         msg = Float64MultiArray(data=[0.0])
-        msg.layout.dim = layouts.MPC_COMMAND.pack(
-            {f.name: np.zeros(f.length(1, 1)) for f in layouts.MPC_COMMAND.fields}, 1, 1
-        ).layout.dim
-        msg.layout.dim[0].label = label
+        msg.layout.dim = [MultiArrayDimension(label=label, size=len(data), stride=len(data))]
         for i, value in mutations:
             if data:
                 data[i % len(data)] = value
@@ -176,6 +175,37 @@ def _array(layout, node, stamp_ns):
     labels = st.sampled_from([layout.label, layout.label, "ffmpc/other/1", ""])
     mutations = st.lists(st.tuples(st.integers(0, 10_000), FLOATS), max_size=3)
     return st.builds(build, labels, data, mutations)
+
+
+def _command(node, stamp):
+    """An MpcCommand drawn over its whole type: any version, formulation, names, sizes."""
+    nv, nx = _robot(node).nv, _nx(node)
+    names = node_joint_names(node)
+
+    def build(stamp, version, formulation, names_, ff, q, v, effort, force, shape, gain):
+        msg = MpcCommand()
+        msg.header.stamp = stamp
+        msg.version, msg.formulation, msg.joint_names = version, formulation, list(names_)
+        msg.feedforward, msg.feedback_gain.data = ff, gain
+        msg.feedback_gain.rows, msg.feedback_gain.cols = shape
+        state = msg.initial_state
+        state.position, state.velocity, state.effort, state.force = q, v, effort, force
+        return msg
+
+    return st.builds(
+        build,
+        stamp,
+        st.sampled_from([MpcCommand.VERSION, MpcCommand.VERSION, 1, 255]),
+        st.sampled_from(["classical", "torque_feedback", "force_feedback", "", "lqr"]),
+        st.one_of(st.just([]), st.just(names), st.permutations(names), st.just(["j"] * nv)),
+        _vector(nv),
+        _vector(nv),
+        _vector(nv),
+        st.one_of(st.just([]), _vector(nv)),
+        st.one_of(st.just([]), _vector(nx - 2 * nv if nx > 2 * nv else 1)),
+        st.tuples(st.sampled_from([nv, nv - 1, 0, 2**32 - 1]), st.sampled_from([nx, nx + 1, 0])),
+        st.one_of(_vector(nv * nx), st.lists(FLOATS, max_size=3)),
+    )
 
 
 def _message(sub, node, base_k: int):
@@ -191,6 +221,8 @@ def _message(sub, node, base_k: int):
         return st.builds(Bool, data=st.booleans())
     if sub.msg_type is Float64MultiArray:
         return _array(TOPIC_LAYOUTS[sub.topic_name], node, base_k * step_ns)
+    if sub.msg_type is MpcCommand:
+        return _command(node, stamp)
     if sub.msg_type is PoseStamped:
         frames = st.sampled_from([topics.WORLD_FRAME, topics.WORLD_FRAME, "", "base_link"])
         return st.builds(_pose, stamp, frames, st.tuples(*[FLOATS] * 3))
@@ -226,6 +258,10 @@ def _numbers(msg) -> list[float]:
         return [lin.x, lin.y, lin.z, ang.x, ang.y, ang.z]
     if isinstance(msg, Float64MultiArray):
         return list(msg.data)
+    if isinstance(msg, MpcCommand):
+        state = msg.initial_state
+        arrays = (msg.feedforward, msg.feedback_gain.data, state.position, state.velocity)
+        return [msg.kkt, *[x for a in (*arrays, state.effort, state.force) for x in a]]
     return []
 
 
@@ -236,7 +272,7 @@ def _check(published: list, limits: np.ndarray) -> None:
         if topic in TORQUE_TOPICS:
             assert np.all(np.abs(values[-len(limits) :]) <= limits), f"{topic}: {msg.effort}"
         if topic == topics.resolve(topics.MPC_COMMAND):
-            torque = layouts.MPC_COMMAND.unpack(msg, len(limits))["torque"]
+            torque = command_fields(msg, len(limits))["torque"]
             assert np.all(np.abs(torque) <= limits), f"{topic}: {torque}"
 
 
@@ -269,6 +305,21 @@ def _valid(sub, node, k: int, data) -> object:
         return _pose(stamp, topics.WORLD_FRAME, target)
     if sub.msg_type is Float64:  # the MPC's force set-point, N
         return Float64(data=data.draw(st.floats(0.0, 60.0)))
+    if sub.msg_type is MpcCommand:
+        robot, nx = _robot(node), _nx(node)
+        state = np.full(nx, data.draw(small))
+        state[: robot.nv] = robot.q_nominal
+        solution = SimpleNamespace(
+            torque=robot.gravity(robot.q_nominal) + data.draw(small),
+            state=state,
+            feedback_gain=np.full((robot.nv, nx), data.draw(small)),
+            iterations=1,
+            kkt=0.0,
+            solve_time=0.0,
+            converged=True,
+        )
+        formulation = node.scenario.mpc.formulation
+        return command_message(stamp, formulation, robot.joint_names, k // 2, solution)
     layout = TOPIC_LAYOUTS[sub.topic_name]
     nv = _robot(node).nv
     nx = _nx(node)
@@ -306,6 +357,20 @@ def _corrupt(msg, data):
         setattr(msg.pose.position, data.draw(st.sampled_from("xyz")), data.draw(ADVERSARIAL))
     elif isinstance(msg, Float64):
         msg.data = data.draw(ADVERSARIAL)
+    elif isinstance(msg, MpcCommand):
+        owner, field = data.draw(
+            st.sampled_from(
+                [
+                    (msg, "feedforward"),
+                    (msg.feedback_gain, "data"),
+                    (msg.initial_state, "position"),
+                    (msg.initial_state, "velocity"),
+                ]
+            )
+        )
+        values = list(getattr(owner, field))
+        values[data.draw(st.integers(0, len(values) - 1))] = data.draw(ADVERSARIAL)
+        setattr(owner, field, values)
     if hasattr(msg, "header") and data.draw(st.booleans()):
         msg.header.stamp = data.draw(_stamp(1_000_000, 0))
     return msg

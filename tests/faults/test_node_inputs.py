@@ -10,11 +10,11 @@ import time
 
 import numpy as np
 import pytest
+from ffmpc_msgs.msg import MpcCommand
 from geometry_msgs.msg import WrenchStamped
 from rclpy.parameter import Parameter
 from ros_helpers import joint_state, mpc_command, overrides, recorder, wrench
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray
 
 from ffmpc_core.scenario import load_scenario
 from ffmpc_ros import topics
@@ -77,7 +77,7 @@ def test_a_command_from_the_future_is_rejected_by_the_pid(ros, robot):
         PidNode(context=ros.context, parameter_overrides=overrides("pid", scenario, lockstep=False))
     )
     probe = ros.probe()
-    pub_c = probe.create_publisher(Float64MultiArray, topics.MPC_COMMAND, topics.publisher_qos())
+    pub_c = probe.create_publisher(MpcCommand, topics.MPC_COMMAND, topics.publisher_qos())
     pub_j = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
     motor = recorder(probe, JointState, topics.MOTOR_TORQUE)
     gravity = robot.gravity(robot.q_nominal)
@@ -108,7 +108,7 @@ def test_one_rejected_wrench_does_not_stall_the_riccati_feedback_loop(ros, robot
         )
     )
     probe = ros.probe()
-    pub_c = probe.create_publisher(Float64MultiArray, topics.MPC_COMMAND, topics.publisher_qos())
+    pub_c = probe.create_publisher(MpcCommand, topics.MPC_COMMAND, topics.publisher_qos())
     pub_j = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
     pub_w = probe.create_publisher(WrenchStamped, topics.SENSED_WRENCH, topics.publisher_qos())
     motor = recorder(probe, JointState, topics.MOTOR_TORQUE)
