@@ -170,10 +170,10 @@ def test_pid_node_rejects_bad_commands_and_saturates(ros, robot):
     other_joints = mpc_command(2, np.zeros(7), names=[f"j{i}" for i in range(7)])
     no_gain = mpc_command(2, np.zeros(7))
     no_gain.feedback_gain.data = no_gain.feedback_gain.data[:-1]
-    off_grid = mpc_command(2, np.zeros(7))
-    off_grid.header.stamp.nanosec = 2_500_000
+    no_time = mpc_command(2, np.zeros(7))
+    no_time.header.stamp.nanosec = 1_500_000_000  # not a time (an off-grid one is accepted)
     bad = (nan, wrong_nx, wrong_nv, old_version, other_joints, no_gain)
-    for msg in (good, *bad, off_grid):
+    for msg in (good, *bad, no_time):
         pub_c.publish(msg)
     assert ros.spin_until(lambda: node.rejected.total() == 7)
     topic = topics.resolve(topics.MPC_COMMAND)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
+from ffmpc_msgs.msg import MpcCommand
 from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
 from rclpy.qos import (
@@ -17,14 +18,14 @@ from rclpy.qos import (
 )
 from ros_helpers import overrides, recorder
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray
 
 from ffmpc_core.errors import ConfigError
 from ffmpc_core.mpc import ModelPredictiveController, MpcMeasurement
 from ffmpc_core.scenario import load_scenario
 from ffmpc_core.study import build_task, mpc_config
-from ffmpc_ros import layouts, topics
+from ffmpc_ros import topics
 from ffmpc_ros.base import GRID_TOLERANCE_NS, MAX_FUTURE_STAMP, cycle_at, stamp_ns
+from ffmpc_ros.command_msg import command_fields
 from ffmpc_ros.joint_sensor_node import JointSensorNode
 from ffmpc_ros.mpc_node import MpcNode
 
@@ -82,7 +83,7 @@ def test_a_plain_rclpy_driver_with_sensor_data_qos_and_its_own_stamps_feeds_the_
         JointState, "/joint_sensor/joint_states", qos_profile_sensor_data
     )
     pub_w = driver.create_publisher(WrenchStamped, "/ft_sensor/wrench", qos_profile_sensor_data)
-    commands = recorder(ros.probe(), Float64MultiArray, topics.MPC_COMMAND)
+    commands = recorder(ros.probe(), MpcCommand, topics.MPC_COMMAND)
     assert ros.spin_until(
         lambda: pub_j.get_subscription_count() >= 1 and pub_w.get_subscription_count() >= 1
     ), "the MPC's subscriptions did not match the driver's best-effort publishers"
@@ -114,8 +115,8 @@ def test_a_plain_rclpy_driver_with_sensor_data_qos_and_its_own_stamps_feeds_the_
         expected = mpc.step(
             MpcMeasurement(q=q[k], v=v[k], force=force[k : k + 1], torque=tau[k]), k * 1e-3
         )
-        got = layouts.MPC_COMMAND.unpack(commands[i], 7)
-        assert got["t"] == k * 1e-3
+        got = command_fields(commands[i], 7)
+        assert node.cycle_of(commands[i].header.stamp) == k
         np.testing.assert_array_equal(got["torque"], expected.torque)
 
 
