@@ -86,6 +86,7 @@ from ffmpc_ros import layouts, topics
 from ffmpc_ros.graph_nodes import (
     METRICS_NODE,
     NODES,
+    SERVICE_RETRY,
     graph_parameters,
     load_node_class,
     write_params_file,
@@ -105,8 +106,6 @@ LOG_TAIL = 8
 #: Simulated s after an injected fault during which fallback and missed MPC deadlines are
 #: excused too (the nodes catch up with the messages queued while one was stopped).
 FAULT_RECOVERY = 0.05
-#: Wall s after which an unanswered parameter request is sent again.
-PARAMETER_RETRY = 3.0
 #: Wall s after the plant's last state before a run with faults fills the missing measurements.
 FILL_GRACE = 2.0
 #: Parameters several nodes declare that may differ between them (none today).
@@ -1068,16 +1067,8 @@ def _fetch_parameters(
             raise GraphError(
                 f"the parameters of {missing} could not be read: the run did not start"
             )
-        executor.spin_once(timeout_sec=0.05)
+        executor.spin_once(timeout_sec=0.05)  # (an unanswered request is sent again: poll)
         _check_stop()
-        now = time.perf_counter()
-        for f in fetches.values():  # a request to a vanished server never completes: retry
-            if f.future is not None and not f.future.done():
-                asked = getattr(f, "_asked_at", None)
-                if asked is None or asked[0] is not f.future:
-                    f._asked_at = (f.future, now)
-                elif now - asked[1] > PARAMETER_RETRY:
-                    f.future = None
     for f in fetches.values():
         node.destroy_client(f.list_client)
         node.destroy_client(f.get_client)
@@ -1086,6 +1077,30 @@ def _fetch_parameters(
 
 #: Lifecycle transitions of the bring-up, in order (lifecycle_msgs/msg/Transition labels).
 BRING_UP_TRANSITIONS = ("configure", "activate")
+#: The state each transition of the bring-up leads to.
+GOAL_STATES = {"configure": "inactive", "activate": "active"}
+
+
+def _lifecycle_state(node: Node, executor, fqn: str, deadline: float) -> str | None:
+    """The lifecycle state label of node ``fqn`` (its ``get_state`` service), None if no answer
+    came before ``deadline``."""
+    from lifecycle_msgs.srv import GetState
+
+    client = node.create_client(GetState, f"{fqn}/get_state")
+    try:
+        future, sent = None, 0.0
+        while time.perf_counter() < deadline:
+            now = time.perf_counter()
+            if future is not None and future.done():
+                return future.result().current_state.label
+            if future is not None and now - sent > SERVICE_RETRY:
+                future = None
+            if future is None and client.service_is_ready():
+                future, sent = client.call_async(GetState.Request()), now
+            executor.spin_once(timeout_sec=0.05)
+        return None
+    finally:
+        node.destroy_client(client)
 
 
 def _bring_up(
@@ -1113,16 +1128,25 @@ def _bring_up(
                 client = clients[name]
                 request = ChangeState.Request(transition=Transition(label=label))
                 asked = time.perf_counter()
-                future = None
+                future, sent, retried = None, 0.0, False
                 while future is None or not future.done():
                     _check_children(children, logs, set())
-                    if time.perf_counter() > deadline:
+                    now = time.perf_counter()
+                    if now > deadline:
                         raise GraphError(f"{name} did not {label} in time: the run did not start")
+                    if future is not None and now - sent > SERVICE_RETRY:
+                        future, retried = None, True  # the response was lost: ask again
                     if future is None and client.service_is_ready():
-                        future = client.call_async(request)
+                        future, sent = client.call_async(request), now
                     executor.spin_once(timeout_sec=0.05)
                     _check_stop()
-                if not future.result().success:
+                # a resent transition the node had already made is refused: its state tells
+                done = future.result().success or (
+                    retried
+                    and _lifecycle_state(node, executor, f"{prefix}/{name}", deadline)
+                    == GOAL_STATES[label]
+                )
+                if not done:
                     raise GraphError(
                         f"{name} refused the {label} transition (its log says why): the run "
                         "did not start"

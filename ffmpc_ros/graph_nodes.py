@@ -27,6 +27,14 @@ NODES: dict[str, str] = {
 }
 METRICS_NODE = "ffmpc_ros.metrics_node:MetricsNode"
 
+#: A service request without an answer after this long (wall s) is sent again: a service
+#: reports ready once its request reader matched ours, but a response sent before the server's
+#: writer matched our reader is lost, and the request then never completes (ROS 2's service
+#: discovery race). The bring-up's parameter fetch retried so; the recorder's did not, and a
+#: recorder that never gets a node's parameters holds the plant's start for good (the suspected
+#: cause of the runs that did not start in test_bag_graph and test_live_view, never seen alone).
+SERVICE_RETRY = 3.0
+
 
 def load_node_class(path: str) -> Any:
     """The class named by a ``"module:class"`` entry of :data:`NODES` (imports the module)."""

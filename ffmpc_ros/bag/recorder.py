@@ -39,6 +39,7 @@ from rclpy.parameter import Parameter, parameter_value_to_python
 
 from ffmpc_ros.bag.ros_types import DerivedTopic, offered_profiles, subscribe_raw
 from ffmpc_ros.bag.writer import BagWriter
+from ffmpc_ros.graph_nodes import SERVICE_RETRY
 
 #: Topics not recorded unless asked for by name.
 DEFAULT_EXCLUDE = ("/parameter_events",)
@@ -56,13 +57,16 @@ def _fqn(name: str, namespace: str) -> str:
 
 
 class _ParameterFetch:
-    """list_parameters then get_parameters of one node, polled from the recorder's timer."""
+    """list_parameters then get_parameters of one node, polled from a timer (the recorder's) or
+    a loop (the bring-up's); an unanswered request is sent again after
+    :data:`~ffmpc_ros.graph_nodes.SERVICE_RETRY`."""
 
     def __init__(self, node: Node, fqn: str) -> None:
         self.fqn = fqn
         self.list_client = node.create_client(ListParameters, f"{fqn}/list_parameters")
         self.get_client = node.create_client(GetParameters, f"{fqn}/get_parameters")
         self.future = None
+        self._asked = 0.0  # monotonic s of the pending request
         self.names: list[str] | None = None
         self.values: dict[str, Any] | None = None
 
@@ -71,17 +75,22 @@ class _ParameterFetch:
         if self.values is not None:
             return True
         if self.future is not None and not self.future.done():
-            return False
+            if time.monotonic() - self._asked > SERVICE_RETRY:
+                self.future = None  # lost: ask again below, on this poll or a later one
+            else:
+                return False
         if self.names is None:
             if self.future is None:
                 if self.list_client.service_is_ready():
                     self.future = self.list_client.call_async(ListParameters.Request())
+                    self._asked = time.monotonic()
                 return False
             self.names = sorted(self.future.result().result.names)
             self.future = None
         if self.future is None:
             if self.get_client.service_is_ready():
                 self.future = self.get_client.call_async(GetParameters.Request(names=self.names))
+                self._asked = time.monotonic()
             return False
         values = [parameter_value_to_python(v) for v in self.future.result().values]
         self.values = {
