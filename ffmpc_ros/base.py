@@ -196,6 +196,7 @@ class StudyNode(LifecycleNode, metaclass=_Constructed):
         self.params = declare_node_parameters(self, self.spec)
         self.lifecycle_state = "unconfigured"  # the state machine's label (module docstring)
         self._refusal: str | None = None  # the last refused configure's reason
+        self._start_ready_since: float | None = None  # wall s the start handshake holds since
         self.scenario: Scenario = scenario_from_parameters(self.spec, self.params, self.get_name())
         self.time_step = self.scenario.plant.time_step
         self.step_ns = int(round(self.time_step * 1e9))
@@ -250,6 +251,29 @@ class StudyNode(LifecycleNode, metaclass=_Constructed):
         if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
             raise ConfigError(f"{self.get_name()}: configure refused: {self._refusal}")
         self.trigger_activate()
+
+    def start_handshake(self, joints, clock, ready: bool = True) -> bool:
+        """A plant's start rule (lockstep graphs): True once the node is active (lifecycle:
+        the bring-up activates the plant last), ``start_subscribers`` readers are matched to
+        its joint-state writer ``joints`` and ``start_clock_subscribers`` to its /clock writer
+        ``clock`` (a node's reliable /clock reader is its last entity, ``_Constructed``, so
+        the count means every node has all its readers), ``ready`` holds (the plant's own
+        extra condition), and all of it has held for ``start_delay`` wall s, for the other
+        nodes' writers to make their side of each match (a sample sent before that reaches a
+        late-matched reader only because the lockstep graph's data topics are TRANSIENT_LOCAL,
+        ``ffmpc_ros.topics.LOCKSTEP_OVERRIDES``). Call it from a timer until it is True."""
+        holds = (
+            ready
+            and self.active
+            and joints.get_subscription_count() >= int(self.params["start_subscribers"])
+            and clock.get_subscription_count() >= int(self.params["start_clock_subscribers"])
+        )
+        if not holds:
+            self._start_ready_since = None
+            return False
+        if self._start_ready_since is None:
+            self._start_ready_since = time.monotonic()
+        return time.monotonic() - self._start_ready_since >= float(self.params["start_delay"])
 
     def destroy_node(self) -> None:
         """Destroy the node and its lifecycle state machine: rclpy's LifecycleNode (7.1.6) leaves

@@ -77,22 +77,14 @@ class DicePlantNode(StudyNode):
             self.on_torque,
             topics.subscriber_qos(True, topics.IMPACT_TORQUE),
         )
-        self._created = time.monotonic()
         self.started = False
         self._start_timer = self.create_timer(
             0.01, self._try_start, clock=Clock(clock_type=ClockType.STEADY_TIME)
         )
 
     def _try_start(self) -> None:
-        """Publish cycle 0 once active (lifecycle), ``start_subscribers`` read the joint states,
-        ``start_clock_subscribers`` read /clock and ``start_delay`` (wall s) has passed."""
-        if not self.active:
-            return
-        if self.pub_joints.get_subscription_count() < int(self.params["start_subscribers"]):
-            return
-        if self.pub_clock.get_subscription_count() < int(self.params["start_clock_subscribers"]):
-            return
-        if time.monotonic() - self._created < float(self.params["start_delay"]):
+        """Publish cycle 0 once the start handshake holds (:meth:`StudyNode.start_handshake`)."""
+        if not self.start_handshake(self.pub_joints, self.pub_clock):
             return
         self._start_timer.cancel()
         self.started = True

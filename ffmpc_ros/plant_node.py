@@ -128,34 +128,15 @@ class PlantNode(StudyNode):
                 self._on_metrics_ready,
                 topics.subscriber_qos(True, topics.METRICS_READY),
             )
-        self._ready_since: float | None = None  # wall s the start conditions hold since
         self.started = False
         self._start_timer = self.create_timer(0.01, self._try_start, clock=self._steady)
 
     def _try_start(self) -> None:
-        """Start ``start_delay`` (wall s) after the node is active (lifecycle: the bring-up
-        activates the plant last), ``start_subscribers`` readers of the joint
-        states and ``start_clock_subscribers`` of /clock are matched to this node's writers and
-        the metrics node is ready (``wait_for_metrics``: it has matched every topic it
-        records): lockstep publishes the state of cycle 0, real time starts the wall-clock
-        timer. A node's reliable /clock reader is its last entity (``base._Constructed``), so
-        the /clock count means every node has all its readers. The delay runs from the moment
-        all three hold, for the other nodes' writers to make their side of each match; a
-        sample sent before that reaches a late-matched reader only because the lockstep
-        graph's data topics are TRANSIENT_LOCAL (``ffmpc_ros.topics.LOCKSTEP_OVERRIDES``)."""
-        ready = (
-            self.active
-            and self.pub_joints.get_subscription_count() >= int(self.params["start_subscribers"])
-            and self.pub_clock.get_subscription_count()
-            >= int(self.params["start_clock_subscribers"])
-            and (self.metrics_ready or not self.params["wait_for_metrics"])
-        )
-        if not ready:
-            self._ready_since = None
-            return
-        if self._ready_since is None:
-            self._ready_since = time.monotonic()
-        if time.monotonic() - self._ready_since < float(self.params["start_delay"]):
+        """Start once the start handshake holds (:meth:`StudyNode.start_handshake`) and the
+        metrics node is ready (``wait_for_metrics``: it has matched every topic it records):
+        lockstep publishes the state of cycle 0, real time starts the wall-clock timer."""
+        metrics = self.metrics_ready or not self.params["wait_for_metrics"]
+        if not self.start_handshake(self.pub_joints, self.pub_clock, metrics):
             return
         self._start_timer.cancel()
         self.started = True
