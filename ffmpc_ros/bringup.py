@@ -1081,26 +1081,23 @@ BRING_UP_TRANSITIONS = ("configure", "activate")
 GOAL_STATES = {"configure": "inactive", "activate": "active"}
 
 
-def _lifecycle_state(node: Node, executor, fqn: str, deadline: float) -> str | None:
-    """The lifecycle state label of node ``fqn`` (its ``get_state`` service), None if no answer
-    came before ``deadline``."""
-    from lifecycle_msgs.srv import GetState
-
-    client = node.create_client(GetState, f"{fqn}/get_state")
-    try:
-        future, sent = None, 0.0
-        while time.perf_counter() < deadline:
-            now = time.perf_counter()
-            if future is not None and future.done():
-                return future.result().current_state.label
-            if future is not None and now - sent > SERVICE_RETRY:
-                future = None
-            if future is None and client.service_is_ready():
-                future, sent = client.call_async(GetState.Request()), now
-            executor.spin_once(timeout_sec=0.05)
-        return None
-    finally:
-        node.destroy_client(client)
+def _call(executor, client, request, deadline: float, what: str, children=None, logs=None):
+    """(response, resent) of one service call, spinning ``executor``; the request is sent again
+    when unanswered after SERVICE_RETRY (a lost response). GraphError past ``deadline``."""
+    future, sent, resent = None, 0.0, False
+    while future is None or not future.done():
+        if children is not None:
+            _check_children(children, logs, set())
+        now = time.perf_counter()
+        if now > deadline:
+            raise GraphError(f"{what} did not answer in time: the run did not start")
+        if future is not None and now - sent > SERVICE_RETRY:
+            future, resent = None, True  # the response was lost: ask again
+        if future is None and client.service_is_ready():
+            future, sent = client.call_async(request), now
+        executor.spin_once(timeout_sec=0.05)
+        _check_stop()
+    return future.result(), resent
 
 
 def _bring_up(
@@ -1117,7 +1114,7 @@ def _bring_up(
     ``<node>/change_state`` services; one log line per node and transition. GraphError when a
     transition fails (the node's log says why) or the deadline passes."""
     from lifecycle_msgs.msg import Transition
-    from lifecycle_msgs.srv import ChangeState
+    from lifecycle_msgs.srv import ChangeState, GetState
 
     prefix = node.get_namespace().rstrip("/")
     order = [n for n in names if n != plant] + [n for n in names if n == plant]
@@ -1128,24 +1125,16 @@ def _bring_up(
                 client = clients[name]
                 request = ChangeState.Request(transition=Transition(label=label))
                 asked = time.perf_counter()
-                future, sent, retried = None, 0.0, False
-                while future is None or not future.done():
-                    _check_children(children, logs, set())
-                    now = time.perf_counter()
-                    if now > deadline:
-                        raise GraphError(f"{name} did not {label} in time: the run did not start")
-                    if future is not None and now - sent > SERVICE_RETRY:
-                        future, retried = None, True  # the response was lost: ask again
-                    if future is None and client.service_is_ready():
-                        future, sent = client.call_async(request), now
-                    executor.spin_once(timeout_sec=0.05)
-                    _check_stop()
-                # a resent transition the node had already made is refused: its state tells
-                done = future.result().success or (
-                    retried
-                    and _lifecycle_state(node, executor, f"{prefix}/{name}", deadline)
-                    == GOAL_STATES[label]
-                )
+                what = f"{name} ({label})"
+                response, resent = _call(executor, client, request, deadline, what, children, logs)
+                done = response.success
+                if not done and resent:  # a resent transition the node had made is refused
+                    get = node.create_client(GetState, f"{prefix}/{name}/get_state")
+                    try:
+                        state, _ = _call(executor, get, GetState.Request(), deadline, what)
+                    finally:
+                        node.destroy_client(get)
+                    done = state.current_state.label == GOAL_STATES[label]
                 if not done:
                     raise GraphError(
                         f"{name} refused the {label} transition (its log says why): the run "
