@@ -282,13 +282,13 @@ GRAPH_OVERRIDES: dict[str, dict[str, dict[str, str | int]]] = {
 }
 #: And in lockstep only, on every SENSOR, COMMAND and STATE topic, both ends: TRANSIENT_LOCAL.
 #: The plant starts by a handshake (every node's readers exist, its own writers matched, the
-#: metrics node ready, then ``start_delay``: plant_node, base._Constructed), but a sample a writer
+#: metrics node ready, then ``start_delay``: StudyNode.start_handshake), but a sample a writer
 #: sends before ITS side of a match is made is lost for that reader, and the lockstep graph
 #: stalls at cycle 0. Measured with VOLATILE topics (msgs_notes/README.md, QoS): 20 of 20 runs
-#: of the graph test on a quiet domain, but beside two busy loops 2 of 27 runs of the graph,
-#: launch, namespace and bag-graph tests failed (a stall at cycle 0, a launch that never
-#: finished). A transient-local writer hands a late-matched reader what it missed; in lockstep
-#: at most one sample per control topic is in flight, so that is the start only.
+#: of the graph test on a quiet domain, but beside two busy loops 2 of 54 graph, launch,
+#: namespace and bag-graph tests failed (a stall at cycle 0, a launch that never finished).
+#: A transient-local writer hands a late-matched reader what it missed; in lockstep at most one
+#: sample per control topic is in flight, so that is the start only.
 LOCKSTEP_OVERRIDES: dict[str, str] = {"durability": "transient_local"}
 
 
