@@ -205,7 +205,16 @@ def test_mpc_node_real_time_path_solves_on_ticks_only(ros, robot):
         probe = ros.probe()
         out = recorder(probe, MpcCommand, topics.MPC_COMMAND)
         pub = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
-        assert ros.spin_until(lambda: pub.get_subscription_count() > 0, timeout=10)
+        # both sides of both matches made: sensor data is best effort and commands volatile, so
+        # a sample sent before the reader's side matched is lost (a fresh-clone run lost k = 2)
+        assert ros.spin_until(
+            lambda: (
+                pub.get_subscription_count() > 0
+                and node.inputs[0].get_publisher_count() > 0
+                and node.publisher.get_subscription_count() > 0
+            ),
+            timeout=10,
+        )
         q, v, tau, _ = _measurements(robot, 6)
         for k in (1, 2, 3, 4, 5):
             pub.publish(joint_state(node, k, q[k], v[k], tau[k]))
