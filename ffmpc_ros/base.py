@@ -89,10 +89,12 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import QoSPolicyKind
+from rclpy.publisher import Publisher
+from rclpy.qos import QoSCompatibility, QoSPolicyKind, qos_check_compatible
 from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
 from rclpy.time_source import TimeSource
 from rosgraph_msgs.msg import Clock as ClockMsg
+from std_msgs.msg import Empty
 
 from ffmpc_core.errors import ConfigError, FfmpcError, InputError
 from ffmpc_core.scenario import CONTACT_DIMENSION, SCHEMA, Scenario
@@ -130,6 +132,12 @@ REJECTED_MARKER = "ffmpc-rejected: "
 DIAGNOSTICS_PERIOD = 1.0
 #: The standard diagnostics topic (absolute: the aggregator listens there).
 DIAGNOSTICS_TOPIC = topics.DIAGNOSTICS
+#: Wall time between two checks of a node's side of the lockstep start barrier, s.
+BARRIER_PERIOD = 0.01
+
+
+def _ignore(msg: Empty) -> None:
+    """The start barrier's token reader takes nothing (nobody publishes ``lockstep/ready``)."""
 
 
 class _Constructed(type):
@@ -142,6 +150,7 @@ class _Constructed(type):
       second reader exists only after its data readers do (an MPC that builds its OCP for
       seconds after its time source subscribed no longer lets the plant start before it reads
       the joint states);
+    * arms its side of the lockstep start barrier (:meth:`StudyNode.writers_matched`);
     * then starts its lifecycle (``_after_construction``: autostart must not run a transition
       on a half-built node)."""
 
@@ -150,6 +159,7 @@ class _Constructed(type):
         try:
             node.__init__(*args, **kwargs)
             node._subscribe_clock()
+            node._arm_start_barrier()
             node._after_construction()
         except BaseException:
             # a node refused at construction (a bad parameter or QoS override) leaves the ROS
@@ -189,6 +199,9 @@ class StudyNode(LifecycleNode, metaclass=_Constructed):
             parameter_overrides=overrides,
             cli_args=list(cli_args) if cli_args is not None else None,
         )
+        # the writers the lockstep start barrier waits for (create_publisher, writers_matched)
+        self._barrier_writers: list[Publisher] = []
+        self.start_ready = False  # this node's lockstep/ready reader exists (writers_matched)
         # from here on, every publisher and subscription takes ROS 2's QoS override parameters
         # (rclpy's own, made in Node.__init__, keep rclpy's profiles, as in any rclpy node)
         self._qos_overridable = True
@@ -257,16 +270,17 @@ class StudyNode(LifecycleNode, metaclass=_Constructed):
         the bring-up activates the plant last), ``start_subscribers`` readers are matched to
         its joint-state writer ``joints`` and ``start_clock_subscribers`` to its /clock writer
         ``clock`` (a node's reliable /clock reader is its last entity, ``_Constructed``, so
-        the count means every node has all its readers), ``ready`` holds (the plant's own
-        extra condition), and all of it has held for ``start_delay`` wall s, for the other
-        nodes' writers to make their side of each match (a sample sent before that reaches a
-        late-matched reader only because the lockstep graph's data topics are TRANSIENT_LOCAL,
-        ``ffmpc_ros.topics.LOCKSTEP_OVERRIDES``). Call it from a timer until it is True."""
+        the count means every node has all its readers), ``start_nodes`` nodes (the plant
+        included) passed the start barrier (:meth:`writers_matched`: every writer of the graph
+        is matched to every reader, so the reliable, volatile topics lose nothing from cycle 0
+        on, with no replay), ``ready`` holds (the plant's own extra condition), and all of it
+        has held for ``start_delay`` wall s. Call it from a timer until it is True."""
         holds = (
             ready
             and self.active
             and joints.get_subscription_count() >= int(self.params["start_subscribers"])
             and clock.get_subscription_count() >= int(self.params["start_clock_subscribers"])
+            and self.count_subscribers(self._ready_topic) >= int(self.params["start_nodes"])
         )
         if not holds:
             self._start_ready_since = None
@@ -320,10 +334,14 @@ class StudyNode(LifecycleNode, metaclass=_Constructed):
         """rclpy's, with ROS 2's QoS override parameters (history, depth, reliability:
         ``qos_overrides.<topic>.publisher.<policy>``) unless the caller chose its own options;
         ConfigError for an override rclpy cannot apply."""
-        if getattr(self, "_qos_overridable", False):  # not rclpy's own (parameter events)
+        ours = getattr(self, "_qos_overridable", False)  # not rclpy's own (parameter events)
+        if ours:
             kwargs.setdefault("qos_overriding_options", _OVERRIDABLE)
         with _qos_override_errors(self, topic, "publisher"):
-            return super().create_publisher(msg_type, topic, qos_profile, **kwargs)
+            publisher = super().create_publisher(msg_type, topic, qos_profile, **kwargs)
+        if ours and topics.barrier_writer(topic):
+            self._barrier_writers.append(publisher)
+        return publisher
 
     def create_subscription(self, msg_type, topic, callback, qos_profile, **kwargs):  # type: ignore[override]
         """rclpy's, with ROS 2's QoS override parameters (history, depth, reliability:
@@ -525,7 +543,64 @@ class StudyNode(LifecycleNode, metaclass=_Constructed):
 
     def _subscribe_clock(self) -> None:
         """The node's reliable /clock reader (see __init__ and :class:`_Constructed`)."""
-        self.create_subscription(ClockMsg, topics.CLOCK, self._on_clock, topics.clock_reader_qos())
+        self._clock_reader = self.create_subscription(
+            ClockMsg, topics.CLOCK, self._on_clock, topics.clock_reader_qos()
+        )
+
+    # -- the lockstep start barrier (ffmpc_ros.topics.START_READY) --------------------------------
+    def _arm_start_barrier(self) -> None:
+        """Check :meth:`writers_matched` now and every :data:`BARRIER_PERIOD` wall s until it
+        holds; then subscribe ``lockstep/ready`` (the node's token, counted by the plant)."""
+        self._ready_topic = self.resolve_topic_name(topics.START_READY)
+        self._barrier_timer = self.create_timer(
+            BARRIER_PERIOD, self._start_barrier, clock=Clock(clock_type=ClockType.STEADY_TIME)
+        )
+        self._start_barrier()
+
+    def _start_barrier(self) -> None:
+        if self.start_ready or not self.writers_matched():
+            return
+        self._barrier_timer.cancel()
+        self.create_subscription(
+            Empty,
+            topics.START_READY,
+            _ignore,
+            topics.start_ready_qos(),
+            qos_overriding_options=None,
+        )
+        self.start_ready = True
+        matched = sum(w.get_subscription_count() for w in self._barrier_writers)
+        self.get_logger().info(
+            f"start barrier passed: {len(self._barrier_writers)} writers matched to "
+            f"{matched} readers"
+        )
+
+    def writers_matched(self) -> bool:
+        """This node's side of the lockstep start barrier: it has discovered
+        ``start_clock_subscribers`` /clock readers (each node's reliable /clock reader is its
+        last reader, and a participant announces its readers in the order it creates them, so
+        every reader of the graph is then known here), and each of its writers (those
+        :func:`ffmpc_ros.topics.barrier_writer` names) has matched every reader discovered on
+        its topic whose QoS is compatible with it. A reliable, volatile writer delivers every
+        sample it sends after it matched a reader: once every node holds this, nothing sent
+        from cycle 0 on is lost. True at once when ``start_clock_subscribers`` is 0 (no graph
+        to wait for: ``ros2 run`` of one node)."""
+        need = int(self.params.get("start_clock_subscribers", 0))
+        if need <= 0:
+            return True
+        if self.count_subscribers(self._clock_reader.topic_name) < need:
+            return False
+        for writer in self._barrier_writers:
+            readers = self.get_subscriptions_info_by_topic(writer.topic_name)
+            compatible = sum(
+                1
+                for r in readers
+                if qos_check_compatible(writer.qos_profile, r.qos_profile)[0]
+                != QoSCompatibility.ERROR
+            )
+            if writer.get_subscription_count() < compatible:
+                return False
+        return True
 
     def _on_clock(self, msg: ClockMsg) -> None:
         self._clock_received = True

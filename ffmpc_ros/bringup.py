@@ -530,8 +530,11 @@ def run_graph(
     # bag then lacked /plant/joint_states and the MPC's parameters, seen once in four runs);
     # the recorder and the view are more subscribers the plant waits for
     params["plant"]["start_subscribers"] += 1 + (record is not None) + (view is not None)
-    # and it reads /clock twice: the topic it records and its time source (simulated log times)
-    params["plant"]["start_clock_subscribers"] += 2 * (record is not None)
+    # and it reads /clock twice: the topic it records and its time source (simulated log times);
+    # every node's side of the start barrier counts them (its writers wait for the recorder's
+    # readers too: ffmpc_ros.base.StudyNode.writers_matched)
+    for values in params.values():
+        values["start_clock_subscribers"] += 2 * (record is not None)
     robot = load_robot(scenario.robot)
     time_step = scenario.plant.time_step
     # every node of this context (probe, metrics, single-process nodes, recorder) in the graph's

@@ -58,10 +58,12 @@ def graph_parameters(
         "start_subscribers": 2,  # the joint-sensor and metrics nodes
         # every node's two /clock readers: the plant's own, the other nodes' and the metrics'
         "start_clock_subscribers": topics.CLOCK_READERS_PER_NODE * (len(NODES) + 1),
+        # the lockstep start barrier: every node of the graph, the metrics node included
+        "start_nodes": len(NODES) + 1,
         "wait_for_metrics": True,  # the metrics node has matched every topic it records
     }
     names = [*NODES, "metrics"]
-    qos = topics.graph_qos_overrides(namespace, lockstep)
+    qos = topics.graph_qos_overrides(namespace)
     return {n: {**node_parameter_values(n, scenario, **graph), **qos} for n in names}
 
 

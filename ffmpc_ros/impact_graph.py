@@ -163,7 +163,6 @@ def impact_node_parameters(
             "start_delay": 0.5,
             # the joint sensor, the bring-up's probe and the recorder
             "start_subscribers": 2 + int(record),
-            "start_clock_subscribers": clock_readers,
         },
         "joint_sensor": node_parameter_values("joint_sensor", sensing),
         "ft_sensor": {**node_parameter_values("ft_sensor", sensing), "measure_moments": True},
@@ -218,7 +217,13 @@ def impact_node_parameters(
                 f"configuration (ROS-free: {wanted}; node: {built})"
             )
         params["impact_planner"] = planner
-    qos = topics.graph_qos_overrides(namespace, lockstep=True)
+    # the lockstep start barrier (ffmpc_ros.base.StudyNode.writers_matched): every node waits to
+    # know every /clock reader, the plant for every node's token
+    assert sorted(params) == sorted(nodes), (params, nodes)
+    for values in params.values():
+        values["start_clock_subscribers"] = clock_readers
+    params["dice_plant"]["start_nodes"] = len(nodes)
+    qos = topics.graph_qos_overrides(namespace)
     params = {name: {**values, **qos} for name, values in params.items()}
     # (no shared objects: the parameter file is YAML without aliases, which rcl refuses)
     return cfg, json.loads(json.dumps(params))

@@ -124,8 +124,18 @@ START_SUBSCRIBERS = GraphParameter(
 START_CLOCK_SUBSCRIBERS = GraphParameter(
     "start_clock_subscribers",
     0,
-    "subscribers of /clock to wait for before the first state (every node judges its inputs' "
-    "stamps by /clock: one that matched late would reject them as from the future)",
+    "lockstep start barrier: /clock readers of the whole graph (every node's two, a recorder's "
+    "two). A node declares itself ready (a reader of lockstep/ready) once it has discovered that "
+    "many and each of its writers has matched every compatible reader discovered on its topic; "
+    "the plant also waits for them before its first state (0: no barrier)",
+    (0, 1000),
+)
+START_NODES = GraphParameter(
+    "start_nodes",
+    0,
+    "lockstep start barrier: nodes of the graph, the plant included, whose lockstep/ready "
+    "reader the plant waits for before its first state (each node's writers are then matched "
+    "to every reader of the graph: nothing it sends is lost, with no replay)",
     (0, 1000),
 )
 
@@ -137,7 +147,7 @@ AUTOSTART = GraphParameter(
     "the bring-up's)",
 )
 #: Graph parameters every node declares (lifecycle start, ffmpc_ros.base).
-COMMON_GRAPH: tuple[GraphParameter, ...] = (AUTOSTART,)
+COMMON_GRAPH: tuple[GraphParameter, ...] = (AUTOSTART, START_CLOCK_SUBSCRIBERS)
 
 WAIT_FOR_METRICS = GraphParameter(
     "wait_for_metrics",
@@ -303,7 +313,7 @@ NODE_SPECS: dict[str, NodeSpec] = {
             DURATION,
             START_DELAY,
             START_SUBSCRIBERS,
-            START_CLOCK_SUBSCRIBERS,
+            START_NODES,
             WAIT_FOR_METRICS,
             MAX_AGE,
         ),
@@ -353,7 +363,7 @@ NODE_SPECS: dict[str, NodeSpec] = {
             DURATION,
             START_DELAY,
             START_SUBSCRIBERS,
-            START_CLOCK_SUBSCRIBERS,
+            START_NODES,
             MAX_AGE,
             IMPACT_SCENARIO,
             IMPACT_SET,

@@ -280,16 +280,25 @@ GRAPH_OVERRIDES: dict[str, dict[str, dict[str, str | int]]] = {
         "subscription": {"reliability": "reliable"},
     },
 }
-#: And in lockstep only, on every SENSOR, COMMAND and STATE topic, both ends: TRANSIENT_LOCAL.
-#: The plant starts by a handshake (every node's readers exist, its own writers matched, the
-#: metrics node ready, then ``start_delay``: StudyNode.start_handshake), but a sample a writer
-#: sends before ITS side of a match is made is lost for that reader, and the lockstep graph
-#: stalls at cycle 0. Measured with VOLATILE topics (msgs_notes/README.md, QoS): 20 of 20 runs
-#: of the graph test on a quiet domain, but beside two busy loops 2 of 54 graph, launch,
-#: namespace and bag-graph tests failed (a stall at cycle 0, a launch that never finished).
-#: A transient-local writer hands a late-matched reader what it missed; in lockstep at most one
-#: sample per control topic is in flight, so that is the start only.
-LOCKSTEP_OVERRIDES: dict[str, str] = {"durability": "transient_local"}
+#: The lockstep start barrier (``StudyNode`` in ffmpc_ros.base; msgs_notes/README.md, QoS): a
+#: node subscribes this topic (std_msgs/Empty, never published) once it has discovered every
+#: /clock reader of the graph (``start_clock_subscribers``: a node's /clock reader is its last
+#: reader, so every reader of the graph is then known to it) and each of its writers has matched
+#: every compatible reader discovered on its topic. The plant counts these readers
+#: (``start_nodes``) before it publishes cycle 0: every writer of the graph then delivers every
+#: sample to every reader (reliable, volatile: nothing is replayed, nothing is lost). Before it,
+#: the lockstep topics were TRANSIENT_LOCAL, since a sample a writer sent before ITS side of a
+#: match was made was lost, and 2 of 54 graph tests beside two busy loops stalled at cycle 0.
+START_READY = "lockstep/ready"
+#: Writers the start barrier does not wait for: the domain-wide diagnostics (any number of
+#: monitors) and LATCHED topics (a late reader gets the last sample anyway).
+BARRIER_EXEMPT = frozenset({DIAGNOSTICS})
+
+
+def barrier_writer(topic: str) -> bool:
+    """Whether a node's writer of ``topic`` (as created, relative) must have matched every
+    compatible reader of the graph before the node declares itself ready (:data:`START_READY`)."""
+    return topic not in BARRIER_EXEMPT and (topic == CLOCK or qos_class(topic) != LATCHED)
 
 
 def qos_override_name(topic: str, role: str, policy: str, namespace: str | None = None) -> str:
@@ -299,24 +308,18 @@ def qos_override_name(topic: str, role: str, policy: str, namespace: str | None 
     return f"qos_overrides.{resolve(topic, namespace)}.{role}.{policy}"
 
 
-def _graph_policies(topic: str, role: str, lockstep: bool) -> dict[str, str | int]:
-    kind = qos_class(topic)
-    policies: dict[str, str | int] = dict(GRAPH_OVERRIDES.get(kind, {}).get(role, {}))
-    if lockstep and kind in (SENSOR, COMMAND, STATE):
-        policies.update(LOCKSTEP_OVERRIDES)
-    return policies
+def _graph_policies(topic: str, role: str) -> dict[str, str | int]:
+    return dict(GRAPH_OVERRIDES.get(qos_class(topic), {}).get(role, {}))
 
 
-def graph_qos_overrides(
-    namespace: str | None = None, lockstep: bool = True
-) -> dict[str, str | int]:
-    """{parameter: value} of :data:`GRAPH_OVERRIDES` (and :data:`LOCKSTEP_OVERRIDES` in
-    lockstep) for every topic of the graph under ``namespace`` (a node ignores the ones of
-    topics it does not use)."""
+def graph_qos_overrides(namespace: str | None = None) -> dict[str, str | int]:
+    """{parameter: value} of :data:`GRAPH_OVERRIDES` for every topic of the graph under
+    ``namespace`` (a node ignores the ones of topics it does not use); the same in lockstep and
+    real time (the lockstep start is a barrier, :data:`START_READY`, not a replay)."""
     out: dict[str, str | int] = {}
     for topic in QOS_CLASSES:
         for role in ("publisher", "subscription"):
-            for policy, value in _graph_policies(topic, role, lockstep).items():
+            for policy, value in _graph_policies(topic, role).items():
                 out[qos_override_name(topic, role, policy, namespace)] = value
     return out
 
@@ -326,7 +329,7 @@ def graph_qos(topic: str, role: str, lockstep: bool = True) -> QoSProfile:
     :func:`graph_qos_overrides` applied: for the bring-up's own readers and writers (status
     probe, fault injector), made without those parameters."""
     qos = publisher_qos(topic) if role == "publisher" else subscriber_qos(lockstep, topic)
-    for policy, value in _graph_policies(topic, role, lockstep).items():
+    for policy, value in _graph_policies(topic, role).items():
         if policy == "reliability":
             qos.reliability = ReliabilityPolicy[str(value).upper()]
         elif policy == "durability":
@@ -334,6 +337,12 @@ def graph_qos(topic: str, role: str, lockstep: bool = True) -> QoSProfile:
         elif policy == "depth":
             qos.depth = int(value)
     return qos
+
+
+def start_ready_qos() -> QoSProfile:
+    """A node's start-barrier token (:data:`START_READY`): RELIABLE, VOLATILE, KEEP_LAST(1)
+    (nothing is ever published on it; only the reader's existence counts)."""
+    return _profile(True, 1)
 
 
 def clock_reader_qos() -> QoSProfile:
