@@ -113,7 +113,7 @@ from ffmpc_ros.topics import WRENCH_FRAME
 #: The QoS policies every ffmpc publisher and subscription lets ROS 2's override parameters set
 #: (``qos_overrides.<topic>.<publisher|subscription>.<policy>``): rclpy's defaults (history,
 #: depth, reliability, ``QoSOverridingOptions.with_default_policies``) and durability, which
-#: the lockstep bring-up sets (``ffmpc_ros.topics.LOCKSTEP_OVERRIDES``).
+#: a user may set (nothing of the graph is transient local but its latched topics).
 _OVERRIDABLE = QoSOverridingOptions(
     [*QoSOverridingOptions.with_default_policies().policy_kinds, QoSPolicyKind.DURABILITY]
 )

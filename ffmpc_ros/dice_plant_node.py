@@ -160,7 +160,7 @@ class DicePlantNode(StudyNode):
 
     def finished(self) -> bool:
         """With ``exit_when_done``: 1 s (wall) after the last state; otherwise never (the
-        plant keeps serving its transient-local history until it is shut down)."""
+        plant's reliable writers keep resending to readers that lag until it is shut down)."""
         if not (self.done and self.params["exit_when_done"]):
             return False
         if self._done_at is None:

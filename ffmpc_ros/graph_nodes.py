@@ -54,7 +54,7 @@ def graph_parameters(
     graph = {
         "lockstep": lockstep,
         "duration": float(duration),
-        "start_delay": 0.5,  # wall s after the readers are matched: discovery settles
+        "start_delay": 0.0,  # the start barrier makes sure of the matches (no settling time)
         "start_subscribers": 2,  # the joint-sensor and metrics nodes
         # every node's two /clock readers: the plant's own, the other nodes' and the metrics'
         "start_clock_subscribers": topics.CLOCK_READERS_PER_NODE * (len(NODES) + 1),

@@ -27,7 +27,7 @@ from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import StudyNode, drop_stale_cycles
 
 #: Cycles an incomplete measurement waits for its partner before it is dropped: the publishers'
-#: history, so that a late subscriber can pair everything TRANSIENT_LOCAL hands it at once.
+#: history, so that a reader that lags (its process behind) can pair all it is handed at once.
 KEEP = topics.PUBLISHER_DEPTH
 #: Largest |d_a − d_b| (per component) of two motion directions that count as the same.
 DIRECTION_TOLERANCE = 1e-6

@@ -107,7 +107,7 @@ def impact_node_parameters(
 ) -> tuple[Any, dict[str, dict]]:
     """(the ImpactStudyConfig, {node: {ROS name: value}}) of a run of the impact graph under
     ``namespace``, each node with the lockstep graph's QoS overrides
-    (``topics.graph_qos_overrides``: reliable sensor topics, transient local data topics).
+    (``topics.graph_qos_overrides``: reliable sensor topics; the start barrier, not a replay).
 
     ConfigError when the settings cannot run as a graph: the touch-first strategy with the
     maximal approach, or a planner setting the planner node has no parameter for."""
@@ -160,7 +160,7 @@ def impact_node_parameters(
             **common,
             **impact,
             "lockstep": True,
-            "start_delay": 0.5,
+            "start_delay": 0.0,
             # the joint sensor, the bring-up's probe and the recorder
             "start_subscribers": 2 + int(record),
         },

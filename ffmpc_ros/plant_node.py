@@ -199,7 +199,7 @@ class PlantNode(StudyNode):
         return self.k >= self.steps
 
     def finished(self) -> bool:
-        return False  # keeps serving its transient-local history until shut down
+        return False  # its reliable writers resend to readers that lag until it is shut down
 
     def diagnostic_values(self, period: float) -> dict[str, str]:
         """The plant's cycle and simulated time (s)."""

@@ -22,9 +22,9 @@ reliability: ``--ros-args -p qos_overrides./ft_sensor/wrench.subscription.reliab
 The graph's bring-up sets :func:`graph_qos_overrides` on its own nodes: the sensor topics become
 RELIABLE with a history of :data:`PUBLISHER_DEPTH` on both ends, so the lockstep loop, the
 metrics node and the recorder lose nothing; nothing is replayed: the plant publishes its first
-state only once the graph's readers are matched (plant_node, ``start_delay`` after the last
-condition), and a reliable VOLATILE writer delivers every sample it sent since it matched a
-reader.
+state only once every node passed the start barrier (:data:`START_READY`: each writer of the
+graph matched to every reader), and a reliable VOLATILE writer delivers every sample it sent
+since it matched a reader.
 
 Names. Every topic and service name of the graph is RELATIVE (``plant/joint_states``): it
 resolves under the namespace of the node that uses it, so ``--ros-args -r __ns:=/arm1`` (or
