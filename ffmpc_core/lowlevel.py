@@ -68,7 +68,7 @@ along −M·q̇ dissipates at any saturation scale.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import IntEnum
 from typing import Protocol
 
@@ -120,6 +120,9 @@ class LowLevelConfig:
             (brake above it; back to brake above 4× it). 2e-3 J: 0.04 rad/s on the iiwa's
             shoulder (M₁₁ ≈ 2.2 kg·m²), far above the wrist's noise jitter (~1e-4 J).
         hold_torque_fraction: fraction of each joint's torque limit the hold may use, in (0, 1].
+        torque_limit_fraction: fraction of each joint's data-sheet torque limit that τ^d and τ^m
+            are saturated to, in (0, 1] (a cell's own, lower limit; live on the pid node:
+            :meth:`LowLevelController.set_limits`).
         force_hold_time: simulated s a plausible λ̂ is held for the Riccati feedback of
             force-feedback (sample and hold): on a cycle whose λ̂ is missing (None: lost or
             rejected) or not finite, the newest λ̂ at most this old is used; beyond, the cycle
@@ -139,6 +142,7 @@ class LowLevelConfig:
     hold_settle_energy: float = 2e-3
     hold_torque_fraction: float = 0.75
     force_hold_time: float = 0.05
+    torque_limit_fraction: float = 1.0
 
     def __post_init__(self) -> None:
         if self.formulation not in FORMULATIONS:
@@ -159,6 +163,11 @@ class LowLevelConfig:
             raise ConfigError("hold_settle_energy must be > 0 J")
         if not 0.0 < self.hold_torque_fraction <= 1.0:
             raise ConfigError("hold_torque_fraction must lie in (0, 1]")
+        if not 0.0 < self.torque_limit_fraction <= 1.0:
+            raise ConfigError(
+                f"torque_limit_fraction must lie in (0, 1] (never above the data sheet), got "
+                f"{self.torque_limit_fraction}"
+            )
         if not (math.isfinite(self.force_hold_time) and self.force_hold_time >= 0):
             raise ConfigError("force_hold_time must be a finite number of s >= 0")
 
@@ -229,7 +238,33 @@ class LowLevelController:
         omega = 2.0 * math.pi * config.hold_frequency
         self._kp, self._kd = omega * omega, 2.0 * config.hold_damping_ratio * omega
         self._hold_budget = config.hold_torque_fraction * robot.torque_limit
+        self._torque_limit = config.torque_limit_fraction * robot.torque_limit
         self.reset()
+
+    def set_limits(
+        self, torque_limit_fraction: float | None = None, stale_timeout: float | None = None
+    ) -> None:
+        """Change the saturation (fraction of the data-sheet torque limits) and/or the command
+        timeout of the safe hold (s) from the next :meth:`step` on; None keeps one. ConfigError
+        (nothing changed) for a value :class:`LowLevelConfig` refuses."""
+        changes: dict[str, float] = {}
+        if torque_limit_fraction is not None:
+            changes["torque_limit_fraction"] = float(torque_limit_fraction)
+        if stale_timeout is not None:
+            changes["stale_timeout"] = float(stale_timeout)
+        config = replace(self.config, **changes)  # validates (__post_init__)
+        self.config = config
+        self._torque_limit = config.torque_limit_fraction * self.robot.torque_limit
+
+    @property
+    def torque_limit(self) -> np.ndarray:
+        """The torque limits τ^d and τ^m are saturated to, N·m (per joint)."""
+        return self._torque_limit.copy()
+
+    def _clip(self, tau: np.ndarray) -> np.ndarray:
+        """Saturate to :attr:`torque_limit` (N·m); InputError for a non-finite or implausible
+        torque (``RobotModel.clip_torque``'s rule: a fault, never a command to saturate)."""
+        return np.clip(self.robot.clip_torque(tau), -self._torque_limit, self._torque_limit)
 
     # -- state ------------------------------------------------------------------------------
     def reset(self) -> None:
@@ -379,7 +414,7 @@ class LowLevelController:
             self._first_use = False
             return cmd.torque
         dx = self.state_from(meas) - cmd.state
-        return self.robot.clip_torque(cmd.torque + cmd.feedback_gain @ dx)
+        return self._clip(cmd.torque + cmd.feedback_gain @ dx)
 
     def step(self, meas: LowLevelMeasurement, t: float) -> LowLevelOutput:
         """One cycle at time t (s): desired and motor torques (N·m, saturated) and the mode."""
@@ -399,7 +434,7 @@ class LowLevelController:
         if fresh:
             try:
                 tau_raw = self._mpc_torque(meas)
-                tau_mpc = self.robot.clip_torque(tau_raw)
+                tau_mpc = self._clip(tau_raw)
             except InputError:  # the Riccati feedback gave an implausible torque
                 self.invalid_commands += 1
                 self.engage_hold()
@@ -416,22 +451,22 @@ class LowLevelController:
                     self._mode = LowLevelMode.TRACK
             if self._mode == LowLevelMode.BLEND:
                 # The MPC torque enters the delay line; the hold part reaches the motors without.
-                hold = self.robot.clip_torque(self.hold_torque(q, v))
-                desired = self.robot.clip_torque((1.0 - blend) * hold + blend * tau_raw)
+                hold = self._clip(self.hold_torque(q, v))
+                desired = self._clip((1.0 - blend) * hold + blend * tau_raw)
                 motor = self.pid.step(measured, tau_mpc, t, undelayed=hold, weight=blend)
             else:
                 desired = tau_mpc
                 motor = self.pid.step(measured, tau_mpc, t)
-            motor = self.robot.clip_torque(motor)
+            motor = self._clip(motor)
         else:
             if self._mode not in (LowLevelMode.HOLD, LowLevelMode.FALLBACK):
                 self._mode = LowLevelMode.FALLBACK
                 self._start_hold()
             blend = 0.0
-            desired = self.robot.clip_torque(self.hold_torque(q, v))
+            desired = self._clip(self.hold_torque(q, v))
             # To the motors without the δo delay line; the PID's integral keeps rejecting the
             # actuation bias, and its delay line fills with the hold torque.
-            motor = self.robot.clip_torque(self.pid.step(measured, desired, t, desired, 0.0))
+            motor = self._clip(self.pid.step(measured, desired, t, desired, 0.0))
         self._t_previous = float(t)
         self._sent_any = True
         return LowLevelOutput(motor, desired, self._mode, float(age), float(blend))

@@ -161,6 +161,8 @@ class PidSection:
     blend_duration: float = 0.1  # s, hold → MPC torque blend (minimum jerk)
     hold_frequency: float = 4.0  # Hz, natural frequency of the safe hold PD (full mass matrix)
     hold_damping_ratio: float = 1.0
+    # Fraction of the data-sheet torque limits τ^d and τ^m are saturated to (live on the pid node).
+    torque_limit_fraction: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -412,6 +414,12 @@ _TABLE: dict[str, tuple[str, Any, str]] = {
     "pid.blend_duration": ("s", (0.0, 10.0), "hold → MPC blend"),
     "pid.hold_frequency": ("Hz", (0.0, 100.0), "natural frequency of the hold PD"),
     "pid.hold_damping_ratio": ("", (0.0, 10.0), "damping ratio of the hold PD"),
+    "pid.torque_limit_fraction": (
+        "",
+        (0.01, 1.0),
+        "fraction of the robot's data-sheet torque limits the low level saturates τ^d and τ^m to "
+        "(never above the data sheet)",
+    ),
 }
 #: List lengths of the CostWeights activation diagonals (a number broadcasts).
 _DIAG_LENGTH: dict[str, int | str] = {

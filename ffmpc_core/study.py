@@ -302,6 +302,7 @@ def lowlevel_config(scenario: Scenario) -> LowLevelConfig:
         blend_duration=c.blend_duration,
         hold_frequency=c.hold_frequency,
         hold_damping_ratio=c.hold_damping_ratio,
+        torque_limit_fraction=c.torque_limit_fraction,
     )
 
 

@@ -299,8 +299,9 @@ MPC_LIVE: tuple[str, ...] = (
     "position_offset",
     *(f"weights.*.{name}" for name in (*LIVE_COST_WEIGHTS, "force_phase", "ee_position_phase")),
 )
-#: The PID's live parameters: the gains of eq 33.
-PID_LIVE: tuple[str, ...] = ("kp", "ki", "kd")
+#: The PID's live parameters: the gains of eq 33 and the low level's limits (the saturation, a
+#: fraction of the data-sheet torque limits, and the command timeout of the safe hold).
+PID_LIVE: tuple[str, ...] = ("kp", "ki", "kd", "torque_limit_fraction", "stale_timeout")
 
 NODE_SPECS: dict[str, NodeSpec] = {
     "plant": NodeSpec(

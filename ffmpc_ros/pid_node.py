@@ -20,17 +20,20 @@ timeout passed, or in real time, the cycle goes on without it; the low level the
 accepted λ̂ for ``force_hold_time`` and sends τ* without feedback after that
 (``LowLevelController``, the runner's rule too). One bad wrench never stalls the loop.
 
-Live parameters (``ffmpc_ros.params.PID_LIVE``): the gains ``kp``, ``ki`` (1/s), ``kd`` (s) of
-eq 33, applied from the next cycle the node steps (``TorquePid.set_gains``: the integral state
-is kept, clamped to the new anti-windup bound). The low level has no joint torque or velocity
-limit fraction among its parameters (torques are saturated to the robot's limits), so there is
-nothing else to tune live.
+Live parameters (``ffmpc_ros.params.PID_LIVE``), applied from the next cycle the node steps:
+the gains ``kp``, ``ki`` (1/s), ``kd`` (s) of eq 33 (``TorquePid.set_gains``: the integral state
+is kept, clamped to the new anti-windup bound), and the limits of the low level
+(``LowLevelController.set_limits``): ``torque_limit_fraction``, the fraction of the robot's
+data-sheet torque limits τ^d and τ^m are saturated to, in [0.01, 1] (a value above 1 is refused
+with the schema's reason: never above the data sheet), and ``stale_timeout``, the command age
+(s) that engages the safe hold, refused unless it exceeds the MPC period.
 """
 
 from __future__ import annotations
 
 import math
 import time
+from typing import Any
 
 import numpy as np
 from ffmpc_msgs.msg import MpcCommand as MpcCommandMsg
@@ -202,10 +205,23 @@ class PidNode(StudyNode):
 
     applies_at = "next cycle"
 
+    def check_live(self, name: str, value: Any) -> str | None:
+        """A command timeout must exceed the MPC period (an on-time MPC would look stale)."""
+        if name == "stale_timeout" and float(value) <= self.lowlevel.config.mpc_period:
+            return (
+                f"stale_timeout {value} s must exceed the MPC period "
+                f"{self.lowlevel.config.mpc_period} s (an on-time MPC would look stale)"
+            )
+        return None
+
     def apply_live(self, changes: dict, k: int) -> None:
-        """New PID gains from cycle k on (module docstring)."""
+        """New PID gains and limits from cycle k on (module docstring)."""
         self.lowlevel.pid.set_gains(
             kp=changes.get("kp"), ki=changes.get("ki"), kd=changes.get("kd")
+        )
+        self.lowlevel.set_limits(
+            torque_limit_fraction=changes.get("torque_limit_fraction"),
+            stale_timeout=changes.get("stale_timeout"),
         )
 
     def _step(self, k: int, meas: LowLevelMeasurement) -> None:

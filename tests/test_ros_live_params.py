@@ -113,11 +113,54 @@ def test_live_parameters_are_exactly_the_declared_ones(ros):
     """Every node's writable parameters are its NodeSpec.live ones (the one table)."""
     mpc = ros.add(MpcNode(context=ros.context, parameter_overrides=overrides("mpc")))
     pid = ros.add(PidNode(context=ros.context, parameter_overrides=overrides("pid")))
-    for node, expected in ((mpc, 2 + 1 + 1 + 3 * 7), (pid, 3)):
+    for node, expected in ((mpc, 2 + 1 + 1 + 3 * 7), (pid, 5)):
         writable = [d.name for d in node.describe_parameters(list(node.params)) if not d.read_only]
         assert all(node.spec.is_live(n) for n in writable)
         assert len(writable) == expected, writable
-    assert NODE_SPECS["pid"].live == ("kp", "ki", "kd")
+    assert NODE_SPECS["pid"].live == ("kp", "ki", "kd", "torque_limit_fraction", "stale_timeout")
+
+
+def test_torque_limit_set_live_saturates_the_next_cycle_and_a_looser_one_is_refused(ros, robot):
+    """torque_limit_fraction 1 → 0.3 at cycle 4: from cycle 4 on, every motor torque equals the
+    core low level's with ``set_limits(0.3)`` and is within 0.3 × the data-sheet limits (it
+    reached the full limits before); 1.5 (above the data sheet) and a command timeout below the
+    MPC period are refused with a reason, and change nothing."""
+    scenario = load_scenario("polishing", {"mpc.formulation": "classical"})
+    node = ros.add(PidNode(context=ros.context, parameter_overrides=overrides("pid", scenario)))
+    probe = ros.probe()
+    pub_j = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
+    pub_c = probe.create_publisher(MpcCommand, topics.MPC_COMMAND, topics.publisher_qos())
+    motor = recorder(probe, JointState, topics.MOTOR_TORQUE)
+    client = _client(ros, "pid")
+    refused = _set(ros, client, "torque_limit_fraction", 1.5)
+    assert not refused.successful and "torque_limit_fraction" in refused.reason
+    refused = _set(ros, client, "stale_timeout", 0.001)
+    assert not refused.successful and "MPC period" in refused.reason
+    assert node.lowlevel.config.stale_timeout == scenario.pid.stale_timeout
+    reference = lowlevel_controller(scenario, robot)
+    limit = robot.torque_limit
+    q, v = robot.q_nominal, np.zeros(7)
+    change = 4
+    for k in range(8):
+        if k == change:
+            assert _set(ros, client, "torque_limit_fraction", 0.3).successful
+            reference.set_limits(torque_limit_fraction=0.3)
+        if k % 2 == 0:
+            torque = 2.0 * limit * np.where(np.arange(7) % 2 == 0, 1.0, -1.0)  # beyond the limits
+            pub_c.publish(mpc_command(k, torque))
+            command = LowLevelCommand(torque, np.zeros(14), np.zeros((7, 14)))
+            reference.set_command(command, k * 1e-3)
+        pub_j.publish(joint_state(node, k, q, v, robot.gravity(q)))
+        assert ros.spin_until(lambda k=k: len(motor) == k + 1), f"no motor torque for cycle {k}"
+        expected = reference.step(LowLevelMeasurement(q, v, robot.gravity(q)), k * 1e-3)
+        got = np.asarray(motor[k].effort)
+        np.testing.assert_array_equal(got, expected.motor_torque)
+        bound = (0.3 if k >= change else 1.0) * limit
+        assert np.all(np.abs(got) <= bound + 1e-12)
+        if k == change - 1:
+            assert np.max(np.abs(got) / limit) > 0.3  # the old limit let more through
+    assert node.live_changes == [(change, "torque_limit_fraction", 0.3)]
+    assert node.refused_parameters["torque_limit_fraction"] == 1
 
 
 def test_pid_gains_change_the_motor_torque_of_the_next_cycle_as_eq_33(ros, robot):
@@ -242,8 +285,10 @@ def test_force_setpoint_mid_run_retargets_a_lockstep_graph(ros):
     params["plant"].update(
         wait_for_metrics=False,
         start_subscribers=1,  # the joint sensor (no metrics node here)
-        start_clock_subscribers=topics.CLOCK_READERS_PER_NODE * len(NODES),
+        start_nodes=len(NODES),  # the start barrier: the five loop nodes
     )
+    for values in params.values():  # every node knows the graph's /clock readers
+        values["start_clock_subscribers"] = topics.CLOCK_READERS_PER_NODE * len(NODES)
     nodes = {
         name: ros.add(
             load_node_class(path)(

@@ -433,6 +433,8 @@ def rerun_node(
         values = node_parameters(bag, node)
         values.pop("use_sim_time", None)
         values.pop("autostart", None)  # recorded false under the bring-up: the re-run starts itself
+        # the recorded graph's start barrier: the re-run node is alone, nothing to wait for
+        values.pop("start_clock_subscribers", None)
         apply_overrides(node, values, overrides)
         prefix = f"/_ffmpc_rerun_{os.getpid()}"
         namespace = bag_namespace(bag)
