@@ -561,6 +561,9 @@ class StudyNode(LifecycleNode, metaclass=_Constructed):
         if self.start_ready or not self.writers_matched():
             return
         self._barrier_timer.cancel()
+        if int(self.params.get("start_clock_subscribers", 0)) <= 0:
+            self.start_ready = True  # no graph to wait for: no token either (ros2 run, re-runs)
+            return
         self.create_subscription(
             Empty,
             topics.START_READY,
@@ -584,7 +587,8 @@ class StudyNode(LifecycleNode, metaclass=_Constructed):
         its topic whose QoS is compatible with it. A reliable, volatile writer delivers every
         sample it sends after it matched a reader: once every node holds this, nothing sent
         from cycle 0 on is lost. True at once when ``start_clock_subscribers`` is 0 (no graph
-        to wait for: ``ros2 run`` of one node)."""
+        to wait for: ``ros2 run`` of one node, a re-run from a bag); the node then makes no
+        token."""
         need = int(self.params.get("start_clock_subscribers", 0))
         if need <= 0:
             return True

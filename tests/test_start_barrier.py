@@ -123,8 +123,9 @@ def test_the_plant_publishes_cycle_0_only_once_every_node_passed_the_barrier(ros
 
 
 def test_without_a_graph_to_wait_for_a_node_is_ready_at_once(ros):
-    """``ros2 run`` of one node (start_clock_subscribers 0): no barrier."""
+    """``ros2 run`` of one node (start_clock_subscribers 0): no barrier, no token."""
     node = ros.add(
         JointSensorNode(context=ros.context, parameter_overrides=_graph_overrides("joint_sensor"))
     )
     assert node.start_ready
+    assert topics.resolve(topics.START_READY) not in {s.topic_name for s in node.subscriptions}

@@ -96,6 +96,7 @@ def bag_study(path: str | os.PathLike) -> BagStudy:
             for a in ("-r", f"{topics.resolve(t, namespace)}:={prefix}{t}")
         ]
         remaps += topics.graph_ros_args(namespace)  # its namespace and clock, as recorded
+        values.pop("start_clock_subscribers", None)  # the recorded graph's start barrier
         node = None
         try:
             node = MetricsNode(

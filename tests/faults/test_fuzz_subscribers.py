@@ -407,10 +407,7 @@ def test_no_message_crashes_a_node_or_makes_it_unsafe(case, ros):
         pub.publish = record
     if hasattr(node, "_try_start"):
         node._try_start()  # the plant publishes its first state
-    # every input but /clock (driven below) and the start barrier's token (lockstep/ready: a
-    # reader nobody publishes to, its callback takes nothing)
-    skip = (topics.CLOCK, topics.resolve(topics.START_READY))
-    subs = [s for s in node.subscriptions if s.topic_name not in skip]
+    subs = [s for s in node.subscriptions if s.topic_name != topics.CLOCK]
     clock = next(s for s in node.subscriptions if s.topic_name == topics.CLOCK)
     assert subs, case
     base = {"k": 0}
