@@ -198,8 +198,8 @@ def impact_node_parameters(
             "prior_damping": cfg.prior_damping,
             "max_penetration": cfg.dice.max_penetration,
             "limit_margin": cfg.limit_margin,
-            # the Panda's data-sheet values, given (an unset array parameter has no value the
-            # recorder's parameter fetch can read)
+            # the Panda's data-sheet values, given: the bag's parameters then show the limits
+            # the run used (unset, the node takes the same values and the bag records null)
             "acceleration_limit": [float(a) for a in PANDA_ACCELERATION_LIMIT],
             "solver": cfg.planner.solver,
             "replan_period": cfg.replan_period,
