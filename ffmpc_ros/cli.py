@@ -265,7 +265,7 @@ def _cmd_run_impact(args: argparse.Namespace) -> int:
     given = [flag for dest, flag in POLISHING_ONLY.items() if getattr(args, dest, None)]
     if given:
         raise ConfigError(f"{', '.join(given)}: polishing-graph options (not for ffmpc run impact)")
-    overrides = ["strategy=prior", *(args.set or [])]
+    overrides = list(args.set or [])  # the study's defaults (strategy touch_first)
     if args.duration is not None:
         overrides.append(f"duration={args.duration!r}")
     try:
