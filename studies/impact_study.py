@@ -859,8 +859,10 @@ def run_impact(
         learned = (float("nan"), float("nan"), (float("nan"), float("nan")))
     touch: dict[str, Any] = {}
     if touch_first is not None:
-        touch = touch_metrics(
-            log, touch_first.touch_time, touch_first.touch_velocity, touch_first.decision_time
+        touch = dict(
+            touch_metrics(
+                log, touch_first.touch_time, touch_first.touch_velocity, touch_first.decision_time
+            )
         )
         touch.update(
             refusal="" if touch_first.refusal is None else str(touch_first.refusal),
