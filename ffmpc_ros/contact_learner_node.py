@@ -21,6 +21,15 @@ k, with the unit motion direction d (parameter ``direction``, world frame):
   ``/contact_learner/estimate`` (layout ``contact_estimate``): α̂ (N/m), β̂ (N·s/m), their
   standard errors, σ̂ (N), the sample count, the condition number, the sample, d and p_s.
 
+Gated (parameter ``planner_gate``, the impact graph's touch-first strategy; lockstep): the
+samples fed are the ones the impact planner's touch-first controller selects. The node reads
+``impact_planner/reference`` (its learning gate: the controller's phase and surface point after
+each cycle) and feeds cycle k's sample by the one feeding rule
+(:func:`~ffmpc_core.impact.touch_first.fed_surface`) from the gate of cycle k−1 (cycle 0: the
+controller's state after its reset, the touch approach without a surface), so it waits for
+that gate before it processes cycle k; ``surface_force``, ``feed_force`` and
+``skip_onset_samples`` are not used then.
+
 Service ``/contact_learner/reset`` (std_srvs/Trigger): forget every sample and the surface.
 """
 
@@ -33,8 +42,9 @@ from std_srvs.srv import Trigger
 
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.impact.learner import ContactEstimate, RecursiveContactLearner
+from ffmpc_core.impact.touch_first import TOUCH, LearningGate, fed_surface
 from ffmpc_core.robots import load_robot
-from ffmpc_ros import topics
+from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import run_node
 from ffmpc_ros.impact_common import MeasuredCycleNode, direction_parameter, estimate_message
 
@@ -69,7 +79,17 @@ class ContactLearnerNode(MeasuredCycleNode):
             topics.CONTACT_ESTIMATE,
             topics.publisher_qos(topics.CONTACT_ESTIMATE),
         )
+        self.planner_gate = bool(p["planner_gate"])
+        self._gates: dict[int, LearningGate] = {}
+        self._waiting: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self.subscribe_measurements(True)
+        if self.planner_gate:
+            self.create_subscription(
+                Float64MultiArray,
+                topics.IMPACT_REFERENCE,
+                self.on_reference,
+                topics.subscriber_qos(True, topics.IMPACT_REFERENCE),
+            )
         self.create_service(Trigger, topics.CONTACT_LEARNER_RESET_SERVICE, self.on_reset)
         self.forget()
 
@@ -79,6 +99,8 @@ class ContactLearnerNode(MeasuredCycleNode):
         self.surface: np.ndarray | None = None
         self._last_free: np.ndarray | None = None
         self._contact_run = 0  # consecutive samples with f > feed_force
+        self._gates = {}
+        self._waiting = {}
         self.estimate: ContactEstimate | None = None
 
     def contact_kinematics(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, float]:
@@ -89,7 +111,53 @@ class ContactLearnerNode(MeasuredCycleNode):
         rate = float(self.direction @ pin.getFrameVelocity(model, data, fid, _LWA).linear)
         return position, rate
 
+    def on_reference(self, msg: Float64MultiArray) -> None:
+        """The planner's learning gate of a cycle (gated mode)."""
+        topic = self.name_of(topics.IMPACT_REFERENCE)
+        try:
+            fields = layouts.IMPACT_REFERENCE.unpack(msg)
+            k = self.cycle_of_time(fields["t"])
+            if k is None:
+                raise InputError(f"reference time {fields['t']} s off the grid")
+            gate = LearningGate(
+                layouts.impact_phase(fields["gate_phase"]),
+                np.asarray(fields["gate_surface"], dtype=float)
+                if fields["gate_surface_valid"] > 0
+                else None,
+                fields["gate_learn"] > 0,
+            )
+        except InputError as exc:
+            self.reject(f"{topic}:value", str(exc))
+            return
+        if not self.check_cycle(topic, k):
+            return
+        self.accept_cycle(topic, k)
+        self._gates[k] = gate
+        self._run_gated()
+
+    def _run_gated(self) -> None:
+        """Process the waiting cycles whose previous gate is in, in order."""
+        while self._waiting:
+            k = min(self._waiting)
+            if k > 0 and k - 1 not in self._gates:
+                return
+            q, v, wrench = self._waiting.pop(k)
+            gate = self._gates.pop(k - 1) if k > 0 else LearningGate(TOUCH, None)
+            for old in [c for c in self._gates if c < k - 1]:
+                del self._gates[old]
+            d = self.direction
+            p, zd = self.contact_kinematics(q, v)
+            f = float(-d @ wrench[:3])
+            surface = fed_surface(gate, p, f, self.contact_threshold)
+            if surface is not None:
+                self.surface = surface
+                self._feed(k, p, zd, f)
+
     def process_cycle(self, k: int, q: np.ndarray, v: np.ndarray, wrench: np.ndarray) -> None:
+        if self.planner_gate:
+            self._waiting[k] = (q, v, wrench)
+            self._run_gated()
+            return
         d = self.direction
         p, zd = self.contact_kinematics(q, v)
         f = float(-d @ wrench[:3])
@@ -103,6 +171,12 @@ class ContactLearnerNode(MeasuredCycleNode):
         self._contact_run = self._contact_run + 1 if f > self.feed_force else 0
         if self.surface is None or self._contact_run <= self.skip_onset_samples:
             return
+        self._feed(k, p, zd, f)
+
+    def _feed(self, k: int, p: np.ndarray, zd: float, f: float) -> None:
+        """Eq 19–20 with cycle k's sample against :attr:`surface`, then publish the estimate."""
+        d = self.direction
+        assert self.surface is not None
         z = float(d @ (p - self.surface))
         self.learner.update(z, zd, f)
         if self.learner.samples < 3:

@@ -22,7 +22,7 @@ from std_msgs.msg import Float64MultiArray
 
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.impact.deformation import unit_direction
-from ffmpc_core.impact.learner import ContactEstimate
+from ffmpc_core.impact.learner import ContactEstimate, RecursiveContactLearner, confident
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import StudyNode, drop_stale_cycles
 
@@ -59,6 +59,38 @@ def impact_study_config(params: dict):
             f"step is {config.time_step} s: give both the same value"
         )
     return config
+
+
+class ReceivedEstimates(RecursiveContactLearner):
+    """The contact learner node's estimates where a core controller expects its learner (the
+    impact controller node's :class:`ImpactTaskController`, the planner node's touch-first
+    controller): :meth:`update` counts the samples the learner node is fed (the controller
+    feeds by the same rule from the same measurement; the node does the eq 19–21 arithmetic),
+    :meth:`receive` takes the node's newest estimate, and :meth:`confident_estimate` applies
+    the one confidence rule (``ffmpc_core.impact.learner.confident``) to it."""
+
+    def reset(self) -> None:
+        super().reset()
+        self.current: ContactEstimate | None = None
+
+    def update(self, deformation: float, deformation_rate: float, force: float) -> None:
+        self.samples += 1
+
+    def receive(self, estimate: ContactEstimate) -> None:
+        """The learner node's newest estimate."""
+        self.current = estimate
+
+    def estimate(self) -> ContactEstimate:
+        if self.current is None:
+            raise InputError("no estimate from the contact learner node yet")
+        return self.current
+
+    def confident_estimate(
+        self, min_samples: int, max_relative_std: float
+    ) -> ContactEstimate | None:
+        if self.samples < min_samples or self.current is None:
+            return None
+        return self.current if confident(self.current, min_samples, max_relative_std) else None
 
 
 def estimate_message(

@@ -10,11 +10,16 @@ for two parts that run in other nodes and reach it as messages of the same cycle
 
 * the maximal approach (eq 9–14): the impact planner node's ``impact_planner/reference``
   (layout ``impact_reference``: position, velocity, feed-forward acceleration, orientation),
-  computed from the same measurement — the paper's scheme only (``strategy: prior``; the
-  touch-first controller learns inside itself);
+  computed from the same measurement; with the touch-first strategy it also carries what the
+  task controller takes from the touch-first approach before its step (whether the approach
+  is in its strike, the guard's impact force) and the samples its feeding rule fed;
 * the learner (eq 19–21) the hand-over reads: the contact learner node's
   ``contact_learner/estimate`` (regulation ``ff_mpc``); :class:`ReceivedEstimates` stands in
-  for the learner object and applies the one confidence rule to the node's estimate.
+  for the learner object and applies the one confidence rule to the node's estimate. With the
+  touch-first strategy the ROS-free controller feeds the learner in the approach's step,
+  after the hand-over has read it: here the estimate of cycle k (and the planner's sample
+  count) is taken after the step of cycle k, so the hand-over of cycle k reads cycle k−1's,
+  as there.
 
 Cycle k (t_k = k·time_step) is computed once its inputs are in: ``joint_sensor/joint_states``
 and ``ft_sensor/wrench`` (paired by :class:`~ffmpc_ros.impact_common.MeasuredCycleNode`), the
@@ -50,19 +55,21 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from ffmpc_core.errors import ConfigError, FfmpcError, InputError
-from ffmpc_core.impact.control import APPROACH, CONTACT, CartesianCommand
+from ffmpc_core.impact.control import APPROACH, CartesianCommand
 from ffmpc_core.impact.controllers import (
     ContactMeasurement,
+    ExternalApproach,
     ImpactTaskCommand,
     ImpactTaskController,
 )
-from ffmpc_core.impact.learner import ContactEstimate, RecursiveContactLearner, confident
+from ffmpc_core.impact.learner import ContactEstimate
 from ffmpc_core.impact.limits import joint_limits
 from ffmpc_core.robots import load_robot
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import run_node
 from ffmpc_ros.impact_common import (
     MeasuredCycleNode,
+    ReceivedEstimates,
     impact_study_config,
     receive_estimate,
 )
@@ -72,38 +79,20 @@ WATCHDOG_PERIOD = 0.05
 #: Largest |RᵀR − I| entry of a reference rotation.
 ROTATION_TOLERANCE = 1e-6
 #: The phase codes of the status (layout ``impact_control``).
-PHASE_CODES = {"": -1.0, APPROACH: 0.0, CONTACT: 1.0, "ff_mpc": 2.0}
+PHASE_CODES = layouts.IMPACT_PHASES
 
 
-class ReceivedEstimates(RecursiveContactLearner):
-    """The contact learner node's estimates where :class:`ImpactTaskController` expects its
-    learner: :meth:`update` counts the samples the learner node is fed (the controller feeds
-    by the same rule from the same measurement; the node does the eq 19–21 arithmetic),
-    :meth:`receive` takes the node's newest estimate, and :meth:`confident_estimate` applies
-    the one confidence rule (``ffmpc_core.impact.learner.confident``) to it."""
+def reference_approach(fields: dict, touch_first: bool) -> ExternalApproach:
+    """The ExternalApproach of an ``impact_reference`` message (InputError when its rotation is
+    not a rotation or its phase no phase)."""
+    from ffmpc_core.impact.touch_first import TouchCycleInputs
 
-    def reset(self) -> None:
-        super().reset()
-        self.current: ContactEstimate | None = None
-
-    def update(self, deformation: float, deformation_rate: float, force: float) -> None:
-        self.samples += 1
-
-    def receive(self, estimate: ContactEstimate) -> None:
-        """The learner node's newest estimate."""
-        self.current = estimate
-
-    def estimate(self) -> ContactEstimate:
-        if self.current is None:
-            raise InputError("no estimate from the contact learner node yet")
-        return self.current
-
-    def confident_estimate(
-        self, min_samples: int, max_relative_std: float
-    ) -> ContactEstimate | None:
-        if self.samples < min_samples or self.current is None:
-            return None
-        return self.current if confident(self.current, min_samples, max_relative_std) else None
+    touch = (
+        TouchCycleInputs(strike=fields["strike"] > 0, impact_force=fields["impact_force"])
+        if touch_first
+        else None
+    )
+    return ExternalApproach(reference_command(fields), layouts.impact_phase(fields["phase"]), touch)
 
 
 def reference_command(fields: dict) -> CartesianCommand:
@@ -114,7 +103,7 @@ def reference_command(fields: dict) -> CartesianCommand:
         raise InputError("rotation is not orthonormal")
     bound = fields["pre_impact_velocity"] if fields["bound_valid"] > 0 else math.nan
     return CartesianCommand(
-        phase=CONTACT if fields["phase"] > 0 else APPROACH,
+        phase=layouts.impact_phase(fields["phase"]),
         position=np.asarray(fields["position"], dtype=float),
         velocity=np.asarray(fields["velocity"], dtype=float),
         acceleration=np.asarray(fields["acceleration"], dtype=float),
@@ -143,12 +132,7 @@ class ImpactControllerNode(MeasuredCycleNode):
             raise ConfigError("the impact controller runs in lockstep only (lockstep: true)")
         self.config = impact_study_config(p)
         self.approach, self.regulation = str(p["approach"]), str(p["regulation"])
-        if self.approach == "maximal" and self.config.strategy != "prior":
-            raise ConfigError(
-                f"strategy {self.config.strategy!r}: the impact graph runs the paper's scheme "
-                "(set strategy=prior); the touch-first controller learns inside itself, so its "
-                "planner and learner are not separate nodes"
-            )
+        self.touch_first = self.approach == "maximal" and self.config.strategy == "touch_first"
         self.robot = load_robot(self.scenario.robot)
         self.joint_names = list(self.robot.joint_names)
         self._data = self.robot.create_data()
@@ -165,7 +149,8 @@ class ImpactControllerNode(MeasuredCycleNode):
         self.uses_learner = self.regulation == "ff_mpc"
         self.lockstep_timeout = float(p["lockstep_timeout"])
         self._pending: dict[int, tuple[ContactMeasurement, float]] = {}
-        self._references: dict[int, CartesianCommand | None] = {}
+        # cycle → (the approach's part, None: the planner's safe stop; its sample count)
+        self._references: dict[int, tuple[ExternalApproach | None, int]] = {}
         self._bad_references = 0
         self._estimates: dict[int, ContactEstimate] = {}
         self._last_run: int | None = None
@@ -208,7 +193,7 @@ class ImpactControllerNode(MeasuredCycleNode):
             k = self.cycle_of_time(fields["t"])
             if k is None:
                 raise InputError(f"reference time {fields['t']} s off the grid")
-            command = reference_command(fields)
+            command = reference_approach(fields, self.touch_first)
         except InputError as exc:
             # the planner sends one reference per cycle, in order: this one was the next's
             self.reject(f"{topic}:value", f"{exc}; that cycle holds its pose")
@@ -218,7 +203,10 @@ class ImpactControllerNode(MeasuredCycleNode):
         if not self.check_cycle(topic, k):
             return
         self.accept_cycle(topic, k)
-        self._references[k] = None if fields["safe_stop"] > 0 else command
+        self._references[k] = (
+            None if fields["safe_stop"] > 0 else command,
+            int(fields["learner_samples"]),
+        )
         self._run_ready()
 
     def on_estimate(self, msg: Float64MultiArray) -> None:
@@ -240,6 +228,11 @@ class ImpactControllerNode(MeasuredCycleNode):
     def _ready(self, k: int, m: ContactMeasurement) -> bool:
         if self.external and k not in self._references and self._bad_references == 0:
             return False
+        if self.touch_first:  # the planner's count says whether the learner fed cycle k
+            if not self.uses_learner or k not in self._references:
+                return True
+            fed = self._references[k][1]
+            return fed <= self.learner.samples or fed < 3 or k in self._estimates
         if self.uses_learner and self._learner_fed(m) and self.learner.samples + 1 >= 3:
             return k in self._estimates  # the learner node publishes once it has 3 samples
         return True
@@ -260,11 +253,12 @@ class ImpactControllerNode(MeasuredCycleNode):
 
     # -- the control cycle -------------------------------------------------------------------
     def _run_cycle(self, k: int, m: ContactMeasurement) -> None:
-        reference: CartesianCommand | None = None
+        reference: ExternalApproach | None = None
+        fed: int | None = None
         hold = False
         if self.external:
             if k in self._references:
-                reference = self._references.pop(k)
+                reference, fed = self._references.pop(k)
                 hold = reference is None  # the planner's own safe stop
             elif self._bad_references > 0:
                 self._bad_references -= 1
@@ -276,7 +270,7 @@ class ImpactControllerNode(MeasuredCycleNode):
         estimate = self._estimates.pop(k, None)
         for old in [c for c in self._estimates if c < k]:
             self._estimates.pop(old)
-        if estimate is not None:
+        if estimate is not None and not self.touch_first:
             self.learner.receive(estimate)
         t = self.t_of(k)
         command = None
@@ -285,6 +279,11 @@ class ImpactControllerNode(MeasuredCycleNode):
                 command = self.controller.step(m, t, reference)
             except FfmpcError as exc:
                 self.reject("step", f"cycle {k}: {exc}; the cycle holds its pose")
+        if self.touch_first:  # after the step: the hand-over of cycle k read cycle k−1's
+            if fed is not None:
+                self.learner.samples = fed
+            if estimate is not None:
+                self.learner.receive(estimate)
         if command is None:
             torque = self._hold_torque(m)
             self.safe_holds += 1

@@ -78,6 +78,14 @@ COMPARED = (
     "learner_samples",
     "handover_time",
 )
+#: ... and with the touch-first strategy (the maximal approach's exploratory touch).
+COMPARED_TOUCH = (
+    "touch_time",
+    "touch_velocity",
+    "touch_peak_force",
+    "touch_peak_penetration",
+    "decision_time",
+)
 
 
 def graph_nodes(approach: str) -> dict[str, str]:
@@ -109,8 +117,8 @@ def impact_node_parameters(
     ``namespace``, each node with the lockstep graph's QoS overrides
     (``topics.graph_qos_overrides``: reliable sensor topics; the start barrier, not a replay).
 
-    ConfigError when the settings cannot run as a graph: the touch-first strategy with the
-    maximal approach, or a planner setting the planner node has no parameter for."""
+    ConfigError when the settings cannot run as a graph: a planner setting the planner node
+    has no parameter for."""
     from ffmpc_core.impact.deformation import SoftMaterial
     from ffmpc_core.impact.limits import PANDA_ACCELERATION_LIMIT
     from ffmpc_ros.cli_args import parse_overrides
@@ -130,12 +138,7 @@ def impact_node_parameters(
         )
     items = [str(i) for i in overrides]
     cfg = load_impact_config(scenario, parse_overrides(items, schema=IMPACT_SCHEMA.params))
-    if approach == "maximal" and cfg.strategy != "prior":
-        raise ConfigError(
-            f"strategy {cfg.strategy!r}: the impact graph runs the paper's scheme (--set "
-            "strategy=prior, the default of ffmpc run impact); the touch-first controller "
-            "learns inside itself, so its planner and learner are not separate nodes"
-        )
+    touch_first = approach == "maximal" and cfg.strategy == "touch_first"
     nodes = graph_nodes(approach)
     common = {"robot": ROBOT, "plant.time_step": cfg.time_step}
     impact = {"impact_scenario": scenario, "impact_set": items or [""]}
@@ -174,6 +177,14 @@ def impact_node_parameters(
             "feed_force": 0.0,
             "skip_onset_samples": 0,
             "regularization": 1e-9,  # RecursiveContactLearner's default
+            # touch-first: the planner's feeding rule selects the samples (its gate)
+            "planner_gate": touch_first,
+            # no node waits for the learner before the touch: in lockstep it may fall behind
+            # the plant's clock; its inputs stay usable as long as the publishers keep them
+            # (measured: 54 ms behind at 0.6 s of a 46 cm approach, then every input of the
+            # touch rejected as stale with the 0.05 s default, and the planner waited for
+            # estimates that never came)
+            "max_input_age": topics.PUBLISHER_DEPTH * cfg.time_step,
         },
         "impact_controller": {
             **common,
@@ -197,8 +208,8 @@ def impact_node_parameters(
             "prior_damping": cfg.prior_damping,
             "max_penetration": cfg.dice.max_penetration,
             "limit_margin": cfg.limit_margin,
-            # the Panda's data-sheet values, given (an unset array parameter has no value the
-            # recorder's parameter fetch can read)
+            # the Panda's data-sheet values, given: the bag's parameters then show the limits
+            # the run used (unset, the node takes the same values and the bag records null)
             "acceleration_limit": [float(a) for a in PANDA_ACCELERATION_LIMIT],
             "solver": cfg.planner.solver,
             "replan_period": cfg.replan_period,
@@ -206,6 +217,15 @@ def impact_node_parameters(
             "admittance_max_velocity": adm.max_velocity,
             "admittance_velocity_filter": adm.velocity_filter,
             "use_learned_material": False,  # the paper's scheme plans with the prior
+            "strategy": "touch_first" if touch_first else "prior",
+            **{
+                f"touch.{f.name}": (
+                    [float(x) for x in getattr(cfg.touch, f.name)]
+                    if isinstance(getattr(cfg.touch, f.name), tuple)
+                    else getattr(cfg.touch, f.name)
+                )
+                for f in fields(cfg.touch)
+            },
         }
         prior = SoftMaterial(cfg.prior_stiffness, cfg.prior_damping, cfg.dice.max_penetration)
         planner_defaults = {"n_directions": 8, "max_approach_velocity": 0.0}
@@ -216,6 +236,14 @@ def impact_node_parameters(
                 "the impact planner node's parameters cannot express this planner "
                 f"configuration (ROS-free: {wanted}; node: {built})"
             )
+        if touch_first:
+            from ffmpc_ros.impact_planner_node import touch_config
+
+            if not _same(touch_config(planner), cfg.touch):
+                raise ConfigError(
+                    "the impact planner node's touch.* parameters cannot express this "
+                    f"touch-first configuration ({cfg.touch})"
+                )
         params["impact_planner"] = planner
     # the lockstep start barrier (ffmpc_ros.base.StudyNode.writers_matched): every node waits to
     # know every /clock reader, the plant for every node's token
@@ -275,13 +303,17 @@ class _Probe:
     """The bring-up's view of the run: the plant's true state and wrench, the controller's
     status and the learner's estimates, per cycle."""
 
-    def __init__(self, node: Node, steps: int, nv: int, time_step: float) -> None:
+    def __init__(
+        self, node: Node, steps: int, nv: int, time_step: float, touch_first: bool = False
+    ) -> None:
         self.steps, self.time_step = steps, time_step
+        self.touch_first = touch_first
         self.q = np.full((steps + 1, nv), np.nan)
         self.v = np.full((steps + 1, nv), np.nan)
         self.wrench = np.full((steps + 1, 6), np.nan)
         self.tau = np.full((steps, nv), np.nan)
         self.status: dict[int, dict] = {}
+        self.planner: dict | None = None  # the planner's newest status
         self.estimate: dict | None = None
         self.cycle = -1
 
@@ -305,6 +337,9 @@ class _Probe:
             topics.CONTACT_ESTIMATE,
             self._on_estimate,
             qos(topics.CONTACT_ESTIMATE),
+        )
+        node.create_subscription(
+            Float64MultiArray, topics.IMPACT_STATUS, self._on_planner, qos(topics.IMPACT_STATUS)
         )
         self.nv = nv
 
@@ -330,6 +365,11 @@ class _Probe:
             self.status[k] = status
             self.tau[k] = status["torque"]
 
+    def _on_planner(self, msg: Float64MultiArray) -> None:
+        status = layouts.IMPACT_STATUS.unpack(msg)
+        if self.planner is None or status["t"] >= self.planner["t"]:
+            self.planner = status
+
     def _on_estimate(self, msg: Float64MultiArray) -> None:
         estimate = layouts.CONTACT_ESTIMATE.unpack(msg)
         if int(round(estimate["t"] / self.time_step)) < self.steps:  # not the final state's
@@ -342,6 +382,10 @@ class _Probe:
         if len(self.status) < self.steps or np.isnan(self.q).any() or np.isnan(self.wrench).any():
             return False
         fed = int(self.status[self.steps - 1]["learner_samples"])
+        if self.touch_first and (
+            self.planner is None or int(round(self.planner["t"] / self.time_step)) < self.steps - 1
+        ):
+            return False
         return fed < 3 or (self.estimate is not None and self.estimate["samples"] == fed)
 
 
@@ -377,6 +421,23 @@ def _graph_metrics(cfg, probe: _Probe, robot) -> tuple[dict[str, Any], dict[str,
         handover_time=nan if last["handover_time"] < 0 else last["handover_time"],
         safe_hold_cycles=int(sum(s["safe_hold"] > 0 for s in probe.status.values())),
     )
+    if probe.touch_first:
+        from studies.impact_study import touch_metrics
+
+        pl = probe.planner
+        assert pl is not None  # (complete)
+
+        def when(value: float) -> float | None:
+            return None if value < 0 else value
+
+        metrics.update(
+            touch_metrics(
+                log,
+                when(pl["touch_time"]),
+                None if pl["touch_time"] < 0 else pl["touch_velocity"],
+                when(pl["decision_time"]),
+            )
+        )
     log["in_contact"] = np.array([probe.status[k]["in_contact"] for k in range(steps)])
     log["mpc_weight"] = np.array([probe.status[k]["mpc_weight"] for k in range(steps)])
     return metrics, log
@@ -475,7 +536,8 @@ def run_impact_graph(
         if not allow_foreign:
             _refuse_foreign(node, domain, namespace)
         summary_pub = node.create_publisher(String, topics.IMPACT_SUMMARY, topics.latched_qos())
-        probe = _Probe(node, steps, robot.nv, cfg.time_step)
+        touch_first = approach == "maximal" and cfg.strategy == "touch_first"
+        probe = _Probe(node, steps, robot.nv, cfg.time_step, touch_first)
         children, logs = _spawn(params, tmp.name, domain, {}, namespace, nodes)
         _bring_up(node, executor, list(nodes), children, logs, start + start_timeout, "dice_plant")
         if record is not None:
@@ -567,10 +629,12 @@ def run_impact_graph(
 
 
 def compare_with_runner(result: ImpactGraphResult, run) -> dict[str, tuple[Any, Any]]:
-    """{metric: (graph, ROS-free)} of every :data:`COMPARED` metric that differs (bit for bit;
+    """{metric: (graph, ROS-free)} of every :data:`COMPARED` metric (and
+    :data:`COMPARED_TOUCH` for a touch-first run) that differs (bit for bit;
     NaN equals NaN) between a graph run and ``studies.impact_study.run_impact``'s ImpactRun."""
     out = {}
-    for name in COMPARED:
+    names = COMPARED + (COMPARED_TOUCH if run.strategy == "touch_first" else ())
+    for name in names:
         a, b = result.metrics.get(name), getattr(run, name)
         if not _same(a, b):
             out[name] = (a, b)

@@ -36,6 +36,18 @@ the last output. So does a watchdog (every 50 ms of wall time) when no complete 
 controller keeps its state: the next complete cycle resumes its command (a consumer ramps as its
 own limits require).
 
+Touch-first (parameter ``strategy`` = touch_first, ``touch.*`` = its
+:class:`~ffmpc_core.impact.touch_first.TouchFirstConfig`): the node runs
+:class:`~ffmpc_core.impact.touch_first.TouchFirstImpactController` with the contact learner
+node's estimates as its learner (:class:`~ffmpc_ros.impact_common.ReceivedEstimates`). Each
+reference carries the controller's learning gate (its phase and surface point after the cycle):
+the learner node feeds cycle k's sample by the one feeding rule
+(:func:`~ffmpc_core.impact.touch_first.fed_surface`) from the gate of cycle k−1, and this node
+computes cycle k once the estimate of cycle k is in whenever that rule feeds it (3 samples and
+more; after ``lockstep_timeout`` wall s without it, the cycle goes on with the previous one and
+one log line). The reference also carries what the impact controller node takes from the
+touch-first approach before its step (``strike``, ``impact_force``) and the samples fed.
+
 Service ``/impact_planner/reset`` (std_srvs/Trigger): back to the approach phase; the next
 cycle's pose becomes the hold pose (the learned material, if any, is kept).
 """
@@ -43,6 +55,7 @@ cycle's pose becomes the hold pose (the learned material, if any, is kept).
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 from geometry_msgs.msg import TwistStamped
@@ -50,28 +63,38 @@ from rclpy.clock import Clock, ClockType
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
-from ffmpc_core.errors import FfmpcError
+from ffmpc_core.errors import ConfigError, FfmpcError
 from ffmpc_core.impact.control import (
-    CONTACT,
     AdmittanceForceController,
     CartesianCommand,
     ImpactController,
     ImpactControllerConfig,
     ImpactMeasurement,
 )
+from ffmpc_core.impact.controllers import contact_measurement
 from ffmpc_core.impact.deformation import SoftMaterial
 from ffmpc_core.impact.learner import confident
 from ffmpc_core.impact.limits import JointLimits, joint_limits
 from ffmpc_core.impact.planner import PlannerConfig
+from ffmpc_core.impact.touch_first import (
+    TouchCycleInputs,
+    TouchFirstConfig,
+    TouchFirstImpactController,
+    fed_surface,
+)
 from ffmpc_core.robots import load_robot
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import run_node
 from ffmpc_ros.impact_common import (
     DIRECTION_TOLERANCE,
     MeasuredCycleNode,
+    ReceivedEstimates,
     direction_parameter,
     receive_estimate,
 )
+
+#: The planner's strategies (``strategy``).
+STRATEGIES = ("prior", "touch_first")
 
 #: Wall-time period of the missing-input watchdog, s.
 WATCHDOG_PERIOD = 0.05
@@ -115,6 +138,21 @@ def controller_config(params: dict, prior: SoftMaterial) -> ImpactControllerConf
     )
 
 
+def touch_config(params: dict) -> TouchFirstConfig:
+    """The TouchFirstConfig of the node's ``touch.*`` parameters (ConfigError when invalid)."""
+    values = {}
+    for name in TouchFirstConfig.__dataclass_fields__:
+        value = params[f"touch.{name}"]
+        if isinstance(value, list | tuple):
+            value = tuple(float(x) for x in value)
+        elif name == "learner_min_samples":
+            value = int(value)
+        else:
+            value = float(value)
+        values[name] = value
+    return TouchFirstConfig(**values)
+
+
 class ImpactPlannerNode(MeasuredCycleNode):
     """ImpactController on topics (see the module docstring).
 
@@ -136,7 +174,28 @@ class ImpactPlannerNode(MeasuredCycleNode):
         )
         self.config = controller_config(p, self.prior)
         self.direction = self.config.direction
-        self.controller = ImpactController(self.robot, self.limits, self.config)
+        self.strategy = str(p["strategy"])
+        if self.strategy not in STRATEGIES:
+            raise ConfigError(f"strategy must be one of {STRATEGIES}, got {self.strategy!r}")
+        self.touch_first = self.strategy == "touch_first"
+        self.controller: ImpactController
+        if self.touch_first:
+            if bool(p["use_learned_material"]) or not bool(p["lockstep"]):
+                raise ConfigError(
+                    "strategy touch_first: use_learned_material false (the strike plans from "
+                    "the learned interval itself) and lockstep true"
+                )
+            self.learner = ReceivedEstimates()
+            self.controller = TouchFirstImpactController(
+                self.robot, self.limits, self.config, touch_config(p), learner=self.learner
+            )
+        else:
+            self.controller = ImpactController(self.robot, self.limits, self.config)
+        self._data = self.robot.create_data()
+        self.lockstep_timeout = float(p["lockstep_timeout"])
+        self._pending: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, float]] = {}
+        self._estimates: dict = {}
+        self._touch_inputs: TouchCycleInputs | None = None
         self.use_learned_material = bool(p["use_learned_material"])
         self.learner_min_samples = int(p["learner_min_samples"])
         self.learner_max_relative_std = float(p["learner_max_relative_std"])
@@ -155,7 +214,7 @@ class ImpactPlannerNode(MeasuredCycleNode):
             Float64MultiArray,
             topics.CONTACT_ESTIMATE,
             self.on_estimate,
-            topics.subscriber_qos(False, topics.CONTACT_ESTIMATE),
+            topics.subscriber_qos(self.touch_first, topics.CONTACT_ESTIMATE),
         )
         self.create_service(Trigger, topics.IMPACT_RESET_SERVICE, self.on_reset)
         self.create_timer(
@@ -164,9 +223,44 @@ class ImpactPlannerNode(MeasuredCycleNode):
 
     # -- the control cycle -------------------------------------------------------------------
     def process_cycle(self, k: int, q: np.ndarray, v: np.ndarray, wrench: np.ndarray) -> None:
+        if not self.touch_first:
+            self._step(k, q, v, wrench)
+            return
+        self._pending[k] = (q, v, wrench, time.monotonic())
+        self._run_ready()
+
+    def _needs_estimate(self, q: np.ndarray, v: np.ndarray, wrench: np.ndarray) -> bool:
+        """Touch-first: whether the next step feeds the learner (the one feeding rule) with an
+        estimate to come (the learner node publishes from its third sample on)."""
+        assert isinstance(self.controller, TouchFirstImpactController)
+        m = contact_measurement(self.robot, self._data, q, v, wrench, self.direction)
+        gate = self.controller.learning_gate()
+        fed = fed_surface(gate, m.position, m.force, self.config.contact_threshold)
+        return fed is not None and self.learner.samples + 1 >= 3
+
+    def _run_ready(self, timed_out: bool = False) -> None:
+        while self._pending:
+            k = min(self._pending)
+            q, v, wrench, since = self._pending[k]
+            if self._needs_estimate(q, v, wrench) and k not in self._estimates:
+                if not (timed_out and time.monotonic() - since > self.lockstep_timeout):
+                    return
+                self.reject("inputs:missing", f"cycle {k}: no estimate after the timeout")
+            del self._pending[k]
+            estimate = self._estimates.pop(k, None)
+            for old in [c for c in self._estimates if c < k]:
+                del self._estimates[old]
+            if estimate is not None:
+                self.learner.receive(estimate)
+            self._step(k, q, v, wrench)
+
+    def _step(self, k: int, q: np.ndarray, v: np.ndarray, wrench: np.ndarray) -> None:
         t = self.t_of(k)
         material = self.controller.material
         try:
+            if isinstance(self.controller, TouchFirstImpactController):
+                m = contact_measurement(self.robot, self._data, q, v, wrench, self.direction)
+                self._touch_inputs = self.controller.cycle_inputs(m.speed, self.time_step, m.force)
             command = self.controller.step(ImpactMeasurement(q=q, v=v, force=wrench[:3]), t)
         except FfmpcError as exc:
             self.reject("step", f"cycle {k}: {exc}")
@@ -197,9 +291,17 @@ class ImpactPlannerNode(MeasuredCycleNode):
         msg.header.frame_id = topics.COMMAND_FRAME
         msg.twist.linear.x, msg.twist.linear.y, msg.twist.linear.z = (float(x) for x in velocity)
         self.pub_command.publish(msg)
+        tf = c if isinstance(c, TouchFirstImpactController) else None
+
+        def time_or(value: float | None, default: float) -> float:
+            return default if value is None else float(value)
+
         status = {
             "t": self.t_of(k),
-            "phase": float(c.phase == CONTACT),
+            "phase": layouts.IMPACT_PHASES[c.phase],
+            "touch_time": time_or(None if tf is None else tf.touch_time, -1.0),
+            "touch_velocity": time_or(None if tf is None else tf.touch_velocity, 0.0),
+            "decision_time": time_or(None if tf is None else tf.decision_time, -1.0),
             "force": command.force,
             "target_force": command.target_force,
             "contact_time": -1.0 if c.contact_time is None else c.contact_time,
@@ -213,10 +315,20 @@ class ImpactPlannerNode(MeasuredCycleNode):
         self.pub_status.publish(layouts.IMPACT_STATUS.pack(status))
         stop = fields["safe_stop"] > 0
         bound = command.pre_impact_velocity
+        touch = self._touch_inputs
+        gate = None if tf is None else tf.learning_gate()
+        surface = None if gate is None else gate.surface
         reference = {
             "t": self.t_of(k),
             "safe_stop": fields["safe_stop"],
-            "phase": float(command.phase == CONTACT),
+            "phase": layouts.IMPACT_PHASES[c.phase],
+            "strike": 1.0 if touch is None else float(touch.strike),
+            "impact_force": 0.0 if touch is None else touch.impact_force,
+            "learner_samples": float(c.learner.samples),
+            "gate_phase": -1.0 if gate is None else layouts.IMPACT_PHASES[gate.phase],
+            "gate_learn": float(gate is not None and gate.learn),
+            "gate_surface_valid": float(surface is not None),
+            "gate_surface": np.zeros(3) if surface is None else surface,
             "bound_valid": float(math.isfinite(bound) and not stop),
             "pre_impact_velocity": bound if math.isfinite(bound) and not stop else 0.0,
             "position": command.position,
@@ -261,6 +373,8 @@ class ImpactPlannerNode(MeasuredCycleNode):
 
     def _watchdog(self) -> None:
         """Stop once when no complete cycle came for ``max_input_age`` (simulated time)."""
+        if self.touch_first:
+            self._run_ready(timed_out=True)
         if self._stopped or self._last_good is None:
             return
         now = self._clock_cycle()
@@ -282,6 +396,10 @@ class ImpactPlannerNode(MeasuredCycleNode):
             self.reject(f"{topic}:direction", f"estimate along {direction}, planning along d")
             return
         self.accept_cycle(topic, k)
+        if self.touch_first:
+            self._estimates[k] = estimate
+            self._run_ready()
+            return
         if not self.use_learned_material or not confident(
             estimate, self.learner_min_samples, self.learner_max_relative_std
         ):

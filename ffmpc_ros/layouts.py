@@ -205,12 +205,40 @@ CONTACT_ESTIMATE = ArrayLayout(
 )
 
 #: /impact_planner/status — the impact controller's state each cycle (Sec. IV-C, Fig. 2).
+#: The impact experiment's phase codes (``phase`` of impact_status, impact_reference and
+#: impact_control): the paper's scheme (approach, contact), the force-feedback MPC alone, the
+#: touch-first strategy's phases (ffmpc_core.impact.touch_first), none (baseline: −1).
+IMPACT_PHASES: dict[str, float] = {
+    "": -1.0,
+    "approach": 0.0,
+    "contact": 1.0,
+    "ff_mpc": 2.0,
+    "touch": 3.0,
+    "touch_contact": 4.0,
+    "retract": 5.0,
+    "strike": 6.0,
+    "refused": 7.0,
+}
+_PHASES = (
+    "-1 none, 0 approach, 1 contact, 2 ff_mpc, 3 touch, 4 touch_contact, 5 retract, "
+    "6 strike, 7 refused"
+)
+
+
+def impact_phase(code: float) -> str:
+    """The phase name of a code of :data:`IMPACT_PHASES` (InputError for another)."""
+    for name, value in IMPACT_PHASES.items():
+        if value == code:
+            return name
+    raise InputError(f"unknown impact phase code {code}")
+
+
 IMPACT_STATUS = ArrayLayout(
     "impact_status",
-    1,
+    2,
     (
         Field("t", 1, "s", "simulated time of the measurement the command is computed from"),
-        Field("phase", 1, "-", "0 approach, 1 contact (for good once force ≥ contact_threshold)"),
+        Field("phase", 1, "-", "the planner's phase after the cycle: " + _PHASES),
         Field("safe_stop", 1, "-", "1: zero-velocity stop after bad, stale or missing input"),
         Field(
             "pre_impact_velocity",
@@ -231,6 +259,9 @@ IMPACT_STATUS = ArrayLayout(
         Field("rejected", 1, "-", "inputs rejected by the node so far"),
         Field("direction", 3, "-", "unit motion direction d, world frame"),
         Field("position", 3, "m", "reference position of the contact frame, world frame"),
+        Field("touch_time", 1, "s", "touch-first: time the exploratory touch began (−1 before)"),
+        Field("touch_velocity", 1, "m/s", "touch-first: speed along d at the touch (0 before)"),
+        Field("decision_time", 1, "s", "touch-first: time the strike was decided (−1 before)"),
     ),
 )
 
@@ -239,11 +270,11 @@ IMPACT_STATUS = ArrayLayout(
 #: velocity part).
 IMPACT_REFERENCE = ArrayLayout(
     "impact_reference",
-    1,
+    2,
     (
         Field("t", 1, "s", "simulated time of the measurement the command is computed from"),
         Field("safe_stop", 1, "-", "1: zero-velocity stop after bad, stale or missing input"),
-        Field("phase", 1, "-", "0 approach, 1 contact"),
+        Field("phase", 1, "-", "the planner's phase after the cycle: " + _PHASES),
         Field("bound_valid", 1, "-", "1 when pre_impact_velocity is this cycle's eq 14 bound"),
         Field("pre_impact_velocity", 1, "m/s", "eq 14 bound of this cycle along d (0 if none)"),
         Field("position", 3, "m", "reference position of the contact frame, world frame"),
@@ -252,18 +283,27 @@ IMPACT_REFERENCE = ArrayLayout(
         Field("rotation", 9, "-", "held orientation of the contact frame, 3×3 row-major"),
         Field("force", 1, "N", "measured pressing force along d, −dᵀλ̂"),
         Field("target_force", 1, "N", "force regulated in contact"),
+        Field("strike", 1, "-", "1 unless touch-first before its strike (the touch is no contact)"),
+        Field(
+            "impact_force", 1, "N", "touch-first: the guard's impact force along d (0 otherwise)"
+        ),
+        Field("learner_samples", 1, "-", "touch-first: samples its feeding rule fed so far"),
+        Field("gate_phase", 1, "-", "touch-first: the learning gate's phase (code as phase)"),
+        Field("gate_learn", 1, "-", "touch-first: 1 when the planner learns online"),
+        Field("gate_surface_valid", 1, "-", "1 when gate_surface is set"),
+        Field("gate_surface", 3, "m", "the learning gate's surface point, world frame (or 0)"),
     ),
 )
 
 #: /impact_controller/status — the impact experiment's controller each cycle (Sec. VI).
 IMPACT_CONTROL = ArrayLayout(
     "impact_control",
-    1,
+    2,
     (
         Field("t", 1, "s", "simulated time of the measurement the torque is computed from"),
         Field("safe_hold", 1, "-", "1: the torque holds the pose after a rejected reference"),
         Field("in_contact", 1, "-", "1 once the contact is declared (force ≥ contact_threshold)"),
-        Field("phase", 1, "-", "-1 none (baseline), 0 approach, 1 contact, 2 force-feedback MPC"),
+        Field("phase", 1, "-", _PHASES),
         Field("pre_impact_velocity", 1, "m/s", "the maximal approach's eq 14 bound (0 if none)"),
         Field("contact_time", 1, "s", "time the contact was declared (−1 before)"),
         Field("touch_speed", 1, "m/s", "speed along d at the last force-free sample before it"),

@@ -235,6 +235,36 @@ IMPACT_PLANNER_GRAPH: tuple[GraphParameter, ...] = (
     ),
     LEARNER_MIN_SAMPLES,
     LEARNER_MAX_RELATIVE_STD,
+    GraphParameter(
+        "strategy",
+        "prior",
+        "prior (the paper's scheme: plan with the prior) or touch_first (touch gently, learn, "
+        "then strike; the contact learner node learns from this node's learning gate)",
+    ),
+    *(
+        GraphParameter(
+            f"touch.{name}",
+            list(default) if isinstance(default, tuple) else default,
+            f"touch-first: TouchFirstConfig.{name} ({unit})",
+            None if isinstance(default, tuple) else (lo, hi),
+        )
+        for name, default, unit, lo, hi in (
+            ("stiffness_factors", (0.4, 4.0), "factors of the prior α", 0, 0),
+            ("damping_factors", (0.4, 4.0), "factors of the prior β", 0, 0),
+            ("touch_force", 15.0, "N", 1e-6, 1e4),
+            ("touch_dwell", 0.15, "s", 1e-6, 60.0),
+            ("max_touch_time", 1.0, "s", 1e-6, 60.0),
+            ("learner_min_samples", 50, "samples", 3, 2**31 - 1),
+            ("learner_max_relative_std", 0.05, "-", 1e-9, 10.0),
+            ("sigmas", 3.0, "k of α̂ ± k σ", 0.0, 100.0),
+            ("stiffness_floor", 0.1, "relative", 0.0, 10.0),
+            ("damping_floor", 0.25, "relative", 0.0, 10.0),
+            ("retract_height", 0.06, "m", 1e-6, 1.0),
+            ("retract_acceleration_fraction", 0.5, "-", 1e-6, 1.0),
+            ("impact_force_factor", 1.5, "-", 1.0, 100.0),
+            ("penetration_margin", 0.004, "m", 0.0, 0.5),
+        )
+    ),
 )
 CONTACT_LEARNER_GRAPH: tuple[GraphParameter, ...] = (
     DIRECTION,
@@ -261,6 +291,12 @@ CONTACT_LEARNER_GRAPH: tuple[GraphParameter, ...] = (
         (0, 100000),
     ),
     GraphParameter("regularization", 1e-9, "λ of (S Sᵀ)_0 = λI (eq 19), m² and m²/s²", (0.0, 1.0)),
+    GraphParameter(
+        "planner_gate",
+        False,
+        "feed the samples the impact planner's touch-first phases select (its reference's "
+        "learning gate of the previous cycle; lockstep) instead of the surface rule above",
+    ),
 )
 
 # -- the impact graph (``ffmpc run impact``): the dice plant and the impact controller build
@@ -349,7 +385,11 @@ NODE_SPECS: dict[str, NodeSpec] = {
         (DURATION, LOCKSTEP),
     ),
     "impact_planner": NodeSpec(
-        "impact_planner", None, ("robot",), _TIME_STEP, (LOCKSTEP, MAX_AGE, *IMPACT_PLANNER_GRAPH)
+        "impact_planner",
+        None,
+        ("robot",),
+        _TIME_STEP,
+        (LOCKSTEP, LOCKSTEP_TIMEOUT, MAX_AGE, *IMPACT_PLANNER_GRAPH),
     ),
     "contact_learner": NodeSpec(
         "contact_learner", None, ("robot",), _TIME_STEP, (MAX_AGE, *CONTACT_LEARNER_GRAPH)

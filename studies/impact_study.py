@@ -672,6 +672,30 @@ def run_metrics(
     )
 
 
+def touch_metrics(
+    log: dict[str, np.ndarray],
+    touch_time: float | None,
+    touch_velocity: float | None,
+    decision_time: float | None,
+) -> dict[str, float]:
+    """The touch-first run's touch metrics (:class:`ImpactRun`) from the log (``t`` s,
+    ``force`` N, ``penetration`` m) and the touch-first controller's touch time (s), touch
+    velocity (m/s) and decision time (s) (None: never). The ROS-free run and the impact graph
+    both summarise with it."""
+    nan = float("nan")
+    t_log = log["t"]
+    t_touch = nan if touch_time is None else float(touch_time)
+    t_decide = nan if decision_time is None else float(decision_time)
+    window = (t_log >= t_touch) & (t_log <= t_decide) if np.isfinite(t_decide) else None
+    return dict(
+        touch_time=t_touch,
+        touch_velocity=nan if touch_velocity is None else float(touch_velocity),
+        touch_peak_force=nan if window is None else float(log["force"][window].max()),
+        touch_peak_penetration=(nan if window is None else float(log["penetration"][window].max())),
+        decision_time=t_decide,
+    )
+
+
 def task_config(approach: str, regulation: str, cfg: ImpactStudyConfig) -> ImpactTaskConfig:
     """The controller configuration of one run (:class:`ImpactTaskController`) from the
     study's configuration."""
@@ -825,7 +849,6 @@ def run_impact(
     approach_ctrl = controller.approach_controller
     solve_times = [] if handover is None else handover.solve_times
     learned_in_mpc = handover is not None and handover.learned
-    t_log = log["t"]
     metrics = run_metrics(
         cfg, log, qs, vs, taus, limits, controller.contact_time, controller.touch_speed
     )
@@ -836,20 +859,12 @@ def run_impact(
         learned = (float("nan"), float("nan"), (float("nan"), float("nan")))
     touch: dict[str, Any] = {}
     if touch_first is not None:
-        nan = float("nan")
-        t_touch = nan if touch_first.touch_time is None else touch_first.touch_time
-        t_decide = nan if touch_first.decision_time is None else touch_first.decision_time
-        window = (t_log >= t_touch) & (t_log <= t_decide) if np.isfinite(t_decide) else None
         touch = dict(
-            touch_time=t_touch,
-            touch_velocity=nan
-            if touch_first.touch_velocity is None
-            else touch_first.touch_velocity,
-            touch_peak_force=nan if window is None else float(log["force"][window].max()),
-            touch_peak_penetration=(
-                nan if window is None else float(log["penetration"][window].max())
-            ),
-            decision_time=t_decide,
+            touch_metrics(
+                log, touch_first.touch_time, touch_first.touch_velocity, touch_first.decision_time
+            )
+        )
+        touch.update(
             refusal="" if touch_first.refusal is None else str(touch_first.refusal),
             strike_knowledge=touch_first.knowledge.describe(),
         )

@@ -32,6 +32,9 @@ from ffmpc_ros.params import parameter_overrides
 from studies.impact_study import load_impact_config, run_impact, start_pose
 
 MAXIMAL = ["strategy=prior", "approach_height=0.05", "duration=0.35"]
+#: The study's default strategy: touch at 0.199 s, strike decided at 0.349 s, the strike's
+#: contact at 1.034 s, the hand-over at 1.129 s.
+TOUCH_FIRST = ["strategy=touch_first", "approach_height=0.05", "duration=1.2"]
 BASELINE = ["strategy=prior", "approach_height=0.02", "duration=0.7"]
 
 
@@ -58,6 +61,81 @@ def test_maximal_graph_equals_the_ros_free_run_through_impact_and_handover(maxim
     assert graph.metrics["peak_force"] == runner.peak_force  # (bit for bit, e.g.)
     assert graph.safe and graph.metrics["safe_hold_cycles"] == 0
     assert all(not counts for counts in graph.rejected.values()), graph.rejected
+
+
+@pytest.fixture(scope="module")
+def touch_first_ff_mpc(tmp_path_factory):
+    """maximal + ff_mpc with the touch-first strategy on the graph, recorded, and ROS-free."""
+    bag = tmp_path_factory.mktemp("impact_graph_touch") / "run"
+    graph = run_impact_graph("maximal", "ff_mpc", overrides=TOUCH_FIRST, record=bag, timeout=300)
+    return graph, _runner("maximal", "ff_mpc", TOUCH_FIRST), bag
+
+
+def test_touch_first_graph_equals_the_ros_free_run(touch_first_ff_mpc):
+    """The learner in its node (fed by the planner's learning gate), the touch-first phases in
+    the planner node: touch, decision, retract, strike, hand-over all on the same cycles and
+    every metric equal bit for bit."""
+    graph, runner, _ = touch_first_ff_mpc
+    assert runner.strategy == "touch_first"
+    assert runner.touch_time == pytest.approx(0.199)
+    assert runner.decision_time == pytest.approx(0.349)
+    assert runner.contact_time == pytest.approx(1.034)
+    assert runner.handover_time == pytest.approx(1.129)
+    assert runner.learner_samples > 300 and runner.violations.total == 0
+    assert compare_with_runner(graph, runner) == {}
+    assert graph.metrics["touch_peak_force"] == runner.touch_peak_force
+    assert graph.metrics["learned_damping"] == runner.learned_damping
+    assert graph.safe and graph.metrics["safe_hold_cycles"] == 0
+    assert all(not counts for counts in graph.rejected.values()), graph.rejected
+
+
+def test_touch_first_bag_holds_the_touch_the_strike_and_the_learner(touch_first_ff_mpc):
+    graph, runner, path = touch_first_ff_mpc
+    steps = 1200
+    with BagReader(path) as bag:
+        assert bag.recovery.complete
+        refs = [
+            layouts.IMPACT_REFERENCE.unpack(m) for m in _messages(bag, "/impact_planner/reference")
+        ]
+        phases = [layouts.impact_phase(r["phase"]) for r in refs if r["t"] < steps * 1e-3]
+        assert len(phases) == steps
+        # every phase of the strategy, in order
+        order = [p for i, p in enumerate(phases) if i == 0 or p != phases[i - 1]]
+        assert order == ["touch", "touch_contact", "retract", "strike", "contact"]
+        # the pre-impact bound of the touch (robust, prior range) and of the strike (learned)
+        touch = [r["pre_impact_velocity"] for r in refs[:199] if r["bound_valid"] > 0]
+        strike = [
+            r["pre_impact_velocity"]
+            for r in refs
+            if r["bound_valid"] > 0 and layouts.impact_phase(r["phase"]) == "strike"
+        ]
+        assert touch and strike and max(strike) > max(touch)
+        # the learner's estimates with their standard errors (the last one: the run's)
+        est = [
+            layouts.CONTACT_ESTIMATE.unpack(m) for m in _messages(bag, "/contact_learner/estimate")
+        ]
+        last = [e for e in est if e["t"] < steps * 1e-3][-1]
+        assert (last["stiffness"], last["damping"]) == (
+            runner.learned_stiffness,
+            runner.learned_damping,
+        )
+        assert (last["stiffness_std"], last["damping_std"]) == runner.learned_std
+        assert last["samples"] == runner.learner_samples
+        # torques, and the MPC's force after the hand-over
+        torques = _messages(bag, "/impact_controller/torque")
+        assert len(torques) == steps + 1
+        status = [
+            layouts.IMPACT_CONTROL.unpack(m, nv=7)
+            for m in _messages(bag, "/impact_controller/status")
+        ]
+        assert np.array_equal(status[500]["torque"], np.asarray(torques[500].effort))
+        after = [s for s in status if s["t"] >= runner.handover_time and s["t"] < steps * 1e-3]
+        assert after and all(s["mpc_force"] > 0 for s in after[4:])
+        params = bag.parameters
+        assert params["/impact_planner"]["strategy"] == "touch_first"
+        assert params["/contact_learner"]["planner_gate"] is True
+        summary = json.loads(_messages(bag, "/impact_graph/summary")[0].data)
+        assert summary["touch_time"] == runner.touch_time and summary["safe"] is True
 
 
 def test_baseline_graph_equals_the_ros_free_run():
@@ -135,9 +213,17 @@ def test_the_bag_holds_the_planner_learner_controller_and_mpc(maximal_ff_mpc, ca
 
 def test_the_graph_refuses_what_it_cannot_run():
     from ffmpc_core.errors import ConfigError
+    from ffmpc_ros.impact_planner_node import touch_config
 
-    with pytest.raises(ConfigError, match="touch-first"):
-        impact_node_parameters("maximal", "admittance", overrides=["strategy=touch_first"])
+    # the touch-first settings reach the planner node whole (a changed one too)
+    cfg, params = impact_node_parameters(
+        "maximal", "admittance", overrides=["touch.touch_force=12"]
+    )
+    assert touch_config(params["impact_planner"]) == cfg.touch and cfg.touch.touch_force == 12.0
+    assert params["contact_learner"]["planner_gate"] is True
+    _, params = impact_node_parameters("maximal", "admittance", overrides=["strategy=prior"])
+    assert params["impact_planner"]["strategy"] == "prior"
+    assert params["contact_learner"]["planner_gate"] is False
     with pytest.raises(ConfigError, match="cannot express"):
         impact_node_parameters(
             "maximal", "admittance", overrides=["strategy=prior", "planner.cost=lp"]
@@ -152,7 +238,7 @@ def _reference(k: int, position, rotation, velocity=(0.0, 0.0, -0.1)) -> Float64
         {
             "t": k * 1e-3,
             "safe_stop": 0.0,
-            "phase": 0.0,
+            "phase": layouts.IMPACT_PHASES["approach"],
             "bound_valid": 1.0,
             "pre_impact_velocity": 0.5,
             "position": position,
@@ -161,6 +247,13 @@ def _reference(k: int, position, rotation, velocity=(0.0, 0.0, -0.1)) -> Float64
             "rotation": rotation,
             "force": 0.0,
             "target_force": 60.0,
+            "strike": 1.0,
+            "impact_force": 0.0,
+            "learner_samples": 0.0,
+            "gate_phase": -1.0,
+            "gate_learn": 0.0,
+            "gate_surface_valid": 0.0,
+            "gate_surface": np.zeros(3),
         }
     )
 
@@ -226,8 +319,9 @@ def test_the_launch_file_starts_the_nodes_ffmpc_run_impact_derives():
     path = topics.__file__.replace("topics.py", "ros_layout/launch/impact.launch.yaml")
     description = load_launch_file(path, {"regulation": "ff_mpc", "duration": "0.5"})
     launched = {n.name: dict(n.parameters) for n in description.nodes}
-    items = ["strategy=prior", "duration=0.5", "approach_height=0.46"]
+    items = ["duration=0.5", "approach_height=0.46"]  # the study's default strategy: touch first
     _, params = impact_node_parameters("maximal", "ff_mpc", overrides=items)
+    assert params["impact_planner"]["strategy"] == "touch_first"
     assert set(launched) == set(params)
     assert launched["dice_plant"].pop("exit_when_done") is True
     assert launched["dice_plant"].pop("start_subscribers") == 1  # no bring-up probe
@@ -248,5 +342,5 @@ def test_ffmpc_run_refuses_the_other_graphs_options(capsys):
     assert "--single-process: polishing-graph options" in capsys.readouterr().err
     assert main(["run", "polishing", "--approach", "baseline"]) == 2
     assert "--approach: options of ffmpc run impact only" in capsys.readouterr().err
-    assert main(["run", "impact", "--set", "strategy=touch_first"]) == 2
-    assert "touch-first" in capsys.readouterr().err
+    assert main(["run", "impact", "--set", "strategy=none"]) == 2
+    assert "strategy" in capsys.readouterr().err

@@ -202,10 +202,18 @@ class ImpactController:
         robot: robot model (its ``contact`` frame is the end-effector).
         limits: eq 1 joint limits.
         config: see :class:`ImpactControllerConfig`.
+        learner: the eq 19–21 learner this controller feeds and reads (default: its own
+            :class:`RecursiveContactLearner`; the impact graph's planner node gives one that
+            holds the contact learner node's estimates).
     """
 
     def __init__(
-        self, robot: RobotModel, limits: JointLimits, config: ImpactControllerConfig
+        self,
+        robot: RobotModel,
+        limits: JointLimits,
+        config: ImpactControllerConfig,
+        *,
+        learner: RecursiveContactLearner | None = None,
     ) -> None:
         self.robot = robot
         self.limits = limits
@@ -214,7 +222,7 @@ class ImpactController:
             robot, limits, config.direction, config.n_directions, solver=config.planner.solver
         )
         self.planner = ImpactPlanner(config.planner)
-        self.learner = RecursiveContactLearner()
+        self.learner = learner if learner is not None else RecursiveContactLearner()
         self._data = robot.create_data()
         self.reset()
 

@@ -46,7 +46,11 @@ from ffmpc_core.impact.task_space import (
     JointLimitGuardConfig,
     TaskSpaceInverseDynamics,
 )
-from ffmpc_core.impact.touch_first import STRIKE, TouchFirstConfig, TouchFirstImpactController
+from ffmpc_core.impact.touch_first import (
+    TouchCycleInputs,
+    TouchFirstConfig,
+    TouchFirstImpactController,
+)
 from ffmpc_core.mpc import ModelPredictiveController, MpcConfig, MpcMeasurement
 from ffmpc_core.robots import RobotModel
 from ffmpc_core.tasks import PhaseWeights, PressTask
@@ -59,6 +63,7 @@ __all__ = [
     "BaselineApproach",
     "BaselineApproachConfig",
     "ContactMeasurement",
+    "ExternalApproach",
     "ForceFeedbackHandover",
     "HandoverCommand",
     "HandoverConfig",
@@ -569,6 +574,24 @@ class ImpactTaskCommand:
     mpc_force: float = float("nan")
 
 
+@dataclass(frozen=True)
+class ExternalApproach:
+    """The maximal approach's part of one cycle when it runs elsewhere (the impact graph's
+    planner node), computed from the same measurement.
+
+    Attributes:
+        command: the approach's Cartesian command of the cycle.
+        phase: the approach controller's phase after its step.
+        touch: with the touch-first strategy, its inputs from before its step
+            (:meth:`~ffmpc_core.impact.touch_first.TouchFirstImpactController.cycle_inputs`);
+            None with the paper's scheme.
+    """
+
+    command: CartesianCommand
+    phase: str
+    touch: TouchCycleInputs | None = None
+
+
 class ImpactTaskController:
     """Measurement → joint torque for one run of the impact experiment (Sec. VI).
 
@@ -585,11 +608,13 @@ class ImpactTaskController:
         limits: the control limits the planner and the guard use.
         config: see :class:`ImpactTaskConfig`.
         learner: the learner the hand-over reads and this controller feeds (default: its own
-            :class:`RecursiveContactLearner`; the impact graph's controller node gives one
-            that holds the contact learner node's estimates).
+            :class:`RecursiveContactLearner`, or the touch-first controller's; the impact
+            graph's controller node gives one that holds the contact learner node's
+            estimates). With the touch-first strategy this controller never feeds it (the
+            touch-first controller's feeding rule does, where it runs).
         external_approach: the maximal approach runs elsewhere (the impact planner node):
-            :meth:`step` then takes its command of the cycle; only with the paper's scheme
-            (no touch-first) and a given ``learner``.
+            :meth:`step` then takes its part of the cycle (:class:`ExternalApproach`); only
+            with a given ``learner``.
 
     Raises:
         InfeasibleTargetError: touch-first, before any motion, when no plausible material can
@@ -619,15 +644,18 @@ class ImpactTaskController:
         self.touch_first: TouchFirstImpactController | None = None
         self.baseline: BaselineApproach | None = None
         self.external_approach = external_approach and config.approach == "maximal"
-        if self.external_approach and (config.touch is not None or learner is None):
+        if self.external_approach and learner is None:
             raise ConfigError(
-                "an external maximal approach (the impact planner node) needs the paper's "
-                "scheme (strategy prior: the touch-first controller learns inside itself) and "
-                "the learner the hand-over reads"
+                "an external maximal approach (the impact planner node) needs the learner the "
+                "hand-over reads"
             )
+        #: the touch-first strategy of the maximal approach (here or external)
+        self.touch_strategy = config.approach == "maximal" and config.touch is not None
         if config.approach == "maximal" and not self.external_approach:
             if config.touch is not None:
-                self.touch_first = TouchFirstImpactController(robot, limits, ctrl, config.touch)
+                self.touch_first = TouchFirstImpactController(
+                    robot, limits, ctrl, config.touch, learner=learner
+                )
                 self.approach_controller = self.touch_first
             else:
                 self.approach_controller = ImpactController(robot, limits, ctrl)
@@ -642,10 +670,8 @@ class ImpactTaskController:
                 admittance=ctrl.admittance,
             )
         )
-        # The touch-first controller learns itself (during the touch and after the strike):
-        # the MPC then takes its estimate. Otherwise this controller feeds its own learner.
-        if learner is not None and self.touch_first is not None:
-            raise ConfigError("the touch-first strategy learns itself: no learner can be given")
+        # The touch-first controller's rule feeds the learner (during the touch and after the
+        # strike): the MPC then takes its estimate. Otherwise this controller feeds it.
         self.learner = (
             self.touch_first.learner
             if self.touch_first is not None
@@ -662,7 +688,7 @@ class ImpactTaskController:
         for part in (self.approach_controller, self.baseline, self.admittance, self.handover):
             if part is not None:
                 part.reset()
-        if self.touch_first is None:
+        if self.touch_first is None:  # (the touch-first controller resets its learner)
             self.learner.reset()
         self.contact_time: float | None = None
         self.touch_position: np.ndarray | None = None
@@ -675,12 +701,14 @@ class ImpactTaskController:
         """The planning material before any learning (N/m, N·s/m, m)."""
         return self.config.controller.material
 
-    def _impact_force(self, m: ContactMeasurement, in_contact: bool) -> np.ndarray | None:
+    def _impact_force(
+        self, m: ContactMeasurement, in_contact: bool, touch: TouchCycleInputs | None
+    ) -> np.ndarray | None:
         """Force (N, world, on the robot) an impact during the next step would add."""
         d, dt = self.config.controller.direction, self.config.time_step
-        if self.touch_first is not None:
-            # The current knowledge's nominal material: f ≈ (β + α Δt) ż.
-            return -self.touch_first.impact_force_estimate(m.speed, dt, m.force) * d
+        if touch is not None:
+            # The touch-first knowledge's material: f ≈ (β + α Δt) ż.
+            return -touch.impact_force * d
         if not in_contact:
             prior = self.prior
             return -one_step_impact_force(prior.stiffness, prior.damping, m.speed, dt) * d
@@ -690,36 +718,44 @@ class ImpactTaskController:
         self,
         measurement: ContactMeasurement,
         t: float,
-        approach: CartesianCommand | None = None,
+        approach: ExternalApproach | CartesianCommand | None = None,
     ) -> ImpactTaskCommand:
         """One cycle at ``t`` (s). ``approach``: with ``external_approach``, the maximal
-        approach's command of this cycle (the impact planner's, computed from the same
-        measurement); required then, refused otherwise."""
+        approach's part of this cycle (the impact planner's, computed from the same
+        measurement; a bare command for the paper's scheme); required then, refused
+        otherwise."""
         m = measurement
         if (approach is not None) != self.external_approach:
             raise InputError(
                 "an approach command is required with an external maximal approach, and only then"
             )
+        if isinstance(approach, CartesianCommand):
+            approach = ExternalApproach(approach, approach.phase)
         ctrl = self.config.controller
+        touch: TouchCycleInputs | None = None
+        if self.touch_first is not None:
+            touch = self.touch_first.cycle_inputs(m.speed, self.config.time_step, m.force)
+        elif approach is not None and self.touch_strategy:
+            if approach.touch is None:
+                raise InputError("the touch-first approach's cycle inputs are missing")
+            touch = approach.touch
         if self._hold_rotation is None:
             self._hold_rotation = m.rotation.copy()
         if self.contact_time is None:
             if m.force <= 0.0:
                 self.touch_position, self.touch_speed = m.position.copy(), m.speed
-            elif m.force >= ctrl.contact_threshold and (
-                self.touch_first is None or self.touch_first.phase == STRIKE
-            ):
+            elif m.force >= ctrl.contact_threshold and (touch is None or touch.strike):
                 # (the touch-first controller's exploratory touch is not the contact)
                 self.contact_time = t
                 if self.touch_position is None:  # in contact from the start (not expected)
                     self.touch_position, self.touch_speed = m.position.copy(), m.speed
                 self.admittance.start(m.position, self._hold_rotation, m.speed)
         in_contact = self.contact_time is not None
-        if in_contact and m.force > 0.0 and self.touch_first is None:
+        if in_contact and m.force > 0.0 and not self.touch_strategy:
             assert self.touch_position is not None  # latched with the contact
             z = float(ctrl.direction @ (m.position - self.touch_position))
             self.learner.update(z, m.speed, m.force)
-        impact_force = self._impact_force(m, in_contact)
+        impact_force = self._impact_force(m, in_contact, touch)
 
         nan = float("nan")
         handover = self.handover
@@ -732,8 +768,8 @@ class ImpactTaskController:
         phase, bound = "", nan
         if weight < 1.0:
             if approach is not None:
-                cmd = approach
-                bound, phase = cmd.pre_impact_velocity, cmd.phase
+                cmd = approach.command
+                bound, phase = cmd.pre_impact_velocity, approach.phase
             elif self.approach_controller is not None:
                 F = m.wrench[:3].copy()
                 cmd = self.approach_controller.step(ImpactMeasurement(m.q, m.v, F), t)
@@ -751,7 +787,9 @@ class ImpactTaskController:
         else:
             assert mpc is not None
             tau, phase = mpc.torque, "ff_mpc"
-            if self.touch_first is not None:  # the controller is not stepped: keep learning
+            # the approach controller is not stepped here: keep learning (an external one, the
+            # planner node's, is stepped on and learns with the same rule)
+            if self.touch_first is not None:
                 self.touch_first.learn(m.position, m.speed, m.force)
         return ImpactTaskCommand(
             torque=tau,

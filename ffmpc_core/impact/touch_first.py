@@ -57,7 +57,7 @@ from ffmpc_core.impact.control import (
     ImpactMeasurement,
 )
 from ffmpc_core.impact.deformation import one_step_impact_force
-from ffmpc_core.impact.learner import ContactEstimate
+from ffmpc_core.impact.learner import ContactEstimate, RecursiveContactLearner
 from ffmpc_core.impact.limits import JointLimits
 from ffmpc_core.impact.robust import (
     MaterialInterval,
@@ -74,8 +74,11 @@ __all__ = [
     "STRIKE",
     "TOUCH",
     "TOUCH_CONTACT",
+    "LearningGate",
+    "TouchCycleInputs",
     "TouchFirstConfig",
     "TouchFirstImpactController",
+    "fed_surface",
 ]
 
 TOUCH = "touch"
@@ -86,6 +89,59 @@ CONTACT = "contact"
 REFUSED = "refused"
 #: Phases in which the tool is moving towards the object and may hit it at the next step.
 APPROACH_PHASES = (TOUCH, STRIKE)
+#: Phases in which the learner is fed (eq 19–20), z from the surface latched at their start.
+LEARNING_PHASES = (TOUCH_CONTACT, CONTACT)
+
+
+@dataclass(frozen=True)
+class LearningGate:
+    """What decides whether the next cycle's sample is fed to the learner (eq 19–20), after a
+    :meth:`TouchFirstImpactController.step`: the controller's ``phase`` and the surface point
+    (m, world frame): in an approach phase the last force-free sample (None before the
+    first sample of the approach), in a learning phase the surface of the current contact
+    (None in the other phases). ``learn``: the controller learns online at all."""
+
+    phase: str
+    surface: np.ndarray | None
+    learn: bool = True
+
+
+def fed_surface(
+    gate: LearningGate, position: np.ndarray, force: float, contact_threshold: float
+) -> np.ndarray | None:
+    """The surface point (m, world) the sample of a cycle is fed to the learner against (z =
+    dᵀ(p − surface)), or None when that cycle feeds nothing — THE feeding rule of the
+    touch-first scheme, used by :meth:`TouchFirstImpactController.step` and by the impact
+    graph's contact learner node (from the planner's gate of the previous cycle).
+
+    ``position``: the cycle's contact-frame position p (m, world); ``force``: its pressing
+    force (N). An approach phase feeds the cycle the contact begins (force ≥
+    ``contact_threshold``), against the last force-free sample (p itself without one); a
+    learning phase feeds every cycle with force > 0; the others feed nothing."""
+    if not gate.learn:
+        return None
+    if gate.phase in APPROACH_PHASES:
+        if force < contact_threshold:
+            return None
+        return np.asarray(position, dtype=float).copy() if gate.surface is None else gate.surface
+    if gate.phase in LEARNING_PHASES and force > 0.0:
+        return gate.surface
+    return None
+
+
+@dataclass(frozen=True)
+class TouchCycleInputs:
+    """What the task controller (:class:`~ffmpc_core.impact.controllers.ImpactTaskController`)
+    takes from the touch-first approach before the approach's step of a cycle.
+
+    Attributes:
+        strike: the approach is in its strike (a contact declared now is the task's contact;
+            the exploratory touch's is not).
+        impact_force: the joint-limit guard's impact force along d (N,
+            :meth:`TouchFirstImpactController.impact_force_estimate`)."""
+
+    strike: bool
+    impact_force: float
 
 
 @dataclass(frozen=True)
@@ -166,6 +222,11 @@ class TouchFirstImpactController(ImpactController):
         config: the controller's configuration; ``config.material`` is the PRIOR (its z̄ is the
             bound of the object), ``config.target_force`` the force after the strike.
         touch: see :class:`TouchFirstConfig`.
+        learner: the eq 19–21 learner (default: its own
+            :class:`~ffmpc_core.impact.learner.RecursiveContactLearner`). In the impact graph
+            the planner node gives one that holds the contact learner node's estimates (the
+            node feeds the samples :func:`fed_surface` selects from :meth:`learning_gate`); the
+            controller calls ``update`` for each sample it selects and reads the estimate.
 
     Raises:
         InfeasibleTargetError: before any motion, see the module docstring.
@@ -184,6 +245,8 @@ class TouchFirstImpactController(ImpactController):
         limits: JointLimits,
         config: ImpactControllerConfig,
         touch: TouchFirstConfig | None = None,
+        *,
+        learner: RecursiveContactLearner | None = None,
     ) -> None:
         self.touch = touch if touch is not None else TouchFirstConfig()
         self.prior_knowledge = MaterialInterval.from_prior(
@@ -203,7 +266,7 @@ class TouchFirstImpactController(ImpactController):
             worst_case=False,
         )
         self.robust = RobustImpactPlanner(config.planner, self.touch.penetration_margin)
-        super().__init__(robot, limits, config)
+        super().__init__(robot, limits, config, learner=learner)
 
     def reset(self) -> None:
         """Back to the touch approach with the prior's plausible range as the knowledge."""
@@ -221,6 +284,26 @@ class TouchFirstImpactController(ImpactController):
         self._retract: tuple[float, float, float, float] | None = None  # t0, x0, x1, T
 
     # ------------------------------------------------------------------ helpers
+    def learning_gate(self) -> LearningGate:
+        """The gate of the next cycle's feeding rule (:func:`fed_surface`)."""
+        if self.phase in APPROACH_PHASES:
+            surface = self._free_position
+        elif self.phase in LEARNING_PHASES:
+            surface = self._contact_position
+        else:
+            surface = None
+        return LearningGate(
+            self.phase, None if surface is None else surface.copy(), self.config.learn_online
+        )
+
+    def cycle_inputs(self, speed: float, dt: float, force: float) -> TouchCycleInputs:
+        """The task controller's inputs of this cycle, before :meth:`step`: speed along d
+        (m/s), control period (s) and pressing force (N) of the cycle's measurement."""
+        return TouchCycleInputs(
+            strike=self.phase == STRIKE,
+            impact_force=self.impact_force_estimate(speed, dt, force),
+        )
+
     def learner_confident(self) -> ContactEstimate | None:
         """The learner's estimate if it meets the confidence of :class:`TouchFirstConfig`."""
         tc = self.touch
@@ -261,11 +344,12 @@ class TouchFirstImpactController(ImpactController):
         MPC after the hand-over): contact-frame position (m, world), speed along d (m/s) and
         pressing force (N); z from the last force-free sample before this contact. Ignored
         outside the strike's contact phase or without force."""
-        if self.phase != CONTACT or force <= 0.0 or not self.config.learn_online:
+        if self.phase != CONTACT:
             return
-        d = self.config.direction
-        z = float(d @ (np.asarray(position, dtype=float) - self._contact_position))
-        self.learner.update(z, float(speed), float(force))
+        p = np.asarray(position, dtype=float)
+        surface = fed_surface(self.learning_gate(), p, force, self.config.contact_threshold)
+        if surface is not None:
+            self.learner.update(float(self.config.direction @ (p - surface)), speed, force)
 
     # ------------------------------------------------------------------ the cycle
     def step(self, measurement: ImpactMeasurement, t: float) -> CartesianCommand:
@@ -273,6 +357,7 @@ class TouchFirstImpactController(ImpactController):
         q, v, dt, p, R, pdot, along, speed, force = self._cycle_state(measurement, t)
         cfg = self.config
         d = cfg.direction
+        surface = fed_surface(self.learning_gate(), p, force, cfg.contact_threshold)
 
         if self.phase in APPROACH_PHASES:
             if force <= 0.0 or self._free_position is None:
@@ -289,12 +374,14 @@ class TouchFirstImpactController(ImpactController):
                 self._x_ref = along
                 self._v_ref = speed
         if self.phase == TOUCH_CONTACT:
-            cmd = self._regulate(p, along, speed, force, dt, self.touch.touch_force, TOUCH_CONTACT)
+            cmd = self._regulate(
+                p, speed, force, dt, self.touch.touch_force, TOUCH_CONTACT, surface
+            )
             if self._touch_done(t):
                 self._decide(q, v, along, t)
             return cmd
         if self.phase == CONTACT:
-            return self._regulate(p, along, speed, force, dt, cfg.target_force, CONTACT)
+            return self._regulate(p, speed, force, dt, cfg.target_force, CONTACT, surface)
         if self.phase in (RETRACT, REFUSED):
             return self._retract_step(force, t)
         return self._robust_approach_step(q, v, along, force, dt, t)
@@ -326,20 +413,17 @@ class TouchFirstImpactController(ImpactController):
     def _regulate(
         self,
         p: np.ndarray,
-        along: float,
         speed: float,
         force: float,
         dt: float,
         target: float,
         phase: str,
+        surface: np.ndarray | None,
     ) -> CartesianCommand:
-        """Admittance towards ``target`` (N) and eq 19–20 learning, z from the last force-free
-        sample before this contact."""
-        cfg = self.config
-        d = cfg.direction
-        if cfg.learn_online and force > 0.0:
-            assert self._contact_position is not None  # latched when the contact began
-            self.learner.update(float(d @ (p - self._contact_position)), speed, force)
+        """Admittance towards ``target`` (N) and eq 19–20 learning of this cycle's sample
+        against ``surface`` (m, world; :func:`fed_surface`, None: not fed)."""
+        if surface is not None:
+            self.learner.update(float(self.config.direction @ (p - surface)), speed, force)
         return self._admittance_command(force, target, dt, phase)
 
     def _touch_done(self, t: float) -> bool:

@@ -59,7 +59,13 @@ def _fqn(name: str, namespace: str) -> str:
 class _ParameterFetch:
     """list_parameters then get_parameters of one node, polled from a timer (the recorder's) or
     a loop (the bring-up's); an unanswered request is sent again after
-    :data:`~ffmpc_ros.graph_nodes.SERVICE_RETRY`."""
+    :data:`~ffmpc_ros.graph_nodes.SERVICE_RETRY`.
+
+    A parameter declared with a type but no value (e.g. the impact planner's
+    ``acceleration_limit`` under a plain ``ros2 run``) makes rclpy's get_parameters answer
+    with NO value at all for the whole request (``ParameterUninitializedException`` empties the
+    response). The fetch then asks for each name alone: a name answered with no value is
+    recorded as unset (None, JSON null in the bag), the others with their values."""
 
     def __init__(self, node: Node, fqn: str) -> None:
         self.fqn = fqn
@@ -69,6 +75,9 @@ class _ParameterFetch:
         self._asked = 0.0  # monotonic s of the pending request
         self.names: list[str] | None = None
         self.values: dict[str, Any] | None = None
+        self._asking: list[str] = []  # the names of the pending get_parameters request
+        self._one_by_one: list[str] | None = None  # names still to ask alone (fallback)
+        self._got: dict[str, Any] = {}
 
     def poll(self) -> bool:
         """Advance one step if possible; True once the values are in."""
@@ -88,15 +97,35 @@ class _ParameterFetch:
             self.names = sorted(self.future.result().result.names)
             self.future = None
         if self.future is None:
+            names = self.names if self._one_by_one is None else self._one_by_one[:1]
+            if not names:
+                return self._finish()
             if self.get_client.service_is_ready():
-                self.future = self.get_client.call_async(GetParameters.Request(names=self.names))
+                self._asking = list(names)
+                self.future = self.get_client.call_async(GetParameters.Request(names=names))
                 self._asked = time.monotonic()
             return False
-        values = [parameter_value_to_python(v) for v in self.future.result().values]
-        self.values = {
-            n: list(v) if not isinstance(v, str | bytes) and hasattr(v, "__len__") else v
-            for n, v in zip(self.names, values, strict=True)
-        }
+        answer = list(self.future.result().values)
+        self.future = None
+        if len(answer) != len(self._asking):
+            if len(self._asking) > 1:  # an unset parameter emptied the answer: ask one by one
+                self._one_by_one = list(self._asking)
+                return self.poll()
+            self._got[self._asking[0]] = None  # declared, no value
+        else:
+            for name, value in zip(self._asking, answer, strict=True):
+                v = parameter_value_to_python(value)
+                self._got[name] = (
+                    list(v) if not isinstance(v, str | bytes) and hasattr(v, "__len__") else v
+                )
+        if self._one_by_one is not None:
+            self._one_by_one = self._one_by_one[len(self._asking) :]
+            return self.poll()
+        return self._finish()
+
+    def _finish(self) -> bool:
+        assert self.names is not None
+        self.values = {n: self._got.get(n) for n in self.names}
         return True
 
 
