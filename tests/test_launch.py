@@ -23,6 +23,7 @@ from ffmpc_ros.launch import (
     node_command,
     parse_launch_arguments,
     substitute,
+    unreached_sections,
 )
 from sim_bridge.runner import run_scenario
 
@@ -51,7 +52,7 @@ def test_the_polishing_launch_file_parses_with_its_arguments():
     assert ("formulation", "classical") in mpc.parameters
     plant = description.nodes[0]
     assert ("duration", 0.5) in plant.parameters  # a whole substitution is read as YAML
-    assert [n.label for n in description.nodes if n.shutdown_on_exit] == ["metrics"]
+    assert all(n.shutdown_on_exit for n in description.nodes)  # a lockstep graph dies whole
     assert description.arguments["formulation"] == "classical"
     assert find_launch_file("polishing.launch.yaml").endswith("launch/polishing.launch.yaml")
 
@@ -98,12 +99,14 @@ def test_a_value_entry_overrides_the_scenario_files_node_section(tmp_path):
 
 
 def test_under_a_namespace_the_node_still_reads_the_scenario_files_section(tmp_path):
-    """``namespace:=/arm1``: the node runs as /arm1/mpc, whose parameters a section keyed
-    ``mpc:`` (= /mpc) would not reach: the launcher hands it that section keyed /arm1/mpc."""
+    """``namespace:=/arm1``: the node runs as /arm1/mpc; the scenario file, passed unchanged as
+    ``ros2 launch`` passes it, reaches it through its section keyed ``/**/mpc``."""
     description = load_launch_file(SOURCE, {"formulation": "classical", "namespace": "/arm1"})
     mpc = description.nodes[3]
     command = node_command(mpc, tmp_path)
     assert "__ns:=/arm1" in command and "/clock:=clock" in command
+    assert command[command.index("--params-file") + 1] == mpc.parameters[0][1]  # unchanged
+    assert unreached_sections(mpc) == []
     context = Context()
     rclpy.init(context=context, args=["mpc", *command[1:]])
     try:
