@@ -334,3 +334,75 @@ def test_ros2_launch_runs_the_graph_and_equals_the_runner(namespace):
     assert metrics["metrics_true"] == runner.metrics_true.to_dict()
     assert metrics["metrics_measured"] == runner.metrics_measured.to_dict()
     assert "was required: shutting down launched system" in output  # on_exit: shutdown
+
+
+def test_parameter_values_are_evaluated_as_launch_ros_does(tmp_path):
+    """A value with a substitution is read as YAML, a plain string stays a string, and what
+    launch_ros refuses (a list of mixed types, not YAML) is refused here too."""
+    text = (
+        "launch:\n- arg: {name: x, default: '2'}\n"
+        "- node:\n    pkg: ffmpc_ros\n    exec: mpc\n    param:\n"
+        "    - {name: a, value: '1.0'}\n    - {name: b, value: ['1', '2']}\n"
+        "    - {name: d, value: $(var x)}\n    - {name: e, value: 'on'}\n"
+    )
+    node = load_launch_file(_write(tmp_path, text)).nodes[0]
+    assert node.parameters == (("a", "1.0"), ("b", ["1", "2"]), ("d", 2), ("e", "on"))
+    mixed = text.replace("['1', '2']", "['1', '$(var x)']")
+    with pytest.raises(LaunchError, match="parameter b: .* not a non-empty list of one type"):
+        load_launch_file(_write(tmp_path, mixed))
+    with pytest.raises(LaunchError, match="parameter d: '\\[1' is not a YAML value"):
+        load_launch_file(_write(tmp_path, text), {"x": "[1"})
+
+
+def test_a_bare_section_under_a_namespace_is_reported(tmp_path):
+    """A file keyed ``mpc:`` reaches /mpc only: under /arm1 the launcher says so (and passes
+    the file unchanged, as ros2 launch does)."""
+    params = tmp_path / "p.yaml"
+    params.write_text("mpc:\n  ros__parameters: {horizon: 7}\n")
+    text = (
+        "launch:\n- node: {pkg: ffmpc_ros, exec: mpc, name: mpc, namespace: /arm1, "
+        f"param: [{{from: {params}}}]}}\n"
+    )
+    node = load_launch_file(_write(tmp_path, text)).nodes[0]
+    assert unreached_sections(node) == [f"{params}: mpc"]
+    assert str(params) in node_command(node, tmp_path)
+    at_root = load_launch_file(_write(tmp_path, text.replace(", namespace: /arm1", ""))).nodes[0]
+    assert unreached_sections(at_root) == []
+
+
+def test_exits_and_stops_follow_ros2_launch(tmp_path, monkeypatch):
+    """A node without on_exit may exit (here failing: 3) and the launch goes on; the node with
+    ``on_exit: shutdown`` ends it; a node that ignores SIGINT gets SIGTERM after 5 s. The exit
+    code is the first failure (ros2 launch would exit 0)."""
+    import io
+
+    from ffmpc_ros.launch import run_launch
+
+    prefix = tmp_path / "prefix"
+    (prefix / "share" / "ament_index" / "resource_index" / "packages").mkdir(parents=True)
+    (prefix / "share" / "ament_index" / "resource_index" / "packages" / "fakepkg").touch()
+    (prefix / "lib" / "fakepkg").mkdir(parents=True)
+    scripts = {
+        "fail": "exit 3",
+        "done": "sleep 2; exit 0",
+        "stubborn": "trap 'echo got SIGINT' INT; trap 'exit 0' TERM; while :; do sleep 0.1; done",
+    }
+    for name, body in scripts.items():
+        exe = prefix / "lib" / "fakepkg" / name
+        exe.write_text(f"#!/bin/sh\n{body}\n")
+        exe.chmod(0o755)
+    monkeypatch.setenv("AMENT_PREFIX_PATH", str(prefix))
+    text = (
+        "launch:\n"
+        "- node: {pkg: fakepkg, exec: fail, output: screen}\n"
+        "- node: {pkg: fakepkg, exec: done, output: screen, on_exit: shutdown}\n"
+        "- node: {pkg: fakepkg, exec: stubborn, output: screen}\n"
+    )
+    out = io.StringIO()
+    code = run_launch(load_launch_file(_write(tmp_path, text)), log_dir=tmp_path / "l", out=out)
+    lines = out.getvalue().splitlines()
+    assert code == 3
+    assert lines.index("[launch] fail exited with 3") < lines.index("[launch] done exited with 0")
+    assert "[stubborn] got SIGINT" in lines
+    assert "[launch] stubborn still running: SIGTERM" in lines
+    assert not any("SIGKILL" in line for line in lines)
