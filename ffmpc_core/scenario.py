@@ -30,6 +30,8 @@ SECTIONS = ("plant", "joint_sensor", "ft_sensor", "mpc", "pid")
 COMMAND_DELAY_PID = "pid"
 COMMAND_DELAY_MEASURED = "measured"
 WILDCARD = "/**"
+#: Key prefix of a node section that applies in any namespace (``/**/plant``).
+ANY_NAMESPACE = "/**/"
 
 #: Where the scenario files shipped with ffmpc live.
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
@@ -745,7 +747,9 @@ def read_parameter_file(
 ) -> tuple[Path, dict[str, Any]]:
     """A parameter file (ROS 2 parameter-file format: ``section: {ros__parameters: {...}}``)
     as ``(path, {dotted name: raw value})``: a section's names get its name as prefix, the
-    wildcard section ``/**``'s do not. ConfigError for a file that is not one."""
+    wildcard section ``/**``'s do not. A section is keyed ``/**/plant`` (the shipped files: rcl
+    gives it to a node named ``plant`` in any namespace) or ``plant`` (= ``/plant``: a node at
+    the root only), not both. ConfigError for a file that is not one."""
     path = resolve_scenario_path(name_or_path)
     try:
         with open(path, encoding="utf-8") as fh:
@@ -759,18 +763,25 @@ def read_parameter_file(
     if not isinstance(doc, dict):
         raise ConfigError(f"{path}: expected a mapping of node sections")
     flat: dict[str, Any] = {}
-    for section, body in doc.items():
+    seen: dict[str, str] = {}
+    for key, body in doc.items():
+        section = str(key)
+        if section.startswith(ANY_NAMESPACE):
+            section = section[len(ANY_NAMESPACE) :]
+        if section in seen:
+            raise ConfigError(f"{path}: sections {seen[section]!r} and {key!r} are the same node")
+        seen[section] = str(key)
         if not isinstance(body, dict) or set(body) != {"ros__parameters"}:
-            raise ConfigError(f"{path}: section {section!r} must hold only 'ros__parameters'")
+            raise ConfigError(f"{path}: section {key!r} must hold only 'ros__parameters'")
         if not isinstance(body["ros__parameters"] or {}, dict):
-            raise ConfigError(f"{path}: {section}.ros__parameters must be a mapping")
+            raise ConfigError(f"{path}: {key}.ros__parameters must be a mapping")
         params = flatten(body["ros__parameters"] or {})
         if section == WILDCARD:
             flat.update(params)
         elif section in sections:
             flat.update({f"{section}.{k}": v for k, v in params.items()})
         else:
-            raise ConfigError(f"{path}: unknown node section {section!r}; expected {sections}")
+            raise ConfigError(f"{path}: unknown node section {key!r}; expected {sections}")
     return path, flat
 
 

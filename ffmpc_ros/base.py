@@ -72,7 +72,9 @@ import contextlib
 import json
 import math
 import os
+import signal
 import sys
+import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -836,11 +838,24 @@ def run_node(factory: Callable[..., StudyNode], description: str, argv=None) -> 
         else:
             executor = EventsExecutor()
             executor.add_node(node)
-            while rclpy.ok() and not node.finished() and node.lifecycle_state != "finalized":
+            # SIGINT ends the loop between callbacks, not as a KeyboardInterrupt inside one:
+            # raised in rclpy's C++ (a callback, the executor, the teardown after a second
+            # SIGINT: Ctrl-C of ros2 launch reaches every node from the terminal and from the
+            # launcher) it logged FATAL, left a RuntimeError or aborted the process (exit -6).
+            stop: list[int] = []
+            _on_sigint(lambda signum, _frame: stop.append(signum))
+            while (
+                rclpy.ok()
+                and not stop
+                and not node.finished()
+                and node.lifecycle_state != "finalized"
+            ):
                 executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        # Shutting down, to the end of the process (run_node is its main): SIGINT is ignored.
+        _on_sigint(signal.SIG_IGN)
         if node is not None:
             # One line the bring-up reads from this process's log (rejected_messages).
             print(
@@ -851,4 +866,11 @@ def run_node(factory: Callable[..., StudyNode], description: str, argv=None) -> 
             node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
+        _on_sigint(signal.SIG_IGN)  # rclpy.shutdown put back the handler rclpy.init replaced
     return 0
+
+
+def _on_sigint(handler: Any) -> None:
+    """Set the SIGINT handler (in the main thread; elsewhere nothing)."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, handler)

@@ -14,20 +14,26 @@ a tested subset of the YAML launch syntax (``launch_yaml``), one process per nod
   ``$(find-pkg-share PKG)``, ``$(find-pkg-prefix PKG)`` (through ``ament_index_python``, as
   ``ros2 launch`` resolves them).
 
-A node with a ``namespace`` (``polishing.launch.yaml namespace:=/arm1``) gets ``-r __ns:=``; its
-parameter files' section keyed by its bare name (``plant:``, which rcl reads as ``/plant`` only)
-is handed to it keyed by its fully qualified name (``/arm1/plant:``), in a copy written to the log
-directory — what a Python launch file does with nav2's ``RewrittenYaml`` (ROS 2 has no file syntax
-for "this node name in any namespace" but the ``/**/plant`` wildcard). ``ros2 launch`` passes the
-file unchanged, so there a namespaced launch needs a scenario file keyed ``/**/plant`` or
-``/arm1/plant`` (not tried here: no launch_ros).
+Run with the real ``ros2 launch`` too (launch 3.4.3, launch_ros 0.26.6, the Jazzy releases,
+built from source here: README, "Decisions and measured facts"), the same files give the same
+command lines and parameters (``tests/test_launch.py`` compares them when a launch_ros is found)
+and the same metrics. As there, parameter files are passed unchanged: a namespaced node
+(``polishing.launch.yaml namespace:=/arm1``) gets ``-r __ns:=/arm1`` and reads the sections keyed
+``/**/plant`` (the shipped scenario files) or ``/arm1/plant``, never a bare ``plant:`` (rcl reads it
+as ``/plant``): such a section is reported in one warning line per node. A ``{name, value}``
+parameter is a file keyed by the node's fully qualified name, as launch_ros writes it, so it
+overrides the files before it; a parameter value with a substitution is read as YAML and must
+be a scalar or a list of one type, as launch_ros requires.
 
 Anything else (another tag, another key) is refused with its name: an option that would be
 silently ignored is an error here. Executables resolve as ``ros2 run`` does
-(``<prefix of PKG>/lib/PKG/EXE``). Every node dies with the launcher (PR_SET_PDEATHSIG), a node
-with ``on_exit: shutdown`` ends the launch when it exits (its exit code is the launch's), a node
-that fails ends it too, and Ctrl-C (SIGINT) or SIGTERM stops every node with SIGINT, then SIGKILL
-after :data:`STOP_TIMEOUT` s.
+(``<prefix of PKG>/lib/PKG/EXE``). Every node dies with the launcher (PR_SET_PDEATHSIG). As with
+``ros2 launch``, a node with ``on_exit: shutdown`` ends the launch when it exits, another node's
+exit does not, and the launch ends when no node runs; Ctrl-C (SIGINT) or SIGTERM stops it. Nodes
+are stopped as launch stops them: SIGINT, SIGTERM after :data:`SIGTERM_TIMEOUT` s, SIGKILL after
+:data:`SIGKILL_TIMEOUT` s more. One difference: ``ros2 launch`` exits 0 whatever its nodes
+returned; this returns the exit code of the node whose exit ended the launch, or else the first
+failure (124 past ``--timeout``, 128+N on signal N).
 """
 
 from __future__ import annotations
@@ -51,8 +57,10 @@ import yaml
 
 from ffmpc_core.errors import FfmpcError
 
-#: Wall time a node gets to exit after SIGINT before SIGKILL, s.
-STOP_TIMEOUT = 10.0
+#: Wall time a node gets to exit after SIGINT before SIGTERM, then after SIGTERM before SIGKILL,
+#: s (launch's ``sigterm_timeout`` and ``sigkill_timeout`` defaults).
+SIGTERM_TIMEOUT = 5.0
+SIGKILL_TIMEOUT = 5.0
 _SUBSTITUTION = re.compile(r"\$\(([a-z-]+)((?:\s+[^)\s]+)*)\s*\)")
 _ARG_KEYS = {"name", "default", "description"}
 _NODE_KEYS = {"pkg", "exec", "name", "namespace", "output", "param", "remap", "ros_args", "on_exit"}
@@ -128,18 +136,33 @@ def substitute(text: str, variables: Mapping[str, str]) -> str:
     return _SUBSTITUTION.sub(one, text)
 
 
-def _resolve(value: Any, variables: Mapping[str, str]) -> Any:
-    """Substitute in a string; a whole-string substitution is then read as a YAML scalar (so
-    ``value: $(var duration)`` gives a float), as launch does for parameter values."""
-    if isinstance(value, str):
-        out = substitute(value, variables)
-        if out != value:
-            with contextlib.suppress(yaml.YAMLError):
-                return yaml.safe_load(out) if out.strip() else out
-        return out
-    if isinstance(value, list):
-        return [_resolve(v, variables) for v in value]
-    return value
+_SCALARS = (bool, int, float, str)
+
+
+def _parameter_value(name: str, value: Any, variables: Mapping[str, str]) -> Any:
+    """A parameter's value as launch_ros evaluates it: a string with a substitution is read as
+    YAML after substituting (``value: $(var duration)`` gives a float; a plain string stays a
+    string), in a list item by item; the result must be a scalar or a non-empty list of one
+    scalar type (LaunchError otherwise, as launch_ros refuses it)."""
+
+    def one(item: Any) -> Any:
+        if not isinstance(item, str):
+            return item
+        out = substitute(item, variables)
+        if out == item and not _SUBSTITUTION.search(item):
+            return item
+        try:
+            return yaml.safe_load(out) if out else ""
+        except yaml.YAMLError:
+            raise LaunchError(f"parameter {name}: {out!r} is not a YAML value") from None
+
+    out = [one(v) for v in value] if isinstance(value, list) else one(value)
+    if isinstance(out, list):
+        if not out or type(out[0]) not in _SCALARS or any(type(v) is not type(out[0]) for v in out):
+            raise LaunchError(f"parameter {name}: {out!r} is not a non-empty list of one type")
+    elif type(out) not in _SCALARS:
+        raise LaunchError(f"parameter {name}: {out!r} is not a bool, int, float, string or list")
+    return out
 
 
 def _entries(doc: Any, path: str) -> list[tuple[str, dict]]:
@@ -168,7 +191,7 @@ def _node(body: dict, variables: Mapping[str, str]) -> LaunchNode:
         if key not in body:
             raise LaunchError(f"'node' needs '{key}'")
     text = {
-        k: str(_resolve(body[k], variables))
+        k: substitute(str(body[k]), variables)
         for k in ("pkg", "exec", "name", "namespace")
         if k in body
     }
@@ -181,10 +204,10 @@ def _node(body: dict, variables: Mapping[str, str]) -> LaunchNode:
     parameters: list[tuple[str, Any]] = []
     for entry in body.get("param") or []:
         if isinstance(entry, dict) and set(entry) == {"from"}:
-            parameters.append(("file", str(_resolve(entry["from"], variables))))
+            parameters.append(("file", substitute(str(entry["from"]), variables)))
         elif isinstance(entry, dict) and set(entry) == {"name", "value"}:
             name = substitute(str(entry["name"]), variables)  # qos_overrides.$(var namespace)/…
-            parameters.append((name, _resolve(entry["value"], variables)))
+            parameters.append((name, _parameter_value(name, entry["value"], variables)))
         else:
             raise LaunchError(f"'param' entry {entry!r}: {{from: FILE}} or {{name: N, value: V}}")
     remaps = []
@@ -192,7 +215,7 @@ def _node(body: dict, variables: Mapping[str, str]) -> LaunchNode:
         if not isinstance(entry, dict) or set(entry) != {"from", "to"}:
             raise LaunchError(f"'remap' entry {entry!r}: {{from: A, to: B}}")
         remaps.append(
-            (str(_resolve(entry["from"], variables)), str(_resolve(entry["to"], variables)))
+            (substitute(str(entry["from"]), variables), substitute(str(entry["to"]), variables))
         )
     ros_args = substitute(str(body.get("ros_args", "")), variables).split()
     return LaunchNode(
@@ -281,8 +304,6 @@ def node_command(node: LaunchNode, params_dir: str | os.PathLike) -> list[str]:
         else:
             groups.append(("values", {name: value}))
     for i, (kind, item) in enumerate(groups):
-        if kind == "file":
-            item = _namespaced_file(node, item, os.path.join(params_dir, f"{node.label}_{i}.yaml"))
         if kind == "values":
             path = os.path.join(params_dir, f"{node.label}_{i}.yaml")
             with open(path, "w", encoding="utf-8") as fh:
@@ -295,24 +316,25 @@ def node_command(node: LaunchNode, params_dir: str | os.PathLike) -> list[str]:
     return [exe, *args, *node.ros_args]
 
 
-def _namespaced_file(node: LaunchNode, path: str, copy: str) -> str:
-    """``path``, or for a namespaced node whose bare name keys a section of it, a copy at
-    ``copy`` with that section keyed by the node's fully qualified name (module docstring)."""
+def unreached_sections(node: LaunchNode) -> list[str]:
+    """The sections of the node's parameter files keyed by its bare name (``plant:``, which rcl
+    reads as ``/plant``) when the node runs under a namespace: they do not reach it, with
+    ``ros2 launch`` as here (files are passed unchanged); ``/**/plant:`` would."""
     fqn = node_fqn(node)
     if not node.name or fqn == f"/{node.name}":
-        return path
-    try:
-        with open(path, encoding="utf-8") as fh:
-            doc = yaml.safe_load(fh)
-    except (OSError, yaml.YAMLError):
-        return path  # the node reports an unreadable file itself
-    bare = (node.name, f"/{node.name}")
-    if not isinstance(doc, dict) or not any(k in doc for k in bare):
-        return path
-    rekeyed = {(fqn if key in bare else key): value for key, value in doc.items()}
-    with open(copy, "w", encoding="utf-8") as fh:
-        yaml.safe_dump(rekeyed, fh, sort_keys=False)
-    return copy
+        return []
+    out = []
+    for kind, path in node.parameters:
+        if kind != "file":
+            continue
+        try:
+            with open(path, encoding="utf-8") as fh:
+                doc = yaml.safe_load(fh)
+        except (OSError, yaml.YAMLError):
+            continue  # the node reports an unreadable file itself
+        if isinstance(doc, dict):
+            out += [f"{path}: {key}" for key in doc if key in (node.name, f"/{node.name}")]
+    return out
 
 
 def _die_with_parent() -> None:
@@ -340,6 +362,14 @@ def run_launch(
     out = out or sys.stdout
     Path(log_dir).mkdir(parents=True, exist_ok=True)
     commands = [(node, node_command(node, log_dir)) for node in description.nodes]
+    for node in description.nodes:
+        for section in unreached_sections(node):
+            print(
+                f"[launch] WARNING {node.label}: section {section} does not reach "
+                f"{node_fqn(node)} (key it /**/{node.name})",
+                file=out,
+                flush=True,
+            )
     labels = [node.label for node in description.nodes]
     if len(set(labels)) != len(labels):
         raise LaunchError(f"two nodes share a name: {labels}")
@@ -387,8 +417,9 @@ def run_launch(
                     continue
                 del running[node.label]
                 print(f"[launch] {node.label} exited with {child.returncode}", file=out, flush=True)
-                if child.returncode != 0 or node.shutdown_on_exit:
-                    code = child.returncode
+                code = code or child.returncode  # the first failure, reported at the end
+                if node.shutdown_on_exit:
+                    code = child.returncode or code
                     running.clear()
                     break
             if end is not None and time.monotonic() > end:
@@ -398,7 +429,7 @@ def run_launch(
         if stop:
             code = 128 + stop[0]
     finally:
-        _stop(children)
+        _stop(children, out)
         screen = {node.label for node in description.nodes if node.output == "screen"}
         for label, child in children.items():
             if child.stdout is not None:
@@ -418,17 +449,24 @@ def run_launch(
     return code
 
 
-def _stop(children: Mapping[str, subprocess.Popen]) -> None:
-    """SIGINT every running node, then SIGKILL what is still there after STOP_TIMEOUT."""
-    for child in children.values():
-        if child.poll() is None:
+def _stop(children: Mapping[str, subprocess.Popen], out: IO[str]) -> None:
+    """SIGINT every running node, SIGTERM what still runs :data:`SIGTERM_TIMEOUT` s later, then
+    SIGKILL after :data:`SIGKILL_TIMEOUT` s more (launch's ``ExecuteProcess`` defaults)."""
+    steps = ((signal.SIGINT, SIGTERM_TIMEOUT), (signal.SIGTERM, SIGKILL_TIMEOUT))
+    for signum, timeout in steps:
+        waiting = {label: c for label, c in children.items() if c.poll() is None}
+        for label, child in waiting.items():
+            if signum != signal.SIGINT:
+                print(f"[launch] {label} still running: {signum.name}", file=out, flush=True)
             with contextlib.suppress(ProcessLookupError):
-                child.send_signal(signal.SIGINT)
-    end = time.monotonic() + STOP_TIMEOUT
-    for child in children.values():
-        try:
-            child.wait(timeout=max(0.0, end - time.monotonic()))
-        except subprocess.TimeoutExpired:
+                child.send_signal(signum)
+        end = time.monotonic() + timeout
+        for child in waiting.values():
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                child.wait(timeout=max(0.0, end - time.monotonic()))
+    for label, child in children.items():
+        if child.poll() is None:
+            print(f"[launch] {label} still running: SIGKILL", file=out, flush=True)
             child.kill()
             child.wait()
 

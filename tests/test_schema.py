@@ -100,6 +100,27 @@ def test_scenario_file_values_are_checked_too(tmp_path):
         load_scenario(path)
 
 
+def _write(tmp_path, text: str):
+    path = tmp_path / "x.yaml"
+    path.write_text(text)
+    return path
+
+
+def test_a_node_section_is_keyed_by_its_name_or_for_any_namespace(tmp_path):
+    """``/**/mpc`` (what the shipped files use: rcl gives it to /arm1/mpc too) reads as ``mpc``;
+    a file with both keys for one node is refused."""
+    bare, anywhere, both = (tmp_path / f"{n}.yaml" for n in ("bare", "anywhere", "both"))
+    section = "  ros__parameters:\n    horizon: 7\n"
+    bare.write_text("mpc:\n" + section)
+    anywhere.write_text("/**/mpc:\n" + section)
+    both.write_text("mpc:\n" + section + "/**/mpc:\n" + section)
+    assert load_scenario(anywhere).mpc.horizon == load_scenario(bare).mpc.horizon == 7
+    with pytest.raises(ConfigError, match=r"sections 'mpc' and '/\*\*/mpc' are the same node"):
+        load_scenario(both)
+    with pytest.raises(ConfigError, match=r"unknown node section '/\*\*/planet'"):
+        load_scenario(_write(tmp_path, "/**/planet:\n" + section))
+
+
 def test_schema_covers_every_field_and_generates_every_descriptor():
     assert set(SCHEMA["robot"].choices) == set(ROBOT_NAMES)
     flat = scenario_flat(Scenario(name="d"))
