@@ -85,7 +85,7 @@ class PlantSection:
     table_friction: float = 0.5
     actuation_random_bias: bool = True
     actuation_delay_cycles: int = 1
-    actuation_noise_fraction: float = 0.01
+    actuation_noise_fraction: float = 1e-4  # the authors' σ_τ (README "Simulation settings")
     static_friction: float = 1.0
     viscous_friction: float = 0.5
     friction_velocity: float = 1.0
@@ -105,7 +105,7 @@ class JointSensorSection:
 @dataclass(frozen=True)
 class ForceSensorSection:
     delay_cycles: int = 1
-    force_noise_std: float = 0.5
+    force_noise_std: float = 0.01  # N, the authors' σ_λ
     # Outputs of the F/T sensor node beside the eq-32 measurement (the runner does not use them):
     filter_cutoff_frequency: float = 20.0  # Hz, first-order low-pass of the filtered wrench
     contact_on_force: float = 5.0  # N, filtered normal force that starts a contact
