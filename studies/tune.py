@@ -170,7 +170,8 @@ def tune(
         storage: Optuna RDB URL (``sqlite:///tune.db``) or a path (made an SQLite URL).
         study_name: the search's name in the storage (default ``<scenario>-<formulation>``).
         jobs: trials run at a time.
-        sampler_seed: seed of the TPE sampler.
+        sampler_seed: seed of the TPE sampler (a resumed search adds the number of trials
+            already stored, so that it does not draw the same points again).
         duration: simulated time per run, s (default: the task's).
         out: scenario file to write with the best weights (must not exist).
         overrides: dotted-name scenario overrides for every run.
@@ -191,13 +192,21 @@ def tune(
     url = storage if "://" in storage else f"sqlite:///{Path(storage).resolve()}"
     name = study_name or f"{scenario.name}-{formulation}"
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    study = optuna.create_study(
-        study_name=name,
-        storage=url,
-        sampler=optuna.samplers.TPESampler(seed=sampler_seed),
-        direction="minimize",
-        load_if_exists=True,
-    )
+
+    def open_study(seed: int) -> optuna.Study:
+        return optuna.create_study(
+            study_name=name,
+            storage=url,
+            sampler=optuna.samplers.TPESampler(seed=seed),
+            direction="minimize",
+            load_if_exists=True,
+        )
+
+    study = open_study(sampler_seed)
+    if study.trials:
+        # A resumed search: a sampler seeded as before would draw its first points again (TPE's
+        # random start-up repeats them); seeded with the number of trials stored, it goes on.
+        study = open_study(sampler_seed + len(study.trials))
     if not study.trials:  # a new search starts from the scenario's own weights
         study.enqueue_trial(current_weights(scenario, formulation))
     names = searched_names(formulation)

@@ -78,6 +78,8 @@ def test_a_few_trials_improve_the_objective_and_the_search_resumes(tmp_path, cap
 
     study = optuna.load_study(study_name="polishing-classical", storage=f"sqlite:///{db}")
     assert len(study.trials) == 6
+    old = [t.params for t in study.trials[:4]]
+    assert all(t.params not in old for t in study.trials[4:])  # the resumed search goes on
     assert study.best_value <= first.best_value
     for name in searched_names("classical"):  # the file holds the best trial's weights
         assert written[name] == pytest.approx(study.best_params[name])
