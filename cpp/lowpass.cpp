@@ -90,7 +90,12 @@ void IntegratedActionModelLPF::calc(const std::shared_ptr<ActionDataAbstract>& d
                                     const Eigen::Ref<const VectorXd>& x) {
   check_size(x.size(), 3 * nv_, "IntegratedActionModelLPF: x");
   auto* d = static_cast<IntegratedActionDataLPF*>(data.get());
-  differential_->calc(d->differential, x.head(2 * nv_));
+  if (d->torque_residual) {
+    // The terminal torque term: the differential cost at control τ (the state's torque).
+    differential_->calc(d->differential, x.head(2 * nv_), x.tail(nv_));
+  } else {
+    differential_->calc(d->differential, x.head(2 * nv_));
+  }
   d->xnext = x;
   d->cost = d->differential->cost;
 }
@@ -149,17 +154,27 @@ void IntegratedActionModelLPF::calcDiff(const std::shared_ptr<ActionDataAbstract
 
 void IntegratedActionModelLPF::calcDiff(const std::shared_ptr<ActionDataAbstract>& data,
                                         const Eigen::Ref<const VectorXd>& x) {
-  // Terminal: x⁺ = x, cost ℓ0(q, v).
+  // Terminal: x⁺ = x, cost ℓ0(q, v) [+ c3·½‖τ − g(q)‖² when the torque cost is there].
   check_size(x.size(), 3 * nv_, "IntegratedActionModelLPF: x");
   auto* d = static_cast<IntegratedActionDataLPF*>(data.get());
-  const std::size_t n2 = 2 * nv_;
-  differential_->calcDiff(d->differential, x.head(n2));
+  const std::size_t nv = nv_, n2 = 2 * nv_;
+  const auto& dd = d->differential;
   d->Fx.setIdentity();
   d->Fu.setZero();
   d->Lx.setZero();
-  d->Lx.head(n2) = d->differential->Lx;
   d->Lxx.setZero();
-  d->Lxx.topLeftCorner(n2, n2) = d->differential->Lxx;
+  if (d->torque_residual) {
+    // derivatives w.r.t. the control τ are derivatives w.r.t. the τ state
+    differential_->calcDiff(dd, x.head(n2), x.tail(nv));
+    d->Lx.tail(nv) = dd->Lu;
+    d->Lxx.topRightCorner(n2, nv) = dd->Lxu;
+    d->Lxx.bottomLeftCorner(nv, n2) = dd->Lxu.transpose();
+    d->Lxx.bottomRightCorner(nv, nv) = dd->Luu;
+  } else {
+    differential_->calcDiff(dd, x.head(n2));
+  }
+  d->Lx.head(n2) = dd->Lx;
+  d->Lxx.topLeftCorner(n2, n2) = dd->Lxx;
 }
 
 std::shared_ptr<crocoddyl::ActionDataAbstract> IntegratedActionModelLPF::createData() {

@@ -24,7 +24,9 @@ namespace ffmpc {
 /// q⁺ = q + Δt·v⁺ (nq == nv: Euclidean configuration space), τ⁺ = α·τ + (1 − α)·w,
 /// α = exp(−2π·f_c·Δt). Running cost Δt·[ℓ0(q, v, τ) + c_w·½·‖w − τ_g‖²] with
 /// τ_g = τ − r_torque (r_torque: the residual of the differential model's cost named
-/// `torque_cost`, eq 25.3). calc(x)/calcDiff(x) (terminal): ℓ0(q, v) only, x⁺ = x.
+/// `torque_cost`, eq 25.3). calc(x)/calcDiff(x) (terminal): ℓ0(q, v), x⁺ = x; when the
+/// (terminal) differential model has the `torque_cost` cost, its cost is evaluated at control τ
+/// (the state's filtered torque): the terminal torque regularisation c3·½‖τ − g(q)‖².
 /// Hessians: the differential model's (Gauss–Newton) ones mapped to (q, v, τ), plus the exact
 /// Gauss–Newton term of eq 28.
 struct IntegratedActionDataLPF;

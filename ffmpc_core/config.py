@@ -25,6 +25,9 @@ FORMULATIONS = ("classical", "torque_feedback", "force_feedback")
 #: Implementations of the project's own action models: C++ (ffmpc_core.native) or the Python
 #: reference (MpcConfig.backend, scenario mpc.backend).
 BACKENDS = ("native", "python")
+#: The τ entry of the torque-feedback MPC's state (MpcConfig.torque_state, scenario
+#: mpc.torque_state): the measured joint torque τ̂ (eq 10/15) or the last torque sent.
+TORQUE_STATES = ("measured", "commanded")
 _FRAME_TYPES = {
     "LOCAL_WORLD_ALIGNED": pin.ReferenceFrame.LOCAL_WORLD_ALIGNED,
     "LOCAL": pin.ReferenceFrame.LOCAL,
@@ -63,6 +66,18 @@ class CostWeights:
     force_diag: tuple[float, ...] | float = 1.0
     lowpass_input: float = 1e-4  # c_w on ‖w − τ_g(q, λ)‖², 1/(N·m)² (eq 28, torque-feedback)
     force_rate: float = 1e-6  # c_λ on ‖λ̇‖², s²/N² (eq 29, force-feedback)
+    #: c on ‖log(R̄ᵀR(q))‖² (rad², R̄: the contact frame's orientation at q̄), 1/rad²: the
+    #: orientation cost of the authors' polishing configurations (``frameRotation``), not in
+    #: eq 25. Classical and torque-feedback only (running and terminal nodes; 0: no term).
+    ee_rotation: float = 0.0
+    #: c on ‖ω‖² (the contact frame's angular velocity, its own axes), s²/rad²: with
+    #: ``ee_velocity`` it makes the 6-D end-effector velocity cost of the authors'
+    #: configurations (``frameVelocity``, all six axes). Classical and torque-feedback only.
+    ee_angular_velocity: float = 0.0
+    #: c3 of ‖τ − g(q)‖² (activation ``torque_diag``) at the torque-feedback model's TERMINAL
+    #: node, on the filtered torque τ of its state (not × Δt), 1/(N·m)²; 0: the terminal node
+    #: has no torque term. Default: the authors' ``ctrlRegGravWeightTerminal`` (1e-4).
+    lowpass_terminal_torque: float = 1e-4
     #: c_lim of the joint-limit barrier on x = (q, v): c_lim·½·‖x − clip(x, x_lb, x_ub)‖², zero
     #: inside the bounds, quadratic outside (1/rad² on the position excess, s²/rad² on the
     #: velocity excess). Every formulation has it (running and terminal nodes); the bounds are
@@ -99,6 +114,8 @@ class ContactConfig:
         normal_axis: for 1-D contact, the axis (0=x, 1=y, 2=z) of that frame carrying the force.
         stiffness: K of the visco-elastic model (eq 16), N/m, scalar or one per force axis.
         damping: B of the visco-elastic model (eq 16), N·s/m, scalar or one per force axis.
+        baumgarte_velocity_gain: K_d of the rigid contact models, 1/s (not used by the
+            visco-elastic one).
     """
 
     dimension: int = 1
@@ -106,6 +123,9 @@ class ContactConfig:
     normal_axis: int = 2
     stiffness: float | tuple[float, ...] = 1e3
     damping: float | tuple[float, ...] = 1e2
+    #: K_d of the rigid contact's Baumgarte stabilisation (classical and torque-feedback), 1/s:
+    #: the contact acceleration constraint is a_c + K_d·v_c = 0. The authors' code uses 10.
+    baumgarte_velocity_gain: float = 50.0
 
     def __post_init__(self) -> None:
         if self.dimension not in (1, 3):
@@ -116,6 +136,9 @@ class ContactConfig:
             raise ConfigError("normal_axis must be 0, 1 or 2")
         self.stiffness_vector()
         self.damping_vector()
+        kd = float(self.baumgarte_velocity_gain)
+        if not (np.isfinite(kd) and kd >= 0.0):
+            raise ConfigError(f"baumgarte_velocity_gain must be finite and >= 0 1/s, got {kd}")
 
     @property
     def pin_frame(self) -> pin.ReferenceFrame:

@@ -24,8 +24,10 @@ v⁺ = v + Δt·q̈, q⁺ = q + Δt·v⁺; the filter under zero-order hold τ�
 
 Running cost: Δt·[ℓ0(q, v, τ) + c_w·½·‖w − τ_g(q, λ^r)‖²] (eq 28, Q_w = I: ``CostWeights`` has
 no diagonal for it), with τ_g = g(q) − J(q)ᵀλ^r the same gravity-under-contact torque as in
-eq 25.3. Terminal cost: the state terms of ℓ0 on (q, v) (no Δt factor, no τ term), as in the
-classical formulation. ℓ0 includes the joint-limit barrier of the classical formulation
+eq 25.3. Terminal cost: the state terms of ℓ0 on (q, v) (no Δt factor) plus, as in the authors'
+configuration (``ctrlRegGravWeightTerminal``), c3_T·½‖τ − g(q)‖²_Q3 on the filtered torque τ of
+the state (``CostWeights.lowpass_terminal_torque``; 0 removes it). ℓ0 includes the joint-limit
+barrier of the classical formulation
 (``state_limit``: crocoddyl's ``ResidualModelState`` under ``ActivationModelQuadraticBarrier``,
 :func:`ffmpc_core.rigid_contact.make_state_limit_cost`), so in this state it acts on the (q, v)
 part; the filtered torque τ has no barrier (the torque limits saturate the command instead).
@@ -46,7 +48,6 @@ from ffmpc_core.errors import ConfigError, InputError, ModelError
 from ffmpc_core.rigid_contact import (
     COST_TORQUE,
     DEFAULT_BACKEND,
-    DEFAULT_BAUMGARTE_VELOCITY_GAIN,
     CommonCostHandles,
     SwitchableContactNode,
     check_backend,
@@ -131,7 +132,10 @@ class IntegratedActionModelLPF(crocoddyl.ActionModelAbstract):
         lowpass_input_weight: c_w of eq 28, 1/(N·m)².
 
     Called as ``calc(data, x)`` (a terminal node) it evaluates the differential model's cost on
-    (q, v) only and leaves x unchanged, as crocoddyl's own integrators do.
+    (q, v) only and leaves x unchanged, as crocoddyl's own integrators do; when that (terminal)
+    differential model has the ``torque`` cost (``CostWeights.lowpass_terminal_torque`` > 0,
+    :func:`ffmpc_core.rigid_contact.make_costs`), its cost is evaluated at control τ, the
+    filtered torque of the state: c3·½‖τ − g(q)‖² regularises the terminal torque.
     """
 
     def __init__(
@@ -166,7 +170,10 @@ class IntegratedActionModelLPF(crocoddyl.ActionModelAbstract):
         nv, dt = self.nv, self.dt
         dd = data.differential
         if u is None:
-            self.differential.calc(dd, x[: 2 * nv])
+            if data.torque_residual is None:
+                self.differential.calc(dd, x[: 2 * nv])
+            else:  # the terminal torque term: the differential cost at control τ
+                self.differential.calc(dd, x[: 2 * nv], x[2 * nv :])
             data.xnext[:] = x
             data.cost = dd.cost
             return
@@ -192,14 +199,22 @@ class IntegratedActionModelLPF(crocoddyl.ActionModelAbstract):
     ) -> None:
         nv, dt = self.nv, self.dt
         dd = data.differential
-        if u is None:  # terminal: x⁺ = x, cost ℓ0(q, v)
-            self.differential.calcDiff(dd, x[: 2 * nv])
+        if u is None:  # terminal: x⁺ = x, cost ℓ0(q, v) [+ c3·½‖τ − g(q)‖²]
             data.Fx[:, :] = np.eye(3 * nv)
             data.Fu[:, :] = 0.0
             data.Lx[:] = 0.0
-            data.Lx[: 2 * nv] = dd.Lx
             data.Lxx[:, :] = 0.0
-            data.Lxx[: 2 * nv, : 2 * nv] = dd.Lxx
+            n2 = 2 * nv
+            if data.torque_residual is None:
+                self.differential.calcDiff(dd, x[:n2])
+            else:  # derivatives w.r.t. the control τ are derivatives w.r.t. the τ state
+                self.differential.calcDiff(dd, x[:n2], x[n2:])
+                data.Lx[n2:] = dd.Lu
+                data.Lxx[:n2, n2:] = dd.Lxu
+                data.Lxx[n2:, :n2] = dd.Lxu.T
+                data.Lxx[n2:, n2:] = dd.Luu
+            data.Lx[:n2] = dd.Lx
+            data.Lxx[:n2, :n2] = dd.Lxx
             return
         tau = x[2 * nv :]
         self.differential.calcDiff(dd, x[: 2 * nv], tau)
@@ -289,7 +304,7 @@ class LowPassNode(SwitchableContactNode):
         cutoff_frequency: float,
         q_reference: np.ndarray | None,
         in_contact: bool,
-        baumgarte_velocity_gain: float,
+        baumgarte_velocity_gain: float | None,
         backend: str = DEFAULT_BACKEND,
     ) -> None:
         check_backend(backend)
@@ -312,6 +327,7 @@ class LowPassNode(SwitchableContactNode):
                 q_reference=q_reference,
                 baumgarte_velocity_gain=baumgarte_velocity_gain,
                 backend=backend,
+                terminal_torque=True,
             )
             self._models[status] = make_lowpass_model(
                 dam, self.dt, cutoff_frequency, weights.lowpass_input, backend
@@ -335,7 +351,7 @@ def make_lowpass_node(
     q_reference: np.ndarray | None = None,
     *,
     in_contact: bool = False,
-    baumgarte_velocity_gain: float = DEFAULT_BAUMGARTE_VELOCITY_GAIN,
+    baumgarte_velocity_gain: float | None = None,
     backend: str = DEFAULT_BACKEND,
 ) -> LowPassNode:
     """Build a node of the torque-feedback OCP (eq 10–14, cost eq 28).

@@ -35,6 +35,7 @@ from ffmpc_core.config import (
     BACKENDS,
     FORMULATIONS,
     LIVE_COST_WEIGHTS,
+    TORQUE_STATES,
     ContactConfig,
     CostWeights,
     NodeReference,
@@ -123,6 +124,11 @@ class MpcConfig:
             integrating its own model with the commands already sent (a Smith predictor) and
             solves from there; 0 = the plain scheme (solve from the measured state).
         prediction_step: integration step of that prediction, s.
+        torque_state: the τ entry of the torque-feedback state x̂ = (q, v, τ) the solve starts
+            from: ``"measured"`` = the measured joint torque τ̂ (eq 10/15: τ₀* = τ̂, the
+            paper's and the authors' code's choice) or ``"commanded"`` = the last torque τ̃ sent
+            (eq 15), which is what acts at t + δo when the low level tracks it perfectly. With
+            ``"measured"``, eq 15 interpolates from τ̂ too. Other formulations ignore it.
         backend: implementation of the project's own action models: ``"native"`` (C++,
             :mod:`ffmpc_core.native`, the default) or ``"python"`` (the readable reference,
             e.g. :mod:`ffmpc_core.soft_contact`). Both give the same numbers (tests hold them
@@ -141,9 +147,14 @@ class MpcConfig:
     q_reference: tuple[float, ...] | None = None
     command_delay: float = 0.0
     prediction_step: float = 0.001
+    torque_state: str = "measured"
     backend: str = "native"
 
     def __post_init__(self) -> None:
+        if self.torque_state not in TORQUE_STATES:
+            raise ConfigError(
+                f"torque_state must be one of {TORQUE_STATES}, got {self.torque_state!r}"
+            )
         if self.backend not in BACKENDS:
             raise ConfigError(f"backend must be one of {BACKENDS}, got {self.backend!r}")
         if self.formulation not in FORMULATIONS:
@@ -264,7 +275,8 @@ class ModelPredictiveController:
         self._predictor = None
         if config.command_delay > 0.0:
             # Torque-feedback: what acts during the delay is the torque τ̃ already sent, so (q, v)
-            # are predicted with the rigid-contact dynamics driven by τ̃ and τ becomes the last τ̃.
+            # are predicted with the rigid-contact dynamics driven by τ̃; τ is the measured τ̂
+            # (torque_state "measured", eq 10/15) or the last τ̃ ("commanded").
             pred_form = "classical" if config.formulation == "torque_feedback" else None
             pred_cfg = replace(
                 config,
@@ -461,7 +473,9 @@ class ModelPredictiveController:
     def predict(self, x: np.ndarray, t: float) -> np.ndarray:
         """The state at t + command_delay: x (measured at t) integrated with the model controls
         sent during [t − δo, t), which act on the robot during [t, t + δo). Identity without
-        a command delay or before any command was sent."""
+        a command delay or before any command was sent. Torque-feedback: (q, v) are predicted
+        so, τ is the measured τ̂ of x (``torque_state`` "measured") or the last τ̃ sent
+        ("commanded")."""
         if self._predictor is None or not self._sent:
             return x
         delay, h = self.config.command_delay, self.config.prediction_step
@@ -488,7 +502,8 @@ class ModelPredictiveController:
             self._predictor.model.calc(self._predictor_data, x, u)
             x = np.array(self._predictor_data.xnext)
         if torque_feedback:
-            return np.concatenate([x, self._sent[-1][1] if self._sent else x_full[2 * nv :]])
+            commanded = self.config.torque_state == "commanded" and self._sent
+            return np.concatenate([x, self._sent[-1][1] if commanded else x_full[2 * nv :]])
         return x
 
     # -- internals ---------------------------------------------------------------------------

@@ -30,6 +30,7 @@ from ffmpc_core.soft_contact import (
     RESIDUAL_TERMS,
     SoftContactNode,
     check_soft_contact_robot,
+    check_soft_contact_weights,
     residual_slices,
 )
 
@@ -89,6 +90,7 @@ class IntegratedActionModelSoftContactNative(_native.IntegratedActionModelSoftCo
     ) -> None:
         dt = _scalar(dt, "dt", ConfigError)
         check_soft_contact_robot(robot)
+        check_soft_contact_weights(weights)
         super().__init__(
             robot.model,
             int(robot.contact_frame_id),

@@ -88,8 +88,9 @@ from ffmpc_core.config import BACKENDS, ContactConfig, CostWeights, NodeReferenc
 from ffmpc_core.errors import ConfigError, InputError, ModelError
 from ffmpc_core.robots import RobotModel
 
-#: Default Baumgarte velocity gain K_d, 1/s (see module docstring).
-DEFAULT_BAUMGARTE_VELOCITY_GAIN = 50.0
+#: Default Baumgarte velocity gain K_d, 1/s (see module docstring): ``ContactConfig``'s, which
+#: the node builders use when given no gain (scenario ``mpc.contact.baumgarte_velocity_gain``).
+DEFAULT_BAUMGARTE_VELOCITY_GAIN = ContactConfig.baumgarte_velocity_gain
 
 #: Name of the contact in crocoddyl's ``ContactModelMultiple``.
 CONTACT_NAME = "contact"
@@ -105,6 +106,8 @@ COST_JOINT_VELOCITY = "joint_velocity"
 COST_TORQUE = "torque"
 COST_EE_POSITION = "ee_position"
 COST_EE_VELOCITY = "ee_velocity"
+COST_EE_ROTATION = "ee_rotation"
+COST_EE_ANGULAR_VELOCITY = "ee_angular_velocity"
 COST_FORCE = "force"
 #: Name of the joint-limit barrier on x = (q, v) (``CostWeights.state_limit``).
 COST_STATE_LIMIT = "state_limit"
@@ -311,6 +314,7 @@ def make_costs(
     q_reference: np.ndarray,
     builtin_residuals: bool = False,
     backend: str = DEFAULT_BACKEND,
+    terminal_torque: bool = False,
 ) -> crocoddyl.CostModelSum:
     """The cost ℓ0 of eq 25 (running) or its state terms (terminal), see the module docstring.
 
@@ -321,6 +325,13 @@ def make_costs(
     ``builtin_residuals=True`` uses crocoddyl's own ``ResidualModelContactControlGrav`` for eq 25.3
     in contact: all-C++, but in crocoddyl 3.2.1 it ignores the contact force (τ − g(q)). It
     exists only as the speed reference of ``ffmpc bench mpc``; never control with it.
+
+    Beyond eq 25 (the authors' polishing configurations): ``weights.ee_rotation`` > 0 adds
+    c·½·‖log(R̄ᵀR(q))‖² (R̄ = the contact frame's orientation at q̄), ``weights.ee_angular_velocity``
+    > 0 adds c·½·‖ω‖² (the frame's angular velocity in its own axes), in running and terminal
+    nodes. ``terminal_torque`` (a terminal node of the torque-feedback model) with
+    ``weights.lowpass_terminal_torque`` > 0 adds c·½·‖u − g(q)‖²_Q3 to the terminal costs: the
+    low-pass integrator evaluates it at u = τ, the filtered torque of its state.
     """
     nv, nu, fid = state.nv, state.nv, robot.contact_frame_id
     native = native_module() if check_backend(backend) else None
@@ -363,11 +374,37 @@ def make_costs(
         COST_EE_VELOCITY, crocoddyl.CostModelResidual(state, act, ee_vel), weights.ee_velocity
     )
 
+    if weights.ee_rotation > 0.0:
+        rotation = crocoddyl.ResidualModelFrameRotation(
+            state, fid, robot.contact_placement(q_reference).rotation, nu
+        )
+        costs.addCost(
+            COST_EE_ROTATION,
+            crocoddyl.CostModelResidual(state, _quad(np.ones(3)), rotation),
+            weights.ee_rotation,
+        )
+    if weights.ee_angular_velocity > 0.0:
+        angular = crocoddyl.ResidualModelFrameVelocity(state, fid, pin.Motion.Zero(), pin.LOCAL, nu)
+        act = _quad(np.concatenate([np.zeros(3), np.ones(3)]))
+        costs.addCost(
+            COST_EE_ANGULAR_VELOCITY,
+            crocoddyl.CostModelResidual(state, act, angular),
+            weights.ee_angular_velocity,
+        )
+
     costs.addCost(
         COST_STATE_LIMIT, make_state_limit_cost(state, robot, weights), weights.state_limit
     )
 
     if terminal:
+        if terminal_torque and weights.lowpass_terminal_torque > 0.0:
+            torque = crocoddyl.ResidualModelControlGrav(state, nu)
+            act = _quad(weights.diag("torque", nv))
+            costs.addCost(
+                COST_TORQUE,
+                crocoddyl.CostModelResidual(state, act, torque),
+                weights.lowpass_terminal_torque,
+            )
         return costs
 
     if in_contact and builtin_residuals:
@@ -401,15 +438,19 @@ def make_differential_model(
     in_contact: bool,
     terminal: bool,
     q_reference: np.ndarray | None = None,
-    baumgarte_velocity_gain: float = DEFAULT_BAUMGARTE_VELOCITY_GAIN,
+    baumgarte_velocity_gain: float | None = None,
     builtin_residuals: bool = False,
     backend: str = DEFAULT_BACKEND,
+    terminal_torque: bool = False,
 ) -> crocoddyl.DifferentialActionModelAbstract:
     """Continuous dynamics (eq 5–6; free dynamics when not in contact) with the cost ℓ0.
 
     Control: joint torque τ, N·m (full actuation). A terminal model has the state terms only
-    and free dynamics (a terminal node has no dynamics). ``backend``: see :func:`make_costs`.
+    and free dynamics (a terminal node has no dynamics). ``backend``, ``terminal_torque``: see
+    :func:`make_costs`. ``baumgarte_velocity_gain``: K_d, 1/s (None: ``contact``'s).
     """
+    if baumgarte_velocity_gain is None:
+        baumgarte_velocity_gain = contact.baumgarte_velocity_gain
     q_reference = _check_posture(robot, robot.q_nominal if q_reference is None else q_reference)
     state = crocoddyl.StateMultibody(robot.model)
     actuation = crocoddyl.ActuationModelFull(state)
@@ -424,6 +465,7 @@ def make_differential_model(
         q_reference=q_reference,
         builtin_residuals=builtin_residuals,
         backend=backend,
+        terminal_torque=terminal_torque,
     )
     if not in_contact:
         return crocoddyl.DifferentialActionModelFreeFwdDynamics(state, actuation, costs)
@@ -600,7 +642,7 @@ class RigidContactNode(SwitchableContactNode):
         terminal: bool,
         q_reference: np.ndarray | None,
         in_contact: bool,
-        baumgarte_velocity_gain: float,
+        baumgarte_velocity_gain: float | None,
         builtin_residuals: bool = False,
         backend: str = DEFAULT_BACKEND,
     ) -> None:
@@ -643,7 +685,7 @@ def make_rigid_contact_node(
     q_reference: np.ndarray | None = None,
     *,
     in_contact: bool = False,
-    baumgarte_velocity_gain: float = DEFAULT_BAUMGARTE_VELOCITY_GAIN,
+    baumgarte_velocity_gain: float | None = None,
     builtin_residuals: bool = False,
     backend: str = DEFAULT_BACKEND,
 ) -> RigidContactNode:
@@ -657,7 +699,7 @@ def make_rigid_contact_node(
         terminal: terminal node (state terms only, no Δt factor).
         q_reference: q̄ of eq 25.1, rad (default: ``robot.q_nominal``).
         in_contact: initial dynamics (switch later with ``set_reference``).
-        baumgarte_velocity_gain: K_d, 1/s (module docstring).
+        baumgarte_velocity_gain: K_d, 1/s (module docstring; None: ``contact``'s).
         builtin_residuals: benchmark reference only (see :func:`make_costs`).
         backend: ``"native"`` (C++ custom residuals) or ``"python"`` (module docstring).
     """

@@ -22,7 +22,7 @@ from typing import Any, Generic, TypeVar, Union, get_args, get_origin, get_type_
 import numpy as np
 import yaml
 
-from ffmpc_core.config import BACKENDS, FORMULATIONS, ContactConfig, CostWeights
+from ffmpc_core.config import BACKENDS, FORMULATIONS, TORQUE_STATES, ContactConfig, CostWeights
 from ffmpc_core.errors import ConfigError
 
 SECTIONS = ("plant", "joint_sensor", "ft_sensor", "mpc", "pid")
@@ -71,6 +71,9 @@ class TaskSection:
     high_force: float = 50.0
     square_period: float = 2.0
     square_cycles: int = 2
+    #: z entry of the in-contact activation Q4 of the position cost (polishing): 0 gives the
+    #: paper's Q4 = diag(1, 1, 0) (eq 25.4, the normal direction belongs to the force task).
+    ee_z_weight_in_contact: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -84,7 +87,7 @@ class PlantSection:
     table_friction: float = 0.5
     actuation_random_bias: bool = True
     actuation_delay_cycles: int = 1
-    actuation_noise_fraction: float = 0.01
+    actuation_noise_fraction: float = 1e-4  # the authors' σ_τ (README "Simulation settings")
     static_friction: float = 1.0
     viscous_friction: float = 0.5
     friction_velocity: float = 1.0
@@ -104,7 +107,7 @@ class JointSensorSection:
 @dataclass(frozen=True)
 class ForceSensorSection:
     delay_cycles: int = 1
-    force_noise_std: float = 0.5
+    force_noise_std: float = 0.01  # N, the authors' σ_λ
     # Outputs of the F/T sensor node beside the eq-32 measurement (the runner does not use them):
     filter_cutoff_frequency: float = 20.0  # Hz, first-order low-pass of the filtered wrench
     contact_on_force: float = 5.0  # N, filtered normal force that starts a contact
@@ -129,6 +132,8 @@ class MpcSection:
     #: median MPC step time of a short calibration run of this MPC on this machine, rounded up
     #: to the plant step (:func:`ffmpc_core.study.resolve_command_delay`; the studies do it).
     command_delay: str = COMMAND_DELAY_PID
+    #: τ of the torque-feedback state: "measured" τ̂ (eq 10/15) | "commanded" (the last τ̃ sent)
+    torque_state: str = "measured"
     backend: str = "native"  # action models: native (C++) | python (reference), MpcConfig.backend
     #: o, m, world frame: the MPC tracks p̄(t) + o (ffmpc_core.tasks.LiveTask); the plant's table
     #: stays where the task puts it. Live on the MPC node (parameter ``position_offset``).
@@ -355,6 +360,11 @@ _TABLE: dict[str, tuple[str, Any, str]] = {
     "task.high_force": ("N", (0.0, 500.0), "force_square high level"),
     "task.square_period": ("s", (0.0, 60.0), "force_square period"),
     "task.square_cycles": ("", (0, 1000), "force_square number of periods"),
+    "task.ee_z_weight_in_contact": (
+        "",
+        (0.0, 1e6),
+        "z entry of the in-contact Q4 of the position cost (0: the paper's diag(1, 1, 0))",
+    ),
     "plant.time_step": ("s", (1e-5, 0.01), "physics step = control cycle; stamps are multiples"),
     "plant.table_tilt_deg": ("deg", (-45.0, 45.0), "table tilt θ when random_tilt_deg is 0"),
     "plant.table_tilt_axis": ("", (-1.0, 1.0), "horizontal tilt axis, world frame"),
@@ -387,6 +397,11 @@ _TABLE: dict[str, tuple[str, Any, str]] = {
         list(BACKENDS),
         "action models: native (C++, default) | python (reference)",
     ),
+    "mpc.torque_state": (
+        "",
+        list(TORQUE_STATES),
+        "τ of the torque-feedback state: measured τ̂ (eq 10/15) or the last commanded τ̃",
+    ),
     "mpc.horizon": ("nodes", (1, 1000), "OCP nodes N"),
     "mpc.dt": ("s", (1e-5, 1.0), "OCP node duration"),
     "mpc.period": ("s", (1e-5, 1.0), "re-planning period (a multiple of plant.time_step)"),
@@ -406,6 +421,11 @@ _TABLE: dict[str, tuple[str, Any, str]] = {
     "mpc.contact.normal_axis": ("", [0, 1, 2], "axis of the 1-D force: 0 x, 1 y, 2 z"),
     "mpc.contact.stiffness": ("N/m", (0.0, 1e9), "K of the visco-elastic contact (eq 16)"),
     "mpc.contact.damping": ("N·s/m", (0.0, 1e6), "B of the visco-elastic contact (eq 16)"),
+    "mpc.contact.baumgarte_velocity_gain": (
+        "1/s",
+        (0.0, 1e4),
+        "K_d of the rigid contact's Baumgarte stabilisation (classical, torque-feedback)",
+    ),
     "pid.enabled": ("", None, "torque PID on (off: τ^m = τ^d(t − δo))"),
     "pid.kp": ("", (0.0, 100.0), "K_P (eq 33)"),
     "pid.ki": ("1/s", (0.0, 1e5), "K_I (eq 33)"),
@@ -442,6 +462,9 @@ _WEIGHT_UNITS = {
     "lowpass_input": "1/(N·m)²",
     "force_rate": "s²/N²",
     "state_limit": "1/rad², s²/rad²",  # on the position excess, on the velocity excess
+    "ee_rotation": "1/rad²",
+    "ee_angular_velocity": "s²/rad²",
+    "lowpass_terminal_torque": "1/(N·m)²",
 }
 #: The CostWeights fields that are neither a weight c nor an activation diagonal: the fraction
 #: of the joint limits inside which the joint-limit barrier is zero (dimensionless, (0, 1]).

@@ -127,8 +127,9 @@ class SensingParams:
         delay_cycles: δs in cycles of :meth:`SensingModel.step` (paper: 1 simulation cycle).
         position_noise_std: σ_q, rad (paper: 1e-3).
         velocity_noise_std: σ_q̇, rad/s (paper: 1e-3).
-        force_noise_std: σ_λ, N. The paper gives no value; we take 0.5 N, 1 % of its 50 N
-            force reference (the same fraction as σ_τ of the torque limits).
+        force_noise_std: σ_λ, N. The paper gives no value; 0.5 N here (1 % of its 50 N
+            force reference); the scenario files use the authors' code's 0.01 N
+            (``ft_sensor.force_noise_std``).
     """
 
     delay_cycles: int = 1

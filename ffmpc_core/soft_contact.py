@@ -532,6 +532,7 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
         dt = float(dt)
         if not np.isfinite(dt) or (dt <= 0.0 and not terminal) or dt < 0.0:
             raise ConfigError(f"dt must be positive and finite, got {dt}")
+        check_soft_contact_weights(weights)
         self.dynamics = SoftContactDynamics(robot, contact)
         nv, nc = self.dynamics.nv, self.dynamics.nc
         self._slices = residual_slices(nv, nc)
@@ -888,6 +889,19 @@ class SoftContactNode:
         if x.shape[0] != self.model.state.nx:
             raise InputError(f"state has {x.shape[0]} entries, expected {self.model.state.nx}")
         return x
+
+
+def check_soft_contact_weights(weights: CostWeights) -> None:
+    """ConfigError unless ``weights`` has only terms this formulation implements: the
+    orientation and angular-velocity costs (``ee_rotation``, ``ee_angular_velocity``) exist in
+    the classical and torque-feedback formulations only, so a non-zero one here is refused
+    rather than silently ignored."""
+    for name in ("ee_rotation", "ee_angular_velocity"):
+        if getattr(weights, name) != 0.0:
+            raise ConfigError(
+                f"cost weight {name} = {getattr(weights, name)}: the force-feedback formulation "
+                "has no such term (classical and torque-feedback only); set it to 0"
+            )
 
 
 def make_soft_contact_node(

@@ -99,6 +99,7 @@ def build_task(scenario: Scenario, robot: RobotModel) -> StudyTask:
             angular_velocity=task.angular_velocity,
             circle=circle,
             stop=task.stop,
+            ee_z_weight_in_contact=task.ee_z_weight_in_contact,
             **common,
         )
     return ForceSquareTask(
@@ -154,6 +155,7 @@ def mpc_config(scenario: Scenario) -> MpcConfig:
         max_iterations=m.max_iterations,
         kkt_tolerance=m.kkt_tolerance,
         backend=m.backend,
+        torque_state=m.torque_state,
         command_delay=scenario.pid.delay_cycles * scenario.plant.time_step
         if m.delay_compensation
         else 0.0,

@@ -491,6 +491,94 @@ EXPLORE_SHORTHANDS = {
 }
 
 
+def _cmd_tune(args: argparse.Namespace) -> int:
+    from studies.tune import Objective, tune
+
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    objective = Objective(
+        position_weight=args.position_weight,
+        break_penalty=args.break_penalty,
+        force_limit=args.force_limit,
+        force_penalty=args.force_penalty,
+    )
+    result = tune(
+        args.scenario,
+        args.formulation,
+        seeds,
+        args.trials,
+        args.storage,
+        study_name=args.study_name,
+        jobs=args.jobs,
+        sampler_seed=args.sampler_seed,
+        objective=objective,
+        duration=args.duration,
+        out=args.out,
+        overrides=_parse_overrides(args.set),
+    )
+    resumed = len(result.values) - result.trials_run
+    print(
+        f"ffmpc tune {args.formulation}: {len(result.values)} trials in {args.storage} "
+        f"({resumed} resumed), training seeds {seeds[0]}-{seeds[-1]}"
+    )
+    print(f"  first trial (the scenario's weights): J = {result.values[0]:.4f}")
+    print(f"  best: J = {result.best_value:.4f}")
+    for name, value in result.best_weights.items():
+        print(f"    mpc.weights.{args.formulation}.{name} = {value:.6g}")
+    if result.out is not None:
+        print(f"  written: {result.out}")
+    return 0
+
+
+def _add_tune_parser(sub) -> None:
+    """``ffmpc tune``: Optuna search of one controller's cost weights (studies/tune.py)."""
+    p = sub.add_parser(
+        "tune",
+        help="search one controller's cost weights with Optuna (resumable)",
+        description="Search the cost weights of one MPC formulation on training seeds with "
+        "Optuna (seeded TPE sampler, trials kept in an RDB storage so that a search resumes, "
+        "--jobs trials at a time). Objective per run: E_lambda + W x E_P (N, mm) + penalties "
+        "for contact breaks and lambda_max above a limit; the mean over the seeds is minimised. "
+        "The first trial of a new search is the scenario's own weights. Writes the best weights "
+        "into a copy of the scenario file (--out).",
+    )
+    p.add_argument("formulation", choices=STUDY_FORMULATIONS)
+    p.add_argument("--scenario", default="polishing", help="shipped scenario name or a path")
+    p.add_argument("--seeds", type=positive_int, default=3, help="number of training seeds")
+    p.add_argument(
+        "--first-seed",
+        type=seed_int,
+        default=1000,
+        help="first training seed (default 1000: disjoint from the studies' 0-19)",
+    )
+    p.add_argument("--trials", type=positive_int, default=20, help="trials to add (default 20)")
+    p.add_argument("--jobs", type=positive_int, default=1, help="trials at a time (default 1)")
+    p.add_argument(
+        "--storage",
+        default="tune.db",
+        help="Optuna storage: an SQLite file path or an RDB URL (default tune.db)",
+    )
+    p.add_argument("--study-name", help="search name in the storage (default SCENARIO-FORM)")
+    p.add_argument("--sampler-seed", type=seed_int, default=0, help="TPE sampler seed")
+    p.add_argument(
+        "--position-weight", type=nonnegative_float, default=0.5, help="W, N/mm (default 0.5)"
+    )
+    p.add_argument(
+        "--break-penalty", type=nonnegative_float, default=10.0, help="N per %% of contact lost"
+    )
+    p.add_argument(
+        "--force-limit", type=nonnegative_float, default=150.0, help="lambda_max limit, N"
+    )
+    p.add_argument(
+        "--force-penalty", type=nonnegative_float, default=1.0, help="N per N above the limit"
+    )
+    p.add_argument("--duration", type=positive_float, help="simulated time per run, s")
+    p.add_argument("--out", type=new_path, help="scenario file to write with the best weights")
+    p.add_argument(
+        "--set", action="append", default=[], metavar="NAME=VALUE", help="scenario override"
+    )
+    p.set_defaults(func=_cmd_tune)
+
+
 def _study_overrides(args: argparse.Namespace, params: dict, shorthands: dict) -> dict:
     """The dotted-name overrides of a study: its shorthand flags, then ``--set`` (checked
     against the study's schema ``params``; a name given both ways is refused)."""
@@ -779,6 +867,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_study_arguments(square, seeds=1, pid="on")
     _add_impact_study_parser(study_sub)
     _add_explore_study_parser(study_sub)
+    _add_tune_parser(sub)
     run = sub.add_parser(
         "run",
         help="run a scenario on the ROS 2 node graph and print its metrics",

@@ -12,10 +12,19 @@ from ffmpc_core.config import CostWeights, NodeReference
 
 
 def rich_weights(
-    rng: np.random.Generator, nc: int, isotropic_velocity: bool = False, lowpass_input=0.0
+    rng: np.random.Generator,
+    nc: int,
+    isotropic_velocity: bool = False,
+    lowpass_input=0.0,
+    authors_terms: bool = False,
 ) -> CostWeights:
-    """Non-trivial weights so that every term of eq 25 (and eq 28) matters."""
+    """Non-trivial weights so that every term of eq 25 (and eq 28) matters. ``authors_terms``
+    (classical and torque-feedback only): the orientation and angular-velocity costs and the
+    low-pass terminal torque term too (else 0: the force-feedback model refuses the first two)."""
     return CostWeights(
+        ee_rotation=2.5 if authors_terms else 0.0,
+        ee_angular_velocity=0.7 if authors_terms else 0.0,
+        lowpass_terminal_torque=0.05 if authors_terms else 0.0,
         posture=0.7,
         posture_diag=tuple(rng.uniform(0.5, 2.0, 7)),
         joint_velocity=0.3,

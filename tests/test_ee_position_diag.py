@@ -11,13 +11,14 @@ import pytest
 from ffmpc_core.config import ContactConfig, CostWeights, NodeReference
 from ffmpc_core.errors import InputError
 from ffmpc_core.lowpass import make_lowpass_node
+from ffmpc_core.native import make_native_soft_contact_node
 from ffmpc_core.rigid_contact import make_rigid_contact_node
 from ffmpc_core.soft_contact import make_soft_contact_node
 
 DT = 0.01
 C4 = 40.0
 DZ = 0.02  # m, the z error of the reference
-FORMULATIONS = ("classical", "torque_feedback", "force_feedback")
+FORMULATIONS = ("classical", "torque_feedback", "force_feedback", "force_feedback_native")
 
 
 def _node(robot, formulation: str, terminal: bool = False):
@@ -27,6 +28,8 @@ def _node(robot, formulation: str, terminal: bool = False):
         return make_rigid_contact_node(robot, contact, weights, DT, terminal, in_contact=True)
     if formulation == "torque_feedback":
         return make_lowpass_node(robot, contact, weights, DT, terminal, 50.0, in_contact=True)
+    if formulation == "force_feedback_native":  # the C++ model the MPC runs by default
+        return make_native_soft_contact_node(robot, contact, weights, DT, terminal)
     return make_soft_contact_node(robot, contact, weights, DT, terminal)
 
 
@@ -34,7 +37,7 @@ def _state(robot, formulation: str, rng: np.random.Generator) -> np.ndarray:
     q = robot.q_nominal + 0.05 * rng.standard_normal(robot.nq)
     v = 0.1 * rng.standard_normal(robot.nv)
     extra = {"classical": [], "torque_feedback": [robot.gravity(q)], "force_feedback": [[20.0]]}
-    return np.concatenate([q, v, *extra[formulation]])
+    return np.concatenate([q, v, *extra[formulation.removesuffix("_native")]])
 
 
 def _cost(node, x, u, ref: NodeReference, terminal: bool) -> float:

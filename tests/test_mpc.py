@@ -86,12 +86,21 @@ def test_torque_feedback_command_is_eq15(robot):
     np.testing.assert_allclose(cmd.feedback_gain.shape, (7, 21))
 
 
-@pytest.mark.parametrize("formulation", FORMULATIONS)
-def test_delay_predictor_integrates_the_commands_in_flight(robot, formulation):
+@pytest.mark.parametrize(
+    ("formulation", "torque_state"),
+    [(f, "measured") for f in FORMULATIONS] + [("torque_feedback", "commanded")],
+)
+def test_delay_predictor_integrates_the_commands_in_flight(robot, formulation, torque_state):
     """With δo = 4 ms the MPC solves from x(t + δo), predicted with the commands sent in
-    [t − δo, t): the prediction equals a rollout of the model plant with those commands."""
+    [t − δo, t): the prediction equals a rollout of the model plant with those commands.
+    Torque-feedback: τ of the prediction is the measured τ̂ (eq 10/15) or the last τ̃ sent."""
     task = press_task(robot)
-    config = MpcConfig(formulation=formulation, command_delay=0.004, prediction_step=0.001)
+    config = MpcConfig(
+        formulation=formulation,
+        command_delay=0.004,
+        prediction_step=0.001,
+        torque_state=torque_state,
+    )
     mpc = ModelPredictiveController(robot, config, task)
     q0 = robot.q_nominal
     v0 = np.full(7, 0.05)
@@ -112,7 +121,8 @@ def test_delay_predictor_integrates_the_commands_in_flight(robot, formulation):
         plant.step(u, task.in_contact(t + i * 0.001))
     expected = plant.x.copy()
     if formulation == "torque_feedback":
-        expected = np.concatenate([expected, sent[2]])
+        tau = x0[14:] if torque_state == "measured" else sent[2]
+        expected = np.concatenate([expected, tau])
     np.testing.assert_allclose(predicted, expected, atol=1e-12)
     assert np.linalg.norm(predicted[:14] - x0[:14]) > 1e-6  # the delay really changes x
 

@@ -81,7 +81,9 @@ def test_lowpass_native_equals_python(robot, contact_name, mode):
     terminal, in_contact = mode == "terminal", mode == "contact"
     nv = robot.nv
     for isotropic in (True, False):  # LOCAL velocity residual / world-velocity residual
-        weights = rich_weights(rng, contact.dimension, isotropic, lowpass_input=0.3)
+        weights = rich_weights(
+            rng, contact.dimension, isotropic, lowpass_input=0.3, authors_terms=True
+        )
         ref = random_reference(rng, robot, contact, in_contact)
         nodes = {
             b: make_lowpass_node(
@@ -241,7 +243,9 @@ def test_native_models_match_numdiff(robot, contact_name, mode):
     rng = _rng("numdiff", robot.name, contact_name, mode)
     contact = CONTACTS[contact_name]
     terminal, in_contact = mode == "terminal", mode == "contact"
-    weights = rich_weights(rng, contact.dimension, isotropic_velocity=False, lowpass_input=0.3)
+    weights = rich_weights(
+        rng, contact.dimension, isotropic_velocity=False, lowpass_input=0.3, authors_terms=True
+    )
     node = make_lowpass_node(
         robot, contact, weights, DT, terminal, CUTOFF, in_contact=in_contact, backend="native"
     )
@@ -277,7 +281,7 @@ def test_classical_node_native_equals_python(robot):
     """The classical node (Euler integrator of crocoddyl) with C++ vs Python residuals."""
     rng = _rng("classical", robot.name)
     contact = CONTACTS["1d_lwa_z"]
-    weights = rich_weights(rng, 1, isotropic_velocity=False)
+    weights = rich_weights(rng, 1, isotropic_velocity=False, authors_terms=True)
     ref = random_reference(rng, robot, contact, True)
     nodes = {
         b: make_rigid_contact_node(robot, contact, weights, DT, False, in_contact=True, backend=b)

@@ -40,8 +40,8 @@ def robot(request):
     return load_robot(request.param)
 
 
-def build_node(robot, contact, mode, rng, isotropic_velocity=False):
-    weights = rich_weights(rng, contact.dimension, isotropic_velocity)
+def build_node(robot, contact, mode, rng, isotropic_velocity=False, authors_terms=False):
+    weights = rich_weights(rng, contact.dimension, isotropic_velocity, authors_terms=authors_terms)
     node = make_rigid_contact_node(
         robot, contact, weights, DT, mode == "terminal", in_contact=mode == "contact"
     )
@@ -55,7 +55,9 @@ def test_derivatives_match_numdiff(robot, contact_name, mode):
     rng = np.random.default_rng(zlib.crc32(f"{robot.name}/{contact_name}/{mode}".encode()))
     contact = CONTACTS[contact_name]
     for isotropic in (True, False):
-        node, _ = build_node(robot, contact, mode, rng, isotropic_velocity=isotropic)
+        node, _ = build_node(
+            robot, contact, mode, rng, isotropic_velocity=isotropic, authors_terms=not isotropic
+        )
         model = node.model
         numdiff = crocoddyl.ActionModelNumDiff(model, False)
         data, nd_data = model.createData(), numdiff.createData()

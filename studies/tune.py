@@ -1,0 +1,265 @@
+"""``ffmpc tune``: search one controller's cost weights with Optuna, the same way for all three.
+
+The objective of a set of weights is the mean over the training seeds of one polishing run each
+(:func:`sim_bridge.runner.run_scenario`, torque PID as in the scenario, metrics from the true
+normal force over the circle phase):
+
+    J = E_λ + W·E_P + P_break·t_break + P_force·max(0, λmax − λ_limit)
+
+with E_λ in N, E_P in mm, t_break in % and λmax in N (:class:`Objective`; defaults:
+W = 0.5 N/mm, P_break = 10 N per % of the circle out of contact, P_force = 1 per N above
+λ_limit = 150 N). A run that fails (an exception of ffmpc) costs ``FAILED_RUN_COST``.
+
+The search (seeded TPE sampler) keeps its trials in an Optuna RDB storage (an SQLite file by
+default), so a search that is stopped resumes where it stood: the same ``--storage`` and
+``--study-name`` load the trials already run, and ``--trials`` more are added. The first trial of
+a new search is the scenario's own weights, so the best trial is never worse than them. Trials
+run ``--jobs`` at a time (Optuna threads). The best weights are written into a copy of the
+scenario file (``--out``), under ``mpc.weights.<formulation>``.
+
+The search space (:data:`SEARCH_SPACE`) is the same for the three formulations except the terms
+a formulation does not have: the force-feedback model has no orientation or angular-velocity cost
+and the low-pass input weight c_w (eq 28) and the force-rate weight c_λ (eq 29) belong to one
+formulation each.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from ffmpc_core.errors import ConfigError, FfmpcError
+from ffmpc_core.scenario import Scenario, load_scenario, resolve_scenario_path
+
+#: Cost of a trial whose run failed (an FfmpcError), in the objective's units.
+FAILED_RUN_COST = 1e4
+
+#: name: (low, high, formulations) — log-uniform bounds of each searched weight
+#: (``mpc.weights.<formulation>.<name>``; ``force_phase`` is c6, ``ee_position_phase`` c4).
+SEARCH_SPACE: dict[str, tuple[float, float, tuple[str, ...]]] = {
+    "force_phase": (0.1, 10.0, ("classical", "torque_feedback", "force_feedback")),
+    "ee_position_phase": (1e2, 1e4, ("classical", "torque_feedback", "force_feedback")),
+    "joint_velocity": (1e-3, 1.0, ("classical", "torque_feedback", "force_feedback")),
+    "ee_velocity": (1e-2, 10.0, ("classical", "torque_feedback", "force_feedback")),
+    "ee_rotation": (0.1, 100.0, ("classical", "torque_feedback")),
+    "lowpass_input": (1e-6, 1e-2, ("torque_feedback",)),
+    "force_rate": (1e-8, 1e-4, ("force_feedback",)),
+}
+
+#: Defaults of the weights the scenario files leave out (CostWeights' and the task's defaults).
+_UNSET_DEFAULTS = {
+    "force_phase": 1e-2,
+    "ee_position_phase": 1e3,
+    "joint_velocity": 1e-2,
+    "ee_velocity": 1.0,
+    "ee_rotation": 0.0,
+    "lowpass_input": 1e-4,
+    "force_rate": 1e-6,
+}
+
+
+@dataclass(frozen=True)
+class Objective:
+    """J = E_λ + position_weight·E_P + break_penalty·t_break + force_penalty·(λmax − force_limit)₊
+    (N, N/mm, N/%, N/N, N)."""
+
+    position_weight: float = 0.5
+    break_penalty: float = 10.0
+    force_limit: float = 150.0
+    force_penalty: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ("position_weight", "break_penalty", "force_limit", "force_penalty"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ConfigError(f"objective {name} must be finite and >= 0, got {value}")
+
+    def of(
+        self, force_mae: float, position_mae_mm: float, break_percent: float, max_force: float
+    ) -> float:
+        """J of one run's metrics."""
+        return (
+            force_mae
+            + self.position_weight * position_mae_mm
+            + self.break_penalty * break_percent
+            + self.force_penalty * max(0.0, max_force - self.force_limit)
+        )
+
+
+@dataclass
+class TuneResult:
+    """The search after this call: its best weights and value, and the trial values in order."""
+
+    formulation: str
+    best_weights: dict[str, float]
+    best_value: float
+    values: list[float]  # every complete trial's J, in trial order (resumed ones first)
+    trials_run: int  # trials added by this call
+    out: Path | None
+
+
+def searched_names(formulation: str) -> list[str]:
+    """The weights searched for ``formulation`` (:data:`SEARCH_SPACE`)."""
+    return [n for n, (_, _, forms) in SEARCH_SPACE.items() if formulation in forms]
+
+
+def current_weights(scenario: Scenario, formulation: str) -> dict[str, float]:
+    """The scenario's values of the searched weights (defaults where the file has none)."""
+    values = scenario.mpc.weights.get(formulation, {})
+    out = {}
+    for name in searched_names(formulation):
+        value = float(values.get(name, _UNSET_DEFAULTS[name]))
+        low, high, _ = SEARCH_SPACE[name]
+        out[name] = min(max(value, low), high)  # a 0 (term off) starts at the lower bound
+    return out
+
+
+def evaluate(
+    scenario: Scenario,
+    formulation: str,
+    weights: dict[str, float],
+    seeds: list[int],
+    objective: Objective,
+    duration: float | None = None,
+) -> float:
+    """Mean J over ``seeds`` of the scenario run with ``formulation`` and ``weights``."""
+    from sim_bridge.runner import run_scenario  # PyBullet loads only here
+
+    prefix = f"mpc.weights.{formulation}."
+    overrides: dict[str, Any] = {"mpc.formulation": formulation}
+    overrides.update({prefix + k: float(v) for k, v in weights.items()})
+    total = 0.0
+    for seed in seeds:
+        try:
+            run = run_scenario(scenario.with_overrides({**overrides, "seed": seed}), duration)
+        except FfmpcError:
+            total += FAILED_RUN_COST
+            continue
+        m = run.metrics_true
+        value = objective.of(m.force_mae, m.position_mae_mm, m.contact_break_percent, m.max_force)
+        total += value if math.isfinite(value) else FAILED_RUN_COST
+    return total / len(seeds)
+
+
+def tune(
+    scenario_name: str,
+    formulation: str,
+    seeds: list[int],
+    trials: int,
+    storage: str,
+    study_name: str | None = None,
+    jobs: int = 1,
+    sampler_seed: int = 0,
+    objective: Objective | None = None,
+    duration: float | None = None,
+    out: str | Path | None = None,
+    overrides: dict[str, Any] | None = None,
+) -> TuneResult:
+    """Run (or resume) the search and write the best weights to ``out`` (if given).
+
+    Args:
+        scenario_name: a shipped scenario name or a scenario file.
+        formulation: the controller whose weights are searched.
+        seeds: training seeds (keep them disjoint from the evaluation seeds).
+        trials: trials to add in this call (≥ 1).
+        storage: Optuna RDB URL (``sqlite:///tune.db``) or a path (made an SQLite URL).
+        study_name: the search's name in the storage (default ``<scenario>-<formulation>``).
+        jobs: trials run at a time.
+        sampler_seed: seed of the TPE sampler (a resumed search adds the number of trials
+            already stored, so that it does not draw the same points again).
+        duration: simulated time per run, s (default: the task's).
+        out: scenario file to write with the best weights (must not exist).
+        overrides: dotted-name scenario overrides for every run.
+    """
+    import optuna
+
+    if not seeds:
+        raise ConfigError("tune needs at least one training seed")
+    if trials < 1 or jobs < 1:
+        raise ConfigError("--trials and --jobs must be >= 1")
+    out_path = Path(out) if out is not None else None
+    if out_path is not None and out_path.exists():
+        raise ConfigError(f"{out_path} exists: choose another --out")
+    scenario = load_scenario(scenario_name, overrides or {})
+    if formulation not in SEARCH_SPACE["force_phase"][2]:
+        raise ConfigError(f"unknown formulation {formulation!r}")
+    objective = objective or Objective()
+    url = storage if "://" in storage else f"sqlite:///{Path(storage).resolve()}"
+    name = study_name or f"{scenario.name}-{formulation}"
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+
+    def open_study(seed: int) -> optuna.Study:
+        return optuna.create_study(
+            study_name=name,
+            storage=url,
+            sampler=optuna.samplers.TPESampler(seed=seed),
+            direction="minimize",
+            load_if_exists=True,
+        )
+
+    study = open_study(sampler_seed)
+    if study.trials:
+        # A resumed search: a sampler seeded as before would draw its first points again (TPE's
+        # random start-up repeats them); seeded with the number of trials stored, it goes on.
+        study = open_study(sampler_seed + len(study.trials))
+    if not study.trials:  # a new search starts from the scenario's own weights
+        study.enqueue_trial(current_weights(scenario, formulation))
+    names = searched_names(formulation)
+
+    def run_trial(trial: optuna.Trial) -> float:
+        weights = {
+            n: trial.suggest_float(n, SEARCH_SPACE[n][0], SEARCH_SPACE[n][1], log=True)
+            for n in names
+        }
+        return evaluate(scenario, formulation, weights, seeds, objective, duration)
+
+    study.optimize(run_trial, n_trials=trials, n_jobs=jobs)
+    complete = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
+    best = study.best_trial
+    best_value = float(best.value) if best.value is not None else math.inf
+    best_weights = {k: float(v) for k, v in best.params.items()}
+    if out_path is not None:
+        write_tuned_scenario(scenario_name, formulation, best_weights, out_path, best_value, seeds)
+    return TuneResult(
+        formulation=formulation,
+        best_weights=best_weights,
+        best_value=best_value,
+        values=[float(t.value) for t in complete if t.value is not None],
+        trials_run=trials,
+        out=out_path,
+    )
+
+
+def write_tuned_scenario(
+    scenario_name: str,
+    formulation: str,
+    weights: dict[str, float],
+    out: Path,
+    value: float,
+    seeds: list[int],
+) -> None:
+    """A copy of the scenario file with ``mpc.weights.<formulation>`` set to ``weights``; the
+    copy loads (checked) before it is written."""
+    source = resolve_scenario_path(scenario_name)
+    doc = yaml.safe_load(source.read_text(encoding="utf-8"))
+    params = doc.setdefault("mpc", {}).setdefault("ros__parameters", {})
+    table = params.setdefault("weights", {}).setdefault(formulation, {})
+    table.update({k: float(np.float64(v)) for k, v in weights.items()})
+    header = (
+        f"# {source.name} with the {formulation} weights tuned by `ffmpc tune` (Optuna TPE) on\n"
+        f"# training seeds {seeds}: objective {value:.4g} (E_lambda + weight x E_P + penalties).\n"
+    )
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".tmp")
+    tmp.write_text(header + yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
+    try:
+        load_scenario(tmp)  # the schema checks every value
+    except ConfigError:
+        tmp.unlink()
+        raise
+    tmp.replace(out)

@@ -1,0 +1,87 @@
+"""``ffmpc tune`` (studies/tune.py): a few trials on one seed improve the objective over the
+scenario's own weights (the first trial), the search resumes from its SQLite database, and the
+best weights are written into a scenario file that loads."""
+
+from __future__ import annotations
+
+import pytest
+
+from ffmpc_core.errors import ConfigError
+from ffmpc_core.scenario import load_scenario
+from ffmpc_ros.cli import main
+from studies.tune import Objective, current_weights, searched_names, tune
+
+#: 0.6 s of the circle (it starts 1.0 s in): short runs, the objective still sees the circle.
+DURATION = 1.6
+
+
+def test_objective_is_the_stated_sum():
+    j = Objective(position_weight=0.5, break_penalty=10.0, force_limit=150.0, force_penalty=1.0)
+    assert j.of(4.0, 6.0, 0.0, 100.0) == pytest.approx(4.0 + 3.0)
+    assert j.of(4.0, 6.0, 2.0, 170.0) == pytest.approx(4.0 + 3.0 + 20.0 + 20.0)
+    with pytest.raises(ConfigError):
+        Objective(position_weight=-1.0)
+
+
+def test_search_space_is_the_same_but_for_the_terms_a_formulation_lacks():
+    common = {"force_phase", "ee_position_phase", "joint_velocity", "ee_velocity"}
+    assert set(searched_names("classical")) == common | {"ee_rotation"}
+    assert set(searched_names("torque_feedback")) == common | {"ee_rotation", "lowpass_input"}
+    assert set(searched_names("force_feedback")) == common | {"force_rate"}
+    w = current_weights(load_scenario("polishing"), "torque_feedback")
+    assert w["ee_rotation"] == 10.0 and w["joint_velocity"] == 0.04
+
+
+def test_a_few_trials_improve_the_objective_and_the_search_resumes(tmp_path, capsys):
+    db = tmp_path / "tune.db"
+    out = tmp_path / "tuned.yaml"
+    first = tune(
+        "polishing",
+        "classical",
+        seeds=[1000],
+        trials=4,
+        storage=str(db),
+        duration=DURATION,
+        sampler_seed=3,
+    )
+    assert len(first.values) == 4 and first.trials_run == 4
+    assert first.best_value < first.values[0]  # better than the scenario's own weights
+    assert db.is_file()
+    # Resumed through the command line: the 4 trials are loaded, 2 more are added.
+    code = main(
+        [
+            "tune",
+            "classical",
+            "--seeds",
+            "1",
+            "--first-seed",
+            "1000",
+            "--trials",
+            "2",
+            "--storage",
+            str(db),
+            "--sampler-seed",
+            "3",
+            "--duration",
+            str(DURATION),
+            "--out",
+            str(out),
+        ]
+    )
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "6 trials" in printed and "(4 resumed)" in printed
+    tuned = load_scenario(out)
+    written = tuned.mpc.weights["classical"]
+    assert set(searched_names("classical")) <= set(written)
+    import optuna
+
+    study = optuna.load_study(study_name="polishing-classical", storage=f"sqlite:///{db}")
+    assert len(study.trials) == 6
+    old = [t.params for t in study.trials[:4]]
+    assert all(t.params not in old for t in study.trials[4:])  # the resumed search goes on
+    assert study.best_value <= first.best_value
+    for name in searched_names("classical"):  # the file holds the best trial's weights
+        assert written[name] == pytest.approx(study.best_params[name])
+    with pytest.raises(ConfigError):  # never overwritten
+        tune("polishing", "classical", [1000], 1, str(db), duration=DURATION, out=out)
