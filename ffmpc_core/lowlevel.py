@@ -247,12 +247,14 @@ class LowLevelController:
         """Change the saturation (fraction of the data-sheet torque limits) and/or the command
         timeout of the safe hold (s) from the next :meth:`step` on; None keeps one. ConfigError
         (nothing changed) for a value :class:`LowLevelConfig` refuses."""
-        changes: dict[str, float] = {}
-        if torque_limit_fraction is not None:
-            changes["torque_limit_fraction"] = float(torque_limit_fraction)
-        if stale_timeout is not None:
-            changes["stale_timeout"] = float(stale_timeout)
-        config = replace(self.config, **changes)  # validates (__post_init__)
+        c = self.config
+        config = replace(  # validates (__post_init__)
+            c,
+            torque_limit_fraction=c.torque_limit_fraction
+            if torque_limit_fraction is None
+            else float(torque_limit_fraction),
+            stale_timeout=c.stale_timeout if stale_timeout is None else float(stale_timeout),
+        )
         self.config = config
         self._torque_limit = config.torque_limit_fraction * self.robot.torque_limit
 
