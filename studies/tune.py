@@ -34,7 +34,7 @@ import numpy as np
 import yaml
 
 from ffmpc_core.errors import ConfigError, FfmpcError
-from ffmpc_core.scenario import Scenario, load_scenario, resolve_scenario_path
+from ffmpc_core.scenario import ANY_NAMESPACE, Scenario, load_scenario, resolve_scenario_path
 
 #: Cost of a trial whose run failed (an FfmpcError), in the objective's units.
 FAILED_RUN_COST = 1e4
@@ -247,7 +247,9 @@ def write_tuned_scenario(
     copy loads (checked) before it is written."""
     source = resolve_scenario_path(scenario_name)
     doc = yaml.safe_load(source.read_text(encoding="utf-8"))
-    params = doc.setdefault("mpc", {}).setdefault("ros__parameters", {})
+    # the file's own key of the mpc section: ``/**/mpc`` (the shipped files) or ``mpc``
+    key = next((k for k in (ANY_NAMESPACE + "mpc", "mpc") if k in doc), ANY_NAMESPACE + "mpc")
+    params = doc.setdefault(key, {}).setdefault("ros__parameters", {})
     table = params.setdefault("weights", {}).setdefault(formulation, {})
     table.update({k: float(np.float64(v)) for k, v in weights.items()})
     header = (
