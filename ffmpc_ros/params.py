@@ -340,14 +340,6 @@ FRAME_PREFIX = GraphParameter(
     "prefix of every frame id of /tf and /tf_static (robot_state_publisher's parameter, e.g. "
     "arm1/; a namespaced graph has its own /tf already)",
 )
-STATE_PUBLISHER_MAX_AGE = GraphParameter(
-    "max_input_age",
-    1.0,
-    "joint states older than this (simulated time, s) are rejected as stale (an observer: "
-    "tf2 buffers keep 10 s, so /tf may lag the loop)",
-    (1e-4, 3600.0),
-)
-
 #: The MPC's live parameters: contact K (N/m) and B (N·s/m), the force set-point (N), the
 #: position offset (m) and the cost weights it can change in place (of the formulation it runs).
 MPC_LIVE: tuple[str, ...] = (
@@ -411,7 +403,7 @@ NODE_SPECS: dict[str, NodeSpec] = {
         None,
         ("robot",),
         _TIME_STEP,
-        (STATE_PUBLISHER_MAX_AGE, PUBLISH_FREQUENCY, FRAME_PREFIX),
+        (MAX_AGE, PUBLISH_FREQUENCY, FRAME_PREFIX),
     ),
     "impact_planner": NodeSpec(
         "impact_planner",

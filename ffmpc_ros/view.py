@@ -6,19 +6,21 @@ message encoding ``cdr``, schema ``ros2msg`` with the complete definition a bag 
 recorder's subscription helper, ``ffmpc_ros.bag.ros_types.subscribe_raw``). A Foxglove layout
 that names ROS topics therefore opens the live server and a bag of ``--record`` alike.
 
-What the robot view needs, published by this node:
+``robot_description`` and ``/tf_static`` come from the graph's state publisher
+(``ffmpc_ros.state_publisher_node``) and are bridged like every topic (latched: their last
+message goes again to each new Foxglove subscriber). What the robot view needs besides, published
+by this node:
 
-* ``/robot_description`` (std_msgs/String, RELIABLE + TRANSIENT_LOCAL, depth 1): the URDF the
-  robot model is built from, its relative mesh paths made absolute ``file://`` URIs (which the
-  server also serves to a client that asks, ``asset_handler``);
 * ``/view/markers`` (visualization_msgs/MarkerArray, in the robot's root link frame, which is
   pinocchio's world: it needs no ``/tf``, so a bag shows it too): the measured force
   ``/ft_sensor/wrench`` as an arrow at the contact frame origin (:data:`FORCE_ARROW_SCALE` m per
   N), and the MPC's planned contact-frame path (``/mpc/prediction``) as a line strip;
-* ``/tf`` (tf2_msgs/TFMessage) — a Foxglove channel only: no ``tf2_msgs`` wheel exists for the
-  ROS 2 of this environment, so rclpy cannot publish the type. Its CDR bytes are serialised with
-  ``rosbags`` (the same bytes a ROS 2 publisher would send). The tree robot_state_publisher
-  sends: every link frame of the pinocchio model (``BODY`` frames, named like the URDF links)
+* ``/tf`` (tf2_msgs/TFMessage) — the view's own Foxglove channel, from the TRUE joint states
+  ``/plant/joint_states`` (what the robot really does), in place of the graph's ROS ``/tf``
+  (the state publisher's, from the measured joint states), which is not bridged; a bag of the
+  run holds the ROS one. Its CDR bytes are serialised with ``rosbags``. The tree
+  robot_state_publisher sends: every link frame of the pinocchio model (``BODY`` frames, named
+  like the URDF links)
   relative to its parent link, the root link relative to ``world`` (identity) and the
   ``contact`` frame relative to its link, from ``/plant/joint_states`` by forward kinematics.
   A Foxglove URDF layer driven by ``/plant/joint_states`` (the committed layout) computes the
@@ -32,7 +34,6 @@ subscribes to them. Log times are the node's clock (simulated, ``use_sim_time``)
 from __future__ import annotations
 
 import json
-import re
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -46,13 +47,13 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
-from std_msgs.msg import ColorRGBA, Float64MultiArray, String
+from std_msgs.msg import ColorRGBA, Float64MultiArray
 from visualization_msgs.msg import Marker, MarkerArray
 
 from ffmpc_core.errors import ConfigError, FfmpcError
 from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_ros import layouts, topics
-from ffmpc_ros.bag.ros_types import DerivedTopic, offered_profiles, subscribe_raw
+from ffmpc_ros.bag.ros_types import offered_profiles, subscribe_raw
 from ffmpc_ros.bag.schema import MESSAGE_ENCODING, SCHEMA_ENCODING, MessageDefinitions
 
 #: Default port of the Foxglove WebSocket server.
@@ -70,7 +71,7 @@ WORLD_FRAME = "world"
 CLIENT_SETTLE = 0.5
 #: Latched topics: their last message goes again to each new Foxglove subscriber (Foxglove
 #: channels keep nothing; DDS reports a remote publisher's depth as 0, so the QoS cannot tell).
-LATCHED = (topics.ROBOT_DESCRIPTION,)
+LATCHED = (topics.ROBOT_DESCRIPTION, topics.TF_STATIC)
 #: Topics never bridged (parameter events are not data).
 EXCLUDE = ("/parameter_events",)
 #: History of every bridging subscription, messages.
@@ -133,29 +134,6 @@ def tree_transforms(
         placement = data.oMf[cid] if pid < 0 else data.oMf[pid].actInv(data.oMf[cid])
         out.append((parent, child, placement))
     return out
-
-
-def description_with_absolute_meshes(urdf_path: str) -> str:
-    """The URDF text with every relative mesh filename made an absolute ``file://`` URI and
-    every ``package://PKG/...`` one resolved on disk when found (Foxglove fetches both)."""
-    base = Path(urdf_path).resolve().parent
-    text = Path(urdf_path).read_text(encoding="utf-8")
-
-    def resolve(match: re.Match) -> str:
-        name = match.group(2)
-        if name.startswith("package://"):
-            rest = name[len("package://") :]
-            for parent in [base, *base.parents]:
-                if (parent / rest).is_file():
-                    return f"{match.group(1)}file://{parent / rest}{match.group(3)}"
-                if (parent.parent / rest).is_file():
-                    return f"{match.group(1)}file://{parent.parent / rest}{match.group(3)}"
-            return match.group(0)
-        if "://" in name:
-            return match.group(0)
-        return f"{match.group(1)}file://{(base / name).resolve()}{match.group(3)}"
-
-    return re.sub(r'(filename\s*=\s*")([^"]+)(")', resolve, text)
 
 
 class TfEncoder:
@@ -254,24 +232,6 @@ class JointStatesToTf:
         return self.data.oMf[self.robot.contact_frame_id].translation.copy()
 
 
-def tf_derived_topic(robot_name: str, namespace: str | None = None) -> DerivedTopic:
-    """The bag's ``/tf`` (:class:`~ffmpc_ros.bag.ros_types.DerivedTopic`) for ``robot_name``,
-    from the joint states of the graph under ``namespace``."""
-    convert = JointStatesToTf(load_robot(robot_name))
-
-    def derive(data: bytes) -> bytes | None:
-        out = convert(data)
-        return None if out is None else out[1]
-
-    return DerivedTopic(
-        source=topics.resolve(topics.PLANT_JOINT_STATES, namespace),
-        topic=topics.TF,
-        type_name=TF_MESSAGE_TYPE,
-        definition=convert.encoder.schema,
-        derive=derive,
-    )
-
-
 class ViewNode(Node):
     """The live view's node and Foxglove server (module docstring).
 
@@ -348,12 +308,6 @@ class ViewNode(Node):
             self._name(topics.SENSED_WRENCH): self._on_wrench,
             self._name(topics.MPC_PREDICTION): self._on_prediction,
         }
-        self.pub_description = self.create_publisher(
-            String, topics.ROBOT_DESCRIPTION, topics.latched_qos()
-        )
-        self.pub_description.publish(
-            String(data=description_with_absolute_meshes(self.robot.urdf_path))
-        )
         self.pub_markers = self.create_publisher(
             MarkerArray, topics.VIEW_MARKERS, topics.publisher_qos(topics.VIEW_MARKERS)
         )
@@ -393,7 +347,10 @@ class ViewNode(Node):
         since = self.listener.subscribed.get(self._name(topics.PLANT_JOINT_STATES))
         if since is None:
             return False
-        contract = [self._name(t) for t, _, _ in (*topics.TOPICS, *topics.VIEW_TOPICS)]
+        # the graph's ROS /tf is not bridged (the view has its own channel, module docstring)
+        contract = [
+            self._name(t) for t, _, _ in (*topics.TOPICS, *topics.VIEW_TOPICS) if t != topics.TF
+        ]
         if not all(t in self.channels for t in contract):
             return False
         return time.monotonic() - max(since, self._last_channel_at) >= CLIENT_SETTLE
@@ -408,7 +365,7 @@ class ViewNode(Node):
             if topic in self._latched:
                 self.channels[topic].log(self._latched[topic], log_time=self._latched_at[topic])
         for topic, types in self.get_topic_names_and_types():
-            if topic in self._bridges or topic in EXCLUDE or topic == topics.TF:
+            if topic in self._bridges or topic in EXCLUDE or topic == self._name(topics.TF):
                 continue
             publishers = self.get_publishers_info_by_topic(topic)
             if not publishers:

@@ -47,6 +47,7 @@ def test_the_polishing_launch_file_parses_with_its_arguments():
         "mpc",
         "pid",
         "metrics",
+        "state_publisher",
     ]
     mpc = description.nodes[3]
     assert mpc.parameters[0][0] == "file" and mpc.parameters[0][1].endswith("polishing.yaml")

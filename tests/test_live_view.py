@@ -243,10 +243,12 @@ def test_the_bag_of_the_same_run_holds_the_view_topics_and_tf(live_run):
             topics.resolve(topics.MPC_PREDICTION),
         ):
             assert reader.topics[topic].count > 0, topic
-        # /tf: the recorder's own, from every recorded joint state (10 ms of stamps apart)
+        # /tf: the state publisher's, from the measured joint states (10 ms of stamps apart);
+        # /tf_static once
         assert reader.topics[topics.TF].count == -(
-            -reader.topics[topics.resolve(topics.PLANT_JOINT_STATES)].count // 10
+            -reader.topics[topics.resolve(topics.SENSED_JOINT_STATES)].count // 10
         )
+        assert reader.topics[topics.TF_STATIC].count == 1
     store = get_typestore(Stores.ROS2_JAZZY)
     robot = load_robot(load_scenario("polishing").robot)
     states, tfs = {}, []
@@ -254,17 +256,19 @@ def test_the_bag_of_the_same_run_holds_the_view_topics_and_tf(live_run):
         wanted = [
             c
             for c in reader.connections
-            if c.topic in (topics.TF, topics.resolve(topics.PLANT_JOINT_STATES))
+            if c.topic in (topics.TF, topics.TF_STATIC, topics.resolve(topics.SENSED_JOINT_STATES))
         ]
         for connection, _, raw in reader.messages(connections=wanted):
             msg = store.deserialize_cdr(raw, connection.msgtype)
             if connection.topic == topics.TF:
                 tfs.append(msg)
+            elif connection.topic == topics.TF_STATIC:
+                static = _edges(msg)
             else:
                 states[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = msg.position
     for tf in tfs:
         stamp = tf.transforms[0].header.stamp
-        tool = _chain(_edges(tf), "contact")
+        tool = _chain({**static, **_edges(tf)}, "contact")
         expected = robot.contact_placement(np.asarray(states[(stamp.sec, stamp.nanosec)]))
         assert np.allclose(tool.homogeneous, expected.homogeneous, rtol=0, atol=1e-9)
     live = {
@@ -274,14 +278,14 @@ def test_the_bag_of_the_same_run_holds_the_view_topics_and_tf(live_run):
     assert live & {tf.transforms[0].header.stamp.nanosec for tf in tfs}  # the same stamps
 
 
-def test_playing_the_bag_skips_the_tf_rclpy_cannot_publish(live_run):
+def test_playing_the_bag_publishes_tf_too(live_run):
+    """tf2_msgs is installed (generated from the wheels): every topic of the bag is played."""
     from ffmpc_ros.bag.player import play_bag
 
     _, _, bag = live_run
     report = play_bag(bag, rate=4.0, delay=0.1)
-    assert report.skipped == [topics.TF] and "not played (type not installed): /tf" in (
-        report.describe()
-    )
+    assert report.skipped == [] and report.published[topics.TF] > 0
+    assert report.published[topics.TF_STATIC] == 1
     assert report.published[topics.resolve(topics.ROBOT_DESCRIPTION)] == 1
 
 

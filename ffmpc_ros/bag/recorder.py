@@ -362,8 +362,8 @@ def _graph_recorder_options(
     namespace: str | None = None, view_robot: str | None = None
 ) -> dict[str, Any]:
     """The graph recorder's topics, fully qualified under ``namespace`` (``/arm1/clock``); with
-    ``view_robot`` (``--view``) the live view's topics too, and ``/tf`` derived from the joint
-    states."""
+    ``view_robot`` (``--view``) the live view's topics too. ``/tf``, ``/tf_static`` and
+    ``robot_description`` are the state publisher's, in every graph (``topics.TOPICS``)."""
     from ffmpc_ros import topics
     from ffmpc_ros.graph_nodes import NODES
 
@@ -371,13 +371,7 @@ def _graph_recorder_options(
         return topics.resolve(topic, namespace)
 
     extra = [name(t) for t, _, _ in topics.VIEW_TOPICS] if view_robot else []
-    derived = []
-    if view_robot:
-        from ffmpc_ros.view import tf_derived_topic
-
-        derived.append(tf_derived_topic(view_robot, namespace))
     return {
-        "derived": derived,
         "wait_for": [t for t, _, _ in topics.resolved_topics(namespace)] + extra,
         "gate_topic": name(topics.PLANT_JOINT_STATES),
         "parameters_of": [*NODES, "metrics"],
@@ -403,8 +397,7 @@ def graph_recorder(
     (:func:`ffmpc_ros.bag.machine.machine_fingerprint`). ``namespace``: the graph's (the
     recorder node itself takes its context's, see ``ffmpc_ros.bringup``). With ``view``
     (``--view``: the robot's name) the gate also waits for the live view's topics
-    (``ffmpc_ros.topics.VIEW_TOPICS``) and the bag gains ``/tf`` from ``plant/joint_states``
-    (``ffmpc_ros.view.tf_derived_topic``)."""
+    (``ffmpc_ros.topics.VIEW_TOPICS``)."""
     from ffmpc_ros.topics import normalize_namespace
 
     return BagRecorder(
