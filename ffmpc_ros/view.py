@@ -6,27 +6,17 @@ message encoding ``cdr``, schema ``ros2msg`` with the complete definition a bag 
 recorder's subscription helper, ``ffmpc_ros.bag.ros_types.subscribe_raw``). A Foxglove layout
 that names ROS topics therefore opens the live server and a bag of ``--record`` alike.
 
-``robot_description`` and ``/tf_static`` come from the graph's state publisher
-(``ffmpc_ros.state_publisher_node``) and are bridged like every topic (latched: their last
-message goes again to each new Foxglove subscriber). What the robot view needs besides, published
-by this node:
+``robot_description``, ``/tf`` and ``/tf_static`` come from the graph's state publisher
+(``ffmpc_ros.state_publisher_node``: the URDF, and the frames from the MEASURED joint states) and
+are bridged like every topic (the latched ones' last message goes again to each new Foxglove
+subscriber). What the robot view needs besides, published by this node:
 
 * ``/view/markers`` (visualization_msgs/MarkerArray, in the robot's root link frame, which is
   pinocchio's world: it needs no ``/tf``, so a bag shows it too): the measured force
   ``/ft_sensor/wrench`` as an arrow at the contact frame origin (:data:`FORCE_ARROW_SCALE` m per
-  N), and the MPC's planned contact-frame path (``/mpc/prediction``) as a line strip;
-* ``/tf`` (tf2_msgs/TFMessage) — the view's own Foxglove channel, from the TRUE joint states
-  ``/plant/joint_states`` (what the robot really does), in place of the graph's ROS ``/tf``
-  (the state publisher's, from the measured joint states), which is not bridged; a bag of the
-  run holds the ROS one. Its CDR bytes are serialised with ``rosbags``. The tree
-  robot_state_publisher sends: every link frame of the pinocchio model (``BODY`` frames, named
-  like the URDF links)
-  relative to its parent link, the root link relative to ``world`` (identity) and the
-  ``contact`` frame relative to its link, from ``/plant/joint_states`` by forward kinematics.
-  A Foxglove URDF layer driven by ``/plant/joint_states`` (the committed layout) computes the
-  same transforms itself, live and from a bag.
+  N), and the MPC's planned contact-frame path (``/mpc/prediction``) as a line strip.
 
-``/tf`` and the markers are published every :data:`VIEW_PERIOD` s of the stamps of
+The markers are published every :data:`VIEW_PERIOD` s of the stamps of
 ``/plant/joint_states`` (simulated time); the raw topics are forwarded whenever a client
 subscribes to them. Log times are the node's clock (simulated, ``use_sim_time``), as in a bag.
 """
@@ -55,17 +45,16 @@ from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.bag.ros_types import offered_profiles, subscribe_raw
 from ffmpc_ros.bag.schema import MESSAGE_ENCODING, SCHEMA_ENCODING, MessageDefinitions
+from ffmpc_ros.robot_tree import WORLD_FRAME, robot_edges
 
 #: Default port of the Foxglove WebSocket server.
 DEFAULT_PORT = 8765
 #: Host the server binds to (this machine only).
 DEFAULT_HOST = "127.0.0.1"
-#: Simulated s between two /tf and /view/markers messages (100 Hz).
+#: Simulated s between two /view/markers messages (100 Hz).
 VIEW_PERIOD = 0.01
 #: Length of the force arrow, m per N (50 N → 0.25 m).
 FORCE_ARROW_SCALE = 0.005
-#: The root frame of /tf (pinocchio's universe: the robot's fixed base).
-WORLD_FRAME = "world"
 #: Wall s between a client's subscription to /plant/joint_states and the start of the run
 #: (``wait_for_client``): its subscriptions to the other channels arrive meanwhile.
 CLIENT_SETTLE = 0.5
@@ -76,9 +65,6 @@ LATCHED = (topics.ROBOT_DESCRIPTION, topics.TF_STATIC)
 EXCLUDE = ("/parameter_events",)
 #: History of every bridging subscription, messages.
 BRIDGE_DEPTH = 100
-#: The .msg text of tf2_msgs/msg/TFMessage (not installed: see the module docstring).
-TF_MESSAGE_MSG = "geometry_msgs/TransformStamped[] transforms\n"
-TF_MESSAGE_TYPE = "tf2_msgs/msg/TFMessage"
 
 
 class ViewError(FfmpcError):
@@ -101,100 +87,27 @@ def check_port_free(host: str, port: int) -> None:
             ) from None
 
 
-def link_tree(robot: RobotModel) -> list[tuple[str, int, str, int]]:
-    """(parent name, parent frame id, child name, child frame id) of every link frame
-    (pinocchio ``BODY`` frames) and of the contact frame, the parent being the nearest
-    ``BODY`` frame up the chain (the URDF's parent link), or ``world`` (id -1) for the root."""
-    model = robot.model
-    children = [i for i, f in enumerate(model.frames) if f.type == pin.FrameType.BODY]
-    children.append(robot.contact_frame_id)
-    out = []
-    for child in children:
-        parent = model.frames[child].parentFrame
-        while parent != 0 and model.frames[parent].type != pin.FrameType.BODY:
-            parent = model.frames[parent].parentFrame
-        parent_name = WORLD_FRAME if parent == 0 else model.frames[parent].name
-        out.append((parent_name, -1 if parent == 0 else parent, model.frames[child].name, child))
-    return out
-
-
 def root_link(robot: RobotModel) -> str:
-    """The URDF's root link (its frame is pinocchio's world)."""
-    return next(c for p, _, c, _ in link_tree(robot) if p == WORLD_FRAME)
+    """The URDF's root link (its frame is pinocchio's world: ``ffmpc_ros.robot_tree``)."""
+    return next(
+        e.child for e in robot_edges(robot) if e.parent == WORLD_FRAME and not e.world_aligned
+    )
 
 
-def tree_transforms(
-    robot: RobotModel, data: pin.Data, q: np.ndarray, tree: list[tuple[str, int, str, int]]
-) -> list[tuple[str, str, pin.SE3]]:
-    """(parent, child, placement of child in parent) of each edge of ``tree`` at configuration
-    q (rad), by pinocchio's forward kinematics (m, rad)."""
-    pin.framesForwardKinematics(robot.model, data, q)
-    out = []
-    for parent, pid, child, cid in tree:
-        placement = data.oMf[cid] if pid < 0 else data.oMf[pid].actInv(data.oMf[cid])
-        out.append((parent, child, placement))
-    return out
-
-
-class TfEncoder:
-    """tf2_msgs/msg/TFMessage CDR bytes and schema without the ROS type (rosbags)."""
-
-    def __init__(self) -> None:
-        from rosbags.typesys import Stores, get_typestore
-
-        self.store = get_typestore(Stores.ROS2_JAZZY)
-        self.types = self.store.types
-        self.schema = MessageDefinitions(known={TF_MESSAGE_TYPE: TF_MESSAGE_MSG}).full_text(
-            TF_MESSAGE_TYPE
-        )
-
-    def encode(self, stamp_ns: int, edges: list[tuple[str, str, pin.SE3]]) -> bytes:
-        """One TFMessage: every (parent, child, placement) edge, stamped ``stamp_ns``."""
-        t = self.types
-        stamp = t["builtin_interfaces/msg/Time"](
-            sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000
-        )
-        transforms = []
-        for parent, name, placement in edges:
-            header = t["std_msgs/msg/Header"](stamp=stamp, frame_id=parent)
-            p = placement.translation
-            x, y, z, w = pin.Quaternion(placement.rotation).coeffs()
-            transforms.append(
-                t["geometry_msgs/msg/TransformStamped"](
-                    header=header,
-                    child_frame_id=name,
-                    transform=t["geometry_msgs/msg/Transform"](
-                        translation=t["geometry_msgs/msg/Vector3"](
-                            x=float(p[0]), y=float(p[1]), z=float(p[2])
-                        ),
-                        rotation=t["geometry_msgs/msg/Quaternion"](
-                            x=float(x), y=float(y), z=float(z), w=float(w)
-                        ),
-                    ),
-                )
-            )
-        msg = t[TF_MESSAGE_TYPE](transforms=transforms)
-        return bytes(self.store.serialize_cdr(msg, TF_MESSAGE_TYPE))
-
-
-class JointStatesToTf:
-    """``/tf`` from ``/plant/joint_states``: given a JointState's CDR bytes, the TFMessage CDR of
-    the robot's tree at that q (:func:`tree_transforms`, stamped like the joint state), for the
-    stamps on the grid of :data:`VIEW_PERIOD` (multiples of it; the first stamp after a grid point
-    that had none), None for the others or for a bad message. Used by the view node and, with
-    ``--record --view``, by the recorder (the bag's ``/tf``): on one grid, whichever joint state
-    each saw first, the live ``/tf`` and the bag's share their stamps."""
+class ContactFromJointStates:
+    """The contact frame's position from ``/plant/joint_states`` for the markers: given a
+    JointState's CDR bytes, its stamp (ns) for the stamps on the grid of :data:`VIEW_PERIOD`
+    (multiples of it; the first stamp after a grid point that had none), after pinocchio's
+    forward kinematics of its q; None for the other stamps or for a bad message."""
 
     def __init__(self, robot: RobotModel) -> None:
         self.robot = robot
         self.data = robot.create_data()
-        self.tree = link_tree(robot)
-        self.encoder = TfEncoder()
         self.joint_index = {n: i for i, n in enumerate(robot.joint_names)}
         self._next_ns: int | None = None
         self.last: JointState | None = None
 
-    def __call__(self, data: bytes) -> tuple[int, bytes] | None:
+    def __call__(self, data: bytes) -> int | None:
         msg = deserialize_message(data, JointState)
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         period = int(round(VIEW_PERIOD * 1e9))
@@ -207,8 +120,8 @@ class JointStatesToTf:
             return None
         self._next_ns = (stamp_ns // period + 1) * period
         self.last = msg
-        edges = tree_transforms(self.robot, self.data, q, self.tree)
-        return stamp_ns, self.encoder.encode(stamp_ns, edges)
+        pin.framesForwardKinematics(self.robot.model, self.data, q)
+        return stamp_ns
 
     def joint_positions(self, msg: JointState) -> np.ndarray | None:
         """q (rad) in the model's joint order from a JointState (by name when named)."""
@@ -265,7 +178,7 @@ class ViewNode(Node):
         )
         self.namespace = self.get_namespace()
         self.robot = load_robot(robot)
-        self.to_tf = JointStatesToTf(self.robot)
+        self.to_contact = ContactFromJointStates(self.robot)
         self.root = root_link(self.robot)
         self.definitions = MessageDefinitions()
         self.fox = foxglove.Context()
@@ -284,23 +197,12 @@ class ViewNode(Node):
         except RuntimeError as exc:
             raise ViewError(f"the live view cannot listen on {host}:{port}: {exc}") from None
         self.host, self.port = host, int(self.server.port)
-        self.tf_channel = foxglove.Channel(
-            topics.TF,
-            schema=foxglove.Schema(
-                name=TF_MESSAGE_TYPE,
-                encoding=SCHEMA_ENCODING,
-                data=self.to_tf.encoder.schema.encode(),
-            ),
-            message_encoding=MESSAGE_ENCODING,
-            context=self.fox,
-        )
         self.channels: dict[str, Any] = {}
         self._latched: dict[str, bytes] = {}  # last message of each latched topic
         self._latched_at: dict[str, int] = {}
         self._last_channel_at = time.monotonic()
         self._bridges: dict[str, Any] = {}
         self.forwarded: dict[str, int] = {}
-        self.tf_published = 0
         self._force = np.zeros(3)
         self._path: np.ndarray | None = None
         self._hooks: dict[str, Callable[[bytes], None]] = {
@@ -365,7 +267,7 @@ class ViewNode(Node):
             if topic in self._latched:
                 self.channels[topic].log(self._latched[topic], log_time=self._latched_at[topic])
         for topic, types in self.get_topic_names_and_types():
-            if topic in self._bridges or topic in EXCLUDE or topic == self._name(topics.TF):
+            if topic in self._bridges or topic in EXCLUDE:
                 continue
             publishers = self.get_publishers_info_by_topic(topic)
             if not publishers:
@@ -435,15 +337,11 @@ class ViewNode(Node):
         self._path = values["positions"].reshape(-1, 3)
 
     def _on_joint_states(self, data: bytes) -> None:
-        out = self.to_tf(data)
-        if out is None:
+        if self.to_contact(data) is None:
             return
-        stamp_ns, tf = out
-        self.tf_channel.log(tf, log_time=stamp_ns)
-        self.tf_published += 1
-        assert self.to_tf.last is not None  # set with every conversion
-        contact = self.to_tf.contact_position()
-        self.pub_markers.publish(self.markers(self.to_tf.last.header.stamp, contact))
+        assert self.to_contact.last is not None  # set with every conversion
+        contact = self.to_contact.contact_position()
+        self.pub_markers.publish(self.markers(self.to_contact.last.header.stamp, contact))
 
     def markers(self, stamp, contact: np.ndarray) -> MarkerArray:
         """The force arrow at ``contact`` (m, world) and the planned path (module docstring),
@@ -534,7 +432,6 @@ def view_process(config_path: str) -> int:
             counts = {
                 "address": node.address,
                 "forwarded": node.forwarded,
-                "tf": node.tf_published,
             }
             node.close()
             if config.get("counts"):

@@ -37,7 +37,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 
-from ffmpc_ros.bag.ros_types import DerivedTopic, offered_profiles, subscribe_raw
+from ffmpc_ros.bag.ros_types import offered_profiles, subscribe_raw
 from ffmpc_ros.bag.writer import BagWriter
 from ffmpc_ros.graph_nodes import SERVICE_RETRY
 
@@ -147,7 +147,6 @@ class BagRecorder(Node):
         discovery_period: wall seconds between two looks at the graph.
         final_topic: the run is over once a message of this topic is recorded and nothing came
             for ``settle`` wall seconds (:attr:`complete`).
-        derived: topics computed from recorded ones (:class:`DerivedTopic`).
         namespace: record only this namespace's topics (and :data:`DOMAIN_TOPICS`) and nodes
             (None or ``/``: everything on the domain).
     """
@@ -169,7 +168,6 @@ class BagRecorder(Node):
         discovery_period: float = 0.05,
         final_topic: str | None = None,
         settle: float = 0.2,
-        derived: Sequence[DerivedTopic] = (),
         namespace: str | None = None,
     ) -> None:
         super().__init__(
@@ -186,7 +184,6 @@ class BagRecorder(Node):
         self.gate_topic = gate_topic
         self.parameters_of = list(parameters_of) if parameters_of is not None else []
         self.received: dict[str, int] = {}
-        self.derived = {d.source: d for d in derived}
         self._recording_subs: dict[str, Any] = {}
         self._channels: dict[str, int] = {}
         self._fetches: dict[str, _ParameterFetch] = {}
@@ -270,21 +267,11 @@ class BagRecorder(Node):
         writer = self.writer
         received = self.received
 
-        derived = self.derived.get(topic)
-        if derived is not None:
-            target = writer.add_topic(
-                derived.topic, derived.type_name, definition=derived.definition
-            )
-            self.received[derived.topic] = 0
-
         def on_message(data: bytes) -> None:
             now = clock.now().nanoseconds
             writer.write(channel, data, now)
             received[topic] += 1
             self.last_message_at = time.monotonic()
-            if derived is not None and (out := derived.derive(data)) is not None:
-                writer.write(target, out, now)
-                received[derived.topic] += 1
 
         self._recording_subs[topic] = subscribe_raw(
             self, topic, type_name, profiles, on_message, RECORD_DEPTH
