@@ -200,9 +200,14 @@ class ViewNode(Node):
         self.channels: dict[str, Any] = {}
         self._latched: dict[str, bytes] = {}  # last message of each latched topic
         self._latched_at: dict[str, int] = {}
+        self._latched_names = {self._name(t) for t in LATCHED}
+        # latched topics a client subscribed to that have not sent it their last message yet
+        # (the subscription came before the message, or while the server had not attached it)
+        self._owed: set[str] = set()
         self._last_channel_at = time.monotonic()
         self._bridges: dict[str, Any] = {}
-        self.forwarded: dict[str, int] = {}
+        self.forwarded: dict[str, int] = {}  # messages sent to a client, per topic
+        self.received: dict[str, int] = {}  # messages the bridge received, per topic
         self._force = np.zeros(3)
         self._path: np.ndarray | None = None
         self._hooks: dict[str, Callable[[bytes], None]] = {
@@ -263,9 +268,12 @@ class ViewNode(Node):
         only once :attr:`client_ready`)."""
         import foxglove
 
-        for topic in self.listener.take_new():  # a latched message for a new subscriber
-            if topic in self._latched:
+        # a latched topic's last message for each new subscriber, as soon as there is one
+        self._owed.update(t for t in self.listener.take_new() if t in self._latched_names)
+        for topic in sorted(self._owed):
+            if topic in self._latched and self.channels[topic].has_sinks():
                 self.channels[topic].log(self._latched[topic], log_time=self._latched_at[topic])
+                self._owed.discard(topic)
         for topic, types in self.get_topic_names_and_types():
             if topic in self._bridges or topic in EXCLUDE:
                 continue
@@ -300,7 +308,7 @@ class ViewNode(Node):
                 topic,
                 type_name,
                 offered_profiles(publishers),
-                self._forwarder(topic, channel, topic in map(self._name, LATCHED)),
+                self._forwarder(topic, channel, topic in self._latched_names),
                 BRIDGE_DEPTH,
             )
 
@@ -309,15 +317,18 @@ class ViewNode(Node):
         topic's last message is kept and sent again to each new subscriber), then the hook."""
         clock = self.get_clock()
         hook = self._hooks.get(topic)
-        forwarded = self.forwarded
+        forwarded, received = self.forwarded, self.received
+        received[topic] = 0
 
         def on_message(data: bytes) -> None:
             now = clock.now().nanoseconds
+            received[topic] += 1
             if latched:
                 self._latched[topic], self._latched_at[topic] = data, now
             if channel.has_sinks():
                 channel.log(data, log_time=now)
                 forwarded[topic] += 1
+                self._owed.discard(topic)
             if hook is not None:
                 hook(data)
 
@@ -432,6 +443,7 @@ def view_process(config_path: str) -> int:
             counts = {
                 "address": node.address,
                 "forwarded": node.forwarded,
+                "received": node.received,
             }
             node.close()
             if config.get("counts"):

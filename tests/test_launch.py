@@ -146,7 +146,8 @@ def test_ffmpc_launch_runs_the_graph_and_equals_the_runner(tmp_path, namespace):
         for name in ("plant", "joint_sensor", "ft_sensor", "mpc", "pid", "metrics"):
             assert f"[arm1.{name}]: started" in done.stdout, name
     assert sorted(p.name for p in tmp_path.glob("*.log")) == sorted(
-        f"{n}.log" for n in ("plant", "joint_sensor", "ft_sensor", "mpc", "pid", "metrics")
+        f"{n}.log"
+        for n in ("plant", "joint_sensor", "ft_sensor", "mpc", "pid", "metrics", "state_publisher")
     )
     started = re.findall(r"^\[launch\] started \w+ \(pid (\d+)\)$", done.stdout, re.MULTILINE)
     pids = [int(p) for p in started]
