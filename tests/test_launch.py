@@ -151,7 +151,7 @@ def test_ffmpc_launch_runs_the_graph_and_equals_the_runner(tmp_path, namespace):
     )
     started = re.findall(r"^\[launch\] started \w+ \(pid (\d+)\)$", done.stdout, re.MULTILINE)
     pids = [int(p) for p in started]
-    assert len(pids) == 6
+    assert len(pids) == 7  # the seven nodes
     for pid in pids:  # every node stopped with the launch
         assert (
             not Path(f"/proc/{pid}").exists()
