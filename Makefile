@@ -45,7 +45,7 @@ $(STAMP): pyproject.toml CMakeLists.txt
 # when a cpp/ or msg/ file is newer than the last build.
 native: $(NATIVE)
 
-$(NATIVE): $(STAMP) $(wildcard cpp/*.cpp cpp/*.hpp msg/*.msg msg/CMakeLists.txt)
+$(NATIVE): $(STAMP) $(wildcard cpp/*.cpp cpp/*.hpp msg/*.msg msg/*.cmake msg/CMakeLists.txt msg/tf2_msgs/*/* msg/tf2_msgs/CMakeLists.txt)
 	$(BIN)/python -m pip install --quiet --no-build-isolation --no-deps -e .
 	$(BIN)/python -m ffmpc_ros.ament >/dev/null  # pip rewrote the launchers (env python3)
 	touch $(NATIVE)

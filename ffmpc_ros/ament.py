@@ -34,6 +34,7 @@ EXECUTABLES: dict[str, str] = {
     "contact_learner": "ffmpc_ros.contact_learner_node",
     "dice_plant": "ffmpc_ros.dice_plant_node",
     "impact_controller": "ffmpc_ros.impact_controller_node",
+    "state_publisher": "ffmpc_ros.state_publisher_node",
 }
 
 _ROOT = Path(__file__).resolve().parent

@@ -705,8 +705,11 @@ def run_graph(
             print_logs(logs)
         view_result = None
         if view_node is not None:
-            view_result = {"address": view_node.address, "forwarded": dict(view_node.forwarded)}
-            view_result["tf"] = view_node.tf_published
+            view_result = {
+                "address": view_node.address,
+                "forwarded": dict(view_node.forwarded),
+                "received": dict(view_node.received),
+            }
         elif view_counts is not None and os.path.exists(view_counts):
             with open(view_counts, encoding="utf-8") as fh:
                 view_result = json.load(fh)

@@ -24,6 +24,9 @@ NODES: dict[str, str] = {
     "ft_sensor": "ffmpc_ros.ft_sensor_node:FtSensorNode",
     "mpc": "ffmpc_ros.mpc_node:MpcNode",
     "pid": "ffmpc_ros.pid_node:PidNode",
+    # robot_description, /tf and /tf_static (reads the joint states only: the loop does not
+    # wait for it, but the plant's start counts its /clock readers)
+    "state_publisher": "ffmpc_ros.state_publisher_node:StatePublisherNode",
 }
 METRICS_NODE = "ffmpc_ros.metrics_node:MetricsNode"
 

@@ -60,6 +60,7 @@ IMPACT_NODES: dict[str, str] = {
     "impact_planner": "ffmpc_ros.impact_planner_node:ImpactPlannerNode",
     "contact_learner": "ffmpc_ros.contact_learner_node:ContactLearnerNode",
     "impact_controller": "ffmpc_ros.impact_controller_node:ImpactControllerNode",
+    "state_publisher": "ffmpc_ros.state_publisher_node:StatePublisherNode",
 }
 #: The robot of the experiment.
 ROBOT = "panda"
@@ -168,6 +169,7 @@ def impact_node_parameters(
             "start_subscribers": 2 + int(record),
         },
         "joint_sensor": node_parameter_values("joint_sensor", sensing),
+        "state_publisher": dict(common),
         "ft_sensor": {**node_parameter_values("ft_sensor", sensing), "measure_moments": True},
         "contact_learner": {
             **common,

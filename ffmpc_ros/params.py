@@ -326,6 +326,20 @@ MEASURE_MOMENTS = GraphParameter(
     "controller compensates the whole wrench",
 )
 
+# -- the state publisher (robot_state_publisher's parameters, ffmpc_ros.state_publisher_node) ----
+PUBLISH_FREQUENCY = GraphParameter(
+    "publish_frequency",
+    100.0,
+    "/tf rate, Hz of simulated time: the first joint state at or after each k/f s "
+    "(robot_state_publisher's parameter; at most the joint-state rate)",
+    (1e-3, 1e6),
+)
+FRAME_PREFIX = GraphParameter(
+    "frame_prefix",
+    "",
+    "prefix of every frame id of /tf and /tf_static (robot_state_publisher's parameter, e.g. "
+    "arm1/; a namespaced graph has its own /tf already)",
+)
 #: The MPC's live parameters: contact K (N/m) and B (N·s/m), the force set-point (N), the
 #: position offset (m) and the cost weights it can change in place (of the formulation it runs).
 MPC_LIVE: tuple[str, ...] = (
@@ -383,6 +397,13 @@ NODE_SPECS: dict[str, NodeSpec] = {
         ("robot", "seed", "task.*"),
         _TIME_STEP + _CONTACT + ("mpc.formulation",),
         (DURATION, LOCKSTEP),
+    ),
+    "state_publisher": NodeSpec(
+        "state_publisher",
+        None,
+        ("robot",),
+        _TIME_STEP,
+        (MAX_AGE, PUBLISH_FREQUENCY, FRAME_PREFIX),
     ),
     "impact_planner": NodeSpec(
         "impact_planner",

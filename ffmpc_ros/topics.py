@@ -7,8 +7,10 @@ QoS, as ROS 2 users expect (every profile is a function of this module; msgs_not
   BEST_EFFORT, VOLATILE, so a standard driver's best-effort publisher connects;
 * COMMAND — ``mpc/command``, the PID's torques, the impact planner's twist: RELIABLE, VOLATILE;
 * STATE — status, truth, estimates, predictions, markers: RELIABLE, VOLATILE;
-* LATCHED — ``robot_description``, ``metrics/*``, the MPC's reference inputs: RELIABLE,
-  TRANSIENT_LOCAL, KEEP_LAST(1), the only replayed data;
+* STATE also holds ``/tf`` (tf2's dynamic broadcaster: RELIABLE, VOLATILE);
+* LATCHED — ``robot_description``, ``/tf_static`` (tf2's static broadcaster profile),
+  ``metrics/*``, the MPC's reference inputs: RELIABLE, TRANSIENT_LOCAL, KEEP_LAST(1), the only
+  replayed data;
 * ``/clock``: RELIABLE, VOLATILE with a history of :data:`PUBLISHER_DEPTH` (rclpy's time source
   subscribes BEST_EFFORT, depth 1: only the newest time matters to a node; the recorder keeps
   them all). Every ffmpc node also reads it RELIABLE, depth 1 (:func:`clock_reader_qos`,
@@ -29,7 +31,7 @@ since it matched a reader.
 Names. Every topic and service name of the graph is RELATIVE (``plant/joint_states``): it
 resolves under the namespace of the node that uses it, so ``--ros-args -r __ns:=/arm1`` (or
 ``ffmpc run --namespace /arm1``) moves the whole graph to ``/arm1/plant/joint_states``, ... and
-two robot cells run side by side on one ROS domain. Three names stay absolute
+two robot cells run side by side on one ROS domain. Four names stay absolute
 (:data:`ABSOLUTE_NAMES`):
 
 * ``/clock``, ROS's convention (rclpy's time source subscribes the absolute ``/clock``). A
@@ -39,8 +41,9 @@ two robot cells run side by side on one ROS domain. Three names stay absolute
   identity and nothing changes.
 * ``/diagnostics``, the diagnostic aggregator's convention: every node of every graph reports
   there, its status named by the node's fully qualified name (``/arm1/mpc``).
-* ``/tf`` of the live view, tf2's name: a Foxglove channel and a topic of the bag, never
-  published through ROS (``ffmpc_ros.view``).
+* ``/tf`` and ``/tf_static``, tf2's names (``ffmpc_ros.state_publisher_node``). A namespaced
+  graph remaps them like ``/clock`` (``-r /tf:=tf -r /tf_static:=tf_static``: ``/arm1/tf``),
+  the rule Nav2 uses for several robots: each robot's tree stays its own.
 
 :func:`resolve` gives the fully qualified name of a graph name under a namespace (what a bag
 records, what ``ros2 topic list`` shows); it needs no node.
@@ -83,17 +86,28 @@ REFERENCE_TOPICS: tuple[tuple[str, str, str], ...] = (
 )
 #: The world frame (the frame_id of a reference pose).
 WORLD_FRAME = "world"
-#: The Foxglove-only channel of the view (no tf2_msgs wheel exists for the ROS 2 of this venv);
-#: absolute, as tf2 names it (it is a Foxglove channel and a bag topic, never a ROS publication).
+#: tf2's topics (tf2_msgs/msg/TFMessage), published by the state publisher from the measured
+#: joint states (moving joints) and once, latched (fixed joints); absolute, as tf2 names them.
 TF = "/tf"
+TF_STATIC = "/tf_static"
+#: The URDF of the graph's robot (std_msgs/String, latched), published by the state publisher;
+#: relative, like robot_state_publisher's.
+ROBOT_DESCRIPTION = "robot_description"
 #: The only absolute names of the graph (module docstring); every other name here is relative.
-ABSOLUTE_NAMES = frozenset({CLOCK, DIAGNOSTICS, TF})
+ABSOLUTE_NAMES = frozenset({CLOCK, DIAGNOSTICS, TF, TF_STATIC})
 #: The namespace of a graph started without one.
 ROOT_NAMESPACE = "/"
 
 #: The frame of every wrench: origin at the robot's ``contact`` frame, axes of ``world``
 #: (pinocchio's LOCAL_WORLD_ALIGNED); the moment is about the contact frame origin.
 WRENCH_FRAME = "contact_world_aligned"
+
+#: The state publisher's topics (robot_state_publisher's), in every graph.
+STATE_TOPICS: tuple[tuple[str, str, str], ...] = (
+    (ROBOT_DESCRIPTION, "std_msgs/msg/String", "state_publisher"),
+    (TF, "tf2_msgs/msg/TFMessage", "state_publisher"),
+    (TF_STATIC, "tf2_msgs/msg/TFMessage", "state_publisher"),
+)
 
 #: (topic, ROS type, publisher node) of every topic; the notes list the same rows.
 TOPICS: tuple[tuple[str, str, str], ...] = (
@@ -112,6 +126,7 @@ TOPICS: tuple[tuple[str, str, str], ...] = (
     (LOWLEVEL_STATUS, "std_msgs/msg/Float64MultiArray", "pid"),
     (METRICS_SUMMARY, "std_msgs/msg/String", "metrics"),
     (METRICS_READY, "std_msgs/msg/Bool", "metrics"),
+    *STATE_TOPICS,
 )
 
 #: Topics and services of the impact nodes (Dehio & Kheddar 2020). They are kept out of
@@ -161,18 +176,17 @@ IMPACT_GRAPH_TOPICS: tuple[tuple[str, str, str], ...] = (
     (FILTERED_WRENCH, "geometry_msgs/msg/WrenchStamped", "ft_sensor"),
     (IN_CONTACT, "std_msgs/msg/Bool", "ft_sensor"),
     *IMPACT_TOPICS,
+    *STATE_TOPICS,
     (IMPACT_SUMMARY, "std_msgs/msg/String", "ffmpc_bringup"),
 )
 
 #: Topics of the live view (``ffmpc run --view``, ffmpc_ros.view): the MPC's horizon, which the
-#: MPC node publishes only while something subscribes, the URDF and the markers of the view node.
+#: MPC node publishes only while something subscribes, and the markers of the view node.
 MPC_PREDICTION = "mpc/prediction"
-ROBOT_DESCRIPTION = "robot_description"
 VIEW_MARKERS = "view/markers"
 
 VIEW_TOPICS: tuple[tuple[str, str, str], ...] = (
     (MPC_PREDICTION, "std_msgs/msg/Float64MultiArray", "mpc"),
-    (ROBOT_DESCRIPTION, "std_msgs/msg/String", "view"),
     (VIEW_MARKERS, "visualization_msgs/msg/MarkerArray", "view"),
 )
 
@@ -211,6 +225,8 @@ QOS_CLASSES: dict[str, str] = {
     CONTACT_ESTIMATE: STATE,
     MPC_PREDICTION: STATE,
     VIEW_MARKERS: STATE,
+    TF: STATE,
+    TF_STATIC: LATCHED,
     METRICS_SUMMARY: LATCHED,
     IMPACT_SUMMARY: LATCHED,
     METRICS_READY: LATCHED,
@@ -391,8 +407,10 @@ def resolve(name: str, namespace: str | None = ROOT_NAMESPACE) -> str:
     ``/arm1/mpc/command``, ``resolve(CLOCK, "/arm1")`` ``/arm1/clock``, ``/diagnostics``
     stays. At the root every name resolves as before (``/mpc/command``, ``/clock``)."""
     ns = normalize_namespace(namespace)
-    if name == CLOCK:
-        name = CLOCK_REMAP_TARGET
+    if name in GRAPH_REMAPS:
+        if ns == ROOT_NAMESPACE:
+            return name
+        name = GRAPH_REMAPS[name]
     elif name.startswith("/"):
         return name
     return f"{ns.rstrip('/')}/{name}"
@@ -400,16 +418,22 @@ def resolve(name: str, namespace: str | None = ROOT_NAMESPACE) -> str:
 
 #: Where a namespaced graph's ``/clock`` goes (relative: ``<namespace>/clock``).
 CLOCK_REMAP_TARGET = "clock"
+#: The absolute names a namespaced graph remaps into its namespace (module docstring).
+GRAPH_REMAPS: dict[str, str] = {CLOCK: CLOCK_REMAP_TARGET, TF: "tf", TF_STATIC: "tf_static"}
 
 
 def graph_ros_args(namespace: str | None) -> list[str]:
     """The ROS arguments (after ``--ros-args``) that put a node or a whole rclpy context into
-    the graph under ``namespace``: ``-r __ns:=/arm1 -r /clock:=clock``; none at the root (the
-    graph then runs exactly as without a namespace)."""
+    the graph under ``namespace``: ``-r __ns:=/arm1 -r /clock:=clock -r /tf:=tf -r
+    /tf_static:=tf_static``; none at the root (the graph then runs exactly as without a
+    namespace)."""
     ns = normalize_namespace(namespace)
     if ns == ROOT_NAMESPACE:
         return []
-    return ["-r", f"__ns:={ns}", "-r", f"{CLOCK}:={CLOCK_REMAP_TARGET}"]
+    out = ["-r", f"__ns:={ns}"]
+    for name, target in GRAPH_REMAPS.items():
+        out += ["-r", f"{name}:={target}"]
+    return out
 
 
 def resolved_topics(namespace: str | None = ROOT_NAMESPACE) -> tuple[tuple[str, str, str], ...]:

@@ -6,25 +6,17 @@ message encoding ``cdr``, schema ``ros2msg`` with the complete definition a bag 
 recorder's subscription helper, ``ffmpc_ros.bag.ros_types.subscribe_raw``). A Foxglove layout
 that names ROS topics therefore opens the live server and a bag of ``--record`` alike.
 
-What the robot view needs, published by this node:
+``robot_description``, ``/tf`` and ``/tf_static`` come from the graph's state publisher
+(``ffmpc_ros.state_publisher_node``: the URDF, and the frames from the MEASURED joint states) and
+are bridged like every topic (the latched ones' last message goes again to each new Foxglove
+subscriber). What the robot view needs besides, published by this node:
 
-* ``/robot_description`` (std_msgs/String, RELIABLE + TRANSIENT_LOCAL, depth 1): the URDF the
-  robot model is built from, its relative mesh paths made absolute ``file://`` URIs (which the
-  server also serves to a client that asks, ``asset_handler``);
 * ``/view/markers`` (visualization_msgs/MarkerArray, in the robot's root link frame, which is
   pinocchio's world: it needs no ``/tf``, so a bag shows it too): the measured force
   ``/ft_sensor/wrench`` as an arrow at the contact frame origin (:data:`FORCE_ARROW_SCALE` m per
-  N), and the MPC's planned contact-frame path (``/mpc/prediction``) as a line strip;
-* ``/tf`` (tf2_msgs/TFMessage) — a Foxglove channel only: no ``tf2_msgs`` wheel exists for the
-  ROS 2 of this environment, so rclpy cannot publish the type. Its CDR bytes are serialised with
-  ``rosbags`` (the same bytes a ROS 2 publisher would send). The tree robot_state_publisher
-  sends: every link frame of the pinocchio model (``BODY`` frames, named like the URDF links)
-  relative to its parent link, the root link relative to ``world`` (identity) and the
-  ``contact`` frame relative to its link, from ``/plant/joint_states`` by forward kinematics.
-  A Foxglove URDF layer driven by ``/plant/joint_states`` (the committed layout) computes the
-  same transforms itself, live and from a bag.
+  N), and the MPC's planned contact-frame path (``/mpc/prediction``) as a line strip.
 
-``/tf`` and the markers are published every :data:`VIEW_PERIOD` s of the stamps of
+The markers are published every :data:`VIEW_PERIOD` s of the stamps of
 ``/plant/joint_states`` (simulated time); the raw topics are forwarded whenever a client
 subscribes to them. Log times are the node's clock (simulated, ``use_sim_time``), as in a bag.
 """
@@ -32,7 +24,6 @@ subscribes to them. Log times are the node's clock (simulated, ``use_sim_time``)
 from __future__ import annotations
 
 import json
-import re
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -46,38 +37,34 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
-from std_msgs.msg import ColorRGBA, Float64MultiArray, String
+from std_msgs.msg import ColorRGBA, Float64MultiArray
 from visualization_msgs.msg import Marker, MarkerArray
 
 from ffmpc_core.errors import ConfigError, FfmpcError
 from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_ros import layouts, topics
-from ffmpc_ros.bag.ros_types import DerivedTopic, offered_profiles, subscribe_raw
+from ffmpc_ros.bag.ros_types import offered_profiles, subscribe_raw
 from ffmpc_ros.bag.schema import MESSAGE_ENCODING, SCHEMA_ENCODING, MessageDefinitions
+from ffmpc_ros.robot_tree import WORLD_FRAME, robot_edges
 
 #: Default port of the Foxglove WebSocket server.
 DEFAULT_PORT = 8765
 #: Host the server binds to (this machine only).
 DEFAULT_HOST = "127.0.0.1"
-#: Simulated s between two /tf and /view/markers messages (100 Hz).
+#: Simulated s between two /view/markers messages (100 Hz).
 VIEW_PERIOD = 0.01
 #: Length of the force arrow, m per N (50 N → 0.25 m).
 FORCE_ARROW_SCALE = 0.005
-#: The root frame of /tf (pinocchio's universe: the robot's fixed base).
-WORLD_FRAME = "world"
 #: Wall s between a client's subscription to /plant/joint_states and the start of the run
 #: (``wait_for_client``): its subscriptions to the other channels arrive meanwhile.
 CLIENT_SETTLE = 0.5
 #: Latched topics: their last message goes again to each new Foxglove subscriber (Foxglove
 #: channels keep nothing; DDS reports a remote publisher's depth as 0, so the QoS cannot tell).
-LATCHED = (topics.ROBOT_DESCRIPTION,)
+LATCHED = (topics.ROBOT_DESCRIPTION, topics.TF_STATIC)
 #: Topics never bridged (parameter events are not data).
 EXCLUDE = ("/parameter_events",)
 #: History of every bridging subscription, messages.
 BRIDGE_DEPTH = 100
-#: The .msg text of tf2_msgs/msg/TFMessage (not installed: see the module docstring).
-TF_MESSAGE_MSG = "geometry_msgs/TransformStamped[] transforms\n"
-TF_MESSAGE_TYPE = "tf2_msgs/msg/TFMessage"
 
 
 class ViewError(FfmpcError):
@@ -100,123 +87,27 @@ def check_port_free(host: str, port: int) -> None:
             ) from None
 
 
-def link_tree(robot: RobotModel) -> list[tuple[str, int, str, int]]:
-    """(parent name, parent frame id, child name, child frame id) of every link frame
-    (pinocchio ``BODY`` frames) and of the contact frame, the parent being the nearest
-    ``BODY`` frame up the chain (the URDF's parent link), or ``world`` (id -1) for the root."""
-    model = robot.model
-    children = [i for i, f in enumerate(model.frames) if f.type == pin.FrameType.BODY]
-    children.append(robot.contact_frame_id)
-    out = []
-    for child in children:
-        parent = model.frames[child].parentFrame
-        while parent != 0 and model.frames[parent].type != pin.FrameType.BODY:
-            parent = model.frames[parent].parentFrame
-        parent_name = WORLD_FRAME if parent == 0 else model.frames[parent].name
-        out.append((parent_name, -1 if parent == 0 else parent, model.frames[child].name, child))
-    return out
-
-
 def root_link(robot: RobotModel) -> str:
-    """The URDF's root link (its frame is pinocchio's world)."""
-    return next(c for p, _, c, _ in link_tree(robot) if p == WORLD_FRAME)
+    """The URDF's root link (its frame is pinocchio's world: ``ffmpc_ros.robot_tree``)."""
+    return next(
+        e.child for e in robot_edges(robot) if e.parent == WORLD_FRAME and not e.world_aligned
+    )
 
 
-def tree_transforms(
-    robot: RobotModel, data: pin.Data, q: np.ndarray, tree: list[tuple[str, int, str, int]]
-) -> list[tuple[str, str, pin.SE3]]:
-    """(parent, child, placement of child in parent) of each edge of ``tree`` at configuration
-    q (rad), by pinocchio's forward kinematics (m, rad)."""
-    pin.framesForwardKinematics(robot.model, data, q)
-    out = []
-    for parent, pid, child, cid in tree:
-        placement = data.oMf[cid] if pid < 0 else data.oMf[pid].actInv(data.oMf[cid])
-        out.append((parent, child, placement))
-    return out
-
-
-def description_with_absolute_meshes(urdf_path: str) -> str:
-    """The URDF text with every relative mesh filename made an absolute ``file://`` URI and
-    every ``package://PKG/...`` one resolved on disk when found (Foxglove fetches both)."""
-    base = Path(urdf_path).resolve().parent
-    text = Path(urdf_path).read_text(encoding="utf-8")
-
-    def resolve(match: re.Match) -> str:
-        name = match.group(2)
-        if name.startswith("package://"):
-            rest = name[len("package://") :]
-            for parent in [base, *base.parents]:
-                if (parent / rest).is_file():
-                    return f"{match.group(1)}file://{parent / rest}{match.group(3)}"
-                if (parent.parent / rest).is_file():
-                    return f"{match.group(1)}file://{parent.parent / rest}{match.group(3)}"
-            return match.group(0)
-        if "://" in name:
-            return match.group(0)
-        return f"{match.group(1)}file://{(base / name).resolve()}{match.group(3)}"
-
-    return re.sub(r'(filename\s*=\s*")([^"]+)(")', resolve, text)
-
-
-class TfEncoder:
-    """tf2_msgs/msg/TFMessage CDR bytes and schema without the ROS type (rosbags)."""
-
-    def __init__(self) -> None:
-        from rosbags.typesys import Stores, get_typestore
-
-        self.store = get_typestore(Stores.ROS2_JAZZY)
-        self.types = self.store.types
-        self.schema = MessageDefinitions(known={TF_MESSAGE_TYPE: TF_MESSAGE_MSG}).full_text(
-            TF_MESSAGE_TYPE
-        )
-
-    def encode(self, stamp_ns: int, edges: list[tuple[str, str, pin.SE3]]) -> bytes:
-        """One TFMessage: every (parent, child, placement) edge, stamped ``stamp_ns``."""
-        t = self.types
-        stamp = t["builtin_interfaces/msg/Time"](
-            sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000
-        )
-        transforms = []
-        for parent, name, placement in edges:
-            header = t["std_msgs/msg/Header"](stamp=stamp, frame_id=parent)
-            p = placement.translation
-            x, y, z, w = pin.Quaternion(placement.rotation).coeffs()
-            transforms.append(
-                t["geometry_msgs/msg/TransformStamped"](
-                    header=header,
-                    child_frame_id=name,
-                    transform=t["geometry_msgs/msg/Transform"](
-                        translation=t["geometry_msgs/msg/Vector3"](
-                            x=float(p[0]), y=float(p[1]), z=float(p[2])
-                        ),
-                        rotation=t["geometry_msgs/msg/Quaternion"](
-                            x=float(x), y=float(y), z=float(z), w=float(w)
-                        ),
-                    ),
-                )
-            )
-        msg = t[TF_MESSAGE_TYPE](transforms=transforms)
-        return bytes(self.store.serialize_cdr(msg, TF_MESSAGE_TYPE))
-
-
-class JointStatesToTf:
-    """``/tf`` from ``/plant/joint_states``: given a JointState's CDR bytes, the TFMessage CDR of
-    the robot's tree at that q (:func:`tree_transforms`, stamped like the joint state), for the
-    stamps on the grid of :data:`VIEW_PERIOD` (multiples of it; the first stamp after a grid point
-    that had none), None for the others or for a bad message. Used by the view node and, with
-    ``--record --view``, by the recorder (the bag's ``/tf``): on one grid, whichever joint state
-    each saw first, the live ``/tf`` and the bag's share their stamps."""
+class ContactFromJointStates:
+    """The contact frame's position from ``/plant/joint_states`` for the markers: given a
+    JointState's CDR bytes, its stamp (ns) for the stamps on the grid of :data:`VIEW_PERIOD`
+    (multiples of it; the first stamp after a grid point that had none), after pinocchio's
+    forward kinematics of its q; None for the other stamps or for a bad message."""
 
     def __init__(self, robot: RobotModel) -> None:
         self.robot = robot
         self.data = robot.create_data()
-        self.tree = link_tree(robot)
-        self.encoder = TfEncoder()
         self.joint_index = {n: i for i, n in enumerate(robot.joint_names)}
         self._next_ns: int | None = None
         self.last: JointState | None = None
 
-    def __call__(self, data: bytes) -> tuple[int, bytes] | None:
+    def __call__(self, data: bytes) -> int | None:
         msg = deserialize_message(data, JointState)
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         period = int(round(VIEW_PERIOD * 1e9))
@@ -229,8 +120,8 @@ class JointStatesToTf:
             return None
         self._next_ns = (stamp_ns // period + 1) * period
         self.last = msg
-        edges = tree_transforms(self.robot, self.data, q, self.tree)
-        return stamp_ns, self.encoder.encode(stamp_ns, edges)
+        pin.framesForwardKinematics(self.robot.model, self.data, q)
+        return stamp_ns
 
     def joint_positions(self, msg: JointState) -> np.ndarray | None:
         """q (rad) in the model's joint order from a JointState (by name when named)."""
@@ -252,24 +143,6 @@ class JointStatesToTf:
     def contact_position(self) -> np.ndarray:
         """The contact frame origin of the last q converted (m, world frame)."""
         return self.data.oMf[self.robot.contact_frame_id].translation.copy()
-
-
-def tf_derived_topic(robot_name: str, namespace: str | None = None) -> DerivedTopic:
-    """The bag's ``/tf`` (:class:`~ffmpc_ros.bag.ros_types.DerivedTopic`) for ``robot_name``,
-    from the joint states of the graph under ``namespace``."""
-    convert = JointStatesToTf(load_robot(robot_name))
-
-    def derive(data: bytes) -> bytes | None:
-        out = convert(data)
-        return None if out is None else out[1]
-
-    return DerivedTopic(
-        source=topics.resolve(topics.PLANT_JOINT_STATES, namespace),
-        topic=topics.TF,
-        type_name=TF_MESSAGE_TYPE,
-        definition=convert.encoder.schema,
-        derive=derive,
-    )
 
 
 class ViewNode(Node):
@@ -305,7 +178,7 @@ class ViewNode(Node):
         )
         self.namespace = self.get_namespace()
         self.robot = load_robot(robot)
-        self.to_tf = JointStatesToTf(self.robot)
+        self.to_contact = ContactFromJointStates(self.robot)
         self.root = root_link(self.robot)
         self.definitions = MessageDefinitions()
         self.fox = foxglove.Context()
@@ -324,23 +197,17 @@ class ViewNode(Node):
         except RuntimeError as exc:
             raise ViewError(f"the live view cannot listen on {host}:{port}: {exc}") from None
         self.host, self.port = host, int(self.server.port)
-        self.tf_channel = foxglove.Channel(
-            topics.TF,
-            schema=foxglove.Schema(
-                name=TF_MESSAGE_TYPE,
-                encoding=SCHEMA_ENCODING,
-                data=self.to_tf.encoder.schema.encode(),
-            ),
-            message_encoding=MESSAGE_ENCODING,
-            context=self.fox,
-        )
         self.channels: dict[str, Any] = {}
         self._latched: dict[str, bytes] = {}  # last message of each latched topic
         self._latched_at: dict[str, int] = {}
+        self._latched_names = {self._name(t) for t in LATCHED}
+        # latched topics a client subscribed to that have not sent it their last message yet
+        # (the subscription came before the message, or while the server had not attached it)
+        self._owed: set[str] = set()
         self._last_channel_at = time.monotonic()
         self._bridges: dict[str, Any] = {}
-        self.forwarded: dict[str, int] = {}
-        self.tf_published = 0
+        self.forwarded: dict[str, int] = {}  # messages sent to a client, per topic
+        self.received: dict[str, int] = {}  # messages the bridge received, per topic
         self._force = np.zeros(3)
         self._path: np.ndarray | None = None
         self._hooks: dict[str, Callable[[bytes], None]] = {
@@ -348,12 +215,6 @@ class ViewNode(Node):
             self._name(topics.SENSED_WRENCH): self._on_wrench,
             self._name(topics.MPC_PREDICTION): self._on_prediction,
         }
-        self.pub_description = self.create_publisher(
-            String, topics.ROBOT_DESCRIPTION, topics.latched_qos()
-        )
-        self.pub_description.publish(
-            String(data=description_with_absolute_meshes(self.robot.urdf_path))
-        )
         self.pub_markers = self.create_publisher(
             MarkerArray, topics.VIEW_MARKERS, topics.publisher_qos(topics.VIEW_MARKERS)
         )
@@ -393,7 +254,10 @@ class ViewNode(Node):
         since = self.listener.subscribed.get(self._name(topics.PLANT_JOINT_STATES))
         if since is None:
             return False
-        contract = [self._name(t) for t, _, _ in (*topics.TOPICS, *topics.VIEW_TOPICS)]
+        # the graph's ROS /tf is not bridged (the view has its own channel, module docstring)
+        contract = [
+            self._name(t) for t, _, _ in (*topics.TOPICS, *topics.VIEW_TOPICS) if t != topics.TF
+        ]
         if not all(t in self.channels for t in contract):
             return False
         return time.monotonic() - max(since, self._last_channel_at) >= CLIENT_SETTLE
@@ -404,11 +268,14 @@ class ViewNode(Node):
         only once :attr:`client_ready`)."""
         import foxglove
 
-        for topic in self.listener.take_new():  # a latched message for a new subscriber
-            if topic in self._latched:
+        # a latched topic's last message for each new subscriber, as soon as there is one
+        self._owed.update(t for t in self.listener.take_new() if t in self._latched_names)
+        for topic in sorted(self._owed):
+            if topic in self._latched and self.channels[topic].has_sinks():
                 self.channels[topic].log(self._latched[topic], log_time=self._latched_at[topic])
+                self._owed.discard(topic)
         for topic, types in self.get_topic_names_and_types():
-            if topic in self._bridges or topic in EXCLUDE or topic == topics.TF:
+            if topic in self._bridges or topic in EXCLUDE:
                 continue
             publishers = self.get_publishers_info_by_topic(topic)
             if not publishers:
@@ -441,7 +308,7 @@ class ViewNode(Node):
                 topic,
                 type_name,
                 offered_profiles(publishers),
-                self._forwarder(topic, channel, topic in map(self._name, LATCHED)),
+                self._forwarder(topic, channel, topic in self._latched_names),
                 BRIDGE_DEPTH,
             )
 
@@ -450,15 +317,18 @@ class ViewNode(Node):
         topic's last message is kept and sent again to each new subscriber), then the hook."""
         clock = self.get_clock()
         hook = self._hooks.get(topic)
-        forwarded = self.forwarded
+        forwarded, received = self.forwarded, self.received
+        received[topic] = 0
 
         def on_message(data: bytes) -> None:
             now = clock.now().nanoseconds
+            received[topic] += 1
             if latched:
                 self._latched[topic], self._latched_at[topic] = data, now
             if channel.has_sinks():
                 channel.log(data, log_time=now)
                 forwarded[topic] += 1
+                self._owed.discard(topic)
             if hook is not None:
                 hook(data)
 
@@ -478,15 +348,11 @@ class ViewNode(Node):
         self._path = values["positions"].reshape(-1, 3)
 
     def _on_joint_states(self, data: bytes) -> None:
-        out = self.to_tf(data)
-        if out is None:
+        if self.to_contact(data) is None:
             return
-        stamp_ns, tf = out
-        self.tf_channel.log(tf, log_time=stamp_ns)
-        self.tf_published += 1
-        assert self.to_tf.last is not None  # set with every conversion
-        contact = self.to_tf.contact_position()
-        self.pub_markers.publish(self.markers(self.to_tf.last.header.stamp, contact))
+        assert self.to_contact.last is not None  # set with every conversion
+        contact = self.to_contact.contact_position()
+        self.pub_markers.publish(self.markers(self.to_contact.last.header.stamp, contact))
 
     def markers(self, stamp, contact: np.ndarray) -> MarkerArray:
         """The force arrow at ``contact`` (m, world) and the planned path (module docstring),
@@ -577,7 +443,7 @@ def view_process(config_path: str) -> int:
             counts = {
                 "address": node.address,
                 "forwarded": node.forwarded,
-                "tf": node.tf_published,
+                "received": node.received,
             }
             node.close()
             if config.get("counts"):

@@ -153,6 +153,7 @@ def test_baseline_graph_equals_the_ros_free_run():
         "ft_sensor",
         "contact_learner",
         "impact_controller",
+        "state_publisher",
     }
 
 

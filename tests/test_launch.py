@@ -47,6 +47,7 @@ def test_the_polishing_launch_file_parses_with_its_arguments():
         "mpc",
         "pid",
         "metrics",
+        "state_publisher",
     ]
     mpc = description.nodes[3]
     assert mpc.parameters[0][0] == "file" and mpc.parameters[0][1].endswith("polishing.yaml")
@@ -145,11 +146,12 @@ def test_ffmpc_launch_runs_the_graph_and_equals_the_runner(tmp_path, namespace):
         for name in ("plant", "joint_sensor", "ft_sensor", "mpc", "pid", "metrics"):
             assert f"[arm1.{name}]: started" in done.stdout, name
     assert sorted(p.name for p in tmp_path.glob("*.log")) == sorted(
-        f"{n}.log" for n in ("plant", "joint_sensor", "ft_sensor", "mpc", "pid", "metrics")
+        f"{n}.log"
+        for n in ("plant", "joint_sensor", "ft_sensor", "mpc", "pid", "metrics", "state_publisher")
     )
     started = re.findall(r"^\[launch\] started \w+ \(pid (\d+)\)$", done.stdout, re.MULTILINE)
     pids = [int(p) for p in started]
-    assert len(pids) == 6
+    assert len(pids) == 7  # the seven nodes
     for pid in pids:  # every node stopped with the launch
         assert (
             not Path(f"/proc/{pid}").exists()

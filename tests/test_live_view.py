@@ -1,6 +1,7 @@
 """``ffmpc run --view``: a Foxglove WebSocket client (``foxglove.sdk.v1``) connects to the
 live view of a short lockstep run, subscribes to every channel advertised and decodes what
-arrives; the run is recorded at the same time, and the bag holds the view's topics too."""
+arrives; the run is recorded at the same time, and the bag holds the view's topics too. The
+robot's frames (/tf, /tf_static) and URDF are the state publisher's, bridged as they are."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ import pytest
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
+from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
 from ffmpc_core.robots import load_robot
@@ -25,7 +27,8 @@ from ffmpc_ros import layouts, topics
 from ffmpc_ros.bag.reader import BagReader
 from ffmpc_ros.bag.schema import MessageDefinitions
 from ffmpc_ros.bringup import run_graph
-from ffmpc_ros.view import WORLD_FRAME, ViewError, check_port_free
+from ffmpc_ros.robot_tree import WORLD_FRAME
+from ffmpc_ros.view import ViewError, check_port_free
 
 websockets_sync = pytest.importorskip("websockets.sync.client")
 
@@ -128,6 +131,7 @@ def test_channels_are_ros_topics_with_their_full_definitions(live_run):
     channels = _by_topic(client)
     expected = {
         topics.TF: "tf2_msgs/msg/TFMessage",
+        topics.TF_STATIC: "tf2_msgs/msg/TFMessage",
         topics.resolve(topics.PLANT_JOINT_STATES): "sensor_msgs/msg/JointState",
         topics.resolve(topics.SENSED_WRENCH): "geometry_msgs/msg/WrenchStamped",
         topics.resolve(topics.MPC_COMMAND): "ffmpc_msgs/msg/MpcCommand",
@@ -145,9 +149,9 @@ def test_channels_are_ros_topics_with_their_full_definitions(live_run):
     assert channels[topics.resolve(topics.PLANT_JOINT_STATES)]["schema"] == definitions.full_text(
         "sensor_msgs/msg/JointState"
     )
-    assert "geometry_msgs/TransformStamped[] transforms" in channels[topics.TF]["schema"]
+    assert channels[topics.TF]["schema"] == definitions.full_text("tf2_msgs/msg/TFMessage")
     assert "MSG: geometry_msgs/TransformStamped" in channels[topics.TF]["schema"]
-    assert result.view is not None and result.view["tf"] > 0
+    assert result.view is not None and result.view["forwarded"][topics.TF] > 0
 
 
 def _edges(tf) -> dict[str, tuple[str, pin.SE3]]:
@@ -170,24 +174,25 @@ def _chain(transforms: dict[str, tuple[str, pin.SE3]], frame: str) -> pin.SE3:
 
 
 def test_tf_is_the_forward_kinematics_of_the_joint_states(live_run):
-    from rosbags.typesys import Stores, get_typestore
-
+    """The bridged /tf (and /tf_static, latched: sent to the client that subscribed late) give
+    the contact frame of the MEASURED joint state with the same stamp."""
     _, client, _ = live_run
-    store = get_typestore(Stores.ROS2_JAZZY)
     robot = load_robot(load_scenario("polishing").robot)
     data = robot.create_data()
     states = {}
-    for _, payload in client.messages[topics.resolve(topics.PLANT_JOINT_STATES)]:
+    for _, payload in client.messages[topics.resolve(topics.SENSED_JOINT_STATES)]:
         msg = deserialize_message(payload, JointState)
         states[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = np.array(msg.position)
+    [(_, static_payload)] = client.messages[topics.TF_STATIC]
+    static = _edges(deserialize_message(static_payload, TFMessage))
     compared = 0
     for _, payload in client.messages[topics.TF]:
-        tf = store.deserialize_cdr(payload, "tf2_msgs/msg/TFMessage")
+        tf = deserialize_message(payload, TFMessage)
         stamp = tf.transforms[0].header.stamp
         q = states.get((stamp.sec, stamp.nanosec))
         if q is None:
             continue  # its joint state came before the client's subscription
-        tool = _chain(_edges(tf), "contact")
+        tool = _chain({**static, **_edges(tf)}, "contact")
         expected = robot.contact_placement(q, data)
         assert np.allclose(tool.translation, expected.translation, rtol=0, atol=1e-9)
         assert np.allclose(tool.rotation, expected.rotation, rtol=0, atol=1e-9)
@@ -243,10 +248,12 @@ def test_the_bag_of_the_same_run_holds_the_view_topics_and_tf(live_run):
             topics.resolve(topics.MPC_PREDICTION),
         ):
             assert reader.topics[topic].count > 0, topic
-        # /tf: the recorder's own, from every recorded joint state (10 ms of stamps apart)
+        # /tf: the state publisher's, from the measured joint states (10 ms of stamps apart);
+        # /tf_static once
         assert reader.topics[topics.TF].count == -(
-            -reader.topics[topics.resolve(topics.PLANT_JOINT_STATES)].count // 10
+            -reader.topics[topics.resolve(topics.SENSED_JOINT_STATES)].count // 10
         )
+        assert reader.topics[topics.TF_STATIC].count == 1
     store = get_typestore(Stores.ROS2_JAZZY)
     robot = load_robot(load_scenario("polishing").robot)
     states, tfs = {}, []
@@ -254,34 +261,36 @@ def test_the_bag_of_the_same_run_holds_the_view_topics_and_tf(live_run):
         wanted = [
             c
             for c in reader.connections
-            if c.topic in (topics.TF, topics.resolve(topics.PLANT_JOINT_STATES))
+            if c.topic in (topics.TF, topics.TF_STATIC, topics.resolve(topics.SENSED_JOINT_STATES))
         ]
         for connection, _, raw in reader.messages(connections=wanted):
             msg = store.deserialize_cdr(raw, connection.msgtype)
             if connection.topic == topics.TF:
                 tfs.append(msg)
+            elif connection.topic == topics.TF_STATIC:
+                static = _edges(msg)
             else:
                 states[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = msg.position
     for tf in tfs:
         stamp = tf.transforms[0].header.stamp
-        tool = _chain(_edges(tf), "contact")
+        tool = _chain({**static, **_edges(tf)}, "contact")
         expected = robot.contact_placement(np.asarray(states[(stamp.sec, stamp.nanosec)]))
         assert np.allclose(tool.homogeneous, expected.homogeneous, rtol=0, atol=1e-9)
     live = {
-        store.deserialize_cdr(p, "tf2_msgs/msg/TFMessage").transforms[0].header.stamp.nanosec
+        deserialize_message(p, TFMessage).transforms[0].header.stamp.nanosec
         for _, p in client.messages[topics.TF]
     }
-    assert live & {tf.transforms[0].header.stamp.nanosec for tf in tfs}  # the same stamps
+    assert live and live <= {tf.transforms[0].header.stamp.nanosec for tf in tfs}  # one /tf
 
 
-def test_playing_the_bag_skips_the_tf_rclpy_cannot_publish(live_run):
+def test_playing_the_bag_publishes_tf_too(live_run):
+    """tf2_msgs is installed (generated from the wheels): every topic of the bag is played."""
     from ffmpc_ros.bag.player import play_bag
 
     _, _, bag = live_run
     report = play_bag(bag, rate=4.0, delay=0.1)
-    assert report.skipped == [topics.TF] and "not played (type not installed): /tf" in (
-        report.describe()
-    )
+    assert report.skipped == [] and report.published[topics.TF] > 0
+    assert report.published[topics.TF_STATIC] == 1
     assert report.published[topics.resolve(topics.ROBOT_DESCRIPTION)] == 1
 
 
@@ -312,17 +321,17 @@ def test_the_committed_layout_is_the_generated_one_and_fits_the_scenarios():
         assert f'"{topic}' in text
 
 
-def test_tf_is_derived_on_one_grid_of_stamps_whatever_the_first_joint_state():
-    """The live view and the recorder each convert the joint states they see; one that starts at
-    3 ms and one that starts at 0 ms give /tf at the same stamps (multiples of VIEW_PERIOD)."""
+def test_markers_are_derived_on_one_grid_of_stamps_whatever_the_first_joint_state():
+    """The view's markers come on one grid of stamps (multiples of VIEW_PERIOD): a view that
+    sees the joint states from 3 ms and one from 0 ms place them at the same stamps."""
     from rclpy.serialization import serialize_message
 
-    from ffmpc_ros.view import VIEW_PERIOD, JointStatesToTf
+    from ffmpc_ros.view import VIEW_PERIOD, ContactFromJointStates
 
     robot = load_robot("iiwa")
 
     def stamps(first_ms: int, last_ms: int, skip: tuple[int, ...] = ()) -> list[int]:
-        convert = JointStatesToTf(robot)
+        convert = ContactFromJointStates(robot)
         out = []
         for ms in range(first_ms, last_ms):
             if ms in skip:
@@ -331,7 +340,7 @@ def test_tf_is_derived_on_one_grid_of_stamps_whatever_the_first_joint_state():
             msg.header.stamp.sec, msg.header.stamp.nanosec = 0, ms * 1_000_000
             result = convert(serialize_message(msg))
             if result is not None:
-                out.append(result[0] // 1_000_000)
+                out.append(result // 1_000_000)
         return out
 
     assert VIEW_PERIOD == 0.01

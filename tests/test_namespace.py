@@ -1,8 +1,9 @@
 """Relative names: the graph's topics and services resolve under a namespace, so the whole node
 graph runs under ``--namespace /arm1``, and two graphs run side by side on one ROS domain.
 
-Only ``/clock`` and ``/diagnostics`` are absolute (``ffmpc_ros.topics.ABSOLUTE_NAMES``); a
-namespaced graph remaps ``/clock`` to its own ``<namespace>/clock`` (``-r /clock:=clock``)."""
+Only ``/clock``, ``/diagnostics``, ``/tf`` and ``/tf_static`` are absolute
+(``ffmpc_ros.topics.ABSOLUTE_NAMES``); a namespaced graph remaps ``/clock``, ``/tf`` and
+``/tf_static`` to its own (``-r /clock:=clock -r /tf:=tf -r /tf_static:=tf_static``)."""
 
 from __future__ import annotations
 
@@ -36,7 +37,7 @@ def _graph_names() -> dict[str, str]:
 
 def test_every_name_is_relative_except_the_documented_absolute_ones():
     names = _graph_names()
-    assert topics.ABSOLUTE_NAMES == {"/clock", "/diagnostics", "/tf"}
+    assert topics.ABSOLUTE_NAMES == {"/clock", "/diagnostics", "/tf", "/tf_static"}
     listed = {t for t, _, _ in (*topics.TOPICS, *topics.IMPACT_TOPICS, *topics.VIEW_TOPICS)}
     assert listed <= set(names.values())  # the tables use the constants
     assert {"TARE_SERVICE", "IMPACT_RESET_SERVICE", "CONTACT_LEARNER_RESET_SERVICE"} <= set(names)
@@ -45,7 +46,7 @@ def test_every_name_is_relative_except_the_documented_absolute_ones():
     for key, name in names.items():
         full = topics.resolve(name, "/arm1")
         validate_full_topic_name(full)  # a valid ROS name once expanded
-        if name in topics.ABSOLUTE_NAMES - {topics.CLOCK}:
+        if name in topics.ABSOLUTE_NAMES - set(topics.GRAPH_REMAPS):
             assert full == name, key
         else:
             assert full.startswith("/arm1/"), (key, full)
@@ -60,8 +61,14 @@ def test_namespace_helpers():
         with pytest.raises(ConfigError, match="not a ROS namespace"):
             topics.normalize_namespace(bad)
     assert topics.graph_ros_args("/") == []  # the root graph runs exactly as before
-    assert topics.graph_ros_args("arm1") == ["-r", "__ns:=/arm1", "-r", "/clock:=clock"]
+    assert topics.graph_ros_args("arm1") == [
+        *("-r", "__ns:=/arm1", "-r", "/clock:=clock"),
+        *("-r", "/tf:=tf", "-r", "/tf_static:=tf_static"),
+    ]
     assert topics.resolve(topics.CLOCK, "/arm1") == "/arm1/clock"
+    assert topics.resolve(topics.TF, "/arm1") == "/arm1/tf"
+    assert topics.resolve(topics.TF_STATIC, "/arm1") == "/arm1/tf_static"
+    assert topics.resolve(topics.TF) == "/tf"
     assert topics.resolve(topics.DIAGNOSTICS, "/arm1") == "/diagnostics"
     assert topics.resolve(topics.MPC_COMMAND, "/arm1") == "/arm1/mpc/command"
     assert topics.namespace_of(["/clock", "/a/b/plant/joint_states", "/rosout"]) == "/a/b"

@@ -55,7 +55,9 @@ def test_generated_parameter_file_is_a_ros_parameter_file(tmp_path):
     path = tmp_path / "graph.yaml"
     write_params_file(params, str(path))
     doc = yaml.safe_load(path.read_text())
-    assert set(doc) == {"plant", "joint_sensor", "ft_sensor", "mpc", "pid", "metrics"}
+    assert set(doc) == {
+        *("plant", "joint_sensor", "ft_sensor", "mpc", "pid", "metrics", "state_publisher")
+    }
     assert doc["mpc"]["ros__parameters"]["formulation"] == "torque_feedback"
     assert doc["mpc"]["ros__parameters"]["pid"]["delay_cycles"] == 5  # another section's value
     assert doc["pid"]["ros__parameters"]["mpc"]["formulation"] == "torque_feedback"

@@ -22,6 +22,7 @@ from ffmpc_ros.joint_sensor_node import JointSensorNode
 from ffmpc_ros.mpc_node import MpcNode
 from ffmpc_ros.params import NODE_SPECS, node_parameter_values, scenario_from_parameters
 from ffmpc_ros.plant_node import PlantNode
+from ffmpc_ros.state_publisher_node import StatePublisherNode
 
 NUMERIC = (ParameterType.PARAMETER_DOUBLE, ParameterType.PARAMETER_INTEGER)
 
@@ -57,7 +58,10 @@ def test_every_parameter_has_a_description_and_numbers_a_range(ros):
         JointSensorNode(context=ros.context, parameter_overrides=overrides("joint_sensor"))
     )
     mpc = ros.add(MpcNode(context=ros.context, parameter_overrides=overrides("mpc")))
-    for n in (node, mpc):
+    state = ros.add(
+        StatePublisherNode(context=ros.context, parameter_overrides=overrides("state_publisher"))
+    )
+    for n in (node, mpc, state):
         names = [p for p in n.params]
         assert len(names) > 5
         for desc in n.describe_parameters(names):
@@ -77,6 +81,7 @@ def test_every_parameter_has_a_description_and_numbers_a_range(ros):
         "contact_learner",
         "dice_plant",
         "impact_controller",
+        "state_publisher",
     }
 
 

@@ -37,7 +37,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 
-from ffmpc_ros.bag.ros_types import DerivedTopic, offered_profiles, subscribe_raw
+from ffmpc_ros.bag.ros_types import offered_profiles, subscribe_raw
 from ffmpc_ros.bag.writer import BagWriter
 from ffmpc_ros.graph_nodes import SERVICE_RETRY
 
@@ -147,7 +147,6 @@ class BagRecorder(Node):
         discovery_period: wall seconds between two looks at the graph.
         final_topic: the run is over once a message of this topic is recorded and nothing came
             for ``settle`` wall seconds (:attr:`complete`).
-        derived: topics computed from recorded ones (:class:`DerivedTopic`).
         namespace: record only this namespace's topics (and :data:`DOMAIN_TOPICS`) and nodes
             (None or ``/``: everything on the domain).
     """
@@ -169,7 +168,6 @@ class BagRecorder(Node):
         discovery_period: float = 0.05,
         final_topic: str | None = None,
         settle: float = 0.2,
-        derived: Sequence[DerivedTopic] = (),
         namespace: str | None = None,
     ) -> None:
         super().__init__(
@@ -186,7 +184,6 @@ class BagRecorder(Node):
         self.gate_topic = gate_topic
         self.parameters_of = list(parameters_of) if parameters_of is not None else []
         self.received: dict[str, int] = {}
-        self.derived = {d.source: d for d in derived}
         self._recording_subs: dict[str, Any] = {}
         self._channels: dict[str, int] = {}
         self._fetches: dict[str, _ParameterFetch] = {}
@@ -270,21 +267,11 @@ class BagRecorder(Node):
         writer = self.writer
         received = self.received
 
-        derived = self.derived.get(topic)
-        if derived is not None:
-            target = writer.add_topic(
-                derived.topic, derived.type_name, definition=derived.definition
-            )
-            self.received[derived.topic] = 0
-
         def on_message(data: bytes) -> None:
             now = clock.now().nanoseconds
             writer.write(channel, data, now)
             received[topic] += 1
             self.last_message_at = time.monotonic()
-            if derived is not None and (out := derived.derive(data)) is not None:
-                writer.write(target, out, now)
-                received[derived.topic] += 1
 
         self._recording_subs[topic] = subscribe_raw(
             self, topic, type_name, profiles, on_message, RECORD_DEPTH
@@ -362,8 +349,8 @@ def _graph_recorder_options(
     namespace: str | None = None, view_robot: str | None = None
 ) -> dict[str, Any]:
     """The graph recorder's topics, fully qualified under ``namespace`` (``/arm1/clock``); with
-    ``view_robot`` (``--view``) the live view's topics too, and ``/tf`` derived from the joint
-    states."""
+    ``view_robot`` (``--view``) the live view's topics too. ``/tf``, ``/tf_static`` and
+    ``robot_description`` are the state publisher's, in every graph (``topics.TOPICS``)."""
     from ffmpc_ros import topics
     from ffmpc_ros.graph_nodes import NODES
 
@@ -371,13 +358,7 @@ def _graph_recorder_options(
         return topics.resolve(topic, namespace)
 
     extra = [name(t) for t, _, _ in topics.VIEW_TOPICS] if view_robot else []
-    derived = []
-    if view_robot:
-        from ffmpc_ros.view import tf_derived_topic
-
-        derived.append(tf_derived_topic(view_robot, namespace))
     return {
-        "derived": derived,
         "wait_for": [t for t, _, _ in topics.resolved_topics(namespace)] + extra,
         "gate_topic": name(topics.PLANT_JOINT_STATES),
         "parameters_of": [*NODES, "metrics"],
@@ -403,8 +384,7 @@ def graph_recorder(
     (:func:`ffmpc_ros.bag.machine.machine_fingerprint`). ``namespace``: the graph's (the
     recorder node itself takes its context's, see ``ffmpc_ros.bringup``). With ``view``
     (``--view``: the robot's name) the gate also waits for the live view's topics
-    (``ffmpc_ros.topics.VIEW_TOPICS``) and the bag gains ``/tf`` from ``plant/joint_states``
-    (``ffmpc_ros.view.tf_derived_topic``)."""
+    (``ffmpc_ros.topics.VIEW_TOPICS``)."""
     from ffmpc_ros.topics import normalize_namespace
 
     return BagRecorder(

@@ -4,8 +4,7 @@ names, QoS profiles to and from rosbag2's dictionaries."""
 from __future__ import annotations
 
 import importlib
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from rclpy.duration import Duration
@@ -116,17 +115,3 @@ def subscribe_raw(
     return node.create_subscription(
         message_class(type_name), topic, callback, qos_from_dicts(profiles, depth=depth), raw=True
     )
-
-
-@dataclass(frozen=True)
-class DerivedTopic:
-    """A topic the recorder computes from a recorded one: ``derive`` maps each message of
-    ``source`` (CDR bytes) to one of ``topic`` (CDR bytes, type ``type_name`` with the complete
-    ``ros2msg`` ``definition``) or None; it is written with the source message's log time.
-    (The live view's ``/tf``, whose type has no rclpy support here: ffmpc_ros.view.)"""
-
-    source: str
-    topic: str
-    type_name: str
-    definition: str
-    derive: Callable[[bytes], bytes | None]
