@@ -18,6 +18,7 @@
 #include <pinocchio/algorithm/kinematics.hpp>
 #include <pinocchio/algorithm/rnea-derivatives.hpp>
 #include <pinocchio/algorithm/rnea.hpp>
+#include <pinocchio/spatial/explog.hpp>
 
 #include "errors.hpp"
 
@@ -25,9 +26,9 @@ namespace ffmpc {
 
 namespace {
 
-const char* const kTermNames[kNumTerms] = {"posture",     "joint_velocity", "torque",
-                                           "ee_position", "ee_velocity",    "force",
-                                           "force_rate",  "state_limit"};
+const char* const kTermNames[kNumTerms] = {
+    "posture",    "joint_velocity", "torque",      "ee_position",        "ee_velocity",
+    "force",      "force_rate",     "state_limit", "ee_rotation", "ee_angular_velocity"};
 
 /// [a]x, the cross-product matrix ([a]x b = a x b).
 inline Eigen::Matrix3d skew(const Eigen::Vector3d& a) {
@@ -42,7 +43,8 @@ std::size_t term_index(const std::string& name) {
   }
   std::ostringstream msg;
   msg << "unknown cost term '" << name << "'; choose one of (posture, joint_velocity, torque, "
-      << "ee_position, ee_velocity, force, force_rate, state_limit)";
+      << "ee_position, ee_velocity, force, force_rate, state_limit, ee_rotation, "
+      << "ee_angular_velocity)";
   throw ConfigError(msg.str());
 }
 
@@ -348,7 +350,7 @@ IntegratedActionModelSoftContact::IntegratedActionModelSoftContact(
     const pinocchio::Model& model, std::size_t frame_id, std::size_t nc, bool world_aligned,
     std::size_t normal_axis, double dt, bool terminal)
     : Base(std::make_shared<crocoddyl::StateVector>(2 * model.nv + nc), model.nv,
-           5 * model.nv + 6 + 2 * nc),
+           5 * model.nv + 12 + 2 * nc),
       dynamics_(model, frame_id, nc, world_aligned, normal_axis),
       nv_(model.nv),
       nc_(nc),
@@ -361,7 +363,7 @@ IntegratedActionModelSoftContact::IntegratedActionModelSoftContact(
     msg << "dt must be positive and finite, got " << dt;
     throw ConfigError(msg.str());
   }
-  size_ = {nv_, nv_, nv_, 3, 3, nc_, nc_, 2 * nv_};
+  size_ = {nv_, nv_, nv_, 3, 3, nc_, nc_, 2 * nv_, 3, 3};
   std::size_t offset = 0;
   for (std::size_t k = 0; k < kNumTerms; ++k) {
     offset_[k] = offset;
@@ -373,6 +375,7 @@ IntegratedActionModelSoftContact::IntegratedActionModelSoftContact(
   q_reference_ = VectorXd::Zero(nv_);
   ee_position_reference_ = VectorXd::Zero(3);
   force_reference_ = VectorXd::Zero(nc_);
+  rotation_reference_.setIdentity();
   nominal_stiffness_ = VectorXd::Zero(nc_);
   nominal_damping_ = VectorXd::Zero(nc_);
   state_limit_lower_ = VectorXd::Constant(2 * nv_, -std::numeric_limits<double>::infinity());
@@ -475,6 +478,17 @@ void IntegratedActionModelSoftContact::set_q_reference(const VectorXd& q_referen
   q_reference_ = finite_vector<ConfigError>(q_reference, nv_, "q_reference", false);
 }
 
+void IntegratedActionModelSoftContact::set_rotation_reference(const Eigen::Matrix3d& rotation) {
+  if (!rotation.allFinite() ||
+      !(rotation.transpose() * rotation).isApprox(Eigen::Matrix3d::Identity(), 1e-9) ||
+      std::abs(rotation.determinant() - 1.0) > 1e-9) {
+    std::ostringstream msg;
+    msg << "rotation_reference must be a rotation matrix, got [" << rotation << "]";
+    throw ConfigError(msg.str());
+  }
+  rotation_reference_ = rotation;
+}
+
 void IntegratedActionModelSoftContact::set_state_limit_bounds(const VectorXd& lower,
                                                               const VectorXd& upper) {
   const std::size_t n = 2 * nv_;
@@ -524,6 +538,32 @@ void IntegratedActionModelSoftContact::add_state_hessian(IntegratedActionDataSof
     const auto rv = d.Rx.row(offset_[EE_VELOCITY] + i).head(2 * nv);
     d.Lxx.topLeftCorner(2 * nv, 2 * nv).noalias() += (wv * rv.transpose()) * rv;
   }
+  // Orientation (3 x nv, on q) and angular velocity (3 x 2nv, on q, v): skipped at zero weight.
+  for (std::size_t i = 0; i < 3; ++i) {
+    const double wr = w[offset_[EE_ROTATION] + i];
+    if (wr != 0.0) {
+      const auto rr = d.Rx.row(offset_[EE_ROTATION] + i).head(nv);
+      d.Lxx.topLeftCorner(nv, nv).noalias() += (wr * rr.transpose()) * rr;
+    }
+    const double wa = w[offset_[EE_ANGULAR_VELOCITY] + i];
+    if (wa != 0.0) {
+      const auto ra = d.Rx.row(offset_[EE_ANGULAR_VELOCITY] + i).head(2 * nv);
+      d.Lxx.topLeftCorner(2 * nv, 2 * nv).noalias() += (wa * ra.transpose()) * ra;
+    }
+  }
+}
+
+void IntegratedActionModelSoftContact::orientation_jacobians(
+    IntegratedActionDataSoftContact& d) const {
+  // d log3(R_bar^T R) = Jlog3(R_bar^T R) J_ang dq (J LOCAL), as crocoddyl's FrameRotation;
+  // the LOCAL angular velocity's partials are the angular rows of the twist's.
+  const std::size_t nv = nv_;
+  const SoftContactDynamicsData& dd = d.dynamics;
+  d.relative_rotation.noalias() = rotation_reference_.transpose() * dd.rotation;
+  pinocchio::Jlog3(d.relative_rotation, d.jlog);
+  d.Rx.block(offset_[EE_ROTATION], 0, 3, nv).noalias() = d.jlog * dd.jacobian.bottomRows<3>();
+  d.Rx.block(offset_[EE_ANGULAR_VELOCITY], 0, 3, nv) = dd.velocity_dq.bottomRows<3>();
+  d.Rx.block(offset_[EE_ANGULAR_VELOCITY], nv, 3, nv) = dd.jacobian.bottomRows<3>();
 }
 
 void IntegratedActionModelSoftContact::calc(const std::shared_ptr<ActionDataAbstract>& data,
@@ -589,6 +629,9 @@ void IntegratedActionModelSoftContact::weighted_cost(IntegratedActionDataSoftCon
   VectorXd& r = d.residual;
   r.segment(offset_[EE_POSITION], 3) = d.dynamics.position - ee_position_reference_;
   r.segment(offset_[EE_VELOCITY], 3) = d.dynamics.ee_velocity;
+  d.relative_rotation.noalias() = rotation_reference_.transpose() * d.dynamics.rotation;
+  r.segment(offset_[EE_ROTATION], 3) = pinocchio::log3(d.relative_rotation);
+  r.segment(offset_[EE_ANGULAR_VELOCITY], 3) = d.dynamics.angular_velocity_local;
   d.r = sqrt_w.cwiseProduct(r);
   d.cost = 0.5 * d.r.squaredNorm();
 }
@@ -613,6 +656,7 @@ void IntegratedActionModelSoftContact::calcDiff(const std::shared_ptr<ActionData
   MatrixXd& Ru = d->Ru;
   Rx.block(offset_[EE_POSITION], 0, 3, nv) = dd.position_dq;
   Rx.block(offset_[EE_VELOCITY], 0, 3, 2 * nv) = dd.ee_velocity_dqv;
+  orientation_jacobians(*d);
   Rx.block(offset_[TORQUE], 0, nv, nv) = -dd.gravity_compensation_dq;
   Rx.block(offset_[TORQUE], 2 * nv, nv, nc) = dd.contact_jacobian.transpose();
   state_limit_jacobian(*d, x);
@@ -671,6 +715,7 @@ void IntegratedActionModelSoftContact::calcDiff(const std::shared_ptr<ActionData
   MatrixXd& Rx = d->Rx;
   Rx.block(offset_[EE_POSITION], 0, 3, nv) = dd.position_dq;
   Rx.block(offset_[EE_VELOCITY], 0, 3, 2 * nv) = dd.ee_velocity_dqv;
+  orientation_jacobians(*d);
   state_limit_jacobian(*d, x);
   const VectorXd& w = w_state_;  // torque and force-rate weights are zero
   d->wr = w.cwiseProduct(d->residual);
@@ -721,7 +766,9 @@ IntegratedActionDataSoftContact::IntegratedActionDataSoftContact(
       Ru(MatrixXd::Zero(model->get_nr(), model->get_nv())),
       WG(MatrixXd::Zero(model->get_nv(), model->get_nv())),
       WJt(MatrixXd::Zero(model->get_nv(), model->get_nc())),
-      Fxu(MatrixXd::Zero(model->get_ndx(), model->get_ndx() + model->get_nv())) {
+      Fxu(MatrixXd::Zero(model->get_ndx(), model->get_ndx() + model->get_nv())),
+      relative_rotation(Eigen::Matrix3d::Identity()),
+      jlog(Eigen::Matrix3d::Identity()) {
   const std::size_t nv = model->get_nv(), nc = model->get_nc();
   // Constant blocks of the residual Jacobians.
   Rx.block(model->term_offset(POSTURE), 0, nv, nv).setIdentity();
@@ -818,6 +865,9 @@ void expose_soft_contact() {
       .def("_set_contact_parameters", &Model::set_contact_parameters,
            bp::args("self", "stiffness", "damping"))
       .def("_set_q_reference", &Model::set_q_reference, bp::args("self", "q_reference"))
+      .def("_set_rotation_reference", &Model::set_rotation_reference,
+           bp::args("self", "rotation"),
+           "R_bar of the orientation cost (3x3 rotation matrix, ConfigError otherwise).")
       .def("_set_state_limit_bounds", &Model::set_state_limit_bounds,
            bp::args("self", "lower", "upper"),
            "Joint-limit barrier bounds on (q, v), 2 nv entries each (rad, rad/s).")
@@ -852,6 +902,9 @@ void expose_soft_contact() {
       .add_property("ee_position_reference",
                     +[](const Model& m) { return copy_vector(m.get_ee_position_reference()); },
                     "p_bar, m, world (copy).")
+      .add_property("rotation_reference",
+                    +[](const Model& m) { return Eigen::Matrix3d(m.get_rotation_reference()); },
+                    "R_bar of the orientation cost (copy).")
       .add_property("force_reference",
                     +[](const Model& m) { return copy_vector(m.get_force_reference()); },
                     "lambda_bar, N (copy).")

@@ -117,6 +117,9 @@ class SoftContactDynamics {
 
 /// Residual blocks, in the order of ffmpc_core.soft_contact.RESIDUAL_TERMS. STATE_LIMIT: the
 /// joint-limit barrier on (q, v), 2 nv rows, the excess x - clip(x, lower, upper) (rad, rad/s).
+/// EE_ROTATION: log3(R_bar^T R(q)), 3 rows (rad; crocoddyl's ResidualModelFrameRotation).
+/// EE_ANGULAR_VELOCITY: the contact frame's LOCAL angular velocity, 3 rows (rad/s; the angular
+/// rows of crocoddyl's ResidualModelFrameVelocity in LOCAL).
 enum Term {
   POSTURE = 0,
   JOINT_VELOCITY,
@@ -125,9 +128,11 @@ enum Term {
   EE_VELOCITY,
   FORCE,
   FORCE_RATE,
-  STATE_LIMIT
+  STATE_LIMIT,
+  EE_ROTATION,
+  EE_ANGULAR_VELOCITY
 };
-constexpr std::size_t kNumTerms = 8;
+constexpr std::size_t kNumTerms = 10;
 
 struct IntegratedActionDataSoftContact;
 
@@ -176,6 +181,9 @@ class IntegratedActionModelSoftContact : public crocoddyl::ActionModelAbstractTp
   void set_contact_parameters(const VectorXd& stiffness, const VectorXd& damping);
   /// q_bar (rad, nv entries; ConfigError on a bad value): configuration-time posture reference.
   void set_q_reference(const VectorXd& q_reference);
+  /// R_bar of the orientation cost (3x3, finite, orthonormal with det +1 to 1e-9: ConfigError
+  /// otherwise). Default identity; the Python wrapper sets the contact frame's orientation at q_bar.
+  void set_rotation_reference(const Eigen::Matrix3d& rotation);
   /// Bounds of the joint-limit barrier on (q, v): 2 nv entries each (rad, then rad/s),
   /// lower <= upper, no NaN (+-inf: no bound); ConfigError leaves them unchanged. Default +-inf.
   void set_state_limit_bounds(const VectorXd& lower, const VectorXd& upper);
@@ -192,6 +200,7 @@ class IntegratedActionModelSoftContact : public crocoddyl::ActionModelAbstractTp
   const VectorXd& get_q_reference() const { return q_reference_; }
   const VectorXd& get_ee_position_reference() const { return ee_position_reference_; }
   const VectorXd& get_force_reference() const { return force_reference_; }
+  const Eigen::Matrix3d& get_rotation_reference() const { return rotation_reference_; }
   const VectorXd& get_nominal_stiffness() const { return nominal_stiffness_; }
   const VectorXd& get_nominal_damping() const { return nominal_damping_; }
   const VectorXd& get_weights_running() const { return w_running_; }
@@ -210,6 +219,9 @@ class IntegratedActionModelSoftContact : public crocoddyl::ActionModelAbstractTp
   /// beyond a bound (crocoddyl's ActivationModelQuadraticBarrier rule), 0 elsewhere.
   void state_limit_jacobian(IntegratedActionDataSoftContact& d,
                             const Eigen::Ref<const VectorXd>& x) const;
+  /// Rows of data.Rx of the orientation and angular-velocity residuals (after a kinematics
+  /// derivative pass of data.dynamics).
+  void orientation_jacobians(IntegratedActionDataSoftContact& d) const;
   /// Gauss-Newton Lxx of the state terms (weights w), from the sparsity of data.Rx.
   void add_state_hessian(IntegratedActionDataSoftContact& d, const VectorXd& w) const;
 
@@ -223,6 +235,7 @@ class IntegratedActionModelSoftContact : public crocoddyl::ActionModelAbstractTp
   std::array<VectorXd, kNumTerms> diag_;
   VectorXd default_ee_position_diag_;
   VectorXd q_reference_, ee_position_reference_, force_reference_;
+  Eigen::Matrix3d rotation_reference_;  // R_bar of the orientation cost
   VectorXd nominal_stiffness_, nominal_damping_;
   VectorXd state_limit_lower_, state_limit_upper_;  // 2 nv: rad, then rad/s
   VectorXd w_running_, w_state_, sqrt_w_running_, sqrt_w_state_;
@@ -243,6 +256,8 @@ struct IntegratedActionDataSoftContact : public crocoddyl::ActionDataAbstractTpl
   MatrixXd WG;        // W_tau (d r_tau/dq), nv x nv
   MatrixXd WJt;       // W_tau J^T, nv x nc
   MatrixXd Fxu;       // [Fx Fu]
+  Eigen::Matrix3d relative_rotation;  // R_bar^T R(q)
+  Eigen::Matrix3d jlog;               // Jlog3(R_bar^T R(q))
 };
 
 void expose_soft_contact();

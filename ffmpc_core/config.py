@@ -68,11 +68,11 @@ class CostWeights:
     force_rate: float = 1e-6  # c_λ on ‖λ̇‖², s²/N² (eq 29, force-feedback)
     #: c on ‖log(R̄ᵀR(q))‖² (rad², R̄: the contact frame's orientation at q̄), 1/rad²: the
     #: orientation cost of the authors' polishing configurations (``frameRotation``), not in
-    #: eq 25. Classical and torque-feedback only (running and terminal nodes; 0: no term).
+    #: eq 25. All three formulations (running and terminal nodes; 0: no term).
     ee_rotation: float = 0.0
     #: c on ‖ω‖² (the contact frame's angular velocity, its own axes), s²/rad²: with
     #: ``ee_velocity`` it makes the 6-D end-effector velocity cost of the authors'
-    #: configurations (``frameVelocity``, all six axes). Classical and torque-feedback only.
+    #: configurations (``frameVelocity``, all six axes). All three formulations.
     ee_angular_velocity: float = 0.0
     #: c3 of ‖τ − g(q)‖² (activation ``torque_diag``) at the torque-feedback model's TERMINAL
     #: node, on the filtered torque τ of its state (not × Δt), 1/(N·m)²; 0: the terminal node

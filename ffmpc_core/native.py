@@ -30,7 +30,6 @@ from ffmpc_core.soft_contact import (
     RESIDUAL_TERMS,
     SoftContactNode,
     check_soft_contact_robot,
-    check_soft_contact_weights,
     residual_slices,
 )
 
@@ -74,9 +73,10 @@ class IntegratedActionModelSoftContactNative(_native.IntegratedActionModelSoftCo
     (``set_reference_values``, ``set_contact_parameters``, ``set_in_contact``, ``set_weight``,
     ``weight``, ``residual_slice``, ``set_state_limit_bounds``, ``state_limit_lower``,
     ``state_limit_upper``, ``terminal``, ``dt``, ``nv``, ``nc``, ``ndx``,
-    ``q_reference``, ``ee_position_reference``, ``force_reference``, ``in_contact``, control
-    limits ``u_lb``/``u_ub``). References and parameters read back as copies; change them with
-    the setters. ``data.dynamics`` exposes the dynamics workspace (``ddq``, ``force_rate``, ...).
+    ``q_reference``, ``ee_position_reference``, ``force_reference``, ``rotation_reference``,
+    ``in_contact``, control limits ``u_lb``/``u_ub``). References and parameters read back as
+    copies; change them with the setters. ``data.dynamics`` exposes the dynamics workspace
+    (``ddq``, ``force_rate``, ...).
     """
 
     def __init__(
@@ -90,7 +90,6 @@ class IntegratedActionModelSoftContactNative(_native.IntegratedActionModelSoftCo
     ) -> None:
         dt = _scalar(dt, "dt", ConfigError)
         check_soft_contact_robot(robot)
-        check_soft_contact_weights(weights)
         super().__init__(
             robot.model,
             int(robot.contact_frame_id),
@@ -108,13 +107,16 @@ class IntegratedActionModelSoftContactNative(_native.IntegratedActionModelSoftCo
         self.u_lb = -robot.torque_limit
         self.u_ub = robot.torque_limit.copy()
         for name in RESIDUAL_TERMS:
-            if name not in ("force_rate", "state_limit"):  # no activation diagonal
+            # No activation diagonal in CostWeights (identity activations in C++).
+            if name not in ("force_rate", "state_limit", "ee_rotation", "ee_angular_velocity"):
                 rows = self._slices[name]
                 self.set_activation(name, weights.diag(name, rows.stop - rows.start))
             self.set_weight(name, getattr(weights, name))
         self.set_state_limit_bounds(*robot.state_limit_bounds(weights.state_limit_fraction))
         q_ref = robot.q_nominal if q_reference is None else q_reference
         self._set_q_reference(_vector(q_ref, nv, "q_reference", ConfigError))
+        # R̄ of the orientation cost: the contact frame's orientation at the construction-time q̄.
+        self._set_rotation_reference(robot.contact_placement(self.q_reference).rotation.copy())
         self._set_reference_values(
             robot.contact_placement(self.q_reference).translation.copy(),
             np.zeros(nc),

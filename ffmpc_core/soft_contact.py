@@ -22,6 +22,13 @@ With ``dimension == 1``, λ is the single component along ``normal_axis`` of tha
 matching row of the contact point's linear Jacobian in that frame; with ``dimension == 3`` all
 three components.
 
+Beyond eq 25 (the authors' polishing configurations, shared with the classical and
+torque-feedback formulations so that the three have the same ℓ0 of eq 26): the orientation cost
+``c·½·‖log(R̄ᵀR(q))‖²`` (R̄ = the contact frame's orientation at the construction-time q̄,
+crocoddyl's ``ResidualModelFrameRotation``) and the angular part of the 6-D end-effector velocity
+cost ``c·½·‖ω‖²`` (ω = the contact frame's angular velocity in its own axes, LOCAL, the angular
+rows of crocoddyl's ``ResidualModelFrameVelocity``), in running and terminal nodes.
+
 Costs (crocoddyl convention, see :mod:`ffmpc_core.config`): each term costs ``c·½·Σ Q_i r_i²``;
 running terms are multiplied by Δt, the terminal node keeps the state terms unscaled. The
 residuals are stacked in a fixed layout (:data:`RESIDUAL_TERMS`); ``data.r`` holds the weighted
@@ -48,7 +55,9 @@ LOCAL = "LOCAL"
 #: Residual blocks of the force-feedback cost, in the order they are stacked in ``data.r``.
 #: posture (eq 25.1), joint velocity (25.2), torque (25.3), end-effector position (25.4),
 #: end-effector velocity (25.5), force (25.6/21), force rate (29), and the joint-limit barrier
-#: on (q, v) (not in the paper; 2·nv rows: the excess x − clip(x, x_lb, x_ub), rad and rad/s).
+#: on (q, v) (not in the paper; 2·nv rows: the excess x − clip(x, x_lb, x_ub), rad and rad/s),
+#: the orientation error log3(R̄ᵀR) (3 rows, rad) and the contact frame's LOCAL angular velocity
+#: (3 rows, rad/s) (the authors' ``frameRotation`` and angular ``frameVelocity`` costs).
 RESIDUAL_TERMS = (
     "posture",
     "joint_velocity",
@@ -58,6 +67,8 @@ RESIDUAL_TERMS = (
     "force",
     "force_rate",
     "state_limit",
+    "ee_rotation",
+    "ee_angular_velocity",
 )
 #: Terms of a running node only (zero weight in a terminal node or a call without u).
 RUNNING_ONLY_TERMS = ("torque", "force_rate")
@@ -152,7 +163,7 @@ def check_soft_contact_robot(robot: RobotModel) -> None:
 def residual_slices(nv: int, nc: int) -> dict[str, slice]:
     """Rows of each term of :data:`RESIDUAL_TERMS` in the stacked residual (nv joints, nc force
     entries)."""
-    sizes = (nv, nv, nv, 3, 3, nc, nc, 2 * nv)
+    sizes = (nv, nv, nv, 3, 3, nc, nc, 2 * nv, 3, 3)
     offsets = np.concatenate([[0], np.cumsum(sizes)])
     return {
         name: slice(int(offsets[i]), int(offsets[i + 1])) for i, name in enumerate(RESIDUAL_TERMS)
@@ -175,7 +186,8 @@ class SoftContactDynamicsData:
     ``force_rate_dtau`` (eq 23a–d); ``frame_velocity_dxu``, ``frame_acceleration_dxu`` (ṗ, p̈
     in the force frame); ``contact_jacobian`` (J, the nc rows matching λ, m/rad);
     ``position_dq`` (∂p/∂q, world); ``ee_velocity_dq``, ``ee_velocity_dv`` (∂ṗ_world/∂q, ∂v);
-    ``frame_jacobian`` (6×nv LOCAL Jacobian of the contact frame).
+    ``frame_jacobian`` (6×nv LOCAL Jacobian of the contact frame); ``velocity_partials``
+    ([∂ν/∂q, ∂ν/∂v] of the contact frame's LOCAL twist ν = (v_lin, ω), 6 × 2nv).
     """
 
     def __init__(self, dyn: SoftContactDynamics) -> None:
@@ -503,7 +515,8 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
     u = τ (N·m), nu = nv. Next state: v⁺ = v + Δt q̈, q⁺ = q + Δt v⁺, λ⁺ = λ + Δt λ̇.
 
     A terminal model (``terminal=True``) or a call without u keeps only the state terms (posture,
-    joint velocity, ee position, ee velocity, force), not scaled by Δt, and x⁺ = x.
+    joint velocity, ee position, ee velocity, force, joint-limit barrier, orientation, angular
+    velocity), not scaled by Δt, and x⁺ = x.
 
     Costs (weights from :class:`CostWeights`): c1‖q − q̄‖² (rad), c2‖v‖² (rad/s),
     c3‖τ − τ_g(q, λ)‖² (N·m), c4‖p(q) − p̄‖² (m, world), c5‖ṗ‖² (m/s, world axes),
@@ -514,7 +527,11 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
     limit). The barrier is crocoddyl's ``ActivationModelQuadraticBarrier`` on the state, as in
     the other formulations: its Jacobian is the identity on the entries at or outside a bound
     and zero inside, so its Gauss-Newton Hessian is the barrier's own. Control limits u_lb/u_ub
-    are the robot's torque limits (N·m) for solvers that use them.
+    are the robot's torque limits (N·m) for solvers that use them. ``weights.ee_rotation`` c_R
+    adds c_R‖log3(R̄ᵀR(q))‖² (rad; R̄ = :attr:`rotation_reference`) and
+    ``weights.ee_angular_velocity`` c_ω adds c_ω‖ω‖² (rad/s, LOCAL): the same residuals as the
+    classical and torque-feedback models' (crocoddyl's ``ResidualModelFrameRotation`` and the
+    angular rows of ``ResidualModelFrameVelocity`` in LOCAL, identity activations).
 
     References and weights are changed in place with :meth:`set_reference_values`,
     :meth:`set_contact_parameters` and :meth:`set_in_contact`.
@@ -532,7 +549,6 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
         dt = float(dt)
         if not np.isfinite(dt) or (dt <= 0.0 and not terminal) or dt < 0.0:
             raise ConfigError(f"dt must be positive and finite, got {dt}")
-        check_soft_contact_weights(weights)
         self.dynamics = SoftContactDynamics(robot, contact)
         nv, nc = self.dynamics.nv, self.dynamics.nc
         self._slices = residual_slices(nv, nc)
@@ -556,6 +572,8 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
             "force": weights.diag("force", nc),
             "force_rate": np.ones(nc),
             "state_limit": np.ones(2 * nv),
+            "ee_rotation": np.ones(3),
+            "ee_angular_velocity": np.ones(3),
         }
         self._default_ee_position_diag = self._diag["ee_position"].copy()
         self._c = {
@@ -567,6 +585,8 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
             "force": weights.force,
             "force_rate": weights.force_rate,
             "state_limit": weights.state_limit,
+            "ee_rotation": weights.ee_rotation,
+            "ee_angular_velocity": weights.ee_angular_velocity,
         }
         for name, c in self._c.items():
             if not np.isfinite(c) or c < 0.0:
@@ -574,7 +594,11 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
         # References (updated in place).
         q_ref = robot.q_nominal if q_reference is None else q_reference
         self.q_reference = _as_finite_vector(q_ref, nv, "q_reference", ConfigError).copy()
-        self.ee_position_reference = robot.contact_placement(self.q_reference).translation.copy()
+        placement = robot.contact_placement(self.q_reference)
+        self.ee_position_reference = placement.translation.copy()
+        #: R̄ of the orientation cost: the contact frame's orientation at the construction-time
+        #: q̄ (as the classical and torque-feedback models; later q̄ updates do not change it).
+        self.rotation_reference = placement.rotation.copy()
         self.force_reference = np.zeros(nc)
         # Joint-limit barrier bounds on (q, v), rad and rad/s (2·nv entries each).
         lower, upper = robot.state_limit_bounds(weights.state_limit_fraction)
@@ -732,6 +756,8 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
             sqrt_w = self._sqrt_w_running
         np.subtract(dd.position, self.ee_position_reference, out=r[sl["ee_position"]])
         r[sl["ee_velocity"]] = dd.ee_velocity
+        r[sl["ee_rotation"]] = pin.log3(self.rotation_reference.T @ dd.rotation)
+        r[sl["ee_angular_velocity"]] = dd.angular_velocity_local
         np.multiply(sqrt_w, r, out=data.weighted_residual)
         data.r[:] = data.weighted_residual
         data.cost = 0.5 * float(data.weighted_residual @ data.weighted_residual)
@@ -755,6 +781,10 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
         Rx[s_ee_p, :nv] = dd.position_dq
         Rx[s_ee_v, :nv] = dd.ee_velocity_dq
         Rx[s_ee_v, nv : 2 * nv] = dd.ee_velocity_dv
+        # Orientation: d log3(R̄ᵀR) = Jlog3(R̄ᵀR)·J_ang dq (J LOCAL), crocoddyl's FrameRotation.
+        jlog = pin.Jlog3(self.rotation_reference.T @ dd.rotation)
+        Rx[sl["ee_rotation"], :nv] = jlog @ dd.frame_jacobian[3:]
+        Rx[sl["ee_angular_velocity"], : 2 * nv] = dd.velocity_partials[3:]
         # Barrier: ∂(excess)/∂x = 1 at or beyond a bound, 0 inside (crocoddyl's rule).
         xqv = x[: 2 * nv]
         active = (xqv <= self.state_limit_lower) | (xqv >= self.state_limit_upper)
@@ -889,19 +919,6 @@ class SoftContactNode:
         if x.shape[0] != self.model.state.nx:
             raise InputError(f"state has {x.shape[0]} entries, expected {self.model.state.nx}")
         return x
-
-
-def check_soft_contact_weights(weights: CostWeights) -> None:
-    """ConfigError unless ``weights`` has only terms this formulation implements: the
-    orientation and angular-velocity costs (``ee_rotation``, ``ee_angular_velocity``) exist in
-    the classical and torque-feedback formulations only, so a non-zero one here is refused
-    rather than silently ignored."""
-    for name in ("ee_rotation", "ee_angular_velocity"):
-        if getattr(weights, name) != 0.0:
-            raise ConfigError(
-                f"cost weight {name} = {getattr(weights, name)}: the force-feedback formulation "
-                "has no such term (classical and torque-feedback only); set it to 0"
-            )
 
 
 def make_soft_contact_node(

@@ -68,8 +68,8 @@ configuration); this module only runs the plant, logs and summarises:
   MPC: 10 nodes of 20 ms (a 0.2 s horizon, the time scale of the dice–arm oscillation, ≈ 4 Hz;
   the polishing paper's 5 × 3 ms cannot see an impact through) re-solved every 4 ms; posture
   weight 1 and joint-velocity weight 0.1 (the defaults 0.01 let the redundant arm roll about the
-  point contact, the cost has no orientation term). The torque goes through the joint-limit
-  guard with only the normal force compensated (the one the MPC models) and the contact
+  point contact: the impact scenario leaves ee_rotation at 0). The torque goes through the
+  joint-limit guard with only the normal force compensated (the one the MPC models) and the contact
   point's tangential acceleration held at zero: the tool sticks on the foam, and compensating
   the measured friction force would push it sideways until it slips.
 

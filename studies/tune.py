@@ -18,9 +18,8 @@ run ``--jobs`` at a time (Optuna threads). The best weights are written into a c
 scenario file (``--out``), under ``mpc.weights.<formulation>``.
 
 The search space (:data:`SEARCH_SPACE`) is the same for the three formulations except the terms
-a formulation does not have: the force-feedback model has no orientation or angular-velocity cost
-and the low-pass input weight c_w (eq 28) and the force-rate weight c_λ (eq 29) belong to one
-formulation each.
+a formulation does not have: the low-pass input weight c_w (eq 28) and the force-rate weight c_λ
+(eq 29) belong to one formulation each.
 """
 
 from __future__ import annotations
@@ -46,7 +45,7 @@ SEARCH_SPACE: dict[str, tuple[float, float, tuple[str, ...]]] = {
     "ee_position_phase": (1e2, 1e4, ("classical", "torque_feedback", "force_feedback")),
     "joint_velocity": (1e-3, 1.0, ("classical", "torque_feedback", "force_feedback")),
     "ee_velocity": (1e-2, 10.0, ("classical", "torque_feedback", "force_feedback")),
-    "ee_rotation": (0.1, 100.0, ("classical", "torque_feedback")),
+    "ee_rotation": (0.1, 100.0, ("classical", "torque_feedback", "force_feedback")),
     "lowpass_input": (1e-6, 1e-2, ("torque_feedback",)),
     "force_rate": (1e-8, 1e-4, ("force_feedback",)),
 }

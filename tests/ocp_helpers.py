@@ -18,9 +18,9 @@ def rich_weights(
     lowpass_input=0.0,
     authors_terms: bool = False,
 ) -> CostWeights:
-    """Non-trivial weights so that every term of eq 25 (and eq 28) matters. ``authors_terms``
-    (classical and torque-feedback only): the orientation and angular-velocity costs and the
-    low-pass terminal torque term too (else 0: the force-feedback model refuses the first two)."""
+    """Non-trivial weights so that every term of eq 25 (and eq 28) matters. ``authors_terms``:
+    the orientation and angular-velocity costs (all three formulations) and the low-pass
+    terminal torque term (torque-feedback) too (else 0)."""
     return CostWeights(
         ee_rotation=2.5 if authors_terms else 0.0,
         ee_angular_velocity=0.7 if authors_terms else 0.0,

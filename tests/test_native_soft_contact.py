@@ -104,7 +104,7 @@ def _compare(python, native, x, u, what):
 def test_native_equals_python_reference(robots, robot_name, dim, frame, axis, terminal):
     robot = robots[robot_name]
     rng = np.random.default_rng([ROBOTS.index(robot_name), dim, axis, int(terminal), len(frame)])
-    weights = rich_weights(rng, dim)
+    weights = rich_weights(rng, dim, authors_terms=True)
     contact = _contact(dim, frame, axis)
     q_ref = robot.q_nominal + 0.05 * rng.standard_normal(robot.nv)
     python, native = _pair(robot, contact, weights, 0.01, terminal, q_ref)
@@ -116,6 +116,10 @@ def test_native_equals_python_reference(robots, robot_name, dim, frame, axis, te
     np.testing.assert_array_equal(native.u_lb, python.u_lb)
     np.testing.assert_array_equal(native.u_ub, python.u_ub)
     np.testing.assert_array_equal(native.ee_position_reference, python.ee_position_reference)
+    np.testing.assert_array_equal(native.rotation_reference, python.rotation_reference)
+    np.testing.assert_allclose(
+        python.rotation_reference, robot.contact_placement(q_ref).rotation, rtol=0, atol=1e-15
+    )
 
     x, u = _random_x_u(rng, robot, dim)
     _compare(python, native, x, u, "as built")
@@ -144,10 +148,13 @@ def test_native_equals_python_reference(robots, robot_name, dim, frame, axis, te
         model.set_weight("force_rate", 3e-3)
         model.set_weight("ee_velocity", 0.5)
         model.set_weight("state_limit", 11.0)
+        model.set_weight("ee_rotation", 6.0)
+        model.set_weight("ee_angular_velocity", 0.05)
         model.set_state_limit_bounds(*robot.state_limit_bounds(0.6))
     np.testing.assert_array_equal(native.stiffness, stiffness)
     np.testing.assert_array_equal(native.nominal_damping, damping)
     assert native.weight("force_rate") == 3e-3
+    assert native.weight("ee_rotation") == 6.0
     np.testing.assert_array_equal(native.state_limit_upper, python.state_limit_upper)
     for k in range(3):
         x, u = _random_x_u(rng, robot, dim)
@@ -186,7 +193,11 @@ def test_native_matches_numdiff(robots, robot_name, dim, frame, axis, terminal):
     robot = robots[robot_name]
     rng = np.random.default_rng([11, dim, axis, int(terminal)])
     node = make_native_soft_contact_node(
-        robot, _contact(dim, frame, axis), rich_weights(rng, dim), 0.01, terminal
+        robot,
+        _contact(dim, frame, axis),
+        rich_weights(rng, dim, authors_terms=True),
+        0.01,
+        terminal,
     )
     node.set_reference(
         NodeReference(
@@ -213,6 +224,7 @@ def test_native_matches_numdiff(robots, robot_name, dim, frame, axis, terminal):
     for name in ("Fx", "Fu", "Lx", "Lu", "Lxx", "Lxu", "Luu"):
         _close(getattr(data, name), getattr(ndata, name), name, rtol=1e-5)
     expected = {"posture", "joint_velocity", "ee_position", "ee_velocity", "force", "state_limit"}
+    expected |= {"ee_rotation", "ee_angular_velocity"}
     if not terminal:
         expected |= {"torque", "force_rate"}
     for term in RESIDUAL_TERMS:

@@ -17,6 +17,7 @@ from ffmpc_core.lowpass import make_lowpass_node
 from ffmpc_core.mpc import ModelPredictiveController, MpcConfig, MpcMeasurement
 from ffmpc_core.native import make_native_soft_contact_node
 from ffmpc_core.rigid_contact import make_rigid_contact_node
+from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
 from ffmpc_core.soft_contact import make_soft_contact_node
 from ffmpc_core.study import build_task, mpc_config
@@ -110,11 +111,65 @@ def test_orientation_and_angular_velocity_costs_by_hand(robot, formulation):
     assert by_hand > 1e-4  # both terms matter here
 
 
+def _orientation_terms_by_hand(robot, q, v, c_rot, c_ang) -> float:
+    """c_R·½‖log3(R̄ᵀR(q))‖² + c_ω·½‖ω‖², R̄ the contact frame's orientation at the nominal
+    posture, ω its LOCAL angular velocity (rad/s), from pinocchio's kinematics."""
+    data = robot.create_data()
+    pin.forwardKinematics(robot.model, data, q, v)
+    pin.updateFramePlacements(robot.model, data)
+    fid = robot.contact_frame_id
+    r_bar = robot.contact_placement(robot.q_nominal).rotation
+    log_r = pin.log3(r_bar.T @ data.oMf[fid].rotation)
+    omega = pin.getFrameVelocity(robot.model, data, fid, pin.LOCAL).angular
+    return c_rot * 0.5 * float(log_r @ log_r) + c_ang * 0.5 * float(omega @ omega)
+
+
+@pytest.mark.parametrize("robot_name", ["iiwa", "panda"])
 @pytest.mark.parametrize("make", [make_soft_contact_node, make_native_soft_contact_node])
-def test_force_feedback_refuses_the_terms_it_does_not_have(robot, make):
+@pytest.mark.parametrize("terminal", [False, True])
+def test_force_feedback_orientation_and_angular_velocity_costs_by_hand(robot_name, make, terminal):
+    """The force-feedback model (Python and C++) adds the same two terms as the classical and
+    torque-feedback ones: × Δt in a running node, unscaled in the terminal node."""
+    robot = load_robot(robot_name)
+    rng = np.random.default_rng(6)
+    q = robot.q_nominal + 0.2 * rng.standard_normal(robot.nq)
+    v = 0.5 * rng.standard_normal(robot.nv)
+    x = np.concatenate([q, v, [15.0]])
+    u = robot.gravity(q) + rng.standard_normal(robot.nv)
+    c_rot, c_ang = 20.0, 0.05  # the authors' soft-contact polishing weights
+    contact = ContactConfig()
+    base = _running_cost(make(robot, contact, CostWeights(), DT, terminal), x, u)
+    weights = CostWeights(ee_rotation=c_rot, ee_angular_velocity=c_ang)
+    with_terms = _running_cost(make(robot, contact, weights, DT, terminal), x, u)
+    by_hand = (1.0 if terminal else DT) * _orientation_terms_by_hand(robot, q, v, c_rot, c_ang)
+    assert with_terms - base == pytest.approx(by_hand, rel=1e-9)
+    assert by_hand > 1e-3 * DT  # both terms matter here
+    # A state whose two terms are known in closed form: only the last joint (its axis fixed in
+    # the contact frame) moved by θ from q̄ and turning at ω₇, so ‖log3(R̄ᵀR)‖ = |θ| and
+    # ‖ω‖ = |ω₇|: the terms are c_R·½θ² + c_ω·½ω₇² (here 20·½·0.09 + 0.05·½·0.64 = 0.916).
+    theta, omega7 = 0.3, 0.8
+    q1 = robot.q_nominal.copy()
+    q1[-1] += theta
+    v1 = np.zeros(robot.nv)
+    v1[-1] = omega7
+    x1 = np.concatenate([q1, v1, [15.0]])
+    u1 = robot.gravity(q1)
+    node = make(robot, contact, weights, DT, terminal)
+    data = node.model.createData()
+    node.model.calc(data, x1, u1)
+    scale = 1.0 if terminal else DT
+    for name, value in (
+        ("ee_rotation", c_rot * 0.5 * theta**2),
+        ("ee_angular_velocity", c_ang * 0.5 * omega7**2),
+    ):
+        r = data.r[node.model.residual_slice(name)]
+        assert 0.5 * float(r @ r) == pytest.approx(scale * value, rel=1e-12), name
+    assert 20.0 * 0.5 * theta**2 + 0.05 * 0.5 * omega7**2 == pytest.approx(0.916)
+    # At the reference orientation and at rest, the two terms vanish.
+    x0 = np.concatenate([robot.q_nominal, np.zeros(robot.nv), [15.0]])
+    node.model.calc(data, x0, u)
     for name in ("ee_rotation", "ee_angular_velocity"):
-        with pytest.raises(ConfigError, match=name):
-            make(robot, ContactConfig(), CostWeights(**{name: 1.0}), DT, False)
+        assert np.abs(data.r[node.model.residual_slice(name)]).max() < 1e-12
 
 
 @pytest.mark.parametrize("backend", ["native", "python"])

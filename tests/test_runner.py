@@ -80,9 +80,11 @@ def test_force_feedback_mpc_reaches_and_holds_the_force_target() -> None:
 
 def test_default_polishing_keeps_every_joint_below_its_velocity_limit() -> None:
     """The default polishing scenario (force-feedback MPC, seed 0, 5 s: the whole circle) with
-    the joint-limit barrier of the scenario file (c_lim 0.01, bounds at 0.9 of the limits):
-    every joint's max |v|/limit stays below 1. Without the barrier (c_lim = 0, the code before
-    it) joint 3 reached 1.0049 at t = 2.97 s; with it, measured 0.836. ~5 s wall."""
+    the joint-limit barrier of the scenario file (bounds at 0.9 of the limits): every joint's
+    max |v|/limit stays below 1. Without the barrier (c_lim = 0, the code before it) joint 3
+    reached 1.0049 at t = 2.97 s; with c_lim 0.01, measured 0.836. With the orientation terms
+    (rotation 20, angular velocity 0.05) and c_lim 0.01, 1.36; the defaults (rotation 5,
+    c_lim 1): 0.841 (README). ~5 s wall."""
     scenario = load_scenario("polishing")
     assert scenario.seed == 0 and scenario.mpc.formulation == "force_feedback"
     assert scenario.mpc.cost_weights().state_limit > 0.0

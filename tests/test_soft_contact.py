@@ -157,6 +157,8 @@ def _weights() -> CostWeights:
         force=0.1,
         force_rate=1e-3,
         state_limit=2.0,
+        ee_rotation=3.0,
+        ee_angular_velocity=0.4,
     )
 
 
@@ -204,6 +206,7 @@ def test_action_model_matches_numdiff(robots, robot_name, dim, frame, terminal):
 
     # Every term of this node contributes (so the check above covers each one).
     expected = {"posture", "joint_velocity", "ee_position", "ee_velocity", "force", "state_limit"}
+    expected |= {"ee_rotation", "ee_angular_velocity"}
     if not terminal:
         expected |= {"torque", "force_rate"}
     for term in RESIDUAL_TERMS:
@@ -230,6 +233,8 @@ def test_action_model_matches_numdiff(robots, robot_name, dim, frame, terminal):
                 "ee_velocity",
                 "force",
                 "state_limit",
+                "ee_rotation",
+                "ee_angular_velocity",
             )
         )
         assert d2.cost == pytest.approx(state_only / model.dt, rel=1e-10)
