@@ -152,7 +152,8 @@ class _Constructed(type):
       second reader exists only after its data readers do (an MPC that builds its OCP for
       seconds after its time source subscribed no longer lets the plant start before it reads
       the joint states);
-    * arms its side of the lockstep start barrier (:meth:`StudyNode.writers_matched`);
+    * in a lockstep graph, subscribes ``lockstep/member``, its membership marker (its very
+      last reader), and arms its side of the start barrier (:meth:`StudyNode.writers_matched`);
     * then starts its lifecycle (``_after_construction``: autostart must not run a transition
       on a half-built node)."""
 
@@ -161,6 +162,7 @@ class _Constructed(type):
         try:
             node.__init__(*args, **kwargs)
             node._subscribe_clock()
+            node._join_lockstep()
             node._arm_start_barrier()
             node._after_construction()
         except BaseException:
@@ -550,6 +552,25 @@ class StudyNode(LifecycleNode, metaclass=_Constructed):
         )
 
     # -- the lockstep start barrier (ffmpc_ros.topics.START_READY) --------------------------------
+    @property
+    def start_members(self) -> int:
+        """Members of the lockstep graph (``start_clock_subscribers`` counts two /clock readers
+        per member: each node, the recorder); 0 outside a lockstep graph."""
+        clock_readers = int(self.params.get("start_clock_subscribers", 0))
+        return clock_readers // topics.CLOCK_READERS_PER_NODE
+
+    def _join_lockstep(self) -> None:
+        """The membership marker (``lockstep/member``), this node's last reader."""
+        self._member_topic = self.resolve_topic_name(topics.START_MEMBER)
+        if self.start_members > 0:
+            self.create_subscription(
+                Empty,
+                topics.START_MEMBER,
+                _ignore,
+                topics.start_ready_qos(),
+                qos_overriding_options=None,
+            )
+
     def _arm_start_barrier(self) -> None:
         """Check :meth:`writers_matched` now and every :data:`BARRIER_PERIOD` wall s until it
         holds; then subscribe ``lockstep/ready`` (the node's token, counted by the plant)."""
@@ -563,7 +584,7 @@ class StudyNode(LifecycleNode, metaclass=_Constructed):
         if self.start_ready or not self.writers_matched():
             return
         self._barrier_timer.cancel()
-        if int(self.params.get("start_clock_subscribers", 0)) <= 0:
+        if self.start_members <= 0:
             self.start_ready = True  # no graph to wait for: no token either (ros2 run, re-runs)
             return
         self.create_subscription(
@@ -581,20 +602,22 @@ class StudyNode(LifecycleNode, metaclass=_Constructed):
         )
 
     def writers_matched(self) -> bool:
-        """This node's side of the lockstep start barrier: it has discovered
-        ``start_clock_subscribers`` /clock readers (each node's reliable /clock reader is its
-        last reader, and a participant announces its readers in the order it creates them, so
-        every reader of the graph is then known here), and each of its writers (those
+        """This node's side of the lockstep start barrier: it has discovered the membership
+        marker (``lockstep/member``) of each of the graph's :attr:`start_members` members (a
+        member's marker is its last reader, and a participant announces its readers in the
+        order it creates them, so every reader of the graph is then known here; readers of
+        /clock outside the graph, a live view's or a ``ros2 topic echo``'s, do not count), and
+        each of its writers (those
         :func:`ffmpc_ros.topics.barrier_writer` names) has matched every reader discovered on
         its topic whose QoS is compatible with it. A reliable, volatile writer delivers every
         sample it sends after it matched a reader: once every node holds this, nothing sent
         from cycle 0 on is lost. True at once when ``start_clock_subscribers`` is 0 (no graph
         to wait for: ``ros2 run`` of one node, a re-run from a bag); the node then makes no
         token."""
-        need = int(self.params.get("start_clock_subscribers", 0))
-        if need <= 0:
+        members = self.start_members
+        if members <= 0:
             return True
-        if self.count_subscribers(self._clock_reader.topic_name) < need:
+        if self.count_subscribers(self._member_topic) < members:
             return False
         for writer in self._barrier_writers:
             readers = self.get_subscriptions_info_by_topic(writer.topic_name)

@@ -467,6 +467,7 @@ def _recorder_options(nodes: Sequence[str], approach: str, namespace: str) -> di
         "parameters_of": list(nodes),
         "final_topic": topics.resolve(topics.IMPACT_SUMMARY, namespace),
         "namespace": namespace,
+        "lockstep_member": True,
     }
 
 

@@ -306,6 +306,12 @@ GRAPH_OVERRIDES: dict[str, dict[str, dict[str, str | int]]] = {
 #: the lockstep topics were TRANSIENT_LOCAL, since a sample a writer sent before ITS side of a
 #: match was made was lost, and 2 of 54 graph tests beside two busy loops stalled at cycle 0.
 START_READY = "lockstep/ready"
+#: The start barrier's membership marker (std_msgs/Empty, never published): every member of a
+#: lockstep graph (each node, the graph's recorder) subscribes it as its LAST reader, once all its
+#: other readers exist. A node that has discovered every member's marker has discovered every
+#: reader of the graph (a participant announces its readers in the order it creates them). Other
+#: readers of /clock (the live view, a ``ros2 topic echo``) are no members: they do not count.
+START_MEMBER = "lockstep/member"
 #: Writers the start barrier does not wait for: the domain-wide diagnostics (any number of
 #: monitors) and LATCHED topics (a late reader gets the last sample anyway).
 BARRIER_EXEMPT = frozenset({DIAGNOSTICS})

@@ -55,9 +55,21 @@ DEFAULT_HOST = "127.0.0.1"
 VIEW_PERIOD = 0.01
 #: Length of the force arrow, m per N (50 N → 0.25 m).
 FORCE_ARROW_SCALE = 0.005
-#: Wall s between a client's subscription to /plant/joint_states and the start of the run
-#: (``wait_for_client``): its subscriptions to the other channels arrive meanwhile.
-CLIENT_SETTLE = 0.5
+#: Messages the server buffers per client (foxglove-sdk drops the OLDEST data message when the
+#: buffer is full: a live view drops rather than blocks). The default, 1024, is 0.06 s of a
+#: 1 kHz graph's ~17 topics: a client on a loaded machine (the test's, in a Python thread) lost
+#: every message of a topic (robot_description, mpc/prediction) in 3 of 6 runs of a 0.2 s run.
+#: 32768 (~2 s of the graph, some MB) keeps a slow client whole through start-up.
+CLIENT_BACKLOG = 32768
+#: Wall s without a new channel or subscription before the run starts (``wait_for_client``) for a
+#: client that does not subscribe to every channel of the graph (ViewNode.client_ready; a client
+#: that subscribes to all of them starts the run at once). 0.5 s let the run start before a
+#: loaded test client had subscribed to /tf_static and mpc/prediction (2 of 6 runs beside two
+#: busy loops); a person's Foxglove waits 5 s after its last subscription.
+CLIENT_SETTLE = 5.0
+#: Wall s a channel of the graph may stay without the waiting client's subscription before it
+#: is advertised again (ViewNode._readvertise).
+READVERTISE = 1.0
 #: Latched topics: their last message goes again to each new Foxglove subscriber (Foxglove
 #: channels keep nothing; DDS reports a remote publisher's depth as 0, so the QoS cannot tell).
 LATCHED = (topics.ROBOT_DESCRIPTION, topics.TF_STATIC)
@@ -185,6 +197,7 @@ class ViewNode(Node):
         self.mesh_root = Path(self.robot.urdf_path).resolve().parent
         self.wait_for_client = wait_for_client
         self.listener = _Subscriptions()
+        self.started_at = "not started"  # why client_ready held (reported at the end)
         try:
             self.server = foxglove.start_server(
                 name="ffmpc",
@@ -193,6 +206,7 @@ class ViewNode(Node):
                 context=self.fox,
                 asset_handler=self._asset,
                 server_listener=self.listener,
+                message_backlog_size=CLIENT_BACKLOG,
             )
         except RuntimeError as exc:
             raise ViewError(f"the live view cannot listen on {host}:{port}: {exc}") from None
@@ -205,6 +219,9 @@ class ViewNode(Node):
         # (the subscription came before the message, or while the server had not attached it)
         self._owed: set[str] = set()
         self._last_channel_at = time.monotonic()
+        self._schemas: dict[str, Any] = {}  # the Foxglove schema of each bridged topic
+        self._advertised_at: dict[str, float] = {}  # monotonic s of each channel's advertisement
+        self.readvertised: dict[str, int] = {}  # channels advertised again (_readvertise)
         self._bridges: dict[str, Any] = {}
         self.forwarded: dict[str, int] = {}  # messages sent to a client, per topic
         self.received: dict[str, int] = {}  # messages the bridge received, per topic
@@ -249,18 +266,60 @@ class ViewNode(Node):
     @property
     def client_ready(self) -> bool:
         """A client has subscribed to ``/plant/joint_states``, every topic of the graph's
-        contract (``topics.TOPICS``, ``topics.VIEW_TOPICS``) is advertised, and
-        :data:`CLIENT_SETTLE` s passed since both (the client's other subscriptions are in)."""
+        contract (``topics.TOPICS``, ``topics.VIEW_TOPICS``: the state publisher's ``/tf`` and
+        ``/tf_static`` included) is advertised, and either a client listens to every one of
+        them (a client that subscribes to everything, such as the tests': nothing left to wait
+        for) or :data:`CLIENT_SETTLE` s passed since the last channel was advertised and the
+        last subscription came in (a Foxglove layout subscribes only to what its panels show)."""
         since = self.listener.subscribed.get(self._name(topics.PLANT_JOINT_STATES))
         if since is None:
             return False
-        # the graph's ROS /tf is not bridged (the view has its own channel, module docstring)
-        contract = [
-            self._name(t) for t, _, _ in (*topics.TOPICS, *topics.VIEW_TOPICS) if t != topics.TF
-        ]
+        contract = [self._name(t) for t, _, _ in (*topics.TOPICS, *topics.VIEW_TOPICS)]
         if not all(t in self.channels for t in contract):
             return False
-        return time.monotonic() - max(since, self._last_channel_at) >= CLIENT_SETTLE
+        # subscribed (the server's listener) and attached (foxglove-sdk attaches a client's
+        # sink to the channel a moment after the subscribe callback: a message logged before
+        # is dropped)
+        if all(t in self.listener.subscribed and self.channels[t].has_sinks() for t in contract):
+            self.started_at = "all subscribed"
+            return True
+        self._readvertise(contract)
+        last = max(since, self._last_channel_at, self.listener.last_at)
+        if time.monotonic() - last >= CLIENT_SETTLE:
+            missing = [t for t in contract if t not in self.listener.subscribed]
+            self.started_at = f"settled; no client on {missing}"
+            return True
+        return False
+
+    def _advertise(self, topic: str) -> Any:
+        """A Foxglove channel of ``topic`` (its schema from :attr:`_schemas`), advertised to
+        every client now and on connection."""
+        import foxglove
+
+        channel = foxglove.Channel(
+            topic,
+            schema=self._schemas[topic],
+            message_encoding=MESSAGE_ENCODING,
+            context=self.fox,
+        )
+        self.channels[topic] = channel
+        self._advertised_at[topic] = self._last_channel_at = time.monotonic()
+        return channel
+
+    def _readvertise(self, contract: list[str]) -> None:
+        """``wait_for_client``: advertise again (close, then a new channel) each channel of the
+        contract the connected client has not subscribed to :data:`READVERTISE` s after it was
+        advertised. foxglove-sdk 0.30.3 can miss the advertisement of a channel created while a
+        client connects: the test's client, which subscribes to every channel, never heard of
+        one or more of them in 4 of 6 runs beside two busy loops."""
+        now = time.monotonic()
+        for topic in contract:
+            if topic in self.listener.subscribed:
+                continue
+            if now - self._advertised_at[topic] >= READVERTISE:
+                self.channels[topic].close()
+                self._advertise(topic)
+                self.readvertised[topic] = self.readvertised.get(topic, 0) + 1
 
     def discover(self) -> None:
         """A channel and a raw subscription for every new topic that has a publisher (with
@@ -273,6 +332,7 @@ class ViewNode(Node):
         for topic in sorted(self._owed):
             if topic in self._latched and self.channels[topic].has_sinks():
                 self.channels[topic].log(self._latched[topic], log_time=self._latched_at[topic])
+                self.forwarded[topic] += 1
                 self._owed.discard(topic)
         for topic, types in self.get_topic_names_and_types():
             if topic in self._bridges or topic in EXCLUDE:
@@ -289,17 +349,11 @@ class ViewNode(Node):
                     self.get_logger().warning(f"{topic} not bridged: {exc}")
                     self._bridges[topic] = None
                     continue
-                channel = foxglove.Channel(
-                    topic,
-                    schema=foxglove.Schema(
-                        name=type_name, encoding=SCHEMA_ENCODING, data=definition.encode()
-                    ),
-                    message_encoding=MESSAGE_ENCODING,
-                    context=self.fox,
+                self._schemas[topic] = foxglove.Schema(
+                    name=type_name, encoding=SCHEMA_ENCODING, data=definition.encode()
                 )
-                self.channels[topic] = channel
+                channel = self._advertise(topic)
                 self.forwarded[topic] = 0
-                self._last_channel_at = time.monotonic()
             if topic == self._name(topics.PLANT_JOINT_STATES) and self.wait_for_client:
                 if not self.client_ready:
                     continue  # advertised; subscribed (the plant starts) once a client is in
@@ -320,11 +374,14 @@ class ViewNode(Node):
         forwarded, received = self.forwarded, self.received
         received[topic] = 0
 
+        channels = self.channels
+
         def on_message(data: bytes) -> None:
             now = clock.now().nanoseconds
             received[topic] += 1
             if latched:
                 self._latched[topic], self._latched_at[topic] = data, now
+            channel = channels[topic]  # (advertised again: _readvertise)
             if channel.has_sinks():
                 channel.log(data, log_time=now)
                 forwarded[topic] += 1
@@ -397,10 +454,12 @@ class _Subscriptions:
 
     def __init__(self) -> None:
         self.subscribed: dict[str, float] = {}
+        self.last_at = -float("inf")  # monotonic s of the newest subscription
         self._new: list[str] = []
 
     def on_subscribe(self, client, channel) -> None:
-        self.subscribed.setdefault(channel.topic, time.monotonic())
+        self.last_at = time.monotonic()
+        self.subscribed.setdefault(channel.topic, self.last_at)
         self._new.append(channel.topic)
 
     def take_new(self) -> list[str]:
@@ -444,6 +503,13 @@ def view_process(config_path: str) -> int:
                 "address": node.address,
                 "forwarded": node.forwarded,
                 "received": node.received,
+                # wall s after the first subscription at which a client subscribed to each topic
+                "subscribed": {
+                    t: round(at - min(node.listener.subscribed.values()), 3)
+                    for t, at in node.listener.subscribed.items()
+                },
+                "started": node.started_at,
+                "readvertised": node.readvertised,
             }
             node.close()
             if config.get("counts"):

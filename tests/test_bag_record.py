@@ -60,6 +60,24 @@ def _random_message(type_name: str, k: int, rng: np.random.Generator):
         msg = Float64MultiArray(data=data)
         msg.layout.dim = [MultiArrayDimension(label="ffmpc/test/1", size=len(data))]
         return msg
+    if type_name == "tf2_msgs/msg/TFMessage":
+        from geometry_msgs.msg import TransformStamped
+        from tf2_msgs.msg import TFMessage
+
+        msg = TFMessage()
+        for child in ("lbr_iiwa_link_1", "contact"):
+            t = TransformStamped()
+            t.header.stamp.sec, t.header.stamp.nanosec = sec, nanosec
+            t.header.frame_id, t.child_frame_id = "world", child
+            p, q = rng.normal(size=3), rng.normal(size=4)
+            q /= np.linalg.norm(q)
+            t.transform.translation.x, t.transform.translation.y, t.transform.translation.z = map(
+                float, p
+            )
+            r = t.transform.rotation
+            r.x, r.y, r.z, r.w = map(float, q)
+            msg.transforms.append(t)
+        return msg
     if type_name == "ffmpc_msgs/msg/MpcCommand":
         solution = SimpleNamespace(
             torque=rng.normal(size=7),

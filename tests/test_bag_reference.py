@@ -34,12 +34,15 @@ def test_reference_bag_is_small_complete_and_self_describing():
     assert BAG.stat().st_size < 1_000_000
     with BagReader(BAG) as bag:
         assert bag.recovery.complete
-        # Besides the contract topics: /rosout and /diagnostics (not contract topics), and
-        # mpc/prediction (published while something subscribes: the recorder does).
+        # Besides the contract topics: /rosout and /diagnostics (not contract topics),
+        # mpc/prediction (published while something subscribes: the recorder does) and each
+        # managed node's lifecycle topic <node>/transition_event.
         extra = ("/rosout", "/diagnostics", topics.resolve(topics.MPC_PREDICTION))
-        assert {t: i.type for t, i in bag.topics.items() if t not in extra} == {
-            t: ty for t, ty, _ in topics.resolved_topics()
-        }
+        lifecycle = {t for t in bag.topics if t.endswith("/transition_event")}
+        assert lifecycle == {f"/{n}/transition_event" for n in [*NODES, "metrics"]}
+        assert {
+            t: i.type for t, i in bag.topics.items() if t not in extra and t not in lifecycle
+        } == {t: ty for t, ty, _ in topics.resolved_topics()}
         assert bag.topics[topics.resolve(topics.PLANT_JOINT_STATES)].count == 501
         assert bag.topics[topics.resolve(topics.MPC_COMMAND)].count == 251
         assert bag.duration == pytest.approx(0.5)

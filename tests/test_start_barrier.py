@@ -35,7 +35,7 @@ def _ready_readers(probe) -> int:
 
 
 def test_a_node_is_ready_only_once_its_writer_matched_a_late_reader_and_loses_nothing(ros):
-    clock_readers = 2 * topics.CLOCK_READERS_PER_NODE  # the node's and a late member's
+    clock_readers = 2 * topics.CLOCK_READERS_PER_NODE  # two members: the node and a late one
     node = ros.add(
         JointSensorNode(
             context=ros.context,
@@ -46,12 +46,18 @@ def test_a_node_is_ready_only_once_its_writer_matched_a_late_reader_and_loses_no
     )
     watcher = ros.probe("watcher")
     ros.spin_for(1.0)
-    # alone on the graph: it does not know every /clock reader yet
+    # alone on the graph: it does not know every member yet
     assert not node.start_ready and _ready_readers(watcher) == 0
 
-    # a late member of the graph: first its data reader, then its /clock readers (last, as a
-    # StudyNode's), and an incompatible reader (transient local on a volatile writer), which
-    # the barrier must not wait for
+    # /clock readers of a non-member (a live view, a ros2 topic echo) do not count
+    outsider = ros.probe("outsider")
+    for _ in range(topics.CLOCK_READERS_PER_NODE):
+        outsider.create_subscription(Clock, topics.CLOCK, lambda m: None, topics.clock_reader_qos())
+    ros.spin_for(1.0)
+    assert not node.start_ready
+    # a late member of the graph: first its data reader and an incompatible reader (transient
+    # local on a volatile writer, which the barrier must not wait for), then its membership
+    # marker (last, as a StudyNode's)
     late = ros.probe("late_member")
     got: list[JointState] = []
     reliable = topics.graph_qos(topics.SENSED_JOINT_STATES, "subscription")
@@ -62,8 +68,7 @@ def test_a_node_is_ready_only_once_its_writer_matched_a_late_reader_and_loses_no
         durability=DurabilityPolicy.TRANSIENT_LOCAL,
     )
     late.create_subscription(JointState, topics.SENSED_JOINT_STATES, lambda m: None, incompatible)
-    for _ in range(topics.CLOCK_READERS_PER_NODE):
-        late.create_subscription(Clock, topics.CLOCK, lambda m: None, topics.clock_reader_qos())
+    late.create_subscription(Empty, topics.START_MEMBER, lambda m: None, topics.start_ready_qos())
     assert ros.spin_until(lambda: node.start_ready, timeout=20.0)
     writer = node.publisher
     # the token came only after the writer had matched the compatible late reader

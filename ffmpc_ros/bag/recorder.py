@@ -149,6 +149,9 @@ class BagRecorder(Node):
             for ``settle`` wall seconds (:attr:`complete`).
         namespace: record only this namespace's topics (and :data:`DOMAIN_TOPICS`) and nodes
             (None or ``/``: everything on the domain).
+        lockstep_member: the recorder of a lockstep graph: once its gate opens (every reader
+            exists), it subscribes the start barrier's membership marker, so that the graph's
+            writers match its readers before the first sample (ffmpc_ros.topics.START_MEMBER).
     """
 
     def __init__(
@@ -169,6 +172,7 @@ class BagRecorder(Node):
         final_topic: str | None = None,
         settle: float = 0.2,
         namespace: str | None = None,
+        lockstep_member: bool = False,
     ) -> None:
         super().__init__(
             node_name,
@@ -189,6 +193,7 @@ class BagRecorder(Node):
         self._fetches: dict[str, _ParameterFetch] = {}
         self.parameters: dict[str, dict[str, Any]] = {}
         self.gate_open = gate_topic is None
+        self.lockstep_member = lockstep_member
         self.final_topic = final_topic
         self.settle = settle
         self.last_message_at = time.monotonic()
@@ -244,6 +249,19 @@ class BagRecorder(Node):
                 LATE_DISCOVERY_PERIOD, self.discover, clock=Clock(clock_type=ClockType.STEADY_TIME)
             )
             self.discover()
+            if self.lockstep_member:
+                # every reader of the recorder exists: its membership marker of the graph's start
+                # barrier, last (ffmpc_ros.topics.START_MEMBER)
+                from std_msgs.msg import Empty
+
+                from ffmpc_ros import topics as graph_topics
+
+                self.create_subscription(
+                    Empty,
+                    graph_topics.START_MEMBER,
+                    lambda msg: None,
+                    graph_topics.start_ready_qos(),
+                )
 
     def _ready(self) -> bool:
         for topic in self.wait_for:
@@ -364,6 +382,7 @@ def _graph_recorder_options(
         "parameters_of": [*NODES, "metrics"],
         "final_topic": name(topics.METRICS_SUMMARY),
         "namespace": topics.normalize_namespace(namespace),
+        "lockstep_member": True,
     }
 
 

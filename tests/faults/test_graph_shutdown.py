@@ -99,7 +99,7 @@ def test_sigterm_closes_the_bag_and_a_second_graph_is_refused(tmp_path):
     proc = _start(tmp_path, "--duration", "20", "--record", str(bag))
     try:
         _wait_running(proc, bag)
-        assert len(children_of(proc.pid)) == 6  # five nodes and the recorder
+        assert len(children_of(proc.pid)) == 7  # six nodes (state publisher included), the recorder
         t0 = time.monotonic()
         second = subprocess.run(
             [sys.executable, "-m", "ffmpc_ros.cli", "run", "polishing", "--duration", "0.1"],
@@ -139,7 +139,7 @@ def test_sigkill_of_the_parent_leaves_no_process_and_a_readable_bag(tmp_path):
     proc = _start(tmp_path, "--duration", "20", "--record", str(bag))
     try:
         _wait_running(proc, bag)
-        assert len(children_of(proc.pid)) == 6
+        assert len(children_of(proc.pid)) == 7
         proc.kill()
         proc.wait(timeout=10)
         left = _wait_no_children(proc.pid)
