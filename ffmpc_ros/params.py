@@ -124,10 +124,11 @@ START_SUBSCRIBERS = GraphParameter(
 START_CLOCK_SUBSCRIBERS = GraphParameter(
     "start_clock_subscribers",
     0,
-    "lockstep start barrier: /clock readers of the whole graph (every node's two, a recorder's "
-    "two). A node declares itself ready (a reader of lockstep/ready) once it has discovered that "
-    "many and each of its writers has matched every compatible reader discovered on its topic; "
-    "the plant also waits for them before its first state (0: no barrier)",
+    "lockstep start barrier: /clock readers of the whole graph, two per member (every node, "
+    "the graph's recorder): a node declares itself ready (a reader of lockstep/ready) once it "
+    "has discovered every member's lockstep/member marker and each of its writers has matched "
+    "every compatible reader discovered on its topic; the plant also waits for that many /clock "
+    "readers before its first state (0: no barrier)",
     (0, 1000),
 )
 START_NODES = GraphParameter(

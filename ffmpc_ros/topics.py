@@ -298,9 +298,8 @@ GRAPH_OVERRIDES: dict[str, dict[str, dict[str, str | int]]] = {
 }
 #: The lockstep start barrier (``StudyNode`` in ffmpc_ros.base; msgs_notes/README.md, QoS): a
 #: node subscribes this topic (std_msgs/Empty, never published) once it has discovered every
-#: /clock reader of the graph (``start_clock_subscribers``: a node's /clock reader is its last
-#: reader, so every reader of the graph is then known to it) and each of its writers has matched
-#: every compatible reader discovered on its topic. The plant counts these readers
+#: member's :data:`START_MEMBER` marker (so every reader of the graph) and each of its writers has
+#: matched every compatible reader discovered on its topic. The plant counts these readers
 #: (``start_nodes``) before it publishes cycle 0: every writer of the graph then delivers every
 #: sample to every reader (reliable, volatile: nothing is replayed, nothing is lost). Before it,
 #: the lockstep topics were TRANSIENT_LOCAL, since a sample a writer sent before ITS side of a
