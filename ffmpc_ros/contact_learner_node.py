@@ -46,7 +46,12 @@ from ffmpc_core.impact.touch_first import TOUCH, LearningGate, fed_surface
 from ffmpc_core.robots import load_robot
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import run_node
-from ffmpc_ros.impact_common import MeasuredCycleNode, direction_parameter, estimate_message
+from ffmpc_ros.impact_common import (
+    MeasuredCycleNode,
+    direction_parameter,
+    estimate_message,
+    reference_fields,
+)
 
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
@@ -115,10 +120,7 @@ class ContactLearnerNode(MeasuredCycleNode):
         """The planner's learning gate of a cycle (gated mode)."""
         topic = self.name_of(topics.IMPACT_REFERENCE)
         try:
-            fields = layouts.IMPACT_REFERENCE.unpack(msg)
-            k = self.cycle_of_time(fields["t"])
-            if k is None:
-                raise InputError(f"reference time {fields['t']} s off the grid")
+            fields, k = reference_fields(self, msg)
             gate = LearningGate(
                 layouts.impact_phase(fields["gate_phase"]),
                 np.asarray(fields["gate_surface"], dtype=float)

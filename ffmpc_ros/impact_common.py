@@ -144,6 +144,16 @@ def estimate_from_message(msg: Float64MultiArray) -> tuple[ContactEstimate, floa
     return estimate, fields["t"], direction
 
 
+def reference_fields(node: StudyNode, msg: Float64MultiArray) -> tuple[dict, int]:
+    """The fields of an ``impact_planner/reference`` message (layout ``impact_reference``) and
+    the cycle of its time; InputError for a malformed message or a time off the grid."""
+    fields = layouts.IMPACT_REFERENCE.unpack(msg)
+    k = node.cycle_of_time(fields["t"])
+    if k is None:
+        raise InputError(f"reference time {fields['t']} s off the grid")
+    return fields, k
+
+
 def receive_estimate(
     node: StudyNode, msg: Float64MultiArray
 ) -> tuple[int, ContactEstimate, np.ndarray] | None:

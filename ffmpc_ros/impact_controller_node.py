@@ -72,6 +72,7 @@ from ffmpc_ros.impact_common import (
     ReceivedEstimates,
     impact_study_config,
     receive_estimate,
+    reference_fields,
 )
 
 #: Wall-time period of the lockstep-timeout check, s.
@@ -189,10 +190,7 @@ class ImpactControllerNode(MeasuredCycleNode):
     def on_reference(self, msg: Float64MultiArray) -> None:
         topic = self.name_of(topics.IMPACT_REFERENCE)
         try:
-            fields = layouts.IMPACT_REFERENCE.unpack(msg)
-            k = self.cycle_of_time(fields["t"])
-            if k is None:
-                raise InputError(f"reference time {fields['t']} s off the grid")
+            fields, k = reference_fields(self, msg)
             command = reference_approach(fields, self.touch_first)
         except InputError as exc:
             # the planner sends one reference per cycle, in order: this one was the next's

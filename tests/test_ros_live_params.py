@@ -51,6 +51,17 @@ def _solve_tick(ros, node, pub_j, pub_w, robot, k, commands, force=20.0):
     assert ros.spin_until(lambda: len(commands) == n + 1), f"no command for tick {k}"
 
 
+def _pid_under_test(ros, scenario):
+    """A PID node of ``scenario``, publishers of its joint-state and command inputs, the list its
+    motor torques go to, and a parameter client of it."""
+    node = ros.add(PidNode(context=ros.context, parameter_overrides=overrides("pid", scenario)))
+    probe = ros.probe()
+    pub_j = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
+    pub_c = probe.create_publisher(MpcCommand, topics.MPC_COMMAND, topics.publisher_qos())
+    motor = recorder(probe, JointState, topics.MOTOR_TORQUE)
+    return node, pub_j, pub_c, motor, _client(ros, "pid")
+
+
 def _stiffness(mpc) -> set[float]:
     """The nominal K (N/m) of every OCP node of a ModelPredictiveController."""
     nodes = [*mpc.nodes, mpc.terminal_node]
@@ -126,12 +137,7 @@ def test_torque_limit_set_live_saturates_the_next_cycle_and_a_looser_one_is_refu
     reached the full limits before); 1.5 (above the data sheet) and a command timeout below the
     MPC period are refused with a reason, and change nothing."""
     scenario = load_scenario("polishing", {"mpc.formulation": "classical"})
-    node = ros.add(PidNode(context=ros.context, parameter_overrides=overrides("pid", scenario)))
-    probe = ros.probe()
-    pub_j = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
-    pub_c = probe.create_publisher(MpcCommand, topics.MPC_COMMAND, topics.publisher_qos())
-    motor = recorder(probe, JointState, topics.MOTOR_TORQUE)
-    client = _client(ros, "pid")
+    node, pub_j, pub_c, motor, client = _pid_under_test(ros, scenario)
     refused = _set(ros, client, "torque_limit_fraction", 1.5)
     assert not refused.successful and "torque_limit_fraction" in refused.reason
     refused = _set(ros, client, "stale_timeout", 0.001)
@@ -168,12 +174,7 @@ def test_pid_gains_change_the_motor_torque_of_the_next_cycle_as_eq_33(ros, robot
     gains; cycle 5 equals τ_old − ΔK_P·e − ΔK_I·∫e (eq 33 with e and ∫e of that cycle), i.e.
     the core PID given the same gains at the same cycle."""
     scenario = load_scenario("polishing", {"mpc.formulation": "classical"})
-    node = ros.add(PidNode(context=ros.context, parameter_overrides=overrides("pid", scenario)))
-    probe = ros.probe()
-    pub_j = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
-    pub_c = probe.create_publisher(MpcCommand, topics.MPC_COMMAND, topics.publisher_qos())
-    motor = recorder(probe, JointState, topics.MOTOR_TORQUE)
-    client = _client(ros, "pid")
+    node, pub_j, pub_c, motor, client = _pid_under_test(ros, scenario)
     rng = np.random.default_rng(3)
     q = robot.q_nominal + 0.01 * rng.standard_normal((8, 7))
     v = 0.05 * rng.standard_normal((8, 7))
