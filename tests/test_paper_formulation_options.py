@@ -98,15 +98,7 @@ def test_orientation_and_angular_velocity_costs_by_hand(robot, formulation):
     with_terms = _running_cost(
         node(CostWeights(ee_rotation=c_rot, ee_angular_velocity=c_ang)), x, u
     )
-
-    data = robot.create_data()
-    pin.forwardKinematics(robot.model, data, q, v)
-    pin.updateFramePlacements(robot.model, data)
-    fid = robot.contact_frame_id
-    r_bar = robot.contact_placement(robot.q_nominal).rotation
-    log_r = pin.log3(r_bar.T @ data.oMf[fid].rotation)
-    omega = pin.getFrameVelocity(robot.model, data, fid, pin.LOCAL).angular
-    by_hand = DT * (c_rot * 0.5 * log_r @ log_r + c_ang * 0.5 * omega @ omega)
+    by_hand = DT * _orientation_terms_by_hand(robot, q, v, c_rot, c_ang)
     assert with_terms - base == pytest.approx(by_hand, rel=1e-9)
     assert by_hand > 1e-4  # both terms matter here
 
