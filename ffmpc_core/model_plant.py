@@ -177,6 +177,80 @@ class ClosedLoopLog:
         return {k: np.asarray(v) for k, v in self.__dict__.items()}
 
 
+class _TimedMpc:
+    """The MPC as the model loop's controller: times each whole ``step`` (wall time, s) and logs
+    its solver figures into the run's :class:`ClosedLoopLog`."""
+
+    def __init__(self, mpc: ModelPredictiveController, log: ClosedLoopLog) -> None:
+        self.mpc = mpc
+        self.log = log
+
+    def reset(self) -> None:
+        self.mpc.reset()
+
+    def step(self, measurement: MpcMeasurement, t: float, /) -> MpcCommand:
+        start = time.perf_counter()
+        command = self.mpc.step(measurement, t)
+        self.log.step_time.append(time.perf_counter() - start)
+        self.log.iterations.append(command.iterations)
+        self.log.solve_time.append(command.solve_time)
+        self.log.converged.append(command.converged)
+        return command
+
+
+class _ModelLoop:
+    """The model loop's scenario (:class:`~ffmpc_core.runner.LoopScenario`): the MPC reads the
+    plant's exact state; the plant gets τ (w, the low-pass input, for torque-feedback) with its
+    contact switched as the task schedules it; the log row of cycle k is the state after its step,
+    t_k + dt (written when cycle k + 1 reads it, and by :meth:`finish` for the last one)."""
+
+    def __init__(
+        self, plant: ModelPlant, schedule: ContactSchedule, log: ClosedLoopLog, robot: RobotModel
+    ) -> None:
+        self.plant = plant
+        self.schedule = schedule
+        self.log = log
+        self.robot = robot
+        self._data = robot.create_data()
+
+    def measure(self, k: int, t: float, state: MpcMeasurement, /) -> MpcMeasurement:
+        return state
+
+    def record(
+        self,
+        k: int,
+        t: float,
+        state: MpcMeasurement,
+        measurement: MpcMeasurement,
+        command: MpcCommand,
+        joint_input: np.ndarray | None,
+        /,
+    ) -> None:
+        if k > 0:  # the row of cycle k - 1, at its t + dt (as that cycle computed it)
+            self._row((k - 1) * self.plant.dt + self.plant.dt, state)
+
+    def actuate(
+        self, k: int, t: float, state: MpcMeasurement, command: MpcCommand, /
+    ) -> np.ndarray:
+        self.plant.set_contact(self.schedule.in_contact(t))
+        return command.us[0] if self.plant.formulation == "torque_feedback" else command.torque
+
+    def finish(self, steps: int) -> None:
+        """The last row: the state after the last of ``steps`` cycles."""
+        self._row((steps - 1) * self.plant.dt + self.plant.dt, self.plant.state())
+
+    def _row(self, t: float, state: MpcMeasurement) -> None:
+        import pinocchio as pin
+
+        pin.framesForwardKinematics(self.robot.model, self._data, state.q)
+        log = self.log
+        log.t.append(t)
+        log.force.append(self.plant.force.copy())
+        log.force_reference.append(self.schedule.force(t))
+        log.ee_position.append(self._data.oMf[self.robot.contact_frame_id].translation.copy())
+        log.ee_reference.append(self.schedule.ee_position(t))
+
+
 def run_model_closed_loop(
     robot: RobotModel,
     mpc_config: MpcConfig,
@@ -189,42 +263,26 @@ def run_model_closed_loop(
     """Run an MPC against its own formulation's dynamics for ``duration`` s; return the log.
 
     The MPC re-plans every ``mpc_config.period`` (a whole number of plant steps) and its
-    command is held (zero-order hold) in between.
+    command is held (zero-order hold) in between. The loop is :func:`ffmpc_core.runner.
+    run_scenario`.
     """
+    from ffmpc_core.runner import LockstepClock, PeriodicController, run_scenario
+
     ratio = mpc_config.period / plant_dt
     if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
         raise ConfigError("the MPC period must be a whole number of plant steps")
-    every = int(round(ratio))
     plant = ModelPlant(
         robot, mpc_config.formulation, mpc_config.contact, plant_dt, mpc_config.cutoff_frequency
     )
     plant.reset(robot.q_nominal if q0 is None else q0)
     mpc = ModelPredictiveController(robot, mpc_config, schedule, node_factory=node_factory)
-    data = robot.create_data()
     log = ClosedLoopLog()
-    command: MpcCommand | None = None
-    import pinocchio as pin
-
-    for k in range(int(round(duration / plant_dt))):
-        t = k * plant_dt
-        if k % every == 0:
-            measurement = plant.measurement()
-            start = time.perf_counter()
-            command = mpc.step(measurement, t)
-            log.step_time.append(time.perf_counter() - start)
-            log.iterations.append(command.iterations)
-            log.solve_time.append(command.solve_time)
-            log.converged.append(command.converged)
-        assert command is not None  # k = 0 solved
-        control = command.us[0] if mpc_config.formulation == "torque_feedback" else command.torque
-        plant.step(control, schedule.in_contact(t))
-        q = plant.x[: robot.nq]
-        pin.framesForwardKinematics(robot.model, data, q)
-        log.t.append(t + plant_dt)
-        log.force.append(plant.force.copy())
-        log.force_reference.append(schedule.force(t + plant_dt))
-        log.ee_position.append(data.oMf[robot.contact_frame_id].translation.copy())
-        log.ee_reference.append(schedule.ee_position(t + plant_dt))
+    scenario = _ModelLoop(plant, schedule, log, robot)
+    clock = LockstepClock.for_duration(plant_dt, duration)
+    controller = PeriodicController(_TimedMpc(mpc, log), int(round(ratio)))
+    steps = run_scenario(scenario, plant, [controller], clock)
+    if steps:
+        scenario.finish(steps)
     return log
 
 
