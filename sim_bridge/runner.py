@@ -42,18 +42,18 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from ffmpc_core import runner as closed_loop
 from ffmpc_core.actuation import ActuationModel
 from ffmpc_core.errors import (
     ConfigError,  # noqa: F401  (re-exported for callers)
-    FfmpcError,
-    InputError,
 )
-from ffmpc_core.faults import RUNNER_KINDS, Fault, active_kinds, faults_from, require_kinds
-from ffmpc_core.lowlevel import LowLevelMeasurement, LowLevelMode
+from ffmpc_core.faults import RUNNER_KINDS, Fault, faults_from, require_kinds
+from ffmpc_core.lowlevel import LowLevelMode
 from ffmpc_core.metrics import PolishingMetrics, limit_ratios
-from ffmpc_core.mpc import ModelPredictiveController, MpcMeasurement
-from ffmpc_core.plausibility import check_force, torque_plausible
+from ffmpc_core.mpc import ModelPredictiveController
+from ffmpc_core.polishing import LowLevelStage, MpcStage, PolishingLoop
 from ffmpc_core.robots import RobotModel, load_robot
+from ffmpc_core.runner import LockstepClock
 from ffmpc_core.scenario import Scenario
 from ffmpc_core.study import (
     RunDraws,
@@ -195,6 +195,10 @@ def simulated_robot(
     )
 
 
+def _median(values: list[float] | list[int]) -> float:
+    return float(np.median(values)) if values else 0.0
+
+
 def run_scenario(
     scenario: Scenario,
     duration: float | None = None,
@@ -219,85 +223,27 @@ def run_scenario(
     draws, task, actuation = sim.draws, sim.task, sim.actuation
     duration = task.duration if duration is None else duration
     dt = scenario.plant.time_step
-    every = steps_per_mpc_period(scenario)
     config = mpc_config(scenario)
-    contact = config.contact
 
-    joint_sensing = joint_sensing_model(scenario, robot.nv, joint_rng)
-    force_sensing = force_sensing_model(scenario, force_rng)
     lowlevel = lowlevel_controller(scenario, robot)
     mpc = ModelPredictiveController(robot, config, mpc_schedule(task, scenario))
-
-    steps = int(round(duration / dt))
-    log = StudyLog(steps, robot, task)
-    solve_times, iterations = [], []
-    mpc_failures = 0
-    nv = robot.nv
-    trace_v, trace_tau = np.zeros((steps, nv)), np.zeros((steps, nv))
-    trace_applied = np.zeros((steps, nv))
-    trace_mode = np.zeros(steps, dtype=int)
-    formulation = config.formulation
+    clock = LockstepClock.for_duration(dt, duration)
+    log = StudyLog(clock.steps, robot, task)
+    loop = PolishingLoop(
+        robot,
+        config.contact,
+        joint_sensing_model(scenario, robot.nv, joint_rng),
+        force_sensing_model(scenario, force_rng),
+        actuation,
+        log,
+        steps_per_mpc_period(scenario),
+        faults,
+        initial_torque=robot.gravity(robot.q_nominal),  # the motors hold the robot at start
+        disturbance=sim.push_if_due,
+    )
+    mpc_stage = MpcStage(mpc, robot)
     with sim.plant as plant:
-        tau_hat = robot.gravity(robot.q_nominal)  # the motors hold the robot at start
-        received = None  # (q̂, q̇̂, τ̂, λ̂) last read by the controllers
-        for k in range(steps):
-            t = k * dt
-            sim.push_if_due(k)
-            active = active_kinds(faults, t) if faults else {}
-            s = plant.state()
-            q_hat, v_hat, _ = joint_sensing.step(s.q, s.v)
-            f_hat = force_sensing.step(measured_force(s.wrench_world, contact))
-            # What the controllers read this cycle (faults change only this).
-            tau_read, f_read = tau_hat, f_hat
-            if "torque-spike" in active:
-                tau_read = np.full(nv, active["torque-spike"].value)
-            if "nan-wrench" in active:
-                f_read = np.full_like(f_hat, np.nan)
-            sensors_fresh = "sensor-dropout" not in active or received is None
-            if sensors_fresh:
-                received = (q_hat, v_hat, tau_read, f_read)
-            assert received is not None  # the first cycle always reads fresh sensors
-            q_read, v_read, tau_read, f_read = received
-            try:
-                check_force(f_read)
-                force_ok = True
-            except InputError:
-                force_ok = False
-            if k % every == 0 and sensors_fresh and "mpc-dropout" not in active:
-                needs_ok = (formulation != "force_feedback" or force_ok) and (
-                    formulation != "torque_feedback"
-                    or torque_plausible(tau_read, robot.torque_limit)
-                )
-                command = None
-                if needs_ok:
-                    meas = MpcMeasurement(q=q_read, v=v_read, force=f_read, torque=tau_read)
-                    try:
-                        command = mpc.step(meas, t)
-                    except FfmpcError:
-                        command = None
-                        mpc_failures += 1
-                if command is None:
-                    lowlevel.engage_hold()  # an implausible input or a failed solve
-                else:
-                    solve_times.append(command.solve_time)
-                    iterations.append(command.iterations)
-                    try:
-                        lowlevel.set_command(command, t)
-                    except InputError:
-                        pass  # refused; a bad torque has engaged the safe hold
-            # Hold / blend / track / fallback + PID (eq 33): with the MPC on time this is the
-            # plain scheme (τ* on solve cycles; τ* or τ* + G·Δx in between).
-            # An implausible λ̂ reaches the low level as missing: it holds the newest plausible
-            # one for force_hold_time, then sends τ* without feedback (LowLevelConfig).
-            f_low = f_read if force_ok else None
-            out = lowlevel.step(LowLevelMeasurement(q_read, v_read, tau_read, f_low), t)
-            tau_hat = actuation.step(out.motor_torque, s.v)
-            plant.step(tau_hat)
-            log.record(
-                k, t, s.q, s.normal_force, f_hat[-1], out.desired_torque, tau_hat, out.motor_torque
-            )
-            trace_v[k], trace_tau[k], trace_mode[k] = s.v, out.motor_torque, int(out.mode)
-            trace_applied[k] = tau_hat
+        closed_loop.run_scenario(loop, plant, [mpc_stage, LowLevelStage(lowlevel)], clock)
         normal = plant.table_normal
 
     metrics_true, metrics_measured = study_metrics(log.arrays, task, normal)
@@ -311,20 +257,20 @@ def run_scenario(
         metrics_measured=metrics_measured,
         log=log.arrays,
         wall_time=time.perf_counter() - wall_start,
-        solve_time_median=float(np.median(solve_times)) if solve_times else 0.0,
-        iterations_median=float(np.median(iterations)) if iterations else 0.0,
-        max_velocity_ratio=limit_ratios(trace_v, robot.velocity_limit)[0],
-        max_torque_ratio=limit_ratios(trace_tau, robot.torque_limit)[0],
-        max_applied_torque_ratio=limit_ratios(trace_applied, robot.torque_limit)[0],
-        safe_hold_s=float(np.sum(np.isin(trace_mode, _HOLD_MODES)) * dt),
-        mpc_failures=mpc_failures,
+        solve_time_median=_median(mpc_stage.solve_times),
+        iterations_median=_median(mpc_stage.iterations),
+        max_velocity_ratio=limit_ratios(loop.trace_v, robot.velocity_limit)[0],
+        max_torque_ratio=limit_ratios(loop.trace_tau, robot.torque_limit)[0],
+        max_applied_torque_ratio=limit_ratios(loop.trace_applied, robot.torque_limit)[0],
+        safe_hold_s=float(np.sum(np.isin(loop.trace_mode, _HOLD_MODES)) * dt),
+        mpc_failures=mpc_stage.failures,
         faults=faults,
         safety_log={
             "t": log.arrays["t"],
-            "v": trace_v,
-            "tau_motor": trace_tau,
-            "tau_applied": trace_applied,
-            "mode": trace_mode,
+            "v": loop.trace_v,
+            "tau_motor": loop.trace_tau,
+            "tau_applied": loop.trace_applied,
+            "mode": loop.trace_mode,
         },
         command_delay=round(command_delay(scenario), 12),
     )
