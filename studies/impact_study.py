@@ -114,6 +114,7 @@ from ffmpc_core.impact.controllers import (
     BaselineApproachConfig,
     ContactMeasurement,
     HandoverConfig,
+    ImpactTaskCommand,
     ImpactTaskConfig,
     ImpactTaskController,
     contact_measurement,
@@ -129,10 +130,11 @@ from ffmpc_core.impact.touch_first import (
     TouchFirstConfig,
 )
 from ffmpc_core.robots import RobotModel, load_robot
+from ffmpc_core.runner import LockstepClock, run_scenario
 from ffmpc_core.scenario import ConfigSchema, FieldDecl, cost_weight_specs
 
 if TYPE_CHECKING:  # the plant imports PyBullet: loaded when a run starts, not to parse
-    from sim_bridge.plant import PlantConfig, SoftBoxConfig
+    from sim_bridge.plant import PlantConfig, PlantState, SoftBoxConfig
 
 __all__ = [
     "APPROACHES",
@@ -774,6 +776,66 @@ def plant_config(cfg: ImpactStudyConfig) -> PlantConfig:
     )
 
 
+class _ImpactLoop:
+    """The impact run's scenario (:class:`~ffmpc_core.runner.LoopScenario`): the controller reads
+    :func:`dice_measurement` of the true state, the plant gets the command's torque; the log
+    (``t`` s, ``speed`` along d m/s, ``force`` world z on the tool N, ``penetration`` below the
+    true top face m, the eq 14 ``bound`` m/s, the phase, the MPC's contact model and blend weight)
+    and the joint positions ``qs`` (rad), velocities ``vs`` (rad/s, rows 0..K: the caller writes the
+    final state) and torques ``taus`` (N·m) sent."""
+
+    def __init__(self, robot: RobotModel, top: float, steps: int, dt: float) -> None:
+        self.robot = robot
+        self.data = robot.create_data()
+        self.top = top
+        self.log: dict[str, np.ndarray] = {
+            "t": np.arange(steps) * dt,
+            "speed": np.zeros(steps),
+            "force": np.zeros(steps),
+            "penetration": np.zeros(steps),
+            "bound": np.full(steps, np.nan),
+            "in_contact_phase": np.zeros(steps, dtype=bool),
+            "mpc_stiffness": np.full(steps, np.nan),
+            "mpc_damping": np.full(steps, np.nan),
+            "phase": np.full(steps, "", dtype="<U13"),  # the maximal approach's phase
+            "mpc_weight": np.zeros(steps),  # share of the MPC's torque in the blend
+        }
+        self.qs = np.zeros((steps + 1, robot.nq))
+        self.vs = np.zeros((steps + 1, robot.nv))
+        self.taus = np.zeros((steps, robot.nv))
+
+    def measure(self, k: int, t: float, state: PlantState, /) -> ContactMeasurement:
+        self.qs[k], self.vs[k] = state.q, state.v
+        return dice_measurement(self.robot, self.data, state.q, state.v, state.wrench_world)
+
+    def actuate(
+        self, k: int, t: float, state: PlantState, command: ImpactTaskCommand, /
+    ) -> np.ndarray:
+        return command.torque
+
+    def record(
+        self,
+        k: int,
+        t: float,
+        state: PlantState,
+        m: ContactMeasurement,
+        command: ImpactTaskCommand,
+        joint_input: np.ndarray | None,
+        /,
+    ) -> None:
+        log = self.log
+        log["speed"][k] = m.speed
+        log["force"][k] = m.force
+        log["penetration"][k] = self.top - m.position[2]
+        log["in_contact_phase"][k] = command.in_contact
+        log["bound"][k] = command.pre_impact_velocity
+        log["phase"][k] = command.phase
+        log["mpc_stiffness"][k] = command.mpc_stiffness
+        log["mpc_damping"][k] = command.mpc_damping
+        log["mpc_weight"][k] = command.mpc_weight
+        self.taus[k] = command.torque
+
+
 def run_impact(
     approach: str,
     regulation: str,
@@ -789,7 +851,6 @@ def run_impact(
     cfg = config if config is not None else ImpactStudyConfig()
     wall = time.perf_counter()
     robot = robot if robot is not None else load_robot("panda")
-    data = robot.create_data()
     dice = cfg.dice
     top = dice.top_height
     q0 = start_pose(cfg, robot)
@@ -803,45 +864,15 @@ def run_impact(
     )
     touch_first = controller.touch_first
 
-    log = {
-        "t": np.arange(steps) * dt,
-        "speed": np.zeros(steps),  # along d, m/s
-        "force": np.zeros(steps),  # world z on the tool, N
-        "penetration": np.zeros(steps),  # below the true top face, m
-        "bound": np.full(steps, np.nan),  # maximal pre-impact velocity of eq 14, m/s
-        "in_contact_phase": np.zeros(steps, dtype=bool),
-        "mpc_stiffness": np.full(steps, np.nan),
-        "mpc_damping": np.full(steps, np.nan),
-        "phase": np.full(steps, "", dtype="<U13"),  # the maximal approach's phase
-        "mpc_weight": np.zeros(steps),  # share of the MPC's torque in the blend
-    }
-    qs = np.zeros((steps + 1, robot.nq))
-    vs = np.zeros((steps + 1, robot.nv))
-    taus = np.zeros((steps, robot.nv))
-
     from sim_bridge.plant import Plant
 
+    scenario = _ImpactLoop(robot, top, steps, dt)
     with Plant(robot, plant_config(cfg)) as plant:
         plant.reset(q0)
-        for k in range(steps):
-            t = k * dt
-            s = plant.state()
-            qs[k], vs[k] = s.q, s.v
-            m = dice_measurement(robot, data, s.q, s.v, s.wrench_world)
-            log["speed"][k] = m.speed
-            log["force"][k] = m.force
-            log["penetration"][k] = top - m.position[2]
-            command = controller.step(m, t)
-            log["in_contact_phase"][k] = command.in_contact
-            log["bound"][k] = command.pre_impact_velocity
-            log["phase"][k] = command.phase
-            log["mpc_stiffness"][k] = command.mpc_stiffness
-            log["mpc_damping"][k] = command.mpc_damping
-            log["mpc_weight"][k] = command.mpc_weight
-            taus[k] = command.torque
-            plant.step(command.torque)
+        run_scenario(scenario, plant, [controller], LockstepClock(dt, steps))
         s = plant.state()
-        qs[steps], vs[steps] = s.q, s.v
+        scenario.qs[steps], scenario.vs[steps] = s.q, s.v
+    log, qs, vs, taus = scenario.log, scenario.qs, scenario.vs, scenario.taus
 
     learner = controller.learner
     handover = controller.handover
