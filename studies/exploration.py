@@ -83,8 +83,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ffmpc_core.errors import ConfigError, InputError
-from ffmpc_core.impact.controllers import contact_measurement
+from ffmpc_core.impact.controllers import ContactMeasurement, contact_measurement
 from ffmpc_core.impact.exploration import (
+    ExplorationCommand,
     ExplorationController,
     ExplorationControllerConfig,
     measured_deformation,
@@ -101,6 +102,7 @@ from ffmpc_core.impact.learner import (
 from ffmpc_core.impact.limits import joint_limits
 from ffmpc_core.impact.task_space import JointLimitGuardConfig, TaskSpaceGains
 from ffmpc_core.robots import RobotModel, load_robot
+from ffmpc_core.runner import LockstepClock, run_scenario
 from ffmpc_core.scenario import ConfigSchema, FieldDecl
 from studies.impact_study import (
     DOWN,
@@ -111,7 +113,7 @@ from studies.impact_study import (
 )
 
 if TYPE_CHECKING:  # the plant imports PyBullet: loaded when a run starts, not to parse
-    from sim_bridge.plant import Plant
+    from sim_bridge.plant import Plant, PlantState
 
 __all__ = [
     "MATERIALS",
@@ -470,6 +472,113 @@ def _tool_contact(plant: Plant, body: int) -> tuple[float, int]:
     return depth, len(points)
 
 
+class _ExplorationLoop:
+    """The exploration's scenario (:class:`~ffmpc_core.runner.LoopScenario`): the controller
+    reads the contact measurement of the true state (the pressing force is the world-z force on
+    the tool, d = DOWN), the plant gets the command's torque until the controller is done; the
+    log (module docstring's z, ż, f, references, depths, phases), the joint positions ``qs``
+    (rad), velocities ``vs`` (rad/s) and torques ``taus`` (N·m), and the checkpoints, taken
+    once a phase's contact is over (reference back above the surface)."""
+
+    def __init__(
+        self,
+        robot: RobotModel,
+        controller: ExplorationController,
+        material: Material,
+        top: float,
+        n_max: int,
+        z_error: float,
+        progress: bool,
+    ) -> None:
+        self.robot = robot
+        self.data = robot.create_data()
+        self.controller = controller
+        self.material = material
+        self.top = top
+        self.z_error = z_error
+        self.progress = progress
+        self.plant: Plant | None = None  # set once the plant is open
+        self.box = -1
+        self.log: dict[str, np.ndarray] = {
+            name: np.full(n_max, np.nan)
+            for name in ("t", "z", "zd", "force", "z_ref", "depth_nominal", "depth_bullet")
+        }
+        self.log["phase"] = np.full(n_max, -1, dtype=int)  # -1 = guarded approach
+        self.log["fed"] = np.zeros(n_max, dtype=bool)
+        self.log["onset"] = np.zeros(n_max, dtype=bool)
+        self.log["contact_points"] = np.zeros(n_max, dtype=int)
+        self.qs = np.zeros((n_max + 1, robot.nq))
+        self.vs = np.zeros((n_max + 1, robot.nv))
+        self.taus = np.zeros((n_max, robot.nv))
+        self.checkpoints: list[Checkpoint] = []
+        self.pending = 0  # next checkpoint: phase 0 = sinusoid, k = impact k
+        self.phase_peak = 0.0
+        self.touch_speed = float("nan")
+
+    def measure(self, k: int, t: float, state: PlantState, /) -> ContactMeasurement:
+        assert self.plant is not None
+        self.qs[k], self.vs[k] = state.q, state.v
+        wrench = state.wrench_world
+        m = contact_measurement(
+            self.robot, self.data, state.q, state.v, wrench, DOWN, force=float(wrench[2])
+        )
+        log = self.log
+        log["t"][k] = t
+        log["force"][k] = m.force
+        log["zd"][k] = m.speed
+        log["depth_nominal"][k] = self.top - m.position[2]
+        log["depth_bullet"][k], log["contact_points"][k] = _tool_contact(self.plant, self.box)
+        return m
+
+    def actuate(
+        self, k: int, t: float, state: PlantState, command: ExplorationCommand, /
+    ) -> np.ndarray | None:
+        return None if command.done else command.torque
+
+    def record(
+        self,
+        k: int,
+        t: float,
+        state: PlantState,
+        m: ContactMeasurement,
+        command: ExplorationCommand,
+        joint_input: np.ndarray | None,
+        /,
+    ) -> None:
+        log = self.log
+        log["z"][k] = command.z
+        if joint_input is None:
+            return
+        phase = command.phase
+        log["z_ref"][k] = command.z_ref
+        log["phase"][k] = phase
+        log["fed"][k] = command.fed
+        log["onset"][k] = command.onset
+        if command.onset and phase >= 1 and self.pending == phase:
+            self.touch_speed = float(log["zd"][k - 1])
+        if phase >= 0:
+            self.phase_peak = max(self.phase_peak, command.z)
+        if phase > self.pending and command.z_ref < 0.0:
+            c = self.controller
+            self.checkpoints.append(
+                _checkpoint(
+                    self.pending,
+                    t,
+                    c.learner,
+                    c.with_onset,
+                    c.first_moment,
+                    self.z_error,
+                    self.touch_speed,
+                    self.phase_peak,
+                )
+            )
+            if self.progress:
+                print(_format_checkpoint_line(self.checkpoints[-1], self.material), flush=True)
+            self.pending += 1
+            self.phase_peak, self.touch_speed = 0.0, float("nan")
+        self.taus[k] = joint_input
+
+
 def run_exploration(
     config: ExplorationConfig | None = None,
     robot: RobotModel | None = None,
@@ -481,7 +590,6 @@ def run_exploration(
     cfg = config if config is not None else ExplorationConfig()
     wall = time.perf_counter()
     robot = robot if robot is not None else load_robot("panda")
-    data = robot.create_data()
     mat = cfg.material
     obj = mat.dice()
     top = obj.top_height
@@ -522,76 +630,16 @@ def run_exploration(
     n_max = controller.config.approach_steps + ref.time.size
     z_error = cfg.approach_speed * dt  # bound on z_measured − z_true, m
 
-    log = {
-        name: np.full(n_max, np.nan)
-        for name in ("t", "z", "zd", "force", "z_ref", "depth_nominal", "depth_bullet")
-    }
-    log["phase"] = np.full(n_max, -1, dtype=int)  # -1 = guarded approach
-    log["fed"] = np.zeros(n_max, dtype=bool)
-    log["onset"] = np.zeros(n_max, dtype=bool)
-    log["contact_points"] = np.zeros(n_max, dtype=int)
-    qs = np.zeros((n_max + 1, robot.nq))
-    vs = np.zeros((n_max + 1, robot.nv))
-    taus = np.zeros((n_max, robot.nv))
-    checkpoints: list[Checkpoint] = []
-
-    pending = 0  # next checkpoint: phase 0 = sinusoid, k = impact k
-    phase_peak = 0.0
-    touch_speed = float("nan")
+    scenario = _ExplorationLoop(robot, controller, mat, top, n_max, z_error, progress)
     with Plant(robot, plant_cfg) as plant:
         plant.reset(q0)
-        box = plant.soft_boxes[0]
-        k = 0
-        while k < n_max:
-            t = k * dt
-            s = plant.state()
-            qs[k], vs[k] = s.q, s.v
-            # the pressing force is the world-z force on the tool (d = DOWN)
-            m = contact_measurement(
-                robot, data, s.q, s.v, s.wrench_world, DOWN, force=float(s.wrench_world[2])
-            )
-            log["t"][k] = t
-            log["force"][k] = m.force
-            log["zd"][k] = m.speed
-            log["depth_nominal"][k] = top - m.position[2]
-            log["depth_bullet"][k], log["contact_points"][k] = _tool_contact(plant, box)
-            command = controller.step(m, t)
-            log["z"][k] = command.z
-            if command.done:
-                break
-            phase = command.phase
-            log["z_ref"][k] = command.z_ref
-            log["phase"][k] = phase
-            log["fed"][k] = command.fed
-            log["onset"][k] = command.onset
-            if command.onset and phase >= 1 and pending == phase:
-                touch_speed = float(log["zd"][k - 1])
-            if phase >= 0:
-                phase_peak = max(phase_peak, command.z)
-            # a checkpoint once the phase's contact is over (reference back above the surface)
-            if phase > pending and command.z_ref < 0.0:
-                checkpoints.append(
-                    _checkpoint(
-                        pending,
-                        t,
-                        learner,
-                        with_onset,
-                        controller.first_moment,
-                        z_error,
-                        touch_speed,
-                        phase_peak,
-                    )
-                )
-                if progress:
-                    print(_format_checkpoint_line(checkpoints[-1], mat), flush=True)
-                pending += 1
-                phase_peak, touch_speed = 0.0, float("nan")
-            assert command.torque is not None  # not done
-            taus[k] = command.torque
-            plant.step(command.torque)
-            k += 1
+        scenario.plant, scenario.box = plant, plant.soft_boxes[0]
+        k = run_scenario(scenario, plant, [controller], LockstepClock(dt, n_max))
         s = plant.state()
-        qs[k], vs[k] = s.q, s.v
+        scenario.qs[k], scenario.vs[k] = s.q, s.v
+    log, qs, vs, taus = scenario.log, scenario.qs, scenario.vs, scenario.taus
+    checkpoints, pending = scenario.checkpoints, scenario.pending
+    touch_speed, phase_peak = scenario.touch_speed, scenario.phase_peak
     surface = controller.surface
     if surface is None:
         raise ConfigError("the exploration never found the surface")
