@@ -76,13 +76,15 @@ tool (N, > 0 when pressing); ``z`` > 0 inside the object (m), ``ż`` > 0 moving 
 
 from __future__ import annotations
 
+import json
+import os
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.errors import ConfigError, FfmpcError, InputError
 from ffmpc_core.impact.controllers import ContactMeasurement, contact_measurement
 from ffmpc_core.impact.exploration import (
     ExplorationCommand,
@@ -104,6 +106,7 @@ from ffmpc_core.impact.task_space import JointLimitGuardConfig, TaskSpaceGains
 from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_core.runner import LockstepClock, run_scenario
 from ffmpc_core.scenario import ConfigSchema, FieldDecl
+from studies.execute import RunCache, RunOutcome, canonical_json, execute_jobs, prepare_output_dir
 from studies.impact_study import (
     DOWN,
     DiceConfig,
@@ -111,6 +114,7 @@ from studies.impact_study import (
     count_limit_violations,
     start_configuration,
 )
+from studies.study import DIVERGENCE_ERRORS
 
 if TYPE_CHECKING:  # the plant imports PyBullet: loaded when a run starts, not to parse
     from sim_bridge.plant import Plant, PlantState
@@ -120,6 +124,8 @@ __all__ = [
     "Checkpoint",
     "EXPLORATION_SCHEMA",
     "ExplorationConfig",
+    "ExplorationJob",
+    "execute_exploration_job",
     "load_exploration_config",
     "ExplorationRun",
     "Material",
@@ -459,6 +465,38 @@ class ExplorationRun:
     def final(self) -> Checkpoint:
         return self.checkpoints[-1]
 
+    def summary(self) -> dict[str, Any]:
+        """JSON-friendly, without the time series."""
+        return {k: v for k, v in asdict(self).items() if k != "log"}
+
+    @classmethod
+    def from_summary(cls, summary: dict[str, Any]) -> ExplorationRun:
+        """The run back from its :meth:`summary` (e.g. read from a study's cache), no log."""
+        d = dict(summary)
+        m = dict(d.pop("material"))
+        m["impact_velocities"] = tuple(m["impact_velocities"])
+        checkpoints = [
+            Checkpoint(
+                **{
+                    **c,
+                    "estimate": ContactEstimate(**c["estimate"]),
+                    "with_onset": ContactEstimate(**c["with_onset"]),
+                    "z_bias_bound": tuple(c["z_bias_bound"]),
+                }
+            )
+            for c in d.pop("checkpoints")
+        ]
+        violations = LimitViolations(**d.pop("violations"))
+        alternatives = {k: (float(v[0]), float(v[1])) for k, v in d.pop("alternatives").items()}
+        return cls(
+            **d,
+            material=Material(**m),
+            checkpoints=checkpoints,
+            violations=violations,
+            alternatives=alternatives,
+            log={},
+        )
+
 
 def _tool_contact(plant: Plant, body: int) -> tuple[float, int]:
     """PyBullet's contact distance of the tool on ``body`` as a depth (m, > 0 inside; NaN
@@ -771,20 +809,100 @@ def format_summary(runs: list[ExplorationRun]) -> str:
     return "\n".join(lines)
 
 
+@dataclass(frozen=True)
+class ExplorationJob:
+    """One exploration (a :class:`studies.execute.Job`): its configuration, material included;
+    the run is a pure function of it."""
+
+    config: ExplorationConfig
+
+    def key_document(self) -> dict[str, Any]:
+        return {
+            "study": "explore",
+            "config": EXPLORATION_SCHEMA.flatten(self.config),
+            "material": asdict(self.config.material),
+        }
+
+    def description(self) -> dict[str, Any]:
+        return {"study": "explore", "material": self.config.material.name}
+
+    @property
+    def label(self) -> str:
+        return self.config.material.name
+
+    @property
+    def cost_rank(self) -> int:
+        return 0
+
+
+def execute_exploration_job(job: ExplorationJob) -> RunOutcome:
+    """Run one exploration (in a Dask worker or in-process): its summary in JSON types, or the
+    error of a run that diverged."""
+    import pybullet
+
+    try:
+        run = run_exploration(job.config)
+    except ConfigError:
+        raise
+    except (*DIVERGENCE_ERRORS, pybullet.error) as exc:
+        return RunOutcome(job, error=f"{type(exc).__name__}: {exc}")
+    return RunOutcome(job, summary=json.loads(canonical_json(run.summary())))
+
+
 def run_exploration_study(
     materials: tuple[str, ...] = ("foam", "dice", "rubber"),
     base: ExplorationConfig | None = None,
     progress: bool = True,
+    *,
+    out_dir: str | os.PathLike | None = None,
+    force: bool = False,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    fresh: bool = False,
 ) -> list[ExplorationRun]:
-    """Run the exploration on each named material of :data:`MATERIALS` (same settings)."""
+    """Run the exploration on each named material of :data:`MATERIALS` (same settings) as
+    :class:`ExplorationJob` s through :func:`studies.execute.execute_jobs` (a Dask
+    ``LocalCluster`` of ``workers`` processes by default, ``1`` in this process, or the workers
+    of a running ``scheduler``). With ``out_dir`` (refused if it exists, unless ``force`` or it
+    holds an interrupted study) each finished run is cached in ``out_dir/cache`` (a restart
+    reads them back) and ``results.json`` and ``tables.md`` are written there. The runs come
+    back without their time series."""
     unknown = [name for name in materials if name not in MATERIALS]
     if unknown:
         raise ConfigError(f"unknown materials {unknown}; choose from {sorted(MATERIALS)}")
+    if not materials:
+        raise ConfigError("choose at least one material")
     cfg = base if base is not None else ExplorationConfig()
-    robot = load_robot("panda")
-    runs = []
-    for name in materials:
-        if progress:
-            print(f"exploring {name} ...", flush=True)
-        runs.append(run_exploration(replace(cfg, material=MATERIALS[name]), robot, progress))
+    out = None if out_dir is None else prepare_output_dir(out_dir, force, resume=not fresh)
+    start = time.perf_counter()
+    jobs = [ExplorationJob(replace(cfg, material=MATERIALS[name])) for name in materials]
+    batch = execute_jobs(
+        jobs,
+        execute_exploration_job,
+        workers,
+        progress,
+        scheduler=scheduler,
+        cache=None if out is None else RunCache(out / "cache"),
+        fresh=fresh,
+    )
+    failed = [o for o in batch.outcomes if o.summary is None]
+    if failed:
+        raise FfmpcError("; ".join(f"{o.spec.label} diverged: {o.error}" for o in failed))
+    runs = [ExplorationRun.from_summary(o.summary or {}) for o in batch.outcomes]
+    if out is not None:
+        tables = "\n\n".join([*(format_checkpoints(r) for r in runs), format_summary(runs)])
+        (out / "tables.md").write_text(tables + "\n", encoding="utf-8")
+        document = {
+            "config": EXPLORATION_SCHEMA.flatten(cfg),
+            "runs": [r.summary() for r in runs],
+            "wall_time_s": time.perf_counter() - start,
+            "execution": {
+                "cached": batch.cached,
+                "executed": batch.executed,
+                "cluster": batch.cluster,
+                "workers": batch.workers,
+                "cache_dir": str(out / "cache"),
+            },
+        }
+        (out / "results.json").write_text(canonical_json(document) + "\n", encoding="utf-8")
     return runs

@@ -106,7 +106,7 @@ import numpy as np
 import pinocchio as pin
 
 from ffmpc_core.config import CostWeights
-from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.errors import ConfigError, FfmpcError, InputError
 from ffmpc_core.impact.control import AdmittanceForceController, ImpactControllerConfig
 from ffmpc_core.impact.controllers import (
     APPROACHES,
@@ -132,6 +132,8 @@ from ffmpc_core.impact.touch_first import (
 from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_core.runner import LockstepClock, run_scenario
 from ffmpc_core.scenario import ConfigSchema, FieldDecl, cost_weight_specs
+from studies.execute import RunCache, RunOutcome, canonical_json, execute_jobs, prepare_output_dir
+from studies.study import DIVERGENCE_ERRORS
 
 if TYPE_CHECKING:  # the plant imports PyBullet: loaded when a run starts, not to parse
     from sim_bridge.plant import PlantConfig, PlantState, SoftBoxConfig
@@ -143,6 +145,7 @@ __all__ = [
     "DiceConfig",
     "IMPACT_SCHEMA",
     "load_impact_config",
+    "ImpactJob",
     "ImpactRun",
     "ImpactStudyResult",
     "ImpactStudyConfig",
@@ -150,6 +153,7 @@ __all__ = [
     "count_limit_violations",
     "default_out_dir",
     "dice_measurement",
+    "execute_impact_job",
     "format_table",
     "plot_runs",
     "run_impact",
@@ -633,6 +637,14 @@ class ImpactRun:
         out["name"] = self.name
         return out
 
+    @classmethod
+    def from_summary(cls, summary: dict[str, Any], log: dict[str, np.ndarray]) -> ImpactRun:
+        """The run back from its :meth:`summary` (e.g. read from a study's cache) and a log."""
+        fields_ = {k: v for k, v in summary.items() if k != "name"}
+        violations = {k: v for k, v in fields_.pop("violations").items() if k != "total"}
+        fields_["learned_std"] = tuple(fields_["learned_std"])
+        return cls(**fields_, violations=LimitViolations(**violations), log=log)
+
 
 def run_metrics(
     cfg: ImpactStudyConfig,
@@ -920,6 +932,56 @@ def run_impact(
     )
 
 
+#: The log series an impact job sends back from its worker (for the figure; float arrays).
+PLOT_SERIES = ("t", "speed", "force", "penetration", "bound")
+
+
+@dataclass(frozen=True)
+class ImpactJob:
+    """One run of the impact study (a :class:`studies.execute.Job`): the configuration and the
+    (approach, regulation) pair; the run is a pure function of them."""
+
+    config: ImpactStudyConfig
+    approach: str
+    regulation: str
+
+    def key_document(self) -> dict[str, Any]:
+        return {
+            "study": "impact",
+            "run": self.label,
+            "config": IMPACT_SCHEMA.flatten(self.config),
+            "plot_series": list(PLOT_SERIES),
+        }
+
+    def description(self) -> dict[str, Any]:
+        return {"study": "impact", "approach": self.approach, "regulation": self.regulation}
+
+    @property
+    def label(self) -> str:
+        return f"{self.approach}+{self.regulation}"
+
+    @property
+    def cost_rank(self) -> int:
+        """The force-feedback MPC runs first (the slowest)."""
+        return 0 if self.regulation == "ff_mpc" else 1
+
+
+def execute_impact_job(job: ImpactJob) -> RunOutcome:
+    """Run one impact job (in a Dask worker or in-process): its summary (JSON types) and the
+    :data:`PLOT_SERIES` of its log, or the error of a run that diverged (as the polishing
+    study's :func:`~studies.study.execute_run`)."""
+    import pybullet
+
+    try:
+        run = run_impact(job.approach, job.regulation, job.config)
+    except ConfigError:
+        raise
+    except (*DIVERGENCE_ERRORS, pybullet.error) as exc:
+        return RunOutcome(job, error=f"{type(exc).__name__}: {exc}")
+    summary = json.loads(canonical_json(run.summary()))
+    return RunOutcome(job, summary=summary, plot_log={k: run.log[k] for k in PLOT_SERIES})
+
+
 #: The runs of the study, in table order.
 DEFAULT_RUNS = (
     ("maximal", "admittance"),
@@ -1092,14 +1154,6 @@ class ImpactStudyResult:
     wall_time: float
 
 
-def _prepare_out_dir(out_dir: Path, force: bool) -> Path:
-    out_dir = Path(out_dir)
-    if out_dir.exists() and not force:
-        raise ConfigError(f"{out_dir} exists: choose another --out or pass --force to overwrite")
-    out_dir.mkdir(parents=True, exist_ok=True)
-    return out_dir
-
-
 def check_before_motion(config: ImpactStudyConfig) -> None:
     """The touch-first strategy's checks before any motion (see
     :class:`~ffmpc_core.impact.touch_first.TouchFirstImpactController`): raises
@@ -1126,25 +1180,46 @@ def run_impact_study(
     force: bool = False,
     progress: bool = True,
     command_line: str = "",
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    cache: bool = True,
+    fresh: bool = False,
 ) -> ImpactStudyResult:
-    """Run ``runs`` one after the other, write ``results.json``, ``table.md`` and
-    ``impact_fig4.png`` into ``out_dir`` (refused if it exists, unless ``force``)."""
+    """Run ``runs`` (:class:`ImpactJob`, through :func:`studies.execute.execute_jobs`: a Dask
+    ``LocalCluster`` of ``workers`` processes by default, ``1`` in this process, or the workers
+    of a running ``scheduler``), write ``results.json``, ``table.md`` and ``impact_fig4.png``
+    into ``out_dir`` (refused if it exists, unless ``force`` or it holds an interrupted study:
+    ``cache/`` and no ``results.json``, then the finished runs are read from its cache)."""
     cfg = config if config is not None else ImpactStudyConfig()
     if any(approach == "maximal" for approach, _ in runs):
         check_before_motion(cfg)  # refuse before any motion (and before writing anything)
-    out = _prepare_out_dir(out_dir if out_dir is not None else default_out_dir(), force)
-    start = time.perf_counter()
-    robot = load_robot("panda")
-    results = []
     for approach, regulation in runs:
-        if progress:
-            print(f"running {approach}+{regulation} ...", flush=True)
-        results.append(run_impact(approach, regulation, cfg, robot))
-        if progress:
-            r = results[-1]
+        if approach not in APPROACHES or regulation not in REGULATIONS:
+            raise ConfigError(f"unknown run {approach}+{regulation}")
+    out = prepare_output_dir(
+        out_dir if out_dir is not None else default_out_dir(), force, resume=cache and not fresh
+    )
+    start = time.perf_counter()
+    jobs = [ImpactJob(cfg, approach, regulation) for approach, regulation in runs]
+    batch = execute_jobs(
+        jobs,
+        execute_impact_job,
+        workers,
+        progress,
+        scheduler=scheduler,
+        cache=RunCache(out / "cache") if cache else None,
+        fresh=fresh,
+    )
+    failures = [o for o in batch.outcomes if o.summary is None]
+    if failures:
+        raise FfmpcError("; ".join(f"{o.spec.label} diverged: {o.error}" for o in failures))
+    results = [ImpactRun.from_summary(o.summary or {}, o.plot_log or {}) for o in batch.outcomes]
+    if progress:
+        for r in results:
             print(
-                f"  contact {_fmt(r.contact_time, '.3f')} s, {r.violations.total} limit "
-                f"violations, {r.wall_time:.1f} s wall",
+                f"  {r.name}: contact {_fmt(r.contact_time, '.3f')} s, {r.violations.total} "
+                f"limit violations, {r.wall_time:.1f} s wall",
                 flush=True,
             )
     table = format_table(results, cfg)
@@ -1158,6 +1233,13 @@ def run_impact_study(
         "paper": PAPER,
         "runs": [r.summary() for r in results],
         "wall_time_s": wall,
+        "execution": {
+            "cached": batch.cached,
+            "executed": batch.executed,
+            "cluster": batch.cluster,
+            "workers": batch.workers,
+            "cache_dir": str(out / "cache") if cache else None,
+        },
     }
     (out / "results.json").write_text(json.dumps(document, indent=2, default=float) + "\n")
     (out / "table.md").write_text(table + "\n")

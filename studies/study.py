@@ -35,7 +35,6 @@ import math
 import os
 import platform
 import re
-import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -49,11 +48,21 @@ from ffmpc_core.config import FORMULATIONS
 from ffmpc_core.errors import ConfigError, FfmpcError
 from ffmpc_core.metrics import PolishingMetrics, summarize
 from ffmpc_core.scenario import Scenario, load_scenario, resolve_scenario_path, scenario_parameters
+from studies.execute import (
+    CACHE_SCHEMA,
+    RunBatch,
+    RunCache,
+    RunOutcome,
+    canonical_json,
+    check_output_dir,
+    execute_jobs,
+    job_key,
+    prepare_output_dir,
+    write_atomic,
+)
 
 if TYPE_CHECKING:
-    from distributed import Client, LocalCluster
     from matplotlib.axes import Axes
-    from tqdm import tqdm
 
     from sim_bridge.runner import RunResult
 
@@ -156,21 +165,37 @@ class RunSpec:
         """The run's scenario (ConfigError on a bad file or override)."""
         return load_scenario(self.scenario, self.scenario_overrides())
 
+    def key_document(self) -> dict[str, Any]:
+        """The fully resolved scenario (the file's parameters with every override, formulation,
+        PID mode, seed and δo applied), the duration (s) and what the run sends back (plot step,
+        s, or none): :class:`studies.execute.Job`."""
+        scenario = self.load()
+        return {
+            "scenario_name": scenario.name,
+            "scenario": scenario_parameters(scenario),
+            "duration_s": self.duration,
+            "plot_step_s": self.plot_step if self.plot else None,
+        }
 
-@dataclass
-class RunOutcome:
-    """What a worker sends back: the run's ``summary()`` or its error, and maybe a plot log."""
-
-    spec: RunSpec
-    summary: dict | None = None
-    error: str | None = None
-    plot_log: dict[str, np.ndarray] | None = field(default=None, repr=False)
-    #: True when read back from the run cache instead of run now.
-    cached: bool = field(default=False, compare=False)
+    def description(self) -> dict[str, Any]:
+        return {
+            "scenario": self.scenario,
+            "formulation": self.formulation,
+            "pid_enabled": self.pid_enabled,
+            "seed": self.seed,
+            "duration_s": self.duration,
+            "overrides": dict(self.overrides),
+            "command_delay_s": self.command_delay,
+        }
 
     @property
-    def ok(self) -> bool:
-        return self.summary is not None
+    def label(self) -> str:
+        return f"{self.formulation} pid={'on' if self.pid_enabled else 'off'} seed={self.seed}"
+
+    @property
+    def cost_rank(self) -> int:
+        """The slowest formulations first."""
+        return {"force_feedback": 0, "torque_feedback": 1}.get(self.formulation, 2)
 
 
 def plot_log(result: RunResult, scenario: Scenario, step: float) -> dict[str, np.ndarray]:
@@ -259,7 +284,7 @@ def resolve_command_delays(
 def _measured_delays_path(cache: RunCache, specs: Sequence[RunSpec]) -> Path:
     """Where a study keeps the MPC step times it measured for ``mpc.command_delay: measured``:
     one file per (scenario, overrides) of the grid, in the cache directory."""
-    context = _canonical_json([specs[0].scenario, [list(kv) for kv in specs[0].overrides]])
+    context = canonical_json([specs[0].scenario, [list(kv) for kv in specs[0].overrides]])
     digest = hashlib.sha256(context.encode("utf-8")).hexdigest()[:16]
     return cache.directory / f"measured_mpc_step_time_{digest}.json"
 
@@ -284,7 +309,7 @@ def _save_measured_delays(
             times[formulation] = float(record["measured_step_median_s"])
     if times:
         cache.directory.mkdir(parents=True, exist_ok=True)
-        write_atomic(_measured_delays_path(cache, specs), _canonical_json(times) + "\n")
+        write_atomic(_measured_delays_path(cache, specs), canonical_json(times) + "\n")
 
 
 def validate_specs(specs: Sequence[RunSpec]) -> None:
@@ -297,193 +322,9 @@ def validate_specs(specs: Sequence[RunSpec]) -> None:
         spec.load()
 
 
-def _cost_rank(spec: RunSpec) -> int:
-    """Submission order: the slowest formulations first, so the pool's tail is short."""
-    return {"force_feedback": 0, "torque_feedback": 1}.get(spec.formulation, 2)
-
-
-# --------------------------------------------------------------------------- run cache
-#: Version of what a cache entry holds and of how a run computes it: bump it when a code change
-#: alters run results without a change of the package version (old entries are then unused).
-CACHE_SCHEMA = 1
-
-
-def _canonical_json(doc: Any) -> str:
-    """Sorted-key, compact JSON: the same content always gives the same text."""
-    return json.dumps(doc, sort_keys=True, separators=(",", ":"), allow_nan=True)
-
-
-def _key_versions() -> dict[str, str | None]:
-    """The ffmpc version and the installed versions of the numerical packages (part of a key)."""
-    from importlib import metadata
-
-    from ffmpc_core.selfcheck import installed_versions
-
-    try:
-        own = metadata.version("ffmpc")
-    except metadata.PackageNotFoundError:
-        own = None
-    return {"ffmpc": own, **installed_versions()}
-
-
 def run_key(spec: RunSpec, versions: dict[str, str | None] | None = None) -> str:
-    """The cache key of a run: SHA-256 (hex, 32 digits) of the canonical JSON of the run's fully
-    resolved scenario (the file's parameters with every override, formulation, PID mode, seed
-    and δo applied), its duration (s), what it sends back (plot step, s, or none), the cache
-    schema and the package versions. Two specs with the same key compute the same result.
-    """
-    scenario = spec.load()
-    doc = {
-        "schema": CACHE_SCHEMA,
-        "versions": _key_versions() if versions is None else versions,
-        "scenario_name": scenario.name,
-        "scenario": scenario_parameters(scenario),
-        "duration_s": spec.duration,
-        "plot_step_s": spec.plot_step if spec.plot else None,
-    }
-    return hashlib.sha256(_canonical_json(doc).encode("utf-8")).hexdigest()[:32]
-
-
-def write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same directory and a rename:
-    a reader (or a restart after a kill) sees the old file or the whole new one, never a part."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
-def _outcome_entry(key: str, outcome: RunOutcome) -> dict[str, Any]:
-    """A run's outcome as a JSON-friendly cache entry (plot logs as lists of floats)."""
-    spec = outcome.spec
-    return {
-        "schema": CACHE_SCHEMA,
-        "key": key,
-        "spec": {
-            "scenario": spec.scenario,
-            "formulation": spec.formulation,
-            "pid_enabled": spec.pid_enabled,
-            "seed": spec.seed,
-            "duration_s": spec.duration,
-            "overrides": dict(spec.overrides),
-            "command_delay_s": spec.command_delay,
-        },
-        "summary": outcome.summary,
-        "error": outcome.error,
-        "plot_log": None
-        if outcome.plot_log is None
-        else {name: np.asarray(v, dtype=float).tolist() for name, v in outcome.plot_log.items()},
-    }
-
-
-def _outcome_from_entry(spec: RunSpec, entry: dict[str, Any], cached: bool) -> RunOutcome:
-    logs = entry.get("plot_log")
-    return RunOutcome(
-        spec,
-        summary=entry.get("summary"),
-        error=entry.get("error"),
-        plot_log=None if logs is None else {k: np.array(v, dtype=float) for k, v in logs.items()},
-        cached=cached,
-    )
-
-
-class RunCache:
-    """Finished runs on disk, one ``<key>.json`` per run (see :func:`run_key`).
-
-    An entry is written atomically (:func:`write_atomic`) by the process that collects the
-    results, so a study killed at any moment leaves whole entries only; a restart reads them
-    back instead of running them again. Floats survive the JSON round trip bit for bit.
-    """
-
-    def __init__(self, directory: str | os.PathLike) -> None:
-        self.directory = Path(directory)
-
-    def path(self, key: str) -> Path:
-        return self.directory / f"{key}.json"
-
-    def get(self, key: str) -> dict[str, Any] | None:
-        """The entry of ``key``, or None if absent or unreadable (then the run is run again)."""
-        try:
-            text = self.path(key).read_text(encoding="utf-8")
-        except FileNotFoundError:
-            return None
-        try:
-            entry = json.loads(text)
-        except json.JSONDecodeError:
-            return None
-        if not isinstance(entry, dict) or entry.get("key") != key:
-            return None
-        return entry
-
-    def put(self, key: str, entry: dict[str, Any]) -> None:
-        self.directory.mkdir(parents=True, exist_ok=True)
-        write_atomic(self.path(key), json.dumps(entry, allow_nan=True) + "\n")
-
-
-# --------------------------------------------------------------------------- executing runs
-@dataclass
-class RunBatch:
-    """Outcomes of :func:`execute_specs` in the order of the specs, and how they were obtained.
-
-    ``cached`` runs were read from the cache, ``executed`` ones were run now; ``cluster`` says
-    where ("in-process", "LocalCluster" or the scheduler address), ``workers`` how many worker
-    processes it had, ``dashboard`` the Dask dashboard link (None without one).
-    """
-
-    outcomes: list[RunOutcome]
-    cached: int
-    executed: int
-    cluster: str
-    workers: int
-    dashboard: str | None = None
-
-
-def _stderr(text: str) -> None:
-    print(text, file=sys.stderr, flush=True)
-
-
-#: How long to try to reach a running Dask scheduler (s).
-SCHEDULER_TIMEOUT_S = 20.0
-
-
-def _dask_client(workers: int, scheduler: str | None) -> tuple[Client, LocalCluster | None]:
-    """A ``distributed`` client and the LocalCluster it owns (None with ``scheduler``)."""
-    from distributed import Client, LocalCluster
-
-    if scheduler is not None:
-        try:
-            client = Client(scheduler, timeout=SCHEDULER_TIMEOUT_S)
-        except (OSError, TimeoutError) as exc:
-            raise ConfigError(f"cannot reach the Dask scheduler {scheduler}: {exc}") from exc
-        return client, None
-    # Processes (PyBullet and crocoddyl are not thread-safe), one thread each, spawned; bound
-    # to this machine (the dashboard too, never 0.0.0.0).
-    cluster = LocalCluster(
-        n_workers=workers,
-        threads_per_worker=1,
-        processes=True,
-        host="127.0.0.1",
-        dashboard_address="127.0.0.1:0",
-    )
-    try:
-        return Client(cluster), cluster
-    except BaseException:
-        cluster.close()
-        raise
-
-
-def _dashboard(client: Client) -> str | None:
-    try:
-        import bokeh  # noqa: F401  (the dashboard is served only with bokeh installed)
-    except ImportError:
-        return None
-    return client.dashboard_link
+    """The cache key of a polishing run (:func:`studies.execute.job_key` of the spec)."""
+    return job_key(spec, versions)
 
 
 def execute_specs(
@@ -497,105 +338,19 @@ def execute_specs(
     fresh: bool = False,
     announce: Callable[[str], None] | None = None,
 ) -> RunBatch:
-    """Run every spec not in ``cache`` (unless ``fresh``) and store each new result there.
-
-    Args:
-        workers: worker processes of a Dask ``LocalCluster`` (default ``os.cpu_count()``);
-            ``1`` runs in this process, without a cluster. Workers are *spawned*: a script
-            calling this needs the ``if __name__ == "__main__":`` guard.
-        scheduler: address of a running Dask scheduler (``tcp://host:port``): its workers run
-            the specs (they need ffmpc installed); excludes ``workers``.
-        cache: finished runs, read before and written as each run ends (by this process).
-        fresh: run everything again (the new results still go to ``cache``).
-        progress: a tqdm bar on stderr and, by default, the lines of ``announce``.
-        announce: where the one-line messages go (cluster, dashboard, cached vs to run).
-    """
-    from tqdm import tqdm
-
-    if scheduler is not None and workers is not None:
-        raise ConfigError("--workers and --scheduler exclude each other (a cluster has workers)")
-    workers = (os.cpu_count() or 1) if workers is None else int(workers)
-    if workers < 1:
-        raise ConfigError(f"workers must be >= 1, got {workers}")
+    """Check the grid (:func:`validate_specs`), then :func:`studies.execute.execute_jobs` with
+    ``runner`` (default :func:`execute_run`)."""
     validate_specs(specs)
-    say = announce or (_stderr if progress else (lambda _text: None))
-    outcomes: list[RunOutcome | None] = [None] * len(specs)
-    keys: list[str | None] = [None] * len(specs)
-    if cache is not None:
-        versions = _key_versions()
-        keys = [run_key(s, versions) for s in specs]
-        if not fresh:
-            for i, (spec, key) in enumerate(zip(specs, keys, strict=True)):
-                entry = cache.get(key) if key is not None else None
-                if entry is not None:
-                    outcomes[i] = _outcome_from_entry(spec, entry, cached=True)
-    todo = sorted(
-        (i for i, o in enumerate(outcomes) if o is None), key=lambda i: _cost_rank(specs[i])
+    return execute_jobs(
+        specs,
+        runner,
+        workers,
+        progress,
+        scheduler=scheduler,
+        cache=cache,
+        fresh=fresh,
+        announce=announce,
     )
-    n_cached = len(specs) - len(todo)
-    if not todo:
-        where, workers = "none (every run from the cache)", 0
-    elif scheduler is None and (workers == 1 or len(todo) == 1):
-        where, workers = "in-process", 1
-    else:
-        where = scheduler or "LocalCluster"
-    if cache is not None:
-        say(f"{len(specs)} runs: {n_cached} from the cache {cache.directory}, {len(todo)} to run")
-
-    def finish(i: int, outcome: RunOutcome, bar: tqdm) -> None:
-        # Every outcome goes through the JSON of a cache entry: a run read back from the cache
-        # and a run done now give equal objects.
-        entry = json.loads(json.dumps(_outcome_entry(keys[i] or "", outcome), allow_nan=True))
-        key = keys[i]
-        if cache is not None and key is not None:
-            cache.put(key, entry)
-        outcomes[i] = _outcome_from_entry(specs[i], entry, cached=False)
-        bar.set_postfix_str(_postfix(specs[i]), refresh=False)
-        bar.update()
-
-    def new_bar() -> tqdm:
-        return tqdm(
-            total=len(specs),
-            initial=n_cached,
-            file=sys.stderr,
-            disable=not progress,
-            unit="run",
-            smoothing=0,
-        )
-
-    dashboard = None
-    if todo and where == "in-process":
-        with new_bar() as bar:
-            for i in todo:
-                finish(i, runner(specs[i]), bar)
-    elif todo:
-        from distributed import as_completed as dask_completed
-
-        client, cluster = _dask_client(min(workers, len(todo)), scheduler)
-        futures = []
-        try:
-            workers = len(client.scheduler_info().get("workers", {}))
-            dashboard = _dashboard(client)
-            say(
-                f"Dask {where} at {client.scheduler.address}, {workers} worker(s); "
-                f"dashboard: {dashboard or 'none (pip install bokeh to serve it)'}"
-            )
-            index = {}
-            for rank, i in enumerate(todo):
-                future = client.submit(runner, specs[i], pure=False, priority=len(todo) - rank)
-                futures.append(future)
-                index[future.key] = i
-            with new_bar() as bar:
-                for future in dask_completed(futures):
-                    finish(index[future.key], future.result(), bar)
-        finally:
-            # Done, a bug or Ctrl-C: queued runs are dropped, the finished ones are cached.
-            client.cancel(futures)
-            client.close()
-            if cluster is not None:
-                cluster.close()
-    done = [o for o in outcomes if o is not None]
-    return RunBatch(done, n_cached, len(todo), where, workers, dashboard)
 
 
 def run_specs(
@@ -614,10 +369,6 @@ def run_specs(
     return execute_specs(
         specs, workers, progress, runner, scheduler=scheduler, cache=cache, fresh=fresh
     ).outcomes
-
-
-def _postfix(spec: RunSpec) -> str:
-    return f"{spec.formulation} pid={'on' if spec.pid_enabled else 'off'} seed={spec.seed}"
 
 
 def grid_specs(
@@ -658,29 +409,6 @@ def grid_specs(
 
 
 # --------------------------------------------------------------------------- results
-def check_output_dir(out: str | os.PathLike, force: bool = False, resume: bool = False) -> None:
-    """Refuse an existing output directory unless ``force``, or unless ``resume`` and it holds
-    an interrupted study (a ``cache/`` and no ``results.json``): ConfigError."""
-    path = Path(out)
-    if path.exists() and not path.is_dir():
-        raise ConfigError(f"output path {path} is not a directory")
-    interrupted = (path / "cache").is_dir() and not (path / "results.json").exists()
-    if path.exists() and not force and not (resume and interrupted):
-        raise ConfigError(
-            f"output directory {path} already exists; pass --force to overwrite (an interrupted "
-            "study, with a cache/ and no results.json, resumes by running the same command)"
-        )
-
-
-def prepare_output_dir(out: str | os.PathLike, force: bool = False, resume: bool = False) -> Path:
-    """Create the output directory; refuse an existing one unless ``force`` (then files in it
-    are overwritten) or ``resume`` of an interrupted study (see :func:`check_output_dir`)."""
-    check_output_dir(out, force, resume)
-    path = Path(out)
-    path.mkdir(parents=True, exist_ok=True)
-    return path
-
-
 def source_state() -> dict[str, Any]:
     """The git commit of the ffmpc sources that ran, and the files modified since (read-only
     git queries; empty when not in a git checkout)."""

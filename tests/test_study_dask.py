@@ -23,7 +23,7 @@ from test_study import SHORT, SHORT_SET  # the short study setup, once
 
 from ffmpc_core.errors import ConfigError
 from ffmpc_ros.cli import main
-from studies import study
+from studies import execute
 from studies.study import (
     RunCache,
     RunOutcome,
@@ -285,7 +285,7 @@ def test_bad_cluster_requests_are_refused(tmp_path, monkeypatch) -> None:
     argv = [*STUDY, "--workers", "2", "--scheduler", "tcp://127.0.0.1:1"]
     assert main([*argv, "--out", str(tmp_path / "x")]) == 2
     assert not (tmp_path / "x").exists()
-    monkeypatch.setattr(study, "SCHEDULER_TIMEOUT_S", 1.0)
+    monkeypatch.setattr(execute, "SCHEDULER_TIMEOUT_S", 1.0)
     with pytest.raises(ConfigError, match="cannot reach the Dask scheduler"):
         execute_specs(specs, None, False, _Counting(), scheduler=f"tcp://127.0.0.1:{_free_port()}")
 
