@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
-import socket
 import subprocess
 import sys
 import time
@@ -19,6 +17,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
+from dask_helpers import free_port, running_cluster
 from test_study import SHORT, SHORT_SET  # the short study setup, once
 
 from ffmpc_core.errors import ConfigError
@@ -86,38 +85,10 @@ def test_a_local_cluster_of_two_workers_gives_the_runs_of_the_in_process_study(
     assert "(0 from the cache, 6 run: LocalCluster, 2 worker(s))" in captured.out
 
 
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
 def test_a_running_scheduler_with_two_workers_gives_the_same_runs(reference, tmp_path) -> None:
     from distributed import Client
 
-    port = _free_port()
-    address = f"tcp://127.0.0.1:{port}"
-    dask = [sys.executable, "-m", "dask"]
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    logs = [open(tmp_path / name, "w") for name in ("scheduler.log", "worker.log")]
-    procs = []
-    try:
-        procs.append(
-            subprocess.Popen(
-                [*dask, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
-                cwd=ROOT,
-                env=env,
-                stdout=logs[0],
-                stderr=subprocess.STDOUT,
-            )
-        )
-        worker = [*dask, "worker", address, "--nworkers", "2", "--nthreads", "1"]
-        worker += ["--no-dashboard", "--host", "127.0.0.1", "--death-timeout", "60"]
-        procs.append(
-            subprocess.Popen(worker, cwd=ROOT, env=env, stdout=logs[1], stderr=subprocess.STDOUT)
-        )
-        with Client(address, timeout="60s") as client:
-            client.wait_for_workers(2, timeout=120)
+    with running_cluster(tmp_path, workers=2) as address:
         out = tmp_path / "remote"
         assert main([*STUDY, "--scheduler", address, "--no-progress", "--out", str(out)]) == 0
         assert _runs(out) == reference
@@ -128,17 +99,6 @@ def test_a_running_scheduler_with_two_workers_gives_the_same_runs(reference, tmp
         with Client(address, timeout="60s") as client:
             loaded = client.run(eval, "'rclpy' in __import__('sys').modules")
             assert len(loaded) == 2 and set(loaded.values()) == {False}
-    finally:
-        for proc in reversed(procs):
-            proc.send_signal(signal.SIGINT)
-        for proc in reversed(procs):
-            try:
-                proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-        for log in logs:
-            log.close()
 
 
 def test_a_killed_study_resumes_from_its_cache_without_rerunning_finished_runs(
@@ -287,7 +247,7 @@ def test_bad_cluster_requests_are_refused(tmp_path, monkeypatch) -> None:
     assert not (tmp_path / "x").exists()
     monkeypatch.setattr(execute, "SCHEDULER_TIMEOUT_S", 1.0)
     with pytest.raises(ConfigError, match="cannot reach the Dask scheduler"):
-        execute_specs(specs, None, False, _Counting(), scheduler=f"tcp://127.0.0.1:{_free_port()}")
+        execute_specs(specs, None, False, _Counting(), scheduler=f"tcp://127.0.0.1:{free_port()}")
 
 
 def test_a_resumed_study_reuses_the_measured_mpc_step_time_so_its_runs_stay_cached(
