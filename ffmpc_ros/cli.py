@@ -599,12 +599,8 @@ def _cmd_study_impact(args: argparse.Namespace) -> int:
 
     if args.out and os.path.exists(args.out) and not args.force:  # before importing PyBullet
         raise ConfigError(f"{args.out} exists: choose another --out or pass --force to overwrite")
-    from studies.impact_study import (
-        IMPACT_SCHEMA,
-        default_out_dir,
-        load_impact_config,
-        run_impact_study,
-    )
+    from ffmpc_core.impact.scenario import IMPACT_SCHEMA, load_impact_config
+    from studies.impact_study import default_out_dir, run_impact_study
 
     overrides = _study_overrides(args, IMPACT_SCHEMA.params, IMPACT_SHORTHANDS)
     config = load_impact_config(args.scenario or "impact", overrides)
@@ -710,13 +706,8 @@ def _add_explore_study_parser(study_sub) -> None:
     """``ffmpc study explore``: the contact learner's exploration (Dehio & Kheddar, Sec. V-VI)."""
 
     def run(args: argparse.Namespace) -> int:
-        from studies.exploration import (
-            EXPLORATION_SCHEMA,
-            format_checkpoints,
-            format_summary,
-            load_exploration_config,
-            run_exploration_study,
-        )
+        from ffmpc_core.impact.scenario import EXPLORATION_SCHEMA, load_exploration_config
+        from studies.exploration import format_checkpoints, format_summary, run_exploration_study
 
         overrides = _study_overrides(args, EXPLORATION_SCHEMA.params, EXPLORE_SHORTHANDS)
         cfg = load_exploration_config(args.scenario or "explore", overrides)

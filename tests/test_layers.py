@@ -45,10 +45,11 @@ def test_no_import_cycle(level: str) -> None:
     assert not found, f"{level} import cycles: {found}"
 
 
-def test_sim_bridge_holds_the_plant_and_the_runner_only() -> None:
-    """No experiment in sim_bridge: those are in studies/, one layer up."""
+def test_sim_bridge_holds_the_plant_the_runner_and_the_scenes_only() -> None:
+    """No experiment in sim_bridge: those are in studies/, the top layer (scenes: the impact
+    and exploration scenarios as PyBullet plant configurations)."""
     modules = {p.stem for p in (ROOT / "sim_bridge").glob("*.py")}
-    assert modules == {"__init__", "plant", "runner"}
+    assert modules == {"__init__", "plant", "runner", "scenes"}
 
 
 def test_studies_sit_between_the_simulator_and_ros() -> None:

@@ -34,17 +34,17 @@ from ffmpc_core.impact.robust import (
     check_force_target,
     steady_penetration,
 )
-from ffmpc_core.impact.touch_first import TouchFirstConfig, TouchFirstImpactController
-from ffmpc_core.robots import load_robot
-from ffmpc_ros.cli import main as cli_main
-from studies.impact_study import (
+from ffmpc_core.impact.scenario import (
     DOWN,
     DiceConfig,
     ImpactStudyConfig,
     check_before_motion,
-    run_impact,
     start_configuration,
 )
+from ffmpc_core.impact.touch_first import TouchFirstConfig, TouchFirstImpactController
+from ffmpc_core.robots import load_robot
+from ffmpc_ros.cli import main as cli_main
+from studies.impact_study import run_impact
 
 PRIOR_K, PRIOR_B = 2400.0, 15.0
 ZBAR = 0.03
