@@ -1,7 +1,10 @@
 """``ffmpc``: the one command-line entry point. Every subcommand has ``--help``.
 
 Subcommands import what they need lazily, so ``ffmpc check`` works even where ROS or PyBullet
-would fail to load.
+would fail to load. The commands of the layer above (``ffmpc study ...``, ``ffmpc tune``,
+``ffmpc bench impact``: ``studies/cli.py``) are entry points found at start-up
+(:mod:`ffmpc_ros.cli_extensions`, as ros2cli's command extensions): this package never imports
+``studies``.
 """
 
 from __future__ import annotations
@@ -12,8 +15,8 @@ import sys
 
 from ffmpc_core.errors import ConfigError, FfmpcError
 from ffmpc_ros.cli_args import (
+    STUDY_FORMULATIONS,
     new_path,
-    nonnegative_float,
     nonnegative_int,
     output_file,
     positive_float,
@@ -21,14 +24,15 @@ from ffmpc_ros.cli_args import (
     seed_int,
 )
 from ffmpc_ros.cli_args import parse_overrides as _parse_overrides
+from ffmpc_ros.cli_extensions import BENCH_GROUP, COMMAND_GROUP, add_extension_parsers
 from ffmpc_ros.discovery import ensure_local_discovery
 
-#: ffmpc_core.config.FORMULATIONS, spelled out so that building the parser imports nothing heavy.
-STUDY_FORMULATIONS = ("classical", "torque_feedback", "force_feedback")
 #: Exit status of every malformed input (argparse's own for syntax errors).
 EXIT_USAGE = 2
 #: Default port of ``ffmpc run --view`` (ffmpc_ros.view.DEFAULT_PORT).
 VIEW_PORT = 8765
+#: The commands of this package; an entry point of ``ffmpc.command`` may not take these names.
+BUILT_IN_COMMANDS = ("check", "demo", "bench", "run", "bag", "launch")
 
 
 class Parser(argparse.ArgumentParser):
@@ -84,151 +88,10 @@ def _cmd_bench_mpc(args: argparse.Namespace) -> int:
     return run_bench_mpc(args)
 
 
-def _cmd_bench_impact(args: argparse.Namespace) -> int:
-    from studies.bench_impact import run_bench_impact
-
-    return run_bench_impact(args)
-
-
 def _cmd_demo(args: argparse.Namespace) -> int:
     from ffmpc_ros.demo import run_demo
 
     return run_demo(seed=args.seed)
-
-
-def _cmd_study(args: argparse.Namespace) -> int:
-    import shlex
-
-    from ffmpc_core.scenario import load_scenario
-
-    kind = "polishing" if args.study == "polishing" else "force_square"
-    overrides = _parse_overrides(args.set)
-    load_scenario(args.scenario or kind, overrides)  # refuse a bad scenario before any import
-    if args.scheduler is not None and args.workers is not None:
-        raise ConfigError("--workers and --scheduler exclude each other (a cluster has workers)")
-    use_cache = not args.no_cache
-    if args.out:  # refused before any run (studies.study does not load PyBullet)
-        from studies.study import check_output_dir
-
-        check_output_dir(args.out, args.force, resume=use_cache and not args.fresh)
-    if args.plot_seed is not None and not (
-        args.first_seed <= args.plot_seed < args.first_seed + args.seeds
-    ):
-        raise ConfigError(
-            f"--plot-seed {args.plot_seed}: expected one of the seeds "
-            f"{args.first_seed}..{args.first_seed + args.seeds - 1}"
-        )
-    from studies.study import default_out_dir, grid_specs, run_study
-
-    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
-    pid_modes = {"on": [True], "off": [False], "both": [True, False]}[args.pid]
-    plot_seed = args.first_seed if args.plot_seed is None else args.plot_seed
-    specs = grid_specs(
-        args.scenario or kind,
-        args.formulations,
-        pid_modes,
-        seeds,
-        duration=args.duration,
-        overrides=overrides,
-        plot_seed=plot_seed,
-    )
-    out = args.out or default_out_dir(kind)
-    report = run_study(
-        kind,
-        specs,
-        out,
-        workers=args.workers,
-        force=args.force,
-        command_line=shlex.join(["ffmpc", *args.argv]),
-        progress=not args.no_progress,
-        scheduler=args.scheduler,
-        cache=use_cache,
-        cache_dir=args.cache_dir,
-        fresh=args.fresh,
-    )
-    print(report.tables)
-    if kind == "force_square":
-        from studies.study import LABELS, aggregate
-
-        for pid in pid_modes:
-            maes = []
-            for form in args.formulations:
-                cell = aggregate(report.document, form, pid, "true")
-                value = "failed" if cell is None else f"{cell['force_mae_mean']:.2f} N"
-                maes.append(f"{LABELS[form]} {value}")
-            print(f"normal-force MAE ({'PID' if pid else 'no PID'}): " + ", ".join(maes))
-    failures = report.document["failures"]
-    execution = report.document["execution"]
-    print(
-        f"{len(report.document['runs'])} runs, {len(failures)} failed "
-        f"({execution['cached']} from the cache, {execution['executed']} run: "
-        f"{execution['cluster']}, {report.document['workers']} worker(s)), wall time "
-        f"{report.document['wall_time_s']:.1f} s"
-    )
-    for f in failures:
-        pid = "on" if f["pid_enabled"] else "off"
-        print(f"  FAILED {f['formulation']} pid={pid} seed={f['seed']}: {f['error']}")
-    print("files:")
-    for path in report.files:
-        print(f"  {path}")
-    return 0 if report.document["runs"] else 1
-
-
-def _add_study_arguments(p: argparse.ArgumentParser, seeds: int, pid: str) -> None:
-    p.add_argument("--scenario", help="shipped scenario name or path to a scenario file")
-    p.add_argument(
-        "--seeds", type=positive_int, default=seeds, help=f"number of seeds (default {seeds})"
-    )
-    p.add_argument("--first-seed", type=seed_int, default=0, help="first seed (default 0)")
-    p.add_argument(
-        "--workers",
-        type=positive_int,
-        default=None,
-        help="worker processes of a local Dask cluster (default: all CPUs; 1: in this process)",
-    )
-    p.add_argument(
-        "--scheduler",
-        metavar="ADDRESS",
-        help="run on a running Dask cluster, e.g. tcp://127.0.0.1:8786 (its workers need ffmpc)",
-    )
-    p.add_argument(
-        "--out",
-        help="output directory, must not exist (default benchmarks/results/...); an interrupted "
-        "study's directory (cache/, no results.json) is resumed",
-    )
-    p.add_argument("--force", action="store_true", help="write into an existing --out")
-    p.add_argument(
-        "--cache-dir",
-        metavar="DIR",
-        help="run cache directory, one JSON file per finished run (default OUT/cache)",
-    )
-    p.add_argument(
-        "--fresh", action="store_true", help="run every run again (results still go to the cache)"
-    )
-    p.add_argument("--no-cache", action="store_true", help="neither read nor write the run cache")
-    p.add_argument(
-        "--duration", type=positive_float, help="simulated time per run, s (default: task)"
-    )
-    p.add_argument(
-        "--formulations",
-        nargs="+",
-        choices=STUDY_FORMULATIONS,
-        default=list(STUDY_FORMULATIONS),
-        help="controllers to compare (default: all three)",
-    )
-    p.add_argument(
-        "--pid", choices=("on", "off", "both"), default=pid, help=f"torque PID (default {pid})"
-    )
-    p.add_argument("--plot-seed", type=seed_int, help="seed shown in the figures (default: first)")
-    p.add_argument(
-        "--set",
-        action="append",
-        metavar="NAME=VALUE",
-        help="scenario override, dotted name (repeatable), e.g. mpc.weights.force_feedback."
-        "force_phase=5",
-    )
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.set_defaults(func=_cmd_study)
 
 
 def _view_layout() -> str:
@@ -258,7 +121,6 @@ def _cmd_run_impact(args: argparse.Namespace) -> int:
     import json
     import shlex
 
-    from ffmpc_core.errors import ConfigError
     from ffmpc_ros.impact_graph import run_impact_graph
     from ffmpc_ros.topics import normalize_namespace
 
@@ -308,7 +170,6 @@ def _cmd_run(args: argparse.Namespace) -> int:
     import json
     import shlex
 
-    from ffmpc_core.errors import ConfigError
     from ffmpc_core.scenario import load_scenario
     from ffmpc_ros.bringup import run_graph
 
@@ -472,297 +333,6 @@ def _cmd_run_guarded(args: argparse.Namespace) -> int:
         return 130
 
 
-#: ``ffmpc study impact`` flags (argparse dest) → the scenario names they set (shorthands).
-IMPACT_SHORTHANDS = {
-    "dice_stiffness": "plant.dice_stiffness",
-    "dice_damping": "plant.dice_damping",
-    "duration": "duration",
-    "replan_period": "replan_period",
-    "strategy": "strategy",
-    "prior_stiffness": "planner.prior_stiffness",
-    "prior_damping": "planner.prior_damping",
-    "target_force": "target_force",
-}
-#: ``ffmpc study explore`` flags (argparse dest) → the scenario names they set (shorthands).
-EXPLORE_SHORTHANDS = {
-    "sine_cycles": "sine_cycles",
-    "impact_velocities": "impact_velocities",
-    "approach_speed": "approach_speed",
-}
-
-
-def _cmd_tune(args: argparse.Namespace) -> int:
-    from studies.tune import Objective, tune
-
-    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
-    objective = Objective(
-        position_weight=args.position_weight,
-        break_penalty=args.break_penalty,
-        force_limit=args.force_limit,
-        force_penalty=args.force_penalty,
-    )
-    result = tune(
-        args.scenario,
-        args.formulation,
-        seeds,
-        args.trials,
-        args.storage,
-        study_name=args.study_name,
-        jobs=args.jobs,
-        sampler_seed=args.sampler_seed,
-        objective=objective,
-        duration=args.duration,
-        out=args.out,
-        overrides=_parse_overrides(args.set),
-    )
-    resumed = len(result.values) - result.trials_run
-    print(
-        f"ffmpc tune {args.formulation}: {len(result.values)} trials in {args.storage} "
-        f"({resumed} resumed), training seeds {seeds[0]}-{seeds[-1]}"
-    )
-    print(f"  first trial (the scenario's weights): J = {result.values[0]:.4f}")
-    print(f"  best: J = {result.best_value:.4f}")
-    for name, value in result.best_weights.items():
-        print(f"    mpc.weights.{args.formulation}.{name} = {value:.6g}")
-    if result.out is not None:
-        print(f"  written: {result.out}")
-    return 0
-
-
-def _add_tune_parser(sub) -> None:
-    """``ffmpc tune``: Optuna search of one controller's cost weights (studies/tune.py)."""
-    p = sub.add_parser(
-        "tune",
-        help="search one controller's cost weights with Optuna (resumable)",
-        description="Search the cost weights of one MPC formulation on training seeds with "
-        "Optuna (seeded TPE sampler, trials kept in an RDB storage so that a search resumes, "
-        "--jobs trials at a time). Objective per run: E_lambda + W x E_P (N, mm) + penalties "
-        "for contact breaks and lambda_max above a limit; the mean over the seeds is minimised. "
-        "The first trial of a new search is the scenario's own weights. Writes the best weights "
-        "into a copy of the scenario file (--out).",
-    )
-    p.add_argument("formulation", choices=STUDY_FORMULATIONS)
-    p.add_argument("--scenario", default="polishing", help="shipped scenario name or a path")
-    p.add_argument("--seeds", type=positive_int, default=3, help="number of training seeds")
-    p.add_argument(
-        "--first-seed",
-        type=seed_int,
-        default=1000,
-        help="first training seed (default 1000: disjoint from the studies' 0-19)",
-    )
-    p.add_argument("--trials", type=positive_int, default=20, help="trials to add (default 20)")
-    p.add_argument("--jobs", type=positive_int, default=1, help="trials at a time (default 1)")
-    p.add_argument(
-        "--storage",
-        default="tune.db",
-        help="Optuna storage: an SQLite file path or an RDB URL (default tune.db)",
-    )
-    p.add_argument("--study-name", help="search name in the storage (default SCENARIO-FORM)")
-    p.add_argument("--sampler-seed", type=seed_int, default=0, help="TPE sampler seed")
-    p.add_argument(
-        "--position-weight", type=nonnegative_float, default=0.5, help="W, N/mm (default 0.5)"
-    )
-    p.add_argument(
-        "--break-penalty", type=nonnegative_float, default=10.0, help="N per %% of contact lost"
-    )
-    p.add_argument(
-        "--force-limit", type=nonnegative_float, default=150.0, help="lambda_max limit, N"
-    )
-    p.add_argument(
-        "--force-penalty", type=nonnegative_float, default=1.0, help="N per N above the limit"
-    )
-    p.add_argument("--duration", type=positive_float, help="simulated time per run, s")
-    p.add_argument("--out", type=new_path, help="scenario file to write with the best weights")
-    p.add_argument(
-        "--set", action="append", default=[], metavar="NAME=VALUE", help="scenario override"
-    )
-    p.set_defaults(func=_cmd_tune)
-
-
-def _study_overrides(args: argparse.Namespace, params: dict, shorthands: dict) -> dict:
-    """The dotted-name overrides of a study: its shorthand flags, then ``--set`` (checked
-    against the study's schema ``params``; a name given both ways is refused)."""
-    overrides = {}
-    for dest, name in shorthands.items():
-        if getattr(args, dest, None) is not None:
-            overrides[name] = getattr(args, dest)
-    for name, value in _parse_overrides(args.set, schema=params).items():
-        if name in overrides:
-            flag = "--" + next(d for d, n in shorthands.items() if n == name).replace("_", "-")
-            raise ConfigError(f"--set {name}: also given by {flag}; give it once")
-        overrides[name] = value
-    return overrides
-
-
-def _cmd_study_impact(args: argparse.Namespace) -> int:
-    import shlex
-
-    if args.out and os.path.exists(args.out) and not args.force:  # before importing PyBullet
-        raise ConfigError(f"{args.out} exists: choose another --out or pass --force to overwrite")
-    from studies.impact_study import (
-        IMPACT_SCHEMA,
-        default_out_dir,
-        load_impact_config,
-        run_impact_study,
-    )
-
-    overrides = _study_overrides(args, IMPACT_SCHEMA.params, IMPACT_SHORTHANDS)
-    config = load_impact_config(args.scenario or "impact", overrides)
-    runs = tuple(tuple(name.split("+")) for name in args.runs)
-    result = run_impact_study(
-        config,
-        runs=runs,
-        out_dir=args.out or default_out_dir(),
-        force=args.force,
-        progress=not args.no_progress,
-        command_line=shlex.join(["ffmpc", *getattr(args, "argv", [])]),
-    )
-    print(result.table)
-    print(f"wall time {result.wall_time:.1f} s; files:")
-    for path in result.files:
-        print(f"  {path}")
-    refused = [r for r in result.runs if r.refusal]
-    for r in refused:
-        print(f"ffmpc study impact: {r.name} refused: {r.refusal}", file=sys.stderr)
-    if refused:
-        return 2
-    failed = [r for r in result.runs if r.violations.total or not r.contact_time >= 0.0]
-    return 1 if failed else 0
-
-
-def _add_impact_study_parser(study_sub) -> None:
-    """``ffmpc study impact``: the safe-maximal-impact experiment (Dehio & Kheddar, Fig. 4)."""
-    runs = ("maximal+admittance", "maximal+ff_mpc", "baseline+admittance", "baseline+ff_mpc")
-    p = study_sub.add_parser(
-        "impact",
-        help="safe maximal impact on a soft dice vs a near-zero-velocity baseline (Fig. 4)",
-        description="The Panda, 0.46 m above a soft dice simulated in PyBullet, approaches it "
-        "either at the maximal safe pre-impact velocity (eq 9-14, every cycle) or with the "
-        "baseline (static target, near-zero contact velocity), then regulates 60 N with the "
-        "paper's admittance controller or hands over to the force-feedback MPC with the "
-        "stiffness and damping learned online (eq 19-21). Prints pre-impact velocity, contact "
-        "time, time to a steady force, peak force and penetration, joint-limit violations and "
-        "the learned material per run; writes table.md, results.json and impact_fig4.png. "
-        "By default (--strategy touch_first) the maximal approach first touches the dice at "
-        "the bound safe for every plausible material, learns it, and strikes at the bound of "
-        "the learned model; a force target the (worst-case) material cannot hold within the "
-        "penetration bound is refused before the strike. Exit 1 if a run never touched the "
-        "dice or broke a limit, 2 on bad input or a refused target (the reason on stderr).",
-    )
-    p.add_argument(
-        "--out", help="output directory, must not exist (default benchmarks/results/...)"
-    )
-    p.add_argument("--force", action="store_true", help="write into an existing --out")
-    p.add_argument(
-        "--duration", type=positive_float, default=None, help="simulated s per run (default 4)"
-    )
-    p.add_argument(
-        "--replan-period",
-        type=nonnegative_float,
-        help="s between eq 9-14 solves of the maximal approach (default 0: every 1 ms cycle); "
-        "= --set replan_period=S",
-    )
-    p.add_argument("--runs", nargs="+", choices=runs, default=list(runs), help="runs to do")
-    p.add_argument(
-        "--dice-stiffness",
-        type=positive_float,
-        metavar="K",
-        help="true stiffness of the simulated dice, N/m (default 3000; the prior stays 2400)",
-    )
-    p.add_argument(
-        "--dice-damping",
-        type=nonnegative_float,
-        metavar="B",
-        help="true damping of the simulated dice, N.s/m (default 20; the prior stays 15)",
-    )
-    p.add_argument(
-        "--target-force", type=positive_float, help="force to hold after contact, N (60)"
-    )
-    p.add_argument(
-        "--strategy",
-        choices=("touch_first", "prior"),
-        help="maximal approach: touch, learn, then strike (default), or plan from the prior "
-        "as if it were the truth (the paper's scheme)",
-    )
-    p.add_argument("--prior-stiffness", type=positive_float, help="planner's prior stiffness, N/m")
-    p.add_argument("--prior-damping", type=nonnegative_float, help="planner's prior damping, N.s/m")
-    _add_study_config_arguments(p, "impact", "plant.dice_stiffness=4800")
-    p.add_argument("--no-progress", action="store_true", help="no progress lines")
-    p.set_defaults(func=_cmd_study_impact)
-
-
-def _add_study_config_arguments(p: argparse.ArgumentParser, study: str, example: str) -> None:
-    """``--scenario`` and ``--set`` of a study configured by its own dataclass tree."""
-    p.add_argument(
-        "--scenario",
-        help=f"shipped scenario name or path to a scenario file (default {study}: "
-        f"ffmpc_core/scenarios/{study}.yaml); the other flags are shorthands for --set",
-    )
-    p.add_argument(
-        "--set",
-        action="append",
-        metavar="NAME=VALUE",
-        help=f"scenario override, dotted name (repeatable), e.g. {example}",
-    )
-
-
-def _add_explore_study_parser(study_sub) -> None:
-    """``ffmpc study explore``: the contact learner's exploration (Dehio & Kheddar, Sec. V-VI)."""
-
-    def run(args: argparse.Namespace) -> int:
-        from studies.exploration import (
-            EXPLORATION_SCHEMA,
-            format_checkpoints,
-            format_summary,
-            load_exploration_config,
-            run_exploration_study,
-        )
-
-        overrides = _study_overrides(args, EXPLORATION_SCHEMA.params, EXPLORE_SHORTHANDS)
-        cfg = load_exploration_config(args.scenario or "explore", overrides)
-        runs = run_exploration_study(tuple(args.materials), cfg, progress=not args.no_progress)
-        for r in runs:
-            print("\n" + format_checkpoints(r))
-        print("\nFinal relative errors vs the truth set in PyBullet:\n")
-        print(format_summary(runs))
-        bad = [r for r in runs if r.violations.total or not r.final.covers(r.material)]
-        return 1 if bad else 0
-
-    p = study_sub.add_parser(
-        "explore",
-        help="learn a soft object's stiffness and damping online (Sec. V, eq 19-21)",
-        description="The Panda finds the surface of a soft object simulated in PyBullet by a "
-        "guarded approach, then tracks the exploration motion (a sinusoidal penetration, then "
-        "impacts at 0.15-0.35 m/s) inside the joint-limit QP while the recursive learner "
-        "(eq 19-21) is fed (z, z-dot, f). Prints the estimate, its confidence (2 standard "
-        "errors + the bound of the surface error) and the error vs the truth after the "
-        "sinusoid and after each impact, per material. Exit 1 if a joint limit was broken or "
-        "an interval misses the truth.",
-    )
-    p.add_argument(
-        "--materials",
-        nargs="+",
-        choices=("foam", "dice", "rubber"),
-        default=["foam", "dice", "rubber"],
-        help="objects to explore (default: all three)",
-    )
-    p.add_argument("--sine-cycles", type=positive_int, help="sine periods (default 4)")
-    p.add_argument(
-        "--impact-velocities",
-        type=positive_float,
-        nargs="+",
-        help="pre-impact velocities, m/s (default: each material's, 0.15-0.35)",
-    )
-    p.add_argument(
-        "--approach-speed",
-        type=positive_float,
-        help="guarded approach, m/s (default 0.005)",
-    )
-    _add_study_config_arguments(p, "explore", "gains.position=300")
-    p.add_argument("--no-progress", action="store_true", help="no per-checkpoint lines")
-    p.set_defaults(func=run)
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = Parser(
         prog="ffmpc",
@@ -814,60 +384,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--json", metavar="FILE", type=output_file, help='also write {"cases": [...]} to FILE'
     )
     bench_mpc.set_defaults(func=_cmd_bench_mpc)
-    bench_impact = bench_sub.add_parser(
-        "impact",
-        help="impact planner cycle time (eq 9-14 + learner), DAQP vs the OSQP reference",
-        description="Runs the impact study's maximal approach in PyBullet, then replays its "
-        "pre-contact states through the planner cycle (learner update, eq 9-11 mapping, eq 14) "
-        "with DAQP and with the old OSQP pipeline, interleaved in the same run; prints median, "
-        "p90, p99, their ratio and the solver failures.",
-    )
-    bench_impact.add_argument(
-        "--cycles", type=positive_int, default=1000, help="timed planner cycles"
-    )
-    bench_impact.add_argument(
-        "--warmup", type=nonnegative_int, default=50, help="untimed first cycles"
-    )
-    bench_impact.add_argument(
-        "--sim-duration",
-        type=positive_float,
-        default=1.2,
-        help="simulated seconds of the study's approach to take the problems from",
-    )
-    bench_impact.add_argument(
-        "--json", type=output_file, help="write the figures to this JSON file"
-    )
-    bench_impact.set_defaults(func=_cmd_bench_impact)
+    add_extension_parsers(bench_sub, BENCH_GROUP, reserved=bench_sub.choices)
 
-    study = sub.add_parser(
-        "study",
-        help="simulated studies: the papers' tables and figures",
-        description="Simulated studies that write results.json, tables and figures: the "
-        "force-feedback paper's polishing study and Experiment 1 (grids of closed-loop runs, "
-        "formulations x torque PID x seeds, in parallel worker processes), and the impact "
-        "paper's experiments.",
-    )
-    study_sub = study.add_subparsers(dest="study", required=True)
-    polishing = study_sub.add_parser(
-        "polishing",
-        help="Tables II-IV and Figs. 6-9 (VI-C)",
-        description="The polishing study of VI-C: each seed draws a table tilt and an actuation "
-        "bias; every controller runs with and without the torque PID. Prints Tables II-IV "
-        "(from the true normal force, then from the measured one) and writes results.json, "
-        "tables.md and two figures into --out.",
-    )
-    _add_study_arguments(polishing, seeds=20, pid="both")
-    square = study_sub.add_parser(
-        "force-square",
-        help="Experiment 1 (VII-B): square force signal, Fig. 4",
-        description="Experiment 1 of VII-B: the three controllers track a square normal-force "
-        "reference (with the torque PID, one seed by default); prints each controller's "
-        "normal-force MAE and writes results.json, tables.md and a Fig. 4-like plot.",
-    )
-    _add_study_arguments(square, seeds=1, pid="on")
-    _add_impact_study_parser(study_sub)
-    _add_explore_study_parser(study_sub)
-    _add_tune_parser(sub)
+    # ffmpc study, ffmpc tune, ...: the commands of the packages above (studies/cli.py)
+    add_extension_parsers(sub, COMMAND_GROUP, reserved=BUILT_IN_COMMANDS)
     run = sub.add_parser(
         "run",
         help="run a scenario on the ROS 2 node graph and print its metrics",
@@ -1040,8 +560,9 @@ def main(argv: list[str] | None = None) -> int:
         return exc.code if isinstance(exc.code, int) else EXIT_USAGE
     args.argv = list(sys.argv[1:] if argv is None else argv)
     words = ["ffmpc", args.command]
-    for sub in ("study", "bench", "bag_command"):
-        if getattr(args, sub, None):
+    # an extension's sub-command (ffmpc study impact) names its dest (cli_extensions)
+    for sub in ("bench", "bag_command", getattr(args, "verb_dest_", None)):
+        if sub and getattr(args, sub, None):
             words.append(getattr(args, sub))
     prog = " ".join(words)
     try:

@@ -1,5 +1,6 @@
-"""Argument types and ``--set`` parsing shared by ``ffmpc`` (``ffmpc_ros.cli``) and its ``bag``
-sub-commands (``ffmpc_ros.bag.cli``); imports neither, so neither imports the other for these.
+"""Argument types and ``--set`` parsing shared by ``ffmpc`` (``ffmpc_ros.cli``), its ``bag``
+sub-commands (``ffmpc_ros.bag.cli``) and the studies' commands (``studies.cli``, one layer up);
+imports none of them, so none imports another for these.
 """
 
 from __future__ import annotations
@@ -9,6 +10,10 @@ import math
 from pathlib import Path
 
 from ffmpc_core.errors import ConfigError
+
+#: ffmpc_core.config.FORMULATIONS, spelled out so that building a parser imports nothing heavy
+#: (``ffmpc run --formulation``, ``ffmpc study ... --formulations``, ``ffmpc tune``).
+STUDY_FORMULATIONS = ("classical", "torque_feedback", "force_feedback")
 
 
 # -- argument types: each refuses a malformed value with argparse's one-line error -------------

@@ -1,8 +1,8 @@
 """The dice plant node: the Panda and the soft dice of the impact experiment (Dehio & Kheddar
 2020, Sec. VI) in PyBullet, and the simulated clock of the impact graph.
 
-The plant is the ROS-free impact study's own (``studies.impact_study.plant_config``: no table,
-the fixed soft dice, the spherical tool), started at ``studies.impact_study.start_pose`` (the
+The plant is the ROS-free impact study's own (``sim_bridge.scenes.impact_plant_config``: no table,
+the fixed soft dice, the spherical tool), started at ``ffmpc_core.impact.scenario.start_pose`` (the
 tool ``approach_height`` above the dice), both built from the node's impact scenario
 (``impact_scenario`` with the ``impact_set`` overrides, :func:`ffmpc_ros.impact_common.
 impact_study_config`). For every cycle k it publishes, stamped t_k = k·time_step:
@@ -48,15 +48,16 @@ class DicePlantNode(StudyNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("dice_plant", **kwargs)
+        from ffmpc_core.impact.scenario import start_pose
         from sim_bridge.plant import Plant
-        from studies.impact_study import plant_config, start_pose
+        from sim_bridge.scenes import impact_plant_config
 
         if not self.params["lockstep"]:
             raise ConfigError("the dice plant runs in lockstep only (lockstep: true)")
         self.config = impact_study_config(self.params)
         robot = self.robot = load_robot(self.scenario.robot)
         self.joint_names = list(robot.joint_names)
-        self.plant = Plant(robot, plant_config(self.config))
+        self.plant = Plant(robot, impact_plant_config(self.config))
         self.plant.reset(start_pose(self.config, robot))
         duration = float(self.params["duration"]) or self.config.duration
         self.steps = int(round(duration / self.time_step))

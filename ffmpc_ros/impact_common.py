@@ -42,12 +42,13 @@ def direction_parameter(value) -> np.ndarray:
 
 
 def impact_study_config(params: dict):
-    """The impact study's configuration (``studies.impact_study.ImpactStudyConfig``) of a node of
-    the impact graph: its ``impact_scenario`` with the ``impact_set`` overrides (NAME=VALUE, as
-    ``ffmpc study impact --set``), checked against the study's schema; ConfigError otherwise,
-    and when ``plant.time_step`` (the graph's clock grid) differs from the study's time step."""
+    """The impact study's configuration (``ffmpc_core.impact.scenario.ImpactStudyConfig``) of a
+    node of the impact graph: its ``impact_scenario`` with the ``impact_set`` overrides
+    (NAME=VALUE, as ``ffmpc study impact --set``), checked against the study's schema;
+    ConfigError otherwise, and when ``plant.time_step`` (the graph's clock grid) differs from
+    the study's time step."""
+    from ffmpc_core.impact.scenario import IMPACT_SCHEMA, load_impact_config
     from ffmpc_ros.cli_args import parse_overrides
-    from studies.impact_study import IMPACT_SCHEMA, load_impact_config
 
     items = [str(item) for item in params["impact_set"] if str(item).strip()]
     config = load_impact_config(

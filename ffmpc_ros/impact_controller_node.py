@@ -126,7 +126,7 @@ class ImpactControllerNode(MeasuredCycleNode):
 
     def __init__(self, **kwargs) -> None:
         super().__init__("impact_controller", **kwargs)
-        from studies.impact_study import task_config
+        from ffmpc_core.impact.scenario import task_config
 
         p = self.params
         if not p["lockstep"]:
@@ -181,7 +181,7 @@ class ImpactControllerNode(MeasuredCycleNode):
 
     # -- inputs ------------------------------------------------------------------------------
     def process_cycle(self, k: int, q: np.ndarray, v: np.ndarray, wrench: np.ndarray) -> None:
-        from studies.impact_study import dice_measurement
+        from ffmpc_core.impact.scenario import dice_measurement
 
         m = dice_measurement(self.robot, self._data, q, v, wrench)
         self._pending[k] = (m, time.monotonic())

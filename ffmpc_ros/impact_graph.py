@@ -24,7 +24,7 @@ refused). Each node calls the same core objects in the same order as
 metrics are the ROS-free run's bit for bit (tests/test_impact_graph.py).
 
 The bring-up's own node reads the plant's true state and wrench, the controller's status and
-the learner's estimates, computes the metrics with ``studies.impact_study.run_metrics`` (the
+the learner's estimates, computes the metrics with ``ffmpc_core.impact.metrics.run_metrics`` (the
 ROS-free run's code), and publishes them once on ``impact_graph/summary`` (std_msgs/String,
 JSON) — the last topic of the bag with ``record``.
 """
@@ -120,17 +120,12 @@ def impact_node_parameters(
 
     ConfigError when the settings cannot run as a graph: a planner setting the planner node
     has no parameter for."""
+    from ffmpc_core.impact.controllers import APPROACHES, REGULATIONS
     from ffmpc_core.impact.deformation import SoftMaterial
     from ffmpc_core.impact.limits import PANDA_ACCELERATION_LIMIT
+    from ffmpc_core.impact.scenario import IMPACT_SCHEMA, load_impact_config, task_config
     from ffmpc_ros.cli_args import parse_overrides
     from ffmpc_ros.impact_planner_node import controller_config
-    from studies.impact_study import (
-        APPROACHES,
-        IMPACT_SCHEMA,
-        REGULATIONS,
-        load_impact_config,
-        task_config,
-    )
 
     if approach not in APPROACHES or regulation not in REGULATIONS:
         raise ConfigError(
@@ -158,7 +153,7 @@ def impact_node_parameters(
     )
     # /clock readers: two per node (rclpy's and the node's reliable one), the recorder's two
     clock_readers = topics.CLOCK_READERS_PER_NODE * (len(nodes) + int(record))
-    d = [0.0, 0.0, -1.0]  # studies.impact_study.DOWN
+    d = [0.0, 0.0, -1.0]  # ffmpc_core.impact.scenario.DOWN
     params: dict[str, dict] = {
         "dice_plant": {
             **common,
@@ -394,7 +389,8 @@ class _Probe:
 def _graph_metrics(cfg, probe: _Probe, robot) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """The run's metrics with the ROS-free run's code (``dice_measurement``, ``run_metrics``)."""
     from ffmpc_core.impact.limits import joint_limits
-    from studies.impact_study import dice_measurement, run_metrics
+    from ffmpc_core.impact.metrics import run_metrics
+    from ffmpc_core.impact.scenario import dice_measurement
 
     data = robot.create_data()
     steps = probe.steps
@@ -424,7 +420,7 @@ def _graph_metrics(cfg, probe: _Probe, robot) -> tuple[dict[str, Any], dict[str,
         safe_hold_cycles=int(sum(s["safe_hold"] > 0 for s in probe.status.values())),
     )
     if probe.touch_first:
-        from studies.impact_study import touch_metrics
+        from ffmpc_core.impact.metrics import touch_metrics
 
         pl = probe.planner
         assert pl is not None  # (complete)

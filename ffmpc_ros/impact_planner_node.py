@@ -4,8 +4,9 @@ regulate the force (Dehio & Kheddar 2020, Sec. IV-C, Fig. 2; eq 9–14).
 Subscribes ``/joint_sensor/joint_states`` (q̂, q̇̂) and ``/ft_sensor/wrench`` (λ̂, frame
 ``contact_world_aligned``), paired by cycle (:mod:`ffmpc_ros.impact_common`), and
 ``/contact_learner/estimate``. For each complete cycle k it runs
-:class:`~ffmpc_core.impact.control.ImpactController` (the same object as
-``sim_bridge.impact_study``) at t_k = k·``plant.time_step`` and publishes, stamped t_k:
+:class:`~ffmpc_core.impact.control.ImpactController` (the same object as the ROS-free
+``studies.impact_study.run_impact``'s) at t_k = k·``plant.time_step`` and publishes, stamped
+t_k:
 
 * ``/impact_planner/command`` — geometry_msgs/TwistStamped, frame ``contact_world_aligned``:
   linear = the desired contact-frame velocity v_ref·d (m/s), angular = 0 (hold the orientation).
@@ -102,7 +103,7 @@ WATCHDOG_PERIOD = 0.05
 
 def scaled_limits(limits: JointLimits, margin: float) -> JointLimits:
     """``margin`` × the velocity and acceleration limits; positions and torques unchanged (as
-    ``sim_bridge.impact_study.ImpactStudyConfig.control_limits``)."""
+    ``ffmpc_core.impact.scenario.ImpactStudyConfig.control_limits``)."""
     return JointLimits(
         position_lower=limits.position_lower,
         position_upper=limits.position_upper,

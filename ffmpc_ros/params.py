@@ -160,7 +160,7 @@ _TIME_STEP = ("plant.time_step",)
 _CONTACT = ("mpc.contact.dimension", "mpc.contact.normal_axis", "mpc.contact.frame_type")
 
 # -- the impact nodes (Dehio & Kheddar 2020) and the MPC's use of the learned contact ----------
-# Defaults: the paper's experiment (Sec. VI) as in sim_bridge.impact_study (Panda, prior
+# Defaults: the paper's experiment (Sec. VI) as in ffmpc_core.impact.scenario (Panda, prior
 # 2400 N/m and 15 N·s/m, z̄ = 3 cm, 90 % of the data-sheet limits).
 DIRECTION = GraphParameter(
     "direction", [0.0, 0.0, -1.0], "unit motion direction d, world frame (eq 2; z, ż, f along d)"
@@ -301,8 +301,8 @@ CONTACT_LEARNER_GRAPH: tuple[GraphParameter, ...] = (
 )
 
 # -- the impact graph (``ffmpc run impact``): the dice plant and the impact controller build
-# their configuration from the impact study's scenario (studies.impact_study.IMPACT_SCHEMA), so
-# that the graph and the ROS-free run are built from the one declaration.
+# their configuration from the impact study's scenario (ffmpc_core.impact.scenario's
+# IMPACT_SCHEMA), so that the graph and the ROS-free run are built from the one declaration.
 IMPACT_SCENARIO = GraphParameter(
     "impact_scenario", "impact", "impact-study scenario: a shipped name or a YAML path"
 )

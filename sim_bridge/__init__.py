@@ -1,6 +1,7 @@
-"""PyBullet side of ffmpc: the simulated plant (ROS-free) and the closed-loop runner.
+"""PyBullet side of ffmpc: the simulated plant (ROS-free), the closed-loop runner and the
+impact and exploration scenes (:mod:`sim_bridge.scenes`).
 
-The experiments run on them live one layer up, in :mod:`studies`. The plant's names are
+The experiments run on them live in :mod:`studies`, the top layer. The plant's names are
 imported on first use (``from sim_bridge import Plant``), so that importing the package does
 not load PyBullet.
 """

@@ -70,7 +70,8 @@ class ApproachProblems:
 def approach_problems(sim_duration: float, robot: RobotModel | None = None) -> ApproachProblems:
     """Run the impact study's maximal approach (admittance regulation) for ``sim_duration`` s
     and return its pre-contact joint states and its learner samples."""
-    from studies.impact_study import ImpactStudyConfig, run_impact
+    from ffmpc_core.impact.scenario import ImpactStudyConfig
+    from studies.impact_study import run_impact
 
     if not (np.isfinite(sim_duration) and sim_duration > 0):
         raise ConfigError(f"sim_duration must be positive, got {sim_duration}")
@@ -108,7 +109,7 @@ def bench_impact(
     problems: ApproachProblems, cycles: int, warmup: int = 20, robot: RobotModel | None = None
 ) -> dict:
     """Time both pipelines on ``problems`` (see the module docstring); returns the figures."""
-    from studies.impact_study import DOWN, ImpactStudyConfig
+    from ffmpc_core.impact.scenario import DOWN, ImpactStudyConfig
 
     if cycles < 1 or warmup < 0:
         raise ConfigError("cycles must be ≥ 1 and warmup ≥ 0")

@@ -3,18 +3,20 @@
 ``ffmpc study explore``: the Panda explores a soft object whose TRUE stiffness and damping are
 set in PyBullet, and the recursive learner (eq 19–21) recovers them online.
 
-Set-up (reused from :mod:`studies.impact_study`): the object is a fixed 0.16 m cube
-(:class:`~studies.impact_study.DiceConfig`, Bullet mass 0) touched by the plant's spherical
-tool at one contact point, so the force is exactly the box's ``k·depth + d·rate``: the values
-the learner must find are the ones set in PyBullet. The tool starts ``start_clearance`` above
-the top face in :func:`~studies.impact_study.start_configuration` (tool pointing down).
-The tool sphere has a 4 cm radius (:data:`TOOL_RADIUS`, the plant's default is 1 cm) so that
-its centre stays above the surface for any z ≤ z̄ ≤ 3 cm. Measured with the 1 cm sphere: once
-its centre was below the surface (z = 11–11.7 mm), Bullet's persistent contact manifold held a
-second contact point for 7 steps, doubling the force (+11 N) and biasing β̂ by +26 % (foam, one
-sine period and one 0.2 m/s impact). The run logs the number of contact points per step
-(``log["contact_points"]``); with the 4 cm sphere it never exceeded 1 in any run. The paper's
-end-effector is a flat disc 0.13 m across: a larger sphere is also closer to it.
+Set-up (the impact study's, :mod:`ffmpc_core.impact.scenario`; the configuration, schema and
+materials are there, the PyBullet scene is :func:`sim_bridge.scenes.exploration_plant_config`): the
+object is a fixed 0.16 m cube (:class:`~ffmpc_core.impact.scenario.DiceConfig`, Bullet mass 0)
+touched by the plant's spherical tool at one contact point, so the force is exactly the box's
+``k·depth + d·rate``: the values the learner must find are the ones set in PyBullet. The tool starts
+``start_clearance`` above the top face in :func:`~ffmpc_core.impact.scenario.start_configuration`
+(tool pointing down). The tool sphere has a 4 cm radius
+(:data:`sim_bridge.scenes.EXPLORATION_TOOL_RADIUS`, the plant's default is 1 cm) so that its centre
+stays above the surface for any z ≤ z̄ ≤ 3 cm. Measured with the 1 cm sphere: once its centre was
+below the surface (z = 11–11.7 mm), Bullet's persistent contact manifold held a second contact point
+for 7 steps, doubling the force (+11 N) and biasing β̂ by +26 % (foam, one sine period and one 0.2
+m/s impact). The run logs the number of contact points per step (``log["contact_points"]``); with
+the 4 cm sphere it never exceeded 1 in any run. The paper's end-effector is a flat disc 0.13 m
+across: a larger sphere is also closer to it.
 
 Procedure (the controller is :class:`~ffmpc_core.impact.exploration.ExplorationController`;
 this module runs the plant, logs and takes the checkpoints):
@@ -35,22 +37,21 @@ this module runs the plant, logs and takes the checkpoints):
 
 How z is measured (our choice): from forward kinematics, ``z = dᵀ (p − p_s)`` with ``p`` the
 contact-frame position and ``p_s`` the position at the last force-free sample of the guarded
-approach (the paper's "reference position that coincides with the soft material's initial
-contact position", Sec. III-A; Sec. V: "the contact state is recorded via forward kinematics").
-``ż = dᵀ J q̇``. Why not PyBullet's contact distance: (a) a robot has no such signal, and
-(b) measured: Bullet reports the distance found by the collision detection at the START of the
-step, while the force is that of the END-of-step state (its soft contact is implicit), so the
-distance lags by one step, ``z_bullet ≈ z − ż Δt``, and the fit attributes ``α Δt`` to the
-damping: +15 % on the dice (α Δt = 3 N·s/m on β = 20 N·s/m), see :attr:`ExplorationRun.
-alternatives`. Why not the box's nominal top face: Bullet's effective surface lies 10 µm
-inside it (the same 10 µm as the plant's measured "0.2 % deeper" static push). The FK surface
-is found by the contact itself, so it sees Bullet's effective surface, and its error is one
-step of approach at most: ``0 ≤ z_measured − z_true < approach_speed · Δt`` (5 µm by default),
-whose effect on the estimate is bounded by :func:`surface_offset_bias` (the "z" part of the
-confidence printed). The force is the simulator's, noise-free (as in the impact study): with a
-noisy force sensor the surface can only be found at a threshold of several σ, and that offset
-(threshold / α: 0.7 mm for 2 N on the dice, ≈ −5 % on α̂) would dominate; eq 3 has no
-intercept to absorb it. Not modelled here.
+approach (the paper's "reference position that coincides with the soft material's initial contact
+position", Sec. III-A; Sec. V: "the contact state is recorded via forward kinematics"). ``ż = dᵀ J
+q̇``. Why not PyBullet's contact distance: (a) a robot has no such signal, and (b) measured: Bullet
+reports the distance found by the collision detection at the START of the step, while the force is
+that of the END-of-step state (its soft contact is implicit), so the distance lags by one step,
+``z_bullet ≈ z − ż Δt``, and the fit attributes ``α Δt`` to the damping: +15 % on the dice (α Δt = 3
+N·s/m on β = 20 N·s/m), see :attr:`ExplorationRun. alternatives`. Why not the box's nominal top
+face: Bullet's effective surface lies 10 µm inside it (the same 10 µm as the plant's measured "0.2 %
+deeper" static push). The FK surface is found by the contact itself, so it sees Bullet's effective
+surface, and its error is one step of approach at most: ``0 ≤ z_measured − z_true < approach_speed ·
+Δt`` (5 µm by default), whose effect on the estimate is bounded by
+:func:`~ffmpc_core.impact.metrics. surface_offset_bias` (the "z" part of the confidence printed).
+The force is the simulator's, noise-free (as in the impact study): with a noisy force sensor the
+surface can only be found at a threshold of several σ, and that offset (threshold / α: 0.7 mm for 2
+N on the dice, ≈ −5 % on α̂) would dominate; eq 3 has no intercept to absorb it. Not modelled here.
 
 Which samples are fed: every sample with a positive force (the simulated force is exact, so a
 positive force means contact; Bullet's contact cannot pull, so samples where α z + β ż < 0
@@ -60,15 +61,17 @@ speculative contact acts only from the crossing on, and the reported force is eq
 times the fraction of the step spent in contact (``≈ z / (ż Δt)``): up to 5 N short at a
 0.3 m/s impact on the dice. Those few samples sit at the largest ż and bias β̂ by ≈ −0.8 % on the
 dice; a second learner fed with them as well (the plain "while in contact" rule) is kept for
-comparison (:attr:`Checkpoint.with_onset`). All other samples fit eq 3 to 0.3 mN rms.
+comparison (:attr:`~ffmpc_core.impact.metrics.Checkpoint.with_onset`). All other samples fit
+eq 3 to 0.3 mN rms.
 
-Joint limits: before the learner is confident, the guard is told the force an impact during the
-next step could add uncompensated, ``(β_p + α_p Δt) max(ż, 0)`` from a prior (the stiffest
-material expected; ``ffmpc_core.impact.deformation.one_step_impact_force``); afterwards the
-learned model predicts the next force increase, ``α̂ (z + ż Δt) + β̂ ż − f``
-(``ffmpc_core.impact.deformation.predicted_force_increase``), with the friction force of a
-sticking contact added (:func:`sticking_contact_force`). Violations are counted against
-the full data-sheet limits (:func:`~studies.impact_study.count_limit_violations`).
+Joint limits: before the learner is confident, the guard is told the force an impact during the next
+step could add uncompensated, ``(β_p + α_p Δt) max(ż, 0)`` from a prior (the stiffest material
+expected; ``ffmpc_core.impact.deformation.one_step_impact_force``); afterwards the learned model
+predicts the next force increase, ``α̂ (z + ż Δt) + β̂ ż − f``
+(``ffmpc_core.impact.deformation.predicted_force_increase``), with the friction force of a sticking
+contact added (:func:`~ffmpc_core.impact.exploration.sticking_contact_force`). Violations are
+counted against the full data-sheet limits
+(:func:`~ffmpc_core.impact.metrics.count_limit_violations`).
 
 Signs: ``d = (0, 0, −1)``; ``f`` is the world-z component of the force the object exerts on the
 tool (N, > 0 when pressing); ``z`` > 0 inside the object (m), ``ż`` > 0 moving in (m/s).
@@ -84,350 +87,52 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ffmpc_core.errors import ConfigError, FfmpcError, InputError
+from ffmpc_core.errors import ConfigError, FfmpcError
 from ffmpc_core.impact.controllers import ContactMeasurement, contact_measurement
 from ffmpc_core.impact.exploration import (
     ExplorationCommand,
     ExplorationController,
     ExplorationControllerConfig,
-    measured_deformation,
-    sticking_contact_force,
 )
 from ffmpc_core.impact.learner import (
     ContactEstimate,
-    ExplorationReference,
     RecursiveContactLearner,
-    exploration_reference,
     fit_stiffness_damping,
     stack_data,
 )
 from ffmpc_core.impact.limits import joint_limits
-from ffmpc_core.impact.task_space import JointLimitGuardConfig, TaskSpaceGains
-from ffmpc_core.robots import RobotModel, load_robot
-from ffmpc_core.runner import LockstepClock, run_scenario
-from ffmpc_core.scenario import ConfigSchema, FieldDecl
-from studies.execute import RunCache, RunOutcome, canonical_json, execute_jobs, prepare_output_dir
-from studies.impact_study import (
-    DOWN,
-    DiceConfig,
+from ffmpc_core.impact.metrics import (
+    Checkpoint,
     LimitViolations,
     count_limit_violations,
+    surface_offset_bias,
+)
+from ffmpc_core.impact.scenario import (
+    DOWN,
+    EXPLORATION_SCHEMA,
+    MATERIALS,
+    ExplorationConfig,
+    Material,
     start_configuration,
 )
+from ffmpc_core.impact.task_space import JointLimitGuardConfig
+from ffmpc_core.robots import RobotModel, load_robot
+from ffmpc_core.runner import LockstepClock, run_scenario
+from studies.execute import RunCache, RunOutcome, canonical_json, execute_jobs, prepare_output_dir
 from studies.study import DIVERGENCE_ERRORS
 
 if TYPE_CHECKING:  # the plant imports PyBullet: loaded when a run starts, not to parse
     from sim_bridge.plant import Plant, PlantState
 
 __all__ = [
-    "MATERIALS",
-    "Checkpoint",
-    "EXPLORATION_SCHEMA",
-    "ExplorationConfig",
     "ExplorationJob",
     "execute_exploration_job",
-    "load_exploration_config",
     "ExplorationRun",
-    "Material",
     "format_checkpoints",
     "format_summary",
-    "measured_deformation",
     "run_exploration",
     "run_exploration_study",
-    "sticking_contact_force",
-    "surface_offset_bias",
 ]
-
-#: Radius of the spherical tool, m: larger than any z̄ (3 cm), see the module docstring.
-TOOL_RADIUS = 0.04
-
-
-@dataclass(frozen=True)
-class Material:
-    """A soft object to explore: the truth set in PyBullet.
-
-    Attributes:
-        name: label. stiffness: α, N/m. damping: β, N·s/m.
-        max_penetration: z̄, m: the elastic-domain bound (eq 12) the exploration stays within.
-        impact_velocities: the pre-impact velocities of its exploration, m/s (paper: five in
-            0.15–0.35). The impacts stop at 0.6 z̄ by tracking a constant deceleration
-            ``v² / (1.2 z̄)``; at the object's place the Panda tracks ≈ 3.5 m/s² downwards
-            within 0.9 of its joint limits, so a thin (small z̄) material gets the lower ones.
-        note: why these numbers.
-    """
-
-    name: str
-    stiffness: float
-    damping: float
-    max_penetration: float
-    impact_velocities: tuple[float, ...] = (0.15, 0.2, 0.25, 0.3, 0.35)
-    note: str = ""
-
-    def __post_init__(self) -> None:
-        if not (np.isfinite(self.stiffness) and self.stiffness > 0):
-            raise ConfigError(f"Material.stiffness must be positive, got {self.stiffness}")
-        if not (np.isfinite(self.damping) and self.damping >= 0):
-            raise ConfigError(f"Material.damping must be >= 0, got {self.damping}")
-        v = np.asarray(self.impact_velocities, dtype=float)
-        if v.ndim != 1 or not np.all(np.isfinite(v)) or np.any(v <= 0):
-            raise ConfigError("Material.impact_velocities must be positive numbers (m/s)")
-        if not (np.isfinite(self.max_penetration) and 0 < self.max_penetration <= 0.03):
-            raise ConfigError(
-                "Material.max_penetration must be in (0, 0.03] m: the Panda hand's underside is "
-                f"3.4 cm above the tool tip, got {self.max_penetration}"
-            )
-
-    def dice(self) -> DiceConfig:
-        """The PyBullet object (the impact study's fixed cube) with this material."""
-        return DiceConfig(
-            stiffness=self.stiffness,
-            damping=self.damping,
-            max_penetration=self.max_penetration,
-        )
-
-
-#: The three materials of the study. Effective mass of the Panda along d at the object ≈ 3 kg
-#: (the damping ratios ζ = β / (2 √(α m)) below use it).
-MATERIALS: dict[str, Material] = {
-    "foam": Material(
-        "foam",
-        stiffness=800.0,
-        damping=8.0,
-        max_penetration=0.03,
-        note="a soft polyurethane cushion: 14 N at the sinusoid's 18 mm (a 0.16 m block at 11 % "
-        "strain), ζ ≈ 0.08",
-    ),
-    "dice": Material(
-        "dice",
-        stiffness=3000.0,
-        damping=20.0,
-        max_penetration=0.03,
-        note="the impact study's dice (the paper's 0.16 m soft dice): 54 N at 18 mm, ζ ≈ 0.1",
-    ),
-    "rubber": Material(
-        "rubber",
-        stiffness=8000.0,
-        damping=60.0,
-        max_penetration=0.015,
-        impact_velocities=(0.15, 0.2, 0.25),
-        note="a stiffer rubber pad, 2.7× the dice: 72 N at the sinusoid's 9 mm, ζ ≈ 0.2; "
-        "z̄ = 1.5 cm keeps the force within the Panda's torques, and the impacts to 0.25 m/s "
-        "(3.5 m/s² to stop in 9 mm)",
-    ),
-}
-
-
-@dataclass(frozen=True)
-class ExplorationConfig:
-    """One exploration run.
-
-    Attributes:
-        material: the object (truth in PyBullet).
-        start_clearance: tool height above the top face at the start, m.
-        approach_speed: guarded-approach speed, m/s (bounds the surface error: speed · Δt).
-        contact_threshold: force that ends the guarded approach, N (paper: 2).
-        max_approach_time: s; ConfigError if no contact by then.
-        sine_frequency, sine_cycles: the sinusoidal penetration (Hz, periods; amplitude 0.6 z̄).
-        impact_velocities: pre-impact velocities, m/s; None = the material's.
-        impact_height: the impacts start from rest this far above the surface, m.
-        dwell: s at the stop depth after each impact.
-        time_step: plant step = control period, s (paper: 1 kHz).
-        limit_margin: fraction of the data-sheet acceleration and velocity limits the guard uses.
-        lateral_weight: weight of the 5 directions other than d in the guard's QP.
-        gains: task-space PD gains (1/s², 1/s).
-        prior_stiffness, prior_damping: what the guard assumes for an impact before the
-            learner is confident (N/m, N·s/m): the stiffest material expected.
-        learner_min_samples, learner_max_relative_std: when the learner is confident enough to
-            predict the next force for the guard (samples; relative standard error).
-    """
-
-    material: Material = field(default_factory=lambda: MATERIALS["dice"])
-    start_clearance: float = 0.003
-    approach_speed: float = 0.005
-    contact_threshold: float = 2.0
-    max_approach_time: float = 3.0
-    sine_frequency: float = 1.0
-    sine_cycles: int = 4
-    impact_velocities: tuple[float, ...] | None = None
-    impact_height: float = 0.05
-    dwell: float = 0.3
-    time_step: float = 1e-3
-    limit_margin: float = 0.9
-    lateral_weight: float = 100.0
-    gains: TaskSpaceGains = field(default_factory=TaskSpaceGains)
-    prior_stiffness: float = 2e4
-    prior_damping: float = 100.0
-    learner_min_samples: int = 50
-    learner_max_relative_std: float = 0.05
-
-    def __post_init__(self) -> None:
-        positive = (
-            "start_clearance",
-            "approach_speed",
-            "contact_threshold",
-            "max_approach_time",
-            "sine_frequency",
-            "impact_height",
-            "time_step",
-            "limit_margin",
-            "lateral_weight",
-            "prior_stiffness",
-            "learner_max_relative_std",
-        )
-        for name in positive:
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
-                raise ConfigError(f"ExplorationConfig.{name} must be positive, got {value}")
-        if self.limit_margin > 1.0:
-            raise ConfigError("limit_margin must be <= 1")
-        if not (np.isfinite(self.prior_damping) and self.prior_damping >= 0):
-            raise ConfigError("prior_damping must be >= 0")
-        if not (np.isfinite(self.dwell) and self.dwell >= 0):
-            raise ConfigError("dwell must be >= 0")
-        if int(self.sine_cycles) != self.sine_cycles or self.sine_cycles < 1:
-            raise ConfigError("sine_cycles must be an integer >= 1")
-        if int(self.learner_min_samples) != self.learner_min_samples or (
-            self.learner_min_samples < 3
-        ):
-            raise ConfigError("learner_min_samples must be an integer >= 3")
-        if self.impact_velocities is not None:
-            v = np.asarray(self.impact_velocities, dtype=float)
-            if v.ndim != 1 or not np.all(np.isfinite(v)) or np.any(v <= 0):
-                raise ConfigError("impact_velocities must be positive numbers (m/s)")
-
-    @property
-    def velocities(self) -> np.ndarray:
-        """The pre-impact velocities of this run, m/s."""
-        v = self.impact_velocities
-        return np.asarray(self.material.impact_velocities if v is None else v, dtype=float)
-
-    def reference(self) -> ExplorationReference:
-        """The exploration motion relative to the surface (``exploration_reference``)."""
-        return exploration_reference(
-            self.material.max_penetration,
-            dt=self.time_step,
-            sine_frequency=self.sine_frequency,
-            sine_cycles=self.sine_cycles,
-            impact_velocities=self.velocities,
-            approach_height=self.impact_height,
-            dwell=self.dwell,
-        )
-
-
-#: Dotted parameter names of ExplorationConfig's fields (see ffmpc_core.scenario.public_name).
-#: ``material`` is not a parameter: ``ffmpc study explore --materials`` picks from MATERIALS.
-EXPLORATION_NAMES: dict[str, str] = {
-    "time_step": "plant.time_step",
-    "prior_": "guard.prior_",
-    "limit_margin": "guard.limit_margin",
-    "lateral_weight": "guard.lateral_weight",
-    "learner_": "learner.",
-}
-#: Unit, range or choices and meaning of every exploration parameter (kinds: the annotations).
-EXPLORATION_TABLE: dict[str, FieldDecl] = {
-    "start_clearance": ("m", (1e-5, 1.0), "tool height above the top face at the start"),
-    "approach_speed": ("m/s", (1e-5, 1.0), "guarded-approach speed"),
-    "contact_threshold": ("N", (0.01, 100.0), "force that ends the guarded approach"),
-    "max_approach_time": ("s", (1e-3, 600.0), "no contact by then: ConfigError"),
-    "sine_frequency": ("Hz", (1e-3, 100.0), "frequency of the sinusoidal penetration"),
-    "sine_cycles": ("", (1, 1000), "periods of the sinusoidal penetration"),
-    "impact_velocities": ("m/s", (1e-6, 10.0), "pre-impact velocities (null: the material's)"),
-    "impact_height": ("m", (1e-5, 1.0), "the impacts start from rest this far above"),
-    "dwell": ("s", (0.0, 60.0), "at the stop depth after each impact"),
-    "plant.time_step": ("s", (1e-5, 0.01), "plant step = control period"),
-    "guard.limit_margin": ("", (0.01, 1.0), "fraction of the data-sheet q̈ and q̇ limits used"),
-    "guard.lateral_weight": ("", (1e-6, 1e6), "weight of the 5 directions other than d"),
-    "gains.position": ("1/s²", (0.0, 1e6), "task-space PD: position gain"),
-    "gains.velocity": ("1/s", (0.0, 1e6), "task-space PD: velocity gain"),
-    "gains.orientation": ("1/s²", (0.0, 1e6), "task-space PD: orientation gain"),
-    "gains.angular_velocity": ("1/s", (0.0, 1e6), "task-space PD: angular velocity gain"),
-    "gains.null_damping": ("1/s", (0.0, 1e6), "null-space joint damping"),
-    "gains.pinv_damping": ("", (0.0, 1.0), "damping of the task Jacobian pseudo-inverse"),
-    "guard.prior_stiffness": ("N/m", (1.0, 1e7), "α the guard assumes before confidence"),
-    "guard.prior_damping": ("N·s/m", (0.0, 1e5), "β the guard assumes before confidence"),
-    "learner.min_samples": ("", (3, 10**6), "samples before the learner predicts the force"),
-    "learner.max_relative_std": ("", (1e-9, 10.0), "... and relative standard errors at most"),
-}
-#: The exploration study's schema: ``ffmpc study explore --scenario/--set`` and explore.yaml.
-EXPLORATION_SCHEMA: ConfigSchema[ExplorationConfig] = ConfigSchema.of(
-    ExplorationConfig, EXPLORATION_TABLE, EXPLORATION_NAMES, exclude=("material",)
-)
-
-
-def load_exploration_config(
-    name_or_path: str = "explore", overrides: dict[str, Any] | None = None
-) -> ExplorationConfig:
-    """An exploration scenario file (shipped name or path) with ``--set`` overrides (the
-    material stays the default; ``run_exploration_study`` sets each one of ``--materials``)."""
-    return EXPLORATION_SCHEMA.load(name_or_path, overrides)
-
-
-def surface_offset_bias(
-    stiffness: float, second_moment: np.ndarray, first_moment: np.ndarray, offset: float
-) -> np.ndarray:
-    """Effect on eq 17/21's ``Ê = [α̂, β̂]`` of a constant error ``ε`` (m) in the measured
-    deformation (``z_measured = z_true + ε``, e.g. the surface found one step late):
-
-        f = α z_true + β ż = α z_measured + β ż − α ε   ⇒   Ê − E = −α ε (S Sᵀ)⁻¹ Σ s
-
-    Args:
-        stiffness: α, N/m (the estimate is fine: the bias is a small correction).
-        second_moment: ``S Sᵀ`` (2×2; m², m²/s, m²/s²) of the samples fed.
-        first_moment: ``Σ s = [Σ z, Σ ż]`` (m, m/s).
-        offset: ε, m.
-    Returns: ``[Δα, Δβ]`` (N/m, N·s/m).
-    """
-    G = np.asarray(second_moment, dtype=float)
-    m = np.asarray(first_moment, dtype=float)
-    if G.shape != (2, 2) or m.shape != (2,):
-        raise InputError("second_moment must be 2×2 and first_moment 2 numbers")
-    return -float(stiffness) * float(offset) * np.linalg.solve(G, m)
-
-
-@dataclass(frozen=True)
-class Checkpoint:
-    """The learner's state at one point of the exploration.
-
-    Attributes:
-        label: "sinusoid" or "impact k".
-        time: s. estimate: the learner fed without the contact-onset samples.
-        z_bias_bound: ``|Δα|, |Δβ|`` bound (N/m, N·s/m) from the surface error (see
-            :func:`surface_offset_bias` with ε = ``approach_speed·Δt``).
-        with_onset: the estimate of the learner fed every in-contact sample, onsets included.
-        pre_impact_velocity: speed along d at the last force-free sample before the impact,
-            m/s (NaN for the sinusoid). peak_penetration: largest z of the phase, m.
-    """
-
-    label: str
-    time: float
-    estimate: ContactEstimate
-    z_bias_bound: tuple[float, float]
-    with_onset: ContactEstimate
-    pre_impact_velocity: float
-    peak_penetration: float
-
-    def relative_errors(self, material: Material) -> tuple[float, float]:
-        """``(α̂/α − 1, β̂/β − 1)`` (NaN for β when β = 0)."""
-        e = self.estimate
-        rd = e.damping / material.damping - 1.0 if material.damping > 0 else float("nan")
-        return e.stiffness / material.stiffness - 1.0, rd
-
-    def interval(self, sigmas: float = 2.0) -> tuple[float, float]:
-        """Half-widths of the confidence intervals (N/m, N·s/m): ``sigmas`` standard errors
-        (the learner's, statistical) plus the surface-error bound."""
-        e = self.estimate
-        return (
-            sigmas * e.stiffness_std + self.z_bias_bound[0],
-            sigmas * e.damping_std + self.z_bias_bound[1],
-        )
-
-    def covers(self, material: Material, sigmas: float = 2.0) -> bool:
-        """Whether the interval of :meth:`interval` contains the truth (both parameters)."""
-        wa, wb = self.interval(sigmas)
-        e = self.estimate
-        return (
-            abs(e.stiffness - material.stiffness) <= wa and abs(e.damping - material.damping) <= wb
-        )
 
 
 @dataclass
@@ -636,11 +341,10 @@ def run_exploration(
     limits = joint_limits(robot)
     dt = cfg.time_step
     w = cfg.lateral_weight
-    from sim_bridge.plant import Plant, PlantConfig, ToolConfig
+    from sim_bridge.plant import Plant
+    from sim_bridge.scenes import exploration_plant_config
 
-    plant_cfg = PlantConfig(
-        time_step=dt, table=None, soft_boxes=(obj.box(),), tool=ToolConfig(radius=TOOL_RADIUS)
-    )
+    plant_cfg = exploration_plant_config(obj, dt)
     ref = cfg.reference()
     controller = ExplorationController(
         robot,
@@ -860,13 +564,14 @@ def run_exploration_study(
     scheduler: str | None = None,
     fresh: bool = False,
 ) -> list[ExplorationRun]:
-    """Run the exploration on each named material of :data:`MATERIALS` (same settings) as
-    :class:`ExplorationJob` s through :func:`studies.execute.execute_jobs` (a Dask
-    ``LocalCluster`` of ``workers`` processes by default, ``1`` in this process, or the workers
-    of a running ``scheduler``). With ``out_dir`` (refused if it exists, unless ``force`` or it
-    holds an interrupted study) each finished run is cached in ``out_dir/cache`` (a restart
-    reads them back) and ``results.json`` and ``tables.md`` are written there. The runs come
-    back without their time series."""
+    """Run the exploration on each named material of
+    :data:`~ffmpc_core.impact.scenario.MATERIALS` (same settings) as :class:`ExplorationJob` s
+    through :func:`studies.execute.execute_jobs` (a Dask ``LocalCluster`` of ``workers``
+    processes by default, ``1`` in this process, or the workers of a running ``scheduler``).
+    With ``out_dir`` (refused if it exists, unless ``force`` or it holds an interrupted study)
+    each finished run is cached in ``out_dir/cache`` (a restart reads them back) and
+    ``results.json`` and ``tables.md`` are written there. The runs come back without their time
+    series."""
     unknown = [name for name in materials if name not in MATERIALS]
     if unknown:
         raise ConfigError(f"unknown materials {unknown}; choose from {sorted(MATERIALS)}")

@@ -8,10 +8,10 @@ Setup (``ffmpc study impact``):
   FIXED (a static body: Bullet's mass 0; the paper's dice weighs 0.1 kg and rests on a table).
   Fixing it makes the tool–dice contact the only compliance: the spherical tool makes one
   contact point (the dice's 5 cm collision margin keeps it the only one in the study's depth
-  range, see :class:`DiceConfig`), so the force is the box's nominal ``k·depth + d·rate``
-  (Bullet applies stiffness per contact point; a dice resting on a table would add its 4-point
-  support, 4× stiffer, in series, and its own 0.1 kg mode). The values the learner must find
-  are then exactly the ones set in PyBullet.
+  range, see :class:`~ffmpc_core.impact.scenario.DiceConfig`), so the force is the box's
+  nominal ``k·depth + d·rate`` (Bullet applies stiffness per contact point; a dice resting on
+  a table would add its 4-point support, 4× stiffer, in series, and its own 0.1 kg mode). The
+  values the learner must find are then exactly the ones set in PyBullet.
 * Material (our choice; the paper's Fig. 3 values are not in our copy of the text): stiffness
   3000 N/m and damping 20 N·s/m — a foam dice that takes 60 N at 2 cm (12.5 % strain) with a
   lightly damped response (damping ratio ≈ 0.08 with the Panda's ≈ 5 kg effective mass). The
@@ -33,8 +33,10 @@ Setup (``ffmpc study impact``):
 
 Runs (approach × regulation). Every controller is an object of
 :mod:`ffmpc_core.impact.controllers`; :class:`~ffmpc_core.impact.controllers.
-ImpactTaskController` composes them (built by :func:`task_config` from the study's
-configuration); this module only runs the plant, logs and summarises:
+ImpactTaskController` composes them (built by :func:`~ffmpc_core.impact.scenario.task_config`
+from the study's configuration, :mod:`ffmpc_core.impact.scenario`; the metrics are
+:mod:`ffmpc_core.impact.metrics`'s, the PyBullet scene :mod:`sim_bridge.scenes`'s); this module
+only runs the plant, logs and summarises:
 
 * approach ``maximal``: :class:`~ffmpc_core.impact.control.ImpactController` (Sec. IV-C): every
   cycle (or every ``replan_period``) map the joint limits to the contact space (eq 9–11), solve
@@ -103,465 +105,46 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pinocchio as pin
 
-from ffmpc_core.config import CostWeights
 from ffmpc_core.errors import ConfigError, FfmpcError, InputError
-from ffmpc_core.impact.control import AdmittanceForceController, ImpactControllerConfig
 from ffmpc_core.impact.controllers import (
     APPROACHES,
     REGULATIONS,
-    BaselineApproachConfig,
     ContactMeasurement,
-    HandoverConfig,
     ImpactTaskCommand,
-    ImpactTaskConfig,
     ImpactTaskController,
-    contact_measurement,
 )
-from ffmpc_core.impact.deformation import SoftMaterial
-from ffmpc_core.impact.limits import JointLimits, joint_limits
-from ffmpc_core.impact.planner import PlannerConfig
-from ffmpc_core.impact.robust import MaterialInterval, check_force_target
-from ffmpc_core.impact.task_space import (
-    JointLimitGuardConfig,
-)
-from ffmpc_core.impact.touch_first import (
-    TouchFirstConfig,
+from ffmpc_core.impact.limits import joint_limits
+from ffmpc_core.impact.metrics import LimitViolations, run_metrics, touch_metrics
+from ffmpc_core.impact.scenario import (
+    IMPACT_SCHEMA,
+    ImpactStudyConfig,
+    check_before_motion,
+    dice_measurement,
+    start_pose,
+    task_config,
 )
 from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_core.runner import LockstepClock, run_scenario
-from ffmpc_core.scenario import ConfigSchema, FieldDecl, cost_weight_specs
+from sim_bridge.scenes import impact_plant_config as plant_config
 from studies.execute import RunCache, RunOutcome, canonical_json, execute_jobs, prepare_output_dir
 from studies.study import DIVERGENCE_ERRORS
 
 if TYPE_CHECKING:  # the plant imports PyBullet: loaded when a run starts, not to parse
-    from sim_bridge.plant import PlantConfig, PlantState, SoftBoxConfig
+    from sim_bridge.plant import PlantState
 
 __all__ = [
-    "APPROACHES",
-    "REGULATIONS",
     "DEFAULT_RUNS",
-    "DiceConfig",
-    "IMPACT_SCHEMA",
-    "load_impact_config",
     "ImpactJob",
     "ImpactRun",
     "ImpactStudyResult",
-    "ImpactStudyConfig",
-    "LimitViolations",
-    "count_limit_violations",
     "default_out_dir",
-    "dice_measurement",
     "execute_impact_job",
     "format_table",
     "plot_runs",
     "run_impact",
     "run_impact_study",
-    "plant_config",
-    "run_metrics",
-    "start_configuration",
-    "start_pose",
-    "task_config",
-    "time_to_steady_force",
 ]
-
-#: How the maximal approach treats the unknown material: ``touch_first`` (touch at the bound
-#: safe for the plausible range, learn, re-plan from the learned interval, then strike) or
-#: ``prior`` (the paper's scheme with the prior as if it were the truth; the fault of issue 12).
-STRATEGIES = ("touch_first", "prior")
-DOWN = np.array([0.0, 0.0, -1.0])
-
-
-@dataclass(frozen=True)
-class DiceConfig:
-    """The soft dice: what PyBullet simulates (the truth) and where it is.
-
-    Attributes:
-        stiffness: contact stiffness set in PyBullet, N/m (one contact point with the tool).
-        damping: contact damping set in PyBullet, N·s/m.
-        size: edge length, m (paper: 0.16).
-        mass: kg (paper: 0.1); recorded only: the dice is static (fixed) in the simulation.
-        position_xy: centre of the dice in the horizontal plane, m, world frame.
-        top_height: height of the top face, m, world frame.
-        max_penetration: z̄, m, the elastic-domain bound the planner keeps.
-        lateral_friction: Coulomb friction of the dice (the tool's is 1; Bullet multiplies).
-        collision_margin: Bullet's collision margin of the dice, m (edges rounded with it; the
-            faces stay put). With PyBullet's 1 mm, a second contact point at the same depth
-            appeared once the 1 cm tool sphere's centre passed the inner face (11.0 mm): the
-            force doubled in one step (52.8 → 105.6 N on the 4800 N/m dice; joint 2 at 1.7× its
-            acceleration limit; starting 0.2 m above the 7200 N/m dice it happened during the
-            touch, 87 → 175 N, 3.9×, and the learner fed the doubled stiffness was never
-            confident: the 60 N target was refused). With 5 cm the single contact holds to
-            60 mm, past any penetration of the study (the prior strategy's reached 47.5 mm).
-            A 5 cm tool sphere instead also avoided it but changed the tilting contact (the
-            force-feedback MPC then broke the wrist's acceleration limit on the 7200/7.5 dice).
-    """
-
-    stiffness: float = 3000.0
-    damping: float = 20.0
-    size: float = 0.16
-    mass: float = 0.1
-    position_xy: tuple[float, float] = (0.6, 0.0)
-    top_height: float = 0.08
-    max_penetration: float = 0.03
-    lateral_friction: float = 0.5
-    collision_margin: float = 0.05
-
-    def __post_init__(self) -> None:
-        for name in ("stiffness", "size", "max_penetration"):
-            if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
-                raise ConfigError(
-                    f"dice {name} must be positive and finite, got {getattr(self, name)}"
-                )
-        if not (np.isfinite(self.damping) and self.damping >= 0):
-            raise ConfigError(f"dice damping must be finite and >= 0, got {self.damping}")
-        if self.max_penetration >= self.size:
-            raise ConfigError("max_penetration must be smaller than the dice")
-        if not (np.isfinite(self.collision_margin) and 0 < self.collision_margin < 0.5 * self.size):
-            raise ConfigError("dice collision_margin must be in (0, size/2) (m)")
-
-    def box(self) -> SoftBoxConfig:
-        """The PyBullet box (static: mass 0)."""
-        from sim_bridge.plant import SoftBoxConfig
-
-        x, y = self.position_xy
-        return SoftBoxConfig(
-            position=(float(x), float(y), self.top_height - 0.5 * self.size),
-            stiffness=self.stiffness,
-            damping=self.damping,
-            size=(self.size, self.size, self.size),
-            mass=0.0,
-            lateral_friction=self.lateral_friction,
-            collision_margin=self.collision_margin,
-        )
-
-
-@dataclass(frozen=True)
-class ImpactStudyConfig:
-    """Everything one run is built from (defaults: the experiment of the module docstring).
-
-    Attributes:
-        dice: the true soft object.
-        prior_stiffness, prior_damping: the material the planner and the MPC start from, N/m
-            and N·s/m (the learner replaces them for the MPC once it is confident).
-        approach_height: tool height above the dice's top face at the start, m (paper: 0.46).
-        target_force: N (paper: 60). contact_threshold: N (paper: 2).
-        duration: simulated time of each run, s.
-        time_step: plant step = control period, s (paper: 1 kHz).
-        replan_period: how often eq 9–14 are re-solved during the maximal approach, s
-            (0 = every cycle as in the paper).
-        planner: eq 12–14 parameters (paper: h = 20, Δt = 25 ms).
-        limit_margin: fraction of the data-sheet acceleration and velocity limits the planner and
-            the guard may use.
-        lateral_weight: weight of the five task directions other than the motion (x, y and
-            the orientation) relative to the motion direction in the guard's QP: the paper keeps
-            ẋ_B = 0 (eq 2), so when a limit is active the motion direction gives way first.
-        baseline_frequency: ω of the baseline's critically damped reference, rad/s.
-        baseline_target_depth: the baseline's static target below the top face, m.
-        admittance: the post-contact admittance controller.
-        handover_speed: the force-feedback MPC takes over once the tool, in contact, moves into
-            the dice no faster than this (with the touch-first strategy: moves either way no
-            faster than this; a tool bouncing back at 0.17 m/s was handed over, and the MPC
-            then spun the wrist past its acceleration limit), m/s (default: the admittance
-            controller's speed limit, 0.1 m/s): the impact itself is absorbed by the braking
-            eq 14 certified.
-        mpc_period, mpc_horizon, mpc_dt: force-feedback MPC rate (s), nodes, node length (s).
-        mpc_force_weight: c6 of the pressing nodes; mpc_weights: the other cost weights.
-        learner_min_samples: samples before the learner's estimate may replace the prior.
-        learner_max_relative_std: ... and the largest relative standard error of α̂ and β̂.
-        steady_band: |f − target| ≤ steady_band · target counts as steady (5 %).
-        steady_hold: ... for at least this long, s (0.2).
-        strategy: the maximal approach's treatment of the unknown material (:data:`STRATEGIES`).
-        touch: parameters of the ``touch_first`` strategy
-            (:class:`~ffmpc_core.impact.touch_first.TouchFirstConfig`).
-        handover_blend: the force-feedback MPC's torque is blended in linearly over this long,
-            s, from the admittance controller's (both through the joint-limit guard, so every
-            blend is admissible: q̈ is affine in τ and the admissible set is convex); 0 = switch.
-        tool_radius: radius of the simulated spherical tool, m (1 cm); with the dice's
-            collision margin it must exceed z̄ (see :attr:`DiceConfig.collision_margin`).
-    """
-
-    dice: DiceConfig = field(default_factory=DiceConfig)
-    prior_stiffness: float = 2400.0
-    prior_damping: float = 15.0
-    approach_height: float = 0.46
-    target_force: float = 60.0
-    contact_threshold: float = 2.0
-    duration: float = 4.0
-    time_step: float = 1e-3
-    replan_period: float = 0.0
-    planner: PlannerConfig = field(default_factory=PlannerConfig)
-    limit_margin: float = 0.9
-    lateral_weight: float = 100.0
-    baseline_frequency: float = 5.0
-    baseline_target_depth: float = 0.005
-    admittance: AdmittanceForceController = field(default_factory=AdmittanceForceController)
-    handover_speed: float = 0.1
-    mpc_period: float = 0.004
-    mpc_horizon: int = 10
-    mpc_dt: float = 0.02
-    mpc_force_weight: float = 3.0
-    mpc_weights: CostWeights = field(
-        default_factory=lambda: CostWeights(posture=1.0, joint_velocity=0.1)
-    )
-    learner_min_samples: int = 20
-    learner_max_relative_std: float = 0.05
-    steady_band: float = 0.05
-    steady_hold: float = 0.2
-    strategy: str = "touch_first"
-    touch: TouchFirstConfig = field(default_factory=TouchFirstConfig)
-    handover_blend: float = 0.05
-    tool_radius: float = 0.01
-
-    def __post_init__(self) -> None:
-        positive = (
-            "prior_stiffness",
-            "approach_height",
-            "target_force",
-            "contact_threshold",
-            "duration",
-            "time_step",
-            "limit_margin",
-            "lateral_weight",
-            "baseline_frequency",
-            "mpc_period",
-            "mpc_dt",
-            "handover_speed",
-            "steady_band",
-            "steady_hold",
-        )
-        for name in positive:
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
-                raise ConfigError(f"ImpactStudyConfig.{name} must be positive, got {value}")
-        if not (np.isfinite(self.prior_damping) and self.prior_damping >= 0):
-            raise ConfigError("prior_damping must be >= 0")
-        if self.limit_margin > 1.0:
-            raise ConfigError("limit_margin must be <= 1")
-        if self.contact_threshold >= self.target_force:
-            raise ConfigError("contact_threshold must be below target_force")
-        if not 0 <= self.baseline_target_depth < self.dice.max_penetration:
-            raise ConfigError("baseline_target_depth must be in [0, max_penetration)")
-        every = self.mpc_period / self.time_step
-        if abs(every - round(every)) > 1e-9 or round(every) < 1:
-            raise ConfigError("mpc_period must be a whole number of plant steps")
-        if not (np.isfinite(self.replan_period) and self.replan_period >= 0):
-            raise ConfigError("replan_period must be >= 0")
-        if self.strategy not in STRATEGIES:
-            raise ConfigError(f"strategy must be one of {STRATEGIES}, got {self.strategy!r}")
-        if not (np.isfinite(self.handover_blend) and self.handover_blend >= 0):
-            raise ConfigError("handover_blend must be >= 0 (s)")
-        reach = self.tool_radius + self.dice.collision_margin
-        if not (np.isfinite(reach) and self.tool_radius > 0 and reach > self.dice.max_penetration):
-            raise ConfigError(
-                f"tool_radius + dice collision_margin ({reach} m) must exceed the dice's "
-                f"max_penetration ({self.dice.max_penetration} m): a sphere whose centre passes "
-                "the box's inner face gets a second contact point in Bullet (double force)"
-            )
-
-    @property
-    def prior(self) -> SoftMaterial:
-        """The planner's material: prior stiffness/damping and the dice's z̄."""
-        return SoftMaterial(self.prior_stiffness, self.prior_damping, self.dice.max_penetration)
-
-    def control_limits(self, limits: JointLimits) -> JointLimits:
-        """The limits the planner and the guard use: ``limit_margin`` × q̈_max and q̇_max."""
-        return JointLimits(
-            position_lower=limits.position_lower,
-            position_upper=limits.position_upper,
-            velocity=self.limit_margin * limits.velocity,
-            acceleration=self.limit_margin * limits.acceleration,
-            torque=limits.torque,
-        )
-
-
-#: Dotted parameter names of ImpactStudyConfig's fields (field-path prefix → name prefix, see
-#: ffmpc_core.scenario.public_name): ``dice.stiffness`` → ``plant.dice_stiffness``,
-#: ``prior_stiffness`` → ``planner.prior_stiffness``, ``mpc_horizon`` → ``mpc.horizon``.
-IMPACT_NAMES: dict[str, str] = {
-    "dice.": "plant.dice_",
-    "time_step": "plant.time_step",
-    "tool_radius": "plant.tool_radius",
-    "prior_": "planner.prior_",
-    "mpc_": "mpc.",
-    "learner_": "learner.",
-}
-_INF = float("inf")
-#: Unit, range or choices and meaning of every impact-study parameter (kinds: the annotations).
-IMPACT_TABLE: dict[str, FieldDecl] = {
-    "plant.dice_stiffness": ("N/m", (1.0, 1e7), "true stiffness of the dice set in PyBullet"),
-    "plant.dice_damping": ("N·s/m", (0.0, 1e5), "true damping of the dice set in PyBullet"),
-    "plant.dice_size": ("m", (0.01, 1.0), "edge length of the dice"),
-    "plant.dice_mass": ("kg", (0.0, 100.0), "recorded only: the dice is fixed"),
-    "plant.dice_position_xy": ("m", (-2.0, 2.0), "centre of the dice, horizontal, world frame"),
-    "plant.dice_top_height": ("m", (-1.0, 2.0), "height of the top face, world frame"),
-    "plant.dice_max_penetration": ("m", (1e-4, 0.5), "z̄, the elastic-domain bound kept"),
-    "plant.dice_lateral_friction": ("", (0.0, 10.0), "Coulomb friction of the dice"),
-    "plant.dice_collision_margin": ("m", (1e-4, 0.5), "Bullet's collision margin of the dice"),
-    "plant.time_step": ("s", (1e-5, 0.01), "plant step = control period"),
-    "plant.tool_radius": ("m", (1e-3, 0.2), "radius of the spherical tool"),
-    "planner.prior_stiffness": ("N/m", (1.0, 1e7), "prior α of the planner and the MPC"),
-    "planner.prior_damping": ("N·s/m", (0.0, 1e5), "prior β of the planner and the MPC"),
-    "planner.horizon": ("steps", (2, 1000), "h of eq 12-14"),
-    "planner.dt": ("s", (1e-4, 1.0), "Δt of eq 12-14"),
-    "planner.cost": ("", ["qp", "lp"], "eq 14 (qp) or its LP variant"),
-    "planner.control_effort_weight": ("s⁴/m²", (1e-12, _INF), "weight of Σ u_i² (eq 12)"),
-    "planner.force_tracking_weight": ("1/N²", (0.0, _INF), "ω_f of eq 12"),
-    "planner.target_force": ("N", (0.0, 500.0), "f_des of eq 12 (with ω_f > 0)"),
-    "planner.velocity_weight": ("s/m", (1e-12, _INF), "−r of eq 14"),
-    "planner.velocity_regularization": ("s/m", (1e-12, _INF), "R of eq 14"),
-    "planner.max_halfplanes": ("", (3, 1000), "eq 11 rows per step"),
-    "planner.solver": ("", ["daqp", "osqp"], "QP solver of eq 9-14"),
-    "planner.eps": ("", (1e-12, 1.0), "OSQP tolerance"),
-    "planner.primal_tol": ("", (1e-15, 1.0), "DAQP primal feasibility tolerance"),
-    "planner.input_scale": ("m/s²", (1e-6, 1e6), "internal scaling of u"),
-    "approach_height": ("m", (0.01, 1.0), "tool height above the top face at the start"),
-    "target_force": ("N", (0.1, 500.0), "force held after contact"),
-    "contact_threshold": ("N", (0.01, 100.0), "force that declares the contact"),
-    "duration": ("s", (0.01, 600.0), "simulated time per run"),
-    "replan_period": ("s", (0.0, 10.0), "between eq 9-14 solves (0: every cycle)"),
-    "limit_margin": ("", (0.01, 1.0), "fraction of the data-sheet q̈ and q̇ limits used"),
-    "lateral_weight": ("", (1e-6, 1e6), "weight of the 5 other task directions in the guard"),
-    "baseline_frequency": ("rad/s", (0.01, 1000.0), "ω of the baseline's reference"),
-    "baseline_target_depth": ("m", (0.0, 0.5), "baseline's static target below the top"),
-    "admittance.admittance": ("m/(N·s)", (1e-9, 1.0), "admittance G"),
-    "admittance.max_velocity": ("m/s", (1e-6, 10.0), "v_max"),
-    "admittance.velocity_filter": ("", (0.0, 1.0), "γ per nominal_dt, in [0, 1)"),
-    "admittance.nominal_dt": ("s", (1e-6, 1.0), "step of γ"),
-    "handover_speed": ("m/s", (1e-6, 10.0), "in-contact speed below which the MPC takes over"),
-    "mpc.period": ("s", (1e-5, 1.0), "force-feedback MPC period (whole plant steps)"),
-    "mpc.horizon": ("nodes", (1, 1000), "OCP nodes N"),
-    "mpc.dt": ("s", (1e-5, 1.0), "OCP node duration"),
-    "mpc.force_weight": ("1/N²", (0.0, _INF), "c6 of the pressing nodes"),
-    "learner.min_samples": ("", (3, 10**6), "samples before the estimate replaces the prior"),
-    "learner.max_relative_std": ("", (1e-9, 10.0), "largest relative std error of α̂, β̂"),
-    "steady_band": ("", (1e-6, 1.0), "|f − target| ≤ this · target counts as steady"),
-    "steady_hold": ("s", (1e-6, 60.0), "... for at least this long"),
-    "strategy": ("", list(STRATEGIES), "maximal approach: touch_first or prior"),
-    "touch.stiffness_factors": ("", (1e-3, 1e3), "plausible α range, factors of the prior"),
-    "touch.damping_factors": ("", (1e-3, 1e3), "plausible β range, factors of the prior"),
-    "touch.touch_force": ("N", (0.01, 500.0), "force regulated during the touch"),
-    "touch.touch_dwell": ("s", (0.0, 60.0), "minimal time in contact during the touch"),
-    "touch.max_touch_time": ("s", (0.0, 60.0), "longest touch"),
-    "touch.learner_min_samples": ("", (3, 10**6), "samples before confident"),
-    "touch.learner_max_relative_std": ("", (1e-9, 10.0), "relative std errors at most this"),
-    "touch.sigmas": ("", (0.0, 100.0), "k of the learned interval α̂ ± k σ"),
-    "touch.stiffness_floor": ("", (0.0, 10.0), "least relative half-width of the α interval"),
-    "touch.damping_floor": ("", (0.0, 10.0), "least relative half-width of the β interval"),
-    "touch.retract_height": ("m", (0.0, 1.0), "height above the surface the strike starts"),
-    "touch.retract_acceleration_fraction": ("", (0.0, 1.0), "peak of the retract profile"),
-    "touch.impact_force_factor": ("", (0.0, 100.0), "κ of the guard's impact force"),
-    "touch.penetration_margin": ("m", (0.0, 0.5), "off z̄ in eq 12 for touch and strike"),
-    "handover_blend": ("s", (0.0, 10.0), "admittance → MPC torque blend (0: switch)"),
-}
-#: The impact study's schema: ``ffmpc study impact --scenario/--set`` and impact.yaml.
-IMPACT_SCHEMA: ConfigSchema[ImpactStudyConfig] = ConfigSchema.of(
-    ImpactStudyConfig,
-    IMPACT_TABLE,
-    IMPACT_NAMES,
-    given=cost_weight_specs("mpc.weights.", 1),  # the MPC's contact is 1-D (normal)
-)
-
-
-def load_impact_config(
-    name_or_path: str = "impact", overrides: dict[str, Any] | None = None
-) -> ImpactStudyConfig:
-    """An impact-study scenario file (shipped name or path) with ``--set`` overrides."""
-    return IMPACT_SCHEMA.load(name_or_path, overrides)
-
-
-def start_configuration(
-    robot: RobotModel, position: np.ndarray, iterations: int = 300
-) -> np.ndarray:
-    """Joint positions (rad) that put the contact frame at ``position`` (m, world) with the
-    orientation it has at ``robot.q_nominal`` (tool pointing down): damped least-squares inverse
-    kinematics on SE(3), started from ``q_nominal``, with a small pull towards it in the null
-    space. Raises ConfigError if it does not converge to 0.1 mm / 1 mrad."""
-    model, data, fid = robot.model, robot.create_data(), robot.contact_frame_id
-    target = pin.SE3(robot.contact_placement(robot.q_nominal).rotation, np.asarray(position))
-    q = robot.q_nominal.copy()
-    for _ in range(iterations):
-        pin.framesForwardKinematics(model, data, q)
-        err = pin.log6(data.oMf[fid].inverse() * target).vector
-        if np.linalg.norm(err[:3]) < 1e-7 and np.linalg.norm(err[3:]) < 1e-6:
-            break
-        J = pin.computeFrameJacobian(model, data, q, fid, pin.ReferenceFrame.LOCAL)
-        step = J.T @ np.linalg.solve(J @ J.T + 1e-8 * np.eye(6), err)
-        null = np.eye(robot.nv) - np.linalg.pinv(J) @ J
-        q = pin.integrate(model, q, step + 0.01 * null @ (robot.q_nominal - q))
-    pin.framesForwardKinematics(model, data, q)
-    err = pin.log6(data.oMf[fid].inverse() * target).vector
-    if np.linalg.norm(err[:3]) > 1e-4 or np.linalg.norm(err[3:]) > 1e-3:
-        raise ConfigError(f"no joint configuration puts the tool at {position}")
-    if np.any(q < robot.position_lower) or np.any(q > robot.position_upper):
-        raise ConfigError(f"the start configuration for {position} is outside the joint limits")
-    return q
-
-
-@dataclass(frozen=True)
-class LimitViolations:
-    """Samples (control steps) at which a joint exceeded a data-sheet limit (eq 1b–1e).
-
-    Attributes:
-        position: q outside [q̲, q̄]. velocity: |q̇| > q̇_max.
-        acceleration: |q̈| > q̈_max with q̈ = (q̇[k+1] − q̇[k]) / Δt from the simulated q̇.
-        torque: |τ| ≥ τ_max for the torque the controller sent (the plant would saturate it).
-        max_ratio: largest |value| / limit of each kind (position: |q − mid-range| / half range,
-            1 at a limit).
-    """
-
-    position: int
-    velocity: int
-    acceleration: int
-    torque: int
-    max_ratio: dict[str, float]
-
-    @property
-    def total(self) -> int:
-        return self.position + self.velocity + self.acceleration + self.torque
-
-
-def count_limit_violations(
-    q: np.ndarray, v: np.ndarray, tau: np.ndarray, dt: float, limits: JointLimits
-) -> LimitViolations:
-    """Count the samples of a run (rows: steps) that break the limits; see LimitViolations."""
-    mid = 0.5 * (limits.position_upper + limits.position_lower)
-    half = 0.5 * (limits.position_upper - limits.position_lower)
-    p_ratio = np.abs(q - mid) / half
-    qdd = np.diff(v, axis=0) / dt
-    v_ratio = np.abs(v) / limits.velocity
-    a_ratio = np.abs(qdd) / limits.acceleration
-    t_ratio = np.abs(tau) / limits.torque
-    return LimitViolations(
-        position=int(np.count_nonzero(np.any(p_ratio > 1.0, axis=1))),
-        velocity=int(np.count_nonzero(np.any(v_ratio > 1.0, axis=1))),
-        acceleration=int(np.count_nonzero(np.any(a_ratio > 1.0, axis=1))),
-        torque=int(np.count_nonzero(np.any(t_ratio >= 1.0 - 1e-9, axis=1))),
-        max_ratio={
-            "position": float(p_ratio.max()) if p_ratio.size else 0.0,
-            "velocity": float(v_ratio.max()) if v_ratio.size else 0.0,
-            "acceleration": float(a_ratio.max()) if a_ratio.size else 0.0,
-            "torque": float(t_ratio.max()) if t_ratio.size else 0.0,
-        },
-    )
-
-
-def time_to_steady_force(
-    t: np.ndarray, force: np.ndarray, target: float, band: float, hold: float, start: float
-) -> float:
-    """First time ≥ ``start`` (s) from which ``|f − target| ≤ band·target`` holds for ``hold`` s;
-    NaN if never (within the data). ``t`` s, ``force`` N."""
-    inside = np.abs(force - target) <= band * target
-    dt = float(t[1] - t[0]) if t.size > 1 else 1.0
-    need = int(round(hold / dt))
-    k0 = int(np.searchsorted(t, start))
-    run = 0
-    for k in range(k0, t.size):
-        run = run + 1 if inside[k] else 0
-        if run > need:
-            return float(t[k - need])
-    return float("nan")
 
 
 @dataclass
@@ -572,7 +155,8 @@ class ImpactRun:
         approach, regulation: which run.
         pre_impact_velocity: speed along d at the last force-free sample before contact, m/s.
         contact_time: time the force reached the contact threshold, s (NaN: never).
-        steady_time: :func:`time_to_steady_force` from the contact on, s (NaN: never).
+        steady_time: :func:`~ffmpc_core.impact.metrics.time_to_steady_force` from the contact
+            on, s (NaN: never).
         peak_force: N. peak_penetration: below the true top face, m.
         final_force: mean force over the last 0.2 s, N. final_force_error: max |f − target|
             over the last 0.2 s, N.
@@ -586,8 +170,9 @@ class ImpactRun:
         mpc_solve_time_median: s (force-feedback MPC only).
         log: time series (t, speed, force, penetration, bound, phase..., and the joint
             positions ``q`` (rad) and velocities ``v`` (rad/s) at each step).
-        strategy: the maximal approach's strategy (:data:`STRATEGIES`; ``prior`` for the
-            baseline, which plans nothing).
+        strategy: the maximal approach's strategy
+            (:data:`~ffmpc_core.impact.scenario.STRATEGIES`; ``prior`` for the baseline, which
+            plans nothing).
         touch_time, touch_velocity: the exploratory touch's contact (s) and speed at the last
             force-free sample before it (m/s); NaN without a touch.
         touch_peak_force, touch_peak_penetration: N and m, from the touch to the decision.
@@ -644,148 +229,6 @@ class ImpactRun:
         violations = {k: v for k, v in fields_.pop("violations").items() if k != "total"}
         fields_["learned_std"] = tuple(fields_["learned_std"])
         return cls(**fields_, violations=LimitViolations(**violations), log=log)
-
-
-def run_metrics(
-    cfg: ImpactStudyConfig,
-    log: dict[str, np.ndarray],
-    qs: np.ndarray,
-    vs: np.ndarray,
-    taus: np.ndarray,
-    limits: JointLimits,
-    contact_time: float | None,
-    touch_speed: float,
-) -> dict[str, Any]:
-    """A run's metrics from its log (``t`` s, ``force`` N, ``penetration`` m per step), the
-    joint positions and velocities of steps 0..K (rad, rad/s), the torques sent at steps
-    0..K−1 (N·m), the data-sheet limits, the contact time (s, None: never) and the speed along
-    d at the last force-free sample before it (m/s): ``pre_impact_velocity``,
-    ``contact_time``, ``steady_time``, ``peak_force``, ``peak_penetration``, ``final_force``,
-    ``final_force_error``, ``violations`` (see :class:`ImpactRun`). The ROS-free run and the
-    impact graph both summarise with it."""
-    t_log, force = log["t"], log["force"]
-    nan = float("nan")
-    contact = nan if contact_time is None else float(contact_time)
-    steady = (
-        nan
-        if contact_time is None
-        else time_to_steady_force(
-            t_log, force, cfg.target_force, cfg.steady_band, cfg.steady_hold, contact
-        )
-    )
-    tail = t_log >= t_log[-1] - 0.2
-    return dict(
-        pre_impact_velocity=float(touch_speed) if contact_time is not None else nan,
-        contact_time=contact,
-        steady_time=steady,
-        peak_force=float(force.max()),
-        peak_penetration=float(log["penetration"].max()),
-        final_force=float(force[tail].mean()),
-        final_force_error=float(np.abs(force[tail] - cfg.target_force).max()),
-        violations=count_limit_violations(qs, vs, taus, cfg.time_step, limits),
-    )
-
-
-def touch_metrics(
-    log: dict[str, np.ndarray],
-    touch_time: float | None,
-    touch_velocity: float | None,
-    decision_time: float | None,
-) -> dict[str, float]:
-    """The touch-first run's touch metrics (:class:`ImpactRun`) from the log (``t`` s,
-    ``force`` N, ``penetration`` m) and the touch-first controller's touch time (s), touch
-    velocity (m/s) and decision time (s) (None: never). The ROS-free run and the impact graph
-    both summarise with it."""
-    nan = float("nan")
-    t_log = log["t"]
-    t_touch = nan if touch_time is None else float(touch_time)
-    t_decide = nan if decision_time is None else float(decision_time)
-    window = (t_log >= t_touch) & (t_log <= t_decide) if np.isfinite(t_decide) else None
-    return dict(
-        touch_time=t_touch,
-        touch_velocity=nan if touch_velocity is None else float(touch_velocity),
-        touch_peak_force=nan if window is None else float(log["force"][window].max()),
-        touch_peak_penetration=(nan if window is None else float(log["penetration"][window].max())),
-        decision_time=t_decide,
-    )
-
-
-def task_config(approach: str, regulation: str, cfg: ImpactStudyConfig) -> ImpactTaskConfig:
-    """The controller configuration of one run (:class:`ImpactTaskController`) from the
-    study's configuration."""
-    dt = cfg.time_step
-    return ImpactTaskConfig(
-        approach=approach,
-        regulation=regulation,
-        controller=ImpactControllerConfig(
-            direction=DOWN,
-            material=cfg.prior,
-            target_force=cfg.target_force,
-            contact_threshold=cfg.contact_threshold,
-            planner=cfg.planner,
-            admittance=cfg.admittance,
-            replan_period=cfg.replan_period,
-        ),
-        guard=JointLimitGuardConfig(
-            dt=dt,
-            margin=1.0,
-            task_weights=(cfg.lateral_weight, cfg.lateral_weight, 1.0) + (cfg.lateral_weight,) * 3,
-        ),
-        time_step=dt,
-        touch=cfg.touch if cfg.strategy == "touch_first" else None,
-        baseline=BaselineApproachConfig(
-            direction=DOWN,
-            distance=cfg.approach_height + cfg.baseline_target_depth,
-            frequency=cfg.baseline_frequency,
-            refresh=max(cfg.replan_period, dt),
-            time_step=dt,
-        ),
-        handover=HandoverConfig(
-            direction=DOWN,
-            target_force=cfg.target_force,
-            time_step=dt,
-            handover_speed=cfg.handover_speed,
-            symmetric_speed=cfg.strategy == "touch_first" and approach == "maximal",
-            blend=cfg.handover_blend,
-            mpc_period=cfg.mpc_period,
-            mpc_horizon=cfg.mpc_horizon,
-            mpc_dt=cfg.mpc_dt,
-            mpc_force_weight=cfg.mpc_force_weight,
-            mpc_weights=cfg.mpc_weights,
-            prior_stiffness=cfg.prior_stiffness,
-            prior_damping=cfg.prior_damping,
-            learner_min_samples=cfg.learner_min_samples,
-            learner_max_relative_std=cfg.learner_max_relative_std,
-        ),
-    )
-
-
-def dice_measurement(
-    robot: RobotModel, data: pin.Data, q: np.ndarray, v: np.ndarray, wrench: np.ndarray
-) -> ContactMeasurement:
-    """One cycle's measurement of the experiment from q (rad), q̇ (rad/s) and the wrench on the
-    tool ([f; m], N and N·m, world axes): the pressing force is the world-z force (d = DOWN).
-    The ROS-free run and the impact graph's controller node both measure with it."""
-    return contact_measurement(robot, data, q, v, wrench, DOWN, force=float(wrench[2]))
-
-
-def start_pose(cfg: ImpactStudyConfig, robot: RobotModel) -> np.ndarray:
-    """The start joint positions (rad): the tool ``approach_height`` above the dice's centre."""
-    x0, y0 = cfg.dice.position_xy
-    top = cfg.dice.top_height
-    return start_configuration(robot, np.array([x0, y0, top + cfg.approach_height]))
-
-
-def plant_config(cfg: ImpactStudyConfig) -> PlantConfig:
-    """The PyBullet plant of the experiment: no table, the dice, the spherical tool."""
-    from sim_bridge.plant import PlantConfig, ToolConfig
-
-    return PlantConfig(
-        time_step=cfg.time_step,
-        table=None,
-        soft_boxes=(cfg.dice.box(),),
-        tool=ToolConfig(radius=cfg.tool_radius),
-    )
 
 
 class _ImpactLoop:
@@ -1152,25 +595,6 @@ class ImpactStudyResult:
     table: str
     files: list[Path]
     wall_time: float
-
-
-def check_before_motion(config: ImpactStudyConfig) -> None:
-    """The touch-first strategy's checks before any motion (see
-    :class:`~ffmpc_core.impact.touch_first.TouchFirstImpactController`): raises
-    :class:`~ffmpc_core.errors.InfeasibleTargetError` if the touch force is unsafe for the
-    softest plausible material or no plausible material can hold the target within z̄."""
-    if config.strategy != "touch_first":
-        return
-    prior = MaterialInterval.from_prior(
-        config.prior, config.touch.stiffness_factors, config.touch.damping_factors
-    )
-    check_force_target(config.touch.touch_force, prior, "the exploratory touch force")
-    check_force_target(
-        config.target_force,
-        prior,
-        "even the stiffest plausible material cannot hold it",
-        worst_case=False,
-    )
 
 
 def run_impact_study(

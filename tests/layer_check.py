@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 #: Lowest layer first: a package may import only packages at or before its own position.
-LAYERS: tuple[str, ...] = ("ffmpc_core", "sim_bridge", "studies", "ffmpc_ros")
+LAYERS: tuple[str, ...] = ("ffmpc_core", "sim_bridge", "ffmpc_ros", "studies")
 
 
 @dataclass(frozen=True)

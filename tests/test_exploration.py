@@ -15,18 +15,16 @@ import pytest
 
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.impact.deformation import predicted_force_increase
+from ffmpc_core.impact.exploration import sticking_contact_force
 from ffmpc_core.impact.learner import fit_stiffness_damping, stack_data
 from ffmpc_core.impact.limits import motion_basis
+from ffmpc_core.impact.metrics import surface_offset_bias
+from ffmpc_core.impact.scenario import MATERIALS, ExplorationConfig, Material
 from studies.exploration import (
-    MATERIALS,
-    ExplorationConfig,
-    Material,
     format_checkpoints,
     format_summary,
     run_exploration,
     run_exploration_study,
-    sticking_contact_force,
-    surface_offset_bias,
 )
 
 DT = 1e-3

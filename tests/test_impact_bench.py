@@ -22,9 +22,9 @@ from ffmpc_core.impact.limits import (
     vertex_lp_data,
 )
 from ffmpc_core.impact.planner import ImpactPlanner, PlannerConfig, _highs_max_velocity
+from ffmpc_core.impact.scenario import DOWN, ImpactStudyConfig
 from ffmpc_core.robots import load_robot
 from studies.bench_impact import approach_problems
-from studies.impact_study import DOWN, ImpactStudyConfig
 
 
 @pytest.fixture(scope="module")

@@ -17,6 +17,7 @@ from ros_helpers import joint_state, wrench
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
+from ffmpc_core.impact.scenario import load_impact_config, start_pose
 from ffmpc_core.robots import load_robot
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.bag.reader import BagReader
@@ -29,7 +30,7 @@ from ffmpc_ros.impact_graph import (
     run_impact_graph,
 )
 from ffmpc_ros.params import parameter_overrides
-from studies.impact_study import load_impact_config, run_impact, start_pose
+from studies.impact_study import run_impact
 
 MAXIMAL = ["strategy=prior", "approach_height=0.05", "duration=0.35"]
 #: The study's default strategy: touch at 0.199 s, strike decided at 0.349 s, the strike's

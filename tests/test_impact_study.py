@@ -17,6 +17,8 @@ from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.impact.control import CartesianCommand, ImpactControllerConfig
 from ffmpc_core.impact.deformation import SoftMaterial
 from ffmpc_core.impact.limits import joint_limits
+from ffmpc_core.impact.metrics import count_limit_violations, time_to_steady_force
+from ffmpc_core.impact.scenario import ImpactStudyConfig, start_configuration
 from ffmpc_core.impact.task_space import (
     JointLimitGuard,
     JointLimitGuardConfig,
@@ -25,16 +27,7 @@ from ffmpc_core.impact.task_space import (
 )
 from ffmpc_core.robots import load_robot
 from ffmpc_core.tasks import PressTask
-from studies.impact_study import (
-    ImpactStudyConfig,
-    count_limit_violations,
-    format_table,
-    plot_runs,
-    run_impact,
-    run_impact_study,
-    start_configuration,
-    time_to_steady_force,
-)
+from studies.impact_study import format_table, plot_runs, run_impact, run_impact_study
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 # The paper's scheme (plan from the prior as if it were the truth); the touch-first strategy,

@@ -1,4 +1,4 @@
-"""Layers read top-down: ffmpc_core ← sim_bridge ← studies ← ffmpc_ros, with no import cycle.
+"""Layers read top-down: ffmpc_core ← sim_bridge ← ffmpc_ros ← studies, with no import cycle.
 
 The checker (``tests/layer_check.py``) reads every module's AST: module-level and function-level
 imports, relative imports resolved, ``importlib.import_module("literal")``. The planted-violation
@@ -45,19 +45,45 @@ def test_no_import_cycle(level: str) -> None:
     assert not found, f"{level} import cycles: {found}"
 
 
-def test_sim_bridge_holds_the_plant_and_the_runner_only() -> None:
-    """No experiment in sim_bridge: those are in studies/, one layer up."""
+def test_sim_bridge_holds_the_plant_the_runner_and_the_scenes_only() -> None:
+    """No experiment in sim_bridge: those are in studies/, the top layer (scenes: the impact
+    and exploration scenarios as PyBullet plant configurations)."""
     modules = {p.stem for p in (ROOT / "sim_bridge").glob("*.py")}
-    assert modules == {"__init__", "plant", "runner"}
+    assert modules == {"__init__", "plant", "runner", "scenes"}
 
 
-def test_studies_sit_between_the_simulator_and_ros() -> None:
+def test_the_layer_order_is_core_simulator_ros_studies() -> None:
+    assert LAYERS == ("ffmpc_core", "sim_bridge", "ffmpc_ros", "studies")
+
+
+def test_studies_are_the_top_layer_and_ros_never_imports_them() -> None:
     edges = import_edges(ROOT)
-    studies = {e.imported.split(".")[0] for e in edges if e.importer.startswith("studies.")}
-    assert studies <= {"ffmpc_core", "sim_bridge", "studies"}
-    assert any(
-        e.importer.startswith("ffmpc_ros.") and e.imported.startswith("studies.") for e in edges
-    )  # the command line calls the studies
+    ros = {e.imported.split(".")[0] for e in edges if e.importer.startswith("ffmpc_ros.")}
+    assert "studies" not in ros, [
+        (e.importer, e.imported)
+        for e in edges
+        if e.importer.startswith("ffmpc_ros.") and e.imported.startswith("studies")
+    ]
+    assert ros <= {"ffmpc_core", "sim_bridge", "ffmpc_ros"}
+    # the studies' commands build on the command line's argument types and extension point
+    assert any(e.importer == "studies.cli" and e.imported.startswith("ffmpc_ros.") for e in edges)
+
+
+def test_the_old_arrow_ros_to_studies_is_reported(tmp_path: Path) -> None:
+    """The order before issue 14 (the command line importing the studies) now fails."""
+    root = _tree(
+        tmp_path,
+        {
+            "studies/impact_study.py": "from ffmpc_ros.cli_args import parse_overrides\n",
+            "ffmpc_ros/cli_args.py": "",
+            "ffmpc_ros/cli.py": "def f():\n    from studies.impact_study import run\n",
+        },
+    )
+    bad = layer_violations(import_edges(root))
+    assert [(e.importer, e.imported, e.line) for e in bad] == [
+        ("ffmpc_ros.cli", "studies.impact_study", 2)
+    ]
+    assert main([str(root)]) == 1
 
 
 def test_core_imports_neither_ros_nor_the_simulator() -> None:

@@ -12,6 +12,14 @@ import pytest
 import yaml
 
 from ffmpc_core.errors import ConfigError
+from ffmpc_core.impact.scenario import (
+    EXPLORATION_SCHEMA,
+    IMPACT_SCHEMA,
+    ExplorationConfig,
+    ImpactStudyConfig,
+    load_exploration_config,
+    load_impact_config,
+)
 from ffmpc_core.scenario import (
     BOOL,
     FLOAT,
@@ -27,12 +35,6 @@ from ffmpc_core.scenario import (
     public_name,
 )
 from ffmpc_ros.cli import main
-from studies.exploration import (
-    EXPLORATION_SCHEMA,
-    ExplorationConfig,
-    load_exploration_config,
-)
-from studies.impact_study import IMPACT_SCHEMA, ImpactStudyConfig, load_impact_config
 
 ONE_LINE = re.compile(r"^[\w.]+ = .+: (expected .+|unknown scenario parameter.*)$")
 

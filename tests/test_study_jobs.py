@@ -10,8 +10,9 @@ from dataclasses import replace
 import pytest
 from dask_helpers import running_cluster
 
-from studies.exploration import ExplorationConfig, run_exploration_study
-from studies.impact_study import ImpactStudyConfig, run_impact_study
+from ffmpc_core.impact.scenario import ExplorationConfig, ImpactStudyConfig
+from studies.exploration import run_exploration_study
+from studies.impact_study import run_impact_study
 
 #: Short exploration: one sine period and one impact per material (~3 s simulated each).
 EXPLORE = replace(ExplorationConfig(), sine_cycles=1, impact_velocities=(0.2,))

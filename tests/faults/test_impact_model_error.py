@@ -34,17 +34,18 @@ from ffmpc_core.impact.robust import (
     check_force_target,
     steady_penetration,
 )
-from ffmpc_core.impact.touch_first import TouchFirstConfig, TouchFirstImpactController
-from ffmpc_core.robots import load_robot
-from ffmpc_ros.cli import main as cli_main
-from studies.impact_study import (
+from ffmpc_core.impact.scenario import (
     DOWN,
     DiceConfig,
     ImpactStudyConfig,
     check_before_motion,
-    run_impact,
     start_configuration,
 )
+from ffmpc_core.impact.touch_first import TouchFirstConfig, TouchFirstImpactController
+from ffmpc_core.robots import load_robot
+from ffmpc_ros.cli import main as cli_main
+from sim_bridge.scenes import dice_box
+from studies.impact_study import run_impact
 
 PRIOR_K, PRIOR_B = 2400.0, 15.0
 ZBAR = 0.03
@@ -253,4 +254,4 @@ def test_single_contact_geometry_is_required():
         DiceConfig(collision_margin=0.09)
     cfg = ImpactStudyConfig()
     assert cfg.tool_radius + cfg.dice.collision_margin > cfg.dice.max_penetration
-    assert cfg.dice.box().collision_margin == cfg.dice.collision_margin
+    assert dice_box(cfg.dice).collision_margin == cfg.dice.collision_margin
