@@ -11,7 +11,6 @@ nothing heavy; each command imports its study when it runs.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 
 from ffmpc_core.errors import ConfigError
@@ -43,13 +42,8 @@ def _cmd_study(args: argparse.Namespace) -> int:
     kind = "polishing" if args.study == "polishing" else "force_square"
     overrides = _parse_overrides(args.set)
     load_scenario(args.scenario or kind, overrides)  # refuse a bad scenario before any import
-    if args.scheduler is not None and args.workers is not None:
-        raise ConfigError("--workers and --scheduler exclude each other (a cluster has workers)")
+    _check_execution_arguments(args)  # before any run (studies.study does not load PyBullet)
     use_cache = not args.no_cache
-    if args.out:  # refused before any run (studies.study does not load PyBullet)
-        from studies.study import check_output_dir
-
-        check_output_dir(args.out, args.force, resume=use_cache and not args.fresh)
     if args.plot_seed is not None and not (
         args.first_seed <= args.plot_seed < args.first_seed + args.seeds
     ):
@@ -113,12 +107,9 @@ def _cmd_study(args: argparse.Namespace) -> int:
     return 0 if report.document["runs"] else 1
 
 
-def _add_study_arguments(p: argparse.ArgumentParser, seeds: int, pid: str) -> None:
-    p.add_argument("--scenario", help="shipped scenario name or path to a scenario file")
-    p.add_argument(
-        "--seeds", type=positive_int, default=seeds, help=f"number of seeds (default {seeds})"
-    )
-    p.add_argument("--first-seed", type=seed_int, default=0, help="first seed (default 0)")
+def _add_execution_arguments(p: argparse.ArgumentParser) -> None:
+    """Where a study's runs go (studies.execute): ``--workers``, ``--scheduler``, ``--out`` and
+    its resume, ``--force``, ``--fresh``, ``--no-cache``; the same for every study."""
     p.add_argument(
         "--workers",
         type=positive_int,
@@ -137,14 +128,33 @@ def _add_study_arguments(p: argparse.ArgumentParser, seeds: int, pid: str) -> No
     )
     p.add_argument("--force", action="store_true", help="write into an existing --out")
     p.add_argument(
+        "--fresh", action="store_true", help="run every run again (results still go to the cache)"
+    )
+    p.add_argument("--no-cache", action="store_true", help="neither read nor write the run cache")
+
+
+def _check_execution_arguments(args: argparse.Namespace) -> None:
+    """Refuse conflicting or unusable execution flags before any run (and before PyBullet)."""
+    from studies.execute import check_output_dir
+
+    if args.scheduler is not None and args.workers is not None:
+        raise ConfigError("--workers and --scheduler exclude each other (a cluster has workers)")
+    if args.out:
+        check_output_dir(args.out, args.force, resume=not args.no_cache and not args.fresh)
+
+
+def _add_study_arguments(p: argparse.ArgumentParser, seeds: int, pid: str) -> None:
+    p.add_argument("--scenario", help="shipped scenario name or path to a scenario file")
+    p.add_argument(
+        "--seeds", type=positive_int, default=seeds, help=f"number of seeds (default {seeds})"
+    )
+    p.add_argument("--first-seed", type=seed_int, default=0, help="first seed (default 0)")
+    _add_execution_arguments(p)
+    p.add_argument(
         "--cache-dir",
         metavar="DIR",
         help="run cache directory, one JSON file per finished run (default OUT/cache)",
     )
-    p.add_argument(
-        "--fresh", action="store_true", help="run every run again (results still go to the cache)"
-    )
-    p.add_argument("--no-cache", action="store_true", help="neither read nor write the run cache")
     p.add_argument(
         "--duration", type=positive_float, help="simulated time per run, s (default: task)"
     )
@@ -285,8 +295,7 @@ def _study_overrides(args: argparse.Namespace, params: dict, shorthands: dict) -
 def _cmd_study_impact(args: argparse.Namespace) -> int:
     import shlex
 
-    if args.out and os.path.exists(args.out) and not args.force:  # before importing PyBullet
-        raise ConfigError(f"{args.out} exists: choose another --out or pass --force to overwrite")
+    _check_execution_arguments(args)  # before importing PyBullet
     from ffmpc_core.impact.scenario import IMPACT_SCHEMA, load_impact_config
     from studies.impact_study import default_out_dir, run_impact_study
 
@@ -300,6 +309,10 @@ def _cmd_study_impact(args: argparse.Namespace) -> int:
         force=args.force,
         progress=not args.no_progress,
         command_line=shlex.join(["ffmpc", *getattr(args, "argv", [])]),
+        workers=args.workers,
+        scheduler=args.scheduler,
+        cache=not args.no_cache,
+        fresh=args.fresh,
     )
     print(result.table)
     print(f"wall time {result.wall_time:.1f} s; files:")
@@ -333,10 +346,7 @@ def _add_impact_study_parser(study_sub: SubParsers) -> None:
         "penetration bound is refused before the strike. Exit 1 if a run never touched the "
         "dice or broke a limit, 2 on bad input or a refused target (the reason on stderr).",
     )
-    p.add_argument(
-        "--out", help="output directory, must not exist (default benchmarks/results/...)"
-    )
-    p.add_argument("--force", action="store_true", help="write into an existing --out")
+    _add_execution_arguments(p)
     p.add_argument(
         "--duration", type=positive_float, default=None, help="simulated s per run (default 4)"
     )
@@ -396,14 +406,28 @@ def _add_explore_study_parser(study_sub: SubParsers) -> None:
     def run(args: argparse.Namespace) -> int:
         from ffmpc_core.impact.scenario import EXPLORATION_SCHEMA, load_exploration_config
         from studies.exploration import format_checkpoints, format_summary, run_exploration_study
+        from studies.study import default_out_dir
 
+        _check_execution_arguments(args)
         overrides = _study_overrides(args, EXPLORATION_SCHEMA.params, EXPLORE_SHORTHANDS)
         cfg = load_exploration_config(args.scenario or "explore", overrides)
-        runs = run_exploration_study(tuple(args.materials), cfg, progress=not args.no_progress)
+        out = args.out or default_out_dir("explore")
+        runs = run_exploration_study(
+            tuple(args.materials),
+            cfg,
+            progress=not args.no_progress,
+            out_dir=out,
+            force=args.force,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            cache=not args.no_cache,
+            fresh=args.fresh,
+        )
         for r in runs:
             print("\n" + format_checkpoints(r))
         print("\nFinal relative errors vs the truth set in PyBullet:\n")
         print(format_summary(runs))
+        print(f"\nfiles: {out}/tables.md, {out}/results.json")
         bad = [r for r in runs if r.violations.total or not r.final.covers(r.material)]
         return 1 if bad else 0
 
@@ -438,7 +462,8 @@ def _add_explore_study_parser(study_sub: SubParsers) -> None:
         help="guarded approach, m/s (default 0.005)",
     )
     _add_study_config_arguments(p, "explore", "gains.position=300")
-    p.add_argument("--no-progress", action="store_true", help="no per-checkpoint lines")
+    _add_execution_arguments(p)
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(study_main=run)
 
 

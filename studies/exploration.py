@@ -562,6 +562,7 @@ def run_exploration_study(
     force: bool = False,
     workers: int | None = None,
     scheduler: str | None = None,
+    cache: bool = True,
     fresh: bool = False,
 ) -> list[ExplorationRun]:
     """Run the exploration on each named material of
@@ -569,16 +570,17 @@ def run_exploration_study(
     through :func:`studies.execute.execute_jobs` (a Dask ``LocalCluster`` of ``workers``
     processes by default, ``1`` in this process, or the workers of a running ``scheduler``).
     With ``out_dir`` (refused if it exists, unless ``force`` or it holds an interrupted study)
-    each finished run is cached in ``out_dir/cache`` (a restart reads them back) and
-    ``results.json`` and ``tables.md`` are written there. The runs come back without their time
-    series."""
+    ``results.json`` and ``tables.md`` are written there and, with ``cache``, each finished run
+    is cached in ``out_dir/cache`` (a restart reads them back; ``fresh`` runs them again). The
+    runs come back without their time series."""
     unknown = [name for name in materials if name not in MATERIALS]
     if unknown:
         raise ConfigError(f"unknown materials {unknown}; choose from {sorted(MATERIALS)}")
     if not materials:
         raise ConfigError("choose at least one material")
     cfg = base if base is not None else ExplorationConfig()
-    out = None if out_dir is None else prepare_output_dir(out_dir, force, resume=not fresh)
+    resume = cache and not fresh
+    out = None if out_dir is None else prepare_output_dir(out_dir, force, resume=resume)
     start = time.perf_counter()
     jobs = [ExplorationJob(replace(cfg, material=MATERIALS[name])) for name in materials]
     batch = execute_jobs(
@@ -587,13 +589,17 @@ def run_exploration_study(
         workers,
         progress,
         scheduler=scheduler,
-        cache=None if out is None else RunCache(out / "cache"),
+        cache=None if out is None or not cache else RunCache(out / "cache"),
         fresh=fresh,
     )
     failed = [o for o in batch.outcomes if o.summary is None]
     if failed:
         raise FfmpcError("; ".join(f"{o.spec.label} diverged: {o.error}" for o in failed))
     runs = [ExplorationRun.from_summary(o.summary or {}) for o in batch.outcomes]
+    if progress:
+        for r in runs:
+            for c in r.checkpoints:
+                print(_format_checkpoint_line(c, r.material), flush=True)
     if out is not None:
         tables = "\n\n".join([*(format_checkpoints(r) for r in runs), format_summary(runs)])
         (out / "tables.md").write_text(tables + "\n", encoding="utf-8")
@@ -606,7 +612,7 @@ def run_exploration_study(
                 "executed": batch.executed,
                 "cluster": batch.cluster,
                 "workers": batch.workers,
-                "cache_dir": str(out / "cache"),
+                "cache_dir": str(out / "cache") if cache else None,
             },
         }
         (out / "results.json").write_text(canonical_json(document) + "\n", encoding="utf-8")

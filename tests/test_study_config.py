@@ -200,8 +200,8 @@ def test_cli_study_explore_set_and_shorthands_reach_the_config(monkeypatch, tmp_
 
     seen = {}
 
-    def fake_study(materials, cfg, progress=True):
-        seen["materials"], seen["cfg"] = materials, cfg
+    def fake_study(materials, cfg, progress=True, **execution):
+        seen["materials"], seen["cfg"], seen["execution"] = materials, cfg, execution
         return []
 
     monkeypatch.setattr(exploration, "run_exploration_study", fake_study)
@@ -209,8 +209,11 @@ def test_cli_study_explore_set_and_shorthands_reach_the_config(monkeypatch, tmp_
     scenario.write_text("/**:\n  ros__parameters:\n    dwell: 0.5\n")
     argv = ["study", "explore", "--materials", "foam", "--scenario", str(scenario)]
     argv += ["--approach-speed", "0.004", "--set", "gains.velocity=30", "--set", "sine_cycles=2"]
+    argv += ["--out", str(tmp_path / "out"), "--workers", "2"]
     main(argv)
     cfg = seen["cfg"]
+    assert seen["execution"]["workers"] == 2 and seen["execution"]["scheduler"] is None
+    assert seen["execution"]["out_dir"] == str(tmp_path / "out")
     assert seen["materials"] == ("foam",)
     assert cfg == ExplorationConfig(
         dwell=0.5,
@@ -220,11 +223,15 @@ def test_cli_study_explore_set_and_shorthands_reach_the_config(monkeypatch, tmp_
     )
 
 
-def test_cli_study_explore_real_short_run(capsys):
+def test_cli_study_explore_real_short_run(capsys, tmp_path):
     code = main(
         [
             "study",
             "explore",
+            "--out",
+            str(tmp_path / "explore"),
+            "--workers",
+            "1",
             "--materials",
             "foam",
             "--set",

@@ -11,6 +11,7 @@ import pytest
 from dask_helpers import running_cluster
 
 from ffmpc_core.impact.scenario import ExplorationConfig, ImpactStudyConfig
+from ffmpc_ros.cli import main
 from studies.exploration import run_exploration_study
 from studies.impact_study import run_impact_study
 
@@ -86,3 +87,24 @@ def test_a_study_whose_results_were_lost_resumes_from_its_cache(in_process):
     )
     doc = json.loads((out / "impact" / "results.json").read_text())
     assert doc["execution"]["executed"] == 1
+
+
+def test_the_impact_command_takes_set_and_resumes_from_its_cache(tmp_path, capsys):
+    out = tmp_path / "impact"
+    argv = ["study", "impact", "--set", "plant.dice_stiffness=3300", "--runs"]
+    argv += ["baseline+admittance", "--duration", "1.6", "--workers", "1", "--out", str(out)]
+    assert main(argv) == 0
+    first = capsys.readouterr()
+    doc = json.loads((out / "results.json").read_text())
+    assert doc["config"]["dice"]["stiffness"] == 3300.0
+    assert doc["execution"]["executed"] == 1 and doc["runs"][0]["contact_time"] > 1.0
+    assert main(argv) == 2  # a finished study is not overwritten
+    assert "already exists" in capsys.readouterr().err
+    (out / "results.json").unlink()
+    assert main(argv) == 0
+    again = capsys.readouterr()
+    assert "1 runs: 1 from the cache" in again.err
+    table = [line for line in first.out.splitlines() if line.startswith("| baseline")]
+    assert table and table == [
+        line for line in again.out.splitlines() if line.startswith("| baseline")
+    ]
