@@ -19,7 +19,7 @@ import time
 
 from ffmpc_core.scenario import load_scenario
 from ffmpc_ros.bringup import run_graph
-from sim_bridge.runner import run_scenario
+from studies.polishing import run_polishing
 
 
 def _latency(status: dict) -> str:
@@ -47,7 +47,7 @@ def main(argv: list[str] | None = None) -> int:
         f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores"
     )
     start = time.perf_counter()
-    runner = run_scenario(scenario, duration=args.duration)
+    runner = run_polishing(scenario, duration=args.duration)
     wall = time.perf_counter() - start
     print(
         f"runner (ROS-free)        : {args.duration:.2f} s simulated in {wall:.2f} s "

@@ -19,7 +19,7 @@ import os
 from ffmpc_core.scenario import load_scenario
 from ffmpc_ros.bringup import run_graph
 from ffmpc_ros.cli_args import parse_overrides
-from sim_bridge.runner import run_scenario
+from studies.polishing import run_polishing
 
 CONFIGS = (
     ("normal, not pinned", None, 0),
@@ -66,7 +66,7 @@ def main() -> int:
                 f"{f(m['solve_p50_ms']):>9s} {t['fallback_time_s']:10.3f} "
                 f"{r.metrics_true.force_mae:7.2f}"
             )
-    lock = run_scenario(scenario, duration=args.duration)
+    lock = run_polishing(scenario, duration=args.duration)
     print(
         f"lockstep (ROS-free runner, equal to the lockstep graph): E_λ "
         f"{lock.metrics_true.force_mae:.2f} N, E_P {lock.metrics_true.position_mae_mm:.2f} mm; "

@@ -1,7 +1,7 @@
 """Fault injection: what can go wrong in a run, when, and for how long (ROS-free, reusable).
 
 A :class:`Fault` names a kind, a start time and a duration (simulated s). The ROS-free runner
-(``sim_bridge.runner.run_scenario(..., faults=[...])``) applies them; ``parse_fault`` reads the
+(``studies.polishing.run_polishing(..., faults=[...])``) applies them; ``parse_fault`` reads the
 command-line form ``KIND@T[+DURATION]`` (e.g. ``mpc-dropout@0.6+0.05``, ``nan-wrench@0.5``;
 without a duration the fault lasts to the end of the run) so that ``ffmpc run --fault`` can
 reuse it. Kinds:
@@ -50,7 +50,7 @@ FAULT_KINDS = (
 )
 #: The kinds a real-time run injects (``ffmpc_ros.realtime``): process stalls, given a duration.
 REALTIME_KINDS = ("loop-stall", "mpc-stall")
-#: The kinds the ROS-free runner (``sim_bridge.runner``) applies.
+#: The kinds the ROS-free run (``studies.polishing.run_polishing``) applies.
 RUNNER_KINDS = ("mpc-dropout", "sensor-dropout", "torque-spike", "nan-wrench")
 #: How far ahead of the clock a ``future-stamp`` message is stamped, s.
 FUTURE_STAMP_AHEAD = 1.0

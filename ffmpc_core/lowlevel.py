@@ -2,7 +2,7 @@
 
 Real MPC stacks never send a raw solver output straight to the motors. One class,
 :class:`LowLevelController`, holds the whole policy, used by BOTH the ROS-free runner
-(``sim_bridge.runner``) and the PID node (``ffmpc_ros.pid_node``):
+(``studies.polishing``) and the PID node (``ffmpc_ros.pid_node``):
 
 * **hold** — until the first MPC command, the safe hold of :meth:`LowLevelController.hold_torque`
   (below);

@@ -3,7 +3,7 @@
 Every device of the study (the random draws, the joint sensor, the force sensor, the actuation)
 owns one ``numpy.random.Generator`` spawned from the scenario seed in a fixed order
 (:func:`spawn_generators`), and every object of the loop is built from a
-:class:`~ffmpc_core.scenario.Scenario` by one function here. ``sim_bridge.runner`` and the nodes of
+:class:`~ffmpc_core.scenario.Scenario` by one function here. ``studies.polishing`` and the nodes of
 ``ffmpc_ros``/``ffmpc_ros.plant_node`` call the same functions, so both paths run the same numbers.
 
 :class:`StudyLog` and :func:`study_metrics` are the one place where a run's time series become

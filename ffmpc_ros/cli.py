@@ -32,7 +32,7 @@ EXIT_USAGE = 2
 #: Default port of ``ffmpc run --view`` (ffmpc_ros.view.DEFAULT_PORT).
 VIEW_PORT = 8765
 #: The commands of this package; an entry point of ``ffmpc.command`` may not take these names.
-BUILT_IN_COMMANDS = ("check", "demo", "bench", "run", "bag", "launch")
+BUILT_IN_COMMANDS = ("check", "bench", "run", "bag", "launch")
 
 
 class Parser(argparse.ArgumentParser):
@@ -80,18 +80,6 @@ def _cmd_check(args: argparse.Namespace) -> int:
             )
             status |= 0 if result.ok else 1
     return status
-
-
-def _cmd_bench_mpc(args: argparse.Namespace) -> int:
-    from ffmpc_core.bench_mpc import run_bench_mpc
-
-    return run_bench_mpc(args)
-
-
-def _cmd_demo(args: argparse.Namespace) -> int:
-    from ffmpc_ros.demo import run_demo
-
-    return run_demo(seed=args.seed)
 
 
 def _view_layout() -> str:
@@ -350,40 +338,8 @@ def build_parser() -> argparse.ArgumentParser:
     check.add_argument("--seed", type=seed_int, default=0, help="seed of the random states")
     check.set_defaults(func=_cmd_check)
 
-    demo = sub.add_parser(
-        "demo",
-        help="run the main demo",
-        description="Run the main demo: the three MPC formulations hold 50 N in closed loop with "
-        "their own dynamics, then the force-feedback MPC polishes in PyBullet with the paper's "
-        "imperfections; prints forces, solve times and the study's metrics.",
-    )
-    demo.add_argument("--seed", type=seed_int, default=0)
-    demo.set_defaults(func=_cmd_demo)
-
     bench = sub.add_parser("bench", help="benchmarks that print their figures")
     bench_sub = bench.add_subparsers(dest="bench", required=True)
-    bench_mpc = bench_sub.add_parser(
-        "mpc",
-        help="MPC step and solve time per formulation",
-        description="Median and p90 MPC step time (references, warm start and solve), median "
-        "solve time, iterations and iteration-cap hits of each formulation on the iiwa, at N=5, "
-        "dt=3 ms and N=20, dt=10 ms, and the ratio to crocoddyl's built-in classical contact "
-        "model on the same problem, measured in the same run.",
-    )
-    bench_mpc.add_argument("--solves", type=positive_int, default=200, help="MPC steps per case")
-    bench_mpc.add_argument("--seed", type=seed_int, default=0)
-    bench_mpc.add_argument(
-        "--cases",
-        nargs="+",
-        metavar="FORMULATION[:N]",
-        help="formulations to run (classical, torque_feedback, force_feedback), optionally "
-        "restricted to one configuration with :5 or :20 (default: all); the reference always "
-        "runs in each configuration used",
-    )
-    bench_mpc.add_argument(
-        "--json", metavar="FILE", type=output_file, help='also write {"cases": [...]} to FILE'
-    )
-    bench_mpc.set_defaults(func=_cmd_bench_mpc)
     add_extension_parsers(bench_sub, BENCH_GROUP, reserved=bench_sub.choices)
 
     # ffmpc study, ffmpc tune, ...: the commands of the packages above (studies/cli.py)

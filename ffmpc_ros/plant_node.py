@@ -47,7 +47,7 @@ from ffmpc_core.study import (
 )
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import StudyNode, run_node
-from sim_bridge.runner import simulated_robot
+from sim_bridge.scenes import simulated_robot
 
 STATUS_EVERY = 100  # cycles between two /plant/status messages
 

@@ -437,7 +437,7 @@ class RealtimeLoop:
         self.time_step = plant_node.time_step
         self.step_ns = plant_node.step_ns
         # plant (as ffmpc_ros.plant_node.PlantNode)
-        from sim_bridge.runner import simulated_robot
+        from sim_bridge.scenes import simulated_robot
 
         self.sim = simulated_robot(
             s, robot, device_generator(s.seed, "draws"), device_generator(s.seed, "actuation")

@@ -1,24 +1,38 @@
-"""The simulated scenes of the impact and exploration experiments: which PyBullet plant a
-scenario of :mod:`ffmpc_core.impact.scenario` runs on.
+"""The simulated scenes of the experiments: which PyBullet plant a scenario runs on.
 
-Plant-side only: the scenario (what the dice is, where, the tool radius) is pure data in
-``ffmpc_core``; this module turns it into a :class:`~sim_bridge.plant.PlantConfig` (no table, the
-fixed soft dice, the spherical tool). PyBullet is imported on first use of a function (through
-:mod:`sim_bridge.plant`), not to import this module, so a study's settings parse without it.
+Plant-side only: the scenario is pure data in ``ffmpc_core``; this module turns it into a
+:class:`~sim_bridge.plant.PlantConfig` and a plant. The polishing scenes
+(:class:`~ffmpc_core.scenario.Scenario`: the tilted table, the actuation model of eq 31, the
+external push; :func:`polishing_plant_config`, :func:`simulated_robot`, used by the ROS-free run,
+the plant node and the real-time loop alike) and the impact and exploration scenes
+(:mod:`ffmpc_core.impact.scenario`: no table, the fixed soft dice, the spherical tool).
+PyBullet is imported on first use of a function (through :mod:`sim_bridge.plant`), not to import
+this module, so a study's settings parse without it.
 
 Units: m, s, N/m, N·s/m; positions in the world frame.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ffmpc_core.actuation import ActuationModel
+from ffmpc_core.robots import RobotModel
+from ffmpc_core.scenario import Scenario
+from ffmpc_core.study import RunDraws, StudyTask, actuation_model, build_task, draw_run
 
 if TYPE_CHECKING:  # the plant imports PyBullet: loaded when a scene is built, not to parse
     from ffmpc_core.impact.scenario import DiceConfig, ImpactStudyConfig
-    from sim_bridge.plant import PlantConfig, SoftBoxConfig
+    from sim_bridge.plant import Plant, PlantConfig, SoftBoxConfig
 
 __all__ = [
     "EXPLORATION_TOOL_RADIUS",
+    "SimulatedRobot",
+    "polishing_plant_config",
+    "simulated_robot",
     "dice_box",
     "exploration_plant_config",
     "impact_plant_config",
@@ -72,4 +86,70 @@ def exploration_plant_config(dice: DiceConfig, time_step: float) -> PlantConfig:
         table=None,
         soft_boxes=(dice_box(dice),),
         tool=ToolConfig(radius=EXPLORATION_TOOL_RADIUS),
+    )
+
+
+def polishing_plant_config(scenario: Scenario, task: StudyTask, tilt: float) -> PlantConfig:
+    """Table tilted by θ about an axis through the circle centre (or the contact point)."""
+    from sim_bridge.plant import PlantConfig, TableConfig
+
+    p = scenario.plant
+    pivot = task.circle_center() if hasattr(task, "circle_center") else task.contact_position
+    table = TableConfig(
+        surface_point=tuple(pivot),
+        tilt_angle=tilt,
+        tilt_axis=p.table_tilt_axis,
+        stiffness=p.table_stiffness,
+        damping=p.table_damping,
+        lateral_friction=p.table_friction,
+    )
+    return PlantConfig(time_step=p.time_step, table=table)
+
+
+@dataclass
+class SimulatedRobot:
+    """The simulated side of one run, built from its scenario (:func:`simulated_robot`): the
+    run's random draws, the task, the actuation model of eq 31, the PyBullet plant reset to the
+    nominal posture, and the external push (cycle ``push_at``, −1 for none; ``push_steps``
+    cycles of ``push_force`` N, world frame). The ROS-free runner, the plant node and the
+    real-time loop all build it here, so they simulate the same robot."""
+
+    draws: RunDraws
+    task: StudyTask
+    actuation: ActuationModel
+    plant: Plant
+    push_at: int
+    push_steps: int
+    push_force: np.ndarray
+
+    def push_if_due(self, k: int) -> None:
+        """Start the external push when cycle k is its cycle."""
+        if k == self.push_at:
+            self.plant.apply_external_push(self.push_force, self.push_steps)
+
+
+def simulated_robot(
+    scenario: Scenario,
+    robot: RobotModel,
+    draw_rng: np.random.Generator,
+    actuation_rng: np.random.Generator,
+) -> SimulatedRobot:
+    """Draw the run (tilt, actuation bias) and build the task, actuation and plant of a scenario;
+    the generators are the run's ``draws`` and ``actuation`` devices (``spawn_generators``)."""
+    draws = draw_run(scenario, robot, draw_rng)
+    task = build_task(scenario, robot)
+    actuation = actuation_model(scenario, robot, draws, actuation_rng)
+    from sim_bridge.plant import Plant
+
+    plant = Plant(robot, polishing_plant_config(scenario, task, draws.tilt_angle))
+    plant.reset(robot.q_nominal)
+    p, dt = scenario.plant, scenario.plant.time_step
+    return SimulatedRobot(
+        draws=draws,
+        task=task,
+        actuation=actuation,
+        plant=plant,
+        push_at=int(round(p.push_time / dt)) if p.push_enabled else -1,
+        push_steps=int(round(p.push_duration / dt)),
+        push_force=np.array(p.push_force, dtype=float),
     )

@@ -563,3 +563,56 @@ class BenchImpactVerb(CommandExtension):
 
     def main(self, args: argparse.Namespace) -> int:
         return _cmd_bench_impact(args)
+
+
+class DemoCommand(CommandExtension):
+    """``ffmpc demo`` (``make demo``; entry point ``demo`` of ``ffmpc.command``): the demo of
+    studies/demo.py."""
+
+    help = "run the main demo"
+    description = (
+        "Run the main demo: the three MPC formulations hold 50 N in closed loop with their own "
+        "dynamics, then the force-feedback MPC polishes in PyBullet with the paper's "
+        "imperfections, through the ROS 2 node graph and the ROS-free run; prints forces, solve "
+        "times and the study's metrics (exit 1 if the graph and the run disagree)."
+    )
+
+    def add_arguments(self, parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("--seed", type=seed_int, default=0)
+
+    def main(self, args: argparse.Namespace) -> int:
+        from studies.demo import run_demo
+
+        return run_demo(seed=args.seed)
+
+
+class BenchMpcVerb(CommandExtension):
+    """``ffmpc bench mpc`` (entry point ``mpc`` of ``ffmpc.bench``): studies/bench_mpc.py."""
+
+    help = "MPC step and solve time per formulation"
+    description = (
+        "Median and p90 MPC step time (references, warm start and solve), median solve time, "
+        "iterations and iteration-cap hits of each formulation on the iiwa, at N=5, dt=3 ms and "
+        "N=20, dt=10 ms, and the ratio to crocoddyl's built-in classical contact model on the "
+        "same problem, measured in the same run."
+    )
+
+    def add_arguments(self, parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("--solves", type=positive_int, default=200, help="MPC steps per case")
+        parser.add_argument("--seed", type=seed_int, default=0)
+        parser.add_argument(
+            "--cases",
+            nargs="+",
+            metavar="FORMULATION[:N]",
+            help="formulations to run (classical, torque_feedback, force_feedback), optionally "
+            "restricted to one configuration with :5 or :20 (default: all); the reference "
+            "always runs in each configuration used",
+        )
+        parser.add_argument(
+            "--json", metavar="FILE", type=output_file, help='also write {"cases": [...]} to FILE'
+        )
+
+    def main(self, args: argparse.Namespace) -> int:
+        from studies.bench_mpc import run_bench_mpc
+
+        return run_bench_mpc(args)

@@ -1,7 +1,7 @@
 """The paper's simulation study (VI-C: Tables II–IV, Figs. 6–9) and Experiment 1 (VII-B).
 
 A study is a grid of closed-loop runs — formulations × torque PID on/off × seeds — each run being
-``run_scenario(load_scenario(name, overrides))`` with the overrides ``mpc.formulation``,
+``run_polishing(load_scenario(name, overrides))`` with the overrides ``mpc.formulation``,
 ``pid.enabled`` and ``seed`` (the seed draws the table tilt θ and the actuation bias (a, b), the
 same for every controller). A run is a pure function of its :class:`RunSpec`. Runs go to Dask
 (``distributed``): a ``LocalCluster`` of spawned single-thread worker processes by default
@@ -64,7 +64,7 @@ from studies.execute import (
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
 
-    from sim_bridge.runner import RunResult
+    from studies.polishing import RunResult
 
 #: Column titles of the paper's tables, per formulation.
 LABELS = {
@@ -205,7 +205,8 @@ def plot_log(result: RunResult, scenario: Scenario, step: float) -> dict[str, np
     ``window`` holds the [start, end] of the metrics window (s; NaN when empty).
     """
     from ffmpc_core.robots import load_robot
-    from sim_bridge.runner import build_task, plant_config
+    from ffmpc_core.study import build_task
+    from sim_bridge.scenes import polishing_plant_config as plant_config
 
     log = result.log
     dt = scenario.plant.time_step
@@ -239,11 +240,11 @@ def execute_run(spec: RunSpec) -> RunOutcome:
     """
     import pybullet
 
-    from sim_bridge.runner import run_scenario
+    from studies.polishing import run_polishing
 
     scenario = spec.load()
     try:
-        result = run_scenario(scenario, spec.duration)
+        result = run_polishing(scenario, spec.duration)
     except ConfigError:
         raise
     except (*DIVERGENCE_ERRORS, pybullet.error) as exc:

@@ -1,7 +1,7 @@
 """``ffmpc tune``: search one controller's cost weights with Optuna, the same way for all three.
 
 The objective of a set of weights is the mean over the training seeds of one polishing run each
-(:func:`sim_bridge.runner.run_scenario`, torque PID as in the scenario, metrics from the true
+(:func:`studies.polishing.run_polishing`, torque PID as in the scenario, metrics from the true
 normal force over the circle phase):
 
     J = E_λ + W·E_P + P_break·t_break + P_force·max(0, λmax − λ_limit)
@@ -127,7 +127,7 @@ def evaluate(
     duration: float | None = None,
 ) -> float:
     """Mean J over ``seeds`` of the scenario run with ``formulation`` and ``weights``."""
-    from sim_bridge.runner import run_scenario  # PyBullet loads only here
+    from studies.polishing import run_polishing  # PyBullet loads only here
 
     prefix = f"mpc.weights.{formulation}."
     overrides: dict[str, Any] = {"mpc.formulation": formulation}
@@ -135,7 +135,7 @@ def evaluate(
     total = 0.0
     for seed in seeds:
         try:
-            run = run_scenario(scenario.with_overrides({**overrides, "seed": seed}), duration)
+            run = run_polishing(scenario.with_overrides({**overrides, "seed": seed}), duration)
         except FfmpcError:
             total += FAILED_RUN_COST
             continue

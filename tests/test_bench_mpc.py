@@ -6,9 +6,9 @@ import json
 
 import pytest
 
-from ffmpc_core.bench_mpc import CONFIGURATIONS, parse_cases
 from ffmpc_core.errors import ConfigError
 from ffmpc_ros.cli import main
+from studies.bench_mpc import CONFIGURATIONS, parse_cases
 
 KEYS = {
     "formulation",

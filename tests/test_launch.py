@@ -26,7 +26,7 @@ from ffmpc_ros.launch import (
     substitute,
     unreached_sections,
 )
-from sim_bridge.runner import run_scenario
+from studies.polishing import run_polishing
 
 ROOT = Path(__file__).resolve().parents[1]
 SOURCE = ROOT / "ffmpc_ros" / "ros_layout" / "launch" / "polishing.launch.yaml"
@@ -138,7 +138,7 @@ def test_ffmpc_launch_runs_the_graph_and_equals_the_runner(tmp_path, namespace):
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     line = next(x for x in done.stdout.splitlines() if "metrics: {" in x)
     metrics = json.loads(line[line.index("{") :])
-    runner = run_scenario(load_scenario("polishing", {"mpc.formulation": "classical"}), 0.1)
+    runner = run_polishing(load_scenario("polishing", {"mpc.formulation": "classical"}), 0.1)
     assert metrics["metrics_true"] == runner.metrics_true.to_dict()
     assert metrics["metrics_measured"] == runner.metrics_measured.to_dict()
     assert "[launch] metrics exited with 0" in done.stdout
@@ -332,7 +332,7 @@ def test_ros2_launch_runs_the_graph_and_equals_the_runner(namespace):
     assert done.returncode == 0, output[-3000:]
     line = next(x for x in output.splitlines() if "metrics: {" in x)
     metrics = json.loads(line[line.index("{") :])
-    runner = run_scenario(load_scenario("polishing", {"mpc.formulation": "classical"}), 0.1)
+    runner = run_polishing(load_scenario("polishing", {"mpc.formulation": "classical"}), 0.1)
     assert metrics["metrics_true"] == runner.metrics_true.to_dict()
     assert metrics["metrics_measured"] == runner.metrics_measured.to_dict()
     assert "was required: shutting down launched system" in output  # on_exit: shutdown

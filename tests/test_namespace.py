@@ -20,7 +20,7 @@ from ffmpc_core.errors import ConfigError
 from ffmpc_core.scenario import load_scenario
 from ffmpc_ros import topics
 from ffmpc_ros.graph_nodes import params_file_key
-from sim_bridge.runner import run_scenario
+from studies.polishing import run_polishing
 
 #: Module constants of topics.py that hold strings but are no topic or service names.
 NOT_NAMES = {"WRENCH_FRAME", "COMMAND_FRAME", "ROOT_NAMESPACE", "CLOCK_REMAP_TARGET"}
@@ -137,7 +137,7 @@ def test_ffmpc_run_namespace_equals_the_runner_and_records_namespaced_names(tmp_
     argv += ["--formulation", "classical", "--record", str(bag), "--json", str(out)]
     assert main(argv) == 0, capfd.readouterr().err
     summary = json.loads(out.read_text())
-    runner = run_scenario(_scenario(1), duration=0.2)
+    runner = run_polishing(_scenario(1), duration=0.2)
     assert summary["namespace"] == "/arm1"
     assert summary["metrics_true"] == runner.metrics_true.to_dict()
     assert summary["metrics_measured"] == runner.metrics_measured.to_dict()
@@ -210,7 +210,7 @@ def test_two_graphs_side_by_side_on_one_domain():
     assert other.returncode == 0, err[-2000:]
     arm2 = json.loads(out)
     assert arm2["namespace"] == "/arm2"
-    runner2 = run_scenario(_scenario(2), duration=0.2)
+    runner2 = run_polishing(_scenario(2), duration=0.2)
     detail = {k: arm2.get(k) for k in ("rejected_messages", "plant_status", "warnings")}
     assert arm2["metrics_true"] == runner2.metrics_true.to_dict(), (detail, err[-3000:])
     assert arm2["metrics_measured"] == runner2.metrics_measured.to_dict()
@@ -218,4 +218,4 @@ def test_two_graphs_side_by_side_on_one_domain():
 
     assert "arm1" in results, "the /arm1 graph did not finish"
     assert results["arm1"].namespace == "/arm1"
-    assert_same_run(results["arm1"], run_scenario(_scenario(1), duration=0.2))
+    assert_same_run(results["arm1"], run_polishing(_scenario(1), duration=0.2))

@@ -26,7 +26,7 @@ from ffmpc_ros.realtime import (
     timing_failures,
     timing_report,
 )
-from sim_bridge.runner import run_scenario
+from studies.polishing import run_polishing
 
 TIMING_KEYS = (
     "deadline_met_fraction",
@@ -151,7 +151,7 @@ def test_lockstep_run_json_has_the_runner_metrics_and_every_deadline(tmp_path):
     args += ["--set", "mpc.formulation=classical", "--json", str(path)]
     assert main(args) == 0
     doc = json.loads(path.read_text())
-    runner = run_scenario(
+    runner = run_polishing(
         load_scenario("polishing", {"seed": 3, "mpc.formulation": "classical"}), duration=0.1
     )
     assert doc["mode"] == "lockstep" and doc["seed"] == 3

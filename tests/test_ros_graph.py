@@ -1,5 +1,5 @@
 """The whole node graph against the ROS-free runner: in lockstep, single-process and
-multi-process, every logged signal and both metric sets are bit-identical to ``run_scenario``
+multi-process, every logged signal and both metric sets are bit-identical to ``run_polishing``
 for the same scenario and seed (same objects, same float64 inputs — CDR carries doubles
 exactly —, same times t = k·time_step, same generators). Real time: tests/test_realtime.py."""
 
@@ -10,7 +10,7 @@ from ros_helpers import assert_same_run
 
 from ffmpc_core.scenario import load_scenario
 from ffmpc_ros.bringup import graph_parameters, run_graph, write_params_file
-from sim_bridge.runner import run_scenario
+from studies.polishing import run_polishing
 
 
 def test_single_process_graph_equals_the_runner_for_one_second():
@@ -20,7 +20,7 @@ def test_single_process_graph_equals_the_runner_for_one_second():
         "polishing", {"seed": 2, "mpc.formulation": "force_feedback", "mpc.riccati_feedback": True}
     )
     graph = run_graph(scenario, duration=1.0, single_process=True, timeout=120)
-    runner = run_scenario(scenario, duration=1.0)
+    runner = run_polishing(scenario, duration=1.0)
     assert_same_run(graph, runner)
     assert graph.log["force_true"].max() > 5.0  # the run reached the table
     status = graph.plant_status
@@ -31,7 +31,7 @@ def test_single_process_graph_equals_the_runner_for_one_second():
 def test_multi_process_graph_equals_the_runner():
     scenario = load_scenario("polishing", {"seed": 1, "mpc.formulation": "classical"})
     graph = run_graph(scenario, duration=0.2, single_process=False, timeout=120)
-    runner = run_scenario(scenario, duration=0.2)
+    runner = run_polishing(scenario, duration=0.2)
     assert_same_run(graph, runner)
 
 

@@ -16,7 +16,7 @@ from ffmpc_core.study import actuation_model, build_task, device_generator, draw
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.plant_node import PlantNode
 from sim_bridge.plant import Plant
-from sim_bridge.runner import plant_config
+from sim_bridge.scenes import polishing_plant_config as plant_config
 
 
 def _plant(ros, scenario, **graph):

@@ -1,4 +1,4 @@
-"""The ROS-free closed loop (sim_bridge.runner): determinism and force tracking.
+"""The ROS-free closed loop (studies.polishing): determinism and force tracking.
 
 Each run here is short (0.3–1.0 s of simulated time, ~1–3 s wall) with the paper's sensing and
 actuation imperfections on (noise, delays, random actuation bias, joint friction).
@@ -12,7 +12,7 @@ import pytest
 from ffmpc_core.metrics import limit_ratios
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
-from sim_bridge.runner import run_scenario
+from studies.polishing import run_polishing
 
 #: Contact from the first instant: the tool starts ON the believed table (start_height 0, and
 #: with circle_radius 0 the table pivots about the point under the tool, so the tilt cannot lift
@@ -33,15 +33,15 @@ def _comparable(summary: dict) -> dict:
 def test_same_seed_gives_identical_metrics_and_another_seed_does_not() -> None:
     overrides = {**EARLY_CONTACT, "task.force_ramp": 0.1, "seed": 7}
     scenario = load_scenario("polishing", overrides)
-    first = run_scenario(scenario, duration=0.3)
-    second = run_scenario(load_scenario("polishing", overrides), duration=0.3)
+    first = run_polishing(scenario, duration=0.3)
+    second = run_polishing(load_scenario("polishing", overrides), duration=0.3)
     assert _comparable(first.summary()) == _comparable(second.summary())
     for name, values in first.log.items():
         np.testing.assert_array_equal(values, second.log[name], err_msg=name)
     # The contact really happened (otherwise equality would be trivial).
     assert first.log["force_true"].max() > 5.0
 
-    other = run_scenario(load_scenario("polishing", {**overrides, "seed": 8}), duration=0.3)
+    other = run_polishing(load_scenario("polishing", {**overrides, "seed": 8}), duration=0.3)
     assert other.draws.tilt_angle != first.draws.tilt_angle
     assert other.draws.actuation_gain != first.draws.actuation_gain
     assert not np.array_equal(other.log["force_measured"], first.log["force_measured"])
@@ -65,7 +65,7 @@ def test_force_feedback_mpc_reaches_and_holds_the_force_target() -> None:
     )
     assert scenario.mpc.formulation == "force_feedback"
     assert scenario.ft_sensor.force_noise_std == 0.01 and scenario.plant.actuation_random_bias
-    result = run_scenario(scenario, duration=1.0)
+    result = run_polishing(scenario, duration=1.0)
     t, force = result.log["t"], result.log["force_true"]
     assert np.all(result.log["force_reference"][t >= 0.4] == pytest.approx(50.0))
     held = force[t >= t[-1] - 0.3]
@@ -88,7 +88,7 @@ def test_default_polishing_keeps_every_joint_below_its_velocity_limit() -> None:
     scenario = load_scenario("polishing")
     assert scenario.seed == 0 and scenario.mpc.formulation == "force_feedback"
     assert scenario.mpc.cost_weights().state_limit > 0.0
-    result = run_scenario(scenario, duration=5.0)
+    result = run_polishing(scenario, duration=5.0)
     assert result.log["t"][-1] >= 4.99
     ratios = limit_ratios(result.safety_log["v"], load_robot(scenario.robot).velocity_limit)[0]
     np.testing.assert_array_equal(ratios, result.max_velocity_ratio)

@@ -18,8 +18,8 @@ from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.metrics import PolishingMetrics, summarize
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
+from ffmpc_core.study import draw_run
 from ffmpc_ros.cli import main
-from sim_bridge.runner import draw_run
 from studies import study
 from studies.study import (
     RunSpec,
@@ -178,16 +178,16 @@ def test_output_directory_is_refused_unless_forced(tmp_path) -> None:
 
 
 def test_a_diverging_run_is_recorded_and_left_out_while_a_bug_propagates(monkeypatch) -> None:
-    import sim_bridge.runner as runner
+    import studies.polishing as polishing
 
-    real = runner.run_scenario
+    real = polishing.run_polishing
 
     def diverge_on_seed_1(scenario, duration=None):
         if scenario.seed == 1:
             raise InputError("measurement q is not finite: [nan ...]")
         return real(scenario, duration)
 
-    monkeypatch.setattr(runner, "run_scenario", diverge_on_seed_1)
+    monkeypatch.setattr(polishing, "run_polishing", diverge_on_seed_1)
     specs = grid_specs("polishing", ["classical"], [False], [0, 1], 0.3, SHORT)
     outcomes = run_specs(specs, workers=1, progress=False)
     assert outcomes[0].ok and not outcomes[1].ok
@@ -211,7 +211,7 @@ def test_a_diverging_run_is_recorded_and_left_out_while_a_bug_propagates(monkeyp
     def bug(scenario, duration=None):
         raise NameError("name 'SensingModel' is not defined")
 
-    monkeypatch.setattr(runner, "run_scenario", bug)
+    monkeypatch.setattr(polishing, "run_polishing", bug)
     with pytest.raises(NameError):
         execute_run(specs[0])
 

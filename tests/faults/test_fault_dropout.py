@@ -24,10 +24,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from ffmpc_core.faults import Fault
 from ffmpc_core.lowlevel import LowLevelMode
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
-from sim_bridge.runner import Fault, run_scenario
+from studies.polishing import run_polishing
 
 EARLY_CONTACT = {
     "task.still": 0.0,
@@ -57,7 +58,7 @@ def _after(result, robot, k: int = K_FAULT) -> tuple[float, float]:
 
 
 def test_mpc_dropout_in_contact_at_speed_never_back_stops_the_robot_within_limits(robot):
-    result = run_scenario(_scenario("force_feedback"), 1.2, [Fault("mpc-dropout", T_FAULT)])
+    result = run_polishing(_scenario("force_feedback"), 1.2, [Fault("mpc-dropout", T_FAULT)])
     log, mode = result.log, result.safety_log["mode"]
     # The worst moment: pressing and moving.
     assert log["force_true"][K_FAULT] > 40.0
@@ -80,7 +81,7 @@ def test_mpc_dropout_in_contact_at_speed_never_back_stops_the_robot_within_limit
 
 
 def test_mpc_dropout_then_back_blends_in_within_limits(robot):
-    result = run_scenario(_scenario("classical"), 1.2, ["mpc-dropout@0.7+0.1"])
+    result = run_polishing(_scenario("classical"), 1.2, ["mpc-dropout@0.7+0.1"])
     mode = result.safety_log["mode"]
     assert np.all(mode[703:800] == LowLevelMode.FALLBACK)
     assert mode[800] == LowLevelMode.BLEND and mode[-1] == LowLevelMode.TRACK
@@ -98,7 +99,7 @@ def test_mpc_dropout_then_back_blends_in_within_limits(robot):
     ],
 )
 def test_other_faults_keep_every_joint_within_its_limits(robot, fault, holds):
-    result = run_scenario(_scenario("force_feedback"), 0.9, [fault])
+    result = run_polishing(_scenario("force_feedback"), 0.9, [fault])
     mode = result.safety_log["mode"]
     v_ratio, tau_ratio = _after(result, robot)
     assert v_ratio <= 1.0 and tau_ratio <= 1.0, (v_ratio, tau_ratio)
@@ -116,7 +117,7 @@ def test_the_task_waits_for_an_mpc_that_comes_back_after_a_long_dropout():
     contact, circling). The MPC comes back with the task paused for the outage, so it does not
     race after a reference that ran on (before the pause: the wrist at 5.2× its velocity limit
     during the blend back). Every joint stays within its velocity and commanded-torque limits."""
-    result = run_scenario(load_scenario("polishing"), faults=[Fault("mpc-dropout", 2.0, 0.5)])
+    result = run_polishing(load_scenario("polishing"), faults=[Fault("mpc-dropout", 2.0, 0.5)])
     assert np.all(result.max_velocity_ratio <= 1.0), result.max_velocity_ratio
     assert np.all(result.max_torque_ratio <= 1.0), result.max_torque_ratio
     assert 0.49 <= result.safe_hold_s <= 0.6

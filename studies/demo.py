@@ -20,7 +20,7 @@ from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
 from ffmpc_core.selfcheck import require_sound_dynamics
 from ffmpc_core.tasks import PolishingTask
-from sim_bridge.runner import run_scenario
+from studies.polishing import run_polishing
 
 
 def run_demo(seed: int = 0) -> int:
@@ -58,7 +58,7 @@ def run_demo(seed: int = 0) -> int:
         f"start-up {graph.startup_time:.1f} s"
     )
     _print_metrics(graph.metrics_true, graph.metrics_measured)
-    result = run_scenario(scenario)
+    result = run_polishing(scenario)
     print(
         f"   ROS-free runner, same scenario and seed: {result.wall_time:.1f} s wall, table tilt "
         f"{np.rad2deg(result.draws.tilt_angle):+.2f} deg (unknown to the controller), "

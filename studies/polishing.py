@@ -1,6 +1,12 @@
-"""The ROS-free closed loop of the paper's simulation study (Fig. 2), in lockstep simulated time.
+"""One run of the force-feedback paper's polishing simulation (Fig. 2), ROS-free, in lockstep
+simulated time: :func:`run_polishing`.
 
-One plant cycle (``plant.time_step``, 1 ms by default) does, in this order:
+The closed loop is :func:`ffmpc_core.runner.run_scenario`, the one loop of every experiment;
+the scenario around it is :class:`ffmpc_core.polishing.PolishingLoop` (sensing, faults,
+actuation, log) with the controllers :class:`~ffmpc_core.polishing.MpcStage` and
+:class:`~ffmpc_core.polishing.LowLevelStage`, and the plant is the PyBullet scene of
+:func:`sim_bridge.scenes.simulated_robot`. One plant cycle (``plant.time_step``, 1 ms by default)
+does, in this order:
 
 1. read the true plant state at t;
 2. sensing (eq 30, 32): q̂, q̇̂, λ̂ = true values δs cycles ago + noise;
@@ -38,35 +44,26 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterable
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ffmpc_core import runner as closed_loop
-from ffmpc_core.actuation import ActuationModel
-from ffmpc_core.errors import (
-    ConfigError,  # noqa: F401  (re-exported for callers)
-)
 from ffmpc_core.faults import RUNNER_KINDS, Fault, faults_from, require_kinds
 from ffmpc_core.lowlevel import LowLevelMode
 from ffmpc_core.metrics import PolishingMetrics, limit_ratios
 from ffmpc_core.mpc import ModelPredictiveController
 from ffmpc_core.polishing import LowLevelStage, MpcStage, PolishingLoop
-from ffmpc_core.robots import RobotModel, load_robot
+from ffmpc_core.robots import load_robot
 from ffmpc_core.runner import LockstepClock
 from ffmpc_core.scenario import Scenario
 from ffmpc_core.study import (
     RunDraws,
     StudyLog,
-    StudyTask,
-    actuation_model,
-    build_task,
     command_delay,
-    draw_run,
     force_sensing_model,
     joint_sensing_model,
     lowlevel_controller,
-    measured_force,
     mpc_config,
     mpc_schedule,
     resolve_command_delay,
@@ -74,7 +71,9 @@ from ffmpc_core.study import (
     steps_per_mpc_period,
     study_metrics,
 )
-from sim_bridge.plant import Plant, PlantConfig, TableConfig
+from sim_bridge.scenes import simulated_robot
+
+__all__ = ["RunResult", "run_polishing"]
 
 _HOLD_MODES = (int(LowLevelMode.HOLD), int(LowLevelMode.FALLBACK))
 
@@ -133,73 +132,11 @@ class RunResult:
         }
 
 
-def plant_config(scenario: Scenario, task: StudyTask, tilt: float) -> PlantConfig:
-    """Table tilted by θ about an axis through the circle centre (or the contact point)."""
-    p = scenario.plant
-    pivot = task.circle_center() if hasattr(task, "circle_center") else task.contact_position
-    table = TableConfig(
-        surface_point=tuple(pivot),
-        tilt_angle=tilt,
-        tilt_axis=p.table_tilt_axis,
-        stiffness=p.table_stiffness,
-        damping=p.table_damping,
-        lateral_friction=p.table_friction,
-    )
-    return PlantConfig(time_step=p.time_step, table=table)
-
-
-@dataclass
-class SimulatedRobot:
-    """The simulated side of one run, built from its scenario (:func:`simulated_robot`): the
-    run's random draws, the task, the actuation model of eq 31, the PyBullet plant reset to the
-    nominal posture, and the external push (cycle ``push_at``, −1 for none; ``push_steps``
-    cycles of ``push_force`` N, world frame). The ROS-free runner, the plant node and the
-    real-time loop all build it here, so they simulate the same robot."""
-
-    draws: RunDraws
-    task: StudyTask
-    actuation: ActuationModel
-    plant: Plant
-    push_at: int
-    push_steps: int
-    push_force: np.ndarray
-
-    def push_if_due(self, k: int) -> None:
-        """Start the external push when cycle k is its cycle."""
-        if k == self.push_at:
-            self.plant.apply_external_push(self.push_force, self.push_steps)
-
-
-def simulated_robot(
-    scenario: Scenario,
-    robot: RobotModel,
-    draw_rng: np.random.Generator,
-    actuation_rng: np.random.Generator,
-) -> SimulatedRobot:
-    """Draw the run (tilt, actuation bias) and build the task, actuation and plant of a scenario;
-    the generators are the run's ``draws`` and ``actuation`` devices (``spawn_generators``)."""
-    draws = draw_run(scenario, robot, draw_rng)
-    task = build_task(scenario, robot)
-    actuation = actuation_model(scenario, robot, draws, actuation_rng)
-    plant = Plant(robot, plant_config(scenario, task, draws.tilt_angle))
-    plant.reset(robot.q_nominal)
-    p, dt = scenario.plant, scenario.plant.time_step
-    return SimulatedRobot(
-        draws=draws,
-        task=task,
-        actuation=actuation,
-        plant=plant,
-        push_at=int(round(p.push_time / dt)) if p.push_enabled else -1,
-        push_steps=int(round(p.push_duration / dt)),
-        push_force=np.array(p.push_force, dtype=float),
-    )
-
-
 def _median(values: list[float] | list[int]) -> float:
     return float(np.median(values)) if values else 0.0
 
 
-def run_scenario(
+def run_polishing(
     scenario: Scenario,
     duration: float | None = None,
     faults: Iterable[Fault | str] | None = None,
@@ -274,20 +211,3 @@ def run_scenario(
         },
         command_delay=round(command_delay(scenario), 12),
     )
-
-
-__all__ = [
-    "Fault",
-    "RunResult",
-    "SimulatedRobot",
-    "simulated_robot",
-    "RunDraws",
-    "run_scenario",
-    "build_task",
-    "draw_run",
-    "measured_force",
-    "mpc_config",
-    "plant_config",
-    "spawn_generators",
-    "asdict",
-]
