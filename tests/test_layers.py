@@ -45,11 +45,11 @@ def test_no_import_cycle(level: str) -> None:
     assert not found, f"{level} import cycles: {found}"
 
 
-def test_sim_bridge_holds_the_plant_the_runner_and_the_scenes_only() -> None:
-    """No experiment in sim_bridge: those are in studies/, the top layer (scenes: the impact
-    and exploration scenarios as PyBullet plant configurations)."""
+def test_sim_bridge_holds_the_plant_and_the_scenes_only() -> None:
+    """No experiment and no closed loop in sim_bridge: the experiments are in studies/, the top
+    layer, and the loop is ffmpc_core.runner (scenes: the scenarios as PyBullet plants)."""
     modules = {p.stem for p in (ROOT / "sim_bridge").glob("*.py")}
-    assert modules == {"__init__", "plant", "runner", "scenes"}
+    assert modules == {"__init__", "plant", "scenes"}
 
 
 def test_the_layer_order_is_core_simulator_ros_studies() -> None:
