@@ -223,6 +223,9 @@ def _cmd_tune(args: argparse.Namespace) -> int:
         duration=args.duration,
         out=args.out,
         overrides=_parse_overrides(args.set),
+        workers=args.workers,
+        scheduler=args.scheduler,
+        cache_dir=args.cache_dir,
     )
     resumed = len(result.values) - result.trials_run
     print(
@@ -251,6 +254,23 @@ def _add_tune_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--trials", type=positive_int, default=20, help="trials to add (default 20)")
     p.add_argument("--jobs", type=positive_int, default=1, help="trials at a time (default 1)")
+    p.add_argument(
+        "--workers",
+        type=positive_int,
+        default=None,
+        help="worker processes of a local Dask cluster running each trial's seeds (default: all "
+        "CPUs; 1: in this process)",
+    )
+    p.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="run the trials' runs on a running Dask cluster, e.g. tcp://127.0.0.1:8786",
+    )
+    p.add_argument(
+        "--cache-dir",
+        metavar="DIR",
+        help="run cache shared by the trials (and studies): a run already done is read back",
+    )
     p.add_argument(
         "--storage",
         default="tune.db",

@@ -20,7 +20,8 @@ import hashlib
 import json
 import os
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
@@ -40,6 +41,7 @@ __all__ = [
     "RunCache",
     "RunOutcome",
     "canonical_json",
+    "dask_cluster",
     "check_output_dir",
     "prepare_output_dir",
     "execute_jobs",
@@ -276,6 +278,7 @@ def execute_jobs(
     cache: RunCache | None = None,
     fresh: bool = False,
     announce: Callable[[str], None] | None = None,
+    client: Client | None = None,
 ) -> RunBatch:
     """Run every job not in ``cache`` (unless ``fresh``) with ``runner`` (a module-level
     function: Dask pickles it) and store each new result there.
@@ -290,9 +293,14 @@ def execute_jobs(
         fresh: run everything again (the new results still go to ``cache``).
         progress: a tqdm bar on stderr and, by default, the lines of ``announce``.
         announce: where the one-line messages go (cluster, dashboard, cached vs to run).
+        client: a Dask client kept open across batches (:func:`dask_cluster`, e.g. one per
+            tuning search): its workers run the jobs and it is left open; excludes ``workers``
+            and ``scheduler``.
     """
     from tqdm import tqdm
 
+    if client is not None and (scheduler is not None or workers is not None):
+        raise ConfigError("a shared Dask client excludes workers and scheduler")
     if scheduler is not None and workers is not None:
         raise ConfigError("--workers and --scheduler exclude each other (a cluster has workers)")
     workers = (os.cpu_count() or 1) if workers is None else int(workers)
@@ -317,6 +325,8 @@ def execute_jobs(
     n_cached = len(specs) - len(todo)
     if not todo:
         where, workers = "none (every run from the cache)", 0
+    elif client is not None:
+        where = client.scheduler.address
     elif scheduler is None and (workers == 1 or len(todo) == 1):
         where, workers = "in-process", 1
     else:
@@ -353,7 +363,11 @@ def execute_jobs(
     elif todo:
         from distributed import as_completed as dask_completed
 
-        client, cluster = _dask_client(min(workers, len(todo)), scheduler)
+        shared = client is not None
+        if client is not None:
+            cluster = None
+        else:
+            client, cluster = _dask_client(min(workers, len(todo)), scheduler)
         futures = []
         try:
             workers = len(client.scheduler_info().get("workers", {}))
@@ -373,7 +387,8 @@ def execute_jobs(
         finally:
             # Done, a bug or Ctrl-C: queued runs are dropped, the finished ones are cached.
             client.cancel(futures)
-            client.close()
+            if not shared:
+                client.close()
             if cluster is not None:
                 cluster.close()
     done = [o for o in outcomes if o is not None]
@@ -401,3 +416,30 @@ def prepare_output_dir(out: str | os.PathLike, force: bool = False, resume: bool
     path = Path(out)
     path.mkdir(parents=True, exist_ok=True)
     return path
+
+
+@contextmanager
+def dask_cluster(
+    workers: int | None = None, scheduler: str | None = None
+) -> Iterator[Client | None]:
+    """A Dask client for several :func:`execute_jobs` batches (pass it as ``client``): a
+    ``LocalCluster`` of ``workers`` spawned processes (default ``os.cpu_count()``), or the
+    workers of a running ``scheduler``; None with ``workers == 1`` (every batch in this
+    process). Closed, with its cluster, on exit."""
+    if scheduler is not None and workers is not None:
+        raise ConfigError("--workers and --scheduler exclude each other (a cluster has workers)")
+    count = (os.cpu_count() or 1) if workers is None else int(workers)
+    if count < 1:
+        raise ConfigError(f"workers must be >= 1, got {count}")
+    if scheduler is None and count == 1:
+        yield None
+        return
+    client, cluster = _dask_client(count, scheduler)
+    try:
+        address = client.scheduler.address
+        _stderr(f"Dask {scheduler or 'LocalCluster'} at {address}; dashboard: {_dashboard(client)}")
+        yield client
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()

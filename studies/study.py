@@ -62,6 +62,7 @@ from studies.execute import (
 )
 
 if TYPE_CHECKING:
+    from distributed import Client
     from matplotlib.axes import Axes
 
     from studies.polishing import RunResult
@@ -338,6 +339,7 @@ def execute_specs(
     cache: RunCache | None = None,
     fresh: bool = False,
     announce: Callable[[str], None] | None = None,
+    client: Client | None = None,
 ) -> RunBatch:
     """Check the grid (:func:`validate_specs`), then :func:`studies.execute.execute_jobs` with
     ``runner`` (default :func:`execute_run`)."""
@@ -351,6 +353,7 @@ def execute_specs(
         cache=cache,
         fresh=fresh,
         announce=announce,
+        client=client,
     )
 
 

@@ -2,13 +2,15 @@
 
 The objective of a set of weights is the mean over the training seeds of one polishing run each
 (:func:`studies.polishing.run_polishing`, torque PID as in the scenario, metrics from the true
-normal force over the circle phase):
+normal force over the circle phase), each run a job of :func:`studies.execute.execute_jobs` (on
+the search's Dask cluster, ``--workers``/``--scheduler``, or in this process; cached with
+``--cache-dir``):
 
     J = E_λ + W·E_P + P_break·t_break + P_force·max(0, λmax − λ_limit)
 
 with E_λ in N, E_P in mm, t_break in % and λmax in N (:class:`Objective`; defaults:
 W = 0.5 N/mm, P_break = 10 N per % of the circle out of contact, P_force = 1 per N above
-λ_limit = 150 N). A run that fails (an exception of ffmpc) costs ``FAILED_RUN_COST``.
+λ_limit = 150 N). A run that diverges costs ``FAILED_RUN_COST``.
 
 The search (seeded TPE sampler) keeps its trials in an Optuna RDB storage (an SQLite file by
 default), so a search that is stopped resumes where it stood: the same ``--storage`` and
@@ -27,13 +29,17 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
 
-from ffmpc_core.errors import ConfigError, FfmpcError
+from ffmpc_core.errors import ConfigError
 from ffmpc_core.scenario import ANY_NAMESPACE, Scenario, load_scenario, resolve_scenario_path
+from studies.execute import RunCache, dask_cluster
+
+if TYPE_CHECKING:
+    from distributed import Client
 
 #: Cost of a trial whose run failed (an FfmpcError), in the objective's units.
 FAILED_RUN_COST = 1e4
@@ -119,28 +125,47 @@ def current_weights(scenario: Scenario, formulation: str) -> dict[str, float]:
 
 
 def evaluate(
-    scenario: Scenario,
+    scenario_name: str,
     formulation: str,
     weights: dict[str, float],
     seeds: list[int],
     objective: Objective,
     duration: float | None = None,
+    overrides: dict[str, Any] | None = None,
+    *,
+    client: Client | None = None,
+    cache: RunCache | None = None,
 ) -> float:
-    """Mean J over ``seeds`` of the scenario run with ``formulation`` and ``weights``."""
-    from studies.polishing import run_polishing  # PyBullet loads only here
+    """Mean J over ``seeds`` of the scenario run with ``formulation`` and ``weights``: one
+    polishing job per seed (:class:`studies.study.RunSpec`, PID as in the scenario) through
+    :func:`studies.execute.execute_jobs`, on the Dask ``client``'s workers (None: in this
+    process), reading and writing the run ``cache``."""
+    from studies.study import RunSpec, execute_specs
 
+    scenario = load_scenario(scenario_name, overrides or {})
     prefix = f"mpc.weights.{formulation}."
-    overrides: dict[str, Any] = {"mpc.formulation": formulation}
-    overrides.update({prefix + k: float(v) for k, v in weights.items()})
+    settings = dict(overrides or {}) | {prefix + k: float(v) for k, v in weights.items()}
+    specs = [
+        RunSpec(
+            scenario_name,
+            formulation,
+            scenario.pid.enabled,
+            seed,
+            duration,
+            overrides=tuple(settings.items()),
+        )
+        for seed in seeds
+    ]
+    batch = execute_specs(specs, 1 if client is None else None, False, cache=cache, client=client)
     total = 0.0
-    for seed in seeds:
-        try:
-            run = run_polishing(scenario.with_overrides({**overrides, "seed": seed}), duration)
-        except FfmpcError:
+    for outcome in batch.outcomes:
+        if outcome.summary is None:  # the run diverged (its error is in the outcome)
             total += FAILED_RUN_COST
             continue
-        m = run.metrics_true
-        value = objective.of(m.force_mae, m.position_mae_mm, m.contact_break_percent, m.max_force)
+        m = outcome.summary["metrics_true"]
+        value = objective.of(
+            m["force_mae"], m["position_mae_mm"], m["contact_break_percent"], m["max_force"]
+        )
         total += value if math.isfinite(value) else FAILED_RUN_COST
     return total / len(seeds)
 
@@ -158,6 +183,10 @@ def tune(
     duration: float | None = None,
     out: str | Path | None = None,
     overrides: dict[str, Any] | None = None,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    cache_dir: str | Path | None = None,
 ) -> TuneResult:
     """Run (or resume) the search and write the best weights to ``out`` (if given).
 
@@ -174,6 +203,11 @@ def tune(
         duration: simulated time per run, s (default: the task's).
         out: scenario file to write with the best weights (must not exist).
         overrides: dotted-name scenario overrides for every run.
+        workers, scheduler: where each trial's runs go (:func:`studies.execute.dask_cluster`,
+            one cluster for the whole search: a LocalCluster of ``workers`` processes, the
+            workers of a running ``scheduler``, or this process with ``workers=1``).
+        cache_dir: a run cache shared by the trials (and with studies): a run already done,
+            the same scenario, weights, seed and duration, is read back, not run again.
     """
     import optuna
 
@@ -210,14 +244,27 @@ def tune(
         study.enqueue_trial(current_weights(scenario, formulation))
     names = searched_names(formulation)
 
-    def run_trial(trial: optuna.Trial) -> float:
-        weights = {
-            n: trial.suggest_float(n, SEARCH_SPACE[n][0], SEARCH_SPACE[n][1], log=True)
-            for n in names
-        }
-        return evaluate(scenario, formulation, weights, seeds, objective, duration)
+    cache = None if cache_dir is None else RunCache(cache_dir)
+    with dask_cluster(workers, scheduler) as client:
 
-    study.optimize(run_trial, n_trials=trials, n_jobs=jobs)
+        def run_trial(trial: optuna.Trial) -> float:
+            weights = {
+                n: trial.suggest_float(n, SEARCH_SPACE[n][0], SEARCH_SPACE[n][1], log=True)
+                for n in names
+            }
+            return evaluate(
+                scenario_name,
+                formulation,
+                weights,
+                seeds,
+                objective,
+                duration,
+                overrides,
+                client=client,
+                cache=cache,
+            )
+
+        study.optimize(run_trial, n_trials=trials, n_jobs=jobs)
     complete = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
     best = study.best_trial
     best_value = float(best.value) if best.value is not None else math.inf

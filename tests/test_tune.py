@@ -43,8 +43,11 @@ def test_a_few_trials_improve_the_objective_and_the_search_resumes(tmp_path, cap
         storage=str(db),
         duration=DURATION,
         sampler_seed=3,
+        workers=1,
+        cache_dir=tmp_path / "cache",
     )
     assert len(first.values) == 4 and first.trials_run == 4
+    assert len(list((tmp_path / "cache").glob("*.json"))) == 4  # one run per trial
     assert first.best_value < first.values[0]  # better than the scenario's own weights
     assert db.is_file()
     # Resumed through the command line: the 4 trials are loaded, 2 more are added.
@@ -66,9 +69,14 @@ def test_a_few_trials_improve_the_objective_and_the_search_resumes(tmp_path, cap
             str(DURATION),
             "--out",
             str(out),
+            "--workers",
+            "2",
+            "--cache-dir",
+            str(tmp_path / "cache"),
         ]
     )
     assert code == 0
+    assert len(list((tmp_path / "cache").glob("*.json"))) == 6  # the 2 new trials ran on Dask
     printed = capsys.readouterr().out
     assert "6 trials" in printed and "(4 resumed)" in printed
     tuned = load_scenario(out)
@@ -84,4 +92,4 @@ def test_a_few_trials_improve_the_objective_and_the_search_resumes(tmp_path, cap
     for name in searched_names("classical"):  # the file holds the best trial's weights
         assert written[name] == pytest.approx(study.best_params[name])
     with pytest.raises(ConfigError):  # never overwritten
-        tune("polishing", "classical", [1000], 1, str(db), duration=DURATION, out=out)
+        tune("polishing", "classical", [1000], 1, str(db), duration=DURATION, out=out, workers=1)
