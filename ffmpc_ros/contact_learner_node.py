@@ -35,6 +35,8 @@ Service ``/contact_learner/reset`` (std_srvs/Trigger): forget every sample and t
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pinocchio as pin
 from std_msgs.msg import Float64MultiArray
@@ -64,7 +66,7 @@ class ContactLearnerNode(MeasuredCycleNode):
         estimate: the newest published estimate (None before). published: estimates published.
     """
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__("contact_learner", **kwargs)
         p = self.params
         self.robot = load_robot(self.scenario.robot)
@@ -207,7 +209,7 @@ class ContactLearnerNode(MeasuredCycleNode):
         return response
 
 
-def main(argv=None) -> int:
+def main(argv: list[str] | None = None) -> int:
     return run_node(ContactLearnerNode, __doc__.splitlines()[0], argv)
 
 

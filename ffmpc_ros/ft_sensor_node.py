@@ -23,6 +23,7 @@ when that mean is implausible (``ffmpc_core.sensing.ForceTare``, ``ffmpc_core.pl
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from geometry_msgs.msg import WrenchStamped
@@ -39,7 +40,7 @@ from ffmpc_ros.base import StudyNode, run_node
 class FtSensorNode(StudyNode):
     """Eq 32 plus tare, filter and contact detection (see the module docstring)."""
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__("ft_sensor", **kwargs)
         s = self.scenario
         fs = s.ft_sensor
@@ -125,7 +126,7 @@ class FtSensorNode(StudyNode):
         return response
 
 
-def main(argv=None) -> int:
+def main(argv: list[str] | None = None) -> int:
     return run_node(FtSensorNode, __doc__.splitlines()[0], argv)
 
 

@@ -56,6 +56,7 @@ from __future__ import annotations
 
 import math
 import time
+from typing import Any
 
 import numpy as np
 from geometry_msgs.msg import TwistStamped
@@ -161,7 +162,7 @@ class ImpactPlannerNode(MeasuredCycleNode):
         the prior). safe_stops: safe stops published. last_command: the newest command.
     """
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__("impact_planner", **kwargs)
         p = self.params
         self.robot = load_robot(self.scenario.robot)
@@ -428,7 +429,7 @@ class ImpactPlannerNode(MeasuredCycleNode):
         return response
 
 
-def main(argv=None) -> int:
+def main(argv: list[str] | None = None) -> int:
     return run_node(ImpactPlannerNode, __doc__.splitlines()[0], argv)
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import time
+from typing import Any
 
 import numpy as np
 from geometry_msgs.msg import WrenchStamped
@@ -39,7 +40,7 @@ _PARTS = ("q", "force_true", "force_measured", "tau_desired", "tau_measured", "t
 class MetricsNode(StudyNode):
     """Recorder + metrics (see the module docstring)."""
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__("metrics", **kwargs)
         s = self.scenario
         self.robot = load_robot(s.robot)
@@ -207,7 +208,7 @@ class MetricsNode(StudyNode):
         return self.metrics is not None
 
 
-def main(argv=None) -> int:
+def main(argv: list[str] | None = None) -> int:
     return run_node(MetricsNode, __doc__.splitlines()[0], argv)
 
 

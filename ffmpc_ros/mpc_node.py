@@ -55,6 +55,7 @@ from __future__ import annotations
 
 import contextlib
 import gc
+from typing import Any
 
 import numpy as np
 from ffmpc_msgs.msg import MpcCommand as MpcCommandMsg
@@ -88,7 +89,7 @@ WARM_UP_SOLVES = 20  # real time: solves before the node subscribes to its input
 class MpcNode(StudyNode):
     """ModelPredictiveController on topics (see the module docstring)."""
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__("mpc", **kwargs)
         s = self.scenario
         self.robot = load_robot(s.robot)
@@ -473,7 +474,7 @@ class MpcNode(StudyNode):
         return [f"{failed} solves failed"] if failed else []
 
 
-def main(argv=None) -> int:
+def main(argv: list[str] | None = None) -> int:
     return run_node(MpcNode, __doc__.splitlines()[0], argv)
 
 

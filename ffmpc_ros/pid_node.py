@@ -56,7 +56,7 @@ _KEEP = 50  # cycles of pending inputs kept
 class PidNode(StudyNode):
     """LowLevelController on topics (see the module docstring)."""
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__("pid", **kwargs)
         s = self.scenario
         self.robot = load_robot(s.robot)
@@ -271,7 +271,7 @@ class PidNode(StudyNode):
         return []
 
 
-def main(argv=None) -> int:
+def main(argv: list[str] | None = None) -> int:
     return run_node(PidNode, __doc__.splitlines()[0], argv)
 
 

@@ -82,6 +82,7 @@ import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import rclpy
@@ -119,6 +120,9 @@ from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import StudyNode
 from ffmpc_ros.command_msg import command_fields
 from ffmpc_ros.params import parameter_overrides
+
+if TYPE_CHECKING:  # (sim_bridge, PyBullet, is imported only when a loop runs)
+    from sim_bridge.plant import PlantState
 
 #: A run fails when more than this fraction of the loop's or the MPC's deadlines was missed.
 MAX_MISSED_FRACTION = 0.01
@@ -278,6 +282,7 @@ class _StallSchedule:
             if fault.kind == "loop-stall":
                 time.sleep(duration)
             elif self.stopped is None:
+                assert self.mpc_pid is not None  # __init__ refuses an mpc-stall without it
                 os.kill(self.mpc_pid, signal.SIGSTOP)
                 self.stopped = time.perf_counter() + duration
 
@@ -503,7 +508,14 @@ class RealtimeLoop:
         self.rejected[kind] = self.rejected.get(kind, 0) + 1
         self.nodes["pid"].reject(kind, message)
 
-    def _take_commands(self, k: int, arrival: np.ndarray, latency: np.ndarray, sent, solve):
+    def _take_commands(
+        self,
+        k: int,
+        arrival: np.ndarray,
+        latency: np.ndarray,
+        sent: np.ndarray,
+        solve: list[float],
+    ) -> None:
         """Take every command that arrived; note the cycle at which each arrived."""
         sub = self.sub_command
         now = time.perf_counter()
@@ -541,7 +553,9 @@ class RealtimeLoop:
             except InputError as exc:
                 self._reject(f"{self._command_topic}:value", str(exc))
 
-    def _joint_msg(self, stamp, q, v, effort) -> JointState:
+    def _joint_msg(
+        self, stamp: TimeMsg, q: np.ndarray | None, v: np.ndarray | None, effort: np.ndarray
+    ) -> JointState:
         msg = JointState()
         msg.header.stamp = stamp
         msg.name = self.joint_names
@@ -552,7 +566,12 @@ class RealtimeLoop:
         msg.effort = effort.tolist()
         return msg
 
-    def _wrench_msg(self, stamp, force: np.ndarray, moment=None) -> WrenchStamped:
+    def _wrench_msg(
+        self,
+        stamp: TimeMsg,
+        force: Sequence[float] | np.ndarray,
+        moment: np.ndarray | None = None,
+    ) -> WrenchStamped:
         msg = WrenchStamped()
         msg.header.stamp = stamp
         msg.header.frame_id = topics.WRENCH_FRAME
@@ -582,7 +601,7 @@ class RealtimeLoop:
         time.sleep(self.start_delay)
 
     # -- the run ---------------------------------------------------------------------------------
-    def run(self) -> dict:
+    def run(self) -> dict[str, Any]:
         """Run every cycle on the wall clock; returns the raw per-cycle records.
 
         A cycle whose release is a whole period past when the loop gets to it is **missed**
@@ -593,7 +612,7 @@ class RealtimeLoop:
         each later one whose start passed meanwhile run under the held torque, then it is
         delivered. The loop resumes at the first release still ahead, on the same grid."""
         n, nv, dt = self.steps, self.robot.nv, self.time_step
-        rec = {
+        rec: dict[str, Any] = {
             "q": np.zeros((n, nv)),
             "v": np.zeros((n, nv)),
             "force_true": np.zeros(n),
@@ -700,7 +719,9 @@ class RealtimeLoop:
         rec["stalls"] = stalls.report()
         return rec
 
-    def _missed_cycle(self, rec: dict, k: int, held: np.ndarray, state, f_hat: np.ndarray):
+    def _missed_cycle(
+        self, rec: dict[str, Any], k: int, held: np.ndarray, state: PlantState, f_hat: np.ndarray
+    ) -> tuple[np.ndarray, PlantState]:
         """Cycle k missed by the loop: the sensor devices sample (their delay lines keep time,
         nothing is published), the plant steps under the held motor torque through the actuation
         model (eq 31), and the cycle is recorded as missed (the mode and desired torque of the
@@ -719,7 +740,16 @@ class RealtimeLoop:
         return tau_hat, self.plant.state()
 
     @staticmethod
-    def _record(rec, k, q_true, v_true, force_true, f_hat, tau_hat, motor) -> None:
+    def _record(
+        rec: dict[str, Any],
+        k: int,
+        q_true: np.ndarray,
+        v_true: np.ndarray,
+        force_true: float,
+        f_hat: np.ndarray,
+        tau_hat: np.ndarray,
+        motor: np.ndarray,
+    ) -> None:
         rec["q"][k] = q_true
         rec["v"][k] = v_true
         rec["force_true"][k] = force_true
@@ -727,7 +757,16 @@ class RealtimeLoop:
         rec["tau_measured"][k] = tau_hat
         rec["tau_motor"][k] = motor
 
-    def _publish_observers(self, k, stamp, q_true, force_true, out, tau_hat, state) -> None:
+    def _publish_observers(
+        self,
+        k: int,
+        stamp: TimeMsg,
+        q_true: np.ndarray,
+        force_true: float,
+        out: LowLevelOutput | None,
+        tau_hat: np.ndarray,
+        state: PlantState,
+    ) -> None:
         """The topics no controller reads, only while someone subscribes."""
         act = self._active
         if act["plant_joints"] or act["plant_wrench"] or act["truth"]:
@@ -985,6 +1024,8 @@ def run_realtime(
     warnings: list[str] = []
     if cpus == "auto":
         cpus = default_cpus()
+    elif isinstance(cpus, str):
+        raise RealtimeError(f"cpus: 'auto', None or (loop CPU, MPC CPU), got {cpus!r}")
     with tempfile.TemporaryDirectory(prefix="ffmpc_rt_") as tmp:
         path = os.path.join(tmp, "graph_params.yaml")
         write_params_file({n: v for n, v in params.items() if n in NODES}, path, namespace)
@@ -1006,11 +1047,11 @@ def run_realtime(
             for name, cmd in commands.items():
                 if name == "loop":  # (the MPC started first: the loop may stop it, mpc-stall)
                     cmd[-len(ros) : -len(ros)] = ["--mpc-pid", str(children["mpc"].pid)]
-                log = open(os.path.join(tmp, f"{name}.log"), "w") if quiet else None  # noqa: SIM115
+                log_file = open(os.path.join(tmp, f"{name}.log"), "w") if quiet else None  # noqa: SIM115
                 child = subprocess.Popen(
                     cmd,
                     env=env,
-                    stdout=log,
+                    stdout=log_file,
                     stderr=subprocess.STDOUT if quiet else None,
                     start_new_session=True,
                     preexec_fn=_die_with_parent,  # noqa: PLW1509  (the parent has no threads)

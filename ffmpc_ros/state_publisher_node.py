@@ -27,6 +27,8 @@ the graph: the lockstep loop does not wait for it.
 
 from __future__ import annotations
 
+from typing import Any
+
 import pinocchio as pin
 from geometry_msgs.msg import TransformStamped
 from rclpy.lifecycle import LifecycleState, TransitionCallbackReturn
@@ -48,7 +50,7 @@ from ffmpc_ros.robot_tree import (
 class StatePublisherNode(StudyNode):
     """robot_description, /tf_static and /tf of the scenario's robot (module docstring)."""
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__("state_publisher", **kwargs)
         self.robot = load_robot(self.scenario.robot)
         self.joint_names = list(self.robot.joint_names)
@@ -123,7 +125,7 @@ class StatePublisherNode(StudyNode):
         return out
 
 
-def main(argv=None) -> int:
+def main(argv: list[str] | None = None) -> int:
     return run_node(StatePublisherNode, __doc__.splitlines()[0], argv)
 
 

@@ -421,7 +421,7 @@ class BagReader:
     def __enter__(self) -> BagReader:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
 
