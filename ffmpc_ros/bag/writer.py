@@ -78,7 +78,7 @@ class _DirectStream:
         self._fsync = fsync
         self._position = 0
 
-    def write(self, data) -> int:
+    def write(self, data: bytes | bytearray | memoryview) -> int:
         view = memoryview(data).cast("B")
         size = len(view)
         while view:
