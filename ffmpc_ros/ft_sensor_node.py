@@ -26,6 +26,7 @@ import math
 from typing import Any
 
 import numpy as np
+from builtin_interfaces.msg import Time as TimeMsg
 from geometry_msgs.msg import WrenchStamped
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
@@ -70,7 +71,9 @@ class FtSensorNode(StudyNode):
         self.create_service(Trigger, topics.TARE_SERVICE, self.on_tare)
         self.published = 0
 
-    def _message(self, stamp, force: np.ndarray, moment: np.ndarray | None = None) -> WrenchStamped:
+    def _message(
+        self, stamp: TimeMsg, force: np.ndarray, moment: np.ndarray | None = None
+    ) -> WrenchStamped:
         out = WrenchStamped()
         out.header.stamp = stamp
         out.header.frame_id = topics.WRENCH_FRAME

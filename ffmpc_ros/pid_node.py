@@ -43,7 +43,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from ffmpc_core.errors import InputError
-from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement, LowLevelMode
+from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement, LowLevelMode, LowLevelOutput
 from ffmpc_core.robots import load_robot
 from ffmpc_core.study import lowlevel_controller, measured_force, steps_per_mpc_period
 from ffmpc_ros import layouts, topics
@@ -74,7 +74,7 @@ class PidNode(StudyNode):
         self._last_step: int | None = None
         self._waiting_since: float | None = None
         self._skip_wait: set[int] = set()
-        self.last_output = None
+        self.last_output: LowLevelOutput | None = None
         self.pub_motor = self.graph_publisher(JointState, topics.MOTOR_TORQUE)
         self.pub_desired = self.graph_publisher(JointState, topics.DESIRED_TORQUE)
         self.pub_status = self.graph_publisher(Float64MultiArray, topics.LOWLEVEL_STATUS)

@@ -33,6 +33,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+from builtin_interfaces.msg import Time as TimeMsg
 from geometry_msgs.msg import WrenchStamped
 from rclpy.clock import Clock, ClockType
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -53,7 +54,7 @@ STATUS_EVERY = 100  # cycles between two /plant/status messages
 
 
 def joint_state_message(
-    stamp, names: Sequence[str], q: np.ndarray, v: np.ndarray, effort: np.ndarray
+    stamp: TimeMsg, names: Sequence[str], q: np.ndarray, v: np.ndarray, effort: np.ndarray
 ) -> JointState:
     """``plant/joint_states`` of one cycle: q (rad), q̇ (rad/s), applied torque (N·m)."""
     msg = JointState()
@@ -65,7 +66,7 @@ def joint_state_message(
     return msg
 
 
-def wrench_message(stamp, wrench_world: np.ndarray) -> WrenchStamped:
+def wrench_message(stamp: TimeMsg, wrench_world: np.ndarray) -> WrenchStamped:
     """``plant/wrench`` of one cycle: [f; m] on the tool (N, N·m), ``contact_world_aligned``."""
     msg = WrenchStamped()
     msg.header.stamp = stamp

@@ -30,6 +30,7 @@ from __future__ import annotations
 from typing import Any
 
 import pinocchio as pin
+from builtin_interfaces.msg import Time as TimeMsg
 from geometry_msgs.msg import TransformStamped
 from rclpy.lifecycle import LifecycleState, TransitionCallbackReturn
 from sensor_msgs.msg import JointState
@@ -103,7 +104,7 @@ class StatePublisherNode(StudyNode):
         self.pub_tf.publish(self.message(msg.header.stamp, self.moving_edges, placements))
         self.published += 1
 
-    def message(self, stamp, edges: list[Edge], placements: list[pin.SE3]) -> TFMessage:
+    def message(self, stamp: TimeMsg, edges: list[Edge], placements: list[pin.SE3]) -> TFMessage:
         """One TFMessage of ``edges`` at ``placements``, every transform stamped ``stamp``."""
         out = TFMessage()
         for edge, placement in zip(edges, placements, strict=True):
