@@ -515,8 +515,7 @@ class StudyNode(LifecycleNode, metaclass=_Constructed):
 
     def stamp_of(self, k: int) -> TimeMsg:
         """The stamp of cycle k (t_k = k·time_step)."""
-        sec, nanosec = divmod(k * self.step_ns, 1_000_000_000)
-        return TimeMsg(sec=int(sec), nanosec=int(nanosec))
+        return stamp_at(k, self.step_ns)
 
     def t_of(self, k: int) -> float:
         """t_k = k·time_step, s (the runner's float, bit for bit)."""
@@ -816,6 +815,13 @@ def stamp_ns(stamp: TimeMsg) -> int | None:
     if sec < 0 or not 0 <= nanosec < 1_000_000_000:
         return None
     return sec * 1_000_000_000 + nanosec
+
+
+def stamp_at(k: int, step_ns: int) -> TimeMsg:
+    """The stamp of cycle k on a grid of ``step_ns`` (t_k = k·step_ns ns): the inverse of
+    :func:`cycle_at`."""
+    sec, nanosec = divmod(k * step_ns, 1_000_000_000)
+    return TimeMsg(sec=int(sec), nanosec=int(nanosec))
 
 
 def cycle_at(ns: int, step_ns: int) -> int:

@@ -43,6 +43,7 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
 from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.impact.deformation import measured_deformation
 from ffmpc_core.impact.learner import ContactEstimate, RecursiveContactLearner
 from ffmpc_core.impact.touch_first import TOUCH, LearningGate, fed_surface
 from ffmpc_core.robots import load_robot
@@ -181,7 +182,7 @@ class ContactLearnerNode(MeasuredCycleNode):
         """Eq 19–20 with cycle k's sample against :attr:`surface`, then publish the estimate."""
         d = self.direction
         assert self.surface is not None
-        z = float(d @ (p - self.surface))
+        z = measured_deformation(p, self.surface, d)
         self.learner.update(z, zd, f)
         if self.learner.samples < 3:
             return

@@ -43,6 +43,7 @@ from sensor_msgs.msg import JointState
 
 from ffmpc_core.faults import FUTURE_STAMP_AHEAD, REALTIME_KINDS, Fault, require_kinds
 from ffmpc_ros import topics
+from ffmpc_ros.base import stamp_at
 
 #: Kinds injected by acting on a node's process (multi-process lockstep only).
 PROCESS_KINDS = ("mpc-dropout", "sensor-dropout", "node-kill")
@@ -135,11 +136,8 @@ class FaultInjector:
         self.last_wrench = msg
 
     def _stamp(self, k: int) -> TimeMsg:
-        """The stamp of cycle k (k·time_step s)."""
-        ns = int(round(k * self.time_step * 1e9))
-        stamp = JointState().header.stamp
-        stamp.sec, stamp.nanosec = divmod(ns, 1_000_000_000)
-        return stamp
+        """The stamp of cycle k on the nodes' grid (``StudyNode.stamp_of``: k·step_ns)."""
+        return stamp_at(k, int(round(self.time_step * 1e9)))
 
     # -- the clock ------------------------------------------------------------------------------
     def on_cycle(self, k: int) -> None:

@@ -22,7 +22,6 @@ when that mean is implausible (``ffmpc_core.sensing.ForceTare``, ``ffmpc_core.pl
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -32,6 +31,7 @@ from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
 from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.lowpass import lowpass_alpha
 from ffmpc_core.sensing import DelayLine, ForceTare
 from ffmpc_core.study import device_generator, force_sensing_model, measured_force
 from ffmpc_ros import topics
@@ -53,7 +53,8 @@ class FtSensorNode(StudyNode):
         self.axes = [self.contact.normal_axis] if dim == 1 else [0, 1, 2]
         self.normal_index = 0 if dim == 1 else self.contact.normal_axis
         fc = fs.filter_cutoff_frequency
-        self.alpha = 1.0 - math.exp(-2.0 * math.pi * fc * self.time_step) if fc > 0 else 1.0
+        # the first-order low-pass of eq 13 (α of eq 13 is the memory: this gain is 1 − α)
+        self.alpha = 1.0 - lowpass_alpha(fc, self.time_step) if fc > 0 else 1.0
         self.offset = np.zeros(dim)
         self.filtered: np.ndarray | None = None
         self.in_contact = False

@@ -117,7 +117,7 @@ from ffmpc_core.study import (
     study_metrics,
 )
 from ffmpc_ros import layouts, topics
-from ffmpc_ros.base import StudyNode
+from ffmpc_ros.base import StudyNode, stamp_at
 from ffmpc_ros.command_msg import command_fields
 from ffmpc_ros.params import parameter_overrides
 
@@ -371,11 +371,6 @@ def sleep_until(deadline: float) -> None:
 
 
 # -- the loop process ---------------------------------------------------------------------------
-def _stamp(k: int, step_ns: int) -> TimeMsg:
-    sec, nanosec = divmod(k * step_ns, 1_000_000_000)
-    return TimeMsg(sec=int(sec), nanosec=int(nanosec))
-
-
 def real_time_pid_settings(scenario: Scenario) -> Scenario:
     """The scenario the real-time loop's torque PID runs: the lockstep model shifted by the fixed
     MPC latency of ``every`` = mpc.period/Δt cycles (a command solved at cycle k is applied at
@@ -657,7 +652,7 @@ class RealtimeLoop:
                     self._refresh_subscribers()
                 act = self._active
                 t = k * dt
-                stamp = _stamp(k, self.step_ns)
+                stamp = stamp_at(k, self.step_ns)
                 # sensing (eq 30, 32) and the measurement the MPC reads, first: the MPC's time
                 q_hat, v_hat, _ = self.joint_model.step(state.q, state.v)
                 f_hat = self.force_model.step(measured_force(state.wrench_world, contact))
@@ -771,7 +766,7 @@ class RealtimeLoop:
         act = self._active
         if act["plant_joints"] or act["plant_wrench"] or act["truth"]:
             # /plant/* of cycle k+1 (the state after this step; effort: τ̂ applied over it)
-            nxt = _stamp(k + 1, self.step_ns)
+            nxt = stamp_at(k + 1, self.step_ns)
             if act["plant_joints"]:
                 self.pub_plant_joints.publish(self._joint_msg(nxt, state.q, state.v, tau_hat))
             if act["plant_wrench"]:
