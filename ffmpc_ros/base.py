@@ -817,6 +817,51 @@ def stamp_ns(stamp: TimeMsg) -> int | None:
     return sec * 1_000_000_000 + nanosec
 
 
+def joint_state_message(
+    stamp: TimeMsg,
+    names: Sequence[str],
+    q: np.ndarray | None,
+    v: np.ndarray | None,
+    effort: np.ndarray,
+) -> JointState:
+    """A JointState of one cycle: q (rad), q̇ (rad/s), effort (N·m); q or q̇ None: left empty
+    (a torque-only message)."""
+    msg = JointState()
+    msg.header.stamp = stamp
+    msg.name = list(names)
+    if q is not None:
+        msg.position = np.asarray(q, dtype=float).tolist()
+    if v is not None:
+        msg.velocity = np.asarray(v, dtype=float).tolist()
+    msg.effort = np.asarray(effort, dtype=float).tolist()
+    return msg
+
+
+def wrench_stamped(
+    stamp: TimeMsg, force: ArrayLike, moment: ArrayLike | None = None
+) -> WrenchStamped:
+    """A WrenchStamped in :data:`WRENCH_FRAME`: force (N, 3 values), moment (N·m, 3 values; None:
+    zero). The inverse of :meth:`StudyNode.wrench_array`."""
+    msg = WrenchStamped()
+    msg.header.stamp = stamp
+    msg.header.frame_id = WRENCH_FRAME
+    f = msg.wrench.force
+    f.x, f.y, f.z = (float(x) for x in np.asarray(force).reshape(-1))
+    if moment is not None:
+        m = msg.wrench.torque
+        m.x, m.y, m.z = (float(x) for x in np.asarray(moment).reshape(-1))
+    return msg
+
+
+def force_on_axes(axes: Sequence[int], force: ArrayLike) -> list[float]:
+    """The 3-D force (N, world) of a force measured on ``axes`` (the contact model's: its normal
+    axis, or all three); the other axes 0."""
+    full = [0.0, 0.0, 0.0]
+    for axis, value in zip(axes, np.asarray(force).reshape(-1), strict=True):
+        full[axis] = float(value)
+    return full
+
+
 def stamp_at(k: int, step_ns: int) -> TimeMsg:
     """The stamp of cycle k on a grid of ``step_ns`` (t_k = k·step_ns ns): the inverse of
     :func:`cycle_at`."""

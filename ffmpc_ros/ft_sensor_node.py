@@ -35,7 +35,7 @@ from ffmpc_core.lowpass import lowpass_alpha
 from ffmpc_core.sensing import DelayLine, ForceTare
 from ffmpc_core.study import device_generator, force_sensing_model, measured_force
 from ffmpc_ros import topics
-from ffmpc_ros.base import StudyNode, run_node
+from ffmpc_ros.base import StudyNode, force_on_axes, run_node, wrench_stamped
 
 
 class FtSensorNode(StudyNode):
@@ -75,16 +75,8 @@ class FtSensorNode(StudyNode):
     def _message(
         self, stamp: TimeMsg, force: np.ndarray, moment: np.ndarray | None = None
     ) -> WrenchStamped:
-        out = WrenchStamped()
-        out.header.stamp = stamp
-        out.header.frame_id = topics.WRENCH_FRAME
-        full = [0.0, 0.0, 0.0]
-        for axis, value in zip(self.axes, force, strict=True):
-            full[axis] = float(value)
-        out.wrench.force.x, out.wrench.force.y, out.wrench.force.z = full
-        if moment is not None:
-            out.wrench.torque.x, out.wrench.torque.y, out.wrench.torque.z = map(float, moment)
-        return out
+        """The wrench of ``force`` (N, on the contact axes) and ``moment`` (N·m, or zero)."""
+        return wrench_stamped(stamp, force_on_axes(self.axes, force), moment)
 
     def on_wrench(self, msg: WrenchStamped) -> None:
         topic = self.name_of(topics.PLANT_WRENCH)

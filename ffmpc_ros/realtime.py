@@ -117,7 +117,13 @@ from ffmpc_core.study import (
     study_metrics,
 )
 from ffmpc_ros import layouts, topics
-from ffmpc_ros.base import StudyNode, stamp_at
+from ffmpc_ros.base import (
+    StudyNode,
+    force_on_axes,
+    joint_state_message,
+    stamp_at,
+    wrench_stamped,
+)
 from ffmpc_ros.command_msg import command_fields
 from ffmpc_ros.params import parameter_overrides
 
@@ -548,35 +554,6 @@ class RealtimeLoop:
             except InputError as exc:
                 self._reject(f"{self._command_topic}:value", str(exc))
 
-    def _joint_msg(
-        self, stamp: TimeMsg, q: np.ndarray | None, v: np.ndarray | None, effort: np.ndarray
-    ) -> JointState:
-        msg = JointState()
-        msg.header.stamp = stamp
-        msg.name = self.joint_names
-        if q is not None:
-            msg.position = q.tolist()
-        if v is not None:
-            msg.velocity = v.tolist()
-        msg.effort = effort.tolist()
-        return msg
-
-    def _wrench_msg(
-        self,
-        stamp: TimeMsg,
-        force: Sequence[float] | np.ndarray,
-        moment: np.ndarray | None = None,
-    ) -> WrenchStamped:
-        msg = WrenchStamped()
-        msg.header.stamp = stamp
-        msg.header.frame_id = topics.WRENCH_FRAME
-        f = msg.wrench.force
-        f.x, f.y, f.z = (float(x) for x in force)
-        if moment is not None:
-            m = msg.wrench.torque
-            m.x, m.y, m.z = (float(x) for x in moment)
-        return msg
-
     def wait_for_mpc(self, limit: float = MPC_WAIT) -> None:
         """Block until the MPC subscribes to the joint states and /clock (its time source: this
         loop's nodes read /clock too) and publishes commands, then ``start_delay`` more
@@ -658,12 +635,12 @@ class RealtimeLoop:
                 f_hat = self.force_model.step(measured_force(state.wrench_world, contact))
                 if act["clock"]:
                     self.pub_clock.publish(ClockMsg(clock=stamp))
-                self.pub_joints.publish(self._joint_msg(stamp, q_hat, v_hat, tau_hat))
+                self.pub_joints.publish(
+                    joint_state_message(stamp, self.joint_names, q_hat, v_hat, tau_hat)
+                )
                 if act["wrench"]:
-                    full = [0.0, 0.0, 0.0]
-                    for axis, value in zip(self.force_axes, f_hat, strict=True):
-                        full[axis] = float(value)
-                    self.pub_wrench.publish(self._wrench_msg(stamp, full))
+                    full = force_on_axes(self.force_axes, f_hat)
+                    self.pub_wrench.publish(wrench_stamped(stamp, full))
                 rec["published"][k] = time.perf_counter()
                 stalls.inject(k)  # (an injected stall freezes this process here)
                 self._take_commands(
@@ -768,10 +745,12 @@ class RealtimeLoop:
             # /plant/* of cycle k+1 (the state after this step; effort: τ̂ applied over it)
             nxt = stamp_at(k + 1, self.step_ns)
             if act["plant_joints"]:
-                self.pub_plant_joints.publish(self._joint_msg(nxt, state.q, state.v, tau_hat))
+                self.pub_plant_joints.publish(
+                    joint_state_message(nxt, self.joint_names, state.q, state.v, tau_hat)
+                )
             if act["plant_wrench"]:
                 w = state.wrench_world
-                self.pub_plant_wrench.publish(self._wrench_msg(nxt, w[:3], w[3:]))
+                self.pub_plant_wrench.publish(wrench_stamped(nxt, w[:3], w[3:]))
             if act["truth"]:
                 self.pub_truth.publish(
                     layouts.PLANT_TRUTH.pack(
@@ -788,9 +767,13 @@ class RealtimeLoop:
         if out is None:
             return
         if act["motor"]:
-            self.pub_motor.publish(self._joint_msg(stamp, None, None, out.motor_torque))
+            self.pub_motor.publish(
+                joint_state_message(stamp, self.joint_names, None, None, out.motor_torque)
+            )
         if act["desired"]:
-            self.pub_desired.publish(self._joint_msg(stamp, None, None, out.desired_torque))
+            self.pub_desired.publish(
+                joint_state_message(stamp, self.joint_names, None, None, out.desired_torque)
+            )
         if act["pid_status"]:
             age = out.command_age if np.isfinite(out.command_age) else 1e9
             self.pub_pid_status.publish(
