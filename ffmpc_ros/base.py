@@ -525,27 +525,27 @@ class StudyNode(LifecycleNode, metaclass=_Constructed):
     def reject(self, kind: str, message: str) -> None:
         """Count a rejection and log it (at most one line per kind per LOG_THROTTLE s)."""
         self.rejected[kind] += 1
-        now = time.monotonic()
-        last = self._last_log.get(kind)
-        if last is None or now - last >= LOG_THROTTLE:
-            self._last_log[kind] = now
-            self.log_lines[kind] += 1
-            try:
-                self.get_logger().warning(
-                    f"rejected {kind}: {message} ({self.rejected[kind]} so far; output kept safe)"
-                )
-            except Exception:  # noqa: BLE001  (shutting down: the logger's context is gone)
-                pass
+        self._throttled_log(
+            kind,
+            lambda: f"rejected {kind}: {message} ({self.rejected[kind]} so far; output kept safe)",
+            warning=True,
+        )
 
     def inform(self, kind: str, message: str) -> None:
         """Log an info line, at most one per kind per LOG_THROTTLE s (counted in log_lines)."""
+        self._throttled_log(kind, lambda: message, warning=False)
+
+    def _throttled_log(self, kind: str, text: Callable[[], str], warning: bool) -> None:
+        """Log ``text()`` (a warning or an info line), at most one line per kind per
+        LOG_THROTTLE s, counted in log_lines; nothing while shutting down."""
         now = time.monotonic()
         last = self._last_log.get(kind)
         if last is None or now - last >= LOG_THROTTLE:
             self._last_log[kind] = now
             self.log_lines[kind] += 1
             try:
-                self.get_logger().info(message)
+                logger = self.get_logger()
+                (logger.warning if warning else logger.info)(text())
             except Exception:  # noqa: BLE001  (shutting down: the logger's context is gone)
                 pass
 
