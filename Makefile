@@ -60,7 +60,7 @@ lint: $(STAMP)
 	$(BIN)/ruff check ffmpc_core sim_bridge studies ffmpc_ros tests benchmarks
 	$(BIN)/python tests/layer_check.py  # ffmpc_core <- sim_bridge <- ffmpc_ros <- studies, no cycles
 	$(BIN)/ruff format --check ffmpc_core sim_bridge studies ffmpc_ros tests benchmarks
-	$(BIN)/mypy  # ffmpc_core, sim_bridge and studies, configured in pyproject.toml [tool.mypy]
+	$(BIN)/mypy  # ffmpc_core, sim_bridge, studies, ffmpc_ros: pyproject.toml [tool.mypy]
 
 bench: $(STAMP) $(NATIVE)
 	$(BIN)/ffmpc bench mpc

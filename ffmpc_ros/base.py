@@ -84,18 +84,23 @@ import numpy as np
 import rclpy
 from builtin_interfaces.msg import Time as TimeMsg
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import WrenchStamped
+from numpy.typing import ArrayLike
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.clock import Clock, ClockType
+from rclpy.clock import Clock, ClockType, ROSClock
+from rclpy.context import Context
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
-from rclpy.qos import QoSCompatibility, QoSPolicyKind, qos_check_compatible
+from rclpy.qos import QoSCompatibility, QoSPolicyKind, QoSProfile, qos_check_compatible
 from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
+from rclpy.subscription import Subscription
 from rclpy.time_source import TimeSource
 from rosgraph_msgs.msg import Clock as ClockMsg
+from sensor_msgs.msg import JointState
 from std_msgs.msg import Empty
 
 from ffmpc_core.errors import ConfigError, FfmpcError, InputError
@@ -157,8 +162,10 @@ class _Constructed(type):
     * then starts its lifecycle (``_after_construction``: autostart must not run a transition
       on a half-built node)."""
 
-    def __call__(cls, *args, **kwargs):
-        node = cls.__new__(cls)
+    def __call__(cls, *args: Any, **kwargs: Any) -> Any:
+        # cls is a StudyNode class; mypy types cls.__new__ in a metaclass as type.__new__
+        node_class: Any = cls
+        node = node_class.__new__(node_class)
         try:
             node.__init__(*args, **kwargs)
             node._subscribe_clock()
@@ -186,11 +193,13 @@ class StudyNode(LifecycleNode, metaclass=_Constructed):
         cli_args: ROS arguments of this node only (``["--ros-args", "--params-file", f]``).
     """
 
+    joint_names: list[str]  # the robot's joints, in its order (set by nodes that read joints)
+
     def __init__(
         self,
         spec: str,
         *,
-        context=None,
+        context: Context | None = None,
         parameter_overrides: Sequence[Parameter] | None = None,
         node_name: str | None = None,
         cli_args: Sequence[str] | None = None,
@@ -238,7 +247,9 @@ class StudyNode(LifecycleNode, metaclass=_Constructed):
         # clock through a second TimeSource (public rclpy API).
         self._reliable_time = TimeSource()
         self._reliable_time.ros_time_is_active = True
-        self._reliable_time.attach_clock(self.get_clock())
+        clock = self.get_clock()
+        assert isinstance(clock, ROSClock)  # a node's clock is always a ROSClock (rclpy Node)
+        self._reliable_time.attach_clock(clock)
         # the reliable reader got a /clock sample (the best-effort one moves the clock off 0)
         self._clock_received = False
         # The reliable reader itself is the node's LAST entity (_Constructed, once the subclass's
@@ -269,7 +280,7 @@ class StudyNode(LifecycleNode, metaclass=_Constructed):
             raise ConfigError(f"{self.get_name()}: configure refused: {self._refusal}")
         self.trigger_activate()
 
-    def start_handshake(self, joints, clock, ready: bool = True) -> bool:
+    def start_handshake(self, joints: Publisher, clock: Publisher, ready: bool = True) -> bool:
         """A plant's start rule (lockstep graphs): True once the node is active (lifecycle:
         the bring-up activates the plant last), ``start_subscribers`` readers are matched to
         its joint-state writer ``joints`` and ``start_clock_subscribers`` to its /clock writer
@@ -334,7 +345,9 @@ class StudyNode(LifecycleNode, metaclass=_Constructed):
         return TransitionCallbackReturn.SUCCESS
 
     # -- QoS (ffmpc_ros.topics) -----------------------------------------------------------------
-    def create_publisher(self, msg_type, topic, qos_profile, **kwargs):  # type: ignore[override]
+    def create_publisher(
+        self, msg_type: Any, topic: str, qos_profile: QoSProfile | int, **kwargs: Any
+    ) -> Publisher:
         """rclpy's, with ROS 2's QoS override parameters (history, depth, reliability:
         ``qos_overrides.<topic>.publisher.<policy>``) unless the caller chose its own options;
         ConfigError for an override rclpy cannot apply."""
@@ -347,7 +360,14 @@ class StudyNode(LifecycleNode, metaclass=_Constructed):
             self._barrier_writers.append(publisher)
         return publisher
 
-    def create_subscription(self, msg_type, topic, callback, qos_profile, **kwargs):  # type: ignore[override]
+    def create_subscription(
+        self,
+        msg_type: Any,
+        topic: str,
+        callback: Callable[[Any], None],
+        qos_profile: QoSProfile | int,
+        **kwargs: Any,
+    ) -> Subscription:
         """rclpy's, with ROS 2's QoS override parameters (history, depth, reliability:
         ``qos_overrides.<topic>.subscription.<policy>``) unless the caller chose its own
         options; ConfigError for an override rclpy cannot apply."""
@@ -356,7 +376,7 @@ class StudyNode(LifecycleNode, metaclass=_Constructed):
         with _qos_override_errors(self, topic, "subscription"):
             return super().create_subscription(msg_type, topic, callback, qos_profile, **kwargs)
 
-    def graph_publisher(self, msg_type, topic: str):
+    def graph_publisher(self, msg_type: Any, topic: str) -> Publisher:
         """A publisher of graph topic ``topic``, its class's profile (``topics.publisher_qos``)."""
         return self.create_publisher(msg_type, topic, topics.publisher_qos(topic))
 
@@ -495,8 +515,7 @@ class StudyNode(LifecycleNode, metaclass=_Constructed):
 
     def stamp_of(self, k: int) -> TimeMsg:
         """The stamp of cycle k (t_k = k·time_step)."""
-        sec, nanosec = divmod(k * self.step_ns, 1_000_000_000)
-        return TimeMsg(sec=int(sec), nanosec=int(nanosec))
+        return stamp_at(k, self.step_ns)
 
     def t_of(self, k: int) -> float:
         """t_k = k·time_step, s (the runner's float, bit for bit)."""
@@ -506,27 +525,27 @@ class StudyNode(LifecycleNode, metaclass=_Constructed):
     def reject(self, kind: str, message: str) -> None:
         """Count a rejection and log it (at most one line per kind per LOG_THROTTLE s)."""
         self.rejected[kind] += 1
-        now = time.monotonic()
-        last = self._last_log.get(kind)
-        if last is None or now - last >= LOG_THROTTLE:
-            self._last_log[kind] = now
-            self.log_lines[kind] += 1
-            try:
-                self.get_logger().warning(
-                    f"rejected {kind}: {message} ({self.rejected[kind]} so far; output kept safe)"
-                )
-            except Exception:  # noqa: BLE001  (shutting down: the logger's context is gone)
-                pass
+        self._throttled_log(
+            kind,
+            lambda: f"rejected {kind}: {message} ({self.rejected[kind]} so far; output kept safe)",
+            warning=True,
+        )
 
     def inform(self, kind: str, message: str) -> None:
         """Log an info line, at most one per kind per LOG_THROTTLE s (counted in log_lines)."""
+        self._throttled_log(kind, lambda: message, warning=False)
+
+    def _throttled_log(self, kind: str, text: Callable[[], str], warning: bool) -> None:
+        """Log ``text()`` (a warning or an info line), at most one line per kind per
+        LOG_THROTTLE s, counted in log_lines; nothing while shutting down."""
         now = time.monotonic()
         last = self._last_log.get(kind)
         if last is None or now - last >= LOG_THROTTLE:
             self._last_log[kind] = now
             self.log_lines[kind] += 1
             try:
-                self.get_logger().info(message)
+                logger = self.get_logger()
+                (logger.warning if warning else logger.info)(text())
             except Exception:  # noqa: BLE001  (shutting down: the logger's context is gone)
                 pass
 
@@ -717,7 +736,7 @@ class StudyNode(LifecycleNode, metaclass=_Constructed):
         msg.status = [self.diagnostic_status()]
         self._pub_diagnostics.publish(msg)
 
-    def receive(self, topic: str, msg, parse: Callable[[Any], Any]) -> tuple[int, Any] | None:
+    def receive(self, topic: str, msg: Any, parse: Callable[[Any], Any]) -> tuple[int, Any] | None:
         """Check the stamp of ``msg``, parse it, accept its cycle: ``(k, parse(msg))``, or None
         when the stamp or the values are rejected (one throttled log line, see :meth:`reject`)."""
         topic = self.name_of(topic)
@@ -736,7 +755,7 @@ class StudyNode(LifecycleNode, metaclass=_Constructed):
         """A parser of JointState messages into ``fields`` in the robot's joint order."""
         return lambda msg: self.joint_arrays(msg, self.joint_names, fields)
 
-    def vector(self, values, n: int, name: str) -> np.ndarray:
+    def vector(self, values: ArrayLike, n: int, name: str) -> np.ndarray:
         """A float array of n finite values (InputError otherwise)."""
         arr = np.asarray(values, dtype=float)
         if arr.shape != (n,):
@@ -746,7 +765,7 @@ class StudyNode(LifecycleNode, metaclass=_Constructed):
         return arr
 
     def joint_arrays(
-        self, msg, joint_names: Sequence[str], fields: Sequence[str]
+        self, msg: JointState, joint_names: Sequence[str], fields: Sequence[str]
     ) -> list[np.ndarray]:
         """The requested JointState fields in the robot's joint order (any order of names is
         accepted); InputError on unknown, missing or repeated names and bad values."""
@@ -764,7 +783,7 @@ class StudyNode(LifecycleNode, metaclass=_Constructed):
             out.append(self.vector(raw[order], len(joint_names), f))
         return out
 
-    def wrench_array(self, msg) -> np.ndarray:
+    def wrench_array(self, msg: WrenchStamped) -> np.ndarray:
         """[f; m] of a WrenchStamped in :data:`WRENCH_FRAME` (InputError otherwise)."""
         if msg.header.frame_id != WRENCH_FRAME:
             raise InputError(f"frame_id {msg.header.frame_id!r}, expected {WRENCH_FRAME!r}")
@@ -798,6 +817,58 @@ def stamp_ns(stamp: TimeMsg) -> int | None:
     return sec * 1_000_000_000 + nanosec
 
 
+def joint_state_message(
+    stamp: TimeMsg,
+    names: Sequence[str],
+    q: np.ndarray | None,
+    v: np.ndarray | None,
+    effort: np.ndarray,
+) -> JointState:
+    """A JointState of one cycle: q (rad), q̇ (rad/s), effort (N·m); q or q̇ None: left empty
+    (a torque-only message)."""
+    msg = JointState()
+    msg.header.stamp = stamp
+    msg.name = list(names)
+    if q is not None:
+        msg.position = np.asarray(q, dtype=float).tolist()
+    if v is not None:
+        msg.velocity = np.asarray(v, dtype=float).tolist()
+    msg.effort = np.asarray(effort, dtype=float).tolist()
+    return msg
+
+
+def wrench_stamped(
+    stamp: TimeMsg, force: ArrayLike, moment: ArrayLike | None = None
+) -> WrenchStamped:
+    """A WrenchStamped in :data:`WRENCH_FRAME`: force (N, 3 values), moment (N·m, 3 values; None:
+    zero). The inverse of :meth:`StudyNode.wrench_array`."""
+    msg = WrenchStamped()
+    msg.header.stamp = stamp
+    msg.header.frame_id = WRENCH_FRAME
+    f = msg.wrench.force
+    f.x, f.y, f.z = (float(x) for x in np.asarray(force).reshape(-1))
+    if moment is not None:
+        m = msg.wrench.torque
+        m.x, m.y, m.z = (float(x) for x in np.asarray(moment).reshape(-1))
+    return msg
+
+
+def force_on_axes(axes: Sequence[int], force: ArrayLike) -> list[float]:
+    """The 3-D force (N, world) of a force measured on ``axes`` (the contact model's: its normal
+    axis, or all three); the other axes 0."""
+    full = [0.0, 0.0, 0.0]
+    for axis, value in zip(axes, np.asarray(force).reshape(-1), strict=True):
+        full[axis] = float(value)
+    return full
+
+
+def stamp_at(k: int, step_ns: int) -> TimeMsg:
+    """The stamp of cycle k on a grid of ``step_ns`` (t_k = k·step_ns ns): the inverse of
+    :func:`cycle_at`."""
+    sec, nanosec = divmod(k * step_ns, 1_000_000_000)
+    return TimeMsg(sec=int(sec), nanosec=int(nanosec))
+
+
 def cycle_at(ns: int, step_ns: int) -> int:
     """The cycle a time of ``ns`` ≥ 0 belongs to on a grid of ``step_ns``: the newest cycle at
     or before it, within :data:`GRID_TOLERANCE_NS` (module docstring, "Time")."""
@@ -818,7 +889,9 @@ def _first_line(exc: BaseException) -> str:
     return text.splitlines()[0] if text else type(exc).__name__
 
 
-def run_node(factory: Callable[..., StudyNode], description: str, argv=None) -> int:
+def run_node(
+    factory: Callable[..., StudyNode], description: str, argv: Sequence[str] | None = None
+) -> int:
     """``main`` of a node executable: ``--help``, then spin until shutdown (Ctrl-C).
 
     Bad parameters or ROS arguments: one line on stderr naming the parameter, exit 2."""

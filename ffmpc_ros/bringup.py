@@ -64,12 +64,15 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import rclpy
+from rclpy.client import Client
 from rclpy.context import Context
+from rclpy.executors import Executor
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
@@ -80,7 +83,7 @@ from ffmpc_core.errors import ConfigError, FfmpcError
 from ffmpc_core.faults import Fault, faults_from
 from ffmpc_core.lowlevel import LowLevelMode
 from ffmpc_core.metrics import PolishingMetrics
-from ffmpc_core.robots import load_robot
+from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_core.scenario import Scenario
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.graph_nodes import (
@@ -92,6 +95,9 @@ from ffmpc_ros.graph_nodes import (
     write_params_file,
 )
 from ffmpc_ros.params import parameter_overrides
+
+if TYPE_CHECKING:
+    from ffmpc_ros.base import StudyNode
 
 #: Wall s the bring-up listens for foreign publishers on the graph's topics before starting.
 FOREIGN_DISCOVERY_WAIT = 2.0
@@ -231,7 +237,7 @@ TIMING_KEYS = (
 )
 
 
-def graph_context(namespace: str, domain: int) -> tuple[Context, EventsExecutor]:
+def graph_context(namespace: str, domain: int) -> tuple[Context, Executor]:
     """A bring-up's own rclpy context (in the graph's namespace, on its clock; no signal
     handlers: the bring-up stops the run itself) and its executor."""
     context = Context()
@@ -264,7 +270,7 @@ class ProgressWatch:
         self.last_progress = time.perf_counter()
         self.first_step: float | None = None
 
-    def check(self, cycle: int, now: float, progress) -> None:
+    def check(self, cycle: int, now: float, progress: Callable[[], str]) -> None:
         """The newest plant cycle seen at wall time ``now``; ``progress()``: what each stage
         last did, for the error."""
         if cycle > self.last_cycle:
@@ -284,7 +290,13 @@ class _StatusProbe:
     """Keeps the newest /plant/status; from ``/plant/joint_states`` (true q̇ and the torque
     applied): the newest cycle and the max over the run of |q̇|/limit and |τ|/limit per joint."""
 
-    def __init__(self, node: Node, robot=None, time_step: float = 1e-3, on_cycle=None) -> None:
+    def __init__(
+        self,
+        node: Node,
+        robot: RobotModel | None = None,
+        time_step: float = 1e-3,
+        on_cycle: Callable[[int], None] | None = None,
+    ) -> None:
         self.status: dict | None = None
         self.cycle = -1
         self.time_step = time_step
@@ -295,8 +307,8 @@ class _StatusProbe:
             self._on,
             topics.subscriber_qos(False, topics.PLANT_STATUS),
         )
-        self.robot = robot
-        if robot is not None:
+        if robot is not None:  # the limit ratios (the joint subscriptions below need a robot)
+            self.velocity_limit, self.torque_limit = robot.velocity_limit, robot.torque_limit
             self.max_velocity_ratio = np.zeros(robot.nv)
             self.max_torque_ratio = np.zeros(robot.nv)  # the commanded motor torque τ^m
             self.max_applied_torque_ratio = np.zeros(robot.nv)  # τ̂ of eq 31 (actuation errors)
@@ -320,7 +332,7 @@ class _StatusProbe:
 
     def _on_motor(self, msg: JointState) -> None:
         """|τ^m|/limit of the motor torque the PID commands (what the controllers answer for)."""
-        tau = np.abs(np.asarray(msg.effort, dtype=float)) / self.robot.torque_limit
+        tau = np.abs(np.asarray(msg.effort, dtype=float)) / self.torque_limit
         if tau.shape == self.max_torque_ratio.shape:
             tau = np.nan_to_num(tau, nan=np.inf)
             if tau.max() > self.max_torque_ratio.max():
@@ -331,8 +343,8 @@ class _StatusProbe:
     def _on_joints(self, msg: JointState) -> None:
         ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         k = int(round(ns * 1e-9 / self.time_step))
-        v = np.abs(np.asarray(msg.velocity, dtype=float)) / self.robot.velocity_limit
-        tau = np.abs(np.asarray(msg.effort, dtype=float)) / self.robot.torque_limit
+        v = np.abs(np.asarray(msg.velocity, dtype=float)) / self.velocity_limit
+        tau = np.abs(np.asarray(msg.effort, dtype=float)) / self.torque_limit
         if v.shape == self.max_velocity_ratio.shape and tau.shape == v.shape:
             # a NaN state counts as a broken limit (inf)
             v, tau = np.nan_to_num(v, nan=np.inf), np.nan_to_num(tau, nan=np.inf)
@@ -376,7 +388,9 @@ class _PidStatusProbe:
     def complete(self) -> bool:
         return bool(np.all(self.mode >= 0))
 
-    def timing(self, every: int, plant_status: dict, fault_windows) -> dict:
+    def timing(
+        self, every: int, plant_status: dict | None, fault_windows: Sequence[tuple[float, float]]
+    ) -> dict[str, Any]:
         """Lockstep timing (simulated-time deadlines, see the module docstring)."""
         from ffmpc_ros.realtime import fallback_time
 
@@ -392,7 +406,7 @@ class _PidStatusProbe:
         on_time = heard & (np.abs(self.command_age[ticks]) < 0.5 * self.time_step)
         misses = int(plant_status.get("deadline_misses", steps)) if plant_status else steps
         known = np.where(self.mode >= 0, self.mode, int(LowLevelMode.HOLD))  # unheard: no fallback
-        unexcused, excused = fallback_time(known, self.time_step, fault_windows)
+        unexcused, excused_time = fallback_time(known, self.time_step, fault_windows)
         lat = {
             name: (plant_status[f"latency_{name}"] * 1e3 if plant_status else None)
             for name in ("p50", "p99", "max")
@@ -404,7 +418,7 @@ class _PidStatusProbe:
                 "loop": 1.0 - misses / steps,
             },
             "fallback_time_s": unexcused,
-            "fallback_excused_s": excused,
+            "fallback_excused_s": excused_time,
             "fault_windows": [list(map(float, w)) for w in fault_windows],
             "latency_p50_ms": lat["p50"],
             "latency_p99_ms": lat["p99"],
@@ -499,7 +513,7 @@ def run_graph(
 
         duration = build_task(scenario, load_robot(scenario.robot)).duration
     params = graph_parameters(scenario, lockstep, duration, namespace)
-    windows = [tuple(map(float, w)) for w in fault_windows]
+    windows = [(float(start), float(end)) for start, end in fault_windows]
     # an injected fault's effects outlast it a little (queued messages): FAULT_RECOVERY
     windows += [(f.start, min(f.end + FAULT_RECOVERY, float(duration))) for f in faults]
     if not lockstep:
@@ -541,7 +555,7 @@ def run_graph(
     # namespace, on the graph's clock
     context, executor = graph_context(namespace, domain)
     nodes: list[Node] = []
-    graph_nodes: list[Node] = []
+    graph_nodes: list[StudyNode] = []
     children: dict[str, subprocess.Popen] = {}
     logs: dict[str, str] = {}
     injector = None
@@ -564,8 +578,8 @@ def run_graph(
                     )
                 )
             nodes += graph_nodes
-            for node in graph_nodes:
-                executor.add_node(node)
+            for graph_node in graph_nodes:
+                executor.add_node(graph_node)
             values = {n.get_name(): _own_parameters(n) for n in graph_nodes}
             if view is not None:
                 from ffmpc_ros.view import ViewNode
@@ -713,7 +727,7 @@ def run_graph(
         elif view_counts is not None and os.path.exists(view_counts):
             with open(view_counts, encoding="utf-8") as fh:
                 view_result = json.load(fh)
-        bag = None
+        bag: dict[str, Any] | None = None
         if record is not None:
             bag = {"path": str(record)}
             if recorder is not None:
@@ -760,15 +774,15 @@ def run_graph(
 
 def _run_real_time(
     scenario: Scenario,
-    params,
-    timeout,
-    domain,
-    quiet,
-    fault_windows,
-    cpus,
-    priority,
-    faults,
-    namespace,
+    params: dict[str, dict[str, Any]],
+    timeout: float,
+    domain: int,
+    quiet: bool,
+    fault_windows: Sequence[tuple[float, float]],
+    cpus: tuple[int, int] | None | str,
+    priority: int | None,
+    faults: Sequence[Fault],
+    namespace: str,
 ) -> GraphResult:
     """Real time (``ffmpc_ros.realtime``): the loop process and the MPC process."""
     from ffmpc_ros.realtime import DEFAULT_PRIORITY, run_realtime
@@ -841,7 +855,8 @@ def _spawn(
         with open(logs[name], "w", encoding="utf-8") as out:
             args = ["--ros-args", "--params-file", path, *graph_args, *node_ros_args.get(name, ())]
             args += ["-p", "autostart:=false"]  # the bring-up drives the lifecycle (run_graph)
-            children[name] = subprocess.Popen(
+            children[name] = subprocess.Popen(  # type: ignore[call-overload]
+                # (process_group needs Python 3.11, the ROS wheels' Python; mypy checks 3.10)
                 _launch(marker, signal.SIGKILL, module, args),
                 env=env,
                 stdout=out,
@@ -886,7 +901,7 @@ def _spawn_child(
         json.dump(config, fh)
     log = os.path.join(directory, f"{name}.log")
     with open(log, "w", encoding="utf-8") as out:
-        child = subprocess.Popen(
+        child = subprocess.Popen(  # type: ignore[call-overload]  # (process_group: 3.11)
             _launch(child_marker(), signal.SIGTERM, module, [path]),
             env=dict(os.environ, ROS_DOMAIN_ID=str(domain)),
             stdout=out,
@@ -897,7 +912,7 @@ def _spawn_child(
 
 
 def _spawn_recorder(
-    record,
+    record: str | os.PathLike,
     directory: str,
     domain: int,
     scenario: Scenario,
@@ -980,7 +995,9 @@ def _process_state(child: subprocess.Popen) -> str:
     return {"T": "stopped", "Z": "exited", "R": "running", "S": "waiting"}.get(state, state)
 
 
-def _progress(probe: _StatusProbe, pid_probe: _PidStatusProbe, children) -> str:
+def _progress(
+    probe: _StatusProbe, pid_probe: _PidStatusProbe, children: Mapping[str, subprocess.Popen]
+) -> str:
     """What each stage last did, and who the plant waits for (stall and timeout messages)."""
     k, j = probe.cycle, pid_probe.last_cycle
     if k < 0:
@@ -1012,8 +1029,8 @@ def _refuse_foreign(
     ours = {*NODES, "metrics", "ffmpc_recorder", "ffmpc_bringup", "view"}
     me = node.get_fully_qualified_name()
     deadline = time.monotonic() + wait
-    first_seen = None
-    last_change = None
+    first_seen: float | None = None
+    last_change = 0.0  # wall s of the last change of ``found`` (set with first_seen)
     previous: dict[str, set[str]] = {}
     while True:
         found: dict[str, set[str]] = {}
@@ -1059,8 +1076,13 @@ def _own_parameters(node: Node) -> dict:
 
 
 def _fetch_parameters(
-    node: Node, executor, names: Sequence[str], children, logs, deadline: float
-) -> dict[str, dict]:
+    node: Node,
+    executor: Executor,
+    names: Sequence[str],
+    children: Mapping[str, subprocess.Popen],
+    logs: Mapping[str, str],
+    deadline: float,
+) -> dict[str, dict[str, Any]]:
     """{node: {name: value}} of the nodes ``names`` through their parameter services."""
     from ffmpc_ros.bag.recorder import _ParameterFetch
 
@@ -1078,7 +1100,7 @@ def _fetch_parameters(
     for f in fetches.values():
         node.destroy_client(f.list_client)
         node.destroy_client(f.get_client)
-    return {n: f.values for n, f in fetches.items()}
+    return {n: f.values for n, f in fetches.items() if f.values is not None}  # all, polled
 
 
 #: Lifecycle transitions of the bring-up, in order (lifecycle_msgs/msg/Transition labels).
@@ -1087,13 +1109,21 @@ BRING_UP_TRANSITIONS = ("configure", "activate")
 GOAL_STATES = {"configure": "inactive", "activate": "active"}
 
 
-def _call(executor, client, request, deadline: float, what: str, children=None, logs=None):
+def _call(
+    executor: Executor,
+    client: Client,
+    request: Any,
+    deadline: float,
+    what: str,
+    children: Mapping[str, subprocess.Popen] | None = None,
+    logs: Mapping[str, str] | None = None,
+) -> tuple[Any, bool]:
     """(response, resent) of one service call, spinning ``executor``; the request is sent again
     when unanswered after SERVICE_RETRY (a lost response). GraphError past ``deadline``."""
     future, sent, resent = None, 0.0, False
     while future is None or not future.done():
         if children is not None:
-            _check_children(children, logs, set())
+            _check_children(children, logs or {}, set())
         now = time.perf_counter()
         if now > deadline:
             raise GraphError(f"{what} did not answer in time: the run did not start")
@@ -1108,10 +1138,10 @@ def _call(executor, client, request, deadline: float, what: str, children=None, 
 
 def _bring_up(
     node: Node,
-    executor,
+    executor: Executor,
     names: Sequence[str],
-    children,
-    logs,
+    children: Mapping[str, subprocess.Popen],
+    logs: Mapping[str, str],
     deadline: float,
     plant: str = "plant",
 ) -> None:
@@ -1181,7 +1211,8 @@ def parameter_mismatches(values: Mapping[str, Mapping[str, object]]) -> list[str
     return out
 
 
-def _same(a, b) -> bool:
+def _same(a: Any, b: Any) -> bool:
+    """Equal parameter values (NaN equals NaN; a list equals a tuple or array of its items)."""
     if isinstance(a, float | int) and isinstance(b, float | int):
         return a == b or (math.isnan(a) and math.isnan(b))
     return list(a) == list(b) if isinstance(a, list | tuple) else a == b

@@ -14,6 +14,7 @@ from typing import Any
 
 import rclpy
 from rclpy.context import Context
+from rclpy.executors import Executor
 from rclpy.experimental import EventsExecutor
 from rclpy.signals import SignalHandlerOptions
 
@@ -26,7 +27,7 @@ class ChildProcess:
 
     config: dict[str, Any]
     context: Context
-    executor: EventsExecutor
+    executor: Executor  # an rclpy EventsExecutor
     stopping: list[int] = field(default_factory=list)
 
 

@@ -35,12 +35,15 @@ Service ``/contact_learner/reset`` (std_srvs/Trigger): forget every sample and t
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pinocchio as pin
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
 from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.impact.deformation import measured_deformation
 from ffmpc_core.impact.learner import ContactEstimate, RecursiveContactLearner
 from ffmpc_core.impact.touch_first import TOUCH, LearningGate, fed_surface
 from ffmpc_core.robots import load_robot
@@ -64,7 +67,7 @@ class ContactLearnerNode(MeasuredCycleNode):
         estimate: the newest published estimate (None before). published: estimates published.
     """
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__("contact_learner", **kwargs)
         p = self.params
         self.robot = load_robot(self.scenario.robot)
@@ -179,7 +182,7 @@ class ContactLearnerNode(MeasuredCycleNode):
         """Eq 19–20 with cycle k's sample against :attr:`surface`, then publish the estimate."""
         d = self.direction
         assert self.surface is not None
-        z = float(d @ (p - self.surface))
+        z = measured_deformation(p, self.surface, d)
         self.learner.update(z, zd, f)
         if self.learner.samples < 3:
             return
@@ -207,7 +210,7 @@ class ContactLearnerNode(MeasuredCycleNode):
         return response
 
 
-def main(argv=None) -> int:
+def main(argv: list[str] | None = None) -> int:
     return run_node(ContactLearnerNode, __doc__.splitlines()[0], argv)
 
 

@@ -36,12 +36,14 @@ import subprocess
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
+from builtin_interfaces.msg import Time as TimeMsg
 from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from ffmpc_core.faults import FUTURE_STAMP_AHEAD, REALTIME_KINDS, Fault, require_kinds
 from ffmpc_ros import topics
+from ffmpc_ros.base import stamp_at
 
 #: Kinds injected by acting on a node's process (multi-process lockstep only).
 PROCESS_KINDS = ("mpc-dropout", "sensor-dropout", "node-kill")
@@ -133,11 +135,9 @@ class FaultInjector:
     def on_sensed_wrench(self, msg: WrenchStamped) -> None:
         self.last_wrench = msg
 
-    def _stamp(self, k: int):
-        ns = int(round(k * self.time_step * 1e9))
-        stamp = JointState().header.stamp
-        stamp.sec, stamp.nanosec = divmod(ns, 1_000_000_000)
-        return stamp
+    def _stamp(self, k: int) -> TimeMsg:
+        """The stamp of cycle k on the nodes' grid (``StudyNode.stamp_of``: k·step_ns)."""
+        return stamp_at(k, int(round(self.time_step * 1e9)))
 
     # -- the clock ------------------------------------------------------------------------------
     def on_cycle(self, k: int) -> None:
@@ -171,9 +171,11 @@ class FaultInjector:
                 self._stopped.add(name)
                 a.detail = f"SIGSTOP {name} (pid {self.processes[name].pid})"
         elif f.kind == "node-kill":
-            self.killed.add(f.node)
-            if self._signal(f.node, signal.SIGKILL):
-                a.detail = f"SIGKILL {f.node} (pid {self.processes[f.node].pid})"
+            node = f.node
+            assert node is not None  # Fault names the default node of a node-kill
+            self.killed.add(node)
+            if self._signal(node, signal.SIGKILL):
+                a.detail = f"SIGKILL {node} (pid {self.processes[node].pid})"
             a.ended_at = a.injected_at
 
     def _end(self, a: _Applied) -> None:
@@ -185,32 +187,34 @@ class FaultInjector:
 
     def _during(self, a: _Applied, k: int) -> None:
         kind = a.fault.kind
+        # (__post_init__ made the publishers these kinds use)
+        pub_joints, pub_wrench = self._pub_joints, self._pub_wrench
         if kind == "future-stamp":
             ahead = k + int(round(FUTURE_STAMP_AHEAD / self.time_step))
-            if self.last_joints is not None:
+            if self.last_joints is not None and pub_joints is not None:
                 msg = self.last_joints
                 msg.header.stamp = self._stamp(ahead)
-                self._pub_joints.publish(msg)
+                pub_joints.publish(msg)
                 a.messages += 1
-            if self.last_wrench is not None:
+            if self.last_wrench is not None and pub_wrench is not None:
                 msg = self.last_wrench
                 msg.header.stamp = self._stamp(ahead)
-                self._pub_wrench.publish(msg)
+                pub_wrench.publish(msg)
                 a.messages += 1
-        elif kind == "nan-wrench":
+        elif kind == "nan-wrench" and pub_wrench is not None:
             msg = WrenchStamped()
             msg.header.stamp = self._stamp(k)
             msg.header.frame_id = topics.WRENCH_FRAME
             w = msg.wrench
             w.force.x = w.force.y = w.force.z = math.nan
             w.torque.x = w.torque.y = w.torque.z = math.nan
-            self._pub_wrench.publish(msg)
+            pub_wrench.publish(msg)
             a.messages += 1
-        elif kind == "torque-spike" and self.last_joints is not None:
+        elif kind == "torque-spike" and self.last_joints is not None and pub_joints is not None:
             msg = self.last_joints
             msg.header.stamp = self._stamp(k)
             msg.effort = [float(a.fault.value)] * len(msg.name)
-            self._pub_joints.publish(msg)
+            pub_joints.publish(msg)
             a.messages += 1
 
     def release(self) -> None:

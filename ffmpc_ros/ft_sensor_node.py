@@ -22,24 +22,26 @@ when that mean is implausible (``ffmpc_core.sensing.ForceTare``, ``ffmpc_core.pl
 
 from __future__ import annotations
 
-import math
+from typing import Any
 
 import numpy as np
+from builtin_interfaces.msg import Time as TimeMsg
 from geometry_msgs.msg import WrenchStamped
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
 from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.lowpass import lowpass_alpha
 from ffmpc_core.sensing import DelayLine, ForceTare
 from ffmpc_core.study import device_generator, force_sensing_model, measured_force
 from ffmpc_ros import topics
-from ffmpc_ros.base import StudyNode, run_node
+from ffmpc_ros.base import StudyNode, force_on_axes, run_node, wrench_stamped
 
 
 class FtSensorNode(StudyNode):
     """Eq 32 plus tare, filter and contact detection (see the module docstring)."""
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__("ft_sensor", **kwargs)
         s = self.scenario
         fs = s.ft_sensor
@@ -51,7 +53,8 @@ class FtSensorNode(StudyNode):
         self.axes = [self.contact.normal_axis] if dim == 1 else [0, 1, 2]
         self.normal_index = 0 if dim == 1 else self.contact.normal_axis
         fc = fs.filter_cutoff_frequency
-        self.alpha = 1.0 - math.exp(-2.0 * math.pi * fc * self.time_step) if fc > 0 else 1.0
+        # the first-order low-pass of eq 13 (α of eq 13 is the memory: this gain is 1 − α)
+        self.alpha = 1.0 - lowpass_alpha(fc, self.time_step) if fc > 0 else 1.0
         self.offset = np.zeros(dim)
         self.filtered: np.ndarray | None = None
         self.in_contact = False
@@ -69,17 +72,11 @@ class FtSensorNode(StudyNode):
         self.create_service(Trigger, topics.TARE_SERVICE, self.on_tare)
         self.published = 0
 
-    def _message(self, stamp, force: np.ndarray, moment: np.ndarray | None = None) -> WrenchStamped:
-        out = WrenchStamped()
-        out.header.stamp = stamp
-        out.header.frame_id = topics.WRENCH_FRAME
-        full = [0.0, 0.0, 0.0]
-        for axis, value in zip(self.axes, force, strict=True):
-            full[axis] = float(value)
-        out.wrench.force.x, out.wrench.force.y, out.wrench.force.z = full
-        if moment is not None:
-            out.wrench.torque.x, out.wrench.torque.y, out.wrench.torque.z = map(float, moment)
-        return out
+    def _message(
+        self, stamp: TimeMsg, force: np.ndarray, moment: np.ndarray | None = None
+    ) -> WrenchStamped:
+        """The wrench of ``force`` (N, on the contact axes) and ``moment`` (N·m, or zero)."""
+        return wrench_stamped(stamp, force_on_axes(self.axes, force), moment)
 
     def on_wrench(self, msg: WrenchStamped) -> None:
         topic = self.name_of(topics.PLANT_WRENCH)
@@ -125,7 +122,7 @@ class FtSensorNode(StudyNode):
         return response
 
 
-def main(argv=None) -> int:
+def main(argv: list[str] | None = None) -> int:
     return run_node(FtSensorNode, __doc__.splitlines()[0], argv)
 
 

@@ -57,6 +57,7 @@ from __future__ import annotations
 
 import math
 import time
+from typing import Any
 
 import numpy as np
 from geometry_msgs.msg import TwistStamped
@@ -162,7 +163,7 @@ class ImpactPlannerNode(MeasuredCycleNode):
         the prior). safe_stops: safe stops published. last_command: the newest command.
     """
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__("impact_planner", **kwargs)
         p = self.params
         self.robot = load_robot(self.scenario.robot)
@@ -273,6 +274,7 @@ class ImpactPlannerNode(MeasuredCycleNode):
         bound = command.pre_impact_velocity
         self._publish(
             k,
+            command,
             command.velocity,
             {
                 "safe_stop": 0.0,
@@ -285,8 +287,12 @@ class ImpactPlannerNode(MeasuredCycleNode):
             },
         )
 
-    def _publish(self, k: int, velocity: np.ndarray, fields: dict) -> None:
-        c, command = self.controller, self.last_command
+    def _publish(
+        self, k: int, command: CartesianCommand, velocity: np.ndarray, fields: dict[str, float]
+    ) -> None:
+        """The twist ``velocity`` (m/s, world) of cycle k, the status and the reference of
+        ``command`` (the newest command) with ``fields``."""
+        c = self.controller
         msg = TwistStamped()
         msg.header.stamp = self.stamp_of(k)
         msg.header.frame_id = topics.COMMAND_FRAME
@@ -352,12 +358,14 @@ class ImpactPlannerNode(MeasuredCycleNode):
 
     def safe_stop(self, k: int | None = None) -> None:
         """Publish a zero twist (``safe_stop`` = 1); see the module docstring for its stamp."""
-        if self.last_command is None:
+        command = self.last_command
+        if command is None:
             return  # nothing commanded yet: nothing to stop
         candidates = [c for c in (k, self._clock_cycle(), self._last_output) if c is not None]
         material = self.controller.material
         self._publish(
             max(candidates),
+            command,
             np.zeros(3),
             {
                 "safe_stop": 1.0,
@@ -429,7 +437,7 @@ class ImpactPlannerNode(MeasuredCycleNode):
         return response
 
 
-def main(argv=None) -> int:
+def main(argv: list[str] | None = None) -> int:
     return run_node(ImpactPlannerNode, __doc__.splitlines()[0], argv)
 
 

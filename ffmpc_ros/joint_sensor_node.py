@@ -8,6 +8,8 @@ Subscribes ``/plant/joint_states`` (true q, q̇ and the applied torque τ̂), pu
 
 from __future__ import annotations
 
+from typing import Any
+
 from sensor_msgs.msg import JointState
 
 from ffmpc_core.robots import load_robot
@@ -19,7 +21,7 @@ from ffmpc_ros.base import StudyNode, run_node
 class JointSensorNode(StudyNode):
     """Eq 30 on every plant joint state (one cycle per message)."""
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__("joint_sensor", **kwargs)
         s = self.scenario
         self.robot = load_robot(s.robot)
@@ -54,7 +56,7 @@ class JointSensorNode(StudyNode):
         self.published += 1
 
 
-def main(argv=None) -> int:
+def main(argv: list[str] | None = None) -> int:
     return run_node(JointSensorNode, __doc__.splitlines()[0], argv)
 
 

@@ -412,14 +412,16 @@ def run_launch(
                 if node.output == "screen":
                     print(f"[{node.label}] {line}", end="", file=out, flush=True)
             for node in description.nodes:
-                child = running.get(node.label)
-                if child is None or child.poll() is None:
+                exited = running.get(node.label)
+                if exited is None or exited.poll() is None:
                     continue
                 del running[node.label]
-                print(f"[launch] {node.label} exited with {child.returncode}", file=out, flush=True)
-                code = code or child.returncode  # the first failure, reported at the end
+                print(
+                    f"[launch] {node.label} exited with {exited.returncode}", file=out, flush=True
+                )
+                code = code or exited.returncode  # the first failure, reported at the end
                 if node.shutdown_on_exit:
-                    code = child.returncode or code
+                    code = exited.returncode or code
                     running.clear()
                     break
             if end is not None and time.monotonic() > end:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import time
+from typing import Any
 
 import numpy as np
 from geometry_msgs.msg import WrenchStamped
@@ -39,7 +40,7 @@ _PARTS = ("q", "force_true", "force_measured", "tau_desired", "tau_measured", "t
 class MetricsNode(StudyNode):
     """Recorder + metrics (see the module docstring)."""
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__("metrics", **kwargs)
         s = self.scenario
         self.robot = load_robot(s.robot)
@@ -107,7 +108,7 @@ class MetricsNode(StudyNode):
                     self.filled += 1
             self._record(k, row)
             previous = row
-        self._finish()
+        self._finish(self.table_normal)
 
     def _check_ready(self) -> None:
         """Announce on /metrics/ready once every recorded topic has a matched publisher (the
@@ -117,7 +118,7 @@ class MetricsNode(StudyNode):
             self.ready = True
             self.pub_ready.publish(Bool(data=True))
 
-    def _put(self, k: int | None, part: str, value) -> None:
+    def _put(self, k: int | None, part: str, value: float | np.ndarray) -> None:
         if k is None or not 0 <= k < self.steps or self.metrics is not None:
             return
         row = self._rows.setdefault(k, {})
@@ -126,7 +127,7 @@ class MetricsNode(StudyNode):
             del self._rows[k]
             self._record(k, row)
             if self.recorded == self.steps and self.table_normal is not None:
-                self._finish()
+                self._finish(self.table_normal)
 
     def _record(self, k: int, row: dict) -> None:
         self._q[k] = row["q"]
@@ -143,7 +144,7 @@ class MetricsNode(StudyNode):
         self._recorded[k] = True
         self.recorded += 1
 
-    def _joints(self, msg: JointState, fields: tuple[str, ...]):
+    def _joints(self, msg: JointState, fields: tuple[str, ...]) -> list[np.ndarray] | None:
         try:
             return self.joint_arrays(msg, self.joint_names, fields)
         except InputError as exc:
@@ -189,8 +190,9 @@ class MetricsNode(StudyNode):
         if arrays is not None:
             self._put(self.cycle_of(msg.header.stamp), "tau_motor", arrays[0])
 
-    def _finish(self) -> None:
-        self.metrics = study_metrics(self.log.arrays, self.task, self.table_normal)
+    def _finish(self, table_normal: np.ndarray) -> None:
+        """The metrics (``table_normal``: the table's unit normal, world) and the summary."""
+        self.metrics = study_metrics(self.log.arrays, self.task, table_normal)
         true, measured = self.metrics
         summary = {
             "formulation": self.scenario.mpc.formulation,
@@ -207,7 +209,7 @@ class MetricsNode(StudyNode):
         return self.metrics is not None
 
 
-def main(argv=None) -> int:
+def main(argv: list[str] | None = None) -> int:
     return run_node(MetricsNode, __doc__.splitlines()[0], argv)
 
 

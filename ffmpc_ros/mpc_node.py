@@ -55,8 +55,10 @@ from __future__ import annotations
 
 import contextlib
 import gc
+from typing import Any
 
 import numpy as np
+from builtin_interfaces.msg import Time as TimeMsg
 from ffmpc_msgs.msg import MpcCommand as MpcCommandMsg
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from rclpy.parameter import Parameter
@@ -88,7 +90,7 @@ WARM_UP_SOLVES = 20  # real time: solves before the node subscribes to its input
 class MpcNode(StudyNode):
     """ModelPredictiveController on topics (see the module docstring)."""
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__("mpc", **kwargs)
         s = self.scenario
         self.robot = load_robot(s.robot)
@@ -106,7 +108,7 @@ class MpcNode(StudyNode):
         self.every = steps_per_mpc_period(s)
         self.needs_force = self.config.formulation == "force_feedback"
         self._joints: dict[int, tuple] = {}
-        self._forces: dict[int, object] = {}
+        self._forces: dict[int, np.ndarray] = {}
         self._last_solve: int | None = None
         self.sequence = 0
         self.solve_times: list[float] = []
@@ -213,7 +215,7 @@ class MpcNode(StudyNode):
     # -- live parameters and reference topics ------------------------------------------------
     applies_at = "next solve"
 
-    def check_live(self, name: str, value) -> str | None:
+    def check_live(self, name: str, value: Any) -> str | None:
         """The MPC's own rules (module docstring): which formulation and task can take it."""
         formulation = self.config.formulation
         if name.startswith("contact.") and formulation != "force_feedback":
@@ -360,7 +362,7 @@ class MpcNode(StudyNode):
             self.mpc.step(meas, 0.0)
         self.mpc.reset()
 
-    def _is_tick(self, stamp) -> bool:
+    def _is_tick(self, stamp: TimeMsg) -> bool:
         """Real time: whether a stamp is an MPC tick (other cycles are not parsed at all)."""
         k = self.cycle_of(stamp)
         return k is None or k % self.every == 0  # (a stamp that is no time: rejected there)
@@ -373,6 +375,9 @@ class MpcNode(StudyNode):
         stamps against it like every node (stale, or from the future and never adopted)."""
         from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
+        context_handle = self.context.handle
+        if context_handle is None:  # the context is already destroyed: nothing to wait for
+            return
         gc.collect()
         gc.freeze()
         gc.disable()
@@ -390,8 +395,8 @@ class MpcNode(StudyNode):
         with contextlib.ExitStack() as stack:
             for sub, _, _ in inputs:
                 stack.enter_context(sub.handle)
-            stack.enter_context(self.context.handle)
-            wait_set = _rclpy.WaitSet(len(inputs), 0, 0, 0, 0, 0, self.context.handle)
+            stack.enter_context(context_handle)
+            wait_set = _rclpy.WaitSet(len(inputs), 0, 0, 0, 0, 0, context_handle)
             while self.context.ok():
                 wait_set.clear_entities()
                 for sub, _, _ in inputs:
@@ -473,7 +478,7 @@ class MpcNode(StudyNode):
         return [f"{failed} solves failed"] if failed else []
 
 
-def main(argv=None) -> int:
+def main(argv: list[str] | None = None) -> int:
     return run_node(MpcNode, __doc__.splitlines()[0], argv)
 
 

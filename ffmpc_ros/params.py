@@ -35,6 +35,7 @@ from typing import Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.exceptions import ParameterException
+from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from ffmpc_core.config import FORMULATIONS, LIVE_COST_WEIGHTS, CostWeights
@@ -565,7 +566,7 @@ def scenario_descriptor(spec: ParamSpec, live: bool = False) -> ParameterDescrip
     return desc
 
 
-def _raw_override(node, ros: str) -> Any:
+def _raw_override(node: Node, ros: str) -> Any:
     """The value given for ``ros`` (``-p``, ``--params-file`` or ``parameter_overrides``)."""
     given = getattr(node, "_parameter_overrides", {}).get(ros)
     return None if given is None else plain_value(given.value)
@@ -576,7 +577,7 @@ def plain_value(value: Any) -> Any:
     return list(value) if type(value).__name__ == "array" else value
 
 
-def declare_node_parameters(node, spec: NodeSpec) -> dict[str, Any]:
+def declare_node_parameters(node: Node, spec: NodeSpec) -> dict[str, Any]:
     """Declare every parameter of ``spec`` on an rclpy node; returns {ROS name: value}.
 
     A value rclpy refuses (wrong type, out of range) raises the schema's ConfigError

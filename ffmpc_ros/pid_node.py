@@ -43,7 +43,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from ffmpc_core.errors import InputError
-from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement, LowLevelMode
+from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement, LowLevelMode, LowLevelOutput
 from ffmpc_core.robots import load_robot
 from ffmpc_core.study import lowlevel_controller, measured_force, steps_per_mpc_period
 from ffmpc_ros import layouts, topics
@@ -56,7 +56,7 @@ _KEEP = 50  # cycles of pending inputs kept
 class PidNode(StudyNode):
     """LowLevelController on topics (see the module docstring)."""
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__("pid", **kwargs)
         s = self.scenario
         self.robot = load_robot(s.robot)
@@ -74,7 +74,7 @@ class PidNode(StudyNode):
         self._last_step: int | None = None
         self._waiting_since: float | None = None
         self._skip_wait: set[int] = set()
-        self.last_output = None
+        self.last_output: LowLevelOutput | None = None
         self.pub_motor = self.graph_publisher(JointState, topics.MOTOR_TORQUE)
         self.pub_desired = self.graph_publisher(JointState, topics.DESIRED_TORQUE)
         self.pub_status = self.graph_publisher(Float64MultiArray, topics.LOWLEVEL_STATUS)
@@ -271,7 +271,7 @@ class PidNode(StudyNode):
         return []
 
 
-def main(argv=None) -> int:
+def main(argv: list[str] | None = None) -> int:
     return run_node(PidNode, __doc__.splitlines()[0], argv)
 
 

@@ -33,6 +33,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+from builtin_interfaces.msg import Time as TimeMsg
 from geometry_msgs.msg import WrenchStamped
 from rclpy.clock import Clock, ClockType
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -46,34 +47,15 @@ from ffmpc_core.study import (
     lowlevel_controller,
 )
 from ffmpc_ros import layouts, topics
-from ffmpc_ros.base import StudyNode, run_node
+from ffmpc_ros.base import StudyNode, joint_state_message, run_node, wrench_stamped
 from sim_bridge.scenes import simulated_robot
 
 STATUS_EVERY = 100  # cycles between two /plant/status messages
 
 
-def joint_state_message(
-    stamp, names: Sequence[str], q: np.ndarray, v: np.ndarray, effort: np.ndarray
-) -> JointState:
-    """``plant/joint_states`` of one cycle: q (rad), q̇ (rad/s), applied torque (N·m)."""
-    msg = JointState()
-    msg.header.stamp = stamp
-    msg.name = list(names)
-    msg.position = np.asarray(q, dtype=float).tolist()
-    msg.velocity = np.asarray(v, dtype=float).tolist()
-    msg.effort = np.asarray(effort, dtype=float).tolist()
-    return msg
-
-
-def wrench_message(stamp, wrench_world: np.ndarray) -> WrenchStamped:
+def wrench_message(stamp: TimeMsg, wrench_world: np.ndarray) -> WrenchStamped:
     """``plant/wrench`` of one cycle: [f; m] on the tool (N, N·m), ``contact_world_aligned``."""
-    msg = WrenchStamped()
-    msg.header.stamp = stamp
-    msg.header.frame_id = topics.WRENCH_FRAME
-    f, m = wrench_world[:3], wrench_world[3:]
-    msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z = map(float, f)
-    msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z = map(float, m)
-    return msg
+    return wrench_stamped(stamp, wrench_world[:3], wrench_world[3:])
 
 
 class PlantNode(StudyNode):

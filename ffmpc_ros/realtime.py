@@ -82,6 +82,7 @@ import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import rclpy
@@ -116,9 +117,18 @@ from ffmpc_core.study import (
     study_metrics,
 )
 from ffmpc_ros import layouts, topics
-from ffmpc_ros.base import StudyNode
+from ffmpc_ros.base import (
+    StudyNode,
+    force_on_axes,
+    joint_state_message,
+    stamp_at,
+    wrench_stamped,
+)
 from ffmpc_ros.command_msg import command_fields
 from ffmpc_ros.params import parameter_overrides
+
+if TYPE_CHECKING:  # (sim_bridge, PyBullet, is imported only when a loop runs)
+    from sim_bridge.plant import PlantState
 
 #: A run fails when more than this fraction of the loop's or the MPC's deadlines was missed.
 MAX_MISSED_FRACTION = 0.01
@@ -278,6 +288,7 @@ class _StallSchedule:
             if fault.kind == "loop-stall":
                 time.sleep(duration)
             elif self.stopped is None:
+                assert self.mpc_pid is not None  # __init__ refuses an mpc-stall without it
                 os.kill(self.mpc_pid, signal.SIGSTOP)
                 self.stopped = time.perf_counter() + duration
 
@@ -366,11 +377,6 @@ def sleep_until(deadline: float) -> None:
 
 
 # -- the loop process ---------------------------------------------------------------------------
-def _stamp(k: int, step_ns: int) -> TimeMsg:
-    sec, nanosec = divmod(k * step_ns, 1_000_000_000)
-    return TimeMsg(sec=int(sec), nanosec=int(nanosec))
-
-
 def real_time_pid_settings(scenario: Scenario) -> Scenario:
     """The scenario the real-time loop's torque PID runs: the lockstep model shifted by the fixed
     MPC latency of ``every`` = mpc.period/Δt cycles (a command solved at cycle k is applied at
@@ -503,7 +509,14 @@ class RealtimeLoop:
         self.rejected[kind] = self.rejected.get(kind, 0) + 1
         self.nodes["pid"].reject(kind, message)
 
-    def _take_commands(self, k: int, arrival: np.ndarray, latency: np.ndarray, sent, solve):
+    def _take_commands(
+        self,
+        k: int,
+        arrival: np.ndarray,
+        latency: np.ndarray,
+        sent: np.ndarray,
+        solve: list[float],
+    ) -> None:
         """Take every command that arrived; note the cycle at which each arrived."""
         sub = self.sub_command
         now = time.perf_counter()
@@ -541,28 +554,6 @@ class RealtimeLoop:
             except InputError as exc:
                 self._reject(f"{self._command_topic}:value", str(exc))
 
-    def _joint_msg(self, stamp, q, v, effort) -> JointState:
-        msg = JointState()
-        msg.header.stamp = stamp
-        msg.name = self.joint_names
-        if q is not None:
-            msg.position = q.tolist()
-        if v is not None:
-            msg.velocity = v.tolist()
-        msg.effort = effort.tolist()
-        return msg
-
-    def _wrench_msg(self, stamp, force: np.ndarray, moment=None) -> WrenchStamped:
-        msg = WrenchStamped()
-        msg.header.stamp = stamp
-        msg.header.frame_id = topics.WRENCH_FRAME
-        f = msg.wrench.force
-        f.x, f.y, f.z = (float(x) for x in force)
-        if moment is not None:
-            m = msg.wrench.torque
-            m.x, m.y, m.z = (float(x) for x in moment)
-        return msg
-
     def wait_for_mpc(self, limit: float = MPC_WAIT) -> None:
         """Block until the MPC subscribes to the joint states and /clock (its time source: this
         loop's nodes read /clock too) and publishes commands, then ``start_delay`` more
@@ -582,7 +573,7 @@ class RealtimeLoop:
         time.sleep(self.start_delay)
 
     # -- the run ---------------------------------------------------------------------------------
-    def run(self) -> dict:
+    def run(self) -> dict[str, Any]:
         """Run every cycle on the wall clock; returns the raw per-cycle records.
 
         A cycle whose release is a whole period past when the loop gets to it is **missed**
@@ -593,7 +584,7 @@ class RealtimeLoop:
         each later one whose start passed meanwhile run under the held torque, then it is
         delivered. The loop resumes at the first release still ahead, on the same grid."""
         n, nv, dt = self.steps, self.robot.nv, self.time_step
-        rec = {
+        rec: dict[str, Any] = {
             "q": np.zeros((n, nv)),
             "v": np.zeros((n, nv)),
             "force_true": np.zeros(n),
@@ -638,18 +629,18 @@ class RealtimeLoop:
                     self._refresh_subscribers()
                 act = self._active
                 t = k * dt
-                stamp = _stamp(k, self.step_ns)
+                stamp = stamp_at(k, self.step_ns)
                 # sensing (eq 30, 32) and the measurement the MPC reads, first: the MPC's time
                 q_hat, v_hat, _ = self.joint_model.step(state.q, state.v)
                 f_hat = self.force_model.step(measured_force(state.wrench_world, contact))
                 if act["clock"]:
                     self.pub_clock.publish(ClockMsg(clock=stamp))
-                self.pub_joints.publish(self._joint_msg(stamp, q_hat, v_hat, tau_hat))
+                self.pub_joints.publish(
+                    joint_state_message(stamp, self.joint_names, q_hat, v_hat, tau_hat)
+                )
                 if act["wrench"]:
-                    full = [0.0, 0.0, 0.0]
-                    for axis, value in zip(self.force_axes, f_hat, strict=True):
-                        full[axis] = float(value)
-                    self.pub_wrench.publish(self._wrench_msg(stamp, full))
+                    full = force_on_axes(self.force_axes, f_hat)
+                    self.pub_wrench.publish(wrench_stamped(stamp, full))
                 rec["published"][k] = time.perf_counter()
                 stalls.inject(k)  # (an injected stall freezes this process here)
                 self._take_commands(
@@ -700,7 +691,9 @@ class RealtimeLoop:
         rec["stalls"] = stalls.report()
         return rec
 
-    def _missed_cycle(self, rec: dict, k: int, held: np.ndarray, state, f_hat: np.ndarray):
+    def _missed_cycle(
+        self, rec: dict[str, Any], k: int, held: np.ndarray, state: PlantState, f_hat: np.ndarray
+    ) -> tuple[np.ndarray, PlantState]:
         """Cycle k missed by the loop: the sensor devices sample (their delay lines keep time,
         nothing is published), the plant steps under the held motor torque through the actuation
         model (eq 31), and the cycle is recorded as missed (the mode and desired torque of the
@@ -719,7 +712,16 @@ class RealtimeLoop:
         return tau_hat, self.plant.state()
 
     @staticmethod
-    def _record(rec, k, q_true, v_true, force_true, f_hat, tau_hat, motor) -> None:
+    def _record(
+        rec: dict[str, Any],
+        k: int,
+        q_true: np.ndarray,
+        v_true: np.ndarray,
+        force_true: float,
+        f_hat: np.ndarray,
+        tau_hat: np.ndarray,
+        motor: np.ndarray,
+    ) -> None:
         rec["q"][k] = q_true
         rec["v"][k] = v_true
         rec["force_true"][k] = force_true
@@ -727,17 +729,28 @@ class RealtimeLoop:
         rec["tau_measured"][k] = tau_hat
         rec["tau_motor"][k] = motor
 
-    def _publish_observers(self, k, stamp, q_true, force_true, out, tau_hat, state) -> None:
+    def _publish_observers(
+        self,
+        k: int,
+        stamp: TimeMsg,
+        q_true: np.ndarray,
+        force_true: float,
+        out: LowLevelOutput | None,
+        tau_hat: np.ndarray,
+        state: PlantState,
+    ) -> None:
         """The topics no controller reads, only while someone subscribes."""
         act = self._active
         if act["plant_joints"] or act["plant_wrench"] or act["truth"]:
             # /plant/* of cycle k+1 (the state after this step; effort: τ̂ applied over it)
-            nxt = _stamp(k + 1, self.step_ns)
+            nxt = stamp_at(k + 1, self.step_ns)
             if act["plant_joints"]:
-                self.pub_plant_joints.publish(self._joint_msg(nxt, state.q, state.v, tau_hat))
+                self.pub_plant_joints.publish(
+                    joint_state_message(nxt, self.joint_names, state.q, state.v, tau_hat)
+                )
             if act["plant_wrench"]:
                 w = state.wrench_world
-                self.pub_plant_wrench.publish(self._wrench_msg(nxt, w[:3], w[3:]))
+                self.pub_plant_wrench.publish(wrench_stamped(nxt, w[:3], w[3:]))
             if act["truth"]:
                 self.pub_truth.publish(
                     layouts.PLANT_TRUTH.pack(
@@ -754,9 +767,13 @@ class RealtimeLoop:
         if out is None:
             return
         if act["motor"]:
-            self.pub_motor.publish(self._joint_msg(stamp, None, None, out.motor_torque))
+            self.pub_motor.publish(
+                joint_state_message(stamp, self.joint_names, None, None, out.motor_torque)
+            )
         if act["desired"]:
-            self.pub_desired.publish(self._joint_msg(stamp, None, None, out.desired_torque))
+            self.pub_desired.publish(
+                joint_state_message(stamp, self.joint_names, None, None, out.desired_torque)
+            )
         if act["pid_status"]:
             age = out.command_age if np.isfinite(out.command_age) else 1e9
             self.pub_pid_status.publish(
@@ -985,6 +1002,8 @@ def run_realtime(
     warnings: list[str] = []
     if cpus == "auto":
         cpus = default_cpus()
+    elif isinstance(cpus, str):
+        raise RealtimeError(f"cpus: 'auto', None or (loop CPU, MPC CPU), got {cpus!r}")
     with tempfile.TemporaryDirectory(prefix="ffmpc_rt_") as tmp:
         path = os.path.join(tmp, "graph_params.yaml")
         write_params_file({n: v for n, v in params.items() if n in NODES}, path, namespace)
@@ -1006,11 +1025,11 @@ def run_realtime(
             for name, cmd in commands.items():
                 if name == "loop":  # (the MPC started first: the loop may stop it, mpc-stall)
                     cmd[-len(ros) : -len(ros)] = ["--mpc-pid", str(children["mpc"].pid)]
-                log = open(os.path.join(tmp, f"{name}.log"), "w") if quiet else None  # noqa: SIM115
+                log_file = open(os.path.join(tmp, f"{name}.log"), "w") if quiet else None  # noqa: SIM115
                 child = subprocess.Popen(
                     cmd,
                     env=env,
-                    stdout=log,
+                    stdout=log_file,
                     stderr=subprocess.STDOUT if quiet else None,
                     start_new_session=True,
                     preexec_fn=_die_with_parent,  # noqa: PLW1509  (the parent has no threads)

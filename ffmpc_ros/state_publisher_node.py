@@ -27,7 +27,10 @@ the graph: the lockstep loop does not wait for it.
 
 from __future__ import annotations
 
+from typing import Any
+
 import pinocchio as pin
+from builtin_interfaces.msg import Time as TimeMsg
 from geometry_msgs.msg import TransformStamped
 from rclpy.lifecycle import LifecycleState, TransitionCallbackReturn
 from sensor_msgs.msg import JointState
@@ -48,7 +51,7 @@ from ffmpc_ros.robot_tree import (
 class StatePublisherNode(StudyNode):
     """robot_description, /tf_static and /tf of the scenario's robot (module docstring)."""
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__("state_publisher", **kwargs)
         self.robot = load_robot(self.scenario.robot)
         self.joint_names = list(self.robot.joint_names)
@@ -101,7 +104,7 @@ class StatePublisherNode(StudyNode):
         self.pub_tf.publish(self.message(msg.header.stamp, self.moving_edges, placements))
         self.published += 1
 
-    def message(self, stamp, edges: list[Edge], placements: list[pin.SE3]) -> TFMessage:
+    def message(self, stamp: TimeMsg, edges: list[Edge], placements: list[pin.SE3]) -> TFMessage:
         """One TFMessage of ``edges`` at ``placements``, every transform stamped ``stamp``."""
         out = TFMessage()
         for edge, placement in zip(edges, placements, strict=True):
@@ -123,7 +126,7 @@ class StatePublisherNode(StudyNode):
         return out
 
 
-def main(argv=None) -> int:
+def main(argv: list[str] | None = None) -> int:
     return run_node(StatePublisherNode, __doc__.splitlines()[0], argv)
 
 

@@ -51,6 +51,8 @@ records, what ``ros2 topic list`` shows); it needs no node.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ffmpc_core.errors import ConfigError
@@ -446,7 +448,7 @@ def resolved_topics(namespace: str | None = ROOT_NAMESPACE) -> tuple[tuple[str, 
     return tuple((resolve(t, namespace), ty, node) for t, ty, node in TOPICS)
 
 
-def namespace_of(topic_names, name: str = PLANT_JOINT_STATES) -> str:
+def namespace_of(topic_names: Iterable[str], name: str = PLANT_JOINT_STATES) -> str:
     """The namespace of a graph from the fully qualified topic names it used (a bag's): the
     prefix of the one name that ends with ``/<name>``; the root when there is none or several."""
     found = {t[: -len(name) - 1] or ROOT_NAMESPACE for t in topic_names if t.endswith("/" + name)}

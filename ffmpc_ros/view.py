@@ -31,8 +31,12 @@ from typing import Any
 
 import numpy as np
 import pinocchio as pin
+from builtin_interfaces.msg import Time as TimeMsg
+from foxglove import Channel, WebSocketServer
+from foxglove.websocket import ChannelView, Client, ServerListener
 from geometry_msgs.msg import Point, WrenchStamped
 from rclpy.clock import Clock, ClockType
+from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
@@ -175,7 +179,7 @@ class ViewNode(Node):
         *,
         host: str = DEFAULT_HOST,
         port: int = DEFAULT_PORT,
-        context=None,
+        context: Context | None = None,
         use_sim_time: bool = True,
         discovery_period: float = 0.1,
         node_name: str = "view",
@@ -198,6 +202,7 @@ class ViewNode(Node):
         self.wait_for_client = wait_for_client
         self.listener = _Subscriptions()
         self.started_at = "not started"  # why client_ready held (reported at the end)
+        self.server: WebSocketServer | None = None
         try:
             self.server = foxglove.start_server(
                 name="ffmpc",
@@ -366,7 +371,7 @@ class ViewNode(Node):
                 BRIDGE_DEPTH,
             )
 
-    def _forwarder(self, topic: str, channel, latched: bool) -> Callable[[bytes], None]:
+    def _forwarder(self, topic: str, channel: Channel, latched: bool) -> Callable[[bytes], None]:
         """The raw callback of a topic: forward to Foxglove while a client listens (a latched
         topic's last message is kept and sent again to each new subscriber), then the hook."""
         clock = self.get_clock()
@@ -411,7 +416,7 @@ class ViewNode(Node):
         contact = self.to_contact.contact_position()
         self.pub_markers.publish(self.markers(self.to_contact.last.header.stamp, contact))
 
-    def markers(self, stamp, contact: np.ndarray) -> MarkerArray:
+    def markers(self, stamp: TimeMsg, contact: np.ndarray) -> MarkerArray:
         """The force arrow at ``contact`` (m, world) and the planned path (module docstring),
         in the root link's frame (= world)."""
         arrow = Marker(ns="measured_force", id=0, type=Marker.ARROW, action=Marker.ADD)
@@ -448,7 +453,7 @@ class ViewNode(Node):
         super().destroy_node()
 
 
-class _Subscriptions:
+class _Subscriptions(ServerListener):
     """Server listener: the first time (monotonic s) a client subscribed to each topic, and
     the topics subscribed since the view last looked (``take_new``)."""
 
@@ -457,7 +462,7 @@ class _Subscriptions:
         self.last_at = -float("inf")  # monotonic s of the newest subscription
         self._new: list[str] = []
 
-    def on_subscribe(self, client, channel) -> None:
+    def on_subscribe(self, client: Client, channel: ChannelView) -> None:
         self.last_at = time.monotonic()
         self.subscribed.setdefault(channel.topic, self.last_at)
         self._new.append(channel.topic)

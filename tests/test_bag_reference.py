@@ -236,3 +236,20 @@ def test_player_keeps_timing_rate_selection_and_remapping():
         assert np.median(arrived - due) < 0.1 and np.max(arrived - due) < 0.5
     finally:
         harness.close()
+
+
+def test_player_says_when_asked_for_timing_before_it_started():
+    """Before start() (or the first publish_due), the player has no wall-clock origin: asking
+    when the next message is due is a BagError naming the fix, not a TypeError."""
+    from ffmpc_ros.bag.errors import BagError
+
+    harness = RosHarness()
+    try:
+        with BagReader(BAG) as bag:
+            player = BagPlayer(harness.probe("player"), bag, topics=[topics.CLOCK])
+            with pytest.raises(BagError, match="has not started"):
+                player.time_to_next()
+            player.start(100.0)
+            assert player.time_to_next(100.0) == pytest.approx(0.0)  # the bag's first message
+    finally:
+        harness.close()

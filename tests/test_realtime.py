@@ -252,3 +252,26 @@ def test_a_stalled_mpc_gives_the_safe_hold_then_the_mpc_takes_over_again():
     assert max(result.safety["max_velocity_ratio"]) < 1.0
     assert max(result.safety["max_torque_ratio"]) <= 1.0
     assert result.safety["faults"][0]["fault"] == "mpc-stall@0.4+0.1"
+
+
+def test_lockstep_timing_counts_the_excused_mpc_ticks_not_the_excused_seconds():
+    """The lockstep probe's timing: ``excused_mpc_ticks`` counts the MPC ticks inside the fault
+    windows (it once counted the excused fallback seconds, a float, as 0 or 1 tick)."""
+    from ffmpc_ros.bringup import _PidStatusProbe
+
+    class _NoNode:  # the probe only subscribes to /pid/status; timing() reads its arrays
+        def create_subscription(self, *args: object, **kwargs: object) -> None:
+            return None
+
+    dt, every = 1e-3, 2
+    probe = _PidStatusProbe(_NoNode(), steps=20, time_step=dt)
+    probe.mode[:] = TRACK
+    probe.mode[8:12] = FALLBACK
+    probe.command_age[:] = 0.0
+    status = {"deadline_misses": 0, "latency_p50": 1e-4, "latency_p99": 2e-4, "latency_max": 3e-4}
+    # ticks 0, 2, ..., 18 at t = 0, 2, ..., 18 ms; the window [7.5, 12.5) ms holds 8, 10 and 12
+    timing = probe.timing(every, status, [(0.0075, 0.0125)])
+    assert timing["excused_mpc_ticks"] == 3
+    assert timing["fallback_excused_s"] == pytest.approx(0.004)
+    assert timing["fallback_time_s"] == 0.0
+    assert probe.timing(every, status, [])["excused_mpc_ticks"] == 0

@@ -19,7 +19,12 @@ import numpy as np
 import pinocchio as pin
 
 from ffmpc_core.errors import ConfigError, InputError, SolverError
-from ffmpc_core.impact.deformation import SoftMaterial, deformation_dynamics, unit_direction
+from ffmpc_core.impact.deformation import (
+    SoftMaterial,
+    deformation_dynamics,
+    measured_deformation,
+    unit_direction,
+)
 from ffmpc_core.impact.learner import RecursiveContactLearner
 from ffmpc_core.impact.limits import ContactSpaceMapper, JointLimits
 from ffmpc_core.impact.planner import ImpactPlanner, PenetrationPlan, PlannerConfig
@@ -379,7 +384,7 @@ class ImpactController:
         d = cfg.direction
         if cfg.learn_online:
             assert self._contact_position is not None  # latched when CONTACT began
-            z = float(d @ (p - self._contact_position))
+            z = measured_deformation(p, self._contact_position, d)
             self.learner.update(z, speed, force)
         return self._admittance_command(force, cfg.target_force, dt, CONTACT)
 

@@ -38,7 +38,12 @@ from ffmpc_core.impact.control import (
     ImpactMeasurement,
     admittance_step,
 )
-from ffmpc_core.impact.deformation import SoftMaterial, one_step_impact_force, unit_direction
+from ffmpc_core.impact.deformation import (
+    SoftMaterial,
+    measured_deformation,
+    one_step_impact_force,
+    unit_direction,
+)
 from ffmpc_core.impact.learner import RecursiveContactLearner
 from ffmpc_core.impact.limits import ContactSpaceMapper, JointLimits
 from ffmpc_core.impact.task_space import (
@@ -753,7 +758,7 @@ class ImpactTaskController:
         in_contact = self.contact_time is not None
         if in_contact and m.force > 0.0 and not self.touch_strategy:
             assert self.touch_position is not None  # latched with the contact
-            z = float(ctrl.direction @ (m.position - self.touch_position))
+            z = measured_deformation(m.position, self.touch_position, ctrl.direction)
             self.learner.update(z, m.speed, m.force)
         impact_force = self._impact_force(m, in_contact, touch)
 

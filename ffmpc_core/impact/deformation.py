@@ -34,6 +34,7 @@ from ffmpc_core.errors import ConfigError, InputError, ModelError
 from ffmpc_core.robots import RobotModel
 
 __all__ = [
+    "DOWN",
     "DeformationDynamics",
     "SoftMaterial",
     "acceleration_map",
@@ -45,11 +46,15 @@ __all__ = [
     "effective_mass",
     "effective_mass_from",
     "material_matrix",
+    "measured_deformation",
     "one_step_impact_force",
     "predicted_force_increase",
     "simulate_deformation",
     "unit_direction",
 ]
+
+#: The default motion direction d (world frame): straight down.
+DOWN = np.array([0.0, 0.0, -1.0])
 
 
 def _positive(value: float, name: str, allow_zero: bool = False) -> float:
@@ -95,6 +100,15 @@ class SoftMaterial:
         _positive(self.stiffness, "stiffness")
         _positive(self.damping, "damping", allow_zero=True)
         _positive(self.max_penetration, "max_penetration")
+
+
+def measured_deformation(
+    position: np.ndarray, surface: np.ndarray, direction: np.ndarray = DOWN
+) -> float:
+    """Sec. III-A: deformation ``z = dᵀ (p − p_s)`` (m) of the contact-frame position ``p``
+    relative to the initial contact position ``p_s`` along the unit motion direction ``d``
+    (world frame); z > 0 inside the material."""
+    return float(np.asarray(direction) @ (np.asarray(position) - np.asarray(surface)))
 
 
 def deformation_force(

@@ -19,7 +19,12 @@ import pinocchio as pin
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.impact.control import CartesianCommand
 from ffmpc_core.impact.controllers import ContactMeasurement
-from ffmpc_core.impact.deformation import one_step_impact_force, predicted_force_increase
+from ffmpc_core.impact.deformation import (
+    DOWN,
+    measured_deformation,
+    one_step_impact_force,
+    predicted_force_increase,
+)
 from ffmpc_core.impact.learner import ExplorationReference, RecursiveContactLearner
 from ffmpc_core.impact.limits import JointLimits, motion_basis
 from ffmpc_core.impact.task_space import (
@@ -39,17 +44,7 @@ __all__ = [
     "sticking_contact_force",
 ]
 
-DOWN = np.array([0.0, 0.0, -1.0])
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-
-
-def measured_deformation(
-    position: np.ndarray, surface: np.ndarray, direction: np.ndarray = DOWN
-) -> float:
-    """Sec. III-A: deformation ``z = dᵀ (p − p_s)`` (m) of the contact-frame position ``p``
-    relative to the initial contact position ``p_s`` along the unit motion direction ``d``
-    (world frame); z > 0 inside the material."""
-    return float(np.asarray(direction) @ (np.asarray(position) - np.asarray(surface)))
 
 
 def sticking_contact_force(

@@ -56,7 +56,7 @@ from ffmpc_core.impact.control import (
     ImpactControllerConfig,
     ImpactMeasurement,
 )
-from ffmpc_core.impact.deformation import one_step_impact_force
+from ffmpc_core.impact.deformation import measured_deformation, one_step_impact_force
 from ffmpc_core.impact.learner import ContactEstimate, RecursiveContactLearner
 from ffmpc_core.impact.limits import JointLimits
 from ffmpc_core.impact.robust import (
@@ -349,7 +349,9 @@ class TouchFirstImpactController(ImpactController):
         p = np.asarray(position, dtype=float)
         surface = fed_surface(self.learning_gate(), p, force, self.config.contact_threshold)
         if surface is not None:
-            self.learner.update(float(self.config.direction @ (p - surface)), speed, force)
+            self.learner.update(
+                measured_deformation(p, surface, self.config.direction), speed, force
+            )
 
     # ------------------------------------------------------------------ the cycle
     def step(self, measurement: ImpactMeasurement, t: float) -> CartesianCommand:
@@ -423,7 +425,9 @@ class TouchFirstImpactController(ImpactController):
         """Admittance towards ``target`` (N) and eq 19–20 learning of this cycle's sample
         against ``surface`` (m, world; :func:`fed_surface`, None: not fed)."""
         if surface is not None:
-            self.learner.update(float(self.config.direction @ (p - surface)), speed, force)
+            self.learner.update(
+                measured_deformation(p, surface, self.config.direction), speed, force
+            )
         return self._admittance_command(force, target, dt, phase)
 
     def _touch_done(self, t: float) -> bool:

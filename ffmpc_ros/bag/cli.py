@@ -71,7 +71,7 @@ def _cmd_metrics(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(summary | {"matches_recorded": study.matches_recorded}, indent=2))
         return 0 if study.metrics_true is not None else 1
-    if study.metrics_true is None:
+    if study.metrics_true is None or study.metrics_measured is None:  # (both or neither)
         print(
             f"{args.bag}: {study.recorded_cycles} of {study.cycles} cycles complete in the bag; "
             "no metrics (a truncated bag: plot it, or recover it)"
@@ -156,7 +156,7 @@ def _cmd_record(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_bag_parser(sub) -> None:
+def add_bag_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``ffmpc bag`` and its subcommands on the ``ffmpc`` subparsers."""
     from ffmpc_ros.cli_args import new_path, nonnegative_float, positive_float
 

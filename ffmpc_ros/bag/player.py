@@ -146,9 +146,15 @@ class BagPlayer:
         """Start the playback clock (wall time ``now``, default time.perf_counter())."""
         self._start = time.perf_counter() if now is None else now
 
+    def _started(self) -> float:
+        """The wall time playback started at (BagError before :meth:`start`)."""
+        if self._start is None:
+            raise BagError("playback has not started: call start() or publish_due() first")
+        return self._start
+
     def due_at(self, message: BagMessage) -> float:
         """Wall time at which a message is due."""
-        return self._start + (message.log_time - self._t0) * 1e-9 / self.rate
+        return self._started() + (message.log_time - self._t0) * 1e-9 / self.rate
 
     def time_to_next(self, now: float | None = None) -> float | None:
         """Wall seconds until the next message is due (None when done)."""
@@ -162,8 +168,9 @@ class BagPlayer:
         if self._start is None:
             self.start(now)
         now = time.perf_counter() if now is None else now
-        bag_now = (now - self._start) * self.rate
-        if self.clock_publisher is not None and not self.done:
+        start = self._started()
+        bag_now = (now - start) * self.rate
+        if self.clock_publisher is not None and self.clock_rate is not None and not self.done:
             while self._next_clock <= bag_now:
                 ns = self._t0 + int(round(self._next_clock * 1e9))
                 msg = ClockMsg()
@@ -187,7 +194,7 @@ class BagPlayer:
             self._next = next(self._messages, None)
             now = max(now, time.perf_counter())
         if count:
-            self.report.wall_time = now - self._start
+            self.report.wall_time = now - start
             self.report.mean_lateness = self._late_sum / self._count
         return count
 

@@ -22,10 +22,10 @@ import io
 import json
 import os
 import struct
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import yaml
 from mcap.data_stream import ReadDataStream
@@ -104,7 +104,7 @@ class RecoveryReport:
         )
 
 
-def _footer_ok(fh, size: int) -> bool:
+def _footer_ok(fh: BinaryIO, size: int) -> bool:
     if size < 2 * MAGIC_SIZE + _FOOTER_SIZE:
         return False
     fh.seek(size - MAGIC_SIZE - _FOOTER_SIZE)
@@ -166,6 +166,7 @@ class BagReader:
         self._channels: dict[int, Channel] = {}
         self._chunk_offsets: list[int] = []  # truncated bags: complete chunks
         self._loose: list[Message] = []  # truncated bags: messages outside chunks
+        self._reader: SeekingReader | None = None  # complete bags: mcap's indexed reader
         try:
             self._magic()
             if _footer_ok(self._fh, self.file_size) and self._read_summary():
@@ -259,11 +260,12 @@ class BagReader:
                     chunks += 1
                     messages += len(found)
                 elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL, Opcode.METADATA):
-                    record = {
-                        Opcode.SCHEMA: Schema,
-                        Opcode.CHANNEL: Channel,
-                        Opcode.METADATA: Metadata,
-                    }[Opcode(opcode)].read(stream)
+                    read: Callable[[ReadDataStream], Schema | Channel | Metadata] = {
+                        Opcode.SCHEMA: Schema.read,
+                        Opcode.CHANNEL: Channel.read,
+                        Opcode.METADATA: Metadata.read,
+                    }[Opcode(opcode)]
+                    record = read(stream)
                     self._keep(record)
                 elif opcode == Opcode.MESSAGE:
                     m = Message.read(stream, length)
@@ -282,7 +284,7 @@ class BagReader:
         self._build_topics(counts)
         self.recovery = RecoveryReport(False, self.file_size, readable, chunks, messages, reason)
 
-    def _keep(self, record) -> None:
+    def _keep(self, record: object) -> None:
         if isinstance(record, Schema):
             self._schemas[record.id] = record
         elif isinstance(record, Channel):
@@ -421,7 +423,7 @@ class BagReader:
     def __enter__(self) -> BagReader:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
 
@@ -432,7 +434,7 @@ def _opname(opcode: int) -> str:
         return f"opcode {opcode:#x}"
 
 
-def _size(n: int) -> str:
+def _size(n: float) -> str:
     for unit in ("B", "KiB", "MiB", "GiB"):
         if n < 1024 or unit == "GiB":
             return f"{n:.1f} {unit}" if unit != "B" else f"{n} B"

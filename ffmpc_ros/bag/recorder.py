@@ -28,18 +28,24 @@ import json
 import os
 import signal
 import time
-from collections.abc import Iterable, Mapping, Sequence
-from typing import IO, Any
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from typing import IO, TYPE_CHECKING, Any
 
 import rclpy
 from rcl_interfaces.srv import GetParameters, ListParameters
 from rclpy.clock import Clock, ClockType
+from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
+from rclpy.task import Future
+from rclpy.topic_endpoint_info import TopicEndpointInfo
 
 from ffmpc_ros.bag.ros_types import offered_profiles, subscribe_raw
 from ffmpc_ros.bag.writer import BagWriter
 from ffmpc_ros.graph_nodes import SERVICE_RETRY
+
+if TYPE_CHECKING:
+    from ffmpc_core.scenario import Scenario
 
 #: Topics not recorded unless asked for by name.
 DEFAULT_EXCLUDE = ("/parameter_events",)
@@ -71,7 +77,7 @@ class _ParameterFetch:
         self.fqn = fqn
         self.list_client = node.create_client(ListParameters, f"{fqn}/list_parameters")
         self.get_client = node.create_client(GetParameters, f"{fqn}/get_parameters")
-        self.future = None
+        self.future: Future | None = None
         self._asked = 0.0  # monotonic s of the pending request
         self.names: list[str] | None = None
         self.values: dict[str, Any] | None = None
@@ -158,7 +164,7 @@ class BagRecorder(Node):
         self,
         target: str | os.PathLike | IO[bytes],
         *,
-        context=None,
+        context: Context | None = None,
         node_name: str = "ffmpc_recorder",
         topics: Iterable[str] | None = None,
         exclude: Iterable[str] = DEFAULT_EXCLUDE,
@@ -238,7 +244,7 @@ class BagRecorder(Node):
                 continue  # another graph's node
             self._fetches[fqn] = _ParameterFetch(self, fqn)
         for fqn, fetch in self._fetches.items():
-            if fqn not in self.parameters and fetch.poll():
+            if fqn not in self.parameters and fetch.poll() and fetch.values is not None:
                 self.parameters[fqn] = fetch.values
                 self.writer.add_parameters(fqn, fetch.values)
         if not self.gate_open and self._ready():
@@ -271,7 +277,7 @@ class BagRecorder(Node):
         recorded = {fqn.rsplit("/", 1)[-1] for fqn in self.parameters} | set(self.parameters)
         return all(node in recorded for node in self.parameters_of)
 
-    def _subscribe(self, topic: str, type_name: str, publishers) -> None:
+    def _subscribe(self, topic: str, type_name: str, publishers: list[TopicEndpointInfo]) -> None:
         profiles = offered_profiles(publishers)
         channel = self.writer.add_topic(
             topic,
@@ -336,8 +342,10 @@ class BagRecorder(Node):
 
 
 def graph_recorder_metadata(
-    scenario=None, run: Mapping[str, Mapping[str, Any]] | None = None, namespace: str = "/"
-):
+    scenario: Scenario | None = None,
+    run: Mapping[str, Mapping[str, Any]] | None = None,
+    namespace: str = "/",
+) -> dict[str, dict[str, str]]:
     """Metadata records of ``ffmpc run --record`` (see :func:`graph_recorder`), JSON-able."""
     import yaml
 
@@ -389,8 +397,8 @@ def _graph_recorder_options(
 def graph_recorder(
     target: str | os.PathLike,
     *,
-    context=None,
-    scenario=None,
+    context: Context | None = None,
+    scenario: Scenario | None = None,
     run: Mapping[str, Mapping[str, Any]] | None = None,
     view: str | None = None,
     namespace: str | None = None,
@@ -465,11 +473,10 @@ def record_bag(
     domain_id: int | None = None,
     use_sim_time: bool = True,
     writer_options: Mapping[str, Any] | None = None,
-    stop=None,
+    stop: Callable[[], bool] | None = None,
 ) -> BagRecorder:
     """Record a live graph until Ctrl-C/SIGTERM, ``duration`` wall seconds or ``stop()`` returns
     True; returns the (closed) recorder with its counts."""
-    from rclpy.context import Context
     from rclpy.experimental import EventsExecutor
 
     domain = int(os.environ.get("ROS_DOMAIN_ID", "0")) if domain_id is None else domain_id

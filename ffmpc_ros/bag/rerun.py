@@ -29,19 +29,22 @@ from __future__ import annotations
 import math
 import os
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import rclpy
 from ffmpc_msgs.msg import MpcCommand as MpcCommandMsg
 from rclpy.context import Context
 from rclpy.exceptions import ParameterException
+from rclpy.executors import Executor
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
+from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy
 from rclpy.serialization import deserialize_message
+from rclpy.subscription import Subscription
 
 from ffmpc_core.errors import ConfigError
 from ffmpc_core.scenario import Scenario
@@ -50,6 +53,9 @@ from ffmpc_ros.bag.errors import BagError
 from ffmpc_ros.bag.machine import MACHINE_RECORD, same_machine
 from ffmpc_ros.bag.reader import BagMessage, BagReader
 from ffmpc_ros.bag.ros_types import message_class, qos_from_dicts
+
+if TYPE_CHECKING:
+    from ffmpc_ros.base import StudyNode
 
 #: Nodes that can be re-run from a bag.
 RERUN_NODES = ("joint_sensor", "ft_sensor", "mpc", "pid")
@@ -95,7 +101,7 @@ class RerunTolerance:
         if not (self.relative >= 0.0 and self.absolute >= 0.0):
             raise ConfigError(f"tolerances must be >= 0, got {self}")
 
-    def allows(self, recorded, difference: float) -> bool:
+    def allows(self, recorded: object, difference: float) -> bool:
         """Whether ``difference`` (max |Δ| of one field) is within tolerance of ``recorded``."""
         if not math.isfinite(difference):
             return False
@@ -108,7 +114,7 @@ class RerunTolerance:
 
 
 # -- comparison -------------------------------------------------------------------------------
-def flatten_message(msg) -> dict[str, Any]:
+def flatten_message(msg: Any) -> dict[str, Any]:
     """{field path: value} of a message: numbers and numeric arrays as float arrays, strings as
     str; a Float64MultiArray with a known ffmpc layout by its named fields."""
     label = None
@@ -128,7 +134,7 @@ def flatten_message(msg) -> dict[str, Any]:
             }
     out: dict[str, Any] = {}
 
-    def walk(value, prefix: str) -> None:
+    def walk(value: Any, prefix: str) -> None:
         if hasattr(value, "get_fields_and_field_types"):
             for name in value.get_fields_and_field_types():
                 walk(getattr(value, name), f"{prefix}{name}.")
@@ -153,7 +159,7 @@ def flatten_message(msg) -> dict[str, Any]:
     return out
 
 
-def ignored_fields(msg) -> tuple[str, ...]:
+def ignored_fields(msg: Any) -> tuple[str, ...]:
     """The wall-time fields :func:`flatten_message` leaves out of this message."""
     if type(msg) in TYPED_WALL_TIME_FIELDS:
         return TYPED_WALL_TIME_FIELDS[type(msg)]
@@ -164,7 +170,7 @@ def ignored_fields(msg) -> tuple[str, ...]:
     return ()
 
 
-def _difference(a, b) -> float:
+def _difference(a: object, b: object) -> float:
     """0 when equal (NaN equals NaN), else the largest |a − b| (inf for other shapes/strings)."""
     if isinstance(a, np.ndarray) and isinstance(b, np.ndarray):
         if a.shape != b.shape:
@@ -177,7 +183,7 @@ def _difference(a, b) -> float:
     return 0.0 if a == b else math.inf
 
 
-def message_time(msg) -> float | None:
+def message_time(msg: Any) -> float | None:
     """The simulated time a message belongs to: its header stamp, a layout's ``t``, a Clock's
     time; None for messages without one."""
     stamp = None
@@ -333,7 +339,7 @@ def compare_outputs(
     return comparison
 
 
-def _show(name: str, recorded, rerun) -> str:
+def _show(name: str, recorded: object, rerun: object) -> str:
     """The largest difference of one field: element, both values, |Δ|."""
     if isinstance(recorded, np.ndarray) and isinstance(rerun, np.ndarray):
         if recorded.shape == rerun.shape and recorded.size:
@@ -397,7 +403,7 @@ def apply_overrides(node: str, values: dict[str, Any], overrides: Mapping[str, A
 
 
 # -- the re-run -------------------------------------------------------------------------------
-def _spin_until(executor, done, timeout: float, what: str) -> None:
+def _spin_until(executor: Executor, done: Callable[[], bool], timeout: float, what: str) -> None:
     end = time.monotonic() + timeout
     while not done():
         if time.monotonic() > end:
@@ -491,7 +497,7 @@ def rerun_node(
             rclpy.shutdown(context=context)
 
 
-def _rerun_qos(bag, names, prefix: str) -> dict[str, str | int]:
+def _rerun_qos(bag: BagReader, names: Iterable[str], prefix: str) -> dict[str, str | int]:
     """QoS override parameters of the re-run node's remapped topics: its readers as reliable as
     the recording's publishers were (a reliable reader would not match a best-effort feeder),
     its writers reliable with the graph's history (the collectors must get every output)."""
@@ -510,18 +516,18 @@ def _strip(prefix: str, name: str) -> str:
     return name[len(prefix) :] if name.startswith(prefix) else name
 
 
-def _type_name(cls: type) -> str:
+def _type_name(cls: Any) -> str:
     """``pkg/msg/Type`` of an rclpy message class."""
     return f"{cls.__module__.split('.')[0]}/msg/{cls.__name__}"
 
 
-def _check_types(bag, node: str, target, prefix: str, names: list[str]) -> None:
+def _check_types(
+    bag: BagReader, node: str, target: StudyNode, prefix: str, names: list[str]
+) -> None:
     """RerunError when a topic was recorded with another type than the node uses now (a bag
     from before ``mpc/command`` became ``ffmpc_msgs/msg/MpcCommand``: record it again)."""
-    ours = {
-        _strip(prefix, e.topic_name): _type_name(e.msg_type)
-        for e in (*target.subscriptions, *target.publishers)
-    }
+    entities: list[Subscription | Publisher] = [*target.subscriptions, *target.publishers]
+    ours = {_strip(prefix, e.topic_name): _type_name(e.msg_type) for e in entities}
     for t in names:
         if t in ours and bag.topics[t].type != ours[t]:
             raise RerunError(
@@ -531,7 +537,17 @@ def _check_types(bag, node: str, target, prefix: str, names: list[str]) -> None:
 
 
 def _run(
-    bag, node, target, feeder, executor, prefix, timeout, overrides, start, tolerance, clock
+    bag: BagReader,
+    node: str,
+    target: StudyNode,
+    feeder: Node,
+    executor: Executor,
+    prefix: str,
+    timeout: float,
+    overrides: Mapping[str, Any],
+    start: float,
+    tolerance: RerunTolerance | None,
+    clock: str,
 ) -> RerunReport:
     tolerance = tolerance or RerunTolerance()
     ignored = {*_IGNORED_TOPICS, clock}  # clock: the bag's (/arm1/clock under a namespace)
@@ -583,8 +599,8 @@ def _run(
     count = dict.fromkeys(inputs, 0)
     for m in bag.messages(list(pubs)):
         msg = deserialize_message(m.data, types[m.topic])
-        t = message_time(msg)
-        k = last if t is None else int(round(t * 1e9 / step_ns))
+        t_msg = message_time(msg)  # s
+        k = last if t_msg is None else int(round(t_msg * 1e9 / step_ns))
         last = k
         if m.topic == clock:
             clock_of.setdefault(k, m.data)
@@ -599,18 +615,17 @@ def _run(
     for k in sorted(by_cycle):
         if k in clock_of:
             pubs[clock].publish(clock_of[k])
-            _spin_until(
-                executor,
-                lambda k=k: node_clock.now().nanoseconds >= k * step_ns,
-                timeout,
-                f"the node's clock to reach cycle {k}",
-            )
+
+            def clock_reached(k: int = k) -> bool:
+                return node_clock.now().nanoseconds >= k * step_ns
+
+            _spin_until(executor, clock_reached, timeout, f"the node's clock to reach cycle {k}")
         pending = []
         for topic, kk, data in by_cycle[k]:
             pending.append((topic, kk, rejected(topic)))
             pubs[topic].publish(data)
 
-        def taken(pending=pending) -> bool:
+        def taken(pending: list[tuple[str, int, int]] = pending) -> bool:
             return all(
                 target._last_cycle.get(topic, -1) >= kk or rejected(topic) > before
                 for topic, kk, before in pending

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Mapping, Sequence
-from typing import Any
+from enum import Enum
+from typing import Any, TypeVar
 
 from rclpy.duration import Duration
 from rclpy.qos import (
@@ -19,12 +20,14 @@ from rclpy.qos import (
 from ffmpc_ros.bag.errors import SchemaError
 from ffmpc_ros.bag.schema import INFINITE_DURATION, qos_profile_dict, split_type
 
+PolicyT = TypeVar("PolicyT", bound=Enum)
+
 _INFINITE_NS = INFINITE_DURATION["sec"] * 1_000_000_000 + INFINITE_DURATION["nsec"]
 #: History depth of a publisher whose offered depth is unknown (DDS does not carry it).
 DEFAULT_DEPTH = 100
 
 
-def message_class(type_name: str):
+def message_class(type_name: str) -> type[Any]:
     """The rclpy message class of ``pkg/msg/Type`` (SchemaError if it is not installed)."""
     package, namespace, name = split_type(type_name)
     try:
@@ -65,7 +68,8 @@ def qos_to_dict(qos: QoSProfile) -> dict[str, Any]:
     )
 
 
-def _policy(enum, value: str, default):
+def _policy(enum: type[PolicyT], value: object, default: PolicyT | None) -> PolicyT | None:
+    """The member of ``enum`` named ``value`` (any case), or ``default``."""
     try:
         return enum[str(value).upper()]
     except KeyError:

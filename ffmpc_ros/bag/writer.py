@@ -78,7 +78,7 @@ class _DirectStream:
         self._fsync = fsync
         self._position = 0
 
-    def write(self, data) -> int:
+    def write(self, data: bytes | bytearray | memoryview) -> int:
         view = memoryview(data).cast("B")
         size = len(view)
         while view:
@@ -206,7 +206,7 @@ class BagWriter:
     def __enter__(self) -> BagWriter:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
     # -- content ----------------------------------------------------------------------------
