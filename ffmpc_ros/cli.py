@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from types import FrameType
 
 from ffmpc_core.errors import ConfigError, FfmpcError
 from ffmpc_ros.cli_args import (
@@ -172,7 +173,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.seed is not None:
         overrides["seed"] = args.seed
     scenario = load_scenario(args.scenario, overrides)
-    cpus = "auto"
+    cpus: str | tuple[int, int] | None = "auto"
     if args.cpus == "none":
         cpus = None
     elif args.cpus is not None:
@@ -259,7 +260,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     t = result.timing or {}
     fractions = t.get("deadline_met_fraction") or {}
 
-    def shown(value, fmt: str) -> str:
+    def shown(value: float | None, fmt: str) -> str:
         return "n/a" if value is None else format(value, fmt)
 
     print(
@@ -299,7 +300,7 @@ def _cmd_run_guarded(args: argparse.Namespace) -> int:
 
     from ffmpc_ros.bringup import RunInterrupted, request_stop
 
-    def terminate(signum, _frame):
+    def terminate(signum: int, _frame: FrameType | None) -> None:
         for sig in (signal.SIGINT, signal.SIGTERM):  # one stop at a time: cleanup runs once
             signal.signal(sig, signal.SIG_IGN)
         if args.real_time:  # ffmpc_ros.realtime stops on KeyboardInterrupt

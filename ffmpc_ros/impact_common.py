@@ -14,8 +14,10 @@ from __future__ import annotations
 
 import time
 from collections import deque
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from builtin_interfaces.msg import Time as TimeMsg
 from geometry_msgs.msg import WrenchStamped
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
@@ -24,6 +26,9 @@ from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.impact.deformation import unit_direction
 from ffmpc_core.impact.learner import ContactEstimate, RecursiveContactLearner, confident
 from ffmpc_ros import layouts, topics
+
+if TYPE_CHECKING:
+    from ffmpc_core.impact.scenario import ImpactStudyConfig
 from ffmpc_ros.base import StudyNode, drop_stale_cycles
 
 #: Cycles an incomplete measurement waits for its partner before it is dropped: the publishers'
@@ -33,7 +38,7 @@ KEEP = topics.PUBLISHER_DEPTH
 DIRECTION_TOLERANCE = 1e-6
 
 
-def direction_parameter(value) -> np.ndarray:
+def direction_parameter(value: object) -> np.ndarray:
     """The ``direction`` parameter as a unit 3-vector (world frame); ConfigError otherwise."""
     try:
         return unit_direction(np.asarray(value, dtype=float))
@@ -41,7 +46,7 @@ def direction_parameter(value) -> np.ndarray:
         raise ConfigError(f"parameter direction: {exc}") from None
 
 
-def impact_study_config(params: dict):
+def impact_study_config(params: dict[str, Any]) -> ImpactStudyConfig:
     """The impact study's configuration (``ffmpc_core.impact.scenario.ImpactStudyConfig``) of a
     node of the impact graph: its ``impact_scenario`` with the ``impact_set`` overrides
     (NAME=VALUE, as ``ffmpc study impact --set``), checked against the study's schema;
@@ -190,7 +195,7 @@ class MeasuredCycleNode(StudyNode):
 
     joint_names: list[str]
 
-    def __init__(self, spec: str, **kwargs) -> None:
+    def __init__(self, spec: str, **kwargs: Any) -> None:
         super().__init__(spec, **kwargs)
         self._joints: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._wrenches: dict[int, np.ndarray] = {}
@@ -217,7 +222,7 @@ class MeasuredCycleNode(StudyNode):
         """A measurement was rejected (k: its cycle when its stamp is on the grid)."""
 
     # -- inputs ------------------------------------------------------------------------------
-    def _checked_cycle(self, topic: str, stamp) -> int | None:
+    def _checked_cycle(self, topic: str, stamp: TimeMsg) -> int | None:
         k_msg = self.cycle_of(stamp)
         k = self.check_stamp(topic, stamp)
         if k is None:

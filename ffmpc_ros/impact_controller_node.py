@@ -48,6 +48,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 from rclpy.clock import Clock, ClockType
@@ -124,7 +125,7 @@ class ImpactControllerNode(MeasuredCycleNode):
         last_command: the newest ImpactTaskCommand.
     """
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__("impact_controller", **kwargs)
         from ffmpc_core.impact.scenario import task_config
 

@@ -38,12 +38,14 @@ import tempfile
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields, is_dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import rclpy
+from builtin_interfaces.msg import Time as TimeMsg
 from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
+from rclpy.qos import QoSProfile
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 
@@ -51,6 +53,10 @@ from ffmpc_core.errors import ConfigError
 from ffmpc_core.scenario import Scenario
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.params import node_parameter_values
+
+if TYPE_CHECKING:
+    from ffmpc_core.impact.scenario import ImpactStudyConfig
+    from ffmpc_core.robots import RobotModel
 
 #: The impact graph's nodes: name → "module:class" (the planner only for the maximal approach).
 IMPACT_NODES: dict[str, str] = {
@@ -292,7 +298,7 @@ def metrics_summary(metrics: dict[str, Any]) -> dict[str, Any]:
     out = dict(metrics)
     v = out.get("violations")
     if v is not None and is_dataclass(v):
-        out["violations"] = {**asdict(v), "total": v.total}  # type: ignore[arg-type]
+        out["violations"] = {**asdict(v), "total": v.total}
     return out
 
 
@@ -314,7 +320,7 @@ class _Probe:
         self.estimate: dict | None = None
         self.cycle = -1
 
-        def qos(topic: str):
+        def qos(topic: str) -> QoSProfile:
             return topics.graph_qos(topic, "subscription", True)
 
         node.create_subscription(
@@ -340,7 +346,7 @@ class _Probe:
         )
         self.nv = nv
 
-    def _k(self, stamp) -> int:
+    def _k(self, stamp: TimeMsg) -> int:
         return int(round((stamp.sec * 1_000_000_000 + stamp.nanosec) * 1e-9 / self.time_step))
 
     def _on_joints(self, msg: JointState) -> None:
@@ -386,7 +392,9 @@ class _Probe:
         return fed < 3 or (self.estimate is not None and self.estimate["samples"] == fed)
 
 
-def _graph_metrics(cfg, probe: _Probe, robot) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+def _graph_metrics(
+    cfg: ImpactStudyConfig, probe: _Probe, robot: RobotModel
+) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """The run's metrics with the ROS-free run's code (``dice_measurement``, ``run_metrics``)."""
     from ffmpc_core.impact.limits import joint_limits
     from ffmpc_core.impact.metrics import run_metrics
@@ -627,7 +635,7 @@ def run_impact_graph(
     )
 
 
-def compare_with_runner(result: ImpactGraphResult, run) -> dict[str, tuple[Any, Any]]:
+def compare_with_runner(result: ImpactGraphResult, run: Any) -> dict[str, tuple[Any, Any]]:
     """{metric: (graph, ROS-free)} of every :data:`COMPARED` metric (and
     :data:`COMPARED_TOUCH` for a touch-first run) that differs (bit for bit;
     NaN equals NaN) between a graph run and ``studies.impact_study.run_impact``'s ImpactRun."""
