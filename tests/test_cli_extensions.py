@@ -43,10 +43,14 @@ def _ep(name: str, value: str) -> metadata.EntryPoint:
 def test_the_installed_groups_name_the_studies_commands() -> None:
     commands = {ep.name: ep.value for ep in metadata.entry_points(group=COMMAND_GROUP)}
     bench = {ep.name: ep.value for ep in metadata.entry_points(group=BENCH_GROUP)}
-    assert commands == {"study": "studies.cli:StudyCommand", "tune": "studies.cli:TuneCommand"}
-    assert bench == {"impact": "studies.cli:BenchImpactVerb"}
+    assert commands == {
+        "demo": "studies.cli:DemoCommand",
+        "study": "studies.cli:StudyCommand",
+        "tune": "studies.cli:TuneCommand",
+    }
+    assert bench == {"impact": "studies.cli:BenchImpactVerb", "mpc": "studies.cli:BenchMpcVerb"}
     loaded = load_extensions(COMMAND_GROUP, warn=pytest.fail)
-    assert sorted(loaded) == ["study", "tune"]
+    assert sorted(loaded) == ["demo", "study", "tune"]
 
 
 def test_load_skips_broken_foreign_and_repeated_entry_points() -> None:
