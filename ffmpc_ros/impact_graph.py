@@ -54,7 +54,7 @@ from std_msgs.msg import Float64MultiArray, String
 from ffmpc_core.errors import ConfigError
 from ffmpc_core.scenario import Scenario
 from ffmpc_ros import layouts, topics
-from ffmpc_ros.params import node_parameter_values
+from ffmpc_ros.params import impact_parameter_values, node_parameter_values
 
 if TYPE_CHECKING:
     from ffmpc_core.impact.scenario import ImpactStudyConfig
@@ -127,7 +127,7 @@ def impact_node_parameters(
     (``topics.graph_qos_overrides``: reliable sensor topics; the start barrier, not a replay).
 
     The planner and the learner get the impact study's values under their IMPACT_SCHEMA names
-    (``node_parameter_values`` with the loaded configuration); ConfigError for a bad
+    (``impact_parameter_values`` of the loaded configuration); ConfigError for a bad
     approach, regulation, scenario or override (the schema's message)."""
     from ffmpc_core.impact.controllers import APPROACHES, REGULATIONS
     from ffmpc_core.impact.limits import PANDA_ACCELERATION_LIMIT
@@ -174,7 +174,8 @@ def impact_node_parameters(
         "state_publisher": dict(common),
         "ft_sensor": {**node_parameter_values("ft_sensor", sensing), "measure_moments": True},
         "contact_learner": {
-            **node_parameter_values("contact_learner", sensing, cfg),
+            **node_parameter_values("contact_learner", sensing),
+            **impact_parameter_values("contact_learner", cfg),
             "direction": d,
             "surface_force": 0.0,  # the last force-free sample (ImpactTaskController's rule)
             "feed_force": 0.0,
@@ -202,7 +203,8 @@ def impact_node_parameters(
             # the impact study's values under their IMPACT_SCHEMA names, from the loaded
             # scenario (the node rebuilds the configuration and its controller from them with
             # the ROS-free run's IMPACT_SCHEMA.build and task_config)
-            **node_parameter_values("impact_planner", sensing, cfg),
+            **node_parameter_values("impact_planner", sensing),
+            **impact_parameter_values("impact_planner", cfg),
             "lockstep": True,
             "direction": d,
             # the Panda's data-sheet values, given: the bag's parameters then show the limits

@@ -9,9 +9,15 @@ node declares:
 * the few values of OTHER sections it needs, under ``<section>.<name>`` (the MPC node declares
   ``pid.delay_cycles`` for its δo and ``plant.time_step``): ``ffmpc run`` fills them from the
   scenario; with ``ros2 run … --params-file`` they keep their defaults unless given with ``-p``;
-* graph parameters that are not part of a scenario (``lockstep``, ``duration``, …). The impact
-  nodes (``impact_planner``, ``contact_learner``) have no scenario section: apart from ``robot``
-  and ``plant.time_step`` all their parameters are graph parameters.
+* the impact study's values it uses (:attr:`NodeSpec.impact`, patterns over
+  :data:`~ffmpc_core.impact.scenario.IMPACT_SCHEMA`), under the schema's dotted names
+  (``planner.horizon``, ``target_force``, ``touch.touch_force``): the impact planner and the
+  contact learner, which have no polishing-scenario section; ``ffmpc run impact`` fills them from
+  the loaded impact scenario (:func:`impact_parameter_values`), the node rebuilds
+  the study's configuration from them (:func:`impact_config_from_parameters`,
+  ``IMPACT_SCHEMA.build``: the checks and messages of ``ffmpc study impact --set``);
+* graph parameters that are not part of a scenario (``lockstep``, ``duration``, ``direction``,
+  …).
 
 Every parameter has a description and numeric ones a range. Most are read-only (nodes build
 their models once); the few a node applies in place while it runs are **live**
@@ -20,9 +26,9 @@ force reference ``task.normal_force`` and ``position_offset``; the PID's gains):
 the same schema range, checked again by the node (:class:`ffmpc_ros.base.StudyNode`, "Live
 parameters"), and applied from the node's next solve or cycle.
 
-The descriptors of scenario parameters are generated from
-:data:`ffmpc_core.scenario.SCHEMA`, the one declaration of each parameter's type, unit and range;
-the node rebuilds a :class:`~ffmpc_core.scenario.Scenario` from its values with the same
+The descriptors of scenario parameters are generated from :data:`ffmpc_core.scenario.SCHEMA`
+(the impact study's from ``IMPACT_SCHEMA``), the one declaration of each parameter's type, unit
+and range; the node rebuilds a :class:`~ffmpc_core.scenario.Scenario` from its values with the same
 validation as the ROS-free runner (:func:`scenario_from_parameters`), and a value rclpy refuses
 gives the same ConfigError as the runner's, so both accept and refuse the same experiments.
 """
@@ -481,22 +487,21 @@ def impact_flat(config: ImpactStudyConfig | None = None) -> dict[str, Any]:
     return {name: _ros_value(value) for name, value in flat.items()}
 
 
-def node_parameter_values(
-    node: str,
-    scenario: Scenario,
-    impact: ImpactStudyConfig | None = None,
-    **graph: Any,
-) -> dict[str, Any]:
+def impact_parameter_values(node: str, config: ImpactStudyConfig) -> dict[str, Any]:
+    """{IMPACT_SCHEMA name: value} of ``config`` that node ``node`` declares
+    (:attr:`NodeSpec.impact`; what ``ffmpc run impact`` passes from the loaded scenario)."""
+    study = impact_flat(config)
+    return {name: study[name] for name in node_impact_names(NODE_SPECS[node])}
+
+
+def node_parameter_values(node: str, scenario: Scenario, **graph: Any) -> dict[str, Any]:
     """{ROS name: value} that makes node ``node`` run ``scenario`` (what ``ffmpc run`` passes),
-    its impact-study parameters from ``impact`` (if given; :attr:`NodeSpec.impact`), plus
-    graph parameters (``lockstep=False``…) and impact-study names given in ``graph``."""
+    plus graph parameters (``lockstep=False``…) and impact-study values given by their
+    IMPACT_SCHEMA names (``**{"planner.horizon": 10}``; :func:`impact_parameter_values`)."""
     spec = NODE_SPECS[node]
     flat = scenario_flat(scenario)
     values = {ros: _ros_value(flat[name]) for ros, name in node_scenario_names(spec, flat).items()}
     impact_names = node_impact_names(spec)
-    if impact is not None:
-        study = impact_flat(impact)
-        values.update({name: study[name] for name in impact_names})
     known = {g.name for g in spec.graph_parameters} | set(impact_names)
     for key, value in graph.items():
         if key in known:
