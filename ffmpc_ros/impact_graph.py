@@ -15,13 +15,15 @@ Nodes (each its own process, started like the polishing graph's, ``ffmpc_ros.bri
   task-space law, the admittance task or the baseline approach, and the hand-over to the
   force-feedback MPC (inside it: see that module); its torque goes to the plant.
 
-The nodes build their configuration from the impact study's scenario (``impact_scenario`` and
-the ``impact_set`` overrides) or, for the planner, learner and sensors, from parameters this
-module derives from it; :func:`impact_node_parameters` checks that the planner's parameters
-give the ROS-free run's planner configuration (a setting the planner node cannot express is
-refused). Each node calls the same core objects in the same order as
-``studies.impact_study.run_impact`` with the same numbers (ROS carries float64 exactly), so the
-metrics are the ROS-free run's bit for bit (tests/test_impact_graph.py).
+The plant and the controller build their configuration from the impact study's scenario
+(``impact_scenario`` and the ``impact_set`` overrides); the planner and the learner declare the
+impact study's values they use under the schema's names (``IMPACT_SCHEMA``: ``target_force``,
+``planner.horizon``, ``touch.touch_force``, …; ``ffmpc_ros.params.NodeSpec.impact``), which
+:func:`impact_node_parameters` fills from the loaded scenario, and rebuild the configuration
+with ``IMPACT_SCHEMA.build`` and the controller with ``task_config`` (the ROS-free run's
+functions); the sensors get parameters derived from it. Each node calls the same core objects in
+the same order as ``studies.impact_study.run_impact`` with the same numbers (ROS carries float64
+exactly), so the metrics are the ROS-free run's bit for bit (tests/test_impact_graph.py).
 
 The bring-up's own node reads the plant's true state and wrench, the controller's status and
 the learner's estimates, computes the metrics with ``ffmpc_core.impact.metrics.run_metrics`` (the
@@ -52,7 +54,7 @@ from std_msgs.msg import Float64MultiArray, String
 from ffmpc_core.errors import ConfigError
 from ffmpc_core.scenario import Scenario
 from ffmpc_ros import layouts, topics
-from ffmpc_ros.params import node_parameter_values
+from ffmpc_ros.params import impact_parameter_values, node_parameter_values
 
 if TYPE_CHECKING:
     from ffmpc_core.impact.scenario import ImpactStudyConfig
@@ -124,14 +126,13 @@ def impact_node_parameters(
     ``namespace``, each node with the lockstep graph's QoS overrides
     (``topics.graph_qos_overrides``: reliable sensor topics; the start barrier, not a replay).
 
-    ConfigError when the settings cannot run as a graph: a planner setting the planner node
-    has no parameter for."""
+    The planner and the learner get the impact study's values under their IMPACT_SCHEMA names
+    (``impact_parameter_values`` of the loaded configuration); ConfigError for a bad
+    approach, regulation, scenario or override (the schema's message)."""
     from ffmpc_core.impact.controllers import APPROACHES, REGULATIONS
-    from ffmpc_core.impact.deformation import SoftMaterial
     from ffmpc_core.impact.limits import PANDA_ACCELERATION_LIMIT
-    from ffmpc_core.impact.scenario import IMPACT_SCHEMA, load_impact_config, task_config
+    from ffmpc_core.impact.scenario import IMPACT_SCHEMA, load_impact_config
     from ffmpc_ros.cli_args import parse_overrides
-    from ffmpc_ros.impact_planner_node import controller_config
 
     if approach not in APPROACHES or regulation not in REGULATIONS:
         raise ConfigError(
@@ -173,9 +174,9 @@ def impact_node_parameters(
         "state_publisher": dict(common),
         "ft_sensor": {**node_parameter_values("ft_sensor", sensing), "measure_moments": True},
         "contact_learner": {
-            **common,
+            **node_parameter_values("contact_learner", sensing),
+            **impact_parameter_values("contact_learner", cfg),
             "direction": d,
-            "contact_threshold": cfg.contact_threshold,
             "surface_force": 0.0,  # the last force-free sample (ImpactTaskController's rule)
             "feed_force": 0.0,
             "skip_onset_samples": 0,
@@ -198,56 +199,19 @@ def impact_node_parameters(
         },
     }
     if approach == "maximal":
-        adm = cfg.admittance
-        planner = {
-            **common,
+        params["impact_planner"] = {
+            # the impact study's values under their IMPACT_SCHEMA names, from the loaded
+            # scenario (the node rebuilds the configuration and its controller from them with
+            # the ROS-free run's IMPACT_SCHEMA.build and task_config)
+            **node_parameter_values("impact_planner", sensing),
+            **impact_parameter_values("impact_planner", cfg),
             "lockstep": True,
             "direction": d,
-            "target_force": cfg.target_force,
-            "contact_threshold": cfg.contact_threshold,
-            "preview_horizon": cfg.planner.horizon,
-            "preview_dt": cfg.planner.dt,
-            "prior_stiffness": cfg.prior_stiffness,
-            "prior_damping": cfg.prior_damping,
-            "max_penetration": cfg.dice.max_penetration,
-            "limit_margin": cfg.limit_margin,
             # the Panda's data-sheet values, given: the bag's parameters then show the limits
             # the run used (unset, the node takes the same values and the bag records null)
             "acceleration_limit": [float(a) for a in PANDA_ACCELERATION_LIMIT],
-            "solver": cfg.planner.solver,
-            "replan_period": cfg.replan_period,
-            "admittance": adm.admittance,
-            "admittance_max_velocity": adm.max_velocity,
-            "admittance_velocity_filter": adm.velocity_filter,
             "use_learned_material": False,  # the paper's scheme plans with the prior
-            "strategy": "touch_first" if touch_first else "prior",
-            **{
-                f"touch.{f.name}": (
-                    [float(x) for x in getattr(cfg.touch, f.name)]
-                    if isinstance(getattr(cfg.touch, f.name), tuple)
-                    else getattr(cfg.touch, f.name)
-                )
-                for f in fields(cfg.touch)
-            },
         }
-        prior = SoftMaterial(cfg.prior_stiffness, cfg.prior_damping, cfg.dice.max_penetration)
-        planner_defaults = {"n_directions": 8, "max_approach_velocity": 0.0}
-        built = controller_config({**planner_defaults, **planner}, prior)
-        wanted = task_config(approach, regulation, cfg).controller
-        if not _same(built, wanted):
-            raise ConfigError(
-                "the impact planner node's parameters cannot express this planner "
-                f"configuration (ROS-free: {wanted}; node: {built})"
-            )
-        if touch_first:
-            from ffmpc_ros.impact_planner_node import touch_config
-
-            if not _same(touch_config(planner), cfg.touch):
-                raise ConfigError(
-                    "the impact planner node's touch.* parameters cannot express this "
-                    f"touch-first configuration ({cfg.touch})"
-                )
-        params["impact_planner"] = planner
     # the lockstep start barrier (ffmpc_ros.base.StudyNode.writers_matched): every node waits to
     # know every /clock reader, the plant for every node's token
     assert sorted(params) == sorted(nodes), (params, nodes)

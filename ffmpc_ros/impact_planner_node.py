@@ -21,10 +21,21 @@ t_k:
   velocity of the cycle, the commanded velocity/acceleration along d, the reference position,
   the force, the material used, the contact time and speed, failures and rejections.
 
-Material. The planner plans with the prior (``prior_stiffness``, ``prior_damping``,
-``max_penetration``) until an estimate of ``/contact_learner/estimate`` for the same direction
-is confident (``learner_min_samples``, ``learner_max_relative_std``; parameter
-``use_learned_material``); from then on with the newest confident estimate (z̄ stays the prior's).
+Parameters. The impact study's values are declared under their
+:data:`~ffmpc_core.impact.scenario.IMPACT_SCHEMA` names (``target_force``,
+``contact_threshold``, ``planner.*``, ``planner.prior_stiffness``, ``plant.dice_max_penetration``,
+``limit_margin``, ``replan_period``, ``admittance.*``, ``learner.*``, ``strategy``, ``touch.*``;
+:data:`ffmpc_ros.params.IMPACT_PLANNER_SCHEMA`) with descriptors generated from the schema;
+the node rebuilds the study's configuration with ``IMPACT_SCHEMA.build`` (the checks of
+``ffmpc study impact --set``) and its controller with the ROS-free run's
+``ffmpc_core.impact.scenario.task_config``. Its own graph parameters: ``direction``,
+``acceleration_limit``, ``n_directions``, ``max_approach_velocity``, ``use_learned_material``.
+
+Material. The planner plans with the prior (``planner.prior_stiffness``,
+``planner.prior_damping``, ``plant.dice_max_penetration``); with ``strategy`` = prior and
+``use_learned_material`` it switches to an estimate of ``/contact_learner/estimate`` for the
+same direction once it is confident (``learner.min_samples``, ``learner.max_relative_std``),
+from then on the newest confident estimate (z̄ stays the prior's).
 
 Limits: the robot's position/torque limits, and ``limit_margin`` × its velocity and acceleration
 limits (``acceleration_limit``, rad/s²; unset: the Panda data sheet, any other robot needs it).
@@ -57,6 +68,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -67,7 +79,6 @@ from std_srvs.srv import Trigger
 
 from ffmpc_core.errors import ConfigError, FfmpcError
 from ffmpc_core.impact.control import (
-    AdmittanceForceController,
     CartesianCommand,
     ImpactController,
     ImpactControllerConfig,
@@ -76,11 +87,10 @@ from ffmpc_core.impact.control import (
 from ffmpc_core.impact.controllers import contact_measurement
 from ffmpc_core.impact.deformation import SoftMaterial
 from ffmpc_core.impact.learner import confident
-from ffmpc_core.impact.limits import JointLimits, joint_limits
-from ffmpc_core.impact.planner import PlannerConfig
+from ffmpc_core.impact.limits import joint_limits
+from ffmpc_core.impact.scenario import ImpactStudyConfig, task_config
 from ffmpc_core.impact.touch_first import (
     TouchCycleInputs,
-    TouchFirstConfig,
     TouchFirstImpactController,
     fed_surface,
 )
@@ -94,65 +104,24 @@ from ffmpc_ros.impact_common import (
     direction_parameter,
     receive_estimate,
 )
-
-#: The planner's strategies (``strategy``).
-STRATEGIES = ("prior", "touch_first")
+from ffmpc_ros.params import impact_config_from_parameters
 
 #: Wall-time period of the missing-input watchdog, s.
 WATCHDOG_PERIOD = 0.05
 
 
-def scaled_limits(limits: JointLimits, margin: float) -> JointLimits:
-    """``margin`` × the velocity and acceleration limits; positions and torques unchanged (as
-    ``ffmpc_core.impact.scenario.ImpactStudyConfig.control_limits``)."""
-    return JointLimits(
-        position_lower=limits.position_lower,
-        position_upper=limits.position_upper,
-        velocity=margin * limits.velocity,
-        acceleration=margin * limits.acceleration,
-        torque=limits.torque,
-    )
-
-
-def controller_config(params: dict, prior: SoftMaterial) -> ImpactControllerConfig:
-    """The ImpactControllerConfig of the node's parameters (ConfigError when inconsistent)."""
-    n_directions = int(params["n_directions"])
+def controller_config(study: ImpactStudyConfig, params: dict) -> ImpactControllerConfig:
+    """The node's ImpactControllerConfig: the ROS-free run's
+    (``ffmpc_core.impact.scenario.task_config``'s ``controller``, from the impact study's
+    configuration ``study``) with the node's own ``direction``, ``n_directions`` and
+    ``max_approach_velocity`` (0: none) graph parameters (ConfigError when inconsistent)."""
     cap = float(params["max_approach_velocity"])
-    return ImpactControllerConfig(
+    return replace(
+        task_config("maximal", "admittance", study).controller,
         direction=direction_parameter(params["direction"]),
-        material=prior,
-        target_force=float(params["target_force"]),
-        contact_threshold=float(params["contact_threshold"]),
-        planner=PlannerConfig(
-            horizon=int(params["preview_horizon"]),
-            dt=float(params["preview_dt"]),
-            max_halfplanes=n_directions,
-            solver=str(params["solver"]),
-        ),
-        n_directions=n_directions,
+        n_directions=int(params["n_directions"]),
         max_approach_velocity=cap if cap > 0 else math.inf,
-        admittance=AdmittanceForceController(
-            admittance=float(params["admittance"]),
-            max_velocity=float(params["admittance_max_velocity"]),
-            velocity_filter=float(params["admittance_velocity_filter"]),
-        ),
-        replan_period=float(params["replan_period"]),
     )
-
-
-def touch_config(params: dict) -> TouchFirstConfig:
-    """The TouchFirstConfig of the node's ``touch.*`` parameters (ConfigError when invalid)."""
-    values = {}
-    for name in TouchFirstConfig.__dataclass_fields__:
-        value = params[f"touch.{name}"]
-        if isinstance(value, list | tuple):
-            value = tuple(float(x) for x in value)
-        elif name == "learner_min_samples":
-            value = int(value)
-        else:
-            value = float(value)
-        values[name] = value
-    return TouchFirstConfig(**values)
 
 
 class ImpactPlannerNode(MeasuredCycleNode):
@@ -168,17 +137,15 @@ class ImpactPlannerNode(MeasuredCycleNode):
         p = self.params
         self.robot = load_robot(self.scenario.robot)
         self.joint_names = list(self.robot.joint_names)
+        # the impact study's values (IMPACT_SCHEMA, validated as `ffmpc study impact --set`)
+        self.study = impact_config_from_parameters(self.spec, p)
         acc = p["acceleration_limit"]
         limits = joint_limits(self.robot, None if acc is None else np.asarray(acc, dtype=float))
-        self.limits = scaled_limits(limits, float(p["limit_margin"]))
-        self.prior = SoftMaterial(
-            float(p["prior_stiffness"]), float(p["prior_damping"]), float(p["max_penetration"])
-        )
-        self.config = controller_config(p, self.prior)
+        self.limits = self.study.control_limits(limits)
+        self.prior = self.study.prior
+        self.config = controller_config(self.study, p)
         self.direction = self.config.direction
-        self.strategy = str(p["strategy"])
-        if self.strategy not in STRATEGIES:
-            raise ConfigError(f"strategy must be one of {STRATEGIES}, got {self.strategy!r}")
+        self.strategy = self.study.strategy
         self.touch_first = self.strategy == "touch_first"
         self.controller: ImpactController
         if self.touch_first:
@@ -189,7 +156,7 @@ class ImpactPlannerNode(MeasuredCycleNode):
                 )
             self.learner = ReceivedEstimates()
             self.controller = TouchFirstImpactController(
-                self.robot, self.limits, self.config, touch_config(p), learner=self.learner
+                self.robot, self.limits, self.config, self.study.touch, learner=self.learner
             )
         else:
             self.controller = ImpactController(self.robot, self.limits, self.config)
@@ -199,8 +166,8 @@ class ImpactPlannerNode(MeasuredCycleNode):
         self._estimates: dict = {}
         self._touch_inputs: TouchCycleInputs | None = None
         self.use_learned_material = bool(p["use_learned_material"])
-        self.learner_min_samples = int(p["learner_min_samples"])
-        self.learner_max_relative_std = float(p["learner_max_relative_std"])
+        self.learner_min_samples = self.study.learner_min_samples
+        self.learner_max_relative_std = self.study.learner_max_relative_std
         self.learned_material: SoftMaterial | None = None
         self.last_command: CartesianCommand | None = None
         self._last_output: int | None = None

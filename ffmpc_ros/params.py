@@ -9,9 +9,15 @@ node declares:
 * the few values of OTHER sections it needs, under ``<section>.<name>`` (the MPC node declares
   ``pid.delay_cycles`` for its δo and ``plant.time_step``): ``ffmpc run`` fills them from the
   scenario; with ``ros2 run … --params-file`` they keep their defaults unless given with ``-p``;
-* graph parameters that are not part of a scenario (``lockstep``, ``duration``, …). The impact
-  nodes (``impact_planner``, ``contact_learner``) have no scenario section: apart from ``robot``
-  and ``plant.time_step`` all their parameters are graph parameters.
+* the impact study's values it uses (:attr:`NodeSpec.impact`, patterns over
+  :data:`~ffmpc_core.impact.scenario.IMPACT_SCHEMA`), under the schema's dotted names
+  (``planner.horizon``, ``target_force``, ``touch.touch_force``): the impact planner and the
+  contact learner, which have no polishing-scenario section; ``ffmpc run impact`` fills them from
+  the loaded impact scenario (:func:`impact_parameter_values`), the node rebuilds
+  the study's configuration from them (:func:`impact_config_from_parameters`,
+  ``IMPACT_SCHEMA.build``: the checks and messages of ``ffmpc study impact --set``);
+* graph parameters that are not part of a scenario (``lockstep``, ``duration``, ``direction``,
+  …).
 
 Every parameter has a description and numeric ones a range. Most are read-only (nodes build
 their models once); the few a node applies in place while it runs are **live**
@@ -20,9 +26,9 @@ force reference ``task.normal_force`` and ``position_offset``; the PID's gains):
 the same schema range, checked again by the node (:class:`ffmpc_ros.base.StudyNode`, "Live
 parameters"), and applied from the node's next solve or cycle.
 
-The descriptors of scenario parameters are generated from
-:data:`ffmpc_core.scenario.SCHEMA`, the one declaration of each parameter's type, unit and range;
-the node rebuilds a :class:`~ffmpc_core.scenario.Scenario` from its values with the same
+The descriptors of scenario parameters are generated from :data:`ffmpc_core.scenario.SCHEMA`
+(the impact study's from ``IMPACT_SCHEMA``), the one declaration of each parameter's type, unit
+and range; the node rebuilds a :class:`~ffmpc_core.scenario.Scenario` from its values with the same
 validation as the ROS-free runner (:func:`scenario_from_parameters`), and a value rclpy refuses
 gives the same ConfigError as the runner's, so both accept and refuse the same experiments.
 """
@@ -40,6 +46,7 @@ from rclpy.parameter import Parameter
 
 from ffmpc_core.config import FORMULATIONS, LIVE_COST_WEIGHTS, CostWeights
 from ffmpc_core.errors import ConfigError
+from ffmpc_core.impact.scenario import IMPACT_SCHEMA, ImpactStudyConfig
 from ffmpc_core.scenario import (
     DELAY,
     FLOAT,
@@ -81,6 +88,10 @@ class NodeSpec:
     #: ROS names (``fnmatch`` patterns) of the scenario parameters the node applies in place
     #: while it runs: writable, every other one read-only.
     live: tuple[str, ...] = ()
+    #: Names (``fnmatch`` patterns) of :data:`~ffmpc_core.impact.scenario.IMPACT_SCHEMA`, the
+    #: impact study's parameters, the node declares under their dotted names (read-only,
+    #: descriptors generated from the schema; :func:`impact_config_from_parameters`).
+    impact: tuple[str, ...] = ()
 
     @property
     def graph_parameters(self) -> tuple[GraphParameter, ...]:
@@ -161,8 +172,9 @@ _TIME_STEP = ("plant.time_step",)
 _CONTACT = ("mpc.contact.dimension", "mpc.contact.normal_axis", "mpc.contact.frame_type")
 
 # -- the impact nodes (Dehio & Kheddar 2020) and the MPC's use of the learned contact ----------
-# Defaults: the paper's experiment (Sec. VI) as in ffmpc_core.impact.scenario (Panda, prior
-# 2400 N/m and 15 N·s/m, z̄ = 3 cm, 90 % of the data-sheet limits).
+# The impact study's values (target force, planner, prior, admittance, learner, touch-first, …)
+# are IMPACT_SCHEMA's, declared by NodeSpec.impact under the schema's dotted names; the graph
+# parameters below are the nodes' own settings, not part of the impact study's scenario.
 DIRECTION = GraphParameter(
     "direction", [0.0, 0.0, -1.0], "unit motion direction d, world frame (eq 2; z, ż, f along d)"
 )
@@ -183,27 +195,9 @@ USE_LEARNED_CONTACT = GraphParameter(
     False,
     "force-feedback: take K, B live from /contact_learner/estimate when it is confident",
 )
+#: The impact planner's graph parameters (its impact-study values: :data:`IMPACT_PLANNER_SCHEMA`).
 IMPACT_PLANNER_GRAPH: tuple[GraphParameter, ...] = (
     DIRECTION,
-    GraphParameter("target_force", 60.0, "force regulated after contact, N", (1e-3, 1e4)),
-    GraphParameter(
-        "contact_threshold", 2.0, "pressing force along d that declares the contact, N", (1e-6, 1e4)
-    ),
-    GraphParameter("preview_horizon", 20, "h, preview steps of eq 12–14", (2, 1000)),
-    GraphParameter("preview_dt", 0.025, "Δt of the penetration preview (eq 6), s", (1e-4, 1.0)),
-    GraphParameter(
-        "prior_stiffness", 2400.0, "α of the planning material until learned, N/m", (1e-3, 1e9)
-    ),
-    GraphParameter(
-        "prior_damping", 15.0, "β of the planning material until learned, N·s/m", (0.0, 1e6)
-    ),
-    GraphParameter("max_penetration", 0.03, "z̄, end of the elastic domain, m", (1e-6, 1.0)),
-    GraphParameter(
-        "limit_margin",
-        0.9,
-        "fraction of the joint velocity and acceleration limits the planner may use",
-        (1e-3, 1.0),
-    ),
     GraphParameter(
         "acceleration_limit",
         Parameter.Type.DOUBLE_ARRAY,
@@ -211,71 +205,35 @@ IMPACT_PLANNER_GRAPH: tuple[GraphParameter, ...] = (
     ),
     GraphParameter("n_directions", 8, "eq 10 weight directions (vertices)", (3, 64)),
     GraphParameter(
-        "solver",
-        "daqp",
-        "eq 10 and eq 14 solver: daqp (warm-started active set; eq 9 and 11 in closed form) "
-        "or osqp (the previous pipeline, kept as a reference)",
-    ),
-    GraphParameter(
         "max_approach_velocity", 0.0, "cap on the approach speed, m/s (0: none)", (0.0, 100.0)
     ),
     GraphParameter(
-        "replan_period",
-        0.0,
-        "re-solve eq 9–14 this often during the approach, s (0: every cycle, as the paper)",
-        (0.0, 10.0),
-    ),
-    GraphParameter("admittance", 2e-3, "admittance G after contact, m/(N·s)", (1e-9, 1.0)),
-    GraphParameter("admittance_max_velocity", 0.1, "admittance velocity bound, m/s", (1e-6, 10.0)),
-    GraphParameter(
-        "admittance_velocity_filter", 0.8, "admittance velocity filter γ per ms", (0.0, 0.999)
-    ),
-    GraphParameter(
         "use_learned_material",
-        True,
-        "plan with /contact_learner/estimate once it is confident (else the prior only)",
-    ),
-    LEARNER_MIN_SAMPLES,
-    LEARNER_MAX_RELATIVE_STD,
-    GraphParameter(
-        "strategy",
-        "prior",
-        "prior (the paper's scheme: plan with the prior) or touch_first (touch gently, learn, "
-        "then strike; the contact learner node learns from this node's learning gate)",
-    ),
-    *(
-        GraphParameter(
-            f"touch.{name}",
-            list(default) if isinstance(default, tuple) else default,
-            f"touch-first: TouchFirstConfig.{name} ({unit})",
-            None if isinstance(default, tuple) else (lo, hi),
-        )
-        for name, default, unit, lo, hi in (
-            ("stiffness_factors", (0.4, 4.0), "factors of the prior α", 0, 0),
-            ("damping_factors", (0.4, 4.0), "factors of the prior β", 0, 0),
-            ("touch_force", 15.0, "N", 1e-6, 1e4),
-            ("touch_dwell", 0.15, "s", 1e-6, 60.0),
-            ("max_touch_time", 1.0, "s", 1e-6, 60.0),
-            ("learner_min_samples", 50, "samples", 3, 2**31 - 1),
-            ("learner_max_relative_std", 0.05, "-", 1e-9, 10.0),
-            ("sigmas", 3.0, "k of α̂ ± k σ", 0.0, 100.0),
-            ("stiffness_floor", 0.1, "relative", 0.0, 10.0),
-            ("damping_floor", 0.25, "relative", 0.0, 10.0),
-            ("retract_height", 0.06, "m", 1e-6, 1.0),
-            ("retract_acceleration_fraction", 0.5, "-", 1e-6, 1.0),
-            ("impact_force_factor", 1.5, "-", 1.0, 100.0),
-            ("penetration_margin", 0.004, "m", 0.0, 0.5),
-        )
+        False,
+        "strategy prior: plan with /contact_learner/estimate once it is confident (false: the "
+        "prior only, the paper's scheme; touch_first needs false)",
     ),
 )
+#: The IMPACT_SCHEMA names the impact planner declares: what its controller
+#: (``ffmpc_core.impact.scenario.task_config``'s ``controller``), its limits, its prior and the
+#: touch-first strategy are built from.
+IMPACT_PLANNER_SCHEMA: tuple[str, ...] = (
+    "plant.time_step",
+    "plant.dice_max_penetration",
+    "planner.*",
+    "target_force",
+    "contact_threshold",
+    "replan_period",
+    "limit_margin",
+    "admittance.*",
+    "learner.*",
+    "strategy",
+    "touch.*",
+)
+#: The contact learner's graph parameters (and IMPACT_SCHEMA's ``contact_threshold``, the
+#: pressing force along d that ends the search for the surface, N).
 CONTACT_LEARNER_GRAPH: tuple[GraphParameter, ...] = (
     DIRECTION,
-    GraphParameter(
-        "contact_threshold",
-        2.0,
-        "pressing force along d that ends the search for the surface, N",
-        (1e-6, 1e4),
-    ),
     GraphParameter(
         "surface_force",
         0.0,
@@ -411,11 +369,17 @@ NODE_SPECS: dict[str, NodeSpec] = {
         "impact_planner",
         None,
         ("robot",),
-        _TIME_STEP,
+        (),
         (LOCKSTEP, LOCKSTEP_TIMEOUT, MAX_AGE, *IMPACT_PLANNER_GRAPH),
+        impact=IMPACT_PLANNER_SCHEMA,
     ),
     "contact_learner": NodeSpec(
-        "contact_learner", None, ("robot",), _TIME_STEP, (MAX_AGE, *CONTACT_LEARNER_GRAPH)
+        "contact_learner",
+        None,
+        ("robot",),
+        (),
+        (MAX_AGE, *CONTACT_LEARNER_GRAPH),
+        impact=("plant.time_step", "contact_threshold"),
     ),
     "dice_plant": NodeSpec(
         "dice_plant",
@@ -501,13 +465,44 @@ def node_scenario_names(spec: NodeSpec, flat: dict[str, Any]) -> dict[str, str]:
     return out
 
 
+#: Names of both schemas: an impact node declares them from IMPACT_SCHEMA and its
+#: :class:`Scenario` (the node's clock grid, ffmpc_ros.base) takes the value too.
+_IMPACT_IN_SCENARIO = ("plant.time_step",)
+
+
+def node_impact_names(spec: NodeSpec) -> list[str]:
+    """The :data:`IMPACT_SCHEMA` names a node declares (:attr:`NodeSpec.impact`), in the
+    schema's order; ConfigError for a pattern that matches none."""
+    names = list(IMPACT_SCHEMA.params)
+    for pattern in spec.impact:
+        if not any(fnmatchcase(n, pattern) for n in names):
+            raise ConfigError(f"no impact-study parameter {pattern!r}")
+    return [n for n in names if any(fnmatchcase(n, p) for p in spec.impact)]
+
+
+def impact_flat(config: ImpactStudyConfig | None = None) -> dict[str, Any]:
+    """{IMPACT_SCHEMA name: ROS value} of ``config`` (default: the schema's defaults); tuples
+    as lists of floats."""
+    flat = IMPACT_SCHEMA.flatten(ImpactStudyConfig() if config is None else config)
+    return {name: _ros_value(value) for name, value in flat.items()}
+
+
+def impact_parameter_values(node: str, config: ImpactStudyConfig) -> dict[str, Any]:
+    """{IMPACT_SCHEMA name: value} of ``config`` that node ``node`` declares
+    (:attr:`NodeSpec.impact`; what ``ffmpc run impact`` passes from the loaded scenario)."""
+    study = impact_flat(config)
+    return {name: study[name] for name in node_impact_names(NODE_SPECS[node])}
+
+
 def node_parameter_values(node: str, scenario: Scenario, **graph: Any) -> dict[str, Any]:
     """{ROS name: value} that makes node ``node`` run ``scenario`` (what ``ffmpc run`` passes),
-    plus graph parameters (``lockstep=False``…)."""
+    plus graph parameters (``lockstep=False``…) and impact-study values given by their
+    IMPACT_SCHEMA names (``**{"planner.horizon": 10}``; :func:`impact_parameter_values`)."""
     spec = NODE_SPECS[node]
     flat = scenario_flat(scenario)
     values = {ros: _ros_value(flat[name]) for ros, name in node_scenario_names(spec, flat).items()}
-    known = {g.name for g in spec.graph_parameters}
+    impact_names = node_impact_names(spec)
+    known = {g.name for g in spec.graph_parameters} | set(impact_names)
     for key, value in graph.items():
         if key in known:
             values[key] = value
@@ -595,6 +590,16 @@ def declare_node_parameters(node: Node, spec: NodeSpec) -> dict[str, Any]:
             SCHEMA[name].check(raw)  # raises the schema's error
             raise SCHEMA[name].error(raw) from None
         values[ros] = plain_value(node.get_parameter(ros).value)
+    impact_defaults = impact_flat()
+    for name in node_impact_names(spec):
+        param = IMPACT_SCHEMA.params[name]
+        try:
+            node.declare_parameter(name, impact_defaults[name], scenario_descriptor(param))
+        except ParameterException:
+            raw = _raw_override(node, name)
+            param.check(raw)  # raises the schema's error
+            raise param.error(raw) from None
+        values[name] = plain_value(node.get_parameter(name).value)
     for g in spec.graph_parameters:
         # (the declared Parameter: get_parameter raises for one declared by type and not set)
         try:
@@ -627,7 +632,21 @@ def scenario_from_parameters(spec: NodeSpec, values: dict[str, Any], name: str) 
     overrides = {}
     for ros, scenario_name in mapping.items():
         overrides[scenario_name] = plain_value(values[ros])
+    for shared in _IMPACT_IN_SCENARIO:
+        if shared in node_impact_names(spec):
+            overrides[shared] = plain_value(values[shared])
     return Scenario(name=name).with_overrides(overrides)
+
+
+def impact_config_from_parameters(
+    spec: NodeSpec, values: dict[str, Any], base: ImpactStudyConfig | None = None
+) -> ImpactStudyConfig:
+    """The impact study's configuration of a node: ``base`` (default: the schema's defaults)
+    with the node's :data:`IMPACT_SCHEMA` parameter values, built by ``IMPACT_SCHEMA.build``
+    (the validation of ``ffmpc study impact --set``: same ConfigError, ``name = value: …``,
+    same cross-field checks)."""
+    names = node_impact_names(spec)
+    return IMPACT_SCHEMA.build({n: plain_value(values[n]) for n in names}, base)
 
 
 def parameter_overrides(values: dict[str, Any]) -> list[Parameter]:

@@ -213,23 +213,30 @@ def test_the_bag_holds_the_planner_learner_controller_and_mpc(maximal_ff_mpc, ca
     assert "/impact_planner/reference" in out and "/contact_learner/estimate" in out
 
 
-def test_the_graph_refuses_what_it_cannot_run():
+def test_the_graph_gives_the_planner_the_study_values_under_the_schema_names():
     from ffmpc_core.errors import ConfigError
-    from ffmpc_ros.impact_planner_node import touch_config
+    from ffmpc_core.impact.scenario import IMPACT_SCHEMA
+    from ffmpc_ros.params import NODE_SPECS, impact_config_from_parameters, node_impact_names
 
-    # the touch-first settings reach the planner node whole (a changed one too)
+    # the touch-first settings reach the planner node whole (a changed one too), under the
+    # IMPACT_SCHEMA names, and rebuild the study's values there
     cfg, params = impact_node_parameters(
-        "maximal", "admittance", overrides=["touch.touch_force=12"]
+        "maximal", "admittance", overrides=["touch.touch_force=12", "planner.cost=lp"]
     )
-    assert touch_config(params["impact_planner"]) == cfg.touch and cfg.touch.touch_force == 12.0
+    spec = NODE_SPECS["impact_planner"]
+    planner = params["impact_planner"]
+    assert planner["touch.touch_force"] == 12.0 and planner["planner.cost"] == "lp"
+    built = IMPACT_SCHEMA.flatten(impact_config_from_parameters(spec, planner))
+    wanted = IMPACT_SCHEMA.flatten(cfg)
+    names = node_impact_names(spec)
+    assert len(names) > 40 and all(built[n] == wanted[n] for n in names)
     assert params["contact_learner"]["planner_gate"] is True
+    assert params["contact_learner"]["contact_threshold"] == cfg.contact_threshold
     _, params = impact_node_parameters("maximal", "admittance", overrides=["strategy=prior"])
     assert params["impact_planner"]["strategy"] == "prior"
     assert params["contact_learner"]["planner_gate"] is False
-    with pytest.raises(ConfigError, match="cannot express"):
-        impact_node_parameters(
-            "maximal", "admittance", overrides=["strategy=prior", "planner.cost=lp"]
-        )
+    with pytest.raises(ConfigError, match=r"^planner.horizon = 1: expected an integer"):
+        impact_node_parameters("maximal", "admittance", overrides=["planner.horizon=1"])
     cfg, params = impact_node_parameters("baseline", "ff_mpc", overrides=["duration=1"])
     assert "impact_planner" not in params and cfg.duration == 1.0
     assert params["ft_sensor"]["measure_moments"] is True

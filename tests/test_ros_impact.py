@@ -27,6 +27,7 @@ from ffmpc_core.impact import (
     SoftMaterial,
     joint_limits,
 )
+from ffmpc_core.impact.scenario import IMPACT_SCHEMA, ImpactStudyConfig
 from ffmpc_core.mpc import ModelPredictiveController, MpcMeasurement
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
@@ -35,10 +36,12 @@ from ffmpc_ros import layouts, topics
 from ffmpc_ros.command_msg import command_fields
 from ffmpc_ros.contact_learner_node import ContactLearnerNode
 from ffmpc_ros.impact_common import estimate_message
-from ffmpc_ros.impact_planner_node import ImpactPlannerNode, scaled_limits
+from ffmpc_ros.impact_planner_node import ImpactPlannerNode
 from ffmpc_ros.mpc_node import MpcNode
 
 DOWN = np.array([0.0, 0.0, -1.0])
+#: The paper's scheme with the learner's material (the study's default strategy is touch_first).
+PRIOR = {"strategy": "prior", "use_learned_material": True}
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
 
@@ -88,7 +91,8 @@ def _approach(robot, n, speed=0.2):
 def test_planner_publishes_the_core_controller_numbers_and_takes_a_confident_estimate(ros, panda):
     node = ros.add(
         ImpactPlannerNode(
-            context=ros.context, parameter_overrides=overrides("impact_planner", _scenario())
+            context=ros.context,
+            parameter_overrides=overrides("impact_planner", _scenario(), **PRIOR),
         )
     )
     probe = ros.probe()
@@ -98,7 +102,7 @@ def test_planner_publishes_the_core_controller_numbers_and_takes_a_confident_est
     # The paper's set-up, built here from the core classes (not from the node's parameters).
     core = ImpactController(
         panda,
-        scaled_limits(joint_limits(panda), 0.9),
+        ImpactStudyConfig().control_limits(joint_limits(panda)),  # 0.9 × q̈_max, q̇_max
         ImpactControllerConfig(direction=DOWN, material=SoftMaterial(2400.0, 15.0, 0.03)),
     )
     qs, qd = _approach(panda, 12)
@@ -147,7 +151,8 @@ def test_planner_publishes_the_core_controller_numbers_and_takes_a_confident_est
 def test_planner_rejects_bad_input_with_one_log_line_and_stops_safely(ros, panda):
     node = ros.add(
         ImpactPlannerNode(
-            context=ros.context, parameter_overrides=overrides("impact_planner", _scenario())
+            context=ros.context,
+            parameter_overrides=overrides("impact_planner", _scenario(), **PRIOR),
         )
     )
     probe = ros.probe()
@@ -230,7 +235,7 @@ def test_planner_rejects_bad_input_with_one_log_line_and_stops_safely(ros, panda
 def test_planner_needs_acceleration_limits_for_a_robot_without_a_data_sheet(ros):
     with pytest.raises(ConfigError, match="acceleration_limit"):
         ImpactPlannerNode(context=ros.context, parameter_overrides=overrides("impact_planner"))
-    iiwa = overrides("impact_planner", acceleration_limit=[10.0] * 7, preview_horizon=10)
+    iiwa = overrides("impact_planner", acceleration_limit=[10.0] * 7, **{"planner.horizon": 10})
     node = ros.add(ImpactPlannerNode(context=ros.context, parameter_overrides=iiwa))
     np.testing.assert_array_equal(node.limits.acceleration, np.full(7, 9.0))  # 0.9 × 10 rad/s²
     assert node.controller.planner.config.horizon == 10
@@ -249,7 +254,7 @@ def test_impact_parameters_are_described_read_only_and_ranged(ros):
             if desc.type in numeric:
                 assert desc.floating_point_range or desc.integer_range, desc.name
     with pytest.raises(ConfigError, match="solver"):
-        bad = overrides("impact_planner", scenario, solver="qpoases")
+        bad = overrides("impact_planner", scenario, **{"planner.solver": "qpoases"})
         ImpactPlannerNode(context=ros.context, parameter_overrides=bad, node_name="bad_solver")
     with pytest.raises(ConfigError, match=r"^skip_onset_samples = -1: expected an integer"):
         bad = overrides("contact_learner", scenario, skip_onset_samples=-1)
@@ -459,3 +464,106 @@ def test_mpc_node_refuses_the_learned_contact_without_force_feedback(ros):
     params = overrides("mpc", scenario, use_learned_contact=True)
     with pytest.raises(ConfigError, match="force_feedback"):
         MpcNode(context=ros.context, parameter_overrides=params)
+
+
+# -- the impact study's parameters, declared once (IMPACT_SCHEMA) --------------------------------
+#: Names the impact nodes had as hand-written copies of IMPACT_SCHEMA values (issue 14).
+OLD_COPIES = {
+    "preview_horizon",
+    "preview_dt",
+    "max_penetration",
+    "solver",
+    "admittance_max_velocity",
+    "admittance_velocity_filter",
+    "learner_min_samples",
+    "learner_max_relative_std",
+}
+
+
+def test_impact_nodes_declare_the_impact_schema_with_its_descriptors(ros):
+    """Every IMPACT_SCHEMA name an impact node declares has the schema's description, unit,
+    type and range, and its default; the planner's configuration is the ROS-free run's
+    (``task_config``) from those values; no graph parameter copies a schema value."""
+    from ffmpc_core.impact.scenario import task_config
+    from ffmpc_ros.impact_graph import _same
+    from ffmpc_ros.params import NODE_SPECS, impact_flat, node_impact_names
+
+    aliases = set(IMPACT_SCHEMA.paths.values())
+    aliases |= {a.replace(".", "_") for a in aliases} | OLD_COPIES
+    defaults = impact_flat()
+    for cls, name in (
+        (ImpactPlannerNode, "impact_planner"),
+        (ContactLearnerNode, "contact_learner"),
+    ):
+        spec = NODE_SPECS[name]
+        copies = {g.name for g in spec.graph_parameters} & (set(IMPACT_SCHEMA.params) | aliases)
+        assert not copies, (name, copies)
+        node = ros.add(cls(context=ros.context, parameter_overrides=overrides(name, _scenario())))
+        declared = [n for n in node.params if n in IMPACT_SCHEMA.params]
+        assert declared == node_impact_names(spec) and "plant.time_step" in declared
+        assert "contact_threshold" in declared
+        for desc in node.describe_parameters(declared):
+            p = IMPACT_SCHEMA.params[desc.name]
+            assert desc.read_only and desc.additional_constraints == p.expected(), desc.name
+            assert desc.description == p.description + (f", {p.unit}" if p.unit else "")
+            if p.kind == "int":
+                r = desc.integer_range[0]
+                assert (r.from_value, r.to_value) == p.range, desc.name
+            elif p.range is not None:
+                r = desc.floating_point_range[0]
+                assert (r.from_value, min(r.to_value, 1e300)) == (
+                    p.range[0],
+                    min(p.range[1], 1e300),
+                ), desc.name
+            assert node.get_parameter(desc.name).value == defaults[desc.name] or (
+                list(node.get_parameter(desc.name).value) == defaults[desc.name]
+            ), desc.name
+        if name == "impact_planner":
+            declared_set = set(declared)
+            for pattern in ("planner.", "admittance.", "touch.", "learner."):
+                assert {n for n in IMPACT_SCHEMA.params if n.startswith(pattern)} <= declared_set
+            # defaults: the study's; the controller: the ROS-free run's
+            assert node.study == ImpactStudyConfig() and node.strategy == "touch_first"
+            wanted = task_config("maximal", "admittance", ImpactStudyConfig()).controller
+            assert _same(node.config, wanted)
+            assert node.controller.touch == ImpactStudyConfig().touch
+
+
+def test_impact_nodes_refuse_what_the_study_refuses_with_its_message(ros):
+    """A value outside the schema's range (or of the wrong type) is refused at start with the
+    message ``ffmpc study impact --set`` gives; through the parameter service it is refused
+    (read-only) and the node keeps its value."""
+    from rclpy.parameter import Parameter
+
+    from ffmpc_core.errors import ConfigError as Err
+
+    scenario = _scenario()
+    for i, (name, value) in enumerate(
+        (
+            ("planner.horizon", 1),
+            ("target_force", 1000.0),
+            ("touch.touch_force", -1.0),
+            ("strategy", "fastest"),
+            ("admittance.max_velocity", "fast"),
+        )
+    ):
+        with pytest.raises(Err) as study:
+            IMPACT_SCHEMA.build({name: value})
+        with pytest.raises(Err) as node:
+            bad = overrides("impact_planner", scenario, **{name: value})
+            ImpactPlannerNode(context=ros.context, parameter_overrides=bad, node_name=f"bad{i}")
+        assert str(node.value) == str(study.value) and str(node.value).startswith(name), name
+    with pytest.raises(Err, match=r"^contact_threshold = 0\.0: expected a number in \[0\.01"):
+        bad = overrides("contact_learner", scenario, contact_threshold=0.0)
+        ContactLearnerNode(context=ros.context, parameter_overrides=bad, node_name="bad_lr")
+    # the cross-field checks of the study's configuration too
+    with pytest.raises(Err, match="contact_threshold must be below target_force"):
+        bad = overrides("impact_planner", scenario, target_force=5.0, contact_threshold=10.0)
+        ImpactPlannerNode(context=ros.context, parameter_overrides=bad, node_name="bad_x")
+    node = ros.add(
+        ImpactPlannerNode(
+            context=ros.context, parameter_overrides=overrides("impact_planner", scenario)
+        )
+    )
+    result = node.set_parameters([Parameter("planner.horizon", value=1)])[0]
+    assert not result.successful and node.get_parameter("planner.horizon").value == 20

@@ -76,7 +76,13 @@ def _nodes():
         "mpc": (MpcNode, "mpc", ff_riccati, {"use_learned_contact": True}),
         "pid": (PidNode, "pid", ff_riccati, {"lockstep_timeout": 0.01}),
         "metrics": (MetricsNode, "metrics", ff_riccati, {}),
-        "impact_planner": (ImpactPlannerNode, "impact_planner", panda, {}),
+        # the paper's scheme with the learner's material (the study's default is touch_first)
+        "impact_planner": (
+            ImpactPlannerNode,
+            "impact_planner",
+            panda,
+            {"strategy": "prior", "use_learned_material": True},
+        ),
         "contact_learner": (ContactLearnerNode, "contact_learner", panda, {}),
     }
 
