@@ -2,10 +2,12 @@
 2020, Sec. VI) in PyBullet, and the simulated clock of the impact graph.
 
 The plant is the ROS-free impact study's own (``sim_bridge.scenes.impact_plant_config``: no table,
-the fixed soft dice, the spherical tool), started at ``ffmpc_core.impact.scenario.start_pose`` (the
-tool ``approach_height`` above the dice), both built from the node's impact scenario
-(``impact_scenario`` with the ``impact_set`` overrides, :func:`ffmpc_ros.impact_common.
-impact_study_config`). For every cycle k it publishes, stamped t_k = k·time_step:
+the fixed soft dice, the spherical tool), started at ``ffmpc_core.impact.scenario.start_pose``
+(the tool ``approach_height`` above the dice), both built from the impact study's values the
+node declares (``plant.*``, ``approach_height``, ``duration``:
+``ffmpc_ros.params.DICE_PLANT_SCHEMA``, generated from ``IMPACT_SCHEMA``, the configuration
+rebuilt by :func:`ffmpc_ros.params.impact_config_from_parameters`). For every cycle k it
+publishes, stamped t_k = k·time_step:
 
 * ``/clock`` — t_k;
 * ``plant/joint_states`` — the TRUE q (rad) and q̇ (rad/s) at t_k, and as effort the joint
@@ -39,7 +41,7 @@ from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.robots import load_robot
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import StudyNode, run_node
-from ffmpc_ros.impact_common import impact_study_config
+from ffmpc_ros.params import impact_config_from_parameters
 from ffmpc_ros.plant_node import STATUS_EVERY, joint_state_message, wrench_message
 
 
@@ -54,13 +56,12 @@ class DicePlantNode(StudyNode):
 
         if not self.params["lockstep"]:
             raise ConfigError("the dice plant runs in lockstep only (lockstep: true)")
-        self.config = impact_study_config(self.params)
+        self.config = impact_config_from_parameters(self.spec, self.params)
         robot = self.robot = load_robot(self.scenario.robot)
         self.joint_names = list(robot.joint_names)
         self.plant = Plant(robot, impact_plant_config(self.config))
         self.plant.reset(start_pose(self.config, robot))
-        duration = float(self.params["duration"]) or self.config.duration
-        self.steps = int(round(duration / self.time_step))
+        self.steps = int(round(self.config.duration / self.time_step))
         self.k = 0
         self.applied = np.zeros(robot.nv)
         self.latencies: list[float] = []

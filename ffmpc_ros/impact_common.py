@@ -28,7 +28,7 @@ from ffmpc_core.impact.learner import ContactEstimate, RecursiveContactLearner, 
 from ffmpc_ros import layouts, topics
 
 if TYPE_CHECKING:
-    from ffmpc_core.impact.scenario import ImpactStudyConfig
+    pass
 from ffmpc_ros.base import StudyNode, drop_stale_cycles
 
 #: Cycles an incomplete measurement waits for its partner before it is dropped: the publishers'
@@ -44,27 +44,6 @@ def direction_parameter(value: object) -> np.ndarray:
         return unit_direction(np.asarray(value, dtype=float))
     except InputError as exc:
         raise ConfigError(f"parameter direction: {exc}") from None
-
-
-def impact_study_config(params: dict[str, Any]) -> ImpactStudyConfig:
-    """The impact study's configuration (``ffmpc_core.impact.scenario.ImpactStudyConfig``) of a
-    node of the impact graph: its ``impact_scenario`` with the ``impact_set`` overrides
-    (NAME=VALUE, as ``ffmpc study impact --set``), checked against the study's schema;
-    ConfigError otherwise, and when ``plant.time_step`` (the graph's clock grid) differs from
-    the study's time step."""
-    from ffmpc_core.impact.scenario import IMPACT_SCHEMA, load_impact_config
-    from ffmpc_ros.cli_args import parse_overrides
-
-    items = [str(item) for item in params["impact_set"] if str(item).strip()]
-    config = load_impact_config(
-        str(params["impact_scenario"]), parse_overrides(items, schema=IMPACT_SCHEMA.params)
-    )
-    if config.time_step != float(params["plant.time_step"]):
-        raise ConfigError(
-            f"plant.time_step = {params['plant.time_step']} s but the impact scenario's time "
-            f"step is {config.time_step} s: give both the same value"
-        )
-    return config
 
 
 class ReceivedEstimates(RecursiveContactLearner):

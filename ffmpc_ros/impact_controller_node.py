@@ -4,8 +4,9 @@ turns the planner's Cartesian command into joint torques, the admittance task or
 approach, and the hand-over to the force-feedback MPC.
 
 It runs :class:`~ffmpc_core.impact.controllers.ImpactTaskController`, the object of the ROS-free
-study (``studies.impact_study.run_impact``), built from the same configuration (the node's
-``impact_scenario`` with the ``impact_set`` overrides, ``approach``, ``regulation``), except
+study (``studies.impact_study.run_impact``), built from the same configuration (the impact
+study's parameters, all of ``IMPACT_SCHEMA`` declared under its dotted names, and
+``approach``, ``regulation``), except
 for two parts that run in other nodes and reach it as messages of the same cycle:
 
 * the maximal approach (eq 9–14): the impact planner node's ``impact_planner/reference``
@@ -71,10 +72,10 @@ from ffmpc_ros.base import run_node
 from ffmpc_ros.impact_common import (
     MeasuredCycleNode,
     ReceivedEstimates,
-    impact_study_config,
     receive_estimate,
     reference_fields,
 )
+from ffmpc_ros.params import impact_config_from_parameters
 
 #: Wall-time period of the lockstep-timeout check, s.
 WATCHDOG_PERIOD = 0.05
@@ -132,7 +133,7 @@ class ImpactControllerNode(MeasuredCycleNode):
         p = self.params
         if not p["lockstep"]:
             raise ConfigError("the impact controller runs in lockstep only (lockstep: true)")
-        self.config = impact_study_config(p)
+        self.config = impact_config_from_parameters(self.spec, p)
         self.approach, self.regulation = str(p["approach"]), str(p["regulation"])
         self.touch_first = self.approach == "maximal" and self.config.strategy == "touch_first"
         self.robot = load_robot(self.scenario.robot)

@@ -15,10 +15,9 @@ Nodes (each its own process, started like the polishing graph's, ``ffmpc_ros.bri
   task-space law, the admittance task or the baseline approach, and the hand-over to the
   force-feedback MPC (inside it: see that module); its torque goes to the plant.
 
-The plant and the controller build their configuration from the impact study's scenario
-(``impact_scenario`` and the ``impact_set`` overrides); the planner and the learner declare the
-impact study's values they use under the schema's names (``IMPACT_SCHEMA``: ``target_force``,
-``planner.horizon``, ``touch.touch_force``, …; ``ffmpc_ros.params.NodeSpec.impact``), which
+Every impact node declares the impact study's values it uses under the schema's names
+(``IMPACT_SCHEMA``: ``target_force``, ``planner.horizon``, ``touch.touch_force``, …;
+``ffmpc_ros.params.NodeSpec.impact``), which
 :func:`impact_node_parameters` fills from the loaded scenario, and rebuild the configuration
 with ``IMPACT_SCHEMA.build`` and the controller with ``task_config`` (the ROS-free run's
 functions); the sensors get parameters derived from it. Each node calls the same core objects in
@@ -144,7 +143,6 @@ def impact_node_parameters(
     touch_first = approach == "maximal" and cfg.strategy == "touch_first"
     nodes = graph_nodes(approach)
     common = {"robot": ROBOT, "plant.time_step": cfg.time_step}
-    impact = {"impact_scenario": scenario, "impact_set": items or [""]}
     # the sensors: the ROS-free study measures the true state and the whole world wrench
     sensing = Scenario(name="impact_graph").with_overrides(
         {
@@ -164,7 +162,7 @@ def impact_node_parameters(
     params: dict[str, dict] = {
         "dice_plant": {
             **common,
-            **impact,
+            **impact_parameter_values("dice_plant", cfg),
             "lockstep": True,
             "start_delay": 0.0,
             # the joint sensor, the bring-up's probe and the recorder
@@ -176,6 +174,7 @@ def impact_node_parameters(
         "contact_learner": {
             **node_parameter_values("contact_learner", sensing),
             **impact_parameter_values("contact_learner", cfg),
+            "plant.time_step": cfg.time_step,  # the clock grid, always given
             "direction": d,
             "surface_force": 0.0,  # the last force-free sample (ImpactTaskController's rule)
             "feed_force": 0.0,
@@ -192,7 +191,7 @@ def impact_node_parameters(
         },
         "impact_controller": {
             **common,
-            **impact,
+            **impact_parameter_values("impact_controller", cfg),
             "lockstep": True,
             "approach": approach,
             "regulation": regulation,
@@ -205,6 +204,7 @@ def impact_node_parameters(
             # the ROS-free run's IMPACT_SCHEMA.build and task_config)
             **node_parameter_values("impact_planner", sensing),
             **impact_parameter_values("impact_planner", cfg),
+            "plant.time_step": cfg.time_step,  # the clock grid, always given
             "lockstep": True,
             "direction": d,
             # the Panda's data-sheet values, given: the bag's parameters then show the limits

@@ -230,6 +230,9 @@ IMPACT_PLANNER_SCHEMA: tuple[str, ...] = (
     "strategy",
     "touch.*",
 )
+#: The IMPACT_SCHEMA names the dice plant declares: the scene (the dice, the tool, the plant
+#: step), the start pose (``approach_height`` above the dice) and the run's ``duration``.
+DICE_PLANT_SCHEMA: tuple[str, ...] = ("plant.*", "approach_height", "duration")
 #: The contact learner's graph parameters (and IMPACT_SCHEMA's ``contact_threshold``, the
 #: pressing force along d that ends the search for the surface, N).
 CONTACT_LEARNER_GRAPH: tuple[GraphParameter, ...] = (
@@ -262,14 +265,6 @@ CONTACT_LEARNER_GRAPH: tuple[GraphParameter, ...] = (
 # -- the impact graph (``ffmpc run impact``): the dice plant and the impact controller build
 # their configuration from the impact study's scenario (ffmpc_core.impact.scenario's
 # IMPACT_SCHEMA), so that the graph and the ROS-free run are built from the one declaration.
-IMPACT_SCENARIO = GraphParameter(
-    "impact_scenario", "impact", "impact-study scenario: a shipped name or a YAML path"
-)
-IMPACT_SET = GraphParameter(
-    "impact_set",
-    [""],
-    "impact-study overrides NAME=VALUE (as ffmpc study impact --set); '' entries are ignored",
-)
 APPROACH = GraphParameter("approach", "maximal", "approach before contact: maximal or baseline")
 REGULATION = GraphParameter(
     "regulation", "admittance", "regulation after contact: admittance or ff_mpc"
@@ -385,33 +380,30 @@ NODE_SPECS: dict[str, NodeSpec] = {
         "dice_plant",
         None,
         ("robot",),
-        _TIME_STEP,
+        (),
         (
             LOCKSTEP,
-            DURATION,
             START_DELAY,
             START_SUBSCRIBERS,
             START_NODES,
             MAX_AGE,
-            IMPACT_SCENARIO,
-            IMPACT_SET,
             EXIT_WHEN_DONE,
         ),
+        impact=DICE_PLANT_SCHEMA,
     ),
     "impact_controller": NodeSpec(
         "impact_controller",
         None,
         ("robot",),
-        _TIME_STEP,
+        (),
         (
             LOCKSTEP,
             LOCKSTEP_TIMEOUT,
             MAX_AGE,
-            IMPACT_SCENARIO,
-            IMPACT_SET,
             APPROACH,
             REGULATION,
         ),
+        impact=("*",),
     ),
 }
 
@@ -489,9 +481,11 @@ def impact_flat(config: ImpactStudyConfig | None = None) -> dict[str, Any]:
 
 def impact_parameter_values(node: str, config: ImpactStudyConfig) -> dict[str, Any]:
     """{IMPACT_SCHEMA name: value} of ``config`` that node ``node`` declares
-    (:attr:`NodeSpec.impact`; what ``ffmpc run impact`` passes from the loaded scenario)."""
-    study = impact_flat(config)
-    return {name: study[name] for name in node_impact_names(NODE_SPECS[node])}
+    (:attr:`NodeSpec.impact`) and that differ from the schema's defaults (the declared ones):
+    what ``ffmpc run impact`` passes from the loaded scenario, and what a launch file lists."""
+    study, defaults = impact_flat(config), impact_flat()
+    names = node_impact_names(NODE_SPECS[node])
+    return {name: study[name] for name in names if study[name] != defaults[name]}
 
 
 def node_parameter_values(node: str, scenario: Scenario, **graph: Any) -> dict[str, Any]:
@@ -642,11 +636,12 @@ def impact_config_from_parameters(
     spec: NodeSpec, values: dict[str, Any], base: ImpactStudyConfig | None = None
 ) -> ImpactStudyConfig:
     """The impact study's configuration of a node: ``base`` (default: the schema's defaults)
-    with the node's :data:`IMPACT_SCHEMA` parameter values, built by ``IMPACT_SCHEMA.build``
+    with the node's :data:`IMPACT_SCHEMA` parameter values (those in ``values``: a node has all
+    it declares, :func:`impact_parameter_values` the changed ones), built by ``IMPACT_SCHEMA.build``
     (the validation of ``ffmpc study impact --set``: same ConfigError, ``name = value: …``,
     same cross-field checks)."""
     names = node_impact_names(spec)
-    return IMPACT_SCHEMA.build({n: plain_value(values[n]) for n in names}, base)
+    return IMPACT_SCHEMA.build({n: plain_value(values[n]) for n in names if n in values}, base)
 
 
 def parameter_overrides(values: dict[str, Any]) -> list[Parameter]:

@@ -17,7 +17,7 @@ from ros_helpers import joint_state, wrench
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from ffmpc_core.impact.scenario import load_impact_config, start_pose
+from ffmpc_core.impact.scenario import IMPACT_SCHEMA, load_impact_config, start_pose
 from ffmpc_core.robots import load_robot
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.bag.reader import BagReader
@@ -231,7 +231,10 @@ def test_the_graph_gives_the_planner_the_study_values_under_the_schema_names():
     names = node_impact_names(spec)
     assert len(names) > 40 and all(built[n] == wanted[n] for n in names)
     assert params["contact_learner"]["planner_gate"] is True
-    assert params["contact_learner"]["contact_threshold"] == cfg.contact_threshold
+    assert "contact_threshold" not in params["contact_learner"]  # the schema's default
+    _, params = impact_node_parameters("maximal", "admittance", overrides=["contact_threshold=3"])
+    assert params["contact_learner"]["contact_threshold"] == 3.0
+    assert params["impact_controller"]["contact_threshold"] == 3.0
     _, params = impact_node_parameters("maximal", "admittance", overrides=["strategy=prior"])
     assert params["impact_planner"]["strategy"] == "prior"
     assert params["contact_learner"]["planner_gate"] is False
@@ -270,13 +273,18 @@ def _reference(k: int, position, rotation, velocity=(0.0, 0.0, -0.1)) -> Float64
 def test_controller_node_rejects_a_bad_reference_with_one_log_line_and_holds(ros):
     """A reference whose twist is NaN: one log line, a safe hold torque (finite, within the
     limits, safe_hold = 1) for that cycle; the next good reference is tracked again."""
-    _, params = impact_node_parameters("maximal", "admittance", overrides=MAXIMAL)
+    cfg, params = impact_node_parameters("maximal", "admittance", overrides=MAXIMAL)
     node = ros.add(
         ImpactControllerNode(
             context=ros.context,
             parameter_overrides=parameter_overrides(params["impact_controller"]),
         )
     )
+    # the node declares every IMPACT_SCHEMA name (read-only, the schema's range) and rebuilt
+    # the run's configuration from the changed ones the graph gave it
+    assert node.config == cfg and set(IMPACT_SCHEMA.params) <= set(node.params)
+    (desc,) = node.describe_parameters(["plant.dice_stiffness"])
+    assert desc.read_only and desc.floating_point_range[0].from_value == 1.0
     robot = load_robot("panda")
     cfg = load_impact_config("impact", {"approach_height": 0.05})
     q = start_pose(cfg, robot)
@@ -326,11 +334,17 @@ def test_the_launch_file_starts_the_nodes_ffmpc_run_impact_derives():
     from ffmpc_ros.launch import load_launch_file
 
     path = topics.__file__.replace("topics.py", "ros_layout/launch/impact.launch.yaml")
-    description = load_launch_file(path, {"regulation": "ff_mpc", "duration": "0.5"})
+    settings = {"regulation": "ff_mpc", "duration": "0.5", "approach_height": "0.3"}
+    description = load_launch_file(path, settings)
     launched = {n.name: dict(n.parameters) for n in description.nodes}
-    items = ["duration=0.5", "approach_height=0.46"]  # the study's default strategy: touch first
-    _, params = impact_node_parameters("maximal", "ff_mpc", overrides=items)
-    assert params["impact_planner"]["strategy"] == "touch_first"
+    items = ["duration=0.5", "approach_height=0.3"]  # the study's default strategy: touch first
+    cfg, params = impact_node_parameters("maximal", "ff_mpc", overrides=items)
+    assert cfg.strategy == "touch_first" and "strategy" not in params["impact_planner"]
+    # only what differs from the schema's defaults is given, to the nodes that declare it
+    assert (
+        params["dice_plant"]["duration"] == 0.5 and params["dice_plant"]["approach_height"] == 0.3
+    )
+    assert params["impact_controller"]["duration"] == 0.5
     assert set(launched) == set(params)
     assert launched["dice_plant"].pop("exit_when_done") is True
     assert launched["dice_plant"].pop("start_subscribers") == 1  # no bring-up probe
