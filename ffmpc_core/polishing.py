@@ -1,255 +1,407 @@
-"""The polishing study's closed loop (Fig. 2) as a scenario and two controllers of
-:func:`ffmpc_core.runner.run_scenario`.
+"""The polishing simulation's building blocks (the force-feedback paper's study, Fig. 2),
+shared by the ROS-free run (``studies.polishing``, on :mod:`ffmpc_core.polishing_loop`) and the
+ROS nodes.
 
-* :class:`PolishingLoop` (the scenario): sensing (eq 30, 32: q̂, q̇̂, λ̂ = true values δs
-  cycles ago + noise), the injected faults (they change only what the controllers read), the
-  actuation (eq 31: τ̂ = a·τ^m(t − δs) + b − friction + noise, applied to the plant and measured:
-  the next cycle's PID and torque-feedback MPC read it), the external push, the run's log
-  (:class:`~ffmpc_core.study.StudyLog`) and its safety traces.
-* :class:`MpcStage`: every ``mpc.period`` the MPC solves from the reading if its inputs are
-  plausible, else (or when the solve raises) it asks for the safe hold.
-* :class:`LowLevelStage`: the low-level loop (:class:`~ffmpc_core.lowlevel.LowLevelController`,
-  the same class as the ROS PID node): hold / blend / track / fallback and the torque PID (eq 33).
+Every device of the simulation (the random draws, the joint sensor, the force sensor, the actuation)
+owns one ``numpy.random.Generator`` spawned from the scenario seed in a fixed order
+(:func:`spawn_generators`), and every object of the loop is built from a
+:class:`~ffmpc_core.scenario.Scenario` by one function here. ``studies.polishing`` and the nodes of
+``ffmpc_ros``/``ffmpc_ros.plant_node`` call the same functions, so both paths run the same numbers.
 
-Nothing here imports a simulator: the plant is any :class:`~ffmpc_core.plant.Plant` whose state
-has ``q``, ``v``, ``wrench_world`` and ``normal_force`` (the PyBullet plant of ``sim_bridge``).
+:class:`PolishingLog` and :func:`polishing_run_metrics` are the one place where a run's time
+series become the paper's metrics (eq 34–35, Tables II–IV), for the runner and for the ROS graph
+alike.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
-from typing import Protocol
+import math
+from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
+import pinocchio as pin
 
-from ffmpc_core.actuation import ActuationModel
+from ffmpc_core.actuation import ActuationModel, ActuationParams
 from ffmpc_core.config import ContactConfig
-from ffmpc_core.errors import FfmpcError, InputError
-from ffmpc_core.faults import Fault, active_kinds
-from ffmpc_core.lowlevel import LowLevelController, LowLevelMeasurement, LowLevelOutput
-from ffmpc_core.mpc import ModelPredictiveController, MpcCommand, MpcMeasurement
-from ffmpc_core.plausibility import check_force, torque_plausible
+from ffmpc_core.errors import ConfigError
+from ffmpc_core.lowlevel import LowLevelConfig, LowLevelController
+from ffmpc_core.metrics import PolishingMetrics, polishing_metrics
+from ffmpc_core.mpc import MpcConfig
+from ffmpc_core.pid import TorquePid, TorquePidGains
 from ffmpc_core.robots import RobotModel
-from ffmpc_core.sensing import ForceSensingModel, SensingModel
-from ffmpc_core.study import StudyLog, measured_force
+from ffmpc_core.scenario import COMMAND_DELAY_MEASURED, COMMAND_DELAY_PID, Scenario
+from ffmpc_core.sensing import ForceSensingModel, SensingModel, SensingParams
+from ffmpc_core.tasks import ForceSquareTask, LiveTask, PhaseWeights, PolishingTask
 
-__all__ = ["LowLevelStage", "MpcDecision", "MpcStage", "PolishingLoop", "PolishingReading"]
+#: The task schedules of a scenario (:func:`build_task`).
+PolishingSchedule = PolishingTask | ForceSquareTask
 
-
-class PolishingPlantState(Protocol):
-    """What the loop reads of the plant: q rad, q̇ rad/s, the wrench on the tool ([f; m], N and
-    N·m, world axes) and the normal force on the table, N."""
-
-    @property
-    def q(self) -> np.ndarray: ...
-    @property
-    def v(self) -> np.ndarray: ...
-    @property
-    def wrench_world(self) -> np.ndarray: ...
-    @property
-    def normal_force(self) -> float: ...
+#: The devices owning a generator, in spawn order (see :func:`spawn_generators`).
+DEVICES = ("draws", "joint_sensor", "force_sensor", "actuation")
 
 
 @dataclass(frozen=True)
-class PolishingReading:
-    """What the controllers read at one cycle.
+class RunDraws:
+    """The random quantities of one run, drawn from the scenario seed (reported with results)."""
 
-    Attributes:
-        q, v: q̂ rad, q̇̂ rad/s. torque: τ̂ N·m. force: λ̂ N (contact frame).
-        force_ok: λ̂ is plausible (``ffmpc_core.plausibility.check_force``).
-        solve: this cycle is an MPC tick with fresh sensors and no MPC dropout.
-        force_sensor: the force sensor's own λ̂ of the cycle (N; the log keeps it, not a fault's).
+    tilt_angle: float  # rad
+    actuation_gain: tuple[float, ...]
+    actuation_offset: tuple[float, ...]  # N·m
+
+
+def spawn_generators(seed: int) -> list[np.random.Generator]:
+    """The run's generators, in this order: draws (tilt, bias), joint sensor, force sensor,
+    actuation. Each device (and its ROS node) owns one; same seed → same streams."""
+    return np.random.default_rng(seed).spawn(len(DEVICES))
+
+
+def device_generator(seed: int, device: str) -> np.random.Generator:
+    """The generator of one device (one of :data:`DEVICES`), from :func:`spawn_generators`."""
+    if device not in DEVICES:
+        raise ConfigError(f"unknown device {device!r}; devices: {DEVICES}")
+    return spawn_generators(seed)[DEVICES.index(device)]
+
+
+def steps_per_mpc_period(scenario: Scenario) -> int:
+    """mpc.period in plant steps (ConfigError unless a whole number >= 1)."""
+    every = scenario.mpc.period / scenario.plant.time_step
+    if abs(every - round(every)) > 1e-9 or round(every) < 1:
+        raise ConfigError("mpc.period must be a whole number of plant steps")
+    return int(round(every))
+
+
+def build_task(scenario: Scenario, robot: RobotModel) -> PolishingSchedule:
+    """The task schedule and the believed table point for a scenario.
+
+    The tool starts at ``robot.q_nominal``; the controller believes the table is horizontal,
+    ``task.start_height`` below the start position, and the circle starts right below it.
     """
-
-    q: np.ndarray
-    v: np.ndarray
-    torque: np.ndarray
-    force: np.ndarray
-    force_ok: bool
-    solve: bool
-    force_sensor: np.ndarray
-
-
-@dataclass(frozen=True)
-class MpcDecision:
-    """The MPC stage's output: the reading passed on, the new command (None: no solve this
-    cycle, or a hold) and whether the safe hold must engage."""
-
-    reading: PolishingReading
-    command: MpcCommand | None
-    hold: bool
-
-
-class MpcStage:
-    """The MPC side of Fig. 2 (a :class:`~ffmpc_core.runner.Controller`): on a solve cycle the
-    MPC solves from (q̂, q̇̂, λ̂ or τ̂) if the input its formulation needs is plausible; an
-    implausible input or a solve that raises asks for the safe hold. Counts the failures and keeps
-    the solve times (s) and SQP iterations."""
-
-    def __init__(self, mpc: ModelPredictiveController, robot: RobotModel) -> None:
-        self.mpc = mpc
-        self.robot = robot
-        self.formulation = mpc.config.formulation
-        self.failures = 0
-        self.solve_times: list[float] = []
-        self.iterations: list[int] = []
-
-    def reset(self) -> None:
-        self.mpc.reset()
-        self.failures = 0
-        self.solve_times.clear()
-        self.iterations.clear()
-
-    def step(self, reading: PolishingReading, t: float, /) -> MpcDecision:
-        if not reading.solve:
-            return MpcDecision(reading, None, False)
-        needs_ok = (self.formulation != "force_feedback" or reading.force_ok) and (
-            self.formulation != "torque_feedback"
-            or torque_plausible(reading.torque, self.robot.torque_limit)
+    task = scenario.task
+    start = robot.contact_placement(robot.q_nominal).translation.copy()
+    contact = start - np.array([0.0, 0.0, task.start_height])
+    mpc = scenario.mpc
+    weights = PhaseWeights(
+        free_ee_position=mpc.phase_weight("ee_position_phase", PhaseWeights.free_ee_position),
+        contact_ee_position=mpc.phase_weight("ee_position_phase", 1e3),
+        force=mpc.phase_weight("force_phase", PhaseWeights.force),
+    )
+    common: dict[str, Any] = dict(
+        start_position=start,
+        contact_position=contact,
+        still=task.still,
+        reach=task.reach,
+        force_ramp=task.force_ramp,
+        weights=weights,
+    )
+    if task.name == "polishing":
+        circle = task.circles * 2.0 * np.pi / task.angular_velocity
+        return PolishingTask(
+            normal_force=task.normal_force,
+            circle_radius=task.circle_radius,
+            angular_velocity=task.angular_velocity,
+            circle=circle,
+            stop=task.stop,
+            ee_z_weight_in_contact=task.ee_z_weight_in_contact,
+            **common,
         )
-        command = None
-        if needs_ok:
-            meas = MpcMeasurement(
-                q=reading.q, v=reading.v, force=reading.force, torque=reading.torque
+    return ForceSquareTask(
+        low_force=task.low_force,
+        high_force=task.high_force,
+        period=task.square_period,
+        cycles=task.square_cycles,
+        **common,
+    )
+
+
+def mpc_schedule(task: PolishingSchedule, scenario: Scenario) -> LiveTask:
+    """The MPC's schedule: ``task`` (:func:`build_task`) with the scenario's position offset
+    ``mpc.position_offset`` (m, world frame; the plant's table does not move), changeable while
+    it runs (:class:`~ffmpc_core.tasks.LiveTask`: the MPC node's live parameters)."""
+    return LiveTask(task, scenario.mpc.position_offset)
+
+
+def draw_run(scenario: Scenario, robot: RobotModel, rng: np.random.Generator) -> RunDraws:
+    """Table tilt θ and actuation bias (a, b) of a run (paper VI-C: random per run)."""
+    plant = scenario.plant
+    tilt = np.deg2rad(plant.table_tilt_deg)
+    if plant.random_tilt_deg > 0:
+        tilt = np.deg2rad(rng.uniform(-plant.random_tilt_deg, plant.random_tilt_deg))
+    if plant.actuation_random_bias:
+        params = ActuationParams.with_random_bias(rng, robot.torque_limit)
+        gain, offset = params.gain, params.offset
+    else:
+        gain, offset = np.ones(robot.nv), np.zeros(robot.nv)
+    return RunDraws(float(tilt), tuple(map(float, gain)), tuple(map(float, offset)))
+
+
+def mpc_config(scenario: Scenario) -> MpcConfig:
+    """The MPC's parameters; with ``mpc.delay_compensation`` it plans for t + δo.
+
+    δo = ``pid.delay_cycles`` plant steps; ``mpc.command_delay: measured`` must have been
+    resolved first (:func:`resolve_command_delay`).
+    """
+    m = scenario.mpc
+    if m.command_delay == COMMAND_DELAY_MEASURED:
+        raise ConfigError(
+            "mpc.command_delay is 'measured': resolve it first (resolve_command_delay; the "
+            "studies and `ffmpc run` do)"
+        )
+    return MpcConfig(
+        formulation=m.formulation,
+        horizon=m.horizon,
+        dt=m.dt,
+        period=m.period,
+        contact=m.contact,
+        weights=m.cost_weights(),
+        cutoff_frequency=m.cutoff_frequency,
+        max_iterations=m.max_iterations,
+        kkt_tolerance=m.kkt_tolerance,
+        backend=m.backend,
+        torque_state=m.torque_state,
+        command_delay=scenario.pid.delay_cycles * scenario.plant.time_step
+        if m.delay_compensation
+        else 0.0,
+    )
+
+
+def command_delay(scenario: Scenario) -> float:
+    """δo of a (resolved) scenario, s: ``pid.delay_cycles`` plant steps."""
+    return scenario.pid.delay_cycles * scenario.plant.time_step
+
+
+def measure_mpc_step_time(scenario: Scenario, robot: RobotModel, steps: int = 60) -> float:
+    """Median wall time of the scenario's MPC step on this machine, s (the calibration of
+    ``mpc.command_delay: measured``).
+
+    The MPC of the scenario (formulation, horizon, Δt, weights, contact; δo as
+    ``pid.delay_cycles`` so that its predictor is timed too) runs ``steps`` steps in closed loop
+    against its own dynamics (:mod:`ffmpc_core.model_plant`), pressing and circling from the
+    nominal posture (in contact, where solves are the hardest); the cold first step is left
+    out. The whole step is timed (state, references, warm start, solve): it is what delays a
+    command.
+    """
+    from ffmpc_core.model_plant import run_model_closed_loop
+
+    if steps < 2:
+        raise ConfigError(f"the calibration needs at least 2 MPC steps, got {steps}")
+    provisional = replace(scenario, mpc=replace(scenario.mpc, command_delay=COMMAND_DELAY_PID))
+    config = mpc_config(provisional)
+    p0 = robot.contact_placement(robot.q_nominal).translation
+    task = PolishingTask.pressing(p0, force_ramp=0.1, circle=10.0, stop=0.0)
+    log = run_model_closed_loop(robot, config, task, duration=steps * config.period)
+    return float(np.median(log.step_time[1:]))
+
+
+def resolve_command_delay(
+    scenario: Scenario,
+    robot: RobotModel | None = None,
+    measured: float | None = None,
+    steps: int = 60,
+) -> tuple[Scenario, dict]:
+    """The scenario with δo settled, and a record of it for the results.
+
+    ``mpc.command_delay``: "pid" and fixed values are returned as they are; "measured" becomes
+    the median MPC step time (``measured``, s, or :func:`measure_mpc_step_time` with ``steps``)
+    rounded UP to a whole number of plant steps (so lockstep stays exact), which sets
+    ``pid.delay_cycles``. The record: ``setting``, ``delta_o_s`` (δo used, s),
+    ``delay_cycles`` and, when measured, ``measured_step_median_s`` and ``calibration_steps``.
+    """
+    setting = scenario.mpc.command_delay
+    dt = scenario.plant.time_step
+    record: dict = {"setting": setting}
+    if setting == COMMAND_DELAY_MEASURED:
+        if measured is None:
+            from ffmpc_core.robots import load_robot
+
+            robot = robot or load_robot(scenario.robot)
+            measured = measure_mpc_step_time(scenario, robot, steps)
+            record["calibration_steps"] = steps
+        if not (np.isfinite(measured) and measured >= 0.0):
+            raise ConfigError(f"measured MPC step time must be finite and >= 0 s, got {measured}")
+        cycles = int(math.ceil(measured / dt - 1e-9))  # 0.004 / 0.001 is 4.000000000000001
+        if cycles * dt < measured:
+            cycles += 1
+        horizon = scenario.mpc.horizon * scenario.mpc.dt
+        if scenario.mpc.delay_compensation and cycles * dt >= horizon:
+            raise ConfigError(
+                f"measured δo {measured * 1e3:.2f} ms rounds up to {cycles * dt * 1e3:.0f} ms, "
+                f"not shorter than the MPC horizon N·Δt = {horizon * 1e3:.0f} ms"
             )
-            try:
-                command = self.mpc.step(meas, t)
-            except FfmpcError:
-                command = None
-                self.failures += 1
-        if command is None:
-            return MpcDecision(reading, None, True)  # an implausible input or a failed solve
-        self.solve_times.append(command.solve_time)
-        self.iterations.append(command.iterations)
-        return MpcDecision(reading, command, False)
+        scenario = scenario.with_overrides({"mpc.command_delay": round(cycles * dt, 12)})
+        record["measured_step_median_s"] = float(measured)
+    record["delay_cycles"] = scenario.pid.delay_cycles
+    record["delta_o_s"] = round(command_delay(scenario), 12)
+    return scenario, record
 
 
-class LowLevelStage:
-    """The low-level loop of Fig. 2 (a :class:`~ffmpc_core.runner.Controller`): takes the MPC
-    stage's decision (hold, or a new τ* it may refuse: a bad torque engages the safe hold), then
-    hold / blend / track / fallback + the torque PID (eq 33). An implausible λ̂ reaches it as
-    missing: it holds the newest plausible one for ``force_hold_time``, then sends τ* without
-    feedback (:class:`~ffmpc_core.lowlevel.LowLevelConfig`)."""
-
-    def __init__(self, lowlevel: LowLevelController) -> None:
-        self.lowlevel = lowlevel
-
-    def reset(self) -> None:
-        self.lowlevel.reset()
-
-    def step(self, decision: MpcDecision, t: float, /) -> LowLevelOutput:
-        if decision.hold:
-            self.lowlevel.engage_hold()
-        elif decision.command is not None:
-            try:
-                self.lowlevel.set_command(decision.command, t)
-            except InputError:
-                pass  # refused; a bad torque has engaged the safe hold
-        r = decision.reading
-        force = r.force if r.force_ok else None
-        return self.lowlevel.step(LowLevelMeasurement(r.q, r.v, r.torque, force), t)
+def measured_force(wrench_world: np.ndarray, contact: ContactConfig) -> np.ndarray:
+    """The MPC's force from the tool wrench (world axes): 1-D → the world-z component
+    (LOCAL_WORLD_ALIGNED normal, config.py's convention), 3-D → the world force."""
+    if contact.frame_type != "LOCAL_WORLD_ALIGNED":
+        raise ConfigError("the study feeds world-aligned forces; use LOCAL_WORLD_ALIGNED")
+    if contact.dimension == 1:
+        return wrench_world[contact.normal_axis : contact.normal_axis + 1].copy()
+    return wrench_world[:3].copy()
 
 
-class PolishingLoop:
-    """The polishing run's scenario (:class:`~ffmpc_core.runner.LoopScenario`; module
-    docstring).
+def joint_sensing_model(scenario: Scenario, nv: int, rng: np.random.Generator) -> SensingModel:
+    """Eq 30: the joint sensor (δs, σ_q, σ_q̇ of the ``joint_sensor`` section)."""
+    js = scenario.joint_sensor
+    params = SensingParams(
+        delay_cycles=js.delay_cycles,
+        position_noise_std=js.position_noise_std,
+        velocity_noise_std=js.velocity_noise_std,
+    )
+    return SensingModel(params, nv, 0, rng)
 
-    Args:
-        robot: the robot model.
-        contact: the MPC's contact model (which components of the wrench λ̂ holds).
-        joint_sensing, force_sensing, actuation: the run's device models (each drawing from its
-            own generator: they draw every cycle, faults or not).
-        log: the run's log (one row per cycle).
-        mpc_every: plant cycles per MPC period.
-        faults: the faults to inject (they change what the controllers read, never the plant).
-        initial_torque: τ̂ before the first cycle, N·m (the motors hold the robot at start).
-        disturbance: called with k before the plant's step k (the external push).
+
+def force_sensing_model(scenario: Scenario, rng: np.random.Generator) -> ForceSensingModel:
+    """Eq 32: the force sensor (δs, σ_λ of ``ft_sensor``), sized by the MPC's contact."""
+    fs = scenario.ft_sensor
+    dim = scenario.mpc.contact.dimension
+    return ForceSensingModel(fs.delay_cycles, fs.force_noise_std, dim, rng)
+
+
+def actuation_model(
+    scenario: Scenario, robot: RobotModel, draws: RunDraws, rng: np.random.Generator
+) -> ActuationModel:
+    """Eq 31 with the run's drawn bias (a, b) and the ``plant`` section's noise and friction."""
+    p = scenario.plant
+    return ActuationModel(
+        ActuationParams(
+            gain=np.array(draws.actuation_gain),
+            offset=np.array(draws.actuation_offset),
+            torque_noise_std=p.actuation_noise_fraction * robot.torque_limit,
+            delay_cycles=p.actuation_delay_cycles,
+            static_friction=p.static_friction,
+            viscous_friction=p.viscous_friction,
+            friction_velocity=p.friction_velocity,
+        ),
+        rng,
+    )
+
+
+def torque_pid(scenario: Scenario, robot: RobotModel) -> TorquePid:
+    """Eq 33 with the ``pid`` section's gains and δo."""
+    c = scenario.pid
+    gains = TorquePidGains.default(robot.torque_limit, c.kp, c.ki, c.kd, c.integral_fraction)
+    return TorquePid(
+        gains,
+        scenario.plant.time_step,
+        delay_cycles=c.delay_cycles,
+        enabled=c.enabled,
+        torque_limit=robot.torque_limit,
+    )
+
+
+def lowlevel_config(scenario: Scenario) -> LowLevelConfig:
+    """The low-level loop's parameters (``pid`` section, and the MPC's formulation/feedback)."""
+    c, m = scenario.pid, scenario.mpc
+    return LowLevelConfig(
+        formulation=m.formulation,
+        force_dimension=m.contact.dimension,
+        riccati_feedback=m.riccati_feedback,
+        stale_timeout=c.stale_timeout,
+        mpc_period=m.period,
+        blend_duration=c.blend_duration,
+        hold_frequency=c.hold_frequency,
+        hold_damping_ratio=c.hold_damping_ratio,
+        torque_limit_fraction=c.torque_limit_fraction,
+    )
+
+
+def lowlevel_controller(scenario: Scenario, robot: RobotModel) -> LowLevelController:
+    """The low-level loop (hold/blend/track/fallback) around the scenario's torque PID."""
+    return LowLevelController(robot, lowlevel_config(scenario), torque_pid(scenario, robot))
+
+
+class PolishingLog:
+    """The time series of one run, one row per plant cycle k (t = k·time_step).
+
+    Arrays: t (s); ee_position, ee_reference (m, world); force_true (N, along the true table
+    normal), force_measured (N, last entry of λ̂), force_reference (N); tau_desired τ^d,
+    tau_measured τ̂ (the actuation output of the cycle), tau_motor τ^m (N·m).
     """
 
-    def __init__(
-        self,
-        robot: RobotModel,
-        contact: ContactConfig,
-        joint_sensing: SensingModel,
-        force_sensing: ForceSensingModel,
-        actuation: ActuationModel,
-        log: StudyLog,
-        mpc_every: int,
-        faults: Sequence[Fault] = (),
-        initial_torque: np.ndarray | None = None,
-        disturbance: Callable[[int], None] | None = None,
-    ) -> None:
+    FIELDS = (
+        "t",
+        "ee_position",
+        "ee_reference",
+        "force_true",
+        "force_measured",
+        "force_reference",
+        "tau_desired",
+        "tau_measured",
+        "tau_motor",
+    )
+
+    def __init__(self, steps: int, robot: RobotModel, task: PolishingSchedule) -> None:
+        if steps < 1:
+            raise ConfigError(f"a run needs at least one cycle, got {steps}")
+        nv = robot.nv
+        self.steps = steps
         self.robot = robot
-        self.contact = contact
-        self.joint_sensing = joint_sensing
-        self.force_sensing = force_sensing
-        self.actuation = actuation
-        self.log = log
-        self.mpc_every = mpc_every
-        self.faults = tuple(faults)
-        self.disturbance = disturbance
-        nv, steps = robot.nv, log.steps
-        self.tau_hat = robot.gravity(robot.q_nominal) if initial_torque is None else initial_torque
-        self._received: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
-        #: Safety traces per cycle: true q̇ (rad/s), τ^m (N·m), applied τ̂ (N·m), low-level mode.
-        self.trace_v = np.zeros((steps, nv))
-        self.trace_tau = np.zeros((steps, nv))
-        self.trace_applied = np.zeros((steps, nv))
-        self.trace_mode = np.zeros(steps, dtype=int)
-
-    def measure(self, k: int, t: float, state: PolishingPlantState, /) -> PolishingReading:
-        active = active_kinds(self.faults, t) if self.faults else {}
-        q_hat, v_hat, _ = self.joint_sensing.step(state.q, state.v)
-        f_hat = self.force_sensing.step(measured_force(state.wrench_world, self.contact))
-        # What the controllers read this cycle (faults change only this).
-        tau_read, f_read = self.tau_hat, f_hat
-        if "torque-spike" in active:
-            tau_read = np.full(self.robot.nv, active["torque-spike"].value)
-        if "nan-wrench" in active:
-            f_read = np.full_like(f_hat, np.nan)
-        sensors_fresh = "sensor-dropout" not in active or self._received is None
-        if sensors_fresh:
-            self._received = (q_hat, v_hat, tau_read, f_read)
-        assert self._received is not None  # the first cycle always reads fresh sensors
-        q_read, v_read, tau_read, f_read = self._received
-        try:
-            check_force(f_read)
-            force_ok = True
-        except InputError:
-            force_ok = False
-        solve = k % self.mpc_every == 0 and sensors_fresh and "mpc-dropout" not in active
-        return PolishingReading(q_read, v_read, tau_read, f_read, force_ok, solve, f_hat)
-
-    def actuate(
-        self, k: int, t: float, state: PolishingPlantState, command: LowLevelOutput, /
-    ) -> np.ndarray:
-        self.tau_hat = self.actuation.step(command.motor_torque, state.v)
-        if self.disturbance is not None:
-            self.disturbance(k)
-        return self.tau_hat
+        self.task = task
+        self._data = robot.create_data()
+        self.arrays: dict[str, np.ndarray] = {
+            "t": np.zeros(steps),
+            "ee_position": np.zeros((steps, 3)),
+            "ee_reference": np.zeros((steps, 3)),
+            "force_true": np.zeros(steps),
+            "force_measured": np.zeros(steps),
+            "force_reference": np.zeros(steps),
+            "tau_desired": np.zeros((steps, nv)),
+            "tau_measured": np.zeros((steps, nv)),
+            "tau_motor": np.zeros((steps, nv)),
+        }
 
     def record(
         self,
         k: int,
         t: float,
-        state: PolishingPlantState,
-        measurement: PolishingReading,
-        command: LowLevelOutput,
-        joint_input: np.ndarray | None,
-        /,
+        q_true: np.ndarray,
+        force_true: float,
+        force_measured: float,
+        tau_desired: np.ndarray,
+        tau_measured: np.ndarray,
+        tau_motor: np.ndarray,
     ) -> None:
-        assert joint_input is not None  # the polishing loop never ends early
-        self.log.record(
-            k,
-            t,
-            state.q,
-            state.normal_force,
-            measurement.force_sensor[-1],
-            command.desired_torque,
-            joint_input,
-            command.motor_torque,
+        """Row k: the contact-frame position from the TRUE q (pinocchio FK), the references of
+        the task at t, and the given signals."""
+        log, robot = self.arrays, self.robot
+        pin.framesForwardKinematics(robot.model, self._data, q_true)
+        log["t"][k] = t
+        log["ee_position"][k] = self._data.oMf[robot.contact_frame_id].translation
+        log["ee_reference"][k] = self.task.ee_position(t)
+        log["force_true"][k] = force_true
+        log["force_measured"][k] = force_measured
+        log["force_reference"][k] = self.task.force(t)
+        log["tau_desired"][k] = tau_desired
+        log["tau_measured"][k] = tau_measured
+        log["tau_motor"][k] = tau_motor
+
+
+def polishing_run_metrics(
+    log: dict[str, np.ndarray], task: PolishingSchedule, table_normal: np.ndarray
+) -> tuple[PolishingMetrics, PolishingMetrics]:
+    """The metrics from the TRUE and from the MEASURED normal force, over the task's evaluation
+    window (the circle; the whole run if the run ends before it)."""
+    window = task.in_circle(log["t"])
+    start, end = (log["t"][window][[0, -1]]) if window.any() else (None, None)
+
+    def metrics(force: np.ndarray) -> PolishingMetrics:
+        return polishing_metrics(
+            log["t"],
+            log["ee_position"],
+            log["ee_reference"],
+            table_normal,
+            force,
+            log["force_reference"],
+            desired_torque=log["tau_desired"],
+            measured_torque=log["tau_measured"],
+            start=start,
+            end=end,
         )
-        self.trace_v[k], self.trace_tau[k] = state.v, command.motor_torque
-        self.trace_mode[k] = int(command.mode)
-        self.trace_applied[k] = joint_input
+
+    return metrics(log["force_true"]), metrics(log["force_measured"])

@@ -1,7 +1,7 @@
 """The one closed loop: a plant, the controllers and a scenario's measurement and log, on a clock.
 
 Every simulated experiment of the project runs through :func:`run_scenario`: the polishing
-study of the force-feedback paper (Fig. 2; :mod:`ffmpc_core.polishing`), the MPC against its
+study of the force-feedback paper (Fig. 2; :mod:`ffmpc_core.polishing_loop`), the MPC against its
 own model (:func:`ffmpc_core.model_plant.run_model_closed_loop`), and the impact and
 exploration experiments of the impact paper (``studies``). One cycle k of the clock does, in
 this order:

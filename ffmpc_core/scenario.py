@@ -130,7 +130,7 @@ class MpcSection:
     #: and the MPC's prediction): "pid" = pid.delay_cycles plant steps (the default), a number of
     #: seconds (a whole number of plant steps; it sets pid.delay_cycles), or "measured" = the
     #: median MPC step time of a short calibration run of this MPC on this machine, rounded up
-    #: to the plant step (:func:`ffmpc_core.study.resolve_command_delay`; the studies do it).
+    #: to the plant step (:func:`ffmpc_core.polishing.resolve_command_delay`; the studies do it).
     command_delay: str = COMMAND_DELAY_PID
     #: τ of the torque-feedback state: "measured" τ̂ (eq 10/15) | "commanded" (the last τ̃ sent)
     torque_state: str = "measured"

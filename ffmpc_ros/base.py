@@ -18,7 +18,7 @@ simulated clock (stale), or stamped more than :data:`MAX_FUTURE_STAMP` ahead of 
 (from the future: never adopted, so a spoofed or corrupted stamp cannot make every genuine
 message look old). A rejected message changes nothing; the node logs one warning per kind of
 rejection and per :data:`LOG_THROTTLE` seconds (wall time), and counts every rejection in
-:attr:`StudyNode.rejected`.
+:attr:`GraphNode.rejected`.
 
 Fixed at start. Every node runs on the plant's ``/clock``: ``use_sim_time`` is forced true at
 construction and a later change is refused with a reason.
@@ -27,12 +27,12 @@ Live parameters. The parameters of :attr:`NodeSpec.live <ffmpc_ros.params.NodeSp
 writable while the node runs; every other one is read-only. A request is checked before rclpy
 applies its descriptors (a pre-set callback): the schema's type and range
 (:data:`ffmpc_core.scenario.SCHEMA`, the one declaration), then the node's own rule
-(:meth:`StudyNode.check_live`, e.g. a stiffness for a formulation without a soft contact). A
+(:meth:`GraphNode.check_live`, e.g. a stiffness for a formulation without a soft contact). A
 refused request logs ONE warning line and returns ``successful=False`` with the reason (rclpy's
 own when the descriptor's range refuses it first, the schema's otherwise); it is counted in
-:attr:`StudyNode.refused_parameters`. An accepted one logs one info line and waits in
-:attr:`StudyNode.pending_parameters` until the node's next computation: the MPC's next solve, the
-PID's next cycle (:meth:`StudyNode.apply_pending`, recorded in :attr:`StudyNode.live_changes`
+:attr:`GraphNode.refused_parameters`. An accepted one logs one info line and waits in
+:attr:`GraphNode.pending_parameters` until the node's next computation: the MPC's next solve, the
+PID's next cycle (:meth:`GraphNode.apply_pending`, recorded in :attr:`GraphNode.live_changes`
 with the cycle it took effect at). In lockstep that is a well-defined cycle: the first MPC tick
 (PID cycle) the node computes after the request was accepted; which tick that is depends on when
 the request arrives, and both the accepting log line (the node's clock) and ``live_changes``
@@ -42,21 +42,21 @@ Diagnostics. Every node publishes ``/diagnostics`` (``diagnostic_msgs/Diagnostic
 topic ``diagnostic_aggregator`` and ``rqt_robot_monitor`` read) every
 :data:`DIAGNOSTICS_PERIOD` s of wall time: one status named after the node, with the rate of
 each input it accepted over the period (Hz, wall time), its rejections (total and in the
-period) and what :meth:`StudyNode.diagnostic_values` adds (the MPC's solve times, the PID's
+period) and what :meth:`GraphNode.diagnostic_values` adds (the MPC's solve times, the PID's
 mode); level WARN when an input was rejected in the period, ERROR for what
-:meth:`StudyNode.diagnostic_problems` reports (the PID in its safe hold, a failed solve).
+:meth:`GraphNode.diagnostic_problems` reports (the PID in its safe hold, a failed solve).
 
 Lifecycle. Every node is a ROS 2 managed node (``rclpy.lifecycle.LifecycleNode``: the services
 ``<node>/change_state``, ``get_state``, ... that ``ros2 lifecycle`` and launch_ros use). Its
 resources (parameters, models, the OCP, publishers, subscriptions) are built at construction,
 as ros2/examples do; the states say what the node does with them:
 
-* unconfigured → ``configure`` → inactive: :meth:`StudyNode.configure` checks the node may run
+* unconfigured → ``configure`` → inactive: :meth:`GraphNode.configure` checks the node may run
   (a refusal fails the transition with one log line and the node stays unconfigured);
 * inactive → ``activate`` → active: the node processes its inputs and publishes (the plant
   starts its first cycle only when active);
 * ``deactivate``: back to inactive; ``cleanup``: back to unconfigured; ``shutdown``: finalized,
-  the executable exits (:meth:`StudyNode.finished`).
+  the executable exits (:meth:`GraphNode.finished`).
 
 While not active, every stamped input is rejected (kind ``<topic>:inactive``, one throttled
 log line) and nothing is computed from it. A node with ``autostart`` true (the default: ``ros2
@@ -148,22 +148,22 @@ def _ignore(msg: Empty) -> None:
 
 
 class _Constructed(type):
-    """Metaclass of :class:`StudyNode`: once a node of any subclass is fully constructed (the
+    """Metaclass of :class:`GraphNode`: once a node of any subclass is fully constructed (the
     most derived ``__init__`` returned), it
 
-    * subscribes its reliable /clock reader (:meth:`StudyNode._subscribe_clock`), its last
+    * subscribes its reliable /clock reader (:meth:`GraphNode._subscribe_clock`), its last
       entity. The start handshake of the lockstep graph rests on it: the plant publishes cycle
       0 only once ``start_clock_subscribers`` /clock readers are matched to it, and a node's
       second reader exists only after its data readers do (an MPC that builds its OCP for
       seconds after its time source subscribed no longer lets the plant start before it reads
       the joint states);
     * in a lockstep graph, subscribes ``lockstep/member``, its membership marker (its very
-      last reader), and arms its side of the start barrier (:meth:`StudyNode.writers_matched`);
+      last reader), and arms its side of the start barrier (:meth:`GraphNode.writers_matched`);
     * then starts its lifecycle (``_after_construction``: autostart must not run a transition
       on a half-built node)."""
 
     def __call__(cls, *args: Any, **kwargs: Any) -> Any:
-        # cls is a StudyNode class; mypy types cls.__new__ in a metaclass as type.__new__
+        # cls is a GraphNode class; mypy types cls.__new__ in a metaclass as type.__new__
         node_class: Any = cls
         node = node_class.__new__(node_class)
         try:
@@ -181,7 +181,7 @@ class _Constructed(type):
         return node
 
 
-class StudyNode(LifecycleNode, metaclass=_Constructed):
+class GraphNode(LifecycleNode, metaclass=_Constructed):
     """An rclpy managed node that runs part of a scenario (see the module docstring).
 
     Args:
@@ -841,7 +841,7 @@ def wrench_stamped(
     stamp: TimeMsg, force: ArrayLike, moment: ArrayLike | None = None
 ) -> WrenchStamped:
     """A WrenchStamped in :data:`WRENCH_FRAME`: force (N, 3 values), moment (N·m, 3 values; None:
-    zero). The inverse of :meth:`StudyNode.wrench_array`."""
+    zero). The inverse of :meth:`GraphNode.wrench_array`."""
     msg = WrenchStamped()
     msg.header.stamp = stamp
     msg.header.frame_id = WRENCH_FRAME
@@ -890,7 +890,7 @@ def _first_line(exc: BaseException) -> str:
 
 
 def run_node(
-    factory: Callable[..., StudyNode], description: str, argv: Sequence[str] | None = None
+    factory: Callable[..., GraphNode], description: str, argv: Sequence[str] | None = None
 ) -> int:
     """``main`` of a node executable: ``--help``, then spin until shutdown (Ctrl-C).
 

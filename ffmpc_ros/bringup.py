@@ -97,7 +97,7 @@ from ffmpc_ros.graph_nodes import (
 from ffmpc_ros.params import parameter_overrides
 
 if TYPE_CHECKING:
-    from ffmpc_ros.base import StudyNode
+    from ffmpc_ros.base import GraphNode
 
 #: Wall s the bring-up listens for foreign publishers on the graph's topics before starting.
 FOREIGN_DISCOVERY_WAIT = 2.0
@@ -509,7 +509,7 @@ def run_graph(
     metrics_cls = load_node_class(METRICS_NODE)
     # Task duration from the metrics node's own view of the scenario when not given.
     if duration is None:
-        from ffmpc_core.study import build_task
+        from ffmpc_core.polishing import build_task
 
         duration = build_task(scenario, load_robot(scenario.robot)).duration
     params = graph_parameters(scenario, lockstep, duration, namespace)
@@ -526,7 +526,7 @@ def run_graph(
         return _run_real_time(
             scenario, params, timeout, domain, quiet, windows, cpus, priority, faults, namespace
         )
-    from ffmpc_core.study import steps_per_mpc_period
+    from ffmpc_core.polishing import steps_per_mpc_period
 
     if record is not None and os.path.exists(record):
         from ffmpc_ros.bag.errors import BagExistsError
@@ -546,7 +546,7 @@ def run_graph(
     params["plant"]["start_subscribers"] += 1 + (record is not None) + (view is not None)
     # and it reads /clock twice: the topic it records and its time source (simulated log times);
     # every node's side of the start barrier counts them (its writers wait for the recorder's
-    # readers too: ffmpc_ros.base.StudyNode.writers_matched)
+    # readers too: ffmpc_ros.base.GraphNode.writers_matched)
     for values in params.values():
         values["start_clock_subscribers"] += 2 * (record is not None)
     robot = load_robot(scenario.robot)
@@ -555,7 +555,7 @@ def run_graph(
     # namespace, on the graph's clock
     context, executor = graph_context(namespace, domain)
     nodes: list[Node] = []
-    graph_nodes: list[StudyNode] = []
+    graph_nodes: list[GraphNode] = []
     children: dict[str, subprocess.Popen] = {}
     logs: dict[str, str] = {}
     injector = None

@@ -204,7 +204,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             flush=True,
         )
     if scenario.mpc.command_delay == "measured":
-        from ffmpc_core.study import resolve_command_delay
+        from ffmpc_core.polishing import resolve_command_delay
 
         scenario, record = resolve_command_delay(scenario)
         print(

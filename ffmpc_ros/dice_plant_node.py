@@ -40,12 +40,12 @@ from std_msgs.msg import Float64MultiArray
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.robots import load_robot
 from ffmpc_ros import layouts, topics
-from ffmpc_ros.base import StudyNode, run_node
+from ffmpc_ros.base import GraphNode, run_node
 from ffmpc_ros.params import impact_config_from_parameters
 from ffmpc_ros.plant_node import STATUS_EVERY, joint_state_message, wrench_message
 
 
-class DicePlantNode(StudyNode):
+class DicePlantNode(GraphNode):
     """The impact experiment's plant on topics (see the module docstring)."""
 
     def __init__(self, **kwargs: Any) -> None:
@@ -85,7 +85,7 @@ class DicePlantNode(StudyNode):
         )
 
     def _try_start(self) -> None:
-        """Publish cycle 0 once the start handshake holds (:meth:`StudyNode.start_handshake`)."""
+        """Publish cycle 0 once the start handshake holds (:meth:`GraphNode.start_handshake`)."""
         if not self.start_handshake(self.pub_joints, self.pub_clock):
             return
         self._start_timer.cancel()

@@ -32,13 +32,13 @@ from std_srvs.srv import Trigger
 
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.lowpass import lowpass_alpha
+from ffmpc_core.polishing import device_generator, force_sensing_model, measured_force
 from ffmpc_core.sensing import DelayLine, ForceTare
-from ffmpc_core.study import device_generator, force_sensing_model, measured_force
 from ffmpc_ros import topics
-from ffmpc_ros.base import StudyNode, force_on_axes, run_node, wrench_stamped
+from ffmpc_ros.base import GraphNode, force_on_axes, run_node, wrench_stamped
 
 
-class FtSensorNode(StudyNode):
+class FtSensorNode(GraphNode):
     """Eq 32 plus tare, filter and contact detection (see the module docstring)."""
 
     def __init__(self, **kwargs: Any) -> None:

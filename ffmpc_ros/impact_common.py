@@ -7,7 +7,7 @@ Pairing. The impact planner and the contact learner read ``/joint_sensor/joint_s
 and ``/ft_sensor/wrench`` (λ̂, frame ``contact_world_aligned``). A cycle k is processed once both
 messages stamped t_k are accepted, and only if k is after the last processed cycle (the
 controllers need non-decreasing time); incomplete cycles more than :data:`KEEP` cycles older
-than the newest are dropped. Input checks are the ones of :class:`~ffmpc_ros.base.StudyNode`.
+than the newest are dropped. Input checks are the ones of :class:`~ffmpc_ros.base.GraphNode`.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from ffmpc_ros import layouts, topics
 
 if TYPE_CHECKING:
     pass
-from ffmpc_ros.base import StudyNode, drop_stale_cycles
+from ffmpc_ros.base import GraphNode, drop_stale_cycles
 
 #: Cycles an incomplete measurement waits for its partner before it is dropped: the publishers'
 #: history, so that a reader that lags (its process behind) can pair all it is handed at once.
@@ -129,7 +129,7 @@ def estimate_from_message(msg: Float64MultiArray) -> tuple[ContactEstimate, floa
     return estimate, fields["t"], direction
 
 
-def reference_fields(node: StudyNode, msg: Float64MultiArray) -> tuple[dict, int]:
+def reference_fields(node: GraphNode, msg: Float64MultiArray) -> tuple[dict, int]:
     """The fields of an ``impact_planner/reference`` message (layout ``impact_reference``) and
     the cycle of its time; InputError for a malformed message or a time off the grid."""
     fields = layouts.IMPACT_REFERENCE.unpack(msg)
@@ -140,10 +140,10 @@ def reference_fields(node: StudyNode, msg: Float64MultiArray) -> tuple[dict, int
 
 
 def receive_estimate(
-    node: StudyNode, msg: Float64MultiArray
+    node: GraphNode, msg: Float64MultiArray
 ) -> tuple[int, ContactEstimate, np.ndarray] | None:
     """A learner estimate message checked like any input: values, cycle on the grid, after the
-    last accepted one, neither from the future nor stale (``StudyNode.check_cycle``).
+    last accepted one, neither from the future nor stale (``GraphNode.check_cycle``).
     ``(k, estimate, direction)``, or None after one throttled log line. The caller accepts the
     cycle (``node.accept_cycle``) once it has used the estimate."""
     topic = node.name_of(topics.CONTACT_ESTIMATE)
@@ -161,8 +161,8 @@ def receive_estimate(
     return k, estimate, direction
 
 
-class MeasuredCycleNode(StudyNode):
-    """A StudyNode that processes the measured joint state and wrench of each cycle together
+class MeasuredCycleNode(GraphNode):
+    """A GraphNode that processes the measured joint state and wrench of each cycle together
     (see the module docstring). Subclasses set ``joint_names``, call
     :meth:`subscribe_measurements`, and implement :meth:`process_cycle`; :meth:`input_failed` is
     called for every rejected measurement except duplicates and out-of-order ones.

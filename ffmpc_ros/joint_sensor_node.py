@@ -12,13 +12,13 @@ from typing import Any
 
 from sensor_msgs.msg import JointState
 
+from ffmpc_core.polishing import device_generator, joint_sensing_model
 from ffmpc_core.robots import load_robot
-from ffmpc_core.study import device_generator, joint_sensing_model
 from ffmpc_ros import topics
-from ffmpc_ros.base import StudyNode, run_node
+from ffmpc_ros.base import GraphNode, run_node
 
 
-class JointSensorNode(StudyNode):
+class JointSensorNode(GraphNode):
     """Eq 30 on every plant joint state (one cycle per message)."""
 
     def __init__(self, **kwargs: Any) -> None:

@@ -1,5 +1,6 @@
 """The metrics node: records the run from the topics and computes the study's metrics with the
-same code as the ROS-free runner (``ffmpc_core.study.StudyLog`` and ``study_metrics``).
+same code as the ROS-free runner (``ffmpc_core.polishing.PolishingLog`` and
+``polishing_run_metrics``).
 
 Row k of the log takes: the TRUE q of ``/plant/joint_states`` at t_k (end-effector position by
 pinocchio), the normal force of ``/plant/truth`` at t_k, the last measured force entry of
@@ -27,17 +28,17 @@ from std_msgs.msg import Bool, Float64MultiArray, String
 
 from ffmpc_core.errors import InputError
 from ffmpc_core.metrics import PolishingMetrics
+from ffmpc_core.polishing import PolishingLog, build_task, polishing_run_metrics
 from ffmpc_core.robots import load_robot
-from ffmpc_core.study import StudyLog, build_task, study_metrics
 from ffmpc_ros import layouts, topics
-from ffmpc_ros.base import StudyNode, run_node
+from ffmpc_ros.base import GraphNode, run_node
 
 _LOGGED = ("force_true", "force_measured", "tau_desired", "tau_measured", "tau_motor")
 FINISH_GRACE = 0.5  # real time: wall s after the last state before finishing, s
 _PARTS = ("q", "force_true", "force_measured", "tau_desired", "tau_measured", "tau_motor")
 
 
-class MetricsNode(StudyNode):
+class MetricsNode(GraphNode):
     """Recorder + metrics (see the module docstring)."""
 
     def __init__(self, **kwargs: Any) -> None:
@@ -48,7 +49,7 @@ class MetricsNode(StudyNode):
         self.task = build_task(s, self.robot)
         duration = float(self.params["duration"]) or self.task.duration
         self.steps = int(round(duration / self.time_step))
-        self.log = StudyLog(self.steps, self.robot, self.task)
+        self.log = PolishingLog(self.steps, self.robot, self.task)
         contact = s.mpc.contact
         self.axes = [contact.normal_axis] if contact.dimension == 1 else [0, 1, 2]
         self._rows: dict[int, dict] = {}
@@ -192,7 +193,7 @@ class MetricsNode(StudyNode):
 
     def _finish(self, table_normal: np.ndarray) -> None:
         """The metrics (``table_normal``: the table's unit normal, world) and the summary."""
-        self.metrics = study_metrics(self.log.arrays, self.task, table_normal)
+        self.metrics = polishing_run_metrics(self.log.arrays, self.task, table_normal)
         true, measured = self.metrics
         summary = {
             "formulation": self.scenario.mpc.formulation,

@@ -26,7 +26,7 @@ accepted update is logged (at most one line per 2 s). Estimates are not synchron
 lockstep cycle: one applies from the first solve after its arrival.
 
 Live parameters (``ffmpc_ros.params.MPC_LIVE``; checked, logged and queued by
-:class:`~ffmpc_ros.base.StudyNode`), applied in place at the next solve (no rebuild of the OCP):
+:class:`~ffmpc_ros.base.GraphNode`), applied in place at the next solve (no rebuild of the OCP):
 
 * ``contact.stiffness``, ``contact.damping``: K (N/m), B (N·s/m) of the force-feedback OCP
   (``ModelPredictiveController.set_contact_parameters``; refused for the other formulations);
@@ -46,7 +46,7 @@ target − the scenario's target (or ``task.normal_force``) through the node's o
 it is applied, logged and read back (``get_parameter``) like a live parameter. A message with a
 non-finite value, a frame_id other than ``world``, a stamp from the future, a target farther
 than the schema's bound on ``mpc.position_offset`` (0.1 m per axis) from the scenario's, or a
-force outside ``task.normal_force``'s range is rejected and counted (:meth:`StudyNode.reject`).
+force outside ``task.normal_force``'s range is rejected and counted (:meth:`GraphNode.reject`).
 In real time the node serves the reference topics from its wait set, but not the parameter
 services (it has no executor).
 """
@@ -68,18 +68,18 @@ from std_msgs.msg import Float64, Float64MultiArray
 from ffmpc_core.errors import ConfigError, FfmpcError
 from ffmpc_core.impact.learner import confident
 from ffmpc_core.mpc import ModelPredictiveController, MpcMeasurement
-from ffmpc_core.robots import load_robot
-from ffmpc_core.scenario import SCHEMA
-from ffmpc_core.study import (
+from ffmpc_core.polishing import (
     build_task,
     measured_force,
     mpc_config,
     mpc_schedule,
     steps_per_mpc_period,
 )
+from ffmpc_core.robots import load_robot
+from ffmpc_core.scenario import SCHEMA
 from ffmpc_core.tasks import PhaseWeights
 from ffmpc_ros import layouts, topics
-from ffmpc_ros.base import MAX_FUTURE_STAMP, StudyNode, drop_stale_cycles, run_node
+from ffmpc_ros.base import MAX_FUTURE_STAMP, GraphNode, drop_stale_cycles, run_node
 from ffmpc_ros.command_msg import command_message
 from ffmpc_ros.impact_common import DIRECTION_TOLERANCE, receive_estimate
 
@@ -87,7 +87,7 @@ _KEEP = 20  # cycles of unmatched measurements kept
 WARM_UP_SOLVES = 20  # real time: solves before the node subscribes to its inputs
 
 
-class MpcNode(StudyNode):
+class MpcNode(GraphNode):
     """ModelPredictiveController on topics (see the module docstring)."""
 
     def __init__(self, **kwargs: Any) -> None:

@@ -44,16 +44,16 @@ from std_msgs.msg import Float64MultiArray
 
 from ffmpc_core.errors import InputError
 from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement, LowLevelMode, LowLevelOutput
+from ffmpc_core.polishing import lowlevel_controller, measured_force, steps_per_mpc_period
 from ffmpc_core.robots import load_robot
-from ffmpc_core.study import lowlevel_controller, measured_force, steps_per_mpc_period
 from ffmpc_ros import layouts, topics
-from ffmpc_ros.base import StudyNode, drop_stale_cycles, run_node
+from ffmpc_ros.base import GraphNode, drop_stale_cycles, run_node
 from ffmpc_ros.command_msg import command_fields
 
 _KEEP = 50  # cycles of pending inputs kept
 
 
-class PidNode(StudyNode):
+class PidNode(GraphNode):
     """LowLevelController on topics (see the module docstring)."""
 
     def __init__(self, **kwargs: Any) -> None:

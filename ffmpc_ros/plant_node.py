@@ -41,13 +41,13 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64MultiArray
 
 from ffmpc_core.errors import InputError
-from ffmpc_core.robots import load_robot
-from ffmpc_core.study import (
+from ffmpc_core.polishing import (
     device_generator,
     lowlevel_controller,
 )
+from ffmpc_core.robots import load_robot
 from ffmpc_ros import layouts, topics
-from ffmpc_ros.base import StudyNode, joint_state_message, run_node, wrench_stamped
+from ffmpc_ros.base import GraphNode, joint_state_message, run_node, wrench_stamped
 from sim_bridge.scenes import simulated_robot
 
 STATUS_EVERY = 100  # cycles between two /plant/status messages
@@ -58,7 +58,7 @@ def wrench_message(stamp: TimeMsg, wrench_world: np.ndarray) -> WrenchStamped:
     return wrench_stamped(stamp, wrench_world[:3], wrench_world[3:])
 
 
-class PlantNode(StudyNode):
+class PlantNode(GraphNode):
     """The simulated robot on topics (see the module docstring)."""
 
     def __init__(self, **kwargs: Any) -> None:
@@ -114,7 +114,7 @@ class PlantNode(StudyNode):
         self._start_timer = self.create_timer(0.01, self._try_start, clock=self._steady)
 
     def _try_start(self) -> None:
-        """Start once the start handshake holds (:meth:`StudyNode.start_handshake`) and the
+        """Start once the start handshake holds (:meth:`GraphNode.start_handshake`) and the
         metrics node is ready (``wait_for_metrics``: it has matched every topic it records):
         lockstep publishes the state of cycle 0, real time starts the wall-clock timer."""
         metrics = self.metrics_ready or not self.params["wait_for_metrics"]

@@ -104,21 +104,21 @@ from ffmpc_core.lowlevel import (
     LowLevelOutput,
 )
 from ffmpc_core.metrics import PolishingMetrics, limit_ratios
-from ffmpc_core.robots import load_robot
-from ffmpc_core.scenario import Scenario
-from ffmpc_core.study import (
-    StudyLog,
+from ffmpc_core.polishing import (
+    PolishingLog,
     device_generator,
     force_sensing_model,
     joint_sensing_model,
     lowlevel_controller,
     measured_force,
+    polishing_run_metrics,
     steps_per_mpc_period,
-    study_metrics,
 )
+from ffmpc_core.robots import load_robot
+from ffmpc_core.scenario import Scenario
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import (
-    StudyNode,
+    GraphNode,
     force_on_axes,
     joint_state_message,
     stamp_at,
@@ -426,8 +426,8 @@ class RealtimeLoop:
         stalls: Sequence[Fault] = (),
         mpc_pid: int | None = None,
     ) -> None:
-        def node(name: str) -> StudyNode:
-            return StudyNode(
+        def node(name: str) -> GraphNode:
+            return GraphNode(
                 name, context=context, parameter_overrides=parameter_overrides(params[name])
             )
 
@@ -816,7 +816,7 @@ class RealtimeLoop:
         ``cycle_latency`` (s; inf for a missed cycle), ``command_arrival`` (the cycle at which the
         command solved from this cycle was taken, −1 for none) and ``missed`` (the loop missed
         the cycle: the plant stepped under the held torque, :meth:`run`)."""
-        log = StudyLog(self.steps, self.robot, self.task)
+        log = PolishingLog(self.steps, self.robot, self.task)
         for k in range(self.steps):
             log.record(
                 k,
@@ -828,7 +828,7 @@ class RealtimeLoop:
                 rec["tau_measured"][k],
                 rec["tau_motor"][k],
             )
-        true, measured = study_metrics(log.arrays, self.task, rec["table_normal"])
+        true, measured = polishing_run_metrics(log.arrays, self.task, rec["table_normal"])
         timing = timing_report(
             time_step=self.time_step,
             every=self.every,

@@ -21,7 +21,7 @@ frames never mix; ``frame_prefix`` (robot_state_publisher's parameter) prefixes 
 for a user who wants them in one tree instead.
 
 A joint state with a bad stamp, non-finite positions or wrong joint names is rejected with one
-throttled log line (``StudyNode.reject``) and nothing is published from it. The node only reads
+throttled log line (``GraphNode.reject``) and nothing is published from it. The node only reads
 the graph: the lockstep loop does not wait for it.
 """
 
@@ -39,7 +39,7 @@ from tf2_msgs.msg import TFMessage
 
 from ffmpc_core.robots import load_robot
 from ffmpc_ros import topics
-from ffmpc_ros.base import StudyNode, run_node, stamp_ns
+from ffmpc_ros.base import GraphNode, run_node, stamp_ns
 from ffmpc_ros.robot_tree import (
     Edge,
     description_with_absolute_meshes,
@@ -48,7 +48,7 @@ from ffmpc_ros.robot_tree import (
 )
 
 
-class StatePublisherNode(StudyNode):
+class StatePublisherNode(GraphNode):
     """robot_description, /tf_static and /tf of the scenario's robot (module docstring)."""
 
     def __init__(self, **kwargs: Any) -> None:

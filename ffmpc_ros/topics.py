@@ -298,7 +298,7 @@ GRAPH_OVERRIDES: dict[str, dict[str, dict[str, str | int]]] = {
         "subscription": {"reliability": "reliable"},
     },
 }
-#: The lockstep start barrier (``StudyNode`` in ffmpc_ros.base; msgs_notes/README.md, QoS): a
+#: The lockstep start barrier (``GraphNode`` in ffmpc_ros.base; msgs_notes/README.md, QoS): a
 #: node subscribes this topic (std_msgs/Empty, never published) once it has discovered every
 #: member's :data:`START_MEMBER` marker (so every reader of the graph) and each of its writers has
 #: matched every compatible reader discovered on its topic. The plant counts these readers

@@ -20,9 +20,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ffmpc_core.actuation import ActuationModel
+from ffmpc_core.polishing import PolishingSchedule, RunDraws, actuation_model, build_task, draw_run
 from ffmpc_core.robots import RobotModel
 from ffmpc_core.scenario import Scenario
-from ffmpc_core.study import RunDraws, StudyTask, actuation_model, build_task, draw_run
 
 if TYPE_CHECKING:  # the plant imports PyBullet: loaded when a scene is built, not to parse
     from ffmpc_core.impact.scenario import DiceConfig, ImpactStudyConfig
@@ -89,7 +89,7 @@ def exploration_plant_config(dice: DiceConfig, time_step: float) -> PlantConfig:
     )
 
 
-def polishing_plant_config(scenario: Scenario, task: StudyTask, tilt: float) -> PlantConfig:
+def polishing_plant_config(scenario: Scenario, task: PolishingSchedule, tilt: float) -> PlantConfig:
     """Table tilted by θ about an axis through the circle centre (or the contact point)."""
     from sim_bridge.plant import PlantConfig, TableConfig
 
@@ -115,7 +115,7 @@ class SimulatedRobot:
     real-time loop all build it here, so they simulate the same robot."""
 
     draws: RunDraws
-    task: StudyTask
+    task: PolishingSchedule
     actuation: ActuationModel
     plant: Plant
     push_at: int

@@ -2,9 +2,9 @@
 simulated time: :func:`run_polishing`.
 
 The closed loop is :func:`ffmpc_core.runner.run_scenario`, the one loop of every experiment;
-the scenario around it is :class:`ffmpc_core.polishing.PolishingLoop` (sensing, faults,
-actuation, log) with the controllers :class:`~ffmpc_core.polishing.MpcStage` and
-:class:`~ffmpc_core.polishing.LowLevelStage`, and the plant is the PyBullet scene of
+the scenario around it is :class:`ffmpc_core.polishing_loop.PolishingLoop` (sensing, faults,
+actuation, log) with the controllers :class:`~ffmpc_core.polishing_loop.MpcStage` and
+:class:`~ffmpc_core.polishing_loop.LowLevelStage`, and the plant is the PyBullet scene of
 :func:`sim_bridge.scenes.simulated_robot`. One plant cycle (``plant.time_step``, 1 ms by default)
 does, in this order:
 
@@ -53,24 +53,24 @@ from ffmpc_core.faults import RUNNER_KINDS, Fault, faults_from, require_kinds
 from ffmpc_core.lowlevel import LowLevelMode
 from ffmpc_core.metrics import PolishingMetrics, limit_ratios
 from ffmpc_core.mpc import ModelPredictiveController
-from ffmpc_core.polishing import LowLevelStage, MpcStage, PolishingLoop
-from ffmpc_core.robots import load_robot
-from ffmpc_core.runner import LockstepClock
-from ffmpc_core.scenario import Scenario
-from ffmpc_core.study import (
+from ffmpc_core.polishing import (
+    PolishingLog,
     RunDraws,
-    StudyLog,
     command_delay,
     force_sensing_model,
     joint_sensing_model,
     lowlevel_controller,
     mpc_config,
     mpc_schedule,
+    polishing_run_metrics,
     resolve_command_delay,
     spawn_generators,
     steps_per_mpc_period,
-    study_metrics,
 )
+from ffmpc_core.polishing_loop import LowLevelStage, MpcStage, PolishingLoop
+from ffmpc_core.robots import load_robot
+from ffmpc_core.runner import LockstepClock
+from ffmpc_core.scenario import Scenario
 from sim_bridge.scenes import simulated_robot
 
 __all__ = ["RunResult", "run_polishing"]
@@ -165,7 +165,7 @@ def run_polishing(
     lowlevel = lowlevel_controller(scenario, robot)
     mpc = ModelPredictiveController(robot, config, mpc_schedule(task, scenario))
     clock = LockstepClock.for_duration(dt, duration)
-    log = StudyLog(clock.steps, robot, task)
+    log = PolishingLog(clock.steps, robot, task)
     loop = PolishingLoop(
         robot,
         config.contact,
@@ -183,7 +183,7 @@ def run_polishing(
         closed_loop.run_scenario(loop, plant, [mpc_stage, LowLevelStage(lowlevel)], clock)
         normal = plant.table_normal
 
-    metrics_true, metrics_measured = study_metrics(log.arrays, task, normal)
+    metrics_true, metrics_measured = polishing_run_metrics(log.arrays, task, normal)
     return RunResult(
         scenario=scenario.name,
         formulation=config.formulation,

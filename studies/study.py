@@ -205,8 +205,8 @@ def plot_log(result: RunResult, scenario: Scenario, step: float) -> dict[str, np
     The tangential error is ‖(I − n nᵀ)(p − p̄)‖ in mm, n the TRUE (tilted) table normal, as E_P;
     ``window`` holds the [start, end] of the metrics window (s; NaN when empty).
     """
+    from ffmpc_core.polishing import build_task
     from ffmpc_core.robots import load_robot
-    from ffmpc_core.study import build_task
     from sim_bridge.scenes import polishing_plant_config as plant_config
 
     log = result.log
@@ -260,13 +260,13 @@ def resolve_command_delays(
     """Settle δo (``mpc.command_delay``) of every spec, once per formulation.
 
     With ``mpc.command_delay: measured`` the MPC of each formulation is timed on this machine
-    (:func:`ffmpc_core.study.resolve_command_delay`, ``steps`` MPC steps, in this process,
+    (:func:`ffmpc_core.polishing.resolve_command_delay`, ``steps`` MPC steps, in this process,
     before any run starts) and its specs get the measured δo, rounded up to the plant step;
     ``measured`` (``{formulation: MPC step time, s}``, e.g. from an interrupted start of the
     same study) is used instead of timing again.
     Returns the specs and ``{formulation: record}`` (``delta_o_s`` is the δo the runs used).
     """
-    from ffmpc_core.study import resolve_command_delay
+    from ffmpc_core.polishing import resolve_command_delay
 
     records: dict[str, dict] = {}
     resolved: dict[tuple, float | None] = {}

@@ -8,9 +8,9 @@ import json
 import pytest
 
 from ffmpc_core.errors import ConfigError
+from ffmpc_core.polishing import mpc_config, resolve_command_delay
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
-from ffmpc_core.study import mpc_config, resolve_command_delay
 from studies.study import grid_specs, run_study
 
 DT = 1e-3  # plant.time_step of the shipped scenarios

@@ -20,9 +20,9 @@ from std_msgs.msg import Float64MultiArray, String
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
+from ffmpc_core.polishing import mpc_config
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
-from ffmpc_core.study import mpc_config
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.bag.reader import BagReader
 from ffmpc_ros.bag.schema import MessageDefinitions

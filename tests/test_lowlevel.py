@@ -256,14 +256,14 @@ def test_config_is_validated():
 def _hold_drift(robot, overrides: dict, seed: int = 4) -> tuple[float, float]:
     """Max and final displacement (m) of the contact frame during 1 s of safe hold in PyBullet,
     with the study's sensing noise, actuation bias/noise/friction and torque PID (δo = 5 ms)."""
-    from ffmpc_core.scenario import load_scenario
-    from ffmpc_core.study import (
+    from ffmpc_core.polishing import (
         actuation_model,
         draw_run,
         joint_sensing_model,
         lowlevel_controller,
         spawn_generators,
     )
+    from ffmpc_core.scenario import load_scenario
     from sim_bridge.plant import Plant, PlantConfig
 
     scenario = load_scenario("polishing", overrides)

@@ -16,11 +16,11 @@ from ffmpc_core.errors import ConfigError
 from ffmpc_core.lowpass import make_lowpass_node
 from ffmpc_core.mpc import ModelPredictiveController, MpcConfig, MpcMeasurement
 from ffmpc_core.native import make_native_soft_contact_node
+from ffmpc_core.polishing import build_task, mpc_config
 from ffmpc_core.rigid_contact import make_rigid_contact_node
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
 from ffmpc_core.soft_contact import make_soft_contact_node
-from ffmpc_core.study import build_task, mpc_config
 from ffmpc_core.tasks import PolishingTask
 
 DT = 0.003

@@ -16,9 +16,9 @@ import pytest
 
 from ffmpc_core.errors import InputError
 from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement, LowLevelMode
+from ffmpc_core.polishing import lowlevel_controller, steps_per_mpc_period
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
-from ffmpc_core.study import lowlevel_controller, steps_per_mpc_period
 from ffmpc_ros.cli import main
 from ffmpc_ros.realtime import (
     fallback_time,

@@ -17,8 +17,8 @@ from sensor_msgs.msg import JointState
 
 from ffmpc_core.errors import InputError
 from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement
+from ffmpc_core.polishing import lowlevel_controller
 from ffmpc_core.scenario import load_scenario
-from ffmpc_core.study import lowlevel_controller
 from ffmpc_ros import topics
 from ffmpc_ros.bag.schema import MessageDefinitions
 from ffmpc_ros.command_msg import TYPE_NAME, VERSION, command_fields, command_message

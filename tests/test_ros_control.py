@@ -13,8 +13,8 @@ from std_msgs.msg import Float64MultiArray
 
 from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement, LowLevelMode
 from ffmpc_core.mpc import ModelPredictiveController, MpcMeasurement
+from ffmpc_core.polishing import build_task, lowlevel_controller, mpc_config
 from ffmpc_core.scenario import load_scenario
-from ffmpc_core.study import build_task, lowlevel_controller, mpc_config
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.command_msg import command_fields
 from ffmpc_ros.mpc_node import MpcNode

@@ -29,9 +29,9 @@ from ffmpc_core.impact import (
 )
 from ffmpc_core.impact.scenario import IMPACT_SCHEMA, ImpactStudyConfig
 from ffmpc_core.mpc import ModelPredictiveController, MpcMeasurement
+from ffmpc_core.polishing import build_task, mpc_config
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
-from ffmpc_core.study import build_task, mpc_config
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.command_msg import command_fields
 from ffmpc_ros.contact_learner_node import ContactLearnerNode

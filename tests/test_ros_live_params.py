@@ -18,8 +18,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement
+from ffmpc_core.polishing import lowlevel_controller
 from ffmpc_core.scenario import load_scenario
-from ffmpc_core.study import lowlevel_controller
 from ffmpc_ros import topics
 from ffmpc_ros.mpc_node import MpcNode
 from ffmpc_ros.params import NODE_SPECS

@@ -12,9 +12,9 @@ from ros_helpers import joint_state, overrides, recorder, wrench
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 
+from ffmpc_core.polishing import PolishingLog, build_task, polishing_run_metrics
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
-from ffmpc_core.study import StudyLog, build_task, study_metrics
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.metrics_node import MetricsNode
 
@@ -77,7 +77,7 @@ def test_metrics_node_logs_like_the_runner(ros):
     assert ros.spin_until(node.finished)
     robot = load_robot("iiwa")
     task = build_task(scenario, robot)
-    log = StudyLog(N, robot, task)
+    log = PolishingLog(N, robot, task)
     for k in range(N):
         log.record(
             k,
@@ -91,7 +91,7 @@ def test_metrics_node_logs_like_the_runner(ros):
         )
     for name, values in log.arrays.items():
         np.testing.assert_array_equal(node.log.arrays[name], values, err_msg=name)
-    assert node.metrics == study_metrics(log.arrays, task, normal)
+    assert node.metrics == polishing_run_metrics(log.arrays, task, normal)
     assert ros.spin_until(lambda: len(summary) == 1)
     doc = json.loads(summary[0].data)
     assert doc["cycles"] == N and doc["filled"] == 0

@@ -11,8 +11,8 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
+from ffmpc_core.polishing import actuation_model, build_task, device_generator, draw_run
 from ffmpc_core.scenario import load_scenario
-from ffmpc_core.study import actuation_model, build_task, device_generator, draw_run
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.plant_node import PlantNode
 from sim_bridge.plant import Plant

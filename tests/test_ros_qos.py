@@ -21,8 +21,8 @@ from sensor_msgs.msg import JointState
 
 from ffmpc_core.errors import ConfigError
 from ffmpc_core.mpc import ModelPredictiveController, MpcMeasurement
+from ffmpc_core.polishing import build_task, mpc_config
 from ffmpc_core.scenario import load_scenario
-from ffmpc_core.study import build_task, mpc_config
 from ffmpc_ros import topics
 from ffmpc_ros.base import GRID_TOLERANCE_NS, MAX_FUTURE_STAMP, cycle_at, stamp_ns
 from ffmpc_ros.command_msg import command_fields

@@ -12,8 +12,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
+from ffmpc_core.polishing import device_generator, force_sensing_model, joint_sensing_model
 from ffmpc_core.scenario import load_scenario
-from ffmpc_core.study import device_generator, force_sensing_model, joint_sensing_model
 from ffmpc_ros import topics
 from ffmpc_ros.ft_sensor_node import FtSensorNode
 from ffmpc_ros.joint_sensor_node import JointSensorNode

@@ -1,4 +1,4 @@
-"""The lockstep start barrier (ffmpc_ros.base ``StudyNode.writers_matched``, ffmpc_ros.topics
+"""The lockstep start barrier (ffmpc_ros.base ``GraphNode.writers_matched``, ffmpc_ros.topics
 ``START_READY``): a node declares itself ready (a ``lockstep/ready`` reader) only once it knows
 every /clock reader of the graph and each of its writers has matched every compatible reader;
 the plant publishes cycle 0 only once every node is ready. With reliable, VOLATILE topics (no
@@ -57,7 +57,7 @@ def test_a_node_is_ready_only_once_its_writer_matched_a_late_reader_and_loses_no
     assert not node.start_ready
     # a late member of the graph: first its data reader and an incompatible reader (transient
     # local on a volatile writer, which the barrier must not wait for), then its membership
-    # marker (last, as a StudyNode's)
+    # marker (last, as a GraphNode's)
     late = ros.probe("late_member")
     got: list[JointState] = []
     reliable = topics.graph_qos(topics.SENSED_JOINT_STATES, "subscription")

@@ -16,9 +16,9 @@ import pytest
 from ffmpc_core.config import FORMULATIONS
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.metrics import PolishingMetrics, summarize
+from ffmpc_core.polishing import draw_run
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
-from ffmpc_core.study import draw_run
 from ffmpc_ros.cli import main
 from studies import study
 from studies.study import (

@@ -3,9 +3,9 @@
 :func:`bag_study` builds a :class:`~ffmpc_ros.metrics_node.MetricsNode` with the parameters it
 ran with (recorded in the bag) and hands its callbacks the recorded messages of the topics it
 subscribes to, in recorded order — the node never spins and publishes nothing outside a private
-hidden namespace. Its log (:class:`~ffmpc_core.study.StudyLog`) and metrics
-(:func:`~ffmpc_core.study.study_metrics`) are therefore those of the live metrics node: for a
-lockstep run they equal the ``/metrics/summary`` recorded in the same bag.
+hidden namespace. Its log (:class:`~ffmpc_core.polishing.PolishingLog`) and metrics
+(:func:`~ffmpc_core.polishing.polishing_run_metrics`) are therefore those of the live metrics
+node: for a lockstep run they equal the ``/metrics/summary`` recorded in the same bag.
 """
 
 from __future__ import annotations

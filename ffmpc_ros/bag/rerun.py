@@ -55,7 +55,7 @@ from ffmpc_ros.bag.reader import BagMessage, BagReader
 from ffmpc_ros.bag.ros_types import message_class, qos_from_dicts
 
 if TYPE_CHECKING:
-    from ffmpc_ros.base import StudyNode
+    from ffmpc_ros.base import GraphNode
 
 #: Nodes that can be re-run from a bag.
 RERUN_NODES = ("joint_sensor", "ft_sensor", "mpc", "pid")
@@ -522,7 +522,7 @@ def _type_name(cls: Any) -> str:
 
 
 def _check_types(
-    bag: BagReader, node: str, target: StudyNode, prefix: str, names: list[str]
+    bag: BagReader, node: str, target: GraphNode, prefix: str, names: list[str]
 ) -> None:
     """RerunError when a topic was recorded with another type than the node uses now (a bag
     from before ``mpc/command`` became ``ffmpc_msgs/msg/MpcCommand``: record it again)."""
@@ -539,7 +539,7 @@ def _check_types(
 def _run(
     bag: BagReader,
     node: str,
-    target: StudyNode,
+    target: GraphNode,
     feeder: Node,
     executor: Executor,
     prefix: str,

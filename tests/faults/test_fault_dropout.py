@@ -131,7 +131,7 @@ def test_an_outage_pauses_the_task_clock_of_the_mpc():
         MpcMeasurement,
         resume_lag,
     )
-    from ffmpc_core.study import build_task, mpc_config
+    from ffmpc_core.polishing import build_task, mpc_config
 
     scenario = load_scenario("polishing")
     robot = load_robot(scenario.robot)
