@@ -182,6 +182,102 @@ def polishing_metrics(
     )
 
 
+#: Length of the AFTER window of a push (Experiment 3.3), s: the recovery is measured over the
+#: ``PUSH_RECOVERY_WINDOW`` s that follow the end of the push (cut at the next push and at the end
+#: of the evaluation window).
+PUSH_RECOVERY_WINDOW = 0.5
+
+
+@dataclass(frozen=True)
+class PushPhaseMetrics:
+    """Tracking over one phase of an external push (Experiment 3.3): DURING the push or AFTER it.
+
+    ``start``/``end`` (s) bound the phase, half-open ``start <= t < end``; ``samples`` is how many
+    cycles it holds. With no sample (the run ended before the phase) the metrics are None.
+    """
+
+    start: float  # s
+    end: float  # s
+    samples: int
+    force_mae: float | None  # E_λ over the phase, N
+    position_mae_mm: float | None  # E_P over the phase (tangential, as E_P), mm
+    max_force: float | None  # max |λ| over the phase, N
+
+    def to_dict(self) -> dict[str, float | int | None]:
+        return asdict(self)
+
+
+def push_phase_windows(
+    pushes: Sequence[tuple[float, float]],
+    recovery: float = PUSH_RECOVERY_WINDOW,
+    end: float | None = None,
+) -> list[dict[str, tuple[float, float]]]:
+    """The DURING and AFTER windows (s, half-open) of each push, in time order.
+
+    Args:
+        pushes: (start s, duration s) of each push; the force acts on ``start <= t < start +
+            duration`` (the plant applies it on those cycles).
+        recovery: length of the AFTER window, s; it is cut at the next push's start and at
+            ``end`` (s, the end of the evaluation window; None: not cut).
+    Returns: one ``{"during": (t0, t1), "after": (t1, t2)}`` per push.
+    """
+    ordered = sorted((float(a), float(d)) for a, d in pushes)
+    if any(not (np.isfinite(a) and np.isfinite(d) and d >= 0.0) for a, d in ordered):
+        raise InputError(f"pushes must be (finite start s, duration s >= 0), got {pushes!r}")
+    if not (np.isfinite(recovery) and recovery >= 0.0):
+        raise InputError(f"recovery must be a finite duration >= 0 s, got {recovery!r}")
+    out = []
+    for i, (start, duration) in enumerate(ordered):
+        stop = start + duration
+        after = stop + recovery
+        if i + 1 < len(ordered):
+            after = min(after, ordered[i + 1][0])
+        if end is not None:
+            after = min(after, end)
+        out.append({"during": (start, stop), "after": (stop, max(stop, after))})
+    return out
+
+
+def push_phase_metrics(
+    t: np.ndarray,
+    position: np.ndarray,
+    position_reference: np.ndarray,
+    table_normal: np.ndarray,
+    normal_force: np.ndarray,
+    force_reference: np.ndarray | float,
+    window: tuple[float, float],
+) -> PushPhaseMetrics:
+    """E_λ (N), E_P (mm) and max |λ| (N) over one phase ``window[0] <= t < window[1]`` (s); the
+    signals as :func:`polishing_metrics` (p, p̄ N×3 m world frame, n the TRUE table normal)."""
+    t = np.asarray(t, dtype=float)
+    if t.ndim != 1 or t.size == 0 or not np.all(np.isfinite(t)):
+        raise InputError("t must be a non-empty 1-D array of finite times")
+    n = t.size
+    p = _signal(position, (n, 3), "position")
+    ref = _signal(position_reference, (n, 3), "position_reference")
+    force = _signal(normal_force, (n,), "normal_force")
+    force_ref = np.asarray(force_reference, dtype=float)
+    force_ref = _signal(force_ref, () if force_ref.ndim == 0 else (n,), "force_reference")
+    normal = np.asarray(table_normal, dtype=float)
+    if normal.shape != (3,) or not np.isclose(np.linalg.norm(normal), 1.0, atol=1e-9):
+        raise InputError(f"table_normal must be a unit 3-vector, got {table_normal!r}")
+    start, end = float(window[0]), float(window[1])
+    mask = (t >= start) & (t < end)
+    if not mask.any():
+        return PushPhaseMetrics(start, end, 0, None, None, None)
+    error = (p - ref)[mask]
+    tangential = error - np.outer(error @ normal, normal)
+    force_error = np.abs(force - force_ref)[mask]
+    return PushPhaseMetrics(
+        start=start,
+        end=end,
+        samples=int(mask.sum()),
+        force_mae=float(np.mean(force_error)),
+        position_mae_mm=float(1e3 * np.mean(np.linalg.norm(tangential, axis=1))),
+        max_force=float(np.max(np.abs(force[mask]))),
+    )
+
+
 def summarize(runs: Sequence[PolishingMetrics]) -> dict[str, float | None]:
     """Aggregate runs as Tables II–III: mean and std of E_P, E_λ, E_τ; max of λmax (eq 34) and
     of t_break (eq 35) over the runs."""

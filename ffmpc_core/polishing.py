@@ -26,7 +26,13 @@ from ffmpc_core.actuation import ActuationModel, ActuationParams
 from ffmpc_core.config import ContactConfig
 from ffmpc_core.errors import ConfigError
 from ffmpc_core.lowlevel import LowLevelConfig, LowLevelController
-from ffmpc_core.metrics import PolishingMetrics, polishing_metrics
+from ffmpc_core.metrics import (
+    PUSH_RECOVERY_WINDOW,
+    PolishingMetrics,
+    polishing_metrics,
+    push_phase_metrics,
+    push_phase_windows,
+)
 from ffmpc_core.mpc import MpcConfig
 from ffmpc_core.pid import TorquePid, TorquePidGains
 from ffmpc_core.robots import RobotModel
@@ -405,3 +411,41 @@ def polishing_run_metrics(
         )
 
     return metrics(log["force_true"]), metrics(log["force_measured"])
+
+
+def polishing_push_metrics(
+    log: dict[str, np.ndarray],
+    scenario: Scenario,
+    task: PolishingSchedule,
+    table_normal: np.ndarray,
+    recovery: float = PUSH_RECOVERY_WINDOW,
+) -> list[dict[str, Any]]:
+    """Experiment 3.3: per external push of the scenario (``plant.push_*``; [] without one),
+    E_λ (N, TRUE normal force), E_P (mm) and max |λ| (N) DURING the push and over the
+    ``recovery`` s AFTER it (cut at the end of the task's evaluation window), as
+    ``{"during": {...}, "after": {...}}`` of :class:`ffmpc_core.metrics.PushPhaseMetrics`."""
+    plant = scenario.plant
+    if not plant.push_enabled:
+        return []
+    t = log["t"]
+    window = task.in_circle(t)
+    # Half-open phases: the last cycle of the evaluation window is inside.
+    end = float(t[window][-1]) + 0.5 * plant.time_step if window.any() else None
+    phases = push_phase_windows([(plant.push_time, plant.push_duration)], recovery, end)
+    out = []
+    for push in phases:
+        out.append(
+            {
+                name: push_phase_metrics(
+                    t,
+                    log["ee_position"],
+                    log["ee_reference"],
+                    table_normal,
+                    log["force_true"],
+                    log["force_reference"],
+                    bounds,
+                ).to_dict()
+                for name, bounds in push.items()
+            }
+        )
+    return out

@@ -64,6 +64,7 @@ def _cmd_study(args: argparse.Namespace) -> int:
         duration=args.duration,
         overrides=overrides,
         plot_seed=plot_seed,
+        command_delays=getattr(args, "command_delays", None),
     )
     out = args.out or default_out_dir(kind)
     report = run_study(
@@ -141,6 +142,33 @@ def _check_execution_arguments(args: argparse.Namespace) -> None:
         raise ConfigError("--workers and --scheduler exclude each other (a cluster has workers)")
     if args.out:
         check_output_dir(args.out, args.force, resume=not args.no_cache and not args.fresh)
+
+
+def command_delay_value(text: str) -> float | str:
+    """A δo of ``--command-delays``: seconds >= 0 or "measured" (argparse type)."""
+    if text.strip() == "measured":
+        return "measured"
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds >= 0 or 'measured', got {text!r}")
+    if not (value >= 0.0 and value != float("inf")):
+        raise argparse.ArgumentTypeError(f"expected seconds >= 0 or 'measured', got {text!r}")
+    return value
+
+
+def _add_command_delays_argument(p: argparse.ArgumentParser, default: list | None) -> None:
+    p.add_argument(
+        "--command-delays",
+        nargs="+",
+        type=command_delay_value,
+        default=default,
+        metavar="DELTA_O",
+        help="OCP delays δo to run, s or 'measured': one grid per value (each the override "
+        "mpc.command_delay=VALUE), tables per δo"
+        + (f" (default {' '.join(map(str, default))})" if default else "")
+        + "; excludes --set mpc.command_delay",
+    )
 
 
 def _add_study_arguments(p: argparse.ArgumentParser, seeds: int, pid: str) -> None:
@@ -518,6 +546,7 @@ class StudyCommand(CommandExtension):
             "results.json, tables.md and two figures into --out.",
         )
         _add_study_arguments(polishing, seeds=20, pid="both")
+        _add_command_delays_argument(polishing, None)
         square = study_sub.add_parser(
             "force-square",
             help="Experiment 1 (VII-B): square force signal, Fig. 4",

@@ -62,6 +62,7 @@ from ffmpc_core.polishing import (
     lowlevel_controller,
     mpc_config,
     mpc_schedule,
+    polishing_push_metrics,
     polishing_run_metrics,
     resolve_command_delay,
     spawn_generators,
@@ -106,6 +107,9 @@ class RunResult:
     faults: tuple[Fault, ...] = ()
     safety_log: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
     command_delay: float = 0.0  # δo of the run, s (pid.delay_cycles plant steps)
+    #: Experiment 3.3, per push: true-force E_λ (N), E_P (mm), max |λ| (N) during and after it
+    #: (:func:`ffmpc_core.polishing.polishing_push_metrics`); empty without a push.
+    push_metrics: list[dict] = field(default_factory=list)
 
     def summary(self) -> dict:
         """A JSON-friendly dict without the time series."""
@@ -129,6 +133,7 @@ class RunResult:
             "mpc_failures": self.mpc_failures,
             "faults": [str(f) for f in self.faults],
             "command_delay_s": self.command_delay,
+            **({"push_true": self.push_metrics} if self.push_metrics else {}),
         }
 
 
@@ -184,6 +189,7 @@ def run_polishing(
         normal = plant.table_normal
 
     metrics_true, metrics_measured = polishing_run_metrics(log.arrays, task, normal)
+    pushes = polishing_push_metrics(log.arrays, scenario, task, normal)
     return RunResult(
         scenario=scenario.name,
         formulation=config.formulation,
@@ -210,4 +216,5 @@ def run_polishing(
             "mode": loop.trace_mode,
         },
         command_delay=round(command_delay(scenario), 12),
+        push_metrics=pushes,
     )

@@ -101,6 +101,57 @@ PAPER_TABLES: dict[str, dict[str, tuple[str, ...]]] = {
 PAPER_FORCE_SQUARE_MAE = {"classical": 2.76, "torque_feedback": 2.70, "force_feedback": 2.16}
 
 
+#: The paper's hardware tables (VII-C, VII-D): "Force (N)" and "Position (mm)" MAE, mean ± std
+#: over 10 circles of one run (ours: over the seeds). Experiment 3.3 prints no numbers (Fig. 9).
+PAPER_TABLES.update(
+    {
+        "V": {
+            "classical": ("9.31 ± 0.79", "6.48 ± 0.21"),
+            "torque_feedback": ("4.28 ± 0.63", "3.23 ± 0.12"),
+            "force_feedback": ("1.70 ± 0.15", "3.10 ± 0.11"),
+        },
+        "VI": {
+            "classical": ("9.49 ± 1.59", "7.04 ± 0.43"),
+            "torque_feedback": ("9.67 ± 0.61", "3.37 ± 0.28"),
+            "force_feedback": ("2.12 ± 0.37", "3.34 ± 0.11"),
+        },
+        "VII": {
+            "classical": ("9.00 ± 1.61", "10.85 ± 0.12"),
+            "torque_feedback": ("11.40 ± 1.45", "5.41 ± 0.12"),
+            "force_feedback": ("1.84 ± 0.32", "5.29 ± 0.03"),
+        },
+    }
+)
+#: Version of the push windows a push run's summary holds (part of its cache key).
+PUSH_METRICS_VERSION = 1
+#: The scenario parameter of δo.
+DELTA_O = "mpc.command_delay"
+
+
+def delta_o_text(value: Any) -> str | None:
+    """A ``mpc.command_delay`` value as the text that labels its grid: seconds as ``repr`` of
+    the float ("0.0", "0.005"), "measured" and "pid" as they are; None stays None."""
+    if value is None:
+        return None
+    if isinstance(value, str) and value.strip() in ("measured", "pid"):
+        return value.strip()
+    try:
+        return repr(float(value))
+    except (TypeError, ValueError):
+        raise ConfigError(
+            f"mpc.command_delay = {value!r}: expected seconds, 'measured' or 'pid'"
+        ) from None
+
+
+def delta_o_label(setting: str | None) -> str:
+    """``δo = 5 ms`` for "0.005", ``δo measured`` ..., for table titles."""
+    if setting is None:
+        return "δo of the scenario"
+    if setting in ("measured", "pid"):
+        return f"δo = {setting}"
+    return f"δo = {float(setting) * 1e3:g} ms"
+
+
 #: Exceptions that mean "this run diverged" (recorded as a failure, the study goes on).
 DIVERGENCE_ERRORS: tuple[type[BaseException], ...] = (
     FfmpcError,
@@ -171,12 +222,21 @@ class RunSpec:
         PID mode, seed and δo applied), the duration (s) and what the run sends back (plot step,
         s, or none): :class:`studies.execute.Job`."""
         scenario = self.load()
-        return {
+        doc = {
             "scenario_name": scenario.name,
             "scenario": scenario_parameters(scenario),
             "duration_s": self.duration,
             "plot_step_s": self.plot_step if self.plot else None,
         }
+        if scenario.plant.push_enabled:  # the summary holds the push windows (Experiment 3.3)
+            doc["push_metrics"] = PUSH_METRICS_VERSION
+        return doc
+
+    @property
+    def delta_o_setting(self) -> str | None:
+        """The run's ``mpc.command_delay`` override as text ("0.005", "measured"), None when the
+        scenario's own setting is used (see :func:`grid_specs` ``command_delays``)."""
+        return delta_o_text(dict(self.overrides).get(DELTA_O))
 
     def description(self) -> dict[str, Any]:
         return {
@@ -276,8 +336,8 @@ def resolve_command_delays(
         if key not in resolved:
             known = (measured or {}).get(spec.formulation)
             scenario, record = resolve_command_delay(spec.load(), measured=known, steps=steps)
-            measured = record["setting"] == "measured"
-            resolved[key] = record["delta_o_s"] if measured else None
+            was_measured = record["setting"] == "measured"
+            resolved[key] = record["delta_o_s"] if was_measured else None
             records.setdefault(spec.formulation, record)
         out.append(replace(spec, command_delay=resolved[key]))
     return out, records
@@ -383,8 +443,36 @@ def grid_specs(
     duration: float | None = None,
     overrides: dict[str, Any] | None = None,
     plot_seed: int | None = None,
+    command_delays: Sequence[float | str] | None = None,
 ) -> list[RunSpec]:
-    """The runs of a study: every (PID mode, formulation, seed), the ``plot_seed`` ones plotted."""
+    """The runs of a study: every (PID mode, formulation, seed), the ``plot_seed`` ones plotted.
+
+    ``command_delays``: one grid per value, each with the override ``mpc.command_delay`` = the
+    value (s, or "measured"); the tables then come per δo (:func:`polishing_tables`).
+    """
+    if command_delays is not None:
+        if not command_delays:
+            raise ConfigError("command_delays: give at least one value")
+        if DELTA_O in (overrides or {}):
+            raise ConfigError(
+                f"{DELTA_O} is given both as an override and by the command delays; give it once"
+            )
+        settings = [delta_o_text(v) for v in command_delays]
+        if len(set(settings)) != len(settings):
+            raise ConfigError(f"command delays repeat a value: {list(command_delays)}")
+        return [
+            spec
+            for value in command_delays
+            for spec in grid_specs(
+                scenario,
+                formulations,
+                pid_modes,
+                seeds,
+                duration,
+                {**(overrides or {}), DELTA_O: value},
+                plot_seed,
+            )
+        ]
     bad = [f for f in formulations if f not in FORMULATIONS]
     if bad or not formulations:
         raise ConfigError(f"formulations must be among {FORMULATIONS}, got {list(formulations)}")
@@ -457,28 +545,43 @@ def study_document(
 
     first = specs[0]
     scenario = first.load()
-    runs = [o.summary for o in outcomes if o.ok]
+    # One grid per δo (grid_specs command_delays): each run and failure says which.
+    settings = list(dict.fromkeys(s.delta_o_setting for s in specs))
+    per_delta = settings != [None] and all(isinstance(v, str) for v in settings)
+
+    def tagged(record: dict, spec: RunSpec) -> dict:
+        return {**record, "delta_o_setting": spec.delta_o_setting} if per_delta else record
+
+    runs = [tagged(o.summary, o.spec) for o in outcomes if o.summary is not None]
     failures = [
-        {
-            "formulation": o.spec.formulation,
-            "pid_enabled": o.spec.pid_enabled,
-            "seed": o.spec.seed,
-            "error": o.error,
-        }
+        tagged(
+            {
+                "formulation": o.spec.formulation,
+                "pid_enabled": o.spec.pid_enabled,
+                "seed": o.spec.seed,
+                "error": o.error,
+            },
+            o.spec,
+        )
         for o in outcomes
         if not o.ok
     ]
-    return {
+    grid: dict[str, Any] = {
+        "formulations": list(dict.fromkeys(s.formulation for s in specs)),
+        "pid_enabled": list(dict.fromkeys(s.pid_enabled for s in specs)),
+        "seeds": list(dict.fromkeys(s.seed for s in specs)),
+    }
+    overrides = dict(first.overrides)
+    if per_delta:
+        grid["command_delays"] = settings
+        overrides.pop(DELTA_O, None)
+    doc = {
         "kind": kind,
         "scenario": scenario.name,
         "scenario_file": str(resolve_scenario_path(first.scenario)),
-        "overrides": dict(first.overrides),
+        "overrides": overrides,
         "duration_s": first.duration,
-        "grid": {
-            "formulations": list(dict.fromkeys(s.formulation for s in specs)),
-            "pid_enabled": list(dict.fromkeys(s.pid_enabled for s in specs)),
-            "seeds": list(dict.fromkeys(s.seed for s in specs)),
-        },
+        "grid": grid,
         "command_line": command_line,
         "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "wall_time_s": wall_time,
@@ -503,6 +606,149 @@ def study_document(
         "runs": runs,
         "failures": failures,
     }
+    doc["paired_comparison"] = {
+        delta_key(setting): {
+            ("III" if pid else "II"): paired_comparison(sub, pid) for pid in grid["pid_enabled"]
+        }
+        for setting, sub in delta_o_groups(doc)
+    }
+    return doc
+
+
+def delta_key(setting: str | None) -> str:
+    """The key of a δo group in ``results.json`` ("scenario" for the scenario's own δo)."""
+    return "scenario" if setting is None else setting
+
+
+def delta_o_groups(doc: dict) -> list[tuple[str | None, dict]]:
+    """The study per δo: ``[(setting, the document with that δo's runs and failures only)]``;
+    one ``(None, doc)`` for a study without ``command_delays``."""
+    settings = doc["grid"].get("command_delays")
+    if not settings:
+        return [(None, doc)]
+    out = []
+    for setting in settings:
+        sub = dict(doc)
+        sub["runs"] = [r for r in doc["runs"] if r.get("delta_o_setting") == setting]
+        sub["failures"] = [f for f in doc["failures"] if f.get("delta_o_setting") == setting]
+        out.append((setting, sub))
+    return out
+
+
+#: The two metrics of the paired comparison: run-summary name, table label.
+PAIRED_METRICS = (("force_mae", "ΔE_λ (N)"), ("position_mae_mm", "ΔE_P (mm)"))
+#: How the paired test is called (stated in the tables).
+WILCOXON_CALL = "scipy.stats.wilcoxon(d, zero_method='wilcox', alternative='two-sided')"
+
+
+def wilcoxon_test(differences: Sequence[float]) -> dict[str, Any]:
+    """The Wilcoxon signed-rank test of paired differences d (two-sided, :data:`WILCOXON_CALL`).
+
+    Returns ``n`` (pairs), ``statistic``, ``p_value`` and ``note``. What scipy does, stated:
+    zero differences are dropped (zero_method 'wilcox'); with no zero or tie it uses the exact
+    distribution, so the smallest two-sided p of n pairs is 2/2ⁿ (n = 5: 0.0625: fewer than 6
+    pairs can never reach p < 0.05); with every difference zero scipy returns p = 1 (it warns
+    of a 0/0, silenced here). No pair: no test (None). A scipy that refuses the data (older
+    versions raise on all-zero differences) gives None with its message as the note.
+    """
+    import warnings
+
+    from scipy.stats import wilcoxon
+
+    d = np.asarray(differences, dtype=float)
+    n = int(d.size)
+    if n == 0:
+        return {"n": 0, "statistic": None, "p_value": None, "note": "no pair"}
+    notes = []
+    if n < 6:
+        notes.append(f"n < 6: p >= 2/2^n = {2.0 / 2**n:.3g}")
+    if np.all(d == 0.0):
+        notes.append("all differences 0")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            result = wilcoxon(d, zero_method="wilcox", alternative="two-sided")
+    except ValueError as exc:
+        return {"n": n, "statistic": None, "p_value": None, "note": f"scipy: {exc}"}
+    return {
+        "n": n,
+        "statistic": float(result.statistic),
+        "p_value": float(result.pvalue),
+        "note": "; ".join(notes),
+    }
+
+
+def paired_comparison(
+    doc: dict, pid: bool, source: str = "true", reference: str = "force_feedback"
+) -> dict[str, dict[str, Any]]:
+    """Per seed, ``reference`` (the force-feedback MPC) minus each other controller, for E_λ (N)
+    and E_P (mm), PID mode ``pid``, from the ``source`` force ("true" or "measured").
+
+    Only the seeds where both runs succeeded are paired. Returns ``{other formulation:
+    {"seeds": [...], "force_mae": {"differences", "mean", "std", **wilcoxon_test},
+    "position_mae_mm": {...}}}`` (std: numpy's, ddof 0, as the tables' other std).
+    """
+    forms = doc["grid"]["formulations"]
+    if reference not in forms:
+        return {}
+    ref = {r["seed"]: r for r in _select(doc["runs"], reference, pid)}
+    out: dict[str, dict[str, Any]] = {}
+    for other in forms:
+        if other == reference:
+            continue
+        them = {r["seed"]: r for r in _select(doc["runs"], other, pid)}
+        seeds = sorted(set(ref) & set(them))
+        entry: dict[str, Any] = {"seeds": seeds}
+        for metric, _label in PAIRED_METRICS:
+            diffs = [
+                ref[s][f"metrics_{source}"][metric] - them[s][f"metrics_{source}"][metric]
+                for s in seeds
+            ]
+            mean, std = _mean_std(diffs)
+            entry[metric] = {"differences": diffs, "mean": mean, "std": std, **wilcoxon_test(diffs)}
+        out[other] = entry
+    return out
+
+
+def _p_text(p: float | None) -> str:
+    return "n/a" if p is None else f"{p:.4g}"
+
+
+def paired_table(doc: dict, pid: bool, title: str, source: str = "true") -> list[str]:
+    """Markdown of :func:`paired_comparison`: one row per other controller."""
+    pairs = paired_comparison(doc, pid, source)
+    if not pairs:
+        return []
+    header = ["", "pairs", "ΔE_λ (N)", "p (E_λ)", "ΔE_P (mm)", "p (E_P)", "note"]
+    rows = []
+    for other, entry in pairs.items():
+        force, position = entry["force_mae"], entry["position_mae_mm"]
+        notes = list(dict.fromkeys(n for n in (force["note"], position["note"]) if n))
+        rows.append(
+            [
+                f"Force-feedback − {LABELS[other]}",
+                str(len(entry["seeds"])),
+                _pm(force["mean"], force["std"]),
+                _p_text(force["p_value"]),
+                _pm(position["mean"], position["std"]),
+                _p_text(position["p_value"]),
+                "; ".join(notes) or "-",
+            ]
+        )
+    total = len(doc["grid"]["seeds"])
+    return [
+        title,
+        "",
+        *_table(header, rows),
+        "",
+        f"Per seed, force-feedback minus the other controller ({source} force; negative: the "
+        f"force-feedback MPC has the lower error); mean ± std over the pairs. Only seeds where "
+        f"both runs succeeded are paired (pairs out of {total} seeds). p: Wilcoxon signed-rank, "
+        f"paired, two-sided, `{WILCOXON_CALL}`: zero differences are dropped; without zeros or "
+        "ties the p is exact, at least 2/2ⁿ for n pairs, so fewer than 6 pairs can never give "
+        "p < 0.05; all differences 0 → scipy returns p = 1.",
+        "",
+    ]
 
 
 def _metrics(run: dict, source: str) -> PolishingMetrics:
@@ -549,9 +795,11 @@ def _counts(doc: dict, forms: Sequence[str], pid: bool) -> str:
 
 
 def polishing_tables(doc: dict) -> str:
-    """``tables.md`` of a polishing study: Tables II–IV from the true, then the measured force."""
+    """``tables.md`` of a polishing study: Tables II–IV from the true, then the measured force,
+    with the paired comparison (:func:`paired_table`) under Tables II–III from the true force;
+    once per δo for a study with ``command_delays``."""
     forms = doc["grid"]["formulations"]
-    modes = doc["grid"]["pid_enabled"]
+    delays = doc["grid"].get("command_delays")
     lines = [
         f"# Polishing study — scenario `{doc['scenario']}`",
         "",
@@ -564,37 +812,66 @@ def polishing_tables(doc: dict) -> str:
         "over the seeds (eq 34–35); metrics over the circle phase.",
         "",
     ]
+    if delays:
+        lines += [
+            "One grid per OCP delay δo (`mpc.command_delay`: "
+            + ", ".join(f"`{d}`" for d in delays)
+            + "), the same seeds.",
+            "",
+        ]
+    for setting, sub in delta_o_groups(doc):
+        if delays:
+            lines += [f"## {delta_o_label(setting)} (`mpc.command_delay: {setting}`)", ""]
+        lines += polishing_body(sub, level=3 if delays else 2, delta=setting)
+    lines += _failures_section(doc)
+    lines += _paper_section(forms)
+    return "\n".join(lines) + "\n"
+
+
+def table_cells(doc: dict, forms: Sequence[str], pid: bool, source: str) -> list[list[str]]:
+    """The rows of a Table II/III (E_P, E_λ, λmax, t_break; one column per formulation)."""
+    cells = {f: aggregate(doc, f, pid, source) for f in forms}
+    return [
+        ["E_P (mm)"]
+        + [
+            _pm(c["position_mae_mm_mean"], c["position_mae_mm_std"]) if c else "n/a"
+            for c in cells.values()
+        ],
+        ["E_λ (N)"]
+        + [_pm(c["force_mae_mean"], c["force_mae_std"]) if c else "n/a" for c in cells.values()],
+        ["λmax (N)"] + [f"{c['max_force']:.2f}" if c else "n/a" for c in cells.values()],
+        ["t_break (%)"]
+        + [f"{c['contact_break_percent']:.2f}" if c else "n/a" for c in cells.values()],
+    ]
+
+
+def polishing_body(doc: dict, level: int = 2, delta: str | None = None) -> list[str]:
+    """Tables II–IV of one δo (true force, then measured), headings at ``level``."""
+    forms = doc["grid"]["formulations"]
+    modes = doc["grid"]["pid_enabled"]
+    h2, h3 = "#" * level, "#" * (level + 1)
+    suffix = "" if delta is None else f", {delta_o_label(delta)}"
+    lines: list[str] = []
     sources = (
         ("true", "TRUE normal force (the plant's, along the tilted table normal)"),
         ("measured", "MEASURED force (what the controllers see: noise, delay, world-z axis)"),
     )
     for source, description in sources:
-        lines += [f"## Metrics from the {description}", ""]
+        lines += [f"{h2} Metrics from the {description}", ""]
         for number, pid in (("II", False), ("III", True)):
             if pid not in modes:
                 continue
             what = "with" if pid else "without"
-            lines += [f"### Table {number} — {what} low-level torque PID ({source} force)", ""]
-            cells = {f: aggregate(doc, f, pid, source) for f in forms}
-            rows = [
-                ["E_P (mm)"]
-                + [
-                    _pm(c["position_mae_mm_mean"], c["position_mae_mm_std"]) if c else "n/a"
-                    for c in cells.values()
-                ],
-                ["E_λ (N)"]
-                + [
-                    _pm(c["force_mae_mean"], c["force_mae_std"]) if c else "n/a"
-                    for c in cells.values()
-                ],
-                ["λmax (N)"] + [f"{c['max_force']:.2f}" if c else "n/a" for c in cells.values()],
-                ["t_break (%)"]
-                + [f"{c['contact_break_percent']:.2f}" if c else "n/a" for c in cells.values()],
-            ]
-            lines += _table(["", *(LABELS[f] for f in forms)], rows)
+            title = f"{h3} Table {number} — {what} low-level torque PID ({source} force{suffix})"
+            lines += [title, ""]
+            lines += _table(["", *(LABELS[f] for f in forms)], table_cells(doc, forms, pid, source))
             lines += ["", f"Runs: {_counts(doc, forms, pid)}.", ""]
+            if source == "true":
+                lines += paired_table(
+                    doc, pid, f"{h3} Paired comparison, Table {number} ({source} force{suffix})"
+                )
         if set(modes) >= {True, False}:
-            lines += [f"### Table IV — no-PID minus PID, per seed ({source} force)", ""]
+            lines += [f"{h3} Table IV — no-PID minus PID, per seed ({source} force{suffix})", ""]
             deltas = {f: delta_per_seed(doc, f, source) for f in forms}
             rows = [
                 ["ΔE_λ (N)"] + [_pm(*_mean_std(d["force_mae"])) for d in deltas.values()],
@@ -603,9 +880,7 @@ def polishing_tables(doc: dict) -> str:
             lines += _table(["", *(LABELS[f] for f in forms)], rows)
             pairs = ", ".join(f"{LABELS[f]} {len(d['seeds'])}" for f, d in deltas.items())
             lines += ["", f"Seed pairs: {pairs}.", ""]
-    lines += _failures_section(doc)
-    lines += _paper_section(forms)
-    return "\n".join(lines) + "\n"
+    return lines
 
 
 def _mean_std(values: Sequence[float]) -> tuple[float | None, float | None]:
@@ -628,7 +903,10 @@ def _failures_section(doc: dict) -> list[str]:
         return lines + ["None.", ""]
     for f in failures:
         pid = "on" if f["pid_enabled"] else "off"
-        lines.append(f"- {LABELS[f['formulation']]}, PID {pid}, seed {f['seed']}: {f['error']}")
+        delta = f", {delta_o_label(f['delta_o_setting'])}" if "delta_o_setting" in f else ""
+        lines.append(
+            f"- {LABELS[f['formulation']]}, PID {pid}{delta}, seed {f['seed']}: {f['error']}"
+        )
     return lines + [""]
 
 
