@@ -151,7 +151,9 @@ def command_delay_value(text: str) -> float | str:
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected seconds >= 0 or 'measured', got {text!r}")
+        raise argparse.ArgumentTypeError(
+            f"expected seconds >= 0 or 'measured', got {text!r}"
+        ) from None
     if not (value >= 0.0 and value != float("inf")):
         raise argparse.ArgumentTypeError(f"expected seconds >= 0 or 'measured', got {text!r}")
     return value
@@ -169,6 +171,101 @@ def _add_command_delays_argument(p: argparse.ArgumentParser, default: list | Non
         + (f" (default {' '.join(map(str, default))})" if default else "")
         + "; excludes --set mpc.command_delay",
     )
+
+
+def _cmd_study_paper(args: argparse.Namespace) -> int:
+    import shlex
+
+    from ffmpc_core.scenario import load_scenario
+
+    overrides = _parse_overrides(args.set)
+    if "mpc.command_delay" in overrides:
+        raise ConfigError("--set mpc.command_delay: give the δo values with --command-delays")
+    load_scenario("polishing", overrides)  # refuse a bad override before any import
+    _check_execution_arguments(args)
+    from studies.paper import run_paper
+    from studies.study import default_out_dir
+
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    report = run_paper(
+        args.out or default_out_dir("paper"),
+        seeds,
+        formulations=args.formulations,
+        command_delays=args.command_delays,
+        duration=args.duration,
+        overrides=overrides,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        force=args.force,
+        cache=not args.no_cache,
+        cache_dir=args.cache_dir,
+        fresh=args.fresh,
+        command_line=shlex.join(["ffmpc", *args.argv]),
+        progress=not args.no_progress,
+    )
+    print(report.text)
+    doc = report.document
+    sections = doc["sections"].values()
+    runs = sum(len(s["study"]["runs"]) for s in sections)
+    failed = sum(len(s["study"]["failures"]) for s in sections)
+    execution = doc["execution"]
+    print(
+        f"{runs + failed} runs in {len(doc['sections'])} sections, {failed} failed "
+        f"({execution['cached']} from the cache, {execution['executed']} run: "
+        f"{execution['cluster']}, {doc['workers']} worker(s)), wall time "
+        f"{doc['wall_time_s']:.1f} s"
+    )
+    print("files:")
+    for path in report.files:
+        print(f"  {path}")
+    return 0 if runs else 1
+
+
+def _add_paper_study_parser(study_sub: SubParsers) -> None:
+    """``ffmpc study paper``: every table of the force-feedback paper, one report."""
+    from ffmpc_core.config import FORMULATIONS
+
+    p = study_sub.add_parser(
+        "paper",
+        help="every table of the force-feedback paper (II-VII, Experiments 1-3), one report",
+        description="Runs, as one batch on one Dask cluster: the simulation study (Tables "
+        "II-IV, PID off and on, one grid per --command-delays value, with the paired "
+        "force-feedback comparison and Wilcoxon p), Experiment 1 (force_square), Experiment 2 "
+        "(Table V, perfect_table), 3.1 (Table VI, tilt), 3.2 (Table VII, polishing_fast) and 3.3 "
+        "(push: errors during and after the push), the experiments with the torque PID. Writes "
+        "paper.md (each table beside the paper's printed values) and results.json into --out; "
+        "every run is cached, so the same command resumes.",
+    )
+    p.add_argument("--seeds", type=positive_int, default=20, help="number of seeds (default 20)")
+    p.add_argument("--first-seed", type=seed_int, default=0, help="first seed (default 0)")
+    p.add_argument(
+        "--duration",
+        type=positive_float,
+        help="simulated time per run, s (default: each scenario's task; shorter = smoke run)",
+    )
+    p.add_argument(
+        "--formulations",
+        nargs="+",
+        choices=STUDY_FORMULATIONS,
+        default=list(FORMULATIONS),
+        help="controllers (default: all three)",
+    )
+    _add_command_delays_argument(p, [0.0, 0.005])
+    _add_execution_arguments(p)
+    p.add_argument(
+        "--cache-dir",
+        metavar="DIR",
+        help="run cache directory, one JSON file per finished run (default OUT/cache)",
+    )
+    p.add_argument(
+        "--set",
+        action="append",
+        metavar="NAME=VALUE",
+        help="scenario override applied to every section (repeatable), e.g. "
+        "mpc.weights.torque_feedback.joint_velocity=1.0",
+    )
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(study_main=_cmd_study_paper)
 
 
 def _add_study_arguments(p: argparse.ArgumentParser, seeds: int, pid: str) -> None:
@@ -556,6 +653,7 @@ class StudyCommand(CommandExtension):
             "plot.",
         )
         _add_study_arguments(square, seeds=1, pid="on")
+        _add_paper_study_parser(study_sub)
         _add_impact_study_parser(study_sub)
         _add_explore_study_parser(study_sub)
 

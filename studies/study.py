@@ -723,7 +723,12 @@ def paired_table(doc: dict, pid: bool, title: str, source: str = "true") -> list
     rows = []
     for other, entry in pairs.items():
         force, position = entry["force_mae"], entry["position_mae_mm"]
-        notes = list(dict.fromkeys(n for n in (force["note"], position["note"]) if n))
+        notes: list[str] = []
+        for short, result in (("E_λ", force), ("E_P", position)):
+            for part in filter(None, result["note"].split("; ")):
+                text = part if part.startswith("n < 6") else f"{short}: {part}"
+                if text not in notes:
+                    notes.append(text)
         rows.append(
             [
                 f"Force-feedback − {LABELS[other]}",
