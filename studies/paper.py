@@ -401,8 +401,8 @@ def _experiment_section(section: PaperSection, doc: dict, forms: Sequence[str]) 
             "",
             f"During: the cycles the push acts on; after: the {PUSH_RECOVERY_WINDOW:g} s that "
             "follow it (cut at the end of the circle). E_λ and E_P mean ± std over the seeds, "
-            "max λ the largest normal force of any seed; n/a: no run had a sample in that phase (the run "
-            "ended before it).",
+            "max λ the largest normal force of any seed; n/a: no run had a sample in that "
+            "phase (the run ended before it).",
             "",
         ]
     return lines
