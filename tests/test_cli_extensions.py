@@ -105,7 +105,7 @@ def test_ffmpc_help_lists_the_studies_commands(capsys: pytest.CaptureFixture[str
     assert "impact planner cycle time" in capsys.readouterr().out
     assert main(["study", "--help"]) == 0
     out = capsys.readouterr().out
-    for study in ("polishing", "force-square", "impact", "explore"):
+    for study in ("polishing", "force-square", "paper", "impact", "explore"):
         assert study in out
 
 
