@@ -17,6 +17,9 @@ both: the plant's true normal force along the tilted table normal, and the measu
 * E_τ — torque tracking MAE, N·m: mean over cycles AND joints of |τ^d − τ̂| (desired torque of
   the MPC vs measured joint torque, Table IV).
 
+Experiment 3.3 (pushes): :func:`push_phase_windows` gives the DURING and AFTER windows of each
+push, :func:`push_phase_metrics` E_λ (N), E_P (mm) and the largest |λ| (N) over one of them.
+
 Eq 34–35 then take the max over the randomised runs; :func:`summarize` does that aggregation
 (mean ± std of the MAEs, max of λmax and t_break, as in Tables II–III).
 """
