@@ -12,7 +12,7 @@ PID mode × seed, the same seeds everywhere):
 * Experiment 3.1 (VII-D1, Table VI, unknown tilt): ``tilt``;
 * Experiment 3.2 (VII-D2, Table VII, 6 rad/s): ``polishing_fast``;
 * Experiment 3.3 (VII-D3, pushes): ``push``, with the force and position errors during and after
-  the push (:func:`ffmpc_core.study.study_push_metrics`).
+  the push (:func:`ffmpc_core.polishing.polishing_push_metrics`).
 
 The experiments run with the torque PID and the scenario's own δo. Every run of every section
 goes to :func:`studies.execute.execute_jobs` in ONE batch (one Dask cluster, or in-process with

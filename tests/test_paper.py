@@ -243,8 +243,8 @@ SHORT_PUSH = {
 
 
 def test_a_push_run_reports_its_push_windows_and_has_its_own_cache_key() -> None:
+    from ffmpc_core.polishing import build_task
     from ffmpc_core.robots import load_robot
-    from ffmpc_core.study import build_task
     from sim_bridge.scenes import polishing_plant_config
     from studies.polishing import run_polishing
 
