@@ -574,7 +574,8 @@ def study_document(
     overrides = dict(first.overrides)
     if per_delta:
         grid["command_delays"] = settings
-        overrides.pop(DELTA_O, None)
+        if len(settings) > 1:  # one grid per δo: the runs say which; one δo stays an override
+            overrides.pop(DELTA_O, None)
     doc = {
         "kind": kind,
         "scenario": scenario.name,
