@@ -42,10 +42,11 @@ $(STAMP): pyproject.toml CMakeLists.txt
 
 # Rebuild the C++ module ffmpc_core._native after editing cpp/, and the message package
 # ffmpc_msgs after editing msg/ (incremental, in build/); the targets below do it on their own
-# when a cpp/ or msg/ file is newer than the last build.
+# when a cpp/ or msg/ file is newer than the last build, and when a scenario, launch or layout file
+# changed (the build installs them into share/ffmpc_ros).
 native: $(NATIVE)
 
-$(NATIVE): $(STAMP) $(wildcard cpp/*.cpp cpp/*.hpp msg/*.msg msg/*.cmake msg/CMakeLists.txt msg/tf2_msgs/*/* msg/tf2_msgs/CMakeLists.txt)
+$(NATIVE): $(STAMP) $(wildcard cpp/*.cpp cpp/*.hpp msg/*.msg msg/*.cmake msg/CMakeLists.txt msg/tf2_msgs/*/* msg/tf2_msgs/CMakeLists.txt ffmpc_core/scenarios/*.yaml ffmpc_ros/ros_layout/*/* share/ffmpc_ros/*/*)
 	$(BIN)/python -m pip install --quiet --no-build-isolation --no-deps -e .
 	$(BIN)/python -m ffmpc_ros.ament >/dev/null  # pip rewrote the launchers (env python3)
 	touch $(NATIVE)
