@@ -108,9 +108,21 @@ def _cmd_study(args: argparse.Namespace) -> int:
     return 0 if report.document["runs"] else 1
 
 
-def _add_execution_arguments(p: argparse.ArgumentParser) -> None:
+def _add_set_argument(p: argparse.ArgumentParser, what: str, example: str) -> None:
+    """``--set NAME=VALUE`` (repeatable) and ``--no-progress`` of the polishing studies."""
+    p.add_argument(
+        "--set",
+        action="append",
+        metavar="NAME=VALUE",
+        help=f"scenario override, {what} (repeatable), e.g. {example}",
+    )
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _add_execution_arguments(p: argparse.ArgumentParser, cache_dir: bool = False) -> None:
     """Where a study's runs go (studies.execute): ``--workers``, ``--scheduler``, ``--out`` and
-    its resume, ``--force``, ``--fresh``, ``--no-cache``; the same for every study."""
+    its resume, ``--force``, ``--fresh``, ``--no-cache`` (and ``--cache-dir``); the same for
+    every study."""
     p.add_argument(
         "--workers",
         type=positive_int,
@@ -132,6 +144,12 @@ def _add_execution_arguments(p: argparse.ArgumentParser) -> None:
         "--fresh", action="store_true", help="run every run again (results still go to the cache)"
     )
     p.add_argument("--no-cache", action="store_true", help="neither read nor write the run cache")
+    if cache_dir:
+        p.add_argument(
+            "--cache-dir",
+            metavar="DIR",
+            help="run cache directory, one JSON file per finished run (default OUT/cache)",
+        )
 
 
 def _check_execution_arguments(args: argparse.Namespace) -> None:
@@ -251,20 +269,10 @@ def _add_paper_study_parser(study_sub: SubParsers) -> None:
         help="controllers (default: all three)",
     )
     _add_command_delays_argument(p, [0.0, 0.005])
-    _add_execution_arguments(p)
-    p.add_argument(
-        "--cache-dir",
-        metavar="DIR",
-        help="run cache directory, one JSON file per finished run (default OUT/cache)",
+    _add_execution_arguments(p, cache_dir=True)
+    _add_set_argument(
+        p, "applied to every section", "mpc.weights.torque_feedback.joint_velocity=1.0"
     )
-    p.add_argument(
-        "--set",
-        action="append",
-        metavar="NAME=VALUE",
-        help="scenario override applied to every section (repeatable), e.g. "
-        "mpc.weights.torque_feedback.joint_velocity=1.0",
-    )
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(study_main=_cmd_study_paper)
 
 
@@ -274,12 +282,7 @@ def _add_study_arguments(p: argparse.ArgumentParser, seeds: int, pid: str) -> No
         "--seeds", type=positive_int, default=seeds, help=f"number of seeds (default {seeds})"
     )
     p.add_argument("--first-seed", type=seed_int, default=0, help="first seed (default 0)")
-    _add_execution_arguments(p)
-    p.add_argument(
-        "--cache-dir",
-        metavar="DIR",
-        help="run cache directory, one JSON file per finished run (default OUT/cache)",
-    )
+    _add_execution_arguments(p, cache_dir=True)
     p.add_argument(
         "--duration", type=positive_float, help="simulated time per run, s (default: task)"
     )
@@ -294,14 +297,7 @@ def _add_study_arguments(p: argparse.ArgumentParser, seeds: int, pid: str) -> No
         "--pid", choices=("on", "off", "both"), default=pid, help=f"torque PID (default {pid})"
     )
     p.add_argument("--plot-seed", type=seed_int, help="seed shown in the figures (default: first)")
-    p.add_argument(
-        "--set",
-        action="append",
-        metavar="NAME=VALUE",
-        help="scenario override, dotted name (repeatable), e.g. mpc.weights.force_feedback."
-        "force_phase=5",
-    )
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _add_set_argument(p, "dotted name", "mpc.weights.force_feedback.force_phase=5")
     p.set_defaults(study_main=_cmd_study)
 
 
