@@ -201,13 +201,17 @@ def test_config_validation():
         run_exploration(far)
 
 
-def test_cli_explore(capsys):
+def test_cli_explore(capsys, tmp_path):
     from ffmpc_ros.cli import main
 
     code = main(
         [
             "study",
             "explore",
+            "--out",
+            str(tmp_path / "explore"),
+            "--workers",
+            "1",
             "--materials",
             "foam",
             "--sine-cycles",
@@ -221,3 +225,4 @@ def test_cli_explore(capsys):
     assert "foam after sinusoid" in out
     assert re.search(r"foam after impact 1 at 0\.(19|20)\d m/s", out)
     assert "| foam | 800 | 8 |" in out
+    assert (tmp_path / "explore" / "tables.md").is_file()
