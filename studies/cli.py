@@ -154,10 +154,9 @@ def _add_execution_arguments(p: argparse.ArgumentParser, cache_dir: bool = False
 
 def _check_execution_arguments(args: argparse.Namespace) -> None:
     """Refuse conflicting or unusable execution flags before any run (and before PyBullet)."""
-    from studies.execute import check_output_dir
+    from studies.execute import check_output_dir, worker_count
 
-    if args.scheduler is not None and args.workers is not None:
-        raise ConfigError("--workers and --scheduler exclude each other (a cluster has workers)")
+    worker_count(args.workers, args.scheduler)
     if args.out:
         check_output_dir(args.out, args.force, resume=not args.no_cache and not args.fresh)
 

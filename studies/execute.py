@@ -21,7 +21,7 @@ import json
 import os
 import sys
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
@@ -44,6 +44,7 @@ __all__ = [
     "dask_cluster",
     "check_output_dir",
     "prepare_output_dir",
+    "worker_count",
     "execute_jobs",
     "job_key",
     "write_atomic",
@@ -301,11 +302,7 @@ def execute_jobs(
 
     if client is not None and (scheduler is not None or workers is not None):
         raise ConfigError("a shared Dask client excludes workers and scheduler")
-    if scheduler is not None and workers is not None:
-        raise ConfigError("--workers and --scheduler exclude each other (a cluster has workers)")
-    workers = (os.cpu_count() or 1) if workers is None else int(workers)
-    if workers < 1:
-        raise ConfigError(f"workers must be >= 1, got {workers}")
+    workers = worker_count(workers, scheduler)
     if not specs:
         raise ConfigError("a study needs at least one run")
     say = announce or (_stderr if progress else (lambda _text: None))
@@ -363,34 +360,28 @@ def execute_jobs(
     elif todo:
         from distributed import as_completed as dask_completed
 
-        shared = client is not None
-        if client is not None:
-            cluster = None
-        else:
-            client, cluster = _dask_client(min(workers, len(todo)), scheduler)
-        futures = []
-        try:
-            workers = len(client.scheduler_info().get("workers", {}))
-            dashboard = _dashboard(client)
-            say(
-                f"Dask {where} at {client.scheduler.address}, {workers} worker(s); "
-                f"dashboard: {dashboard or 'none (pip install bokeh to serve it)'}"
-            )
-            index = {}
-            for rank, i in enumerate(todo):
-                future = client.submit(runner, specs[i], pure=False, priority=len(todo) - rank)
-                futures.append(future)
-                index[future.key] = i
-            with new_bar() as bar:
-                for future in dask_completed(futures):
-                    finish(index[future.key], future.result(), bar)
-        finally:
-            # Done, a bug or Ctrl-C: queued runs are dropped, the finished ones are cached.
-            client.cancel(futures)
-            if not shared:
-                client.close()
-            if cluster is not None:
-                cluster.close()
+        with ExitStack() as stack:
+            if client is None:  # a cluster for this batch (LocalCluster: no more than the runs)
+                count = None if scheduler is not None else min(workers, len(todo))
+                active = stack.enter_context(dask_cluster(count, scheduler, quiet=True))
+                assert active is not None  # two runs or more, or a scheduler: never in-process
+            else:
+                active = client
+            workers, dashboard = _announce(active, where, say)
+            futures = []
+            try:
+                index = {}
+                for rank, i in enumerate(todo):
+                    future = active.submit(runner, specs[i], pure=False, priority=len(todo) - rank)
+                    futures.append(future)
+                    index[future.key] = i
+                with new_bar() as bar:
+                    for future in dask_completed(futures):
+                        finish(index[future.key], future.result(), bar)
+            finally:
+                # Done, a bug or Ctrl-C: queued runs are dropped, the finished ones are cached
+                # (then the batch's own cluster closes; a shared client stays open).
+                active.cancel(futures)
     done = [o for o in outcomes if o is not None]
     return RunBatch(done, n_cached, len(todo), where, workers, dashboard)
 
@@ -418,26 +409,45 @@ def prepare_output_dir(out: str | os.PathLike, force: bool = False, resume: bool
     return path
 
 
-@contextmanager
-def dask_cluster(
-    workers: int | None = None, scheduler: str | None = None
-) -> Iterator[Client | None]:
-    """A Dask client for several :func:`execute_jobs` batches (pass it as ``client``): a
-    ``LocalCluster`` of ``workers`` spawned processes (default ``os.cpu_count()``), or the
-    workers of a running ``scheduler``; None with ``workers == 1`` (every batch in this
-    process). Closed, with its cluster, on exit."""
+def worker_count(workers: int | None, scheduler: str | None) -> int:
+    """The worker processes asked for: ``workers`` (default ``os.cpu_count()``); ConfigError
+    for fewer than 1, or with a ``scheduler`` too (a running cluster has its own workers)."""
     if scheduler is not None and workers is not None:
         raise ConfigError("--workers and --scheduler exclude each other (a cluster has workers)")
     count = (os.cpu_count() or 1) if workers is None else int(workers)
     if count < 1:
         raise ConfigError(f"workers must be >= 1, got {count}")
+    return count
+
+
+def _announce(client: Client, where: str, say: Callable[[str], None]) -> tuple[int, str | None]:
+    """Say where the runs go (cluster, address, workers, dashboard); (workers, dashboard)."""
+    workers = len(client.scheduler_info().get("workers", {}))
+    dashboard = _dashboard(client)
+    say(
+        f"Dask {where} at {client.scheduler.address}, {workers} worker(s); "
+        f"dashboard: {dashboard or 'none (pip install bokeh to serve it)'}"
+    )
+    return workers, dashboard
+
+
+@contextmanager
+def dask_cluster(
+    workers: int | None = None, scheduler: str | None = None, quiet: bool = False
+) -> Iterator[Client | None]:
+    """A Dask client: a ``LocalCluster`` of ``workers`` spawned processes (default
+    ``os.cpu_count()``), or the workers of a running ``scheduler``; None with ``workers == 1``
+    (every batch in this process). Closed, with its cluster, on exit. :func:`execute_jobs` opens
+    one per batch; a caller with several batches (a tuning search) passes one as ``client``.
+    Unless ``quiet``, where it runs goes to stderr."""
+    count = worker_count(workers, scheduler)
     if scheduler is None and count == 1:
         yield None
         return
     client, cluster = _dask_client(count, scheduler)
     try:
-        address = client.scheduler.address
-        _stderr(f"Dask {scheduler or 'LocalCluster'} at {address}; dashboard: {_dashboard(client)}")
+        if not quiet:
+            _announce(client, scheduler or "LocalCluster", _stderr)
         yield client
     finally:
         client.close()
