@@ -320,6 +320,12 @@ class BaselineApproach:
 
 
 # ---------------------------------------------------------------------------- hand-over
+def handover_mpc_weights() -> CostWeights:
+    """The hand-over MPC's default cost weights (posture 1, joint velocity 0.1: the defaults
+    0.01 let the redundant arm roll about the point contact)."""
+    return CostWeights(posture=1.0, joint_velocity=0.1)
+
+
 @dataclass(frozen=True)
 class HandoverConfig:
     """The force-feedback MPC's take-over after the impact.
@@ -349,9 +355,7 @@ class HandoverConfig:
     mpc_horizon: int = 10
     mpc_dt: float = 0.02
     mpc_force_weight: float = 3.0
-    mpc_weights: CostWeights = field(
-        default_factory=lambda: CostWeights(posture=1.0, joint_velocity=0.1)
-    )
+    mpc_weights: CostWeights = field(default_factory=handover_mpc_weights)
     prior_stiffness: float = 2400.0
     prior_damping: float = 15.0
     learner_min_samples: int = 20

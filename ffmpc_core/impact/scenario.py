@@ -37,6 +37,7 @@ from ffmpc_core.impact.controllers import (
     HandoverConfig,
     ImpactTaskConfig,
     contact_measurement,
+    handover_mpc_weights,
 )
 from ffmpc_core.impact.deformation import SoftMaterial
 from ffmpc_core.impact.learner import ExplorationReference, exploration_reference
@@ -153,10 +154,10 @@ class ImpactStudyConfig:
     """
 
     dice: DiceConfig = field(default_factory=DiceConfig)
-    prior_stiffness: float = 2400.0
-    prior_damping: float = 15.0
+    prior_stiffness: float = HandoverConfig.prior_stiffness
+    prior_damping: float = HandoverConfig.prior_damping
     approach_height: float = 0.46
-    target_force: float = 60.0
+    target_force: float = HandoverConfig.target_force
     contact_threshold: float = 2.0
     duration: float = 4.0
     time_step: float = 1e-3
@@ -167,21 +168,20 @@ class ImpactStudyConfig:
     baseline_frequency: float = 5.0
     baseline_target_depth: float = 0.005
     admittance: AdmittanceForceController = field(default_factory=AdmittanceForceController)
-    handover_speed: float = 0.1
-    mpc_period: float = 0.004
-    mpc_horizon: int = 10
-    mpc_dt: float = 0.02
-    mpc_force_weight: float = 3.0
-    mpc_weights: CostWeights = field(
-        default_factory=lambda: CostWeights(posture=1.0, joint_velocity=0.1)
-    )
-    learner_min_samples: int = 20
-    learner_max_relative_std: float = 0.05
+    # the hand-over MPC's settings: HandoverConfig's defaults, declared there once
+    handover_speed: float = HandoverConfig.handover_speed
+    mpc_period: float = HandoverConfig.mpc_period
+    mpc_horizon: int = HandoverConfig.mpc_horizon
+    mpc_dt: float = HandoverConfig.mpc_dt
+    mpc_force_weight: float = HandoverConfig.mpc_force_weight
+    mpc_weights: CostWeights = field(default_factory=handover_mpc_weights)
+    learner_min_samples: int = HandoverConfig.learner_min_samples
+    learner_max_relative_std: float = HandoverConfig.learner_max_relative_std
     steady_band: float = 0.05
     steady_hold: float = 0.2
     strategy: str = "touch_first"
     touch: TouchFirstConfig = field(default_factory=TouchFirstConfig)
-    handover_blend: float = 0.05
+    handover_blend: float = HandoverConfig.blend
     tool_radius: float = 0.01
 
     def __post_init__(self) -> None:
