@@ -174,7 +174,6 @@ def impact_node_parameters(
         "contact_learner": {
             **node_parameter_values("contact_learner", sensing),
             **impact_parameter_values("contact_learner", cfg),
-            "plant.time_step": cfg.time_step,  # the clock grid, always given
             "direction": d,
             "surface_force": 0.0,  # the last force-free sample (ImpactTaskController's rule)
             "feed_force": 0.0,
@@ -204,7 +203,6 @@ def impact_node_parameters(
             # the ROS-free run's IMPACT_SCHEMA.build and task_config)
             **node_parameter_values("impact_planner", sensing),
             **impact_parameter_values("impact_planner", cfg),
-            "plant.time_step": cfg.time_step,  # the clock grid, always given
             "lockstep": True,
             "direction": d,
             # the Panda's data-sheet values, given: the bag's parameters then show the limits

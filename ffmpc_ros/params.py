@@ -481,11 +481,16 @@ def impact_flat(config: ImpactStudyConfig | None = None) -> dict[str, Any]:
 
 def impact_parameter_values(node: str, config: ImpactStudyConfig) -> dict[str, Any]:
     """{IMPACT_SCHEMA name: value} of ``config`` that node ``node`` declares
-    (:attr:`NodeSpec.impact`) and that differ from the schema's defaults (the declared ones):
-    what ``ffmpc run impact`` passes from the loaded scenario, and what a launch file lists."""
+    (:attr:`NodeSpec.impact`) and that differ from the schema's defaults (the declared ones),
+    and always the clock grid (``plant.time_step``, also the node's :class:`Scenario`'s): what
+    ``ffmpc run impact`` passes from the loaded scenario, and what a launch file lists."""
     study, defaults = impact_flat(config), impact_flat()
     names = node_impact_names(NODE_SPECS[node])
-    return {name: study[name] for name in names if study[name] != defaults[name]}
+    return {
+        name: study[name]
+        for name in names
+        if study[name] != defaults[name] or name in _IMPACT_IN_SCENARIO
+    }
 
 
 def node_parameter_values(node: str, scenario: Scenario, **graph: Any) -> dict[str, Any]:
@@ -584,7 +589,7 @@ def declare_node_parameters(node: Node, spec: NodeSpec) -> dict[str, Any]:
             SCHEMA[name].check(raw)  # raises the schema's error
             raise SCHEMA[name].error(raw) from None
         values[ros] = plain_value(node.get_parameter(ros).value)
-    impact_defaults = impact_flat()
+    impact_defaults = impact_flat() if spec.impact else {}
     for name in node_impact_names(spec):
         param = IMPACT_SCHEMA.params[name]
         try:
