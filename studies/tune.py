@@ -133,23 +133,26 @@ def evaluate(
     duration: float | None = None,
     overrides: dict[str, Any] | None = None,
     *,
+    pid_enabled: bool | None = None,
     client: Client | None = None,
     cache: RunCache | None = None,
 ) -> float:
     """Mean J over ``seeds`` of the scenario run with ``formulation`` and ``weights``: one
     polishing job per seed (:class:`studies.study.RunSpec`, PID as in the scenario) through
     :func:`studies.execute.execute_jobs`, on the Dask ``client``'s workers (None: in this
-    process), reading and writing the run ``cache``."""
+    process), reading and writing the run ``cache``. ``pid_enabled``: the scenario's (loaded
+    when not given; a search passes it once)."""
     from studies.study import RunSpec, execute_specs
 
-    scenario = load_scenario(scenario_name, overrides or {})
+    if pid_enabled is None:
+        pid_enabled = load_scenario(scenario_name, overrides or {}).pid.enabled
     prefix = f"mpc.weights.{formulation}."
     settings = dict(overrides or {}) | {prefix + k: float(v) for k, v in weights.items()}
     specs = [
         RunSpec(
             scenario_name,
             formulation,
-            scenario.pid.enabled,
+            pid_enabled,
             seed,
             duration,
             overrides=tuple(settings.items()),
@@ -260,6 +263,7 @@ def tune(
                 objective,
                 duration,
                 overrides,
+                pid_enabled=scenario.pid.enabled,
                 client=client,
                 cache=cache,
             )
