@@ -251,33 +251,29 @@ def push_phase_metrics(
     window: tuple[float, float],
 ) -> PushPhaseMetrics:
     """E_λ (N), E_P (mm) and max |λ| (N) over one phase ``window[0] <= t < window[1]`` (s); the
-    signals as :func:`polishing_metrics` (p, p̄ N×3 m world frame, n the TRUE table normal)."""
-    t = np.asarray(t, dtype=float)
-    if t.ndim != 1 or t.size == 0 or not np.all(np.isfinite(t)):
-        raise InputError("t must be a non-empty 1-D array of finite times")
-    n = t.size
-    p = _signal(position, (n, 3), "position")
-    ref = _signal(position_reference, (n, 3), "position_reference")
-    force = _signal(normal_force, (n,), "normal_force")
-    force_ref = np.asarray(force_reference, dtype=float)
-    force_ref = _signal(force_ref, () if force_ref.ndim == 0 else (n,), "force_reference")
-    normal = np.asarray(table_normal, dtype=float)
-    if normal.shape != (3,) or not np.isclose(np.linalg.norm(normal), 1.0, atol=1e-9):
-        raise InputError(f"table_normal must be a unit 3-vector, got {table_normal!r}")
+    signals as :func:`polishing_metrics` (p, p̄ N×3 m world frame, n the TRUE table normal),
+    computed by the same functions (:func:`normal_force_mae`, :func:`tangential_position_mae`,
+    :func:`max_normal_force`) over ``[start, last]`` with ``last`` the float just below the
+    phase's end: ``t <= last`` exactly when ``t < end``."""
     start, end = float(window[0]), float(window[1])
-    mask = (t >= start) & (t < end)
-    if not mask.any():
+    last = float(np.nextafter(end, -np.inf))
+    t = np.asarray(t, dtype=float)
+    window_mask(t)  # the checks of t, whatever the phase
+    samples = int(np.count_nonzero((t >= start) & (t <= last)))
+    if samples == 0:  # the run ended before this phase: the signals are still checked
+        n = t.size
+        _signal(position, (n, 3), "position")
+        _signal(position_reference, (n, 3), "position_reference")
+        _signal(normal_force, (n,), "normal_force")
         return PushPhaseMetrics(start, end, 0, None, None, None)
-    error = (p - ref)[mask]
-    tangential = error - np.outer(error @ normal, normal)
-    force_error = np.abs(force - force_ref)[mask]
     return PushPhaseMetrics(
         start=start,
         end=end,
-        samples=int(mask.sum()),
-        force_mae=float(np.mean(force_error)),
-        position_mae_mm=float(1e3 * np.mean(np.linalg.norm(tangential, axis=1))),
-        max_force=float(np.max(np.abs(force[mask]))),
+        samples=samples,
+        force_mae=normal_force_mae(t, normal_force, force_reference, start, last),
+        position_mae_mm=1e3
+        * tangential_position_mae(t, position, position_reference, table_normal, start, last),
+        max_force=max_normal_force(t, normal_force, start, last),
     )
 
 
