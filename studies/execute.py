@@ -44,6 +44,8 @@ __all__ = [
     "dask_cluster",
     "check_output_dir",
     "prepare_output_dir",
+    "study_cache",
+    "write_json",
     "worker_count",
     "execute_jobs",
     "job_key",
@@ -453,3 +455,20 @@ def dask_cluster(
         client.close()
         if cluster is not None:
             cluster.close()
+
+
+def write_json(path: Path, doc: Any) -> None:
+    """A study's ``results.json``: indented JSON (NaN kept), newline-terminated."""
+    with open(path, "w", encoding="utf-8") as fh:
+        json.dump(doc, fh, indent=1, allow_nan=True)
+        fh.write("\n")
+
+
+def study_cache(
+    out: Path, cache: bool = True, cache_dir: str | os.PathLike | None = None
+) -> RunCache | None:
+    """The run cache of a study written to ``out``: ``cache_dir`` (shared between studies) or
+    ``out/cache``; None without ``cache``."""
+    if not cache:
+        return None
+    return RunCache(Path(cache_dir) if cache_dir is not None else out / "cache")

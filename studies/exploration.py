@@ -118,7 +118,13 @@ from ffmpc_core.impact.scenario import (
 from ffmpc_core.impact.task_space import JointLimitGuardConfig
 from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_core.runner import LockstepClock, run_scenario
-from studies.execute import RunCache, RunOutcome, canonical_json, execute_jobs, prepare_output_dir
+from studies.execute import (
+    RunOutcome,
+    canonical_json,
+    execute_jobs,
+    prepare_output_dir,
+    study_cache,
+)
 from studies.study import DIVERGENCE_ERRORS
 
 if TYPE_CHECKING:  # the plant imports PyBullet: loaded when a run starts, not to parse
@@ -589,7 +595,7 @@ def run_exploration_study(
         workers,
         progress,
         scheduler=scheduler,
-        cache=None if out is None or not cache else RunCache(out / "cache"),
+        cache=None if out is None else study_cache(out, cache),
         fresh=fresh,
     )
     failed = [o for o in batch.outcomes if o.summary is None]

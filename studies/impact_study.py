@@ -127,7 +127,13 @@ from ffmpc_core.impact.scenario import (
 from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_core.runner import LockstepClock, run_scenario
 from sim_bridge.scenes import impact_plant_config as plant_config
-from studies.execute import RunCache, RunOutcome, canonical_json, execute_jobs, prepare_output_dir
+from studies.execute import (
+    RunOutcome,
+    canonical_json,
+    execute_jobs,
+    prepare_output_dir,
+    study_cache,
+)
 from studies.study import DIVERGENCE_ERRORS
 
 if TYPE_CHECKING:  # the plant imports PyBullet: loaded when a run starts, not to parse
@@ -632,7 +638,7 @@ def run_impact_study(
         workers,
         progress,
         scheduler=scheduler,
-        cache=RunCache(out / "cache") if cache else None,
+        cache=study_cache(out, cache),
         fresh=fresh,
     )
     failures = [o for o in batch.outcomes if o.summary is None]

@@ -24,7 +24,6 @@ the seeds, the scenario file and cost weights of each section, the wall time) an
 
 from __future__ import annotations
 
-import json
 import os
 import platform
 import time
@@ -37,7 +36,7 @@ from typing import Any
 from ffmpc_core.config import FORMULATIONS
 from ffmpc_core.metrics import PUSH_RECOVERY_WINDOW
 from ffmpc_core.scenario import resolve_scenario_path
-from studies.execute import RunCache, RunOutcome, prepare_output_dir
+from studies.execute import RunOutcome, prepare_output_dir, study_cache, write_json
 from studies.study import (
     LABELS,
     PAPER_FORCE_SQUARE_MAE,
@@ -194,12 +193,6 @@ class PaperReport:
     outcomes: dict[str, list[RunOutcome]] = field(repr=False)
 
 
-def _write_json(path: Path, doc: dict) -> None:
-    with open(path, "w", encoding="utf-8") as fh:
-        json.dump(doc, fh, indent=1, allow_nan=True)
-        fh.write("\n")
-
-
 def run_paper(
     out_dir: str | os.PathLike,
     seeds: Sequence[int],
@@ -224,9 +217,7 @@ def run_paper(
     every = [spec for specs in by_section.values() for spec in specs]
     validate_specs(every)  # a bad scenario or override fails before any run
     out = prepare_output_dir(out_dir, force, resume=cache and not fresh)
-    run_cache = None
-    if cache:
-        run_cache = RunCache(Path(cache_dir) if cache_dir is not None else out / "cache")
+    run_cache = study_cache(out, cache, cache_dir)
     start = time.perf_counter()
     known = _load_measured_delays(run_cache, every) if run_cache and not fresh else {}
     delays: dict[str, dict] = {}
@@ -301,7 +292,7 @@ def run_paper(
     }
     text = paper_report(document)
     files = [out / "results.json", out / "paper.md"]
-    _write_json(files[0], document)
+    write_json(files[0], document)
     files[1].write_text(text, encoding="utf-8")
     return PaperReport(out, document, text, files, outcomes)
 

@@ -58,7 +58,9 @@ from studies.execute import (
     execute_jobs,
     job_key,
     prepare_output_dir,
+    study_cache,
     write_atomic,
+    write_json,
 )
 
 if TYPE_CHECKING:
@@ -1092,12 +1094,6 @@ class StudyReport:
     outcomes: list[RunOutcome] = field(repr=False)
 
 
-def _write_json(path: Path, doc: dict) -> None:
-    with open(path, "w", encoding="utf-8") as fh:
-        json.dump(doc, fh, indent=1, allow_nan=True)
-        fh.write("\n")
-
-
 def run_study(
     kind: str,
     specs: Sequence[RunSpec],
@@ -1127,9 +1123,7 @@ def run_study(
         raise ConfigError(f"unknown study kind {kind!r}")
     validate_specs(specs)
     out = prepare_output_dir(out_dir, force, resume=cache and not fresh)
-    run_cache = None
-    if cache:
-        run_cache = RunCache(Path(cache_dir) if cache_dir is not None else out / "cache")
+    run_cache = study_cache(out, cache, cache_dir)
     start = time.perf_counter()
     measured = {}
     if run_cache is not None and not fresh:
@@ -1158,7 +1152,7 @@ def run_study(
         },
     )
     files = [out / "results.json", out / "tables.md"]
-    _write_json(files[0], doc)
+    write_json(files[0], doc)
     seed = next((o.spec.seed for o in outcomes if o.plot_log is not None), None)
     if kind == "polishing":
         tables = polishing_tables(doc)
