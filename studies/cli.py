@@ -34,6 +34,19 @@ SubParsers = argparse._SubParsersAction  # argparse has no public name for it
 
 
 # -- ffmpc study polishing | force-square ------------------------------------------------------
+def _plot_seed(args: argparse.Namespace) -> int:
+    """The seed whose runs are plotted: ``--plot-seed`` (one of the study's seeds, else a
+    ConfigError before any run) or the first seed."""
+    if args.plot_seed is None:
+        return int(args.first_seed)
+    if not args.first_seed <= args.plot_seed < args.first_seed + args.seeds:
+        raise ConfigError(
+            f"--plot-seed {args.plot_seed}: expected one of the seeds "
+            f"{args.first_seed}..{args.first_seed + args.seeds - 1}"
+        )
+    return int(args.plot_seed)
+
+
 def _cmd_study(args: argparse.Namespace) -> int:
     import shlex
 
@@ -44,18 +57,11 @@ def _cmd_study(args: argparse.Namespace) -> int:
     load_scenario(args.scenario or kind, overrides)  # refuse a bad scenario before any import
     _check_execution_arguments(args)  # before any run (studies.study does not load PyBullet)
     use_cache = not args.no_cache
-    if args.plot_seed is not None and not (
-        args.first_seed <= args.plot_seed < args.first_seed + args.seeds
-    ):
-        raise ConfigError(
-            f"--plot-seed {args.plot_seed}: expected one of the seeds "
-            f"{args.first_seed}..{args.first_seed + args.seeds - 1}"
-        )
+    plot_seed = _plot_seed(args)
     from studies.study import default_out_dir, grid_specs, run_study
 
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     pid_modes = {"on": [True], "off": [False], "both": [True, False]}[args.pid]
-    plot_seed = args.first_seed if args.plot_seed is None else args.plot_seed
     specs = grid_specs(
         args.scenario or kind,
         args.formulations,
@@ -200,6 +206,7 @@ def _cmd_study_paper(args: argparse.Namespace) -> int:
         raise ConfigError("--set mpc.command_delay: give the δo values with --command-delays")
     load_scenario("polishing", overrides)  # refuse a bad override before any import
     _check_execution_arguments(args)
+    plot_seed = _plot_seed(args)
     from studies.paper import run_paper
     from studies.study import default_out_dir
 
@@ -219,6 +226,7 @@ def _cmd_study_paper(args: argparse.Namespace) -> int:
         fresh=args.fresh,
         command_line=shlex.join(["ffmpc", *args.argv]),
         progress=not args.no_progress,
+        plot_seed=plot_seed,
     )
     print(report.text)
     doc = report.document
@@ -266,6 +274,11 @@ def _add_paper_study_parser(study_sub: SubParsers) -> None:
         choices=STUDY_FORMULATIONS,
         default=list(FORMULATIONS),
         help="controllers (default: all three)",
+    )
+    p.add_argument(
+        "--plot-seed",
+        type=seed_int,
+        help="seed of the figures (Fig. 4, 6-9: every controller, torque PID; default: first)",
     )
     _add_command_delays_argument(p, [0.0, 0.005])
     _add_execution_arguments(p, cache_dir=True)

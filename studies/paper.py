@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from ffmpc_core.config import FORMULATIONS
+from ffmpc_core.errors import ConfigError
 from ffmpc_core.metrics import PUSH_RECOVERY_WINDOW
 from ffmpc_core.scenario import resolve_scenario_path
 from studies.execute import RunOutcome, prepare_output_dir, study_cache, write_json
@@ -67,6 +68,7 @@ __all__ = [
     "PaperReport",
     "PaperSection",
     "SECTIONS",
+    "paper_figures",
     "paper_report",
     "paper_specs",
     "push_rows",
@@ -92,6 +94,14 @@ class PaperSection:
     per_delta: bool
     paper: str | None  # key of PAPER_TABLES ("V", ...), "force_square", or None
     note: str
+    #: The paper's figure of this experiment, drawn from the plotted seed: its number ("6")
+    #: and caption; None: the paper has no such figure (the simulation study).
+    figure: tuple[str, str] | None = None
+
+    @property
+    def figure_file(self) -> str | None:
+        """The figure's file name in the study's directory (``fig6_experiment_2.png``)."""
+        return None if self.figure is None else f"fig{self.figure[0]}_{self.key}.png"
 
 
 SECTIONS: tuple[PaperSection, ...] = (
@@ -115,6 +125,7 @@ SECTIONS: tuple[PaperSection, ...] = (
         False,
         "force_square",
         "Normal-force MAE over the square signal; the paper's values are from the robot.",
+        figure=("4", "Experiment 1: normal force square signal tracking"),
     ),
     PaperSection(
         "experiment_2",
@@ -125,6 +136,7 @@ SECTIONS: tuple[PaperSection, ...] = (
         False,
         "V",
         "3 rad/s on a horizontal table (no tilt).",
+        figure=("6", "Experiment 2: slow polishing task, perfect table model"),
     ),
     PaperSection(
         "experiment_3_1",
@@ -135,6 +147,7 @@ SECTIONS: tuple[PaperSection, ...] = (
         False,
         "VI",
         "3 rad/s on a table tilted by a fixed 6°, unknown to the controllers.",
+        figure=("7", "Experiment 3.1: slow polishing task, unknown table tilt"),
     ),
     PaperSection(
         "experiment_3_2",
@@ -145,6 +158,7 @@ SECTIONS: tuple[PaperSection, ...] = (
         False,
         "VII",
         "6 rad/s, table tilt θ ~ U(±6°) per seed.",
+        figure=("8", "Experiment 3.2: fast polishing task, unknown table tilt"),
     ),
     PaperSection(
         "experiment_3_3",
@@ -156,6 +170,7 @@ SECTIONS: tuple[PaperSection, ...] = (
         None,
         "6 rad/s on the horizontal table with a lateral push on the tool mid-circle. The paper "
         "prints no numbers for it (Fig. 9, qualitative).",
+        figure=("9", "Experiment 3.3: fast polishing task with an external push"),
     ),
 )
 
@@ -166,8 +181,10 @@ def paper_specs(
     command_delays: Sequence[float | str] = DEFAULT_COMMAND_DELAYS,
     duration: float | None = None,
     overrides: dict[str, Any] | None = None,
+    plot_seed: int | None = None,
 ) -> dict[str, list[RunSpec]]:
-    """The runs of every section, ``{section key: specs}`` (no run is plotted)."""
+    """The runs of every section, ``{section key: specs}``; the ``plot_seed`` runs of the
+    sections with a figure send back their plot logs."""
     out = {}
     for section in SECTIONS:
         out[section.key] = grid_specs(
@@ -177,6 +194,7 @@ def paper_specs(
             seeds,
             duration,
             overrides,
+            plot_seed=plot_seed if section.figure is not None else None,
             command_delays=command_delays if section.per_delta else None,
         )
     return out
@@ -209,11 +227,17 @@ def run_paper(
     fresh: bool = False,
     command_line: str = "",
     progress: bool = True,
+    plot_seed: int | None = None,
 ) -> PaperReport:
-    """Run every section (:data:`SECTIONS`) in one batch and write ``paper.md`` and
-    ``results.json`` into ``out_dir`` (refused if it exists, unless ``force`` or an interrupted
-    study to resume: :func:`studies.execute.check_output_dir`)."""
-    by_section = paper_specs(seeds, formulations, command_delays, duration, overrides)
+    """Run every section (:data:`SECTIONS`) in one batch and write ``paper.md``,
+    ``results.json`` and the paper's figures (4, 6–9: :func:`paper_figures`, from the
+    ``plot_seed`` runs, default the first seed) into ``out_dir`` (refused if it exists, unless
+    ``force`` or an interrupted study to resume: :func:`studies.execute.check_output_dir`)."""
+    if plot_seed is None:
+        plot_seed = int(seeds[0])
+    elif plot_seed not in seeds:
+        raise ConfigError(f"plot seed {plot_seed}: expected one of the seeds {list(seeds)}")
+    by_section = paper_specs(seeds, formulations, command_delays, duration, overrides, plot_seed)
     every = [spec for specs in by_section.values() for spec in specs]
     validate_specs(every)  # a bad scenario or override fails before any run
     out = prepare_output_dir(out_dir, force, resume=cache and not fresh)
@@ -282,6 +306,7 @@ def run_paper(
         "duration_s": duration,
         "overrides": dict(overrides or {}),
         "push_recovery_window_s": PUSH_RECOVERY_WINDOW,
+        "plot_seed": plot_seed,
         "source": source_state(),
         "versions": {
             "python": platform.python_version(),
@@ -290,11 +315,48 @@ def run_paper(
         },
         "sections": sections,
     }
+    figures = paper_figures(outcomes, by_section, out, plot_seed)
+    document["figures"] = {key: path.name for key, path in figures.items()}
     text = paper_report(document)
-    files = [out / "results.json", out / "paper.md"]
+    files = [out / "results.json", out / "paper.md", *figures.values()]
     write_json(files[0], document)
     files[1].write_text(text, encoding="utf-8")
     return PaperReport(out, document, text, files, outcomes)
+
+
+def paper_figures(
+    outcomes: dict[str, list[RunOutcome]],
+    specs: dict[str, list[RunSpec]],
+    out: Path,
+    plot_seed: int,
+) -> dict[str, Path]:
+    """The paper's Fig. 4 (Experiment 1: true normal force vs the square reference) and Figs.
+    6–9 (Experiments 2, 3.1, 3.2, 3.3: (a) true normal force vs reference, (b) tangential
+    position error; Fig. 9 shades the push) of the ``plot_seed`` runs, every controller with the
+    torque PID, as PNG files in ``out``: ``{section key: path}`` (a section whose plotted runs
+    all failed has none)."""
+    from studies.study import plot_force_square, plot_polishing
+
+    written: dict[str, Path] = {}
+    for section in SECTIONS:
+        if section.figure is None or section.figure_file is None:
+            continue
+        number, caption = section.figure
+        path = out / section.figure_file
+        title = f"Fig. {number} — {caption} (simulation, seed {plot_seed}, torque PID)"
+        if section.kind == "force_square":
+            drawn = plot_force_square(outcomes[section.key], path, title)
+        else:
+            plant = specs[section.key][0].load().plant
+            pushes = (
+                [(plant.push_time, plant.push_time + plant.push_duration)]
+                if plant.push_enabled
+                else []
+            )
+            drawn = plot_polishing(outcomes[section.key], True, path, title, pushes, "push")
+        if drawn:
+            written[section.key] = path
+    return written
 
 
 def _paper_values(section: PaperSection, formulations: Sequence[str]) -> dict[str, Any] | None:
@@ -498,6 +560,13 @@ def paper_report(document: dict) -> str:
             lines += _simulation_section(doc, forms)
         else:
             lines += _experiment_section(section, doc, forms)
+        figure = document.get("figures", {}).get(key)
+        if figure is not None and section.figure is not None:
+            lines += [
+                f"Fig. {section.figure[0]} ({section.figure[1]}), seed {document['plot_seed']}: "
+                f"![Fig. {section.figure[0]}]({figure})",
+                "",
+            ]
         failures += [(section_doc["title"], f) for f in doc["failures"]]
     lines += ["## Failed runs (left out of every aggregate)", ""]
     if not failures:

@@ -1006,9 +1006,18 @@ def _shade_window(log: dict[str, np.ndarray], axes: Sequence[Axes]) -> None:
             ax.axvspan(start, end, color="0.9", zorder=0, label=None if i else "metrics window")
 
 
-def plot_polishing(outcomes: Sequence[RunOutcome], pid: bool, path: Path, title: str) -> bool:
+def plot_polishing(
+    outcomes: Sequence[RunOutcome],
+    pid: bool,
+    path: Path,
+    title: str,
+    spans: Sequence[tuple[float, float]] = (),
+    span_label: str = "",
+) -> bool:
     """Figs. 6–9 style: (a) true normal force vs reference, (b) tangential position error, for
-    the plotted seed of every controller. Returns False when no run of that mode was plotted."""
+    the plotted seed of every controller; ``spans`` ([start, end] in s, e.g. the pushes of
+    Experiment 3.3) are shaded and labelled ``span_label``. Returns False when no run of that
+    mode was plotted."""
     chosen = _figure_outcomes(outcomes, pid)
     if not chosen:
         return False
@@ -1032,6 +1041,10 @@ def plot_polishing(outcomes: Sequence[RunOutcome], pid: bool, path: Path, title:
     first = chosen[0].plot_log
     assert first is not None
     _shade_window(first, (ax_f, ax_p))
+    for k, (start, end) in enumerate(spans):
+        for i, ax in enumerate((ax_f, ax_p)):
+            label = span_label if i == 0 and k == 0 and span_label else None
+            ax.axvspan(start, end, color="tab:orange", alpha=0.25, zorder=0, label=label)
     ax_f.set_ylabel("normal force λ (N)")
     ax_f.set_title(title, fontsize=9)
     ax_f.legend(loc="upper left", fontsize=8, ncol=4)

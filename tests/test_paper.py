@@ -17,7 +17,7 @@ from ffmpc_core.metrics import push_phase_metrics, push_phase_windows
 from ffmpc_core.scenario import load_scenario
 from ffmpc_ros.cli import main
 from studies import study
-from studies.paper import SECTIONS
+from studies.paper import SECTIONS, paper_specs
 from studies.study import (
     RunSpec,
     execute_run,
@@ -313,10 +313,29 @@ def test_paper_study_writes_every_section_and_a_resumed_run_reads_the_cache(
     out = tmp_path / "paper"
     assert main([*PAPER, "--out", str(out)]) == 0
     printed = capsys.readouterr().out
-    assert sorted(p.name for p in out.iterdir()) == ["cache", "paper.md", "results.json"]
+    figures = [s.figure_file for s in SECTIONS if s.figure_file is not None]
+    assert figures == [
+        "fig4_experiment_1.png",
+        "fig6_experiment_2.png",
+        "fig7_experiment_3_1.png",
+        "fig8_experiment_3_2.png",
+        "fig9_experiment_3_3.png",
+    ]
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        ["cache", "paper.md", "results.json", *figures]
+    )
     text = (out / "paper.md").read_text()
     doc = json.loads((out / "results.json").read_text())
     assert text in printed
+    # The figures: PNG files of the first seed's runs, each linked under its section.
+    assert doc["plot_seed"] == 0
+    assert doc["figures"] == {s.key: s.figure_file for s in SECTIONS if s.figure_file}
+    for name in figures:
+        assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert f"]({name})" in text and name in printed
+    specs = paper_specs([0, 1], duration=0.2, plot_seed=0)
+    plotted = [(key, s.seed) for key, group in specs.items() for s in group if s.plot]
+    assert sorted(plotted) == sorted((f, 0) for f in doc["figures"] for _ in range(3))
     assert list(doc["sections"]) == [s.key for s in SECTIONS]
     for section in SECTIONS:
         assert f"## {section.title}" in text
@@ -414,4 +433,6 @@ def test_paper_study_refuses_bad_flags_before_any_run(tmp_path, capsys) -> None:
     assert main([*argv, "--command-delays", "0.005", "0.005"]) == 2
     assert "repeat" in capsys.readouterr().err
     assert main([*argv, "--set", "task.speed=1"]) == 2
+    assert main([*argv, "--plot-seed", "5"]) == 2
+    assert "--plot-seed 5" in capsys.readouterr().err
     assert not out.exists()
