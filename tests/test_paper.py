@@ -342,7 +342,10 @@ def test_paper_study_writes_every_section_and_a_resumed_run_reads_the_cache(
         entry = doc["sections"][section.key]
         assert entry["scenario"] == section.scenario
         assert entry["study"]["grid"]["seeds"] == [0, 1]
-        assert entry["weights"]["force_feedback"]["force_phase"] == 3.0
+        assert (
+            entry["weights"]["force_feedback"]
+            == load_scenario(section.scenario).mpc.weights["force_feedback"]
+        )
         assert f"Scenario `{section.scenario}`" in text
     assert "SMOKE RUN" in text and "seeds 0–1" in text
     assert doc["execution"] == {

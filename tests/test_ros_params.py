@@ -7,6 +7,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import pytest
+import yaml
 from rcl_interfaces.msg import ParameterType
 from ros_helpers import overrides
 
@@ -33,8 +34,8 @@ def _params_file_args(name="polishing"):
 
 def test_nodes_load_the_scenario_file_into_the_runner_scenario(ros):
     """`--params-file polishing.yaml`: each node's sections equal load_scenario's (the file sets
-    random_tilt_deg 6 for the plant, force_phase 3 for the force-feedback MPC, seed and task for
-    all)."""
+    random_tilt_deg 6 for the plant, the tuned force_phase for the force-feedback MPC, seed and
+    task for all)."""
     reference = load_scenario("polishing")
     mpc = ros.add(MpcNode(context=ros.context, cli_args=_params_file_args()))
     plant = ros.add(PlantNode(context=ros.context, cli_args=_params_file_args()))
@@ -47,7 +48,9 @@ def test_nodes_load_the_scenario_file_into_the_runner_scenario(ros):
                 phase, default, form
             )
     assert mpc.scenario.task == reference.task
-    assert mpc.scenario.mpc.phase_weight("force_phase", 0.0) == 3.0
+    raw = yaml.safe_load(resolve_scenario_path("polishing").read_text())
+    ff = raw["/**/mpc"]["ros__parameters"]["weights"]["force_feedback"]  # the file, as text
+    assert mpc.scenario.mpc.phase_weight("force_phase", 0.0) == ff["force_phase"]
     assert plant.scenario.plant == reference.plant and plant.scenario.seed == reference.seed
     assert plant.scenario.plant.random_tilt_deg == 6.0
     assert mpc.get_parameter("use_sim_time").value is True
