@@ -342,6 +342,7 @@ def _cmd_tune(args: argparse.Namespace) -> int:
         break_penalty=args.break_penalty,
         force_limit=args.force_limit,
         force_penalty=args.force_penalty,
+        velocity_penalty=args.velocity_penalty,
     )
     result = tune(
         args.scenario,
@@ -422,6 +423,12 @@ def _add_tune_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--force-penalty", type=nonnegative_float, default=1.0, help="N per N above the limit"
+    )
+    p.add_argument(
+        "--velocity-penalty",
+        type=nonnegative_float,
+        default=50.0,
+        help="N per unit of max |joint speed|/limit above 1 (default 50)",
     )
     p.add_argument("--duration", type=positive_float, help="simulated time per run, s")
     p.add_argument("--out", type=new_path, help="scenario file to write with the best weights")

@@ -6,11 +6,14 @@ normal force over the circle phase), each run a job of :func:`studies.execute.ex
 the search's Dask cluster, ``--workers``/``--scheduler``, or in this process; cached with
 ``--cache-dir``):
 
-    J = E_λ + W·E_P + P_break·t_break + P_force·max(0, λmax − λ_limit)
+    J = E_λ + W·E_P + P_break·t_break + P_force·max(0, λmax − λ_limit) + P_vel·max(0, r_v − 1)
 
-with E_λ in N, E_P in mm, t_break in % and λmax in N (:class:`Objective`; defaults:
+with E_λ in N, E_P in mm, t_break in % and λmax in N, r_v the run's largest joint speed over its
+limit (max over joints and the whole run of |q̇_j|/q̇_max,j) (:class:`Objective`; defaults:
 W = 0.5 N/mm, P_break = 10 N per % of the circle out of contact, P_force = 1 per N above
-λ_limit = 150 N). A run that diverges costs ``FAILED_RUN_COST``.
+λ_limit = 150 N, P_vel = 50 N per unit of r_v above 1: a search without it found weights that
+track better by spinning the wrist at up to 3.4× its speed limit). A run that diverges costs
+``FAILED_RUN_COST``. A stored search remembers its objective and is not resumed with another.
 
 The search (seeded TPE sampler) keeps its trials in an Optuna RDB storage (an SQLite file by
 default), so a search that is stopped resumes where it stood: the same ``--storage`` and
@@ -27,7 +30,7 @@ a formulation does not have: the low-pass input weight c_w (eq 28) and the force
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -74,28 +77,42 @@ _UNSET_DEFAULTS = {
 @dataclass(frozen=True)
 class Objective:
     """J = E_λ + position_weight·E_P + break_penalty·t_break + force_penalty·(λmax − force_limit)₊
-    (N, N/mm, N/%, N/N, N)."""
+    + velocity_penalty·(r_v − 1)₊ (N, N/mm, N/%, N/N, N, N per unit of r_v = max |q̇|/limit)."""
 
     position_weight: float = 0.5
     break_penalty: float = 10.0
     force_limit: float = 150.0
     force_penalty: float = 1.0
+    velocity_penalty: float = 50.0
 
     def __post_init__(self) -> None:
-        for name in ("position_weight", "break_penalty", "force_limit", "force_penalty"):
+        for name in (
+            "position_weight",
+            "break_penalty",
+            "force_limit",
+            "force_penalty",
+            "velocity_penalty",
+        ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ConfigError(f"objective {name} must be finite and >= 0, got {value}")
 
     def of(
-        self, force_mae: float, position_mae_mm: float, break_percent: float, max_force: float
+        self,
+        force_mae: float,
+        position_mae_mm: float,
+        break_percent: float,
+        max_force: float,
+        max_velocity_ratio: float = 0.0,
     ) -> float:
-        """J of one run's metrics."""
+        """J of one run's metrics (``max_velocity_ratio``: max over joints and time of
+        |q̇|/limit)."""
         return (
             force_mae
             + self.position_weight * position_mae_mm
             + self.break_penalty * break_percent
             + self.force_penalty * max(0.0, max_force - self.force_limit)
+            + self.velocity_penalty * max(0.0, max_velocity_ratio - 1.0)
         )
 
 
@@ -170,7 +187,11 @@ def evaluate(
             continue
         m = outcome.summary["metrics_true"]
         value = objective.of(
-            m["force_mae"], m["position_mae_mm"], m["contact_break_percent"], m["max_force"]
+            m["force_mae"],
+            m["position_mae_mm"],
+            m["contact_break_percent"],
+            m["max_force"],
+            max(outcome.summary["max_velocity_ratio"], default=0.0),
         )
         total += value if math.isfinite(value) else FAILED_RUN_COST
     return total / len(seeds)
@@ -242,6 +263,15 @@ def tune(
         )
 
     study = open_study(sampler_seed)
+    stated = {**asdict(objective), "training_seeds": list(seeds)}
+    stored = study.user_attrs.get("objective")
+    if stored is None and not study.trials:
+        study.set_user_attr("objective", stated)
+    elif stored is not None and stored != stated:
+        raise ConfigError(
+            f"search {name!r} in {storage} was run with objective {stored}; this call states "
+            f"{stated}: give another --study-name (trials of two objectives do not mix)"
+        )
     if study.trials:
         # A resumed search: a sampler seeded as before would draw its first points again (TPE's
         # random start-up repeats them); seeded with the number of trials stored, it goes on.

@@ -4,6 +4,8 @@ best weights are written into a scenario file that loads."""
 
 from __future__ import annotations
 
+import math
+
 import pytest
 
 from ffmpc_core.errors import ConfigError
@@ -28,8 +30,13 @@ def test_objective_is_the_stated_sum():
     j = Objective(position_weight=0.5, break_penalty=10.0, force_limit=150.0, force_penalty=1.0)
     assert j.of(4.0, 6.0, 0.0, 100.0) == pytest.approx(4.0 + 3.0)
     assert j.of(4.0, 6.0, 2.0, 170.0) == pytest.approx(4.0 + 3.0 + 20.0 + 20.0)
+    # Joint speed over its limit: 50 N per unit of max |q̇|/limit above 1 (default).
+    assert j.of(4.0, 6.0, 0.0, 100.0, 0.99) == pytest.approx(4.0 + 3.0)
+    assert j.of(4.0, 6.0, 0.0, 100.0, 1.2) == pytest.approx(4.0 + 3.0 + 50.0 * 0.2)
     with pytest.raises(ConfigError):
         Objective(position_weight=-1.0)
+    with pytest.raises(ConfigError):
+        Objective(velocity_penalty=math.nan)
 
 
 def test_search_space_is_the_same_but_for_the_terms_a_formulation_lacks():
@@ -111,3 +118,10 @@ def test_a_few_trials_improve_the_objective_and_the_search_resumes(tmp_path, cap
         assert written[name] == pytest.approx(study.best_params[name])
     with pytest.raises(ConfigError):  # never overwritten
         tune("polishing", "classical", [1000], 1, str(db), duration=DURATION, out=out, workers=1)
+    # The search remembers its objective and training seeds: another is refused before any run.
+    runs = len(list((tmp_path / "cache").glob("*.json")))
+    for other in ({"objective": Objective(velocity_penalty=0.0)}, {"seeds": [1000, 1001]}):
+        args = {"seeds": [1000], "objective": Objective(), **other}
+        with pytest.raises(ConfigError, match="objective"):
+            tune("polishing", "classical", trials=1, storage=str(db), workers=1, **args)
+    assert len(list((tmp_path / "cache").glob("*.json"))) == runs
