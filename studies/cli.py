@@ -12,10 +12,12 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from ffmpc_core.errors import ConfigError
 from ffmpc_ros.cli_args import (
     STUDY_FORMULATIONS,
+    existing_file,
     new_path,
     nonnegative_float,
     nonnegative_int,
@@ -53,7 +55,7 @@ def _cmd_study(args: argparse.Namespace) -> int:
     from ffmpc_core.scenario import load_scenario
 
     kind = "polishing" if args.study == "polishing" else "force_square"
-    overrides = _parse_overrides(args.set)
+    overrides = _polishing_overrides(args)
     load_scenario(args.scenario or kind, overrides)  # refuse a bad scenario before any import
     _check_execution_arguments(args)  # before any run (studies.study does not load PyBullet)
     use_cache = not args.no_cache
@@ -115,14 +117,42 @@ def _cmd_study(args: argparse.Namespace) -> int:
 
 
 def _add_set_argument(p: argparse.ArgumentParser, what: str, example: str) -> None:
-    """``--set NAME=VALUE`` (repeatable) and ``--no-progress`` of the polishing studies."""
+    """``--set NAME=VALUE`` (repeatable), ``--set-file FILE`` and ``--no-progress`` of the
+    polishing studies."""
     p.add_argument(
         "--set",
         action="append",
         metavar="NAME=VALUE",
         help=f"scenario override, {what} (repeatable), e.g. {example}",
     )
+    p.add_argument(
+        "--set-file",
+        action="append",
+        type=existing_file,
+        metavar="FILE",
+        help="overrides from a YAML mapping NAME: VALUE (repeatable; --set wins), e.g. the "
+        "tuned weights benchmarks/results/tune/train1000-1002/speed_penalty/tuned_weights.yaml",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _polishing_overrides(args: argparse.Namespace) -> dict:
+    """The overrides of ``--set-file`` files (in order) then ``--set``, each checked by the
+    scenario schema (ConfigError naming the file or the pair)."""
+    import json
+
+    import yaml
+
+    items: list[str] = []
+    for path in args.set_file or []:
+        try:
+            doc = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+            raise ConfigError(f"--set-file {path}: not a readable YAML file ({exc})") from None
+        if not isinstance(doc, dict) or not all(isinstance(k, str) for k in doc):
+            raise ConfigError(f"--set-file {path}: expected a mapping NAME: VALUE")
+        items += [f"{name}={json.dumps(value)}" for name, value in doc.items()]
+    return _parse_overrides(items + list(args.set or []))
 
 
 def _add_execution_arguments(p: argparse.ArgumentParser, cache_dir: bool = False) -> None:
@@ -201,7 +231,7 @@ def _cmd_study_paper(args: argparse.Namespace) -> int:
 
     from ffmpc_core.scenario import load_scenario
 
-    overrides = _parse_overrides(args.set)
+    overrides = _polishing_overrides(args)
     if "mpc.command_delay" in overrides:
         raise ConfigError("--set mpc.command_delay: give the δo values with --command-delays")
     load_scenario("polishing", overrides)  # refuse a bad override before any import

@@ -553,7 +553,9 @@ def paper_report(document: dict) -> str:
             f"{section_doc['note']} Scenario `{section_doc['scenario']}` "
             f"(`{section_doc['scenario_file']}`), torque PID {pid}, δo: {delta}.",
             "",
-            f"Cost weights (`mpc.weights` of that file): {_weights_line(section_doc['weights'])}.",
+            f"Cost weights (`mpc.weights` of that file"
+            f"{', with the overrides' if document['overrides'] else ''}): "
+            f"{_weights_line(section_doc['weights'])}.",
             "",
         ]
         if section.key == "simulation":

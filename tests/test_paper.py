@@ -7,6 +7,7 @@ The CLI runs are smoke runs (0.2 s of simulated time: 54 runs of ~0.15 s each, i
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -439,3 +440,30 @@ def test_paper_study_refuses_bad_flags_before_any_run(tmp_path, capsys) -> None:
     assert main([*argv, "--plot-seed", "5"]) == 2
     assert "--plot-seed 5" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_set_file_overrides_come_before_set_and_are_checked(tmp_path) -> None:
+    """``--set-file`` (a YAML mapping NAME: VALUE, e.g. the tuned weights) gives the same
+    overrides as ``--set``; ``--set`` wins; a bad file or name is a ConfigError."""
+    import argparse
+
+    from studies.cli import _polishing_overrides
+
+    tuned = tmp_path / "tuned.yaml"
+    tuned.write_text(
+        "mpc.weights.classical.force_phase: 2.5\nmpc.weights.classical.ee_rotation: 9\n"
+    )
+    args = argparse.Namespace(set_file=[str(tuned)], set=["mpc.weights.classical.ee_rotation=3"])
+    assert _polishing_overrides(args) == {
+        "mpc.weights.classical.force_phase": 2.5,
+        "mpc.weights.classical.ee_rotation": 3,
+    }
+    shipped = Path(__file__).resolve().parents[1] / "benchmarks/results/tune/train1000-1002"
+    weights = _polishing_overrides(
+        argparse.Namespace(set_file=[str(shipped / "speed_penalty/tuned_weights.yaml")], set=None)
+    )
+    assert len(weights) == 17 and weights["mpc.weights.force_feedback.force_rate"] == 1.491e-08
+    for text, what in (("- 1\n- 2\n", "mapping"), ("task.speed: 1\n", "task.speed")):
+        tuned.write_text(text)
+        with pytest.raises(ConfigError, match=what):
+            _polishing_overrides(argparse.Namespace(set_file=[str(tuned)], set=None))
