@@ -30,7 +30,7 @@ a formulation does not have: the low-pass input weight c_w (eq 28) and the force
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -86,13 +86,7 @@ class Objective:
     velocity_penalty: float = 50.0
 
     def __post_init__(self) -> None:
-        for name in (
-            "position_weight",
-            "break_penalty",
-            "force_limit",
-            "force_penalty",
-            "velocity_penalty",
-        ):
+        for name in (f.name for f in fields(self)):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ConfigError(f"objective {name} must be finite and >= 0, got {value}")
