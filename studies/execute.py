@@ -228,6 +228,16 @@ class RunBatch:
     workers: int
     dashboard: str | None = None
 
+    def execution(self, cache: RunCache | None) -> dict[str, Any]:
+        """How the runs were obtained, for a results document's ``execution``: cached and
+        executed counts, the cluster, and the run cache's directory (None without one)."""
+        return {
+            "cached": self.cached,
+            "executed": self.executed,
+            "cluster": self.cluster,
+            "cache_dir": None if cache is None else str(cache.directory),
+        }
+
 
 def _stderr(text: str) -> None:
     print(text, file=sys.stderr, flush=True)

@@ -589,13 +589,14 @@ def run_exploration_study(
     out = None if out_dir is None else prepare_output_dir(out_dir, force, resume=resume)
     start = time.perf_counter()
     jobs = [ExplorationJob(replace(cfg, material=MATERIALS[name])) for name in materials]
+    run_cache = None if out is None else study_cache(out, cache)
     batch = execute_jobs(
         jobs,
         execute_exploration_job,
         workers,
         progress,
         scheduler=scheduler,
-        cache=None if out is None else study_cache(out, cache),
+        cache=run_cache,
         fresh=fresh,
     )
     failed = [o for o in batch.outcomes if o.summary is None]
@@ -613,13 +614,7 @@ def run_exploration_study(
             "config": EXPLORATION_SCHEMA.flatten(cfg),
             "runs": [r.summary() for r in runs],
             "wall_time_s": time.perf_counter() - start,
-            "execution": {
-                "cached": batch.cached,
-                "executed": batch.executed,
-                "cluster": batch.cluster,
-                "workers": batch.workers,
-                "cache_dir": str(out / "cache") if cache else None,
-            },
+            "execution": {**batch.execution(run_cache), "workers": batch.workers},
         }
         (out / "results.json").write_text(canonical_json(document) + "\n", encoding="utf-8")
     return runs

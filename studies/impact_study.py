@@ -632,13 +632,14 @@ def run_impact_study(
     )
     start = time.perf_counter()
     jobs = [ImpactJob(cfg, approach, regulation) for approach, regulation in runs]
+    run_cache = study_cache(out, cache)
     batch = execute_jobs(
         jobs,
         execute_impact_job,
         workers,
         progress,
         scheduler=scheduler,
-        cache=study_cache(out, cache),
+        cache=run_cache,
         fresh=fresh,
     )
     failures = [o for o in batch.outcomes if o.summary is None]
@@ -663,13 +664,7 @@ def run_impact_study(
         "paper": PAPER,
         "runs": [r.summary() for r in results],
         "wall_time_s": wall,
-        "execution": {
-            "cached": batch.cached,
-            "executed": batch.executed,
-            "cluster": batch.cluster,
-            "workers": batch.workers,
-            "cache_dir": str(out / "cache") if cache else None,
-        },
+        "execution": {**batch.execution(run_cache), "workers": batch.workers},
     }
     (out / "results.json").write_text(json.dumps(document, indent=2, default=float) + "\n")
     (out / "table.md").write_text(table + "\n")

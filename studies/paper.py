@@ -257,12 +257,7 @@ def run_paper(
         every, workers, progress, scheduler=scheduler, cache=run_cache, fresh=fresh
     )
     wall = time.perf_counter() - start
-    execution = {
-        "cached": batch.cached,
-        "executed": batch.executed,
-        "cluster": batch.cluster,
-        "cache_dir": None if run_cache is None else str(run_cache.directory),
-    }
+    execution = batch.execution(run_cache)
     outcomes: dict[str, list[RunOutcome]] = {}
     sections: dict[str, Any] = {}
     index = 0

@@ -1157,12 +1157,7 @@ def run_study(
         workers=batch.workers,
         wall_time=wall,
         command_delays=delays,
-        execution={
-            "cached": batch.cached,
-            "executed": batch.executed,
-            "cluster": batch.cluster,
-            "cache_dir": None if run_cache is None else str(run_cache.directory),
-        },
+        execution=batch.execution(run_cache),
     )
     files = [out / "results.json", out / "tables.md"]
     write_json(files[0], doc)
