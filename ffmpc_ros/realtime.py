@@ -612,6 +612,8 @@ class RealtimeLoop:
         gc.disable()
         set_timer_slack()
         pid_node = self.nodes["pid"]
+        self._refresh_subscribers()  # (cycle 0 may be missed: the first check is not on it)
+        next_check = SUBSCRIBER_CHECK_EVERY
         try:
             t0 = time.perf_counter() + 0.01
             k = 0
@@ -623,7 +625,8 @@ class RealtimeLoop:
                     tau_hat, state = self._missed_cycle(rec, k, last_motor, state, f_hat)
                     k += 1
                     continue
-                if k % SUBSCRIBER_CHECK_EVERY == 0:
+                if k >= next_check:  # every 100 cycles run (a missed cycle does not skip it)
+                    next_check = k + SUBSCRIBER_CHECK_EVERY
                     if not self.context.ok():  # SIGINT (rclpy's handler shuts the context)
                         raise KeyboardInterrupt
                     self._refresh_subscribers()
@@ -814,8 +817,9 @@ class RealtimeLoop:
         """(summary, log arrays): the study metrics (same code as the runner) and the timing;
         the log has the runner's arrays plus, per cycle, ``mode`` (LowLevelMode),
         ``cycle_latency`` (s; inf for a missed cycle), ``command_arrival`` (the cycle at which the
-        command solved from this cycle was taken, −1 for none) and ``missed`` (the loop missed
-        the cycle: the plant stepped under the held torque, :meth:`run`)."""
+        command solved from this cycle was taken, −1 for none), ``missed`` (the loop missed
+        the cycle: the plant stepped under the held torque, :meth:`run`) and ``v`` (the true
+        joint velocity, rad/s: where :meth:`safety`'s velocity ratios come from)."""
         log = PolishingLog(self.steps, self.robot, self.task)
         for k in range(self.steps):
             log.record(
@@ -848,7 +852,7 @@ class RealtimeLoop:
         timing["rejected"] = rec["rejected"]
         timing["loop"]["missed_cycles"] = int(np.count_nonzero(rec["missed"]))
         arrays = dict(log.arrays)
-        for name in ("mode", "cycle_latency", "command_arrival", "missed"):  # timing per cycle
+        for name in ("mode", "cycle_latency", "command_arrival", "missed", "v"):  # per cycle
             arrays[name] = rec[name]
         summary = {
             "formulation": self.scenario.mpc.formulation,

@@ -275,3 +275,42 @@ def test_lockstep_timing_counts_the_excused_mpc_ticks_not_the_excused_seconds():
     assert timing["fallback_excused_s"] == pytest.approx(0.004)
     assert timing["fallback_time_s"] == 0.0
     assert probe.timing(every, status, [])["excused_mpc_ticks"] == 0
+
+
+def test_a_loop_late_from_its_first_cycle_runs_on(monkeypatch):
+    """The loop process reached its first release a whole period late (a loaded machine): cycles
+    0-1 are missed, the plant steps on under the start torque, and the loop goes on with its
+    observer topics checked (it once read an unset subscriber table there: KeyError 'clock')."""
+    import time
+
+    import rclpy
+    from rclpy.context import Context
+
+    from ffmpc_ros import realtime
+    from ffmpc_ros.graph_nodes import graph_parameters
+
+    late = {"first": True}
+    sleep_until = realtime.sleep_until
+
+    def _late_start(deadline: float) -> None:
+        if late.pop("first", False):
+            deadline += 0.0025  # 2.5 periods past the first release
+        sleep_until(deadline)
+
+    monkeypatch.setattr(realtime, "sleep_until", _late_start)
+    params = graph_parameters(load_scenario("polishing"), lockstep=False, duration=0.03)
+    flat = {n: realtime._flatten(params[n]) for n in ("plant", "joint_sensor", "ft_sensor", "pid")}
+    context = Context()
+    rclpy.init(context=context)
+    loop = None
+    try:
+        loop = realtime.RealtimeLoop(flat, context)
+        start = time.perf_counter()
+        rec = loop.run()
+    finally:
+        if loop is not None:
+            loop.close()
+        rclpy.shutdown(context=context)
+    assert rec["missed"][:2].all() and not rec["missed"][2:].all()
+    assert time.perf_counter() - start >= 0.03
+    assert np.all(np.isfinite(rec["v"])) and np.all(rec["mode"] == int(LowLevelMode.HOLD))
