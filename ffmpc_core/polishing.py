@@ -314,6 +314,7 @@ def lowlevel_config(scenario: Scenario) -> LowLevelConfig:
         hold_frequency=c.hold_frequency,
         hold_damping_ratio=c.hold_damping_ratio,
         torque_limit_fraction=c.torque_limit_fraction,
+        velocity_guard=c.velocity_guard,
     )
 
 

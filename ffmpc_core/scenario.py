@@ -170,6 +170,9 @@ class PidSection:
     hold_damping_ratio: float = 1.0
     # Fraction of the data-sheet torque limits τ^d and τ^m are saturated to (live on the pid node).
     torque_limit_fraction: float = 1.0
+    # Fraction of the velocity limits above which a measured joint speed engages the safe hold
+    # (ffmpc_core.lowlevel; 0: off, the paper's scheme).
+    velocity_guard: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -441,6 +444,12 @@ _TABLE: dict[str, tuple[str, Any, str]] = {
         (0.01, 1.0),
         "fraction of the robot's data-sheet torque limits the low level saturates τ^d and τ^m to "
         "(never above the data sheet)",
+    ),
+    "pid.velocity_guard": (
+        "",
+        (0.0, 1.0),
+        "fraction of the velocity limits above which a measured joint speed engages the safe "
+        "hold (0: off)",
     ),
 }
 #: List lengths of the CostWeights activation diagonals (a number broadcasts).

@@ -869,8 +869,8 @@ class RealtimeLoop:
     def safety(self, rec: dict) -> dict:
         """The run's joint-limit ratios (as the lockstep graph's summary): per joint the largest
         |q̇|/velocity limit, |τ^m|/torque limit (the PID's motor torque) and |τ̂|/torque limit
-        (the actuation output), the times of the largest (s), and the time in the safe hold (s:
-        hold and fallback cycles)."""
+        (the actuation output), the times of the largest (s), the time in the safe hold (s:
+        hold and fallback cycles) and the commands the velocity guard dropped (0 with it off)."""
         robot, dt = self.robot, self.time_step
         velocity, k_velocity = limit_ratios(rec["v"], robot.velocity_limit)
         torque, k_torque = limit_ratios(rec["tau_motor"], robot.torque_limit)
@@ -883,6 +883,7 @@ class RealtimeLoop:
             "max_velocity_ratio_at_s": None if k_velocity is None else k_velocity * dt,
             "max_torque_ratio_at_s": None if k_torque is None else k_torque * dt,
             "safe_hold_s": float(np.count_nonzero(hold) * dt),
+            "velocity_guard_trips": self.lowlevel.velocity_guard_trips,
         }
 
     def close(self) -> None:

@@ -84,7 +84,8 @@ class RunResult:
     """Outcome of one run: metrics from the true and from the measured normal force, the draws,
     the time series (``log``), timing statistics, and the safety figures (module docstring):
     ``max_velocity_ratio`` / ``max_torque_ratio`` per joint, ``safe_hold_s`` (s), the MPC
-    solves that raised (``mpc_failures``; the hold took over), the faults injected, and
+    solves that raised (``mpc_failures``; the hold took over), the commands the velocity guard
+    dropped (``velocity_guard_trips``, None with the guard off), the faults injected, and
     ``safety_log`` (t s; v rad/s and tau_applied N·m per joint; mode, the ``LowLevelMode`` of
     each cycle)."""
 
@@ -104,6 +105,7 @@ class RunResult:
     max_applied_torque_ratio: np.ndarray = field(default_factory=lambda: np.zeros(0))
     safe_hold_s: float = 0.0
     mpc_failures: int = 0
+    velocity_guard_trips: int | None = None
     faults: tuple[Fault, ...] = ()
     safety_log: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
     command_delay: float = 0.0  # δo of the run, s (pid.delay_cycles plant steps)
@@ -134,6 +136,11 @@ class RunResult:
             "faults": [str(f) for f in self.faults],
             "command_delay_s": self.command_delay,
             **({"push_true": self.push_metrics} if self.push_metrics else {}),
+            **(
+                {"velocity_guard_trips": self.velocity_guard_trips}
+                if self.velocity_guard_trips is not None
+                else {}
+            ),
         }
 
 
@@ -207,6 +214,7 @@ def run_polishing(
         max_applied_torque_ratio=limit_ratios(loop.trace_applied, robot.torque_limit)[0],
         safe_hold_s=float(np.sum(np.isin(loop.trace_mode, _HOLD_MODES)) * dt),
         mpc_failures=mpc_stage.failures,
+        velocity_guard_trips=lowlevel.velocity_guard_trips if scenario.pid.velocity_guard else None,
         faults=faults,
         safety_log={
             "t": log.arrays["t"],

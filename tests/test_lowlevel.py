@@ -363,3 +363,85 @@ def test_missing_force_is_held_for_force_hold_time_then_the_feedback_goes_withou
     np.testing.assert_array_equal(out.desired_torque, feedback(9.0))
     with pytest.raises(ConfigError, match="force_hold_time"):
         LowLevelConfig(force_hold_time=-1.0)
+
+
+def test_velocity_guard_drops_a_command_when_a_joint_is_too_fast(robot):
+    """Guard 0.9: a measured speed above 0.9 × a joint's velocity limit drops the command (one
+    trip), that cycle is the safe hold's brake, and the next command blends in from the hold;
+    the same speed with the guard off (0, the default) is tracked."""
+    rng = np.random.default_rng(9)
+    fast = robot.velocity_limit * np.array([0, 0, 0, 0, 0.95, 0, 0])
+    modes = {}
+    for guard in (0.0, 0.9):
+        cfg = LowLevelConfig(formulation="classical", velocity_guard=guard)
+        low = LowLevelController(robot, cfg, _pid(robot))
+        for k in range(8):
+            if k % 2 == 0:
+                low.set_command(_command(robot, rng), k * DT)
+            meas = _meas(robot, rng)
+            if k == 4:
+                meas.v = meas.v * 0.0 + fast
+            out = low.step(meas, k * DT)
+            modes[guard, k] = out.mode
+            if guard and k == 4:
+                hold = LowLevelController(robot, cfg, _pid(robot)).hold_torque(meas.q, meas.v)
+                np.testing.assert_allclose(out.desired_torque, robot.clip_torque(hold))
+        assert low.velocity_guard_trips == (1 if guard else 0)
+    assert all(modes[0.0, k] == LowLevelMode.TRACK for k in range(8))
+    assert [modes[0.9, k] for k in range(4, 8)] == [LowLevelMode.FALLBACK] * 2 + [
+        LowLevelMode.BLEND
+    ] * 2
+    with pytest.raises(ConfigError, match="velocity_guard"):
+        LowLevelConfig(velocity_guard=1.5)
+
+
+def _runaway_peak(robot, guard: float) -> tuple[float, int]:
+    """Max |q̇|/limit over 0.6 s in PyBullet (no table) when every MPC command (2 ms) asks the
+    wrist joint A5 for 10 N·m beyond gravity (≈ 0.15× its velocity limit more per cycle), with
+    the study's sensing, actuation and PID; and the guard's trips."""
+    from ffmpc_core.polishing import (
+        actuation_model,
+        draw_run,
+        joint_sensing_model,
+        lowlevel_controller,
+        spawn_generators,
+    )
+    from ffmpc_core.scenario import load_scenario
+    from sim_bridge.plant import Plant, PlantConfig
+
+    scenario = load_scenario(
+        "polishing", {"pid.velocity_guard": guard, "mpc.formulation": "classical"}
+    )
+    draw_rng, joint_rng, _, act_rng = spawn_generators(5)
+    draws = draw_run(scenario, robot, draw_rng)
+    sensing = joint_sensing_model(scenario, robot.nv, joint_rng)
+    actuation = actuation_model(scenario, robot, draws, act_rng)
+    low = lowlevel_controller(scenario, robot)
+    push = np.array([0, 0, 0, 0, 10.0, 0, 0])
+    peak = 0.0
+    with Plant(robot, PlantConfig(table=None)) as plant:
+        plant.reset(robot.q_nominal)
+        tau_hat = robot.gravity(robot.q_nominal)
+        for k in range(600):
+            s = plant.state()
+            peak = max(peak, float(np.max(np.abs(s.v) / robot.velocity_limit)))
+            q_hat, v_hat, _ = sensing.step(s.q, s.v)
+            if k % 2 == 0:
+                command = LowLevelCommand(
+                    robot.gravity(q_hat) + push, np.concatenate([q_hat, v_hat]), np.zeros((7, 14))
+                )
+                low.set_command(command, k * DT)
+            out = low.step(LowLevelMeasurement(q_hat, v_hat, tau_hat), k * DT)
+            tau_hat = actuation.step(out.motor_torque, s.v)
+            plant.step(tau_hat)
+    return peak, low.velocity_guard_trips
+
+
+def test_velocity_guard_keeps_a_runaway_command_within_the_velocity_limits(robot):
+    """An MPC that keeps accelerating the wrist: without the guard the joint passes its velocity
+    limit; with the guard at 0.9 it is braked each time its predicted speed passes 0.9 and stays
+    below 1 (measured: 0.96; compared without the prediction, the speed reached 1.43)."""
+    peak_off, trips_off = _runaway_peak(robot, 0.0)
+    peak_on, trips_on = _runaway_peak(robot, 0.9)
+    assert peak_off > 1.2 and trips_off == 0, peak_off
+    assert peak_on < 1.0 and trips_on >= 1, (peak_on, trips_on)
