@@ -101,7 +101,8 @@ def build_task(scenario: Scenario, robot: RobotModel) -> PolishingSchedule:
         weights=weights,
     )
     if task.name == "polishing":
-        circle = task.circles * 2.0 * np.pi / task.angular_velocity
+        # the ramps travel ω·circle_ramp less than the plain circle: the phase is that much longer
+        circle = task.circles * 2.0 * np.pi / task.angular_velocity + task.circle_ramp
         return PolishingTask(
             normal_force=task.normal_force,
             circle_radius=task.circle_radius,
@@ -109,6 +110,7 @@ def build_task(scenario: Scenario, robot: RobotModel) -> PolishingSchedule:
             circle=circle,
             stop=task.stop,
             ee_z_weight_in_contact=task.ee_z_weight_in_contact,
+            circle_ramp=task.circle_ramp,
             **common,
         )
     return ForceSquareTask(

@@ -62,6 +62,9 @@ class TaskSection:
     circle_radius: float = 0.07
     angular_velocity: float = 3.0
     circles: float = 2.0
+    # s, minimum-jerk ramp of the angular velocity at the circle's start and end (0: the
+    # paper's step; ffmpc_core.tasks.PolishingTask.circle_angle)
+    circle_ramp: float = 0.0
     start_height: float = 0.05  # m above the believed table at the circle start
     still: float = 0.1
     reach: float = 0.4
@@ -354,6 +357,11 @@ _TABLE: dict[str, tuple[str, Any, str]] = {
     "task.circle_radius": ("m", (0.0, 0.5), "circle radius"),
     "task.angular_velocity": ("rad/s", (0.0, 50.0), "angular velocity along the circle"),
     "task.circles": ("", (0.0, 100.0), "number of turns"),
+    "task.circle_ramp": (
+        "s",
+        (0.0, 10.0),
+        "minimum-jerk ramp of the angular velocity at the circle's start and end (0: a step)",
+    ),
     "task.start_height": ("m", (0.0, 0.5), "start height above the believed table"),
     "task.still": ("s", (0.0, 60.0), "phase duration: stand still"),
     "task.reach": ("s", (0.0, 60.0), "phase duration: reach the table"),

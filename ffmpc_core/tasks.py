@@ -142,6 +142,10 @@ class PolishingTask(_ApproachThenContact):
         angular_velocity: rad/s along the circle (paper: 3 rad/s; fast variant 6 rad/s).
         still, reach, force_ramp, circle, stop: phase durations, s. ``circle`` defaults to two
             turns at the nominal angular velocity.
+        circle_ramp: s over which the angular velocity rises from 0 to ``angular_velocity`` at
+            the circle's start and falls back to 0 at its end (minimum jerk,
+            :meth:`circle_angle`); 0, the paper's circle, steps it (the reference's tangential
+            speed jumps 0 → ω·r at the start and back at the end).
         weights: per-phase c4 and c6.
         ee_z_weight_in_contact: activation of the z (normal) axis of the position cost while in
             contact; 0 leaves the normal direction to the force task (the paper's pure sliding).
@@ -159,6 +163,7 @@ class PolishingTask(_ApproachThenContact):
     stop: float = 0.3
     weights: PhaseWeights = PhaseWeights()
     ee_z_weight_in_contact: float = 0.0
+    circle_ramp: float = 0.0
 
     @property
     def _ee_z_weight_in_contact(self) -> float:  # type: ignore[override]
@@ -170,6 +175,11 @@ class PolishingTask(_ApproachThenContact):
                 raise ConfigError(f"phase duration {name} must be >= 0")
         if self.circle_radius < 0 or self.normal_force < 0:
             raise ConfigError("circle_radius and normal_force must be >= 0")
+        if not 0.0 <= 2.0 * self.circle_ramp <= self.circle:
+            raise ConfigError(
+                f"circle_ramp ({self.circle_ramp} s) must be >= 0 and fit twice in the circle "
+                f"({self.circle} s)"
+            )
 
     @property
     def circle_start(self) -> float:
@@ -219,13 +229,35 @@ class PolishingTask(_ApproachThenContact):
         circle_start = self.circle_start
         if t < circle_start:
             return self._approach_position_into(t, out)
-        angle = self.angular_velocity * (min(t, circle_start + self.circle) - circle_start)
+        angle = self.circle_angle(t - circle_start)
         r = self.circle_radius
         start = self.contact_position  # the circle starts here; its centre is r along −x
         out[0] = start[0] - r + r * math.cos(angle)
         out[1] = start[1] + r * math.sin(angle)
         out[2] = start[2]
         return out
+
+    def circle_angle(self, elapsed: float) -> float:
+        """Angle θ travelled along the circle ``elapsed`` s after its start, rad.
+
+        Without ramp, θ = ω·τ (τ = elapsed, clipped to the circle). With ``circle_ramp`` T, the
+        angular velocity is ω·s(τ/T) over the first T s and ω·s((C − τ)/T) over the last
+        (s: the minimum jerk 10x³ − 15x⁴ + 6x⁵, C the circle's duration), so θ is its integral:
+        ω·T·S(τ/T) at the start, ω·(τ − T/2) in between, ω·(C − T) − ω·T·S((C − τ)/T) at the
+        end, with S(x) = 2.5x⁴ − 3x⁵ + x⁶ (∫₀ˣ s, S(1) = ½); the whole circle is ω·(C − T)."""
+        omega, duration, ramp = self.angular_velocity, self.circle, self.circle_ramp
+        tau = min(max(elapsed, 0.0), duration)
+        if ramp <= 0.0:
+            return omega * tau
+
+        def integral(x: float) -> float:
+            return x**4 * (2.5 - 3.0 * x + x * x)
+
+        if tau < ramp:
+            return omega * ramp * integral(tau / ramp)
+        if tau > duration - ramp:
+            return omega * (duration - ramp) - omega * ramp * integral((duration - tau) / ramp)
+        return omega * (tau - 0.5 * ramp)
 
     def force(self, t: float) -> float:
         """Desired normal force λ̄(t), N (positive: the table pushes the tool up)."""

@@ -106,3 +106,47 @@ def test_reference_into_needs_an_ee_position_diag():
             task.reference_into(1.0, ref)
         ref = NodeReference.empty(1)
         assert task.reference_into(1.0, ref) is ref
+
+
+def test_circle_ramp_starts_and_ends_the_circle_at_rest_with_a_minimum_jerk_speed():
+    """circle_ramp T: the angular velocity (central differences of circle_angle) is
+    ω·s(τ/T) over the first T s, ω in between, ω·s((C − τ)/T) over the last T s (s: minimum
+    jerk), the angle is continuous and reaches ω·(C − T); T = 0 is the paper's ω·τ exactly."""
+    from ffmpc_core.tasks import min_jerk
+
+    omega, ramp = 3.0, 0.2
+    circle = 4 * np.pi / omega + ramp
+    plain, ramped = make_task(circle=circle), make_task(circle=circle, circle_ramp=ramp)
+    taus = np.linspace(0.0, circle, 4001)
+    np.testing.assert_array_equal([plain.circle_angle(t) for t in taus], omega * taus)
+    h = 1e-6
+    inner = taus[1:-1]
+    speed = [(ramped.circle_angle(t + h) - ramped.circle_angle(t - h)) / (2 * h) for t in inner]
+    expected = [omega * min(min_jerk(t / ramp), min_jerk((circle - t) / ramp)) for t in inner]
+    np.testing.assert_allclose(speed, expected, atol=1e-6)
+    assert ramped.circle_angle(circle) == pytest.approx(4 * np.pi)  # two whole turns
+    assert ramped.circle_angle(0.0) == 0.0 and ramped.circle_angle(circle + 1.0) == 4 * np.pi
+    # the reference's tangential speed: 0 at the start with the ramp, a step to ω·r without
+    t0 = ramped.circle_start
+    step = np.linalg.norm(plain.ee_position(t0 + 1e-4) - plain.ee_position(t0)) / 1e-4
+    soft = np.linalg.norm(ramped.ee_position(t0 + 1e-4) - ramped.ee_position(t0)) / 1e-4
+    assert step == pytest.approx(0.07 * omega, rel=1e-3) and soft < 1e-6
+    with pytest.raises(ConfigError, match="circle_ramp"):
+        make_task(circle=0.3, circle_ramp=0.2)
+
+
+def test_scenario_circle_ramp_lengthens_the_circle_by_the_ramp():
+    """task.circle_ramp from a scenario: the circle phase is circle_ramp s longer, so the same
+    whole turns are drawn and the tool ends the circle where it started."""
+    from ffmpc_core.polishing import build_task
+    from ffmpc_core.robots import load_robot
+    from ffmpc_core.scenario import load_scenario
+
+    robot = load_robot("iiwa")
+    plain = build_task(load_scenario("polishing"), robot)
+    ramped = build_task(load_scenario("polishing", {"task.circle_ramp": 0.25}), robot)
+    assert ramped.circle == pytest.approx(plain.circle + 0.25)
+    assert ramped.duration == pytest.approx(plain.duration + 0.25)
+    np.testing.assert_allclose(
+        ramped.ee_position(ramped.circle_end), ramped.ee_position(ramped.circle_start), atol=1e-12
+    )
