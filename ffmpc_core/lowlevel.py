@@ -24,8 +24,8 @@ Real MPC stacks never send a raw solver output straight to the motors. One class
   axis velocity monitoring of an industrial cell): the command is dropped, the brake below
   takes the motion down, and the next MPC command blends in from the hold again. The speed is
   predicted :data:`GUARD_LOOKAHEAD` cycles ahead, |q̇̂ + n·(q̇̂ − q̇̂_prev)|, since the measurement
-  is a cycle old and the brake acts a cycle later: on the iiwa's A5 at rest, 20 N·m adds 0.3×
-  its velocity limit per cycle.
+  is a cycle old and the brake acts a cycle later: on the iiwa's A5 at rest, 10 N·m adds about
+  0.25× its velocity limit per cycle.
 
 In track, the desired torque τ^d (saturated to the robot's limits) goes through the torque PID of
 eq 33 (with its δo delay line) and the motor torque τ^m is saturated too. **The hold torque
@@ -135,8 +135,9 @@ class LowLevelConfig:
         velocity_guard: fraction of each joint's velocity limit above which a measured joint
             speed engages the safe hold (module docstring), in [0, 1]; 0 turns the guard off
             (the paper's scheme, and the studies' default: a run over a limit is reported, not
-            hidden). Measured on the real-time graph (README "Real-time mode"): the
-            force-feedback MPC's wrist chatter reached 1.05× joint A5's limit on a CI machine.
+            hidden). Why (README "Faults, the safe hold and plausibility limits"): on the
+            real-time graph the force-feedback MPC's wrist chatter reached 1.05× joint A5's
+            velocity limit on a CI machine.
         force_hold_time: simulated s a plausible λ̂ is held for the Riccati feedback of
             force-feedback (sample and hold): on a cycle whose λ̂ is missing (None: lost or
             rejected) or not finite, the newest λ̂ at most this old is used; beyond, the cycle

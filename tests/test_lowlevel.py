@@ -397,7 +397,7 @@ def test_velocity_guard_drops_a_command_when_a_joint_is_too_fast(robot):
 
 def _runaway_peak(robot, guard: float) -> tuple[float, int]:
     """Max |q̇|/limit over 0.6 s in PyBullet (no table) when every MPC command (2 ms) asks the
-    wrist joint A5 for 10 N·m beyond gravity (≈ 0.15× its velocity limit more per cycle), with
+    wrist joint A5 for 10 N·m beyond gravity (0.24–0.38× its velocity limit more per cycle), with
     the study's sensing, actuation and PID; and the guard's trips."""
     from ffmpc_core.polishing import (
         actuation_model,
