@@ -41,6 +41,11 @@ def min_jerk(s: float) -> float:
     return s * s * s * (10.0 + s * (-15.0 + 6.0 * s))
 
 
+def min_jerk_integral(x: float) -> float:
+    """∫₀ˣ of :func:`min_jerk`, 2.5x⁴ − 3x⁵ + x⁶, for x in [0, 1] (½ at 1)."""
+    return x**4 * (2.5 - 3.0 * x + x * x)
+
+
 @dataclass(frozen=True)
 class PhaseWeights:
     """Per-phase scalars of the time-varying cost terms: c4 (end-effector position), c6 (force)."""
@@ -244,19 +249,16 @@ class PolishingTask(_ApproachThenContact):
         angular velocity is ω·s(τ/T) over the first T s and ω·s((C − τ)/T) over the last
         (s: the minimum jerk 10x³ − 15x⁴ + 6x⁵, C the circle's duration), so θ is its integral:
         ω·T·S(τ/T) at the start, ω·(τ − T/2) in between, ω·(C − T) − ω·T·S((C − τ)/T) at the
-        end, with S(x) = 2.5x⁴ − 3x⁵ + x⁶ (∫₀ˣ s, S(1) = ½); the whole circle is ω·(C − T)."""
+        end, with S = :func:`min_jerk_integral`; the whole circle is ω·(C − T)."""
         omega, duration, ramp = self.angular_velocity, self.circle, self.circle_ramp
         tau = min(max(elapsed, 0.0), duration)
         if ramp <= 0.0:
             return omega * tau
-
-        def integral(x: float) -> float:
-            return x**4 * (2.5 - 3.0 * x + x * x)
-
         if tau < ramp:
-            return omega * ramp * integral(tau / ramp)
+            return omega * ramp * min_jerk_integral(tau / ramp)
         if tau > duration - ramp:
-            return omega * (duration - ramp) - omega * ramp * integral((duration - tau) / ramp)
+            rest = min_jerk_integral((duration - tau) / ramp)
+            return omega * (duration - ramp) - omega * ramp * rest
         return omega * (tau - 0.5 * ramp)
 
     def force(self, t: float) -> float:

@@ -253,9 +253,11 @@ def test_config_is_validated():
         LowLevelConfig(blend_duration=-1.0)
 
 
-def _hold_drift(robot, overrides: dict, seed: int = 4) -> tuple[float, float]:
-    """Max and final displacement (m) of the contact frame during 1 s of safe hold in PyBullet,
-    with the study's sensing noise, actuation bias/noise/friction and torque PID (δo = 5 ms)."""
+def _in_pybullet(robot, overrides: dict, seed: int, cycles: int, command=None):
+    """Yield (k, true plant state before the step, the low level's output, the low level) for
+    ``cycles`` 1 kHz cycles in PyBullet (no table) from q_nominal at rest: the polishing
+    scenario's joint sensing, actuation bias/noise/friction and torque PID (δo = 5 ms) around
+    its low level. ``command(k, q̂, q̇̂)`` may return an MPC command to set before the step."""
     from ffmpc_core.polishing import (
         actuation_model,
         draw_run,
@@ -272,22 +274,32 @@ def _hold_drift(robot, overrides: dict, seed: int = 4) -> tuple[float, float]:
     sensing = joint_sensing_model(scenario, robot.nv, joint_rng)
     actuation = actuation_model(scenario, robot, draws, act_rng)
     low = lowlevel_controller(scenario, robot)
-    start = robot.contact_placement(robot.q_nominal).translation
-    data = robot.create_data()
-    drift = []
     with Plant(robot, PlantConfig(table=None)) as plant:
         plant.reset(robot.q_nominal)
         tau_hat = robot.gravity(robot.q_nominal)
-        for k in range(1000):
+        for k in range(cycles):
             s = plant.state()
             q_hat, v_hat, _ = sensing.step(s.q, s.v)
+            sent = None if command is None else command(k, q_hat, v_hat)
+            if sent is not None:
+                low.set_command(sent, k * DT)
             out = low.step(LowLevelMeasurement(q_hat, v_hat, tau_hat), k * DT)
-            assert out.mode == LowLevelMode.HOLD
-            assert np.all(np.abs(out.motor_torque) <= robot.torque_limit)
             tau_hat = actuation.step(out.motor_torque, s.v)
             plant.step(tau_hat)
-            position = robot.contact_placement(s.q, data).translation
-            drift.append(float(np.linalg.norm(position - start)))
+            yield k, s, out, low
+
+
+def _hold_drift(robot, overrides: dict, seed: int = 4) -> tuple[float, float]:
+    """Max and final displacement (m) of the contact frame during 1 s of safe hold in PyBullet,
+    with the study's sensing noise, actuation bias/noise/friction and torque PID (δo = 5 ms)."""
+    start = robot.contact_placement(robot.q_nominal).translation
+    data = robot.create_data()
+    drift = []
+    for _, s, out, _ in _in_pybullet(robot, overrides, seed, 1000):
+        assert out.mode == LowLevelMode.HOLD
+        assert np.all(np.abs(out.motor_torque) <= robot.torque_limit)
+        position = robot.contact_placement(s.q, data).translation
+        drift.append(float(np.linalg.norm(position - start)))
     return max(drift), drift[-1]
 
 
@@ -399,42 +411,21 @@ def _runaway_peak(robot, guard: float) -> tuple[float, int]:
     """Max |q̇|/limit over 0.6 s in PyBullet (no table) when every MPC command (2 ms) asks the
     wrist joint A5 for 10 N·m beyond gravity (0.24–0.38× its velocity limit more per cycle), with
     the study's sensing, actuation and PID; and the guard's trips."""
-    from ffmpc_core.polishing import (
-        actuation_model,
-        draw_run,
-        joint_sensing_model,
-        lowlevel_controller,
-        spawn_generators,
-    )
-    from ffmpc_core.scenario import load_scenario
-    from sim_bridge.plant import Plant, PlantConfig
-
-    scenario = load_scenario(
-        "polishing", {"pid.velocity_guard": guard, "mpc.formulation": "classical"}
-    )
-    draw_rng, joint_rng, _, act_rng = spawn_generators(5)
-    draws = draw_run(scenario, robot, draw_rng)
-    sensing = joint_sensing_model(scenario, robot.nv, joint_rng)
-    actuation = actuation_model(scenario, robot, draws, act_rng)
-    low = lowlevel_controller(scenario, robot)
     push = np.array([0, 0, 0, 0, 10.0, 0, 0])
-    peak = 0.0
-    with Plant(robot, PlantConfig(table=None)) as plant:
-        plant.reset(robot.q_nominal)
-        tau_hat = robot.gravity(robot.q_nominal)
-        for k in range(600):
-            s = plant.state()
-            peak = max(peak, float(np.max(np.abs(s.v) / robot.velocity_limit)))
-            q_hat, v_hat, _ = sensing.step(s.q, s.v)
-            if k % 2 == 0:
-                command = LowLevelCommand(
-                    robot.gravity(q_hat) + push, np.concatenate([q_hat, v_hat]), np.zeros((7, 14))
-                )
-                low.set_command(command, k * DT)
-            out = low.step(LowLevelMeasurement(q_hat, v_hat, tau_hat), k * DT)
-            tau_hat = actuation.step(out.motor_torque, s.v)
-            plant.step(tau_hat)
-    return peak, low.velocity_guard_trips
+
+    def command(k: int, q_hat: np.ndarray, v_hat: np.ndarray) -> LowLevelCommand | None:
+        if k % 2:
+            return None
+        return LowLevelCommand(
+            robot.gravity(q_hat) + push, np.concatenate([q_hat, v_hat]), np.zeros((7, 14))
+        )
+
+    overrides = {"pid.velocity_guard": guard, "mpc.formulation": "classical"}
+    peak, trips = 0.0, 0
+    for _, s, _, low in _in_pybullet(robot, overrides, 5, 600, command):
+        peak = max(peak, float(np.max(np.abs(s.v) / robot.velocity_limit)))
+        trips = low.velocity_guard_trips
+    return peak, trips
 
 
 def test_velocity_guard_keeps_a_runaway_command_within_the_velocity_limits(robot):

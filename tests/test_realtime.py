@@ -302,12 +302,11 @@ def test_a_loop_late_from_its_first_cycle_runs_on(monkeypatch):
 
     monkeypatch.setattr(realtime, "sleep_until", _late_start)
     params = graph_parameters(load_scenario("polishing"), lockstep=False, duration=0.03)
-    flat = {n: realtime._flatten(params[n]) for n in ("plant", "joint_sensor", "ft_sensor", "pid")}
     context = Context()
     rclpy.init(context=context)
     loop = None
     try:
-        loop = realtime.RealtimeLoop(flat, context)
+        loop = realtime.RealtimeLoop(params, context)
         start = time.perf_counter()
         rec = loop.run()
     finally:
