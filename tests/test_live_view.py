@@ -26,11 +26,12 @@ from ffmpc_core.scenario import load_scenario
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.bag.reader import BagReader
 from ffmpc_ros.bag.schema import MessageDefinitions
-from ffmpc_ros.bringup import run_graph
+from ffmpc_ros.bringup import GraphError, run_graph
 from ffmpc_ros.robot_tree import WORLD_FRAME
 from ffmpc_ros.view import ViewError, check_port_free
 
 websockets_sync = pytest.importorskip("websockets.sync.client")
+from websockets.exceptions import InvalidHandshake  # noqa: E402  (websockets is there)
 
 #: foxglove-sdk 0.30.3 accepts only this subprotocol (a handshake offering only
 #: "foxglove.websocket.v1" gets HTTP 400 "Missing expected sec-websocket-protocol header");
@@ -46,8 +47,9 @@ def _free_port() -> int:
 
 
 class FoxgloveClient(threading.Thread):
-    """Connects (retrying until the server is up), subscribes to each advertised channel and
-    keeps every message: {topic: [(log time ns, payload)]}."""
+    """Connects (retrying until the server is up: a refused connection, or a handshake the
+    starting server does not complete), subscribes to each advertised channel and keeps every
+    message: {topic: [(log time ns, payload)]}."""
 
     def __init__(self, port: int, timeout: float) -> None:
         super().__init__(daemon=True)
@@ -65,7 +67,7 @@ class FoxgloveClient(threading.Thread):
                 try:
                     ws = websockets_sync.connect(self.url, subprotocols=[SUBPROTOCOL])
                     break
-                except OSError:
+                except (OSError, InvalidHandshake):
                     if time.monotonic() > end:
                         raise
                     time.sleep(0.1)
@@ -107,14 +109,17 @@ def live_run(tmp_path_factory):
     bag = tmp_path_factory.mktemp("view") / "run"
     client = FoxgloveClient(port, timeout=120.0)
     client.start()
-    result = run_graph(
-        load_scenario("polishing"),
-        duration=DURATION,
-        timeout=120,
-        record=bag,
-        view=port,
-        view_wait=True,  # the run starts once the client is subscribed: nothing is missed
-    )
+    try:
+        result = run_graph(
+            load_scenario("polishing"),
+            duration=DURATION,
+            timeout=120,
+            record=bag,
+            view=port,
+            view_wait=True,  # the run starts once the client is subscribed: nothing is missed
+        )
+    except GraphError as exc:  # (a graph that waited for the client: say what the client saw)
+        raise GraphError(f"{exc}; the Foxglove client: error {client.error!r}") from exc
     client.join(timeout=15.0)
     assert not client.is_alive(), "the server did not close when the run ended"
     assert client.error is None, repr(client.error)
