@@ -116,6 +116,10 @@ class ContactConfig:
         damping: B of the visco-elastic model (eq 16), N·s/m, scalar or one per force axis.
         baumgarte_velocity_gain: K_d of the rigid contact models, 1/s (not used by the
             visco-elastic one).
+        friction_coefficient: Coulomb friction coefficient μ of the surface along its plane,
+            which the δo predictor applies (:mod:`ffmpc_core.contact_friction`); 0 = the
+            paper's pure sliding contact. The OCPs never model it.
+        friction_velocity: v_s of that friction's tanh, m/s.
     """
 
     dimension: int = 1
@@ -126,6 +130,8 @@ class ContactConfig:
     #: K_d of the rigid contact's Baumgarte stabilisation (classical and torque-feedback), 1/s:
     #: the contact acceleration constraint is a_c + K_d·v_c = 0. The authors' code uses 10.
     baumgarte_velocity_gain: float = 50.0
+    friction_coefficient: float = 0.0
+    friction_velocity: float = 0.01
 
     def __post_init__(self) -> None:
         if self.dimension not in (1, 3):
@@ -139,6 +145,11 @@ class ContactConfig:
         kd = float(self.baumgarte_velocity_gain)
         if not (np.isfinite(kd) and kd >= 0.0):
             raise ConfigError(f"baumgarte_velocity_gain must be finite and >= 0 1/s, got {kd}")
+        mu, vs = float(self.friction_coefficient), float(self.friction_velocity)
+        if not (np.isfinite(mu) and mu >= 0.0):
+            raise ConfigError(f"friction_coefficient must be finite and >= 0, got {mu}")
+        if not (np.isfinite(vs) and vs > 0.0):
+            raise ConfigError(f"friction_velocity must be finite and > 0 m/s, got {vs}")
 
     @property
     def pin_frame(self) -> pin.ReferenceFrame:

@@ -40,6 +40,7 @@ from ffmpc_core.config import (
     CostWeights,
     NodeReference,
 )
+from ffmpc_core.contact_friction import coulomb_friction_torque
 from ffmpc_core.errors import ConfigError, InputError, SolverError
 from ffmpc_core.lowpass import (
     interpolate_torque,
@@ -286,6 +287,7 @@ class ModelPredictiveController:
             )
             self._predictor = _node_factory(robot, pred_cfg, q_ref)(False)
             self._predictor_data = self._predictor.model.createData()
+            self._friction_data = robot.create_data()  # the predictor's table friction
         self._epsilon = interpolation_epsilon(config.period, config.dt)  # eq 15
         self._alpha = lowpass_alpha(config.cutoff_frequency, config.dt)  # eq 13
         self.reset()
@@ -490,6 +492,8 @@ class ModelPredictiveController:
         nv = self.robot.nv
         torque_feedback = self.config.formulation == "torque_feedback"
         x_full, x = x, (x[: 2 * nv].copy() if torque_feedback else x.copy())
+        friction = self.config.contact.friction_coefficient > 0.0
+        rigid_force: float | None = None  # the rigid model's normal force of the last step, N
         for i in range(steps):
             s = t - delay + i * h  # the command acting at t + i·h was sent at s
             u = self._sent[0][1]
@@ -499,7 +503,25 @@ class ModelPredictiveController:
             ref = self._reference(t + i * h, self._predictor_ref)
             if self._predictor.set_reference(ref):
                 self._predictor_data = self._predictor.model.createData()
+            if friction:
+                if self.config.formulation == "force_feedback":
+                    normal_force = self._normal_component(x[2 * nv : 2 * nv + self.nc])
+                else:
+                    if rigid_force is None:  # the first step: the force without the drag
+                        self._predictor.model.calc(self._predictor_data, x, u)
+                        rigid_force = self._predicted_rigid_normal_force()
+                    normal_force = rigid_force
+                u = u + coulomb_friction_torque(
+                    self.robot,
+                    self._friction_data,
+                    x[: self.robot.nq],
+                    x[self.robot.nq : self.robot.nq + nv],
+                    normal_force,
+                    self.config.contact,
+                )
             self._predictor.model.calc(self._predictor_data, x, u)
+            if friction and self.config.formulation != "force_feedback":
+                rigid_force = self._predicted_rigid_normal_force()
             x = np.array(self._predictor_data.xnext)
         if torque_feedback:
             commanded = self.config.torque_state == "commanded" and self._sent
@@ -507,6 +529,15 @@ class ModelPredictiveController:
         return x
 
     # -- internals ---------------------------------------------------------------------------
+    def _normal_component(self, force: np.ndarray) -> float:
+        """The normal entry of a contact force in the contact configuration's layout, N."""
+        return float(force[0] if self.nc == 1 else force[self.config.contact.normal_axis])
+
+    def _predicted_rigid_normal_force(self) -> float:
+        """Normal force λ^r of the rigid-contact predictor's last calc, N (0 out of contact)."""
+        node = cast(RigidContactOcpNode, self._predictor)
+        return self._normal_component(node.contact_force(self._predictor_data))
+
     @staticmethod
     def _vector(value: npt.ArrayLike | None, n: int, name: str) -> np.ndarray:
         if value is None:

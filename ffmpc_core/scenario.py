@@ -437,6 +437,12 @@ _TABLE: dict[str, tuple[str, Any, str]] = {
         (0.0, 1e4),
         "K_d of the rigid contact's Baumgarte stabilisation (classical, torque-feedback)",
     ),
+    "mpc.contact.friction_coefficient": (
+        "",
+        (0.0, 10.0),
+        "Coulomb friction μ of the surface in the δo predictor (0: the paper's sliding contact)",
+    ),
+    "mpc.contact.friction_velocity": ("m/s", (1e-6, 10.0), "v_s of that friction's tanh"),
     "pid.enabled": ("", None, "torque PID on (off: τ^m = τ^d(t − δo))"),
     "pid.kp": ("", (0.0, 100.0), "K_P (eq 33)"),
     "pid.ki": ("1/s", (0.0, 1e5), "K_I (eq 33)"),
