@@ -27,18 +27,8 @@ import yaml
 from ffmpc_core.mpc import ModelPredictiveController
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
-from studies.polishing import run_polishing
+from studies.polishing import PREDICTABLE_PLANT, run_polishing
 
-CLEAN = {
-    "plant.actuation_random_bias": False,
-    "plant.actuation_noise_fraction": 0.0,
-    "plant.static_friction": 0.0,
-    "plant.viscous_friction": 0.0,
-    "plant.actuation_delay_cycles": 0,
-    "joint_sensor.position_noise_std": 0.0,
-    "joint_sensor.velocity_noise_std": 0.0,
-    "joint_sensor.delay_cycles": 0,
-}
 MAX_LAG_MS = 60
 
 
@@ -93,7 +83,7 @@ def main() -> None:
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE")
     parser.add_argument("--workers", type=int, default=1)
     args = parser.parse_args()
-    base: dict[str, Any] = dict(CLEAN) if args.clean else {}
+    base: dict[str, Any] = dict(PREDICTABLE_PLANT) if args.clean else {}
     if args.set_file:
         with open(args.set_file) as f:
             base.update(yaml.safe_load(f))

@@ -78,6 +78,20 @@ __all__ = ["RunResult", "run_polishing"]
 
 _HOLD_MODES = (int(LowLevelMode.HOLD), int(LowLevelMode.FALLBACK))
 
+#: Overrides of a polishing scenario that remove what an MPC's δo prediction cannot know (joint
+#: friction, actuation bias and noise, sensing noise and delays, the actuation delay; the table's
+#: tilt, stiffness and friction stay): a run whose prediction error is its model's.
+PREDICTABLE_PLANT: dict[str, object] = {
+    "plant.actuation_random_bias": False,
+    "plant.actuation_noise_fraction": 0.0,
+    "plant.static_friction": 0.0,
+    "plant.viscous_friction": 0.0,
+    "plant.actuation_delay_cycles": 0,
+    "joint_sensor.position_noise_std": 0.0,
+    "joint_sensor.velocity_noise_std": 0.0,
+    "joint_sensor.delay_cycles": 0,
+}
+
 
 @dataclass
 class RunResult:

@@ -14,7 +14,7 @@ from ffmpc_core.errors import ConfigError
 from ffmpc_core.mpc import ModelPredictiveController
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
-from studies.polishing import run_polishing
+from studies.polishing import PREDICTABLE_PLANT, run_polishing
 
 
 @pytest.fixture(scope="module")
@@ -93,20 +93,6 @@ def test_bad_friction_settings_are_refused(name, value):
         load_scenario("polishing", {f"mpc.contact.{name}": value})
 
 
-#: PyBullet without the sensing, actuation and joint-friction effects the predictor cannot know
-#: (the table's tilt, stiffness and friction stay): a run whose prediction error is the model's.
-CLEAN_PLANT = {
-    "plant.actuation_random_bias": False,
-    "plant.actuation_noise_fraction": 0.0,
-    "plant.static_friction": 0.0,
-    "plant.viscous_friction": 0.0,
-    "plant.actuation_delay_cycles": 0,
-    "joint_sensor.position_noise_std": 0.0,
-    "joint_sensor.velocity_noise_std": 0.0,
-    "joint_sensor.delay_cycles": 0,
-}
-
-
 def _polishing_with_predictions(monkeypatch, friction: float):
     """A 1.6-s polishing run (0.6 s of circle) of the force-feedback MPC at δo = 5 ms: its
     position error (mm) and, per solve in the circle, the distance (m, table plane) between the
@@ -123,7 +109,7 @@ def _polishing_with_predictions(monkeypatch, friction: float):
     scenario = load_scenario(
         "polishing",
         {
-            **CLEAN_PLANT,
+            **PREDICTABLE_PLANT,
             "seed": 100,
             "mpc.command_delay": 0.005,
             "mpc.contact.friction_coefficient": friction,
