@@ -24,39 +24,23 @@ from typing import Any
 import numpy as np
 import yaml
 
-from ffmpc_core.mpc import ModelPredictiveController
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
-from studies.polishing import PREDICTABLE_PLANT, run_polishing
+from studies.polishing import PREDICTABLE_PLANT, prediction_offsets, run_polishing
 
 MAX_LAG_MS = 60
 
 
 def one_run(overrides: dict[str, Any]) -> dict[str, float]:
     """One run's figures (module docstring)."""
-    predicted: list[tuple[float, np.ndarray]] = []
-    step = ModelPredictiveController.step
-
-    def recording_step(self: ModelPredictiveController, meas: Any, t: float) -> Any:
-        command = step(self, meas, t)
-        predicted.append((t, command.state[: self.robot.nq].copy()))
-        return command
-
-    ModelPredictiveController.step = recording_step  # type: ignore[method-assign]
-    try:
-        scenario = load_scenario("polishing", overrides)
-        result = run_polishing(scenario)
-    finally:
-        ModelPredictiveController.step = step  # type: ignore[method-assign]
-    robot, log = load_robot(scenario.robot), result.log
+    scenario = load_scenario("polishing", overrides)
+    result = run_polishing(scenario)
+    log = result.log
     t, position, reference = log["t"], log["ee_position"][:, :2], log["ee_reference"][:, :2]
-    dt, delay = scenario.plant.time_step, result.command_delay
+    dt = scenario.plant.time_step
     circle = np.flatnonzero((t > 1.2) & (t < t[-1] - 0.6))
-    ahead = [
-        np.linalg.norm(tool - position[round((s + delay) / dt)])
-        for s, tool in ((s, robot.contact_placement(q).translation[:2]) for s, q in predicted)
-        if t[circle[0]] < s < t[circle[-1]]
-    ]
+    solves, offsets = prediction_offsets(result, load_robot(scenario.robot))
+    ahead = offsets[(solves > t[circle[0]]) & (solves < t[circle[-1]])]
     fits = [
         np.mean(np.linalg.norm(position[circle] - reference[circle - lag], axis=1))
         for lag in range(MAX_LAG_MS)
@@ -64,7 +48,7 @@ def one_run(overrides: dict[str, Any]) -> dict[str, float]:
     return {
         "force_mae": result.metrics_true.force_mae,
         "position_mae_mm": result.metrics_true.position_mae_mm,
-        "prediction_ahead_mm": 1e3 * float(np.mean(ahead)) if ahead else float("nan"),
+        "prediction_ahead_mm": 1e3 * float(np.mean(ahead)) if ahead.size else float("nan"),
         "lag_ms": float(np.argmin(fits)) * dt * 1e3,
         "max_velocity_ratio": float(np.max(result.max_velocity_ratio)),
     }

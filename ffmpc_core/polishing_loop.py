@@ -85,7 +85,8 @@ class MpcStage:
     """The MPC side of Fig. 2 (a :class:`~ffmpc_core.runner.Controller`): on a solve cycle the
     MPC solves from (q̂, q̇̂, λ̂ or τ̂) if the input its formulation needs is plausible; an
     implausible input or a solve that raises asks for the safe hold. Counts the failures and keeps
-    the solve times (s) and SQP iterations."""
+    the solve times (s), SQP iterations, and each solve's time t (s) with the state x̂ it started
+    from (``solve_states``: with a δo, the prediction at t + δo)."""
 
     def __init__(self, mpc: ModelPredictiveController, robot: RobotModel) -> None:
         self.mpc = mpc
@@ -94,12 +95,14 @@ class MpcStage:
         self.failures = 0
         self.solve_times: list[float] = []
         self.iterations: list[int] = []
+        self.solve_states: list[tuple[float, np.ndarray]] = []
 
     def reset(self) -> None:
         self.mpc.reset()
         self.failures = 0
         self.solve_times.clear()
         self.iterations.clear()
+        self.solve_states.clear()
 
     def step(self, reading: PolishingReading, t: float, /) -> MpcDecision:
         if not reading.solve:
@@ -122,6 +125,7 @@ class MpcStage:
             return MpcDecision(reading, None, True)  # an implausible input or a failed solve
         self.solve_times.append(command.solve_time)
         self.iterations.append(command.iterations)
+        self.solve_states.append((t, command.state))
         return MpcDecision(reading, command, False)
 
 

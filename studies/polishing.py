@@ -69,7 +69,7 @@ from ffmpc_core.polishing import (
     steps_per_mpc_period,
 )
 from ffmpc_core.polishing_loop import LowLevelStage, MpcStage, PolishingLoop
-from ffmpc_core.robots import load_robot
+from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_core.runner import LockstepClock
 from ffmpc_core.scenario import Scenario
 from sim_bridge.scenes import simulated_robot
@@ -101,7 +101,8 @@ class RunResult:
     solves that raised (``mpc_failures``; the hold took over), the commands the velocity guard
     dropped (``velocity_guard_trips``, None with the guard off), the faults injected, and
     ``safety_log`` (t s; v rad/s and tau_applied N·m per joint; mode, the ``LowLevelMode`` of
-    each cycle)."""
+    each cycle); ``solve_log``: per MPC solve, t (s) and state, the x̂ it started from (with a
+    δo, the state it predicted at t + δo; ``MpcCommand.state``)."""
 
     scenario: str
     formulation: str
@@ -122,6 +123,7 @@ class RunResult:
     velocity_guard_trips: int | None = None
     faults: tuple[Fault, ...] = ()
     safety_log: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+    solve_log: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
     command_delay: float = 0.0  # δo of the run, s (pid.delay_cycles plant steps)
     #: Experiment 3.3, per push: true-force E_λ (N), E_P (mm), max |λ| (N) during and after it
     #: (:func:`ffmpc_core.polishing.polishing_push_metrics`); empty without a push.
@@ -160,6 +162,23 @@ class RunResult:
 
 def _median(values: list[float] | list[int]) -> float:
     return float(np.median(values)) if values else 0.0
+
+
+def prediction_offsets(result: RunResult, robot: RobotModel) -> tuple[np.ndarray, np.ndarray]:
+    """How far each solve's δo prediction landed from the robot: per solve at t (s), the distance
+    (m) in the world's horizontal plane between the contact frame at the state the solve started
+    from (``solve_log``: predicted for t + δo) and the true contact frame at t + δo (``log``).
+    Solves whose t + δo lies past the run's end are left out."""
+    times, positions = result.log["t"], result.log["ee_position"]
+    step = times[1] - times[0] if times.size > 1 else 1.0
+    kept, offsets = [], []
+    for t, state in zip(result.solve_log["t"], result.solve_log["state"], strict=True):
+        k = round((t + result.command_delay - times[0]) / step)
+        if k < times.size:
+            tool = robot.contact_placement(state[: robot.nq]).translation
+            kept.append(t)
+            offsets.append(float(np.linalg.norm((tool - positions[k])[:2])))
+    return np.array(kept), np.array(offsets)
 
 
 def run_polishing(
@@ -236,6 +255,10 @@ def run_polishing(
             "tau_motor": loop.trace_tau,
             "tau_applied": loop.trace_applied,
             "mode": loop.trace_mode,
+        },
+        solve_log={
+            "t": np.array([t for t, _ in mpc_stage.solve_states]),
+            "state": np.array([x for _, x in mpc_stage.solve_states]),
         },
         command_delay=round(command_delay(scenario), 12),
         push_metrics=pushes,

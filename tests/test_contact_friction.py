@@ -11,10 +11,9 @@ import pytest
 from ffmpc_core.config import ContactConfig
 from ffmpc_core.contact_friction import contact_normal, coulomb_friction_torque
 from ffmpc_core.errors import ConfigError
-from ffmpc_core.mpc import ModelPredictiveController
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
-from studies.polishing import PREDICTABLE_PLANT, run_polishing
+from studies.polishing import PREDICTABLE_PLANT, prediction_offsets, run_polishing
 
 
 @pytest.fixture(scope="module")
@@ -93,19 +92,10 @@ def test_bad_friction_settings_are_refused(name, value):
         load_scenario("polishing", {f"mpc.contact.{name}": value})
 
 
-def _polishing_with_predictions(monkeypatch, friction: float):
+def _polishing_with_predictions(friction: float) -> tuple[float, float]:
     """A 1.6-s polishing run (0.6 s of circle) of the force-feedback MPC at δo = 5 ms: its
-    position error (mm) and, per solve in the circle, the distance (m, table plane) between the
-    tool at the predicted state and where the robot's tool really was δo later."""
-    predicted: list[tuple[float, np.ndarray]] = []
-    step = ModelPredictiveController.step
-
-    def recording_step(self, meas, t):
-        command = step(self, meas, t)
-        predicted.append((t, command.state[: self.robot.nq].copy()))
-        return command
-
-    monkeypatch.setattr(ModelPredictiveController, "step", recording_step)
+    position error (mm) and, over the solves in the circle, the mean distance (m, table plane)
+    between the tool at the predicted state and where the robot's tool really was δo later."""
     scenario = load_scenario(
         "polishing",
         {
@@ -116,26 +106,16 @@ def _polishing_with_predictions(monkeypatch, friction: float):
         },
     )
     result = run_polishing(scenario, duration=1.6)
-    robot, log = load_robot("iiwa"), result.log
-    errors = [
-        np.linalg.norm(
-            (
-                robot.contact_placement(q).translation
-                - log["ee_position"][round((t + 0.005) / 1e-3)]
-            )[:2]
-        )
-        for t, q in predicted
-        if 1.1 < t < 1.59
-    ]
-    return result.metrics_true.position_mae_mm, float(np.mean(errors))
+    t, offsets = prediction_offsets(result, load_robot("iiwa"))
+    return result.metrics_true.position_mae_mm, float(np.mean(offsets[(t > 1.1) & (t < 1.59)]))
 
 
-def test_the_prediction_with_the_tables_friction_lands_where_the_robot_is(monkeypatch):
+def test_the_prediction_with_the_tables_friction_lands_where_the_robot_is():
     """Without the 25 N drag the predicted tool runs ahead of the real one (0.76 mm here), the
     MPC believes it is nearer the reference than it is and the tool lags the circle (E_P
     5.9 mm); with it the prediction error is a third of that (0.24 mm) and E_P 2.0 mm."""
-    position_sliding, ahead_sliding = _polishing_with_predictions(monkeypatch, 0.0)
-    position_friction, ahead_friction = _polishing_with_predictions(monkeypatch, 0.5)
+    position_sliding, ahead_sliding = _polishing_with_predictions(0.0)
+    position_friction, ahead_friction = _polishing_with_predictions(0.5)
     assert ahead_sliding > 5e-4
     assert ahead_friction < 0.4 * ahead_sliding
     assert position_friction < 0.6 * position_sliding
