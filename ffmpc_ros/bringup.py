@@ -719,14 +719,14 @@ def run_graph(
             print_logs(logs)
         view_result = None
         if view_node is not None:
-            view_result = {
-                "address": view_node.address,
-                "forwarded": dict(view_node.forwarded),
-                "received": dict(view_node.received),
-            }
+            view_result = view_node.report()
         elif view_counts is not None and os.path.exists(view_counts):
             with open(view_counts, encoding="utf-8") as fh:
                 view_result = json.load(fh)
+        failure = sys.exc_info()[1]
+        if isinstance(failure, GraphError) and view_result is not None and failure.args:
+            # a run that waited for a Foxglove client: say what the view still waited for
+            failure.args = (f"{failure.args[0]}; the view: {view_result.get('started')}",)
         bag: dict[str, Any] | None = None
         if record is not None:
             bag = {"path": str(record)}

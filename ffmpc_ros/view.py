@@ -201,7 +201,8 @@ class ViewNode(Node):
         self.mesh_root = Path(self.robot.urdf_path).resolve().parent
         self.wait_for_client = wait_for_client
         self.listener = _Subscriptions()
-        self.started_at = "not started"  # why client_ready held (reported at the end)
+        # why the run started, or what client_ready still waits for (reported at the end)
+        self.started_at = "not started: no channel advertised yet"
         self.server: WebSocketServer | None = None
         try:
             self.server = foxglove.start_server(
@@ -223,7 +224,7 @@ class ViewNode(Node):
         # latched topics a client subscribed to that have not sent it their last message yet
         # (the subscription came before the message, or while the server had not attached it)
         self._owed: set[str] = set()
-        self._last_channel_at = time.monotonic()
+        self._last_new_channel_at = time.monotonic()  # a topic's first advertisement
         self._schemas: dict[str, Any] = {}  # the Foxglove schema of each bridged topic
         self._advertised_at: dict[str, float] = {}  # monotonic s of each channel's advertisement
         self.readvertised: dict[str, int] = {}  # channels advertised again (_readvertise)
@@ -275,12 +276,18 @@ class ViewNode(Node):
         ``/tf_static`` included) is advertised, and either a client listens to every one of
         them (a client that subscribes to everything, such as the tests': nothing left to wait
         for) or :data:`CLIENT_SETTLE` s passed since the last channel was advertised and the
-        last subscription came in (a Foxglove layout subscribes only to what its panels show)."""
-        since = self.listener.subscribed.get(self._name(topics.PLANT_JOINT_STATES))
-        if since is None:
-            return False
+        last subscription came in (a Foxglove layout subscribes only to what its panels show).
+        Meanwhile each channel no client took is advertised again (:meth:`_readvertise`)."""
         contract = [self._name(t) for t, _, _ in (*topics.TOPICS, *topics.VIEW_TOPICS)]
-        if not all(t in self.channels for t in contract):
+        self._readvertise(contract)
+        unadvertised = [t for t in contract if t not in self.channels]
+        if unadvertised:
+            self.started_at = f"not started: no publisher seen yet on {unadvertised}"
+            return False
+        joint_states = self._name(topics.PLANT_JOINT_STATES)
+        since = self.listener.subscribed.get(joint_states)
+        if since is None:
+            self.started_at = f"not started: no client has subscribed to {joint_states}"
             return False
         # subscribed (the server's listener) and attached (foxglove-sdk attaches a client's
         # sink to the channel a moment after the subscribe callback: a message logged before
@@ -288,12 +295,12 @@ class ViewNode(Node):
         if all(t in self.listener.subscribed and self.channels[t].has_sinks() for t in contract):
             self.started_at = "all subscribed"
             return True
-        self._readvertise(contract)
-        last = max(since, self._last_channel_at, self.listener.last_at)
+        last = max(since, self._last_new_channel_at, self.listener.last_at)
+        missing = [t for t in contract if t not in self.listener.subscribed]
         if time.monotonic() - last >= CLIENT_SETTLE:
-            missing = [t for t in contract if t not in self.listener.subscribed]
             self.started_at = f"settled; no client on {missing}"
             return True
+        self.started_at = f"not started: settling, no client on {missing}"
         return False
 
     def _advertise(self, topic: str) -> Any:
@@ -308,18 +315,22 @@ class ViewNode(Node):
             context=self.fox,
         )
         self.channels[topic] = channel
-        self._advertised_at[topic] = self._last_channel_at = time.monotonic()
+        self._advertised_at[topic] = time.monotonic()
         return channel
 
     def _readvertise(self, contract: list[str]) -> None:
         """``wait_for_client``: advertise again (close, then a new channel) each channel of the
-        contract the connected client has not subscribed to :data:`READVERTISE` s after it was
-        advertised. foxglove-sdk 0.30.3 can miss the advertisement of a channel created while a
-        client connects: the test's client, which subscribes to every channel, never heard of
-        one or more of them in 4 of 6 runs beside two busy loops."""
+        contract no client has subscribed to :data:`READVERTISE` s after it was advertised.
+        foxglove-sdk 0.30.3 can miss the advertisement of a channel created while a client
+        connects: the test's client, which subscribes to every channel, never heard of one or
+        more of them in 4 of 6 runs beside two busy loops; when the one it missed was
+        ``/plant/joint_states``, the run waited for ever (seen on CI), so this runs before any
+        subscription. Advertising again is not a new channel: :data:`CLIENT_SETTLE` counts from
+        the first advertisements (a layout's Foxglove never takes the channels it does not
+        show)."""
         now = time.monotonic()
         for topic in contract:
-            if topic in self.listener.subscribed:
+            if topic in self.listener.subscribed or topic not in self._advertised_at:
                 continue
             if now - self._advertised_at[topic] >= READVERTISE:
                 self.channels[topic].close()
@@ -358,6 +369,7 @@ class ViewNode(Node):
                     name=type_name, encoding=SCHEMA_ENCODING, data=definition.encode()
                 )
                 channel = self._advertise(topic)
+                self._last_new_channel_at = self._advertised_at[topic]
                 self.forwarded[topic] = 0
             if topic == self._name(topics.PLANT_JOINT_STATES) and self.wait_for_client:
                 if not self.client_ready:
@@ -395,6 +407,20 @@ class ViewNode(Node):
                 hook(data)
 
         return on_message
+
+    def report(self) -> dict[str, Any]:
+        """What the view did: its address, the messages received and forwarded per topic, the
+        wall s after the first subscription at which a client subscribed to each topic, why the
+        run started (or what it still waited for) and the channels advertised again."""
+        first = min(self.listener.subscribed.values(), default=0.0)
+        return {
+            "address": self.address,
+            "forwarded": dict(self.forwarded),
+            "received": dict(self.received),
+            "subscribed": {t: round(at - first, 3) for t, at in self.listener.subscribed.items()},
+            "started": self.started_at,
+            "readvertised": dict(self.readvertised),
+        }
 
     # -- robot view ----------------------------------------------------------------------------
     def _on_wrench(self, data: bytes) -> None:
@@ -504,18 +530,7 @@ def view_process(config_path: str) -> int:
             while not stopping:
                 executor.spin_once(timeout_sec=0.05)
         finally:
-            counts = {
-                "address": node.address,
-                "forwarded": node.forwarded,
-                "received": node.received,
-                # wall s after the first subscription at which a client subscribed to each topic
-                "subscribed": {
-                    t: round(at - min(node.listener.subscribed.values()), 3)
-                    for t, at in node.listener.subscribed.items()
-                },
-                "started": node.started_at,
-                "readvertised": node.readvertised,
-            }
+            counts = node.report()
             node.close()
             if config.get("counts"):
                 with open(config["counts"], "w", encoding="utf-8") as fh:

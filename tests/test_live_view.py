@@ -51,10 +51,21 @@ class FoxgloveClient(threading.Thread):
     starting server does not complete), subscribes to each advertised channel and keeps every
     message: {topic: [(log time ns, payload)]}."""
 
-    def __init__(self, port: int, timeout: float) -> None:
+    def __init__(
+        self,
+        port: int,
+        timeout: float,
+        only: frozenset[str] | None = None,
+        deaf_once: frozenset[str] = frozenset(),
+    ) -> None:
+        """``only``: subscribe to these topics alone (a Foxglove layout's panels; None: every
+        channel); ``deaf_once``: ignore the first advertisement of these topics (a client that
+        missed it, as foxglove-sdk's clients sometimes do while the server creates channels)."""
         super().__init__(daemon=True)
         self.url = f"ws://127.0.0.1:{port}"
         self.timeout = timeout
+        self.only = only
+        self.deaf = set(deaf_once)
         self.channels: dict[int, dict] = {}
         self.messages: dict[str, list[tuple[int, bytes]]] = {}
         self.server_info: dict | None = None
@@ -94,11 +105,17 @@ class FoxgloveClient(threading.Thread):
                     elif msg["op"] == "advertise":
                         new = []
                         for channel in msg["channels"]:
+                            if channel["topic"] in self.deaf:
+                                self.deaf.discard(channel["topic"])
+                                continue
+                            if self.only is not None and channel["topic"] not in self.only:
+                                continue
                             self.channels[channel["id"]] = channel
                             sub_id = len(subscriptions) + 1
                             subscriptions[sub_id] = channel["topic"]
                             new.append({"id": sub_id, "channelId": channel["id"]})
-                        ws.send(json.dumps({"op": "subscribe", "subscriptions": new}))
+                        if new:
+                            ws.send(json.dumps({"op": "subscribe", "subscriptions": new}))
         except BaseException as exc:  # noqa: BLE001  (reported by the test)
             self.error = exc
 
@@ -299,6 +316,65 @@ def test_playing_the_bag_publishes_tf_too(live_run):
     assert report.skipped == [] and report.published[topics.TF] > 0
     assert report.published[topics.TF_STATIC] == 1
     assert report.published[topics.resolve(topics.ROBOT_DESCRIPTION)] == 1
+
+
+def _waiting_run(client: FoxgloveClient, port: int) -> tuple[dict, FoxgloveClient]:
+    """A short single-process run that waits for ``client`` on ``port``; the view's report."""
+    client.start()
+    try:
+        result = run_graph(
+            load_scenario("polishing"),
+            duration=0.02,
+            single_process=True,
+            timeout=60,
+            view=port,
+            view_wait=True,
+        )
+    except GraphError as exc:
+        raise GraphError(f"{exc}; the Foxglove client: error {client.error!r}") from exc
+    client.join(timeout=15.0)
+    assert client.error is None, repr(client.error)
+    return result.view, client
+
+
+def test_a_client_that_missed_the_joint_states_advertisement_still_starts_the_run():
+    """The run waits for a subscription to /plant/joint_states: a client that never heard of
+    that channel (seen on CI: the graph waited 120 s) hears of it again READVERTISE s later."""
+    port = _free_port()
+    deaf = frozenset({topics.resolve(topics.PLANT_JOINT_STATES)})
+    view, client = _waiting_run(FoxgloveClient(port, timeout=60.0, deaf_once=deaf), port)
+    assert view["readvertised"].get(topics.resolve(topics.PLANT_JOINT_STATES), 0) >= 1
+    assert view["started"] == "all subscribed"
+    assert len(client.messages[topics.resolve(topics.PLANT_JOINT_STATES)]) >= 10
+
+
+def test_a_client_on_some_topics_starts_the_run_once_it_settled():
+    """A Foxglove layout subscribes only to what its panels show: the run starts CLIENT_SETTLE
+    s after its last subscription, although the other channels are advertised again."""
+    from ffmpc_ros.view import CLIENT_SETTLE
+
+    port = _free_port()
+    shown = frozenset({topics.resolve(topics.PLANT_JOINT_STATES), topics.TF})
+    start = time.monotonic()
+    view, client = _waiting_run(FoxgloveClient(port, timeout=60.0, only=shown), port)
+    assert view["started"].startswith("settled; no client on")
+    assert topics.resolve(topics.SENSED_WRENCH) in view["started"]
+    assert time.monotonic() - start >= CLIENT_SETTLE
+    assert topics.resolve(topics.PLANT_JOINT_STATES) in client.messages
+    assert set(client.messages) <= shown
+
+
+def test_a_run_nobody_looks_at_times_out_saying_what_the_view_waits_for():
+    joint_states = topics.resolve(topics.PLANT_JOINT_STATES)
+    with pytest.raises(GraphError, match=f"the view: not started: no client .* {joint_states}"):
+        run_graph(
+            load_scenario("polishing"),
+            duration=0.02,
+            single_process=True,
+            timeout=5,
+            view=_free_port(),
+            view_wait=True,
+        )
 
 
 def test_a_busy_port_is_refused_with_a_clear_error():
