@@ -202,7 +202,9 @@ class ViewNode(Node):
         self.wait_for_client = wait_for_client
         self.listener = _Subscriptions()
         # why the run started, or what client_ready still waits for (reported at the end)
-        self.started_at = "not started: no channel advertised yet"
+        self.started_at = (
+            "not started: no channel advertised yet" if wait_for_client else "did not wait"
+        )
         self.server: WebSocketServer | None = None
         try:
             self.server = foxglove.start_server(
