@@ -236,13 +236,51 @@ def test_a_stalled_loop_misses_its_cycles_and_the_plant_steps_on_under_the_held_
     assert timing["fault_windows"] == [[0.5, pytest.approx(0.58)]]
 
 
+#: Fraction of the loop's cycles outside the fault windows that must meet their deadline for a
+#: real-time run to judge the controller (``realtime.MAX_MISSED_FRACTION``'s rule).
+TIMELY_FRACTION = 0.99
+#: Real-time runs tried before a test that needs a timely one is skipped.
+TIMELY_ATTEMPTS = 3
+
+
+def _loop_timeliness(result) -> float:
+    """Fraction of the loop's cycles outside the run's fault windows that met their deadline
+    (cycle latency ≤ Δt; a missed cycle's latency is inf)."""
+    t, latency = result.log["t"], result.log["cycle_latency"]
+    outside = np.ones(t.size, dtype=bool)
+    for start, end in result.timing["fault_windows"]:
+        outside &= ~((t >= start - 1e-9) & (t < end))
+    step = float(t[1] - t[0])
+    return float(np.mean(latency[outside] <= step + 1e-9))
+
+
+def _timely_stalled_run(fault: str, overrides: dict):
+    """A real-time run of ``fault`` on a machine that kept the loop's deadlines outside the fault
+    window (up to TIMELY_ATTEMPTS runs), or a skip that says what the machine did. Whether the
+    loop keeps a 1 ms period is the machine's doing, not the controller's: on the shared 2-core
+    VM the loop's median cycle latency was 0.8–1.4 ms for a while (0.5 ms measured before, README
+    "Overruns"), the plant then stepped on under held torques for tens of ms and a joint reached
+    1.8× its velocity limit; a fresh-clone .ci/run failed on this test then (joint A3 1.06×)."""
+    fractions = []
+    for _ in range(TIMELY_ATTEMPTS):
+        result = _stalled_run(fault, overrides)
+        fractions.append(_loop_timeliness(result))
+        if fractions[-1] >= TIMELY_FRACTION:
+            return result
+    pytest.skip(
+        f"this machine did not keep real time: the loop met {fractions} of its deadlines outside "
+        f"the fault window in {TIMELY_ATTEMPTS} runs (< {TIMELY_FRACTION})"
+    )
+
+
 def test_a_stalled_mpc_gives_the_safe_hold_then_the_mpc_takes_over_again():
     """mpc-stall@0.4+0.1: the MPC process is stopped (SIGSTOP) for 100 ms. Its ticks are not
     solved, the loop falls back to the safe hold once its command is older than the stale
     timeout, and tracks again once the MPC is back (SIGCONT): within the limits throughout,
     with the velocity guard of a robot cell on (without it, the force-feedback MPC's chatter on
-    the wrist, not the stall, once reached 1.05× joint A5's velocity limit on a CI machine)."""
-    result = _stalled_run("mpc-stall@0.4+0.1", {"pid.velocity_guard": 0.9})
+    the wrist, not the stall, once reached 1.05× joint A5's velocity limit on a CI machine).
+    Judged on a run whose loop kept real time outside the stall (``_timely_stalled_run``)."""
+    result = _timely_stalled_run("mpc-stall@0.4+0.1", {"pid.velocity_guard": 0.9})
     mode, timing = result.log["mode"], result.timing
     fallback = np.flatnonzero(mode == FALLBACK)
     during = fallback[(fallback >= 400) & (fallback < 520)]
