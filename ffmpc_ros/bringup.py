@@ -1056,17 +1056,43 @@ def _refuse_foreign(
             break
         time.sleep(0.05)
     if found:
-        listed = "; ".join(
-            f"{n} on {', '.join(sorted(t))}" if t else f"{n} (node name of this graph)"
-            for n, t in sorted(found.items())
-        )
-        raise GraphError(
-            f"foreign nodes on this graph's topics (ROS_DOMAIN_ID {domain}"
-            + ("" if namespace == topics.ROOT_NAMESPACE else f", namespace {namespace}")
-            + f"): {listed}. Another graph (or the leftovers of a killed run) is on this "
-            "domain: stop it or use another ROS_DOMAIN_ID or --namespace "
-            "(--allow-foreign-publishers starts anyway)"
-        )
+        raise _foreign_error(domain, namespace, found)
+
+
+def _foreign_error(domain: int, namespace: str, found: Mapping[str, set[str]]) -> GraphError:
+    """The refusal of a graph that found foreign nodes: {node: the graph's topics it publishes
+    (empty: it uses one of the graph's node names)}."""
+    listed = "; ".join(
+        f"{n} on {', '.join(sorted(t))}" if t else f"{n} (node name of this graph)"
+        for n, t in sorted(found.items())
+    )
+    return GraphError(
+        f"foreign nodes on this graph's topics (ROS_DOMAIN_ID {domain}"
+        + ("" if namespace == topics.ROOT_NAMESPACE else f", namespace {namespace}")
+        + f"): {listed}. Another graph (or the leftovers of a killed run) is on this "
+        "domain: stop it or use another ROS_DOMAIN_ID or --namespace "
+        "(--allow-foreign-publishers starts anyway)"
+    )
+
+
+def _node_name_clashes(
+    node: Node, names: Sequence[str], wait: float = FOREIGN_DISCOVERY_WAIT
+) -> dict[str, set[str]]:
+    """The graph's node names that more than one node uses in ``node``'s namespace (this graph's
+    and another's), as :func:`_foreign_error` lists them; discovery is given up to ``wait``
+    wall s to show a clash."""
+    namespace = node.get_namespace()
+    deadline = time.monotonic() + wait
+    while True:
+        fqns = [
+            f"{ns.rstrip('/')}/{name}"
+            for name, ns in node.get_node_names_and_namespaces()
+            if name in names and ns == namespace
+        ]
+        clashes = {fqn: set() for fqn in sorted(set(fqns)) if fqns.count(fqn) > 1}
+        if clashes or time.monotonic() > deadline:
+            return clashes
+        time.sleep(0.05)
 
 
 def _own_parameters(node: Node) -> dict:
@@ -1172,6 +1198,14 @@ def _bring_up(
                         node.destroy_client(get)
                     done = state.current_state.label == GOAL_STATES[label]
                 if not done:
+                    # another graph's node of the same name may have answered: the foreign
+                    # check before the start found nothing when discovery was slower than
+                    # FOREIGN_DISCOVERY_WAIT (a fresh clone on a slow machine: the running
+                    # graph's plant, already active, refused this graph's configure)
+                    clashes = _node_name_clashes(node, names)
+                    if clashes:
+                        domain = node.context.get_domain_id()
+                        raise _foreign_error(domain, node.get_namespace(), clashes)
                     raise GraphError(
                         f"{name} refused the {label} transition (its log says why): the run "
                         "did not start"
