@@ -1089,7 +1089,9 @@ def _node_name_clashes(
             for name, ns in node.get_node_names_and_namespaces()
             if name in names and ns == namespace
         ]
-        clashes = {fqn: set() for fqn in sorted(set(fqns)) if fqns.count(fqn) > 1}
+        clashes: dict[str, set[str]] = {
+            fqn: set() for fqn in sorted(set(fqns)) if fqns.count(fqn) > 1
+        }
         if clashes or time.monotonic() > deadline:
             return clashes
         time.sleep(0.05)
