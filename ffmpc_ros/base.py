@@ -654,14 +654,17 @@ class GraphNode(LifecycleNode, metaclass=_Constructed):
         self._clock_received = True
         self._reliable_time.clock_callback(msg)
 
-    def check_cycle(self, topic: str, k: int, stamp: int | None = None) -> bool:
+    def check_cycle(
+        self, topic: str, k: int, stamp: int | None = None, ordered: bool = True
+    ) -> bool:
         """Whether an input of cycle k (time k·time_step) stamped ``stamp`` (ns; default t_k)
-        may be used: of a cycle after the last accepted one from ``topic``, stamped at most
+        may be used: of a cycle after the last accepted one from ``topic`` (unless not
+        ``ordered``: the caller keeps its own order, the PID's commands), stamped at most
         :data:`MAX_FUTURE_STAMP` ahead of this node's clock and at most ``max_input_age`` behind
         it. Rejects it (one throttled log line) otherwise."""
         topic = self.name_of(topic)
         last = self._last_cycle.get(topic)
-        if last is not None and k <= last:
+        if ordered and last is not None and k <= last:
             self.reject(f"{topic}:order", f"cycle {k} is not after the last accepted {last}")
             return False
         now_ns = self.get_clock().now().nanoseconds
@@ -685,8 +688,9 @@ class GraphNode(LifecycleNode, metaclass=_Constructed):
         return True
 
     def accept_cycle(self, topic: str, k: int) -> None:
+        """Record an accepted input of cycle k (the newest cycle accepted from ``topic``)."""
         topic = self.name_of(topic)
-        self._last_cycle[topic] = k
+        self._last_cycle[topic] = max(k, self._last_cycle.get(topic, k))
         self.accepted[topic] += 1
 
     # -- diagnostics -------------------------------------------------------------------------
