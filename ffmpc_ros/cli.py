@@ -13,6 +13,7 @@ import argparse
 import os
 import sys
 from types import FrameType
+from typing import TYPE_CHECKING
 
 from ffmpc_core.errors import ConfigError, FfmpcError
 from ffmpc_ros.cli_args import (
@@ -29,6 +30,9 @@ from ffmpc_ros.cli_args import (
 from ffmpc_ros.cli_args import parse_overrides as _parse_overrides
 from ffmpc_ros.cli_extensions import BENCH_GROUP, COMMAND_GROUP, add_extension_parsers
 from ffmpc_ros.discovery import check_ros_environment, ensure_local_discovery
+
+if TYPE_CHECKING:
+    from ffmpc_core.scenario import Scenario
 
 #: Exit status of every malformed input (argparse's own for syntax errors).
 EXIT_USAGE = 2
@@ -248,12 +252,12 @@ def _run_options(args: argparse.Namespace) -> dict:
     }
 
 
-def _task_duration(scenario: object) -> float:
+def _task_duration(scenario: Scenario) -> float:
     """The simulated s of the scenario's task (what a run without --duration lasts)."""
     from ffmpc_core.polishing import build_task
     from ffmpc_core.robots import load_robot
 
-    return float(build_task(scenario, load_robot(scenario.robot)).duration)  # type: ignore[attr-defined]
+    return float(build_task(scenario, load_robot(scenario.robot)).duration)
 
 
 def _node_ros_args(items: list[str], args: argparse.Namespace) -> dict[str, list[str]]:
