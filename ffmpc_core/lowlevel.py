@@ -339,6 +339,24 @@ class LowLevelController:
         before any command was used) until a new valid command arrives."""
         self._command = None
 
+    def check_command(self, command: CommandLike) -> LowLevelCommand:
+        """``command`` as the low level would take it, changing nothing: its torque of nv
+        finite values within ``plausibility.COMMAND_TORQUE_FACTOR`` × the limits, its state of
+        nx finite values and a finite nv × nx gain; InputError otherwise. A receiver of
+        commands from topics (``ffmpc_ros.pid_node``) checks with it before a message may
+        claim its cycle: a rejected message from outside the graph then leaves the genuine
+        command of that cycle usable and the loop out of the safe hold."""
+        nv = self.robot.nv
+        raw = np.asarray(command.torque, dtype=float)
+        if raw.shape != (nv,):
+            raise InputError(f"command torque must be {nv} finite numbers, got shape {raw.shape}")
+        torque = check_torque(raw, self.robot.torque_limit, "command torque")
+        state = self._vector(command.state, self.nx, "command state")
+        gain = np.asarray(command.feedback_gain, dtype=float)
+        if gain.shape != (nv, self.nx) or not np.all(np.isfinite(gain)):
+            raise InputError(f"feedback_gain must be finite {nv}×{self.nx}, got {gain.shape}")
+        return LowLevelCommand(torque, state, gain)
+
     def set_command(self, command: CommandLike, t_command: float) -> None:
         """Take a new MPC output (``torque``, ``state``, ``feedback_gain``) solved at t_command.
 

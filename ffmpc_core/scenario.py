@@ -9,6 +9,17 @@ the same experiment. Nested maps are flattened to dotted names exactly as ROS do
 :func:`load_scenario` returns a :class:`Scenario` of typed, validated, frozen dataclasses; unknown
 keys are an error (an option that silently does nothing is a bug). Overrides use dotted names:
 ``load_scenario(path, {"mpc.formulation": "classical", "pid.enabled": False})``.
+
+Values are read by ROS 2's rules (:mod:`ffmpc_core.values`: ``stiffness: 1e4`` is 10000.0 here
+as in a node given the file), so the runner and the nodes never read a file differently.
+
+Complete or based. An empty file (no parameter) is refused: it is not the default scenario. A
+file either sets every node's section (``/**`` and each node's; a name a section leaves out
+takes the schema's default, the dataclass field's, in the runner and in the nodes alike) or names
+the scenario it changes in its ``/**`` section, ``base: polishing`` (a shipped name, or an
+absolute path): its values are then merged over that scenario's, by the runner and by a
+node given the file (``ros2 run ... --params-file``: the node loads the base the same way). A
+file with neither is a partial scenario and is refused with the sections it lacks.
 """
 
 from __future__ import annotations
@@ -788,24 +799,90 @@ def resolve_scenario_path(name_or_path: str | os.PathLike) -> Path:
     raise ConfigError(f"no scenario {str(name_or_path)!r}; shipped scenarios: {available}")
 
 
+#: The key of a scenario file's ``/**`` section that names the scenario it changes (a shipped
+#: name or a path, relative to the file): the file's values are merged over that scenario's.
+BASE_KEY = "base"
+
+
 def read_parameter_file(
-    name_or_path: str | os.PathLike, sections: tuple[str, ...]
+    name_or_path: str | os.PathLike,
+    sections: tuple[str, ...],
+    complete: bool = True,
+    _chain: tuple[Path, ...] = (),
 ) -> tuple[Path, dict[str, Any]]:
     """A parameter file (ROS 2 parameter-file format: ``section: {ros__parameters: {...}}``)
     as ``(path, {dotted name: raw value})``: a section's names get its name as prefix, the
     wildcard section ``/**``'s do not. A section is keyed ``/**/plant`` (the shipped files: rcl
     gives it to a node named ``plant`` in any namespace) or ``plant`` (= ``/plant``: a node at
-    the root only), not both. ConfigError for a file that is not one."""
+    the root only), not both. Values are read by ROS 2's rules (:func:`ffmpc_core.values.load_yaml`:
+    ``1e4`` is a number, as to the nodes).
+
+    Empty and partial files (module docstring of :mod:`ffmpc_core.scenario`, "Complete or
+    based"): a file with no parameter is refused; a file whose ``/**`` names a ``base`` is
+    merged over that scenario; otherwise, when ``complete``, every section (``/**`` and each of
+    ``sections``) must be there. ConfigError for a file that is not one."""
     path = resolve_scenario_path(name_or_path)
+    if path.resolve() in _chain:
+        raise ConfigError(f"{path}: base scenarios form a cycle ({' -> '.join(map(str, _chain))})")
+    flat, seen = _read_sections(path, sections)
+    if not flat:
+        raise ConfigError(
+            f"{path}: an empty scenario (no parameter); a scenario file sets every section, "
+            f"or names the scenario it changes ({BASE_KEY}: NAME under /**, NAME a shipped "
+            "scenario or an absolute path)"
+        )
+    base = flat.pop(BASE_KEY, None)
+    if base is not None:
+        base_path = base_scenario_path(base)
+        try:
+            _, base_flat = read_parameter_file(
+                base_path, sections, complete, (*_chain, path.resolve())
+            )
+        except ConfigError as exc:
+            raise ConfigError(f"{path}: {BASE_KEY} {base!r}: {exc}") from None
+        return path, base_flat | flat
+    missing = [s for s in (WILDCARD, *sections) if s not in seen]
+    if complete and missing:
+        raise ConfigError(
+            f"{path}: a partial scenario (no section {', '.join(missing)}); a scenario file "
+            f"sets every section, or names the scenario it changes ({BASE_KEY}: NAME under /**, "
+            "NAME a shipped scenario or an absolute path: the file is merged over it)"
+        )
+    return path, flat
+
+
+def base_scenario_path(base: Any) -> Path:
+    """The file a ``base`` names: a shipped scenario's name or an absolute path (resolved the
+    same way by the runner and by a node, which does not know where its file was)."""
+    expected = "a shipped scenario name or an absolute path to a scenario file"
+    if not isinstance(base, str) or not base.strip():
+        raise config_error(BASE_KEY, base, expected)
+    text = base.strip()
+    shipped = SCENARIO_DIR / f"{text}.yaml"
+    if Path(text).is_absolute():
+        return Path(text)
+    if "/" not in text and shipped.is_file():
+        return shipped
+    raise config_error(BASE_KEY, base, expected)
+
+
+def _read_sections(path: Path, sections: tuple[str, ...]) -> tuple[dict[str, Any], dict[str, str]]:
+    """``({dotted name: raw value}, {section: key as written})`` of a parameter file."""
+    from ffmpc_core.values import load_yaml
+
     try:
         with open(path, encoding="utf-8") as fh:
-            doc = yaml.safe_load(fh) or {}
+            doc = load_yaml(fh)
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{path}: cannot read the scenario ({exc})") from None
     except yaml.YAMLError as exc:
         where = getattr(exc, "problem_mark", None)
         line = f" at line {where.line + 1}" if where is not None else ""
         raise ConfigError(f"{path}: not a YAML file{line}") from None
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+    if doc is None:
+        doc = {}
     if not isinstance(doc, dict):
         raise ConfigError(f"{path}: expected a mapping of node sections")
     flat: dict[str, Any] = {}
@@ -828,7 +905,7 @@ def read_parameter_file(
             flat.update({f"{section}.{k}": v for k, v in params.items()})
         else:
             raise ConfigError(f"{path}: unknown node section {key!r}; expected {sections}")
-    return path, flat
+    return flat, seen
 
 
 def load_scenario(name_or_path: str | os.PathLike, overrides: dict | None = None) -> Scenario:

@@ -106,7 +106,7 @@ from std_msgs.msg import Empty
 from ffmpc_core.errors import ConfigError, FfmpcError, InputError
 from ffmpc_core.scenario import CONTACT_DIMENSION, SCHEMA, Scenario
 from ffmpc_ros import topics
-from ffmpc_ros.discovery import ensure_local_discovery
+from ffmpc_ros.discovery import check_ros_environment, ensure_local_discovery
 from ffmpc_ros.params import (
     NODE_SPECS,
     declare_node_parameters,
@@ -440,15 +440,40 @@ class GraphNode(LifecycleNode, metaclass=_Constructed):
 
     def _check_parameter_request(self, parameters: list[Parameter]) -> list[Parameter]:
         """Pre-set callback (it runs before rclpy's descriptor checks, which refuse without
-        calling back): log ONE line for a request :meth:`parameter_refusal` refuses (the schema
-        has the descriptors' ranges, so rclpy refuses nothing it lets through); changes
-        nothing."""
+        calling back): a number given as text to a numeric live parameter becomes the number
+        (:meth:`_typed`); then log ONE line for a request :meth:`parameter_refusal` refuses
+        (the schema has the descriptors' ranges, so rclpy refuses nothing it lets through)."""
+        parameters = [self._typed(p) for p in parameters]
         reason = self.parameter_refusal(parameters)
         if reason is not None:
             for p in parameters:
                 self.refused_parameters[p.name] += 1
             self._log_line(f"parameter refused: {reason}", warning=True)
         return list(parameters)
+
+    def _typed(self, param: Parameter) -> Parameter:
+        """A live numeric parameter given as text read as ROS 2 reads a number
+        (:func:`ffmpc_core.values.parse_scalar`): ``ros2 param set /mpc contact.stiffness 1e4``
+        sends the string "1e4" (the ros2 CLI reads values with PyYAML, whose floats need a dot),
+        where a parameter file or ``-p contact.stiffness:=1e4`` gives 10000.0. Anything else is
+        left as it came (and refused by the schema if it is no number)."""
+        from ffmpc_core.values import parse_scalar
+
+        name = self._scenario_names.get(param.name)
+        if name is None or not self.spec.is_live(param.name) or SCHEMA[name].kind == "str":
+            return param
+        value = plain_value(param.value)
+        if isinstance(value, str):
+            texts, scalar = [value], True
+        elif isinstance(value, list) and value and all(isinstance(v, str) for v in value):
+            texts, scalar = value, False
+        else:
+            return param
+        numbers = [parse_scalar(t.strip()) for t in texts]
+        if not all(isinstance(n, int | float) and not isinstance(n, bool) for n in numbers):
+            return param
+        floats = [float(n) for n in numbers]
+        return Parameter(param.name, value=floats[0] if scalar else floats)
 
     def _parameter_verdict(self, parameters: list[Parameter]) -> SetParametersResult:
         """On-set callback: refuse with the reason of :meth:`parameter_refusal`."""
@@ -654,14 +679,17 @@ class GraphNode(LifecycleNode, metaclass=_Constructed):
         self._clock_received = True
         self._reliable_time.clock_callback(msg)
 
-    def check_cycle(self, topic: str, k: int, stamp: int | None = None) -> bool:
+    def check_cycle(
+        self, topic: str, k: int, stamp: int | None = None, ordered: bool = True
+    ) -> bool:
         """Whether an input of cycle k (time k·time_step) stamped ``stamp`` (ns; default t_k)
-        may be used: of a cycle after the last accepted one from ``topic``, stamped at most
+        may be used: of a cycle after the last accepted one from ``topic`` (unless not
+        ``ordered``: the caller keeps its own order, the PID's commands), stamped at most
         :data:`MAX_FUTURE_STAMP` ahead of this node's clock and at most ``max_input_age`` behind
         it. Rejects it (one throttled log line) otherwise."""
         topic = self.name_of(topic)
         last = self._last_cycle.get(topic)
-        if last is not None and k <= last:
+        if ordered and last is not None and k <= last:
             self.reject(f"{topic}:order", f"cycle {k} is not after the last accepted {last}")
             return False
         now_ns = self.get_clock().now().nanoseconds
@@ -685,8 +713,9 @@ class GraphNode(LifecycleNode, metaclass=_Constructed):
         return True
 
     def accept_cycle(self, topic: str, k: int) -> None:
+        """Record an accepted input of cycle k (the newest cycle accepted from ``topic``)."""
         topic = self.name_of(topic)
-        self._last_cycle[topic] = k
+        self._last_cycle[topic] = max(k, self._last_cycle.get(topic, k))
         self.accepted[topic] += 1
 
     # -- diagnostics -------------------------------------------------------------------------
@@ -909,8 +938,13 @@ def run_node(
         "(scenario files: ffmpc_core/scenarios/; see msgs_notes/).",
     )
     parser.parse_args(user_args)
-    discovery = ensure_local_discovery()
     prog = parser.prog
+    try:  # ROS_DOMAIN_ID, the discovery range: one line before rcl or Fast DDS fail their way
+        check_ros_environment()
+    except ConfigError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    discovery = ensure_local_discovery()
     try:
         rclpy.init(args=argv)
     except Exception as exc:  # rcl refuses malformed --ros-args (RCLError): one line, exit 2

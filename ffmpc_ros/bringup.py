@@ -86,6 +86,7 @@ from ffmpc_core.metrics import PolishingMetrics
 from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_core.scenario import Scenario
 from ffmpc_ros import layouts, topics
+from ffmpc_ros.discovery import domain_id as _env_domain_id
 from ffmpc_ros.graph_nodes import (
     METRICS_NODE,
     NODES,
@@ -495,7 +496,7 @@ def run_graph(
     )
 
     start = time.perf_counter()
-    domain = int(os.environ.get("ROS_DOMAIN_ID", "0")) if domain_id is None else domain_id
+    domain = _env_domain_id() if domain_id is None else domain_id
     namespace = topics.normalize_namespace(namespace)
     faults = faults_from(faults)
     check_supported(faults, single_process, lockstep)

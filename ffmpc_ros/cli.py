@@ -13,20 +13,26 @@ import argparse
 import os
 import sys
 from types import FrameType
+from typing import TYPE_CHECKING
 
 from ffmpc_core.errors import ConfigError, FfmpcError
 from ffmpc_ros.cli_args import (
     STUDY_FORMULATIONS,
+    finite_float,
     new_path,
     nonnegative_int,
     output_file,
+    port_int,
     positive_float,
     positive_int,
     seed_int,
 )
 from ffmpc_ros.cli_args import parse_overrides as _parse_overrides
 from ffmpc_ros.cli_extensions import BENCH_GROUP, COMMAND_GROUP, add_extension_parsers
-from ffmpc_ros.discovery import ensure_local_discovery
+from ffmpc_ros.discovery import check_ros_environment, ensure_local_discovery
+
+if TYPE_CHECKING:
+    from ffmpc_core.scenario import Scenario
 
 #: Exit status of every malformed input (argparse's own for syntax errors).
 EXIT_USAGE = 2
@@ -110,6 +116,7 @@ def _cmd_run_impact(args: argparse.Namespace) -> int:
     import json
     import shlex
 
+    from ffmpc_ros import preflight
     from ffmpc_ros.impact_graph import run_impact_graph
     from ffmpc_ros.topics import normalize_namespace
 
@@ -123,6 +130,18 @@ def _cmd_run_impact(args: argparse.Namespace) -> int:
         namespace = normalize_namespace(args.namespace)
     except ConfigError as exc:
         raise ConfigError(f"--namespace: {exc}") from None
+    _check_run_outputs(args, [])
+    from ffmpc_ros.impact_graph import impact_node_parameters
+
+    impact_node_parameters(  # the study's overrides, checked before any node starts
+        args.approach or "maximal",
+        args.regulation or "admittance",
+        "impact",
+        overrides,
+        args.record is not None,
+        namespace,
+    )
+    preflight.replace_forced(args.record, args.force)
     result = run_impact_graph(
         args.approach or "maximal",
         args.regulation or "admittance",
@@ -155,15 +174,17 @@ def _cmd_run_impact(args: argparse.Namespace) -> int:
     return 0 if result.safe else 1
 
 
-def _cmd_run(args: argparse.Namespace) -> int:
-    import json
-    import shlex
-
+def _run_options(args: argparse.Namespace) -> dict:
+    """``ffmpc run`` (polishing graph): every option checked, before anything starts
+    (ConfigError, one line): the scenario and its overrides, the real-time and view options,
+    the faults against the graph and the run's duration, the per-node parameters, the output
+    paths. Returns the keyword arguments of ``run_graph`` that need checking."""
+    from ffmpc_core.faults import parse_fault
     from ffmpc_core.scenario import load_scenario
-    from ffmpc_ros.bringup import run_graph
+    from ffmpc_ros import preflight
+    from ffmpc_ros.graph_nodes import NODES
+    from ffmpc_ros.topics import normalize_namespace
 
-    if args.scenario == "impact":
-        return _cmd_run_impact(args)
     given = [flag for dest, flag in IMPACT_ONLY.items() if getattr(args, dest, None)]
     if given:
         raise ConfigError(f"{', '.join(given)}: options of ffmpc run impact only")
@@ -190,12 +211,109 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--priority must be in 0..99, got {args.priority}")
     if (args.view_port != VIEW_PORT or args.view_wait) and not args.view:
         raise ConfigError("--view-port and --view-wait need --view")
+    if args.view and args.real_time:
+        raise ConfigError("--view is a lockstep option (the real-time loop has no view)")
+    if args.real_time and (args.single_process or args.record):
+        raise ConfigError("--single-process and --record are lockstep options (not --real-time)")
+    faults = [parse_fault(text) for text in args.fault or []]
+    node_ros_args = _node_ros_args(args.node_param or [], args)
+    for flag, value in (
+        ("--stall-timeout", args.stall_timeout),
+        ("--start-timeout", args.start_timeout),
+    ):
+        if value <= 0:
+            raise ConfigError(f"{flag} must be > 0 s, got {value}")
+    try:
+        namespace = normalize_namespace(args.namespace)
+    except ConfigError as exc:
+        raise ConfigError(f"--namespace: {exc}") from None
+    duration = args.duration if args.duration is not None else _task_duration(scenario)
+    preflight.check_faults(
+        faults,
+        duration=duration,
+        nodes=NODES,
+        single_process=args.single_process,
+        lockstep=not args.real_time,
+    )
+    windows = [tuple(w) for w in args.fault_window or []]
+    preflight.check_fault_windows(windows, duration)
+    _check_run_outputs(args, [args.scenario])
     if args.view:
-        if args.real_time:
-            raise ConfigError("--view is a lockstep option (the real-time loop has no view)")
         from ffmpc_ros.view import check_port_free
 
         check_port_free("127.0.0.1", args.view_port)
+    return {
+        "scenario": scenario,
+        "faults": faults,
+        "node_ros_args": node_ros_args,
+        "namespace": namespace,
+        "cpus": cpus,
+        "fault_windows": windows,
+    }
+
+
+def _task_duration(scenario: Scenario) -> float:
+    """The simulated s of the scenario's task (what a run without --duration lasts)."""
+    from ffmpc_core.polishing import build_task
+    from ffmpc_core.robots import load_robot
+
+    return float(build_task(scenario, load_robot(scenario.robot)).duration)
+
+
+def _node_ros_args(items: list[str], args: argparse.Namespace) -> dict[str, list[str]]:
+    """``--node-param NODE:NAME:=VALUE`` as ROS arguments per node, each value checked by the
+    node's own rules (:func:`ffmpc_ros.params.check_node_parameter`) before any node starts."""
+    import yaml
+
+    from ffmpc_core.values import load_yaml
+    from ffmpc_ros.graph_nodes import NODES
+    from ffmpc_ros.params import check_node_parameter
+
+    if items and (args.single_process or args.real_time):
+        raise ConfigError("--node-param needs the multi-process lockstep graph")
+    out: dict[str, list[str]] = {}
+    for item in items:
+        node, sep, assignment = item.partition(":")
+        name, eq, text = assignment.partition(":=")
+        if not sep or not eq or not name:
+            raise ConfigError(f"--node-param expects NODE:NAME:=VALUE, got {item!r}")
+        if node not in NODES:
+            raise ConfigError(
+                f"--node-param {item!r}: no node {node!r} (nodes: {', '.join(NODES)})"
+            )
+        try:  # as rcl reads `-p NAME:=VALUE` (a list of one type, ffmpc_core.values)
+            check_node_parameter(node, name, load_yaml(text))
+        except yaml.YAMLError:
+            raise ConfigError(f"--node-param {item!r}: {text!r} is not a YAML value") from None
+        except ConfigError as exc:
+            raise ConfigError(f"--node-param {item!r}: {exc}") from None
+        out.setdefault(node, []).extend(["-p", assignment])
+    return out
+
+
+def _check_run_outputs(args: argparse.Namespace, inputs: list[str]) -> None:
+    """``--json`` and ``--record``: new paths in writable directories (an existing one only with
+    --force, then a file), neither the other nor an input."""
+    from ffmpc_ros import preflight
+
+    for flag, path in (("--json", args.json), ("--record", args.record)):
+        if path is not None:
+            preflight.check_output(path, force=args.force, what=flag)
+    preflight.check_distinct((("--json", args.json), ("--record", args.record)), inputs)
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    import json
+    import shlex
+
+    from ffmpc_ros import preflight
+    from ffmpc_ros.bringup import run_graph
+
+    if args.scenario == "impact":
+        return _cmd_run_impact(args)
+    checked = _run_options(args)
+    scenario = checked["scenario"]
+    if args.view:
         print(
             f"live view: Foxglove WebSocket server on ws://127.0.0.1:{args.view_port} until "
             "the run ends (Foxglove: Open connection > Foxglove WebSocket; layout "
@@ -212,42 +330,26 @@ def _cmd_run(args: argparse.Namespace) -> int:
             file=sys.stderr,
             flush=True,
         )
-    from ffmpc_core.faults import parse_fault
-
-    faults = [parse_fault(text) for text in args.fault or []]
-    node_ros_args: dict[str, list[str]] = {}
-    for item in args.node_param or []:
-        node, sep, assignment = item.partition(":")
-        if not sep or ":=" not in assignment:
-            raise ConfigError(f"--node-param expects NODE:NAME:=VALUE, got {item!r}")
-        node_ros_args.setdefault(node, []).extend(["-p", assignment])
-    if args.stall_timeout <= 0:
-        raise ConfigError(f"--stall-timeout must be > 0 s, got {args.stall_timeout}")
-    from ffmpc_ros.topics import normalize_namespace
-
-    try:
-        namespace = normalize_namespace(args.namespace)
-    except ConfigError as exc:
-        raise ConfigError(f"--namespace: {exc}") from None
+    preflight.replace_forced(args.record, args.force)
     result = run_graph(
         scenario,
-        faults=faults,
+        faults=checked["faults"],
         allow_foreign=args.allow_foreign_publishers,
         stall_timeout=args.stall_timeout,
         start_timeout=args.start_timeout,
-        node_ros_args=node_ros_args,
+        node_ros_args=checked["node_ros_args"],
         duration=args.duration,
         single_process=args.single_process,
         lockstep=not args.real_time,
         timeout=args.timeout,
         quiet=not args.verbose,
         record=args.record,
-        fault_windows=[tuple(w) for w in args.fault_window or []],
-        cpus=cpus,
+        fault_windows=checked["fault_windows"],
+        cpus=checked["cpus"],
         priority=args.priority,
         view=args.view_port if args.view else None,
         view_wait=args.view_wait,
-        namespace=namespace,
+        namespace=checked["namespace"],
     )
     summary = result.summary()
     summary["command_line"] = shlex.join(["ffmpc", *args.argv])
@@ -391,6 +493,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument("--set", action="append", metavar="NAME=VALUE", help="scenario override")
     run.add_argument("--timeout", type=positive_float, default=3600.0, help="wall-time limit, s")
+    run.add_argument(
+        "--force",
+        action="store_true",
+        help="replace an existing --json or --record FILE (a directory is never replaced)",
+    )
     run.add_argument("--verbose", action="store_true", help="show the nodes' output")
     run.add_argument(
         "--record",
@@ -408,7 +515,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument(
         "--view-port",
-        type=int,
+        type=port_int,
         default=VIEW_PORT,
         help=f"port of the live view (default {VIEW_PORT}; a busy port is refused)",
     )
@@ -441,7 +548,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument(
         "--fault-window",
         nargs=2,
-        type=float,
+        type=finite_float,
         action="append",
         metavar=("START", "END"),
         help="simulated s of an injected fault: fallback inside it is excused (repeatable)",
@@ -473,13 +580,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument(
         "--stall-timeout",
-        type=float,
+        type=positive_float,
         default=30.0,
         help="lockstep: stop when no plant cycle came for this many wall s (default 30)",
     )
     run.add_argument(
         "--start-timeout",
-        type=float,
+        type=positive_float,
         default=180.0,
         help="lockstep: stop when the first plant cycle has not come this many wall s after the "
         "start (default 180)",
@@ -491,7 +598,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="multi-process: one more ROS parameter of one node (after the generated file); "
         "shared parameters that then differ between nodes stop the run before it starts",
     )
-    run.set_defaults(func=_cmd_run_guarded)
+    run.set_defaults(func=_cmd_run_guarded, needs_ros=True)
     from ffmpc_ros.bag.cli import add_bag_parser
     from ffmpc_ros.launch import add_launch_parser
 
@@ -523,6 +630,8 @@ def main(argv: list[str] | None = None) -> int:
             words.append(getattr(args, sub))
     prog = " ".join(words)
     try:
+        if getattr(args, "needs_ros", False):  # before anything starts (ffmpc_ros.preflight)
+            check_ros_environment()
         return int(args.func(args) or 0)
     except (FfmpcError, OSError) as exc:  # bad input: a value, a path, a file's content
         print(f"{prog}: error: {_one_line(exc)}", file=sys.stderr)

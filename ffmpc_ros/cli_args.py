@@ -17,14 +17,23 @@ STUDY_FORMULATIONS = ("classical", "torque_feedback", "force_feedback")
 
 
 # -- argument types: each refuses a malformed value with argparse's one-line error -------------
+# Numbers are read by ROS 2's rules (ffmpc_core.values: 1e4, 1e+09, 0x10, .inf), as the nodes and
+# scenario files read them.
 def _number(text: str) -> float:
+    from ffmpc_core.values import parse_number
+
     try:
-        value = float(text)
-    except ValueError:
+        value = parse_number(text)
+    except ConfigError:
         raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
     return value
+
+
+def finite_float(text: str) -> float:
+    """A finite number (ROS 2's spelling: ``1e4``, ``-0.5``)."""
+    return _number(text)
 
 
 def positive_float(text: str) -> float:
@@ -44,12 +53,22 @@ def nonnegative_float(text: str) -> float:
 
 
 def _integer(text: str, low: int) -> int:
+    from ffmpc_core.values import parse_integer
+
     try:
-        value = int(text)
-    except ValueError:
+        value = parse_integer(text)
+    except ConfigError:
         raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
     if value < low:
         raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {text!r}")
+    return value
+
+
+def port_int(text: str) -> int:
+    """A TCP port: an integer in [1, 65535]."""
+    value = _integer(text, 1)
+    if value > 65535:
+        raise argparse.ArgumentTypeError(f"expected a port in [1, 65535], got {text!r}")
     return value
 
 
@@ -72,25 +91,24 @@ def seed_int(text: str) -> int:
 
 
 def new_path(text: str) -> str:
-    """An output path that does not exist yet, in an existing directory."""
+    """An output path in an existing directory; whether it may exist (``--force``) and whether
+    the directory is writable is checked before anything starts
+    (:func:`ffmpc_ros.preflight.check_output`)."""
     path = Path(text)
     if not text:
         raise argparse.ArgumentTypeError("expected a path, got ''")
-    if path.exists():
-        raise argparse.ArgumentTypeError(f"{text} already exists; never overwritten")
     if not path.parent.is_dir():
         raise argparse.ArgumentTypeError(f"{text}: no directory {str(path.parent)!r}")
     return text
 
 
 def output_file(text: str) -> str:
-    """A file to (over)write: not a directory, in an existing directory."""
+    """A file to write: not a directory, in an existing directory (existence and writability:
+    :func:`ffmpc_ros.preflight.check_output`)."""
     path = Path(text)
     if not text or path.is_dir():
         raise argparse.ArgumentTypeError(f"expected a file path, got {text!r}")
-    if not path.parent.is_dir():
-        raise argparse.ArgumentTypeError(f"{text}: no directory {str(path.parent)!r}")
-    return text
+    return new_path(text)
 
 
 def existing_file(text: str) -> str:
@@ -104,15 +122,15 @@ def existing_file(text: str) -> str:
 def parse_overrides(
     items: list[str] | None, node_names: bool = False, schema: dict | None = None
 ) -> dict:
-    """``--set name=value`` pairs; values are read as YAML scalars (``3``, ``true``, ``[1, 2]``)
+    """``--set name=value`` pairs; values are read as ROS 2 reads them (``3``, ``true``, ``1e4``,
+    ``[1.0, 2.0]``: :func:`ffmpc_core.values.load_value`)
     and checked against ``schema`` (default: the node-graph scenarios' ``SCHEMA``; a study's
     ``ConfigSchema.params``) (ConfigError ``name = value: expected …``).
     ``node_names``: names that are not scenario names are left to the caller (``bag rerun``
     takes a node's own parameter names)."""
-    import yaml
-
     from ffmpc_core.scenario import SCHEMA as GRAPH_SCHEMA
     from ffmpc_core.scenario import unknown_parameter
+    from ffmpc_core.values import load_value
 
     SCHEMA = GRAPH_SCHEMA if schema is None else schema
 
@@ -123,9 +141,9 @@ def parse_overrides(
         if not sep or not name:
             raise ConfigError(f"--set {item!r}: expected NAME=VALUE")
         try:
-            value = yaml.safe_load(text)
-        except yaml.YAMLError:
-            raise ConfigError(f"--set {item!r}: the value is not a YAML value") from None
+            value = load_value(text)  # ROS 2's rules: 1e4 is a number (ffmpc_core.values)
+        except ConfigError as exc:
+            raise ConfigError(f"--set {item!r}: the value is not a YAML value ({exc})") from None
         if isinstance(value, dict):
             raise ConfigError(f"--set {item!r}: expected one value, not a mapping")
         if name in SCHEMA:

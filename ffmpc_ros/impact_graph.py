@@ -53,6 +53,7 @@ from std_msgs.msg import Float64MultiArray, String
 from ffmpc_core.errors import ConfigError
 from ffmpc_core.scenario import Scenario
 from ffmpc_ros import layouts, topics
+from ffmpc_ros.discovery import domain_id as _env_domain_id
 from ffmpc_ros.params import impact_parameter_values, node_parameter_values
 
 if TYPE_CHECKING:
@@ -481,7 +482,7 @@ def run_impact_graph(
     )
 
     start = time.perf_counter()
-    domain = int(os.environ.get("ROS_DOMAIN_ID", "0")) if domain_id is None else domain_id
+    domain = _env_domain_id() if domain_id is None else domain_id
     namespace = topics.normalize_namespace(namespace)
     cfg, params = impact_node_parameters(
         approach, regulation, scenario, overrides, record is not None, namespace

@@ -337,6 +337,75 @@ def unreached_sections(node: LaunchNode) -> list[str]:
     return out
 
 
+def check_launch(description: LaunchDescription) -> None:
+    """Every parameter of every ffmpc node of the launch checked as the node would check it,
+    before any process starts (ConfigError, one line): a parameter file made of scenario
+    sections (``/**``, ``/**/mpc``, ...) is a scenario and must load as ``ffmpc run`` loads one
+    (complete or based on another, its values by the schema); the values of the other files
+    that reach the node, and each ``{name, value}`` entry, by
+    :func:`ffmpc_ros.params.check_node_parameter` (an entry the node does not declare would do
+    nothing: refused). Nodes of other packages are left to themselves."""
+    from ffmpc_ros.params import NODE_SPECS, check_node_parameter, declares
+
+    for node in description.nodes:
+        if node.package != "ffmpc_ros" or node.executable not in NODE_SPECS:
+            continue
+        spec = node.executable
+        for name, item in node.parameters:
+            if name == "file":
+                values = _file_values(item, node)
+                given = {k: v for k, v in values.items() if declares(spec, k)}
+            else:
+                given = {name: _as_node_reads(item)}
+            for key, value in given.items():
+                try:
+                    check_node_parameter(spec, key, value)
+                except FfmpcError as exc:
+                    raise LaunchError(f"node {node.label}: {exc}") from None
+
+
+def _as_node_reads(value: Any) -> Any:
+    """A ``{name, value}`` entry's value as the node reads it: launch_ros (and
+    :func:`node_command`) write it to a parameter file, which rcl parses (``"1e4"`` becomes
+    10000.0)."""
+    from ffmpc_core.values import load_yaml
+
+    return load_yaml(yaml.safe_dump({"v": value}))["v"]
+
+
+def _file_values(path: str, node: LaunchNode) -> dict[str, Any]:
+    """The values a parameter file gives ``node`` (sections ``/**``, ``/**/NAME``, its fully
+    qualified name, a bare ``NAME`` at the root), read by rcl's rules; a scenario file is
+    loaded as ``ffmpc run`` loads it first (LaunchError with the reason)."""
+    from ffmpc_core.scenario import ANY_NAMESPACE, SECTIONS, WILDCARD, flatten, load_scenario
+    from ffmpc_core.values import load_yaml
+
+    try:
+        with open(path, encoding="utf-8") as fh:
+            doc = load_yaml(fh)
+    except OSError as exc:
+        raise LaunchError(f"node {node.label}: cannot read {path}: {exc.strerror}") from None
+    except (yaml.YAMLError, FfmpcError) as exc:
+        raise LaunchError(f"node {node.label}: {path}: not a parameter file ({exc})") from None
+    if not isinstance(doc, dict):
+        raise LaunchError(f"node {node.label}: {path}: not a parameter file")
+    scenario_keys = {WILDCARD, *SECTIONS, *(ANY_NAMESPACE + s for s in SECTIONS)}
+    if set(doc) <= scenario_keys:
+        try:
+            load_scenario(path)
+        except FfmpcError as exc:
+            raise LaunchError(f"node {node.label}: {exc}") from None
+    fqn = node_fqn(node)
+    reach = {WILDCARD, fqn, f"{ANY_NAMESPACE}{node.name}"}
+    if fqn == f"/{node.name}":
+        reach.add(str(node.name))
+    out: dict[str, Any] = {}
+    for key, body in doc.items():
+        if str(key) in reach and isinstance(body, dict):
+            out.update(flatten(body.get("ros__parameters") or {}))
+    return out
+
+
 def _die_with_parent() -> None:
     """In a child before exec: SIGINT when the launcher dies (no orphan node)."""
     with contextlib.suppress(OSError, AttributeError):
@@ -497,6 +566,8 @@ def find_launch_file(name: str, package: str = "ffmpc_ros") -> str:
 
 def add_launch_parser(sub: argparse._SubParsersAction) -> None:
     """``ffmpc launch FILE [name:=value ...]``."""
+    from ffmpc_ros.cli_args import positive_float
+
     p = sub.add_parser(
         "launch",
         help="run a ROS 2 YAML launch file (a subset of ros2 launch; no launch_ros needed)",
@@ -504,10 +575,33 @@ def add_launch_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("file", help="a .launch.yaml path, or a file name in share/ffmpc_ros/launch")
     p.add_argument("arguments", nargs="*", metavar="NAME:=VALUE", help="launch arguments")
-    p.add_argument("--log-dir", help="the nodes' log files (default: a new temporary directory)")
-    p.add_argument("--timeout", type=float, default=None, help="wall-time limit, s")
+    p.add_argument(
+        "--log-dir",
+        help="the nodes' log files (default: a new temporary directory); an existing directory "
+        "that holds files is refused unless --force",
+    )
+    p.add_argument("--force", action="store_true", help="write into a --log-dir that has files")
+    p.add_argument("--timeout", type=positive_float, default=None, help="wall-time limit, s")
     p.add_argument("--show-args", action="store_true", help="print the arguments and exit")
-    p.set_defaults(func=_cmd_launch)
+    p.set_defaults(func=_cmd_launch, needs_ros=True)
+
+
+def _check_log_dir(path: str, force: bool) -> None:
+    """``--log-dir``: a new directory in a writable one, or an existing writable directory that
+    is empty (or any, with ``--force``: the nodes' logs there are replaced)."""
+    from ffmpc_ros.preflight import check_output
+
+    log_dir = Path(path)
+    if not log_dir.exists():
+        check_output(log_dir, what="--log-dir")
+        return
+    if not log_dir.is_dir():
+        raise LaunchError(f"--log-dir {path}: not a directory")
+    if any(log_dir.iterdir()) and not force:
+        raise LaunchError(
+            f"--log-dir {path}: holds files; never overwritten (--force writes there)"
+        )
+    check_output(log_dir / "launch.log", what="--log-dir")
 
 
 def _cmd_launch(args: argparse.Namespace) -> int:
@@ -519,6 +613,9 @@ def _cmd_launch(args: argparse.Namespace) -> int:
         for name, value in description.arguments.items():
             print(f"{name}:={value}")
         return 0
+    check_launch(description)
+    if args.log_dir:
+        _check_log_dir(args.log_dir, args.force)
     log_dir = args.log_dir or tempfile.mkdtemp(prefix="ffmpc_launch_")
     print(f"[launch] {path}: {len(description.nodes)} nodes, logs in {log_dir}", flush=True)
     return run_launch(description, log_dir=log_dir, timeout=args.timeout)

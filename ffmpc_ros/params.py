@@ -575,8 +575,11 @@ def declare_node_parameters(node: Node, spec: NodeSpec) -> dict[str, Any]:
     """Declare every parameter of ``spec`` on an rclpy node; returns {ROS name: value}.
 
     A value rclpy refuses (wrong type, out of range) raises the schema's ConfigError
-    (``name = value: expected …``), the message the ROS-free runner gives for it."""
-    flat = scenario_flat(Scenario(name="defaults"))
+    (``name = value: expected …``), the message the ROS-free runner gives for it. A ``base``
+    (a scenario file's ``/**: {base: polishing}``) makes that scenario's values the defaults,
+    as the runner merges such a file over its base
+    (:func:`ffmpc_core.scenario.read_parameter_file`)."""
+    flat = scenario_flat(_base_scenario(node, spec))
     values: dict[str, Any] = {}
     for ros, name in node_scenario_names(spec, flat).items():
         default = _ros_value(flat[name])
@@ -609,6 +612,104 @@ def declare_node_parameters(node: Node, spec: NodeSpec) -> dict[str, Any]:
             raise config_error(g.name, _raw_override(node, g.name), _graph_expected(g)) from None
         values[g.name] = declared.value
     return values
+
+
+def _base_scenario(node: Node, spec: NodeSpec) -> Scenario:
+    """The scenario whose values the node's scenario parameters default to: the one its
+    ``base`` parameter names (the scenario file's ``/**: {base: ...}``), else the schema's
+    defaults. ConfigError for a base the runner would not load the same way."""
+    from ffmpc_core.scenario import BASE_KEY, base_scenario_path, load_scenario
+
+    declared = node.declare_parameter(
+        BASE_KEY,
+        "",
+        ParameterDescriptor(
+            read_only=True,
+            description="the scenario this node's scenario file changes (a shipped name or an "
+            "absolute path; empty: none): its values are the defaults",
+        ),
+    )
+    base = declared.value
+    if not isinstance(base, str):
+        raise config_error(BASE_KEY, base, "a scenario name or an absolute path")
+    if not base.strip():
+        return Scenario(name="defaults")
+    if spec.impact:
+        raise config_error(BASE_KEY, base, "nothing: the impact nodes take no base scenario")
+
+    return load_scenario(base_scenario_path(base))
+
+
+def check_node_parameter(node: str, name: str, value: Any) -> None:
+    """ConfigError (one line, the schema's ``name = value: expected …``) unless node ``node``
+    declares parameter ``name`` and would take ``value`` (ROS typed, as rcl reads ``-p
+    name:=value``: :func:`ffmpc_core.values.load_value`): the check ``ffmpc run --node-param``
+    and ``ffmpc launch`` make before any node starts, with the node's own rules (scenario
+    names by :data:`SCHEMA`, the impact study's by ``IMPACT_SCHEMA``, graph parameters by
+    their type and range). QoS override parameters are left to rclpy (it refuses them at
+    start, one line)."""
+    from ffmpc_core.scenario import BASE_KEY
+
+    spec = NODE_SPECS.get(node)
+    if spec is None:
+        raise ConfigError(f"no node {node!r} (nodes: {', '.join(NODE_SPECS)})")
+    if name.startswith("qos_overrides.") or name == BASE_KEY:
+        return
+    if name == "use_sim_time":
+        if value is not True:
+            raise config_error(name, value, "true (every ffmpc node runs on simulated time)")
+        return
+    scenario_names = node_scenario_names(spec, scenario_flat(Scenario(name="defaults")))
+    graph = {g.name: g for g in spec.graph_parameters}
+    if name in scenario_names:
+        param = SCHEMA[scenario_names[name]]
+    elif name in node_impact_names(spec):
+        param = IMPACT_SCHEMA.params[name]
+    elif name in graph:
+        _check_graph_value(graph[name], value)
+        return
+    else:
+        raise ConfigError(f"{name} = {value!r}: node {node} has no such parameter")
+    try:
+        param.check(value)
+    except ConfigError as exc:
+        raise ConfigError(str(exc).replace(param.name, name, 1)) from None
+
+
+def declares(node: str, name: str) -> bool:
+    """Whether node ``node`` declares parameter ``name`` (a value for another name in a
+    parameter file that reaches it is ignored by rclpy, as by ROS)."""
+    from ffmpc_core.scenario import BASE_KEY
+
+    spec = NODE_SPECS[node]
+    scenario_names = node_scenario_names(spec, scenario_flat(Scenario(name="defaults")))
+    return (
+        name in scenario_names
+        or name in node_impact_names(spec)
+        or name in {g.name for g in spec.graph_parameters}
+        or name in (BASE_KEY, "use_sim_time")
+    )
+
+
+def _check_graph_value(g: GraphParameter, value: Any) -> None:
+    """A graph parameter's value as rclpy would take it: the default's type, within the range."""
+    default = g.default
+    if isinstance(default, bool):
+        ok = isinstance(value, bool)
+    elif isinstance(default, int):
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif isinstance(default, float):
+        ok = isinstance(value, float)
+    elif isinstance(default, str):
+        ok = isinstance(value, str)
+    else:
+        ok = isinstance(value, list) and all(
+            isinstance(v, float) and not isinstance(v, bool) for v in value
+        )
+    if ok and g.range is not None and isinstance(value, int | float):
+        ok = g.range[0] <= value <= g.range[1]
+    if not ok:
+        raise config_error(g.name, value, _graph_expected(g))
 
 
 def _graph_expected(g: GraphParameter) -> str:

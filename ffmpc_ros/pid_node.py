@@ -20,6 +20,21 @@ timeout passed, or in real time, the cycle goes on without it; the low level the
 accepted λ̂ for ``force_hold_time`` and sends τ* without feedback after that
 (``LowLevelController``, the runner's rule too). One bad wrench never stalls the loop.
 
+Commands from outside the graph. Any node of the domain may publish on ``/mpc/command``. A
+message is checked whole before it may claim the command of its cycle: its fields and sizes
+(``command_msg.command_fields``), a torque within the plausibility bound
+(``LowLevelController.check_command``), a cycle that is an MPC tick, not taken yet and not
+stamped from the future. A rejected message is counted and logged (one throttled line per
+kind) and changes nothing: no cycle is consumed, no safe hold is engaged, so the graph's own
+MPC command for that tick is still taken and a lockstep run goes on (before, a finite but absurd
+command stamped from ``/clock`` made the genuine one "out of order" and stalled the loop for
+``lockstep_timeout``, and any malformed message engaged the safe hold). The MPC node never
+publishes an implausible torque (``ModelPredictiveController.step`` raises instead; the tick then
+gets no command and the stale-command rule holds the robot). A well-formed, plausible command
+on a tick before the MPC's own cannot be told from it: rclpy 7.1.6 gives no publisher identity
+per message and the wheels' Fast DDS has no security; the bring-up refuses to start beside
+foreign publishers (``--allow-foreign-publishers`` to override).
+
 Live parameters (``ffmpc_ros.params.PID_LIVE``), applied from the next cycle the node steps:
 the gains ``kp``, ``ki`` (1/s), ``kd`` (s) of eq 33 (``TorquePid.set_gains``: the integral state
 is kept, clamped to the new anti-windup bound), and the limits of the low level
@@ -69,6 +84,7 @@ class PidNode(GraphNode):
         self._joints: dict[int, tuple] = {}
         self._forces: dict[int, np.ndarray] = {}
         self._commands: dict[int, LowLevelCommand] = {}
+        self._used_command: int | None = None  # cycle of the newest command handed to the loop
         self._force_rejected: set[int] = set()  # cycles whose wrench was rejected
         self._newest_force: int | None = None  # cycle of the newest accepted wrench
         self._last_step: int | None = None
@@ -118,6 +134,8 @@ class PidNode(GraphNode):
         self._advance()
 
     def on_command(self, msg: MpcCommandMsg) -> None:
+        """An MPC command (module docstring, "Commands from outside the graph"): checked whole
+        before it may claim its cycle; a rejected one changes nothing."""
         topic = self.name_of(topics.MPC_COMMAND)
         try:
             fields = command_fields(msg, self.robot.nv, self.robot.joint_names)
@@ -125,20 +143,26 @@ class PidNode(GraphNode):
                 raise InputError(
                     f"command for nx={fields['nx']}; this loop has nx={self.lowlevel.nx}"
                 )
+            command = self.lowlevel.check_command(
+                LowLevelCommand(fields["torque"], fields["state"], fields["feedback_gain"])
+            )
         except InputError as exc:
             self.reject(f"{topic}:value", str(exc))
-            self.lowlevel.engage_hold()  # an invalid command: safe hold from the next cycle
             return
         k = self.cycle_of(fields["stamp"])
         if k is None:
             self.reject(f"{topic}:stamp", f"command time {fields['t']} s off the grid")
             return
-        if not self.check_cycle(topic, k):
+        if k % self.every != 0:
+            self.reject(f"{topic}:tick", f"cycle {k} is no MPC tick (every {self.every} cycles)")
+            return
+        if k in self._commands or (self._used_command is not None and k <= self._used_command):
+            self.reject(f"{topic}:order", f"a command for cycle {k} was already taken")
+            return
+        if not self.check_cycle(topic, k, ordered=False):
             return
         self.accept_cycle(topic, k)
-        self._commands[k] = LowLevelCommand(
-            fields["torque"], fields["state"], fields["feedback_gain"]
-        )
+        self._commands[k] = command
         self._advance()
 
     # -- the loop ----------------------------------------------------------------------------
@@ -194,6 +218,7 @@ class PidNode(GraphNode):
             force = self._forces.pop(k, None)  # None: missing (the low level's hold rule)
             self._force_rejected.discard(k)
             for kc in sorted(c for c in self._commands if c <= k):
+                self._used_command = kc
                 try:
                     self.lowlevel.set_command(self._commands.pop(kc), self.t_of(kc))
                 except InputError as exc:

@@ -544,6 +544,11 @@ class RealtimeLoop:
                 fields = command_fields(msg, nv, self.robot.joint_names)
                 if fields["nx"] != self.lowlevel.nx:
                     raise InputError(f"command for nx={fields['nx']}")
+                # checked whole before it claims its cycle (as the PID node: a rejected
+                # message from outside the graph leaves the MPC's own command usable)
+                self.lowlevel.check_command(
+                    LowLevelCommand(fields["torque"], fields["state"], fields["feedback_gain"])
+                )
             except InputError as exc:
                 self._reject(f"{self._command_topic}:value", str(exc))
                 continue

@@ -9,8 +9,14 @@ QoS, as ROS 2 users expect (every profile is a function of this module; msgs_not
 * STATE — status, truth, estimates, predictions, markers: RELIABLE, VOLATILE;
 * STATE also holds ``/tf`` (tf2's dynamic broadcaster: RELIABLE, VOLATILE);
 * LATCHED — ``robot_description``, ``/tf_static`` (tf2's static broadcaster profile),
-  ``metrics/*``, the MPC's reference inputs: RELIABLE, TRANSIENT_LOCAL, KEEP_LAST(1), the only
-  replayed data;
+  ``metrics/*``: RELIABLE, TRANSIENT_LOCAL, KEEP_LAST(1), the only replayed data;
+* REFERENCE — the MPC's reference inputs (``mpc/reference``, ``mpc/force_setpoint``), written by
+  an operator or a planner outside the graph: the MPC reads them RELIABLE, VOLATILE,
+  KEEP_LAST(1), which matches a default ``ros2 topic pub`` (RELIABLE, VOLATILE) and a latched
+  publisher alike (a TRANSIENT_LOCAL reader never matched the default publisher: the README's
+  ``ros2 topic pub --once`` waited for ever). The last target is kept by the MPC itself: a
+  message sets its live parameter (``task.normal_force``, ``position_offset``), which holds until
+  the next one and reads back with ``ros2 param get``;
 * ``/clock``: RELIABLE, VOLATILE with a history of :data:`PUBLISHER_DEPTH` (rclpy's time source
   subscribes BEST_EFFORT, depth 1: only the newest time matters to a node; the recorder keeps
   them all). Every ffmpc node also reads it RELIABLE, depth 1 (:func:`clock_reader_qos`,
@@ -204,6 +210,7 @@ SENSOR_DEPTH = 5
 
 #: The QoS classes (module docstring, msgs_notes/README.md "QoS").
 SENSOR, COMMAND, STATE, LATCHED = "sensor", "command", "state", "latched"
+REFERENCE = "reference"
 #: The class of every topic of the graph but ``/clock`` (:func:`clock_qos`). A topic not listed
 #: (a new node's) is a STATE topic: reliable, volatile.
 QOS_CLASSES: dict[str, str] = {
@@ -233,8 +240,8 @@ QOS_CLASSES: dict[str, str] = {
     IMPACT_SUMMARY: LATCHED,
     METRICS_READY: LATCHED,
     ROBOT_DESCRIPTION: LATCHED,
-    MPC_REFERENCE: LATCHED,
-    MPC_FORCE_SETPOINT: LATCHED,
+    MPC_REFERENCE: REFERENCE,
+    MPC_FORCE_SETPOINT: REFERENCE,
 }
 
 
@@ -261,6 +268,8 @@ def publisher_qos(topic: str | None = None) -> QoSProfile:
         return _profile(False, SENSOR_DEPTH)
     if kind == LATCHED:
         return latched_qos()
+    if kind == REFERENCE:
+        return reference_qos()
     return _profile(True, PUBLISHER_DEPTH)
 
 
@@ -273,19 +282,22 @@ def subscriber_qos(lockstep: bool, topic: str | None = None) -> QoSProfile:
     kind = qos_class(topic)
     if kind == LATCHED:
         return latched_qos()
+    if kind == REFERENCE:
+        return reference_qos()
     return _profile(kind != SENSOR, PUBLISHER_DEPTH if lockstep else 1)
 
 
 def latched_qos() -> QoSProfile:
-    """Latched data (``robot_description``, ``metrics/*``, the reference inputs): RELIABLE,
-    TRANSIENT_LOCAL, KEEP_LAST(1): a reader that comes late still gets the last sample."""
+    """Latched data (``robot_description``, ``metrics/*``): RELIABLE, TRANSIENT_LOCAL,
+    KEEP_LAST(1): a reader that comes late still gets the last sample."""
     return _profile(True, 1, latched=True)
 
 
 def reference_qos() -> QoSProfile:
-    """The MPC's reference inputs (LATCHED): only the newest target matters, and a node that
-    starts after it was published still gets it."""
-    return latched_qos()
+    """The MPC's reference inputs (REFERENCE, module docstring): RELIABLE, VOLATILE,
+    KEEP_LAST(1): it matches ``ros2 topic pub``'s default publisher and a latched one; only
+    the newest target matters, and the MPC keeps it as its live parameter."""
+    return _profile(True, 1)
 
 
 #: What the bring-up overrides on the graph's own nodes (``ffmpc run``, ``ffmpc launch``), per

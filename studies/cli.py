@@ -143,11 +143,13 @@ def _polishing_overrides(args: argparse.Namespace) -> dict:
 
     import yaml
 
+    from ffmpc_core.values import load_yaml
+
     items: list[str] = []
     for path in args.set_file or []:
-        try:
-            doc = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        try:  # read as ROS 2 reads values (1e4 is a number), like scenario files
+            doc = load_yaml(Path(path).read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, yaml.YAMLError, ConfigError) as exc:
             raise ConfigError(f"--set-file {path}: not a readable YAML file ({exc})") from None
         if not isinstance(doc, dict) or not all(isinstance(k, str) for k in doc):
             raise ConfigError(f"--set-file {path}: expected a mapping NAME: VALUE")
@@ -364,8 +366,11 @@ EXPLORE_SHORTHANDS = {
 
 
 def _cmd_tune(args: argparse.Namespace) -> int:
+    from ffmpc_ros.preflight import check_output
     from studies.tune import Objective, tune
 
+    if args.out is not None:
+        check_output(args.out, what="--out")
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     objective = Objective(
         position_weight=args.position_weight,
@@ -752,9 +757,20 @@ class BenchImpactVerb(CommandExtension):
             help="simulated seconds of the study's approach to take the problems from",
         )
         parser.add_argument("--json", type=output_file, help="write the figures to this JSON file")
+        parser.add_argument("--force", action="store_true", help="replace an existing --json")
 
     def main(self, args: argparse.Namespace) -> int:
+        _check_json(args)
         return _cmd_bench_impact(args)
+
+
+def _check_json(args: argparse.Namespace) -> None:
+    """A bench's ``--json``: a new file in a writable directory (an existing one with --force),
+    checked before the bench runs (ffmpc_ros.preflight)."""
+    from ffmpc_ros.preflight import check_output
+
+    if args.json is not None:
+        check_output(args.json, force=args.force, what="--json")
 
 
 class DemoCommand(CommandExtension):
@@ -771,6 +787,7 @@ class DemoCommand(CommandExtension):
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
         parser.add_argument("--seed", type=seed_int, default=0)
+        parser.set_defaults(needs_ros=True)  # the node graph: ROS_DOMAIN_ID checked first
 
     def main(self, args: argparse.Namespace) -> int:
         from studies.demo import run_demo
@@ -803,8 +820,10 @@ class BenchMpcVerb(CommandExtension):
         parser.add_argument(
             "--json", metavar="FILE", type=output_file, help='also write {"cases": [...]} to FILE'
         )
+        parser.add_argument("--force", action="store_true", help="replace an existing --json")
 
     def main(self, args: argparse.Namespace) -> int:
         from studies.bench_mpc import run_bench_mpc
 
+        _check_json(args)
         return run_bench_mpc(args)

@@ -410,6 +410,11 @@ def check_output_dir(out: str | os.PathLike, force: bool = False, resume: bool =
             f"output directory {path} already exists; pass --force to overwrite (an interrupted "
             "study, with a cache/ and no results.json, resumes by running the same command)"
         )
+    from ffmpc_ros.preflight import check_output
+
+    # writable: in the directory itself, or where it will be made (its nearest existing parent)
+    probe = path if path.is_dir() else next(p for p in path.parents if p.exists())
+    check_output(probe / ".ffmpc-out-check", what="--out")
 
 
 def prepare_output_dir(out: str | os.PathLike, force: bool = False, resume: bool = False) -> Path:

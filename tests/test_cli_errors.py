@@ -36,6 +36,7 @@ def files(tmp_path_factory) -> dict[str, str]:
     (root / "list.yaml").write_text("- 1\n- 2\n")
     (root / "badsection.yaml").write_text("planet:\n  ros__parameters: {time_step: 0.001}\n")
     (root / "boolstiff.yaml").write_text(
+        "/**:\n  ros__parameters: {base: polishing}\n"
         "mpc:\n  ros__parameters:\n    contact: {stiffness: true}\n"
     )
     return {p.name: str(p) for p in root.iterdir()} | {"root": str(root)}

@@ -80,6 +80,16 @@ def test_every_topic_is_documented_with_its_type_and_publisher():
         assert any(r[0] == service and r[1] == "std_srvs/srv/Trigger" for r in rows), service
     readme = (NOTES / "README.md").read_text(encoding="utf-8")
     assert topics.WRENCH_FRAME in readme and str(topics.PUBLISHER_DEPTH) in readme
+    # each row's QoS column names the topic's class (topics.QOS_CLASSES; /clock its own)
+    for row in topic_rows:
+        kind = "clock" if row[0] == topics.CLOCK else topics.qos_class(row[0])
+        assert row[5].split(":")[0].split(" (")[0] == kind, row[0]
+    # and the class table of README.md lists it under that class
+    classes = {r[0]: r[3] for r in _table_rows(readme) if len(r) == 4}
+    for row in topic_rows:
+        if row[0] != topics.CLOCK:
+            listed = classes[topics.qos_class(row[0])]
+            assert re.search(rf"(^|`){re.escape(row[0])}(`|$)", listed), row[0]
 
 
 def test_layouts_reject_wrong_label_length_and_non_finite():

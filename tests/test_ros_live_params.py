@@ -226,6 +226,10 @@ def test_bad_references_are_rejected_and_counted_a_good_one_retargets(ros, robot
     pub_w = probe.create_publisher(WrenchStamped, topics.SENSED_WRENCH, topics.publisher_qos())
     pub_ref = probe.create_publisher(PoseStamped, "mpc/reference", topics.reference_qos())
     pub_force = probe.create_publisher(Float64, "mpc/force_setpoint", topics.reference_qos())
+    # the reference inputs are volatile (a default `ros2 topic pub` matches): publish once matched
+    assert ros.spin_until(
+        lambda: pub_ref.get_subscription_count() > 0 and pub_force.get_subscription_count() > 0
+    )
     centre = node.task.circle_center()
 
     def pose(p, frame="world"):

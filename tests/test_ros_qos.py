@@ -134,8 +134,16 @@ def test_each_class_has_its_profile():
         for qos in (topics.publisher_qos(topic), topics.subscriber_qos(False, topic)):
             assert qos.reliability == ReliabilityPolicy.RELIABLE
             assert qos.durability == DurabilityPolicy.VOLATILE
-    for topic in (topics.METRICS_READY, topics.ROBOT_DESCRIPTION, topics.MPC_REFERENCE):
+    for topic in (topics.METRICS_READY, topics.ROBOT_DESCRIPTION):
         assert topics.publisher_qos(topic).durability == DurabilityPolicy.TRANSIENT_LOCAL
+    # the reference inputs match `ros2 topic pub`'s default publisher (reliable, volatile)
+    for topic in (topics.MPC_REFERENCE, topics.MPC_FORCE_SETPOINT):
+        reader = topics.subscriber_qos(True, topic)
+        assert (reader.reliability, reader.durability, reader.depth) == (
+            ReliabilityPolicy.RELIABLE,
+            DurabilityPolicy.VOLATILE,
+            1,
+        )
     # the only replayed data: nothing else is transient local by default
     for topic, kind in topics.QOS_CLASSES.items():
         latched = topics.publisher_qos(topic).durability == DurabilityPolicy.TRANSIENT_LOCAL

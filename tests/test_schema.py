@@ -95,9 +95,13 @@ def test_good_values_are_canonical():
 
 def test_scenario_file_values_are_checked_too(tmp_path):
     path = tmp_path / "bad.yaml"
-    path.write_text("mpc:\n  ros__parameters:\n    contact: {stiffness: true}\n")
+    path.write_text(BASED + "mpc:\n  ros__parameters:\n    contact: {stiffness: true}\n")
     with pytest.raises(ConfigError, match=r"^mpc.contact.stiffness = True: expected"):
         load_scenario(path)
+
+
+#: A scenario file's first section when it changes a shipped scenario (a partial file is refused).
+BASED = "/**:\n  ros__parameters:\n    base: polishing\n"
 
 
 def _write(tmp_path, text: str):
@@ -111,9 +115,9 @@ def test_a_node_section_is_keyed_by_its_name_or_for_any_namespace(tmp_path):
     a file with both keys for one node is refused."""
     bare, anywhere, both = (tmp_path / f"{n}.yaml" for n in ("bare", "anywhere", "both"))
     section = "  ros__parameters:\n    horizon: 7\n"
-    bare.write_text("mpc:\n" + section)
-    anywhere.write_text("/**/mpc:\n" + section)
-    both.write_text("mpc:\n" + section + "/**/mpc:\n" + section)
+    bare.write_text(BASED + "mpc:\n" + section)
+    anywhere.write_text(BASED + "/**/mpc:\n" + section)
+    both.write_text(BASED + "mpc:\n" + section + "/**/mpc:\n" + section)
     assert load_scenario(anywhere).mpc.horizon == load_scenario(bare).mpc.horizon == 7
     with pytest.raises(ConfigError, match=r"sections 'mpc' and '/\*\*/mpc' are the same node"):
         load_scenario(both)

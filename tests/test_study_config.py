@@ -206,7 +206,7 @@ def test_cli_study_explore_set_and_shorthands_reach_the_config(monkeypatch, tmp_
 
     monkeypatch.setattr(exploration, "run_exploration_study", fake_study)
     scenario = tmp_path / "slow.yaml"
-    scenario.write_text("/**:\n  ros__parameters:\n    dwell: 0.5\n")
+    scenario.write_text("/**:\n  ros__parameters:\n    base: explore\n    dwell: 0.5\n")
     argv = ["study", "explore", "--materials", "foam", "--scenario", str(scenario)]
     argv += ["--approach-speed", "0.004", "--set", "gains.velocity=30", "--set", "sine_cycles=2"]
     argv += ["--out", str(tmp_path / "out"), "--workers", "2"]

@@ -26,6 +26,7 @@ from ffmpc_ros import topics
 from ffmpc_ros.bag.errors import BagError
 from ffmpc_ros.bag.reader import BagReader
 from ffmpc_ros.bag.rerun import bag_namespace, node_parameters
+from ffmpc_ros.discovery import domain_id as _env_domain_id
 
 
 @dataclass
@@ -88,7 +89,7 @@ def bag_study(path: str | os.PathLike) -> BagStudy:
             last = list(bag.messages([summary_topic]))[-1]
             recorded = json.loads(deserialize_message(last.data, String).data)
         context = Context()
-        rclpy.init(args=[], context=context, domain_id=int(os.environ.get("ROS_DOMAIN_ID", "0")))
+        rclpy.init(args=[], context=context, domain_id=_env_domain_id())
         prefix = f"/_ffmpc_bag_{os.getpid()}"
         remaps = [
             a

@@ -39,27 +39,61 @@ def _cmd_info(args: argparse.Namespace) -> int:
         return 0 if bag.recovery.complete else 3
 
 
+def _output(path: str, args: argparse.Namespace, what: str) -> None:
+    """An output of a bag command checked before anything runs (ffmpc_ros.preflight); with
+    --force an existing file is removed just before it is written anew."""
+    from ffmpc_ros import preflight
+
+    preflight.check_output(path, force=args.force, what=what)
+    preflight.check_distinct([(what, path)], [getattr(args, "bag", None)])
+
+
 def _cmd_recover(args: argparse.Namespace) -> int:
+    from ffmpc_ros import preflight
     from ffmpc_ros.bag.reader import recover_bag
 
+    _output(args.out, args, "out")
+    preflight.replace_forced(args.out, args.force)
     report = recover_bag(args.bag, args.out)
     print(f"{args.bag}: {report.describe()}")
     print(f"wrote {args.out}: {report.messages} messages")
     return 0
 
 
+def usable_bag(path: str, command: str) -> int:
+    """The number of messages of a complete bag that holds some: a truncated bag (a recorder
+    killed mid-run) or an empty one is refused with what it holds (BagError, exit 2), so that
+    ``play`` and ``rerun`` never report a success over a part of a run or over nothing."""
+    from ffmpc_ros.bag.errors import BagError
+    from ffmpc_ros.bag.reader import BagReader
+
+    with BagReader(path) as bag:
+        recovery = bag.recovery
+        if not recovery.complete:
+            raise BagError(
+                f"{path}: TRUNCATED ({recovery.reason}): only {recovery.messages} readable "
+                f"messages in {recovery.chunks} complete chunks; nothing {command} (`ffmpc bag "
+                f"recover {path} OUT.mcap` copies them into a complete bag)"
+            )
+        if bag.message_count == 0:
+            raise BagError(f"{path}: holds no message (0 messages); nothing {command}")
+        return int(bag.message_count)
+
+
 def _cmd_play(args: argparse.Namespace) -> int:
     from ffmpc_ros.bag.player import parse_remaps, play_bag
 
+    remap = parse_remaps(args.remap or [])
+    recorded = usable_bag(args.bag, "played")
     report = play_bag(
         args.bag,
         rate=args.rate,
         topics=args.topics,
-        remap=parse_remaps(args.remap or []),
+        remap=remap,
         clock_rate=args.clock,
         delay=args.delay,
     )
-    print(report.describe())
+    print(f"{report.describe()} ({recorded} messages in the bag)")
     return 0
 
 
@@ -95,7 +129,12 @@ def _cmd_plot(args: argparse.Namespace) -> int:
     from ffmpc_ros.bag.analysis import bag_study, plot_study
 
     out = args.out or (str(args.bag).removesuffix(".mcap") + ".png")
-    print(f"wrote {plot_study(bag_study(args.bag), out)}")
+    _output(out, args, "--out")
+    study = bag_study(args.bag)
+    from ffmpc_ros import preflight
+
+    preflight.replace_forced(out, args.force)
+    print(f"wrote {plot_study(study, out)}")
     return 0
 
 
@@ -104,10 +143,12 @@ def _cmd_rerun(args: argparse.Namespace) -> int:
     from ffmpc_ros.cli_args import parse_overrides
 
     tolerance = RerunTolerance(args.rtol, args.atol)
+    overrides = parse_overrides(args.set, node_names=True)
+    usable_bag(args.bag, "re-run")
     report = rerun_node(
         args.bag,
         args.node,
-        parse_overrides(args.set, node_names=True),
+        overrides,
         timeout=args.timeout,
         tolerance=tolerance,
     )
@@ -123,6 +164,8 @@ def _cmd_rerun(args: argparse.Namespace) -> int:
                     "ok": ok,
                     "tolerance": {"relative": tolerance.relative, "absolute": tolerance.absolute},
                     "cycles": report.cycles,
+                    "compared": report.compared,
+                    "shortfall": report.shortfall(),
                     "overrides": report.overrides,
                     "outputs": [
                         vars(c)
@@ -140,8 +183,11 @@ def _cmd_rerun(args: argparse.Namespace) -> int:
 
 
 def _cmd_record(args: argparse.Namespace) -> int:
+    from ffmpc_ros import preflight
     from ffmpc_ros.bag.recorder import record_bag
 
+    preflight.check_output(args.bag, force=args.force, what="bag")
+    preflight.replace_forced(args.bag, args.force)
     recorder = record_bag(
         args.bag,
         topics=args.topics,
@@ -202,7 +248,7 @@ def add_bag_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--delay", type=nonnegative_float, default=0.5, help="wall s before the first message"
     )
-    p.set_defaults(func=_cmd_play)
+    p.set_defaults(func=_cmd_play, needs_ros=True)
 
     p = bag_sub.add_parser(
         "plot",
@@ -213,7 +259,8 @@ def add_bag_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("bag")
     p.add_argument("--out", type=new_path, help="PNG path, must not exist (default: BAG with .png)")
-    p.set_defaults(func=_cmd_plot)
+    p.add_argument("--force", action="store_true", help="replace an existing PNG")
+    p.set_defaults(func=_cmd_plot, needs_ros=True)
 
     p = bag_sub.add_parser(
         "metrics",
@@ -224,7 +271,7 @@ def add_bag_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("bag")
     p.add_argument("--json", action="store_true", help="machine-readable output")
-    p.set_defaults(func=_cmd_metrics)
+    p.set_defaults(func=_cmd_metrics, needs_ros=True)
 
     p = bag_sub.add_parser(
         "rerun",
@@ -268,7 +315,7 @@ def add_bag_parser(sub: argparse._SubParsersAction) -> None:
         "--exact", action="store_true", help="require bit-identical outputs on any machine"
     )
     p.add_argument("--json", action="store_true", help="machine-readable output")
-    p.set_defaults(func=_cmd_rerun)
+    p.set_defaults(func=_cmd_rerun, needs_ros=True)
 
     p = bag_sub.add_parser(
         "recover",
@@ -280,6 +327,7 @@ def add_bag_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "out", type=new_path, help="new bag path (must not exist; .mcap: a file, else a folder)"
     )
+    p.add_argument("--force", action="store_true", help="replace an existing bag FILE")
     p.set_defaults(func=_cmd_recover)
 
     p = bag_sub.add_parser(
@@ -292,6 +340,7 @@ def add_bag_parser(sub: argparse._SubParsersAction) -> None:
         "bag", type=new_path, help="new bag path (must not exist; .mcap: a file, else a folder)"
     )
     p.add_argument("--topics", nargs="+", help="topics to record (default: all)")
+    p.add_argument("--force", action="store_true", help="replace an existing bag FILE")
     p.add_argument("--duration", type=positive_float, help="wall seconds to record")
     p.add_argument("--wall-clock", action="store_true", help="log times on the system clock")
     p.add_argument(
@@ -300,4 +349,4 @@ def add_bag_parser(sub: argparse._SubParsersAction) -> None:
         default=1.0,
         help="wall s between chunk flushes: at most this much is lost if killed (default 1)",
     )
-    p.set_defaults(func=_cmd_record)
+    p.set_defaults(func=_cmd_record, needs_ros=True)

@@ -24,6 +24,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from ffmpc_ros.bag.errors import BagError
 from ffmpc_ros.bag.reader import BagMessage, BagReader
 from ffmpc_ros.bag.ros_types import is_installed, message_class, qos_from_dicts
+from ffmpc_ros.discovery import domain_id as _env_domain_id
 
 CLOCK = "/clock"
 
@@ -217,7 +218,7 @@ def play_bag(
     from rclpy.context import Context
     from rclpy.experimental import EventsExecutor
 
-    domain = int(os.environ.get("ROS_DOMAIN_ID", "0")) if domain_id is None else domain_id
+    domain = _env_domain_id() if domain_id is None else domain_id
     context = Context()
     rclpy.init(args=[], context=context, domain_id=domain)
     executor = EventsExecutor(context=context)

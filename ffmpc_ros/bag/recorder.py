@@ -42,6 +42,7 @@ from rclpy.topic_endpoint_info import TopicEndpointInfo
 
 from ffmpc_ros.bag.ros_types import offered_profiles, subscribe_raw
 from ffmpc_ros.bag.writer import BagWriter
+from ffmpc_ros.discovery import domain_id as _env_domain_id
 from ffmpc_ros.graph_nodes import SERVICE_RETRY
 
 if TYPE_CHECKING:
@@ -479,7 +480,7 @@ def record_bag(
     True; returns the (closed) recorder with its counts."""
     from rclpy.experimental import EventsExecutor
 
-    domain = int(os.environ.get("ROS_DOMAIN_ID", "0")) if domain_id is None else domain_id
+    domain = _env_domain_id() if domain_id is None else domain_id
     context = Context()
     rclpy.init(args=[], context=context, domain_id=domain)
     executor = EventsExecutor(context=context)

@@ -53,6 +53,7 @@ from ffmpc_ros.bag.errors import BagError
 from ffmpc_ros.bag.machine import MACHINE_RECORD, same_machine
 from ffmpc_ros.bag.reader import BagMessage, BagReader
 from ffmpc_ros.bag.ros_types import message_class, qos_from_dicts
+from ffmpc_ros.discovery import domain_id as _env_domain_id
 
 if TYPE_CHECKING:
     from ffmpc_ros.base import GraphNode
@@ -251,16 +252,36 @@ class RerunReport:
     rejected: dict[str, int] = field(default_factory=dict)
     tolerance: RerunTolerance = field(default_factory=RerunTolerance)
     same_machine: bool = False  # the bag's fingerprint equals this machine's
+    #: what the bag's summary says it holds, per input and output topic (messages)
+    summary_counts: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def compared(self) -> int:
+        """Recorded output messages compared with the re-run's."""
+        return sum(c.recorded for c in self.outputs)
+
+    def shortfall(self) -> list[str]:
+        """Topics fed or compared with fewer messages than the bag's summary holds
+        (``topic: n of N``), or ``nothing compared``: a re-run that checked less than the
+        recording is no pass."""
+        out = []
+        seen = {**self.inputs, **{c.topic: c.recorded for c in self.outputs}}
+        for topic, total in sorted(self.summary_counts.items()):
+            if seen.get(topic, 0) < total:
+                out.append(f"{topic}: {seen.get(topic, 0)} of {total}")
+        if self.compared == 0:
+            out.append("nothing compared (no recorded output message)")
+        return out
 
     @property
     def identical(self) -> bool:
-        """Every output bit-identical to the recording."""
-        return all(c.exact for c in self.outputs)
+        """Every output bit-identical to the recording, and something compared."""
+        return all(c.exact for c in self.outputs) and not self.shortfall()
 
     @property
     def reproduced(self) -> bool:
-        """Every output equal to the recording within the tolerance."""
-        return all(c.reproduced for c in self.outputs)
+        """Every output equal to the recording within the tolerance, and something compared."""
+        return all(c.reproduced for c in self.outputs) and not self.shortfall()
 
     @property
     def ok(self) -> bool:
@@ -289,7 +310,16 @@ class RerunReport:
             if self.same_machine
             else "recorded on another machine (or stack): bit-identity not required"
         )
-        if self.identical:
+        head += (
+            f"\n  compared {self.compared} recorded output messages on {len(self.outputs)} "
+            f"topics, fed {sum(self.inputs.values())} recorded input messages"
+        )
+        short = self.shortfall()
+        if short:
+            verdict = "FAILED: the re-run checked less than the recording holds: " + "; ".join(
+                short
+            )
+        elif self.identical:
             verdict = "outputs IDENTICAL to the recording"
         elif self.reproduced:
             verdict = "outputs equal to the recording WITHIN TOLERANCE" + (
@@ -454,7 +484,7 @@ def rerun_node(
             remaps += ["-r", f"__ns:={namespace}"]
         remaps += [a for t in names if t != topics.CLOCK for a in ("-r", f"{t}:={prefix}{t}")]
         values.update(_rerun_qos(bag, names, prefix))
-        domain = int(os.environ.get("ROS_DOMAIN_ID", "0")) if domain_id is None else domain_id
+        domain = _env_domain_id() if domain_id is None else domain_id
         context = Context()
         rclpy.init(args=[], context=context, domain_id=domain)
         executor = EventsExecutor(context=context)
@@ -669,4 +699,5 @@ def _run(
         wall_time=time.perf_counter() - start,
         rejected=dict(target.rejected),
         tolerance=tolerance,
+        summary_counts={t: bag.topics[t].count for t in [*inputs, *outputs]},
     )
