@@ -1,4 +1,4 @@
-"""The linear_feedback_controller's control law (agimus/loco-3d, a ros2_control controller), ROS-free.
+"""The linear_feedback_controller's law (agimus/loco-3d, a ros2_control controller), ROS-free.
 
 An MPC is executed on hardware by a fast loop that applies the solver's first feed-forward
 torque and Riccati gain between solves. The agimus ``linear_feedback_controller`` (version

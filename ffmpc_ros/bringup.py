@@ -90,9 +90,9 @@ from ffmpc_ros.graph_nodes import (
     METRICS_NODE,
     NODES,
     SERVICE_RETRY,
-    graph_nodes,
     graph_parameters,
     load_node_class,
+    node_table,
     write_params_file,
 )
 from ffmpc_ros.params import parameter_overrides
@@ -511,7 +511,7 @@ def run_graph(
     namespace = topics.normalize_namespace(namespace)
     faults = faults_from(faults)
     check_supported(faults, single_process, lockstep)
-    nodes = graph_nodes(interfaces, low_level)
+    table = node_table(interfaces, low_level)
     if interfaces != topics.FFMPC_INTERFACES and (
         not lockstep or record is not None or view is not None or faults
     ):
@@ -521,10 +521,10 @@ def run_graph(
         )
     if node_ros_args and (single_process or not lockstep):
         raise ConfigError("per-node ROS arguments need the multi-process lockstep graph")
-    unknown = sorted(set(node_ros_args or {}) - set(nodes))
+    unknown = sorted(set(node_ros_args or {}) - set(table))
     if unknown:
         raise ConfigError(
-            f"per-node ROS arguments for unknown nodes {unknown}; nodes: {list(nodes)}"
+            f"per-node ROS arguments for unknown nodes {unknown}; nodes: {list(table)}"
         )
     metrics_cls = load_node_class(METRICS_NODE)
     # Task duration from the metrics node's own view of the scenario when not given.
@@ -591,7 +591,7 @@ def run_graph(
         if not allow_foreign:
             _refuse_foreign(probe_node, domain, namespace)
         if single_process:
-            for name, path in nodes.items():
+            for name, path in table.items():
                 graph_nodes.append(
                     load_node_class(path)(
                         context=context, parameter_overrides=parameter_overrides(params[name])
@@ -614,9 +614,7 @@ def run_graph(
                 nodes.append(view_node)
                 executor.add_node(view_node)
         else:
-            children, logs = _spawn(
-                params, tmp.name, domain, node_ros_args or {}, namespace, nodes
-            )
+            children, logs = _spawn(params, tmp.name, domain, node_ros_args or {}, namespace, table)
             if view is not None:
                 view_counts = os.path.join(tmp.name, "view_counts.json")
                 children["view"], logs["view"] = _spawn_view(
@@ -642,7 +640,7 @@ def run_graph(
                     view is not None,  # with the view, the recorder also writes /tf
                 )
             values = _fetch_parameters(
-                probe_node, executor, list(nodes), children, logs, start + start_timeout
+                probe_node, executor, list(table), children, logs, start + start_timeout
             )
         mismatches = parameter_mismatches(values)
         if mismatches:
@@ -651,7 +649,7 @@ def run_graph(
                 + "; ".join(mismatches)
             )
         if children:
-            _bring_up(probe_node, executor, list(nodes), children, logs, start + start_timeout)
+            _bring_up(probe_node, executor, list(table), children, logs, start + start_timeout)
         if faults:
             injector = FaultInjector(probe_node, faults, children, time_step)
             if injector.wants_sensors:
@@ -777,7 +775,7 @@ def run_graph(
         "safe_hold_s": float(np.count_nonzero(hold) * time_step),
         "metrics_filled": int(metrics.filled),
         "faults": [] if injector is None else injector.report(),
-        "rejected_messages": {name: rejected.get(name) for name in [*nodes, "metrics"]},
+        "rejected_messages": {name: rejected.get(name) for name in [*table, "metrics"]},
     }
     return GraphResult(
         formulation=scenario.mpc.formulation,

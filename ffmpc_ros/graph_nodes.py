@@ -33,16 +33,18 @@ METRICS_NODE = "ffmpc_ros.metrics_node:MetricsNode"
 #: The LFC-law node (the agimus linear_feedback_controller's law), the PID's place in a graph
 #: run with ``low_level="lfc"`` (ros2_control's interfaces only).
 LFC_NODE = "ffmpc_ros.lfc_node:LfcNode"
-#: The low-level nodes a polishing graph can run (``graph_nodes``).
+#: The low-level nodes a polishing graph can run (``node_table``).
 LOW_LEVELS = ("pid", "lfc")
 
 
-def graph_nodes(interfaces: str = topics.FFMPC_INTERFACES, low_level: str = "pid") -> dict[str, str]:
+def node_table(interfaces: str = topics.FFMPC_INTERFACES, low_level: str = "pid") -> dict[str, str]:
     """The node table of a polishing graph: :data:`NODES`, with the LFC-law node ``lfc`` in the
     PID's place for ``low_level="lfc"``; ConfigError for an unknown value, or for the LFC-law
     node without ros2_control's interfaces (it speaks only those)."""
     if interfaces not in topics.INTERFACES:
-        raise ConfigError(f"interfaces must be one of {list(topics.INTERFACES)}, got {interfaces!r}")
+        raise ConfigError(
+            f"interfaces must be one of {list(topics.INTERFACES)}, got {interfaces!r}"
+        )
     if low_level not in LOW_LEVELS:
         raise ConfigError(f"low_level must be one of {list(LOW_LEVELS)}, got {low_level!r}")
     if low_level == "pid":
@@ -52,8 +54,11 @@ def graph_nodes(interfaces: str = topics.FFMPC_INTERFACES, low_level: str = "pid
             "the LFC-law node reads linear_feedback_controller_msgs/Control: it needs "
             f"interfaces={topics.ROS2_CONTROL_INTERFACES!r}"
         )
-    return {("lfc" if name == "pid" else name): (LFC_NODE if name == "pid" else path)
-            for name, path in NODES.items()}
+    return {
+        ("lfc" if name == "pid" else name): (LFC_NODE if name == "pid" else path)
+        for name, path in NODES.items()
+    }
+
 
 #: A service request without an answer after this long (wall s) is sent again: a service
 #: reports ready once its request reader matched ours, but a response sent before the server's
@@ -81,8 +86,8 @@ def graph_parameters(
     """{node: {ROS name: value}} of every node of the graph under ``namespace``, metrics node
     included, with the graph's QoS overrides (``topics.graph_qos_overrides``: the sensor topics
     reliable, lockstep and real time alike); ``interfaces`` and ``low_level``:
-    :func:`graph_nodes` (given to the nodes only when they differ from the defaults)."""
-    nodes = graph_nodes(interfaces, low_level)
+    :func:`node_table` (given to the nodes only when they differ from the defaults)."""
+    nodes = node_table(interfaces, low_level)
     graph: dict[str, Any] = {
         "lockstep": lockstep,
         "duration": float(duration),

@@ -1,4 +1,4 @@
-"""The LFC-law node: the agimus linear_feedback_controller's control law on topics, in ros2_control's
+"""The LFC-law node: the agimus linear_feedback_controller's law on topics, in ros2_control's
 terms (``ffmpc_core.linear_feedback``: τ = τ_ff + K·(x₀ ⊖ x) at the plant's rate).
 
 It stands in for the real controller (a ros2_control chainable controller, C++) in ffmpc's graph
@@ -172,7 +172,9 @@ class LfcNode(GraphNode):
         self.last_output = out
         stamp = self.stamp_of(k)
         self.pub_effort.publish(effort_message(out.motor_torque))
-        self.pub_record.publish(joint_state_message(stamp, self.joint_names, None, None, out.motor_torque))
+        self.pub_record.publish(
+            joint_state_message(stamp, self.joint_names, None, None, out.motor_torque)
+        )
         age = out.command_age if np.isfinite(out.command_age) else 1e9
         self.pub_status.publish(
             layouts.LOWLEVEL_STATUS.pack(

@@ -5,8 +5,9 @@ same code as the ROS-free runner (``ffmpc_core.polishing.PolishingLog`` and
 Row k of the log takes: the TRUE q of ``/plant/joint_states`` at t_k (end-effector position by
 pinocchio), the normal force of ``/plant/truth`` at t_k, the last measured force entry of
 ``/ft_sensor/wrench`` at t_k, τ^d and τ^m of ``/pid/desired_torque`` and ``/pid/motor_torque``
-at t_k (with ``low_level: lfc``, both from the LFC-law node's ``/lfc/effort``), and τ̂ of cycle k — the effort of ``/plant/joint_states`` at t_{k+1}. Once every cycle of
-the run is in, it publishes the metrics as JSON on ``/metrics/summary`` (transient local).
+at t_k (with ``low_level: lfc``, both from the LFC-law node's ``/lfc/effort``), and τ̂ of
+cycle k — the effort of ``/plant/joint_states`` at t_{k+1}. Once every cycle of the run is in,
+it publishes the metrics as JSON on ``/metrics/summary`` (transient local).
 
 Real time (``lockstep: false``): the PID may skip cycles, so once the plant's last state is in
 and ``FINISH_GRACE`` (wall s) has passed, a missing value of a cycle is the previous cycle's

@@ -97,8 +97,8 @@ from ffmpc_ros.base import (
     run_node,
 )
 from ffmpc_ros.command_msg import command_message
-from ffmpc_ros.lfc_msgs import control_message, sensor_fields
 from ffmpc_ros.impact_common import DIRECTION_TOLERANCE, receive_estimate
+from ffmpc_ros.lfc_msgs import control_message, sensor_fields
 
 _KEEP = 20  # cycles of unmatched measurements kept
 WARM_UP_SOLVES = 20  # real time: solves before the node subscribes to its inputs
@@ -137,7 +137,9 @@ class MpcNode(GraphNode):
         contact = self.config.contact
         self.force_axes = [contact.normal_axis] if contact.dimension == 1 else [0, 1, 2]
         command_type, command_topic = (
-            (Control, topics.LFC_CONTROL) if self.ros2_control else (MpcCommandMsg, topics.MPC_COMMAND)
+            (Control, topics.LFC_CONTROL)
+            if self.ros2_control
+            else (MpcCommandMsg, topics.MPC_COMMAND)
         )
         self.publisher = self.create_publisher(
             command_type, command_topic, topics.publisher_qos(command_topic)

@@ -178,7 +178,9 @@ def test_the_upstream_law_on_a_control_is_ffmpc_riccati_torque():
     np.testing.assert_allclose(tau, expected, rtol=1e-12, atol=1e-9)
     dx = state_difference(robot.model, q, v, command.q0, command.v0)
     np.testing.assert_allclose(dx[:NV], pin.difference(robot.model, q, command.q0))
-    np.testing.assert_allclose(linear_feedback_torque(robot.model, command, *np.split(sol.state, 2)), sol.torque)
+    np.testing.assert_allclose(
+        linear_feedback_torque(robot.model, command, *np.split(sol.state, 2)), sol.torque
+    )
 
 
 @pytest.mark.parametrize(

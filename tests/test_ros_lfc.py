@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from builtin_interfaces.msg import Time
+from ffmpc_ros.node_table import node_table
 from linear_feedback_controller_msgs.msg import Control, Sensor
 from ros_helpers import joint_state, overrides, recorder
 from sensor_msgs.msg import JointState
@@ -19,8 +19,6 @@ from ffmpc_core.linear_feedback import LinearFeedbackCommand, linear_feedback_to
 from ffmpc_core.lowlevel import LowLevelMode
 from ffmpc_core.scenario import load_scenario
 from ffmpc_ros import layouts, lfc_msgs, topics
-from ffmpc_ros.bringup import run_graph
-from ffmpc_ros.graph_nodes import graph_nodes
 from ffmpc_ros.lfc_node import LfcNode
 from ffmpc_ros.plant_node import PlantNode
 
@@ -73,7 +71,9 @@ def test_plant_is_driven_through_the_effort_command_topic(ros):
 
 def _lfc(ros, scenario=None, **graph):
     scenario = scenario or load_scenario("polishing", {"mpc.formulation": "classical"})
-    node = ros.add(LfcNode(context=ros.context, parameter_overrides=overrides("lfc", scenario, **graph)))
+    node = ros.add(
+        LfcNode(context=ros.context, parameter_overrides=overrides("lfc", scenario, **graph))
+    )
     probe = ros.probe()
     joints = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
     controls = probe.create_publisher(
@@ -95,7 +95,9 @@ def test_lfc_node_applies_the_law_of_each_control_and_holds_without_one(ros):
     sol = type("S", (), {})()
     sol.torque = robot.gravity(q0) + rng.normal(0.0, 1.0, 7)
     sol.state = np.concatenate((q0, np.zeros(7)))
-    sol.feedback_gain = -np.hstack((np.diag(rng.uniform(50, 100, 7)), np.diag(rng.uniform(5, 10, 7))))
+    sol.feedback_gain = -np.hstack(
+        (np.diag(rng.uniform(50, 100, 7)), np.diag(rng.uniform(5, 10, 7)))
+    )
     q = q0 + rng.normal(0.0, 0.01, 7)
     v = rng.normal(0.0, 0.05, 7)
     joints.publish(joint_state(node, 0, q, v, sol.torque))
@@ -110,7 +112,9 @@ def test_lfc_node_applies_the_law_of_each_control_and_holds_without_one(ros):
     assert ros.spin_until(lambda: len(efforts) == 1 and len(records) == 1 and len(status) == 1)
     fields = lfc_msgs.control_fields(control, names)
     cmd = LinearFeedbackCommand(fields["feedforward"], fields["feedback_gain"], q0, np.zeros(7))
-    expected = np.clip(linear_feedback_torque(robot.model, cmd, q, v), -robot.torque_limit, robot.torque_limit)
+    expected = np.clip(
+        linear_feedback_torque(robot.model, cmd, q, v), -robot.torque_limit, robot.torque_limit
+    )
     np.testing.assert_allclose(efforts[0].data, expected, rtol=1e-12)
     np.testing.assert_array_equal(records[0].effort, efforts[0].data)
     assert layouts.LOWLEVEL_STATUS.unpack(status[0])["mode"] == LowLevelMode.TRACK
@@ -120,14 +124,14 @@ def test_lfc_node_applies_the_law_of_each_control_and_holds_without_one(ros):
     assert ros.spin_until(lambda: node.rejected[f"/{topics.LFC_CONTROL}:value"] == 1)
     ros.set_clock(node, 1)
     joints.publish(joint_state(node, 1, q, v, sol.torque))
-    assert ros.spin_until(lambda: len(efforts) == 2)
+    assert ros.spin_until(lambda: len(efforts) == 2 and len(status) == 2)
     # the rejected control dropped the current one: the safe hold from that cycle on
     assert layouts.LOWLEVEL_STATUS.unpack(status[1])["mode"] == LowLevelMode.FALLBACK
 
 
 def test_lfc_needs_ros2_control_interfaces():
     with pytest.raises(ConfigError, match="ros2_control"):
-        graph_nodes("ffmpc", "lfc")
-    assert "lfc" in graph_nodes(ROS2_CONTROL, "lfc") and "pid" not in graph_nodes(ROS2_CONTROL, "lfc")
+        node_table("ffmpc", "lfc")
+    assert "lfc" in node_table(ROS2_CONTROL, "lfc") and "pid" not in node_table(ROS2_CONTROL, "lfc")
     with pytest.raises(ConfigError, match="low_level"):
-        graph_nodes(ROS2_CONTROL, "torque_pid")
+        node_table(ROS2_CONTROL, "torque_pid")
