@@ -379,7 +379,7 @@ NODE_SPECS: dict[str, NodeSpec] = {
         "pid",
         ("robot",),
         _TIME_STEP + _CONTACT + ("mpc.period", "mpc.formulation", "mpc.riccati_feedback"),
-        (LOCKSTEP, LOCKSTEP_TIMEOUT, MAX_AGE, INTERFACES),
+        (LOCKSTEP, LOCKSTEP_TIMEOUT, MAX_AGE, INTERFACES, REMOVE_GRAVITY),
         PID_LIVE,
     ),
     # the linear_feedback_controller's law (ffmpc_ros.lfc_node): the PID's place in a graph

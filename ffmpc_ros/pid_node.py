@@ -35,7 +35,9 @@ linear_feedback_controller's part on its topics — it reads the MPC's
 feedback of torque- or force-feedback acts on (q, q̇) only) instead of ``mpc/command``, publishes
 each measured state as ``linear_feedback_controller/sensor`` (what the MPC then reads) and sends
 τ^m on ``effort_controller/commands`` too (``std_msgs/Float64MultiArray``, the robot's joint
-order), the effort command topic of a forward_command_controller.
+order), the effort command topic of a forward_command_controller; with
+``remove_gravity_compensation_effort`` minus g(q̂), for drives that add gravity compensation
+themselves (Panda, KUKA FRI torque mode), as the agimus controller's parameter of that name.
 """
 
 from __future__ import annotations
@@ -100,6 +102,8 @@ class PidNode(GraphNode):
         contact = s.mpc.contact
         self.force_axes = [contact.normal_axis] if contact.dimension == 1 else [0, 1, 2]
         self.pub_sensor = self.pub_effort = None
+        self.remove_gravity = bool(self.params["remove_gravity_compensation_effort"])
+        self._gravity_data = self.robot.create_data()
         if self.ros2_control:
             self.pub_sensor = self.graph_publisher(Sensor, topics.LFC_SENSOR)
             self.pub_effort = self.graph_publisher(Float64MultiArray, topics.EFFORT_COMMANDS)
@@ -294,7 +298,10 @@ class PidNode(GraphNode):
             msg.effort = value.tolist()
             pub.publish(msg)
         if self.pub_effort is not None:  # ros2_control's effort command topic
-            self.pub_effort.publish(effort_message(out.motor_torque))
+            effort = out.motor_torque
+            if self.remove_gravity:  # drives that add gravity compensation themselves
+                effort = effort - self.robot.gravity(meas.q, self._gravity_data)
+            self.pub_effort.publish(effort_message(effort))
         age = out.command_age if np.isfinite(out.command_age) else 1e9
         self.pub_status.publish(
             layouts.LOWLEVEL_STATUS.pack(

@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from ffmpc_ros.node_table import node_table
+from ffmpc_ros.graph_nodes import node_table
 from linear_feedback_controller_msgs.msg import Control, Sensor
-from ros_helpers import joint_state, overrides, recorder
+from ros_helpers import assert_same_run, joint_state, overrides, recorder
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
@@ -21,6 +21,7 @@ from ffmpc_core.scenario import load_scenario
 from ffmpc_ros import layouts, lfc_msgs, topics
 from ffmpc_ros.lfc_node import LfcNode
 from ffmpc_ros.plant_node import PlantNode
+from studies.polishing import run_polishing
 
 ROS2_CONTROL = topics.ROS2_CONTROL_INTERFACES
 
@@ -135,3 +136,85 @@ def test_lfc_needs_ros2_control_interfaces():
     assert "lfc" in node_table(ROS2_CONTROL, "lfc") and "pid" not in node_table(ROS2_CONTROL, "lfc")
     with pytest.raises(ConfigError, match="low_level"):
         node_table(ROS2_CONTROL, "torque_pid")
+
+
+def test_ros2_control_graph_with_the_pid_equals_the_runner():
+    """Control instead of MpcCommand, Sensor instead of the sensed joint states, the effort
+    command topic instead of pid/motor_torque, same numbers: with the paper's scheme (no Riccati
+    feedback) the PID uses the Control's feed-forward only, and CDR carries doubles exactly, so
+    the run is bit-identical to the ROS-free runner — the normal graph's twin
+    (tests/test_ros_graph.py)."""
+    scenario = load_scenario("polishing", {"seed": 2})
+    graph = run_graph(
+        scenario,
+        duration=0.6,
+        single_process=True,
+        timeout=300,
+        interfaces=ROS2_CONTROL,
+        low_level="pid",
+    )
+    assert_same_run(graph, run_polishing(scenario, duration=0.6))
+    assert graph.log["force_true"].max() > 1.0  # the run reached the table
+
+
+#: The LFC graph against the normal one (tolerances stated in README, "MPC on a ros2_control
+#: robot"): same MPC, same scenario and seed; the low level differs by design (the LFC's
+#: τ_ff + K·(x₀ ⊖ x) at 1 kHz, no torque PID against the actuation bias and gain of eq 31).
+LFC_DURATION = 2.0  # s: reach, force ramp, then 0.9 s of the circle (the metrics' window)
+LFC_TOLERANCE = {"force_mae": 0.5, "position_mae_mm": 0.25, "max_force": 0.1}  # relative
+
+
+def test_mpc_publishes_control_and_the_lfc_law_drives_the_plant_like_the_normal_graph():
+    """The MPC publishes linear_feedback_controller_msgs/Control, the LFC-law node (not ffmpc's
+    PID) applies it through the effort command topic at the plant's rate: E_λ, E_P and λmax of
+    the true force stay within LFC_TOLERANCE of the normal graph's (the ROS-free runner, equal
+    to the normal graph bit for bit), contact holds, no input is rejected and the law tracked
+    every cycle (no hold, no fallback)."""
+    scenario = load_scenario("polishing", {"seed": 0})
+    graph = run_graph(
+        scenario,
+        duration=LFC_DURATION,
+        single_process=True,
+        timeout=600,
+        interfaces=ROS2_CONTROL,
+        low_level="lfc",
+    )
+    normal = run_polishing(scenario, duration=LFC_DURATION)
+    lfc, ref = graph.metrics_true.to_dict(), normal.metrics_true.to_dict()
+    print({"lfc": lfc, "normal": ref})
+    for name, tolerance in LFC_TOLERANCE.items():
+        assert abs(lfc[name] - ref[name]) <= tolerance * ref[name], (name, lfc[name], ref[name])
+    assert lfc["contact_break_percent"] == ref["contact_break_percent"] == 0.0
+    assert not any(graph.safety["rejected_messages"].values())
+    assert graph.safety["safe_hold_s"] == 0.0
+    assert max(graph.safety["max_velocity_ratio"]) < 1.0
+    modes = graph.timing["mode_cycles"]
+    assert modes["track"] == round(LFC_DURATION / scenario.plant.time_step)
+    # the law's effort differs from the runner's PID torque: not the same controller
+    assert not np.array_equal(graph.log["tau_motor"], normal.log["tau_motor"])
+
+
+def test_the_ros2_control_launch_files_start_the_mpc_and_the_pid_against_remapped_topics():
+    from ffmpc_ros.launch import find_launch_file, load_launch_file
+
+    path = find_launch_file("ros2_control_mpc.launch.yaml")
+    (mpc,) = load_launch_file(path, {"robot": "panda", "wrench": "/ati/wrench"}).nodes
+    assert mpc.executable == "mpc" and mpc.parameters[0][0] == "file"
+    for entry in (("robot", "panda"), ("interfaces", ROS2_CONTROL), ("lockstep", False)):
+        assert entry in mpc.parameters
+    assert (topics.LFC_CONTROL, "/" + topics.LFC_CONTROL) in mpc.remaps
+    assert (topics.LFC_SENSOR, "/" + topics.LFC_SENSOR) in mpc.remaps
+    assert (topics.SENSED_WRENCH, "/ati/wrench") in mpc.remaps
+    path = find_launch_file("ros2_control_mpc_pid.launch.yaml")
+    arguments = {
+        "robot": "iiwa",
+        "namespace": "/lbr",
+        "joint_states": "/lbr/joint_states",
+        "effort_commands": "/lbr/effort_controller/commands",
+    }
+    mpc, pid = load_launch_file(path, arguments).nodes
+    assert (mpc.executable, pid.executable) == ("mpc", "pid")
+    assert mpc.namespace == pid.namespace == "/lbr"
+    assert ("interfaces", ROS2_CONTROL) in pid.parameters and ("lockstep", False) in pid.parameters
+    assert (topics.SENSED_JOINT_STATES, "/lbr/joint_states") in pid.remaps
+    assert (topics.EFFORT_COMMANDS, "/lbr/effort_controller/commands") in pid.remaps
