@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from ffmpc_ros.graph_nodes import node_table
 from linear_feedback_controller_msgs.msg import Control, Sensor
 from ros_helpers import assert_same_run, joint_state, overrides, recorder
 from sensor_msgs.msg import JointState
@@ -19,6 +18,8 @@ from ffmpc_core.linear_feedback import LinearFeedbackCommand, linear_feedback_to
 from ffmpc_core.lowlevel import LowLevelMode
 from ffmpc_core.scenario import load_scenario
 from ffmpc_ros import layouts, lfc_msgs, topics
+from ffmpc_ros.bringup import run_graph
+from ffmpc_ros.graph_nodes import node_table
 from ffmpc_ros.lfc_node import LfcNode
 from ffmpc_ros.plant_node import PlantNode
 from studies.polishing import run_polishing
