@@ -148,28 +148,32 @@ def test_ros2_control_graph_with_the_pid_equals_the_runner():
     scenario = load_scenario("polishing", {"seed": 2})
     graph = run_graph(
         scenario,
-        duration=0.6,
+        duration=1.0,
         single_process=True,
         timeout=300,
         interfaces=ROS2_CONTROL,
         low_level="pid",
     )
-    assert_same_run(graph, run_polishing(scenario, duration=0.6))
-    assert graph.log["force_true"].max() > 1.0  # the run reached the table
+    assert_same_run(graph, run_polishing(scenario, duration=1.0))
+    assert graph.log["force_true"].max() > 5.0  # the run reached the table
 
 
-#: The LFC graph against the normal one (tolerances stated in README, "MPC on a ros2_control
-#: robot"): same MPC, same scenario and seed; the low level differs by design (the LFC's
-#: τ_ff + K·(x₀ ⊖ x) at 1 kHz, no torque PID against the actuation bias and gain of eq 31).
-LFC_DURATION = 2.0  # s: reach, force ramp, then 0.9 s of the circle (the metrics' window)
-LFC_TOLERANCE = {"force_mae": 0.5, "position_mae_mm": 0.25, "max_force": 0.1}  # relative
+#: The LFC graph against the normal one (the tolerances README, "MPC on a ros2_control robot",
+#: states with both sets of metrics): same MPC, scenario and seed; the low level differs by
+#: design (the LFC's τ_ff + K·(x₀ ⊖ x) at 1 kHz instead of τ* through the torque PID of eq 33,
+#: which also rejects the actuation bias and gain of eq 31), so the metrics differ, both ways.
+LFC_DURATION = 2.0  # s: reach, force ramp, then the start of the circle (the metrics' window)
+#: |E_λ(lfc) − E_λ(normal)| ≤ 1 N (2 % of the 50 N set-point), |ΔE_P| ≤ 2.5 mm
+LFC_TOLERANCE = {"force_mae": 1.0, "position_mae_mm": 2.5}
+#: |λmax(lfc) − λmax(normal)| ≤ 10 % of the normal graph's
+LFC_MAX_FORCE_TOLERANCE = 0.1
 
 
 def test_mpc_publishes_control_and_the_lfc_law_drives_the_plant_like_the_normal_graph():
     """The MPC publishes linear_feedback_controller_msgs/Control, the LFC-law node (not ffmpc's
     PID) applies it through the effort command topic at the plant's rate: E_λ, E_P and λmax of
-    the true force stay within LFC_TOLERANCE of the normal graph's (the ROS-free runner, equal
-    to the normal graph bit for bit), contact holds, no input is rejected and the law tracked
+    the true force stay within LFC_TOLERANCE and LFC_MAX_FORCE_TOLERANCE of the normal graph's
+    (the ROS-free runner, equal to the normal graph bit for bit), contact holds, no input is rejected and the law tracked
     every cycle (no hold, no fallback)."""
     scenario = load_scenario("polishing", {"seed": 0})
     graph = run_graph(
@@ -184,7 +188,10 @@ def test_mpc_publishes_control_and_the_lfc_law_drives_the_plant_like_the_normal_
     lfc, ref = graph.metrics_true.to_dict(), normal.metrics_true.to_dict()
     print({"lfc": lfc, "normal": ref})
     for name, tolerance in LFC_TOLERANCE.items():
-        assert abs(lfc[name] - ref[name]) <= tolerance * ref[name], (name, lfc[name], ref[name])
+        assert abs(lfc[name] - ref[name]) <= tolerance, (name, lfc[name], ref[name])
+    peak = abs(lfc["max_force"] - ref["max_force"])
+    assert peak <= LFC_MAX_FORCE_TOLERANCE * ref["max_force"], (lfc["max_force"], ref["max_force"])
+    assert ref["max_force"] > 40.0  # the window holds contact at the set-point
     assert lfc["contact_break_percent"] == ref["contact_break_percent"] == 0.0
     assert not any(graph.safety["rejected_messages"].values())
     assert graph.safety["safe_hold_s"] == 0.0
@@ -219,3 +226,63 @@ def test_the_ros2_control_launch_files_start_the_mpc_and_the_pid_against_remappe
     assert ("interfaces", ROS2_CONTROL) in pid.parameters and ("lockstep", False) in pid.parameters
     assert (topics.SENSED_JOINT_STATES, "/lbr/joint_states") in pid.remaps
     assert (topics.EFFORT_COMMANDS, "/lbr/effort_controller/commands") in pid.remaps
+
+
+def test_the_mpc_launch_file_drives_a_simulated_ros2_control_robot(ros, tmp_path):
+    """``ffmpc launch ros2_control_mpc.launch.yaml`` (the MPC alone, real time, ros2_control's
+    terms) against a simulated robot that speaks those terms: the plant in real time (it
+    publishes /clock), the sensor models and the LFC-law node in the agimus controller's place.
+    The robot's side receives the MPC's Controls on the launch file's default topics and tracks
+    them (TRACK mode), with nothing rejected. Wiring and real-time behaviour only: the timing of
+    a Python plant in one executor is not a real robot's."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from ffmpc_ros.ft_sensor_node import FtSensorNode
+    from ffmpc_ros.joint_sensor_node import JointSensorNode
+
+    scenario = load_scenario("polishing", {"mpc.formulation": "classical"})
+    graph = {"lockstep": False, "duration": 60.0}
+    robot_side = [
+        ros.add(
+            cls(
+                context=ros.context,
+                parameter_overrides=overrides(name, scenario, **graph, **extra),
+            )
+        )
+        for name, cls, extra in (
+            ("plant", PlantNode, {"interfaces": ROS2_CONTROL}),
+            ("joint_sensor", JointSensorNode, {}),
+            ("ft_sensor", FtSensorNode, {}),
+            ("lfc", LfcNode, {}),
+        )
+    ]
+    lfc = robot_side[-1]
+    command = [sys.executable, "-m", "ffmpc_ros.cli", "launch", "ros2_control_mpc.launch.yaml"]
+    command += ["formulation:=classical", "--timeout", "120", "--log-dir", str(tmp_path)]
+    launch = subprocess.Popen(
+        command,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST"),
+    )
+    control_topic = f"/{topics.LFC_CONTROL}"
+    try:
+        tracked = ros.spin_until(
+            lambda: (
+                lfc.accepted[control_topic] >= 50
+                and lfc.last_output is not None
+                and lfc.last_output.mode == LowLevelMode.TRACK
+            ),
+            timeout=90.0,
+        )
+    finally:
+        launch.send_signal(signal.SIGINT)
+        out, _ = launch.communicate(timeout=30)
+    print(dict(lfc.accepted), dict(lfc.rejected), robot_side[0].deadline_misses, robot_side[0].k)
+    assert tracked, (dict(lfc.accepted), dict(lfc.rejected), out[-3000:])
+    assert not lfc.rejected, dict(lfc.rejected)
+    assert "[launch] started mpc" in out
