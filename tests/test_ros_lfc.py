@@ -173,8 +173,8 @@ def test_mpc_publishes_control_and_the_lfc_law_drives_the_plant_like_the_normal_
     """The MPC publishes linear_feedback_controller_msgs/Control, the LFC-law node (not ffmpc's
     PID) applies it through the effort command topic at the plant's rate: E_λ, E_P and λmax of
     the true force stay within LFC_TOLERANCE and LFC_MAX_FORCE_TOLERANCE of the normal graph's
-    (the ROS-free runner, equal to the normal graph bit for bit), contact holds, no input is rejected and the law tracked
-    every cycle (no hold, no fallback)."""
+    (the ROS-free runner, equal to the normal graph bit for bit), contact holds, no input is
+    rejected and the law tracked every cycle (no hold, no fallback)."""
     scenario = load_scenario("polishing", {"seed": 0})
     graph = run_graph(
         scenario,
