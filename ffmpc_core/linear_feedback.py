@@ -196,7 +196,12 @@ class LinearFeedbackLoop:
                     self._mode = LowLevelMode.TRACK
             blend = 1.0
             if self._mode == LowLevelMode.BLEND:
-                blend = min(1.0, (t - self._blend_start) / self.transition_duration)
+                elapsed = t - self._blend_start  # (times are multiples of the plant step)
+                blend = (
+                    1.0
+                    if elapsed >= self.transition_duration - TIME_EPS
+                    else elapsed / self.transition_duration
+                )
                 if blend >= 1.0:
                     self._mode = LowLevelMode.TRACK
                 else:  # upstream's linear PD → LF weight, the hold in the PD's place
