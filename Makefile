@@ -46,7 +46,7 @@ $(STAMP): pyproject.toml CMakeLists.txt
 # changed (the build installs them into share/ffmpc_ros).
 native: $(NATIVE)
 
-$(NATIVE): $(STAMP) $(wildcard cpp/*.cpp cpp/*.hpp msg/*.msg msg/*.cmake msg/CMakeLists.txt msg/tf2_msgs/*/* msg/tf2_msgs/CMakeLists.txt ffmpc_core/scenarios/*.yaml ffmpc_ros/ros_layout/*/* share/ffmpc_ros/*/*)
+$(NATIVE): $(STAMP) $(wildcard cpp/*.cpp cpp/*.hpp msg/*.msg msg/*.cmake msg/CMakeLists.txt msg/tf2_msgs/*/* msg/tf2_msgs/CMakeLists.txt msg/linear_feedback_controller_msgs/*/* msg/linear_feedback_controller_msgs/CMakeLists.txt ffmpc_core/scenarios/*.yaml ffmpc_ros/ros_layout/*/* share/ffmpc_ros/*/*)
 	$(BIN)/python -m pip install --quiet --no-build-isolation --no-deps -e .
 	$(BIN)/python -m ffmpc_ros.ament >/dev/null  # pip rewrote the launchers (env python3)
 	touch $(NATIVE)

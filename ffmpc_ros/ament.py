@@ -29,6 +29,7 @@ EXECUTABLES: dict[str, str] = {
     "ft_sensor": "ffmpc_ros.ft_sensor_node",
     "mpc": "ffmpc_ros.mpc_node",
     "pid": "ffmpc_ros.pid_node",
+    "lfc": "ffmpc_ros.lfc_node",
     "metrics": "ffmpc_ros.metrics_node",
     "impact_planner": "ffmpc_ros.impact_planner_node",
     "contact_learner": "ffmpc_ros.contact_learner_node",

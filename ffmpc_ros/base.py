@@ -838,6 +838,15 @@ def _qos_override_errors(node: Node, topic: str, role: str) -> Iterator[None]:
         raise ConfigError(f"{name}: {_first_line(exc)}") from None
 
 
+def interfaces_of(node: GraphNode) -> str:
+    """The node's graph parameter ``interfaces`` (``topics.INTERFACES``: ffmpc's own topics or
+    ros2_control's terms); ConfigError for another value."""
+    value = str(node.params["interfaces"])
+    if value not in topics.INTERFACES:
+        raise ConfigError(f"interfaces must be one of {list(topics.INTERFACES)}, got {value!r}")
+    return value
+
+
 def stamp_ns(stamp: TimeMsg) -> int | None:
     """A ROS stamp in ns, or None when it is no time (negative, or nanosec ≥ 10⁹)."""
     sec, nanosec = int(stamp.sec), int(stamp.nanosec)

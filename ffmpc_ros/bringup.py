@@ -93,6 +93,7 @@ from ffmpc_ros.graph_nodes import (
     SERVICE_RETRY,
     graph_parameters,
     load_node_class,
+    node_table,
     write_params_file,
 )
 from ffmpc_ros.params import parameter_overrides
@@ -297,6 +298,7 @@ class _StatusProbe:
         robot: RobotModel | None = None,
         time_step: float = 1e-3,
         on_cycle: Callable[[int], None] | None = None,
+        motor_topic: str = topics.MOTOR_TORQUE,
     ) -> None:
         self.status: dict | None = None
         self.cycle = -1
@@ -323,9 +325,9 @@ class _StatusProbe:
             )
             node.create_subscription(
                 JointState,
-                topics.MOTOR_TORQUE,
+                motor_topic,  # the low level's τ^m (pid/motor_torque, or lfc/effort)
                 self._on_motor,
-                topics.graph_qos(topics.MOTOR_TORQUE, "subscription"),
+                topics.graph_qos(motor_topic, "subscription"),
             )
 
     def _on(self, msg: Float64MultiArray) -> None:
@@ -362,16 +364,18 @@ class _StatusProbe:
 class _PidStatusProbe:
     """Lockstep: the torque loop's mode and command age of every cycle (``/pid/status``)."""
 
-    def __init__(self, node: Node, steps: int, time_step: float) -> None:
+    def __init__(
+        self, node: Node, steps: int, time_step: float, topic: str = topics.LOWLEVEL_STATUS
+    ) -> None:
         self.time_step = time_step
         self.mode = np.full(steps, -1, dtype=np.int8)
         self.command_age = np.full(steps, np.nan)
         self.last_cycle = -1
         node.create_subscription(
             Float64MultiArray,
-            topics.LOWLEVEL_STATUS,
+            topic,  # the low level's status (pid/status, or lfc/status: same layout)
             self._on,
-            topics.graph_qos(topics.LOWLEVEL_STATUS, "subscription"),
+            topics.graph_qos(topic, "subscription"),
         )
 
     def _on(self, msg: Float64MultiArray) -> None:
@@ -456,6 +460,8 @@ def run_graph(
     view_host: str = "127.0.0.1",
     view_wait: bool = False,
     namespace: str | None = None,
+    interfaces: str = topics.FFMPC_INTERFACES,
+    low_level: str = "pid",
 ) -> GraphResult:
     """Run ``scenario`` on the node graph and return the metrics node's result.
 
@@ -487,6 +493,12 @@ def run_graph(
         view_wait: the run starts only once a Foxglove client subscribes to
             ``/plant/joint_states`` (``start_timeout`` still applies).
         namespace: ROS namespace of the whole graph (module docstring; None: the root).
+        interfaces: the topics between the MPC, the low level and the plant: ``"ffmpc"``
+            (its own) or ``"ros2_control"`` (linear_feedback_controller_msgs Control/Sensor,
+            the effort command topic; ``ffmpc_ros.topics.ROS2_CONTROL_TOPICS``). Lockstep
+            only, without record, view or faults (ConfigError).
+        low_level: the low-level node: ``"pid"`` (ffmpc's torque PID) or ``"lfc"`` (the
+            linear_feedback_controller's law, ``ffmpc_ros.lfc_node``; ros2_control only).
     """
     from ffmpc_ros.fault_injector import (
         FAULT_LOCKSTEP_TIMEOUT,
@@ -500,12 +512,20 @@ def run_graph(
     namespace = topics.normalize_namespace(namespace)
     faults = faults_from(faults)
     check_supported(faults, single_process, lockstep)
+    table = node_table(interfaces, low_level)
+    if interfaces != topics.FFMPC_INTERFACES and (
+        not lockstep or record is not None or view is not None or faults
+    ):
+        raise ConfigError(
+            "interfaces='ros2_control' runs the lockstep graph only (no real time, record, "
+            "view or faults yet)"
+        )
     if node_ros_args and (single_process or not lockstep):
         raise ConfigError("per-node ROS arguments need the multi-process lockstep graph")
-    unknown = sorted(set(node_ros_args or {}) - set(NODES))
+    unknown = sorted(set(node_ros_args or {}) - set(table))
     if unknown:
         raise ConfigError(
-            f"per-node ROS arguments for unknown nodes {unknown}; nodes: {list(NODES)}"
+            f"per-node ROS arguments for unknown nodes {unknown}; nodes: {list(table)}"
         )
     metrics_cls = load_node_class(METRICS_NODE)
     # Task duration from the metrics node's own view of the scenario when not given.
@@ -513,7 +533,7 @@ def run_graph(
         from ffmpc_core.polishing import build_task
 
         duration = build_task(scenario, load_robot(scenario.robot)).duration
-    params = graph_parameters(scenario, lockstep, duration, namespace)
+    params = graph_parameters(scenario, lockstep, duration, namespace, interfaces, low_level)
     windows = [(float(start), float(end)) for start, end in fault_windows]
     # an injected fault's effects outlast it a little (queued messages): FAULT_RECOVERY
     windows += [(f.start, min(f.end + FAULT_RECOVERY, float(duration))) for f in faults]
@@ -534,7 +554,7 @@ def run_graph(
 
         raise BagExistsError(f"{record} exists; a bag is never overwritten")
     if any(f.kind in PROCESS_KINDS for f in faults):
-        params["pid"]["lockstep_timeout"] = FAULT_LOCKSTEP_TIMEOUT
+        params[low_level]["lockstep_timeout"] = FAULT_LOCKSTEP_TIMEOUT
     if view is not None:
         from ffmpc_ros.view import check_port_free
 
@@ -572,7 +592,7 @@ def run_graph(
         if not allow_foreign:
             _refuse_foreign(probe_node, domain, namespace)
         if single_process:
-            for name, path in NODES.items():
+            for name, path in table.items():
                 graph_nodes.append(
                     load_node_class(path)(
                         context=context, parameter_overrides=parameter_overrides(params[name])
@@ -595,7 +615,7 @@ def run_graph(
                 nodes.append(view_node)
                 executor.add_node(view_node)
         else:
-            children, logs = _spawn(params, tmp.name, domain, node_ros_args or {}, namespace)
+            children, logs = _spawn(params, tmp.name, domain, node_ros_args or {}, namespace, table)
             if view is not None:
                 view_counts = os.path.join(tmp.name, "view_counts.json")
                 children["view"], logs["view"] = _spawn_view(
@@ -621,7 +641,7 @@ def run_graph(
                     view is not None,  # with the view, the recorder also writes /tf
                 )
             values = _fetch_parameters(
-                probe_node, executor, list(NODES), children, logs, start + start_timeout
+                probe_node, executor, list(table), children, logs, start + start_timeout
             )
         mismatches = parameter_mismatches(values)
         if mismatches:
@@ -630,7 +650,7 @@ def run_graph(
                 + "; ".join(mismatches)
             )
         if children:
-            _bring_up(probe_node, executor, list(NODES), children, logs, start + start_timeout)
+            _bring_up(probe_node, executor, list(table), children, logs, start + start_timeout)
         if faults:
             injector = FaultInjector(probe_node, faults, children, time_step)
             if injector.wants_sensors:
@@ -648,14 +668,19 @@ def run_graph(
                     injector.on_sensed_wrench,
                     topics.graph_qos(topics.SENSED_WRENCH, "subscription"),
                 )
+        _, motor_topic, status_topic = topics.low_level_topics(low_level)
         probe = _StatusProbe(
-            probe_node, robot, time_step, None if injector is None else injector.on_cycle
+            probe_node,
+            robot,
+            time_step,
+            None if injector is None else injector.on_cycle,
+            motor_topic,
         )
         # The plant starts once the metrics node is ready: only now, after the checks.
         metrics = metrics_cls(
             context=context, parameter_overrides=parameter_overrides(params["metrics"])
         )
-        pid_probe = _PidStatusProbe(probe_node, metrics.steps, metrics.time_step)
+        pid_probe = _PidStatusProbe(probe_node, metrics.steps, metrics.time_step, status_topic)
         nodes.append(metrics)
         executor.add_node(metrics)
         if record is not None and single_process:
@@ -751,7 +776,7 @@ def run_graph(
         "safe_hold_s": float(np.count_nonzero(hold) * time_step),
         "metrics_filled": int(metrics.filled),
         "faults": [] if injector is None else injector.report(),
-        "rejected_messages": {name: rejected.get(name) for name in [*NODES, "metrics"]},
+        "rejected_messages": {name: rejected.get(name) for name in [*table, "metrics"]},
     }
     return GraphResult(
         formulation=scenario.mpc.formulation,
@@ -1027,7 +1052,7 @@ def _refuse_foreign(
     using the graph's node names in its namespace (module docstring); a graph in another
     namespace is no conflict (its names resolve elsewhere, its clock is its own)."""
     names = [t for t, _, _ in topics.resolved_topics(namespace)]
-    ours = {*NODES, "metrics", "ffmpc_recorder", "ffmpc_bringup", "view"}
+    ours = {*NODES, "lfc", "metrics", "ffmpc_recorder", "ffmpc_bringup", "view"}
     me = node.get_fully_qualified_name()
     deadline = time.monotonic() + wait
     first_seen: float | None = None

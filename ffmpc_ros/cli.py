@@ -350,6 +350,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         view=args.view_port if args.view else None,
         view_wait=args.view_wait,
         namespace=checked["namespace"],
+        interfaces=args.interfaces,
+        low_level=args.low_level,
     )
     summary = result.summary()
     summary["command_line"] = shlex.join(["ffmpc", *args.argv])
@@ -571,6 +573,21 @@ def build_parser() -> argparse.ArgumentParser:
         help="run the whole graph under this ROS namespace (/arm1: topics /arm1/plant/..., "
         "clock /arm1/clock; every node, the recorder and the bring-up's own subscriptions): "
         "two graphs under different namespaces share one ROS domain (default: the root)",
+    )
+    run.add_argument(
+        "--interfaces",
+        choices=("ffmpc", "ros2_control"),
+        default="ffmpc",
+        help="the topics between MPC, low level and plant: ffmpc's own (default) or "
+        "ros2_control's terms (linear_feedback_controller_msgs Control/Sensor, the effort "
+        "command topic effort_controller/commands, joint_states; lockstep only)",
+    )
+    run.add_argument(
+        "--low-level",
+        choices=("pid", "lfc"),
+        default="pid",
+        help="the low-level node: ffmpc's torque PID (default) or lfc, the "
+        "linear_feedback_controller's law tau = ff + K (x0 - x) (needs --interfaces ros2_control)",
     )
     run.add_argument(
         "--allow-foreign-publishers",

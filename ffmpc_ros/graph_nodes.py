@@ -13,6 +13,7 @@ from typing import Any
 
 import yaml
 
+from ffmpc_core.errors import ConfigError
 from ffmpc_core.scenario import Scenario
 from ffmpc_ros import topics
 from ffmpc_ros.params import node_parameter_values
@@ -29,6 +30,35 @@ NODES: dict[str, str] = {
     "state_publisher": "ffmpc_ros.state_publisher_node:StatePublisherNode",
 }
 METRICS_NODE = "ffmpc_ros.metrics_node:MetricsNode"
+#: The LFC-law node (the agimus linear_feedback_controller's law), the PID's place in a graph
+#: run with ``low_level="lfc"`` (ros2_control's interfaces only).
+LFC_NODE = "ffmpc_ros.lfc_node:LfcNode"
+#: The low-level nodes a polishing graph can run (``node_table``).
+LOW_LEVELS = ("pid", "lfc")
+
+
+def node_table(interfaces: str = topics.FFMPC_INTERFACES, low_level: str = "pid") -> dict[str, str]:
+    """The node table of a polishing graph: :data:`NODES`, with the LFC-law node ``lfc`` in the
+    PID's place for ``low_level="lfc"``; ConfigError for an unknown value, or for the LFC-law
+    node without ros2_control's interfaces (it speaks only those)."""
+    if interfaces not in topics.INTERFACES:
+        raise ConfigError(
+            f"interfaces must be one of {list(topics.INTERFACES)}, got {interfaces!r}"
+        )
+    if low_level not in LOW_LEVELS:
+        raise ConfigError(f"low_level must be one of {list(LOW_LEVELS)}, got {low_level!r}")
+    if low_level == "pid":
+        return dict(NODES)
+    if interfaces != topics.ROS2_CONTROL_INTERFACES:
+        raise ConfigError(
+            "the LFC-law node reads linear_feedback_controller_msgs/Control: it needs "
+            f"interfaces={topics.ROS2_CONTROL_INTERFACES!r}"
+        )
+    return {
+        ("lfc" if name == "pid" else name): (LFC_NODE if name == "pid" else path)
+        for name, path in NODES.items()
+    }
+
 
 #: A service request without an answer after this long (wall s) is sent again: a service
 #: reports ready once its request reader matched ours, but a response sent before the server's
@@ -50,22 +80,30 @@ def graph_parameters(
     lockstep: bool,
     duration: float,
     namespace: str | None = topics.ROOT_NAMESPACE,
+    interfaces: str = topics.FFMPC_INTERFACES,
+    low_level: str = "pid",
 ) -> dict[str, dict]:
     """{node: {ROS name: value}} of every node of the graph under ``namespace``, metrics node
     included, with the graph's QoS overrides (``topics.graph_qos_overrides``: the sensor topics
-    reliable, lockstep and real time alike)."""
-    graph = {
+    reliable, lockstep and real time alike); ``interfaces`` and ``low_level``:
+    :func:`node_table` (given to the nodes only when they differ from the defaults)."""
+    nodes = node_table(interfaces, low_level)
+    graph: dict[str, Any] = {
         "lockstep": lockstep,
         "duration": float(duration),
         "start_delay": 0.0,  # the start barrier makes sure of the matches (no settling time)
         "start_subscribers": 2,  # the joint-sensor and metrics nodes
         # every node's two /clock readers: the plant's own, the other nodes' and the metrics'
-        "start_clock_subscribers": topics.CLOCK_READERS_PER_NODE * (len(NODES) + 1),
+        "start_clock_subscribers": topics.CLOCK_READERS_PER_NODE * (len(nodes) + 1),
         # the lockstep start barrier: every node of the graph, the metrics node included
-        "start_nodes": len(NODES) + 1,
+        "start_nodes": len(nodes) + 1,
         "wait_for_metrics": True,  # the metrics node has matched every topic it records
     }
-    names = [*NODES, "metrics"]
+    if interfaces != topics.FFMPC_INTERFACES:
+        graph["interfaces"] = interfaces
+    if low_level != "pid":
+        graph["low_level"] = low_level
+    names = [*nodes, "metrics"]
     qos = topics.graph_qos_overrides(namespace)
     return {n: {**node_parameter_values(n, scenario, **graph), **qos} for n in names}
 

@@ -5,8 +5,9 @@ same code as the ROS-free runner (``ffmpc_core.polishing.PolishingLog`` and
 Row k of the log takes: the TRUE q of ``/plant/joint_states`` at t_k (end-effector position by
 pinocchio), the normal force of ``/plant/truth`` at t_k, the last measured force entry of
 ``/ft_sensor/wrench`` at t_k, τ^d and τ^m of ``/pid/desired_torque`` and ``/pid/motor_torque``
-at t_k, and τ̂ of cycle k — the effort of ``/plant/joint_states`` at t_{k+1}. Once every cycle of
-the run is in, it publishes the metrics as JSON on ``/metrics/summary`` (transient local).
+at t_k (with ``low_level: lfc``, both from the LFC-law node's ``/lfc/effort``), and τ̂ of
+cycle k — the effort of ``/plant/joint_states`` at t_{k+1}. Once every cycle of the run is in,
+it publishes the metrics as JSON on ``/metrics/summary`` (transient local).
 
 Real time (``lockstep: false``): the PID may skip cycles, so once the plant's last state is in
 and ``FINISH_GRACE`` (wall s) has passed, a missing value of a cycle is the previous cycle's
@@ -26,13 +27,15 @@ from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64MultiArray, String
 
-from ffmpc_core.errors import InputError
+from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.metrics import PolishingMetrics
 from ffmpc_core.polishing import PolishingLog, build_task, polishing_run_metrics
 from ffmpc_core.robots import load_robot
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import GraphNode, run_node
 
+#: The graph's low-level nodes whose torques the log records (graph parameter ``low_level``).
+LOW_LEVELS = ("pid", "lfc")
 _LOGGED = ("force_true", "force_measured", "tau_desired", "tau_measured", "tau_motor")
 FINISH_GRACE = 0.5  # real time: wall s after the last state before finishing, s
 _PARTS = ("q", "force_true", "force_measured", "tau_desired", "tau_measured", "tau_motor")
@@ -67,14 +70,18 @@ class MetricsNode(GraphNode):
         self.pub_ready = self.create_publisher(
             Bool, topics.METRICS_READY, topics.publisher_qos(topics.METRICS_READY)
         )
+        low_level = str(self.params["low_level"])
+        if low_level not in LOW_LEVELS:
+            raise ConfigError(f"low_level must be one of {list(LOW_LEVELS)}, got {low_level!r}")
+        desired, motor, _ = topics.low_level_topics(low_level)
         self._subs = [
             self.create_subscription(msg_type, topic, callback, topics.subscriber_qos(True, topic))
             for msg_type, topic, callback in (
                 (JointState, topics.PLANT_JOINT_STATES, self.on_plant_joints),
                 (Float64MultiArray, topics.PLANT_TRUTH, self.on_truth),
                 (WrenchStamped, topics.SENSED_WRENCH, self.on_wrench),
-                (JointState, topics.DESIRED_TORQUE, self.on_desired),
-                (JointState, topics.MOTOR_TORQUE, self.on_motor),
+                (JointState, desired, self.on_desired),
+                (JointState, motor, self.on_motor),
             )
         ]
         self.ready = False

@@ -49,6 +49,15 @@ than the schema's bound on ``mpc.position_offset`` (0.1 m per axis) from the sce
 force outside ``task.normal_force``'s range is rejected and counted (:meth:`GraphNode.reject`).
 In real time the node serves the reference topics from its wait set, but not the parameter
 services (it has no executor).
+
+ros2_control's terms (graph parameter ``interfaces: ros2_control``; README "MPC on a ros2_control
+robot"): the node reads ``linear_feedback_controller/sensor`` (``linear_feedback_controller_msgs/
+Sensor``: q̂, q̇̂, τ̂ stamped t_k, as the agimus linear_feedback_controller publishes them) instead
+of the joint states, and publishes ``linear_feedback_controller/control``
+(``linear_feedback_controller_msgs/Control``: τ* as the feed-forward, the first Riccati gain
+K = −G on the (q, v) columns, x0 as the initial state; ``ffmpc_ros.lfc_msgs``) instead of
+``mpc/command``, so that a real linear_feedback_controller (or ffmpc's PID or LFC-law node)
+executes it. The wrench input is the same.
 """
 
 from __future__ import annotations
@@ -61,6 +70,7 @@ import numpy as np
 from builtin_interfaces.msg import Time as TimeMsg
 from ffmpc_msgs.msg import MpcCommand as MpcCommandMsg
 from geometry_msgs.msg import PoseStamped, WrenchStamped
+from linear_feedback_controller_msgs.msg import Control, Sensor
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray
@@ -79,9 +89,16 @@ from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import SCHEMA
 from ffmpc_core.tasks import PhaseWeights
 from ffmpc_ros import layouts, topics
-from ffmpc_ros.base import MAX_FUTURE_STAMP, GraphNode, drop_stale_cycles, run_node
+from ffmpc_ros.base import (
+    MAX_FUTURE_STAMP,
+    GraphNode,
+    drop_stale_cycles,
+    interfaces_of,
+    run_node,
+)
 from ffmpc_ros.command_msg import command_message
 from ffmpc_ros.impact_common import DIRECTION_TOLERANCE, receive_estimate
+from ffmpc_ros.lfc_msgs import control_message, sensor_fields
 
 _KEEP = 20  # cycles of unmatched measurements kept
 WARM_UP_SOLVES = 20  # real time: solves before the node subscribes to its inputs
@@ -116,15 +133,28 @@ class MpcNode(GraphNode):
         self.lockstep = bool(self.params["lockstep"])
         if not self.lockstep:
             self.warm_up()
+        self.ros2_control = interfaces_of(self) == topics.ROS2_CONTROL_INTERFACES
+        contact = self.config.contact
+        self.force_axes = [contact.normal_axis] if contact.dimension == 1 else [0, 1, 2]
+        command_type, command_topic = (
+            (Control, topics.LFC_CONTROL)
+            if self.ros2_control
+            else (MpcCommandMsg, topics.MPC_COMMAND)
+        )
         self.publisher = self.create_publisher(
-            MpcCommandMsg, topics.MPC_COMMAND, topics.publisher_qos(topics.MPC_COMMAND)
+            command_type, command_topic, topics.publisher_qos(command_topic)
         )
         self.prediction_publisher = self.create_publisher(
             Float64MultiArray, topics.MPC_PREDICTION, topics.publisher_qos(topics.MPC_PREDICTION)
         )
-        qos = topics.subscriber_qos(self.lockstep, topics.SENSED_JOINT_STATES)  # SENSOR, both
+        qos = topics.subscriber_qos(self.lockstep, topics.SENSED_JOINT_STATES)  # SENSOR, all
+        self._on_state = self.on_sensor if self.ros2_control else self.on_joints
         self.inputs = [
-            self.create_subscription(JointState, topics.SENSED_JOINT_STATES, self.on_joints, qos)
+            self.create_subscription(Sensor, topics.LFC_SENSOR, self.on_sensor, qos)
+            if self.ros2_control
+            else self.create_subscription(
+                JointState, topics.SENSED_JOINT_STATES, self.on_joints, qos
+            )
         ]
         if self.needs_force:
             self.inputs.append(
@@ -155,8 +185,12 @@ class MpcNode(GraphNode):
                 topics.subscriber_qos(False, topics.CONTACT_ESTIMATE),
             )
 
-    def on_joints(self, msg: JointState) -> None:
-        topic = self.name_of(topics.SENSED_JOINT_STATES)
+    def on_sensor(self, msg: Sensor) -> None:
+        """ros2_control's terms: the measured state of a ``Sensor`` (its joint_state)."""
+        self.on_joints(sensor_fields(msg), topics.LFC_SENSOR)
+
+    def on_joints(self, msg: JointState, topic_name: str = topics.SENSED_JOINT_STATES) -> None:
+        topic = self.name_of(topic_name)
         got = self.receive(topic, msg, self.joint_fields("position", "velocity", "effort"))
         if got is None:
             return
@@ -387,7 +421,7 @@ class MpcNode(GraphNode):
         inputs = [(sub, sub.callback, False) for sub in clock]
         inputs += [
             (sub, handler, True)
-            for sub, handler in zip(self.inputs, (self.on_joints, self.on_wrench), strict=False)
+            for sub, handler in zip(self.inputs, (self._on_state, self.on_wrench), strict=False)
         ]
         if self.use_learned_contact:
             inputs.append((self.estimates, self.on_estimate, False))
@@ -433,10 +467,11 @@ class MpcNode(GraphNode):
             return
         self._last_solve = k
         self.solve_times.append(command.solve_time)
+        stamp, formulation = self.stamp_of(k), self.config.formulation
         self.publisher.publish(
-            command_message(
-                self.stamp_of(k), self.config.formulation, self.joint_names, self.sequence, command
-            )
+            control_message(stamp, formulation, self.joint_names, command, self.force_axes)
+            if self.ros2_control
+            else command_message(stamp, formulation, self.joint_names, self.sequence, command)
         )
         self.sequence += 1
         if self.prediction_publisher.get_subscription_count() > 0:

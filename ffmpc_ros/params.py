@@ -168,6 +168,34 @@ WAIT_FOR_METRICS = GraphParameter(
     "lockstep: start only after the metrics node announced /metrics/ready",
 )
 
+INTERFACES = GraphParameter(
+    "interfaces",
+    "ffmpc",
+    "the node's topics: ffmpc (its own: ffmpc_msgs/MpcCommand, pid/motor_torque) or "
+    "ros2_control (linear_feedback_controller_msgs Control and Sensor on "
+    "linear_feedback_controller/{control,sensor}, efforts on effort_controller/commands, "
+    "joint_states; msgs_notes/topics.md)",
+)
+LOW_LEVEL = GraphParameter(
+    "low_level",
+    "pid",
+    "the graph's low-level node whose torques are recorded: pid (pid/desired_torque, "
+    "pid/motor_torque) or lfc (the LFC-law node's lfc/effort)",
+)
+TRANSITION_DURATION = GraphParameter(
+    "pd_to_lf_transition_duration",
+    0.1,
+    "s, linear transition from the safe hold to the law once controls arrive after hold "
+    "torques were sent (upstream's parameter of the same name)",
+    (0.0, 10.0),
+)
+REMOVE_GRAVITY = GraphParameter(
+    "remove_gravity_compensation_effort",
+    False,
+    "subtract g(q) from the effort sent (drives that add gravity compensation themselves: "
+    "Panda, KUKA FRI torque mode; upstream's parameter of the same name)",
+)
+
 _TIME_STEP = ("plant.time_step",)
 _CONTACT = ("mpc.contact.dimension", "mpc.contact.normal_axis", "mpc.contact.frame_type")
 
@@ -322,6 +350,7 @@ NODE_SPECS: dict[str, NodeSpec] = {
             START_NODES,
             WAIT_FOR_METRICS,
             MAX_AGE,
+            INTERFACES,
         ),
     ),
     "joint_sensor": NodeSpec(
@@ -335,7 +364,14 @@ NODE_SPECS: dict[str, NodeSpec] = {
         "mpc",
         ("robot", "task.*"),
         _TIME_STEP + ("pid.delay_cycles",),
-        (LOCKSTEP, MAX_AGE, USE_LEARNED_CONTACT, LEARNER_MIN_SAMPLES, LEARNER_MAX_RELATIVE_STD),
+        (
+            LOCKSTEP,
+            MAX_AGE,
+            USE_LEARNED_CONTACT,
+            LEARNER_MIN_SAMPLES,
+            LEARNER_MAX_RELATIVE_STD,
+            INTERFACES,
+        ),
         MPC_LIVE,
     ),
     "pid": NodeSpec(
@@ -343,15 +379,30 @@ NODE_SPECS: dict[str, NodeSpec] = {
         "pid",
         ("robot",),
         _TIME_STEP + _CONTACT + ("mpc.period", "mpc.formulation", "mpc.riccati_feedback"),
-        (LOCKSTEP, LOCKSTEP_TIMEOUT, MAX_AGE),
+        (LOCKSTEP, LOCKSTEP_TIMEOUT, MAX_AGE, INTERFACES, REMOVE_GRAVITY),
         PID_LIVE,
+    ),
+    # the linear_feedback_controller's law (ffmpc_ros.lfc_node): the PID's place in a graph
+    # with ros2_control interfaces; its safe hold is the low level's (pid.hold_*)
+    "lfc": NodeSpec(
+        "lfc",
+        None,
+        ("robot",),
+        _TIME_STEP + _CONTACT + ("mpc.period", "mpc.formulation", "mpc.riccati_feedback", "pid.*"),
+        (
+            LOCKSTEP,
+            LOCKSTEP_TIMEOUT,
+            MAX_AGE,
+            TRANSITION_DURATION,
+            REMOVE_GRAVITY,
+        ),
     ),
     "metrics": NodeSpec(
         "metrics",
         None,
         ("robot", "seed", "task.*"),
         _TIME_STEP + _CONTACT + ("mpc.formulation",),
-        (DURATION, LOCKSTEP),
+        (DURATION, LOCKSTEP, LOW_LEVEL),
     ),
     "state_publisher": NodeSpec(
         "state_publisher",

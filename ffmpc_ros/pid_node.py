@@ -42,6 +42,17 @@ is kept, clamped to the new anti-windup bound), and the limits of the low level
 data-sheet torque limits τ^d and τ^m are saturated to, in [0.01, 1] (a value above 1 is refused
 with the schema's reason: never above the data sheet), and ``stale_timeout``, the command age
 (s) that engages the safe hold, refused unless it exceeds the MPC period.
+
+ros2_control's terms (graph parameter ``interfaces: ros2_control``): the node plays the agimus
+linear_feedback_controller's part on its topics — it reads the MPC's
+``linear_feedback_controller/control`` (``linear_feedback_controller_msgs/Control``:
+``ffmpc_ros.lfc_msgs.low_level_command``; Control has no augmented gain columns, so the Riccati
+feedback of torque- or force-feedback acts on (q, q̇) only) instead of ``mpc/command``, publishes
+each measured state as ``linear_feedback_controller/sensor`` (what the MPC then reads) and sends
+τ^m on ``effort_controller/commands`` too (``std_msgs/Float64MultiArray``, the robot's joint
+order), the effort command topic of a forward_command_controller; with
+``remove_gravity_compensation_effort`` minus g(q̂), for drives that add gravity compensation
+themselves (Panda, KUKA FRI torque mode), as the agimus controller's parameter of that name.
 """
 
 from __future__ import annotations
@@ -53,6 +64,7 @@ from typing import Any
 import numpy as np
 from ffmpc_msgs.msg import MpcCommand as MpcCommandMsg
 from geometry_msgs.msg import WrenchStamped
+from linear_feedback_controller_msgs.msg import Control, Sensor
 from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
@@ -62,8 +74,14 @@ from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement, LowLevelMo
 from ffmpc_core.polishing import lowlevel_controller, measured_force, steps_per_mpc_period
 from ffmpc_core.robots import load_robot
 from ffmpc_ros import layouts, topics
-from ffmpc_ros.base import GraphNode, drop_stale_cycles, run_node
+from ffmpc_ros.base import GraphNode, drop_stale_cycles, interfaces_of, run_node
 from ffmpc_ros.command_msg import command_fields
+from ffmpc_ros.lfc_msgs import (
+    control_fields,
+    effort_message,
+    low_level_command,
+    sensor_message,
+)
 
 _KEEP = 50  # cycles of pending inputs kept
 
@@ -96,12 +114,28 @@ class PidNode(GraphNode):
         self.pub_status = self.graph_publisher(Float64MultiArray, topics.LOWLEVEL_STATUS)
         sub_qos = topics.subscriber_qos(self.lockstep, topics.SENSED_JOINT_STATES)  # SENSOR
         self.create_subscription(JointState, topics.SENSED_JOINT_STATES, self.on_joints, sub_qos)
-        self.create_subscription(
-            MpcCommandMsg,
-            topics.MPC_COMMAND,
-            self.on_command,
-            topics.subscriber_qos(self.lockstep, topics.MPC_COMMAND),
-        )
+        self.ros2_control = interfaces_of(self) == topics.ROS2_CONTROL_INTERFACES
+        contact = s.mpc.contact
+        self.force_axes = [contact.normal_axis] if contact.dimension == 1 else [0, 1, 2]
+        self.pub_sensor = self.pub_effort = None
+        self.remove_gravity = bool(self.params["remove_gravity_compensation_effort"])
+        self._gravity_data = self.robot.create_data()
+        if self.ros2_control:
+            self.pub_sensor = self.graph_publisher(Sensor, topics.LFC_SENSOR)
+            self.pub_effort = self.graph_publisher(Float64MultiArray, topics.EFFORT_COMMANDS)
+            self.create_subscription(
+                Control,
+                topics.LFC_CONTROL,
+                self.on_control,
+                topics.subscriber_qos(self.lockstep, topics.LFC_CONTROL),
+            )
+        else:
+            self.create_subscription(
+                MpcCommandMsg,
+                topics.MPC_COMMAND,
+                self.on_command,
+                topics.subscriber_qos(self.lockstep, topics.MPC_COMMAND),
+            )
         if self.needs_force:
             self.create_subscription(WrenchStamped, topics.SENSED_WRENCH, self.on_wrench, sub_qos)
         if self.lockstep:
@@ -115,6 +149,8 @@ class PidNode(GraphNode):
             return
         k, arrays = got
         self._joints[k] = tuple(arrays)
+        if self.pub_sensor is not None:  # the state the MPC solves from (ros2_control's terms)
+            self.pub_sensor.publish(sensor_message(self.stamp_of(k), self.joint_names, *arrays))
         self._advance()
 
     def on_wrench(self, msg: WrenchStamped) -> None:
@@ -149,6 +185,24 @@ class PidNode(GraphNode):
         except InputError as exc:
             self.reject(f"{topic}:value", str(exc))
             return
+        self._take_command(topic, fields)
+
+    def on_control(self, msg: Control) -> None:
+        """ros2_control's terms: the MPC's ``Control`` (module docstring)."""
+        topic = self.name_of(topics.LFC_CONTROL)
+        try:
+            fields = control_fields(msg, self.joint_names, self.robot.model.nq, self.force_axes)
+            fields.update(
+                low_level_command(fields, self.scenario.mpc.formulation, self.lowlevel.nx)
+            )
+        except InputError as exc:
+            self.reject(f"{topic}:value", str(exc))
+            self.lowlevel.engage_hold()  # an unusable control: safe hold from the next cycle
+            return
+        self._take_command(topic, fields)
+
+    def _take_command(self, topic: str, fields: dict) -> None:
+        """A parsed command (torque, state, feedback_gain, stamp) for the cycle of its stamp."""
         k = self.cycle_of(fields["stamp"])
         if k is None:
             self.reject(f"{topic}:stamp", f"command time {fields['t']} s off the grid")
@@ -268,6 +322,11 @@ class PidNode(GraphNode):
             msg.name = self.joint_names
             msg.effort = value.tolist()
             pub.publish(msg)
+        if self.pub_effort is not None:  # ros2_control's effort command topic
+            effort = out.motor_torque
+            if self.remove_gravity:  # drives that add gravity compensation themselves
+                effort = effort - self.robot.gravity(meas.q, self._gravity_data)
+            self.pub_effort.publish(effort_message(effort))
         age = out.command_age if np.isfinite(out.command_age) else 1e9
         self.pub_status.publish(
             layouts.LOWLEVEL_STATUS.pack(

@@ -16,6 +16,16 @@ Subscribes ``/pid/motor_torque``: τ^m of cycle k (saturated to the torque limit
 through the actuation model (eq 31, the ``actuation`` generator: τ̂ = a·τ^m(t − δs) + b −
 friction + ν_τ) and the plant steps to t_{k+1}.
 
+ros2_control's terms (``interfaces: ros2_control``): the plant is driven like a robot behind a
+forward_command_controller instead, through ``effort_controller/commands``
+(``std_msgs/Float64MultiArray``: one effort per joint, N·m, in the robot's joint order — the
+controller's configured ``joints`` —, no stamp: in lockstep each message is the command of the
+current cycle, in real time the newest), and also publishes ``joint_states`` (the same
+JointState as ``plant/joint_states``, joint_state_broadcaster's topic). A command of another
+size, non-finite or implausible is rejected with one throttled log line (the plant keeps waiting
+in lockstep, keeps its last torque in real time), as forward_command_controller refuses a
+command whose size is not its number of joints.
+
 Lockstep (default): the plant steps only once the motor torque of the current cycle has arrived,
 so a run does not depend on the CPU speed. Real time (``lockstep: false``, this node on its
 own): the plant steps on a wall-clock timer of period time_step with the newest motor torque; a
@@ -47,7 +57,13 @@ from ffmpc_core.polishing import (
 )
 from ffmpc_core.robots import load_robot
 from ffmpc_ros import layouts, topics
-from ffmpc_ros.base import GraphNode, joint_state_message, run_node, wrench_stamped
+from ffmpc_ros.base import (
+    GraphNode,
+    interfaces_of,
+    joint_state_message,
+    run_node,
+    wrench_stamped,
+)
 from sim_bridge.scenes import simulated_robot
 
 STATUS_EVERY = 100  # cycles between two /plant/status messages
@@ -96,12 +112,24 @@ class PlantNode(GraphNode):
         self.pub_wrench = self.graph_publisher(WrenchStamped, topics.PLANT_WRENCH)
         self.pub_truth = self.graph_publisher(Float64MultiArray, topics.PLANT_TRUTH)
         self.pub_status = self.graph_publisher(Float64MultiArray, topics.PLANT_STATUS)
-        self.create_subscription(
-            JointState,
-            topics.MOTOR_TORQUE,
-            self.on_motor,
-            topics.subscriber_qos(self.lockstep, topics.MOTOR_TORQUE),
+        self.ros2_control = interfaces_of(self) == topics.ROS2_CONTROL_INTERFACES
+        self.pub_joint_states = (
+            self.graph_publisher(JointState, topics.JOINT_STATES) if self.ros2_control else None
         )
+        if self.ros2_control:
+            self.create_subscription(
+                Float64MultiArray,
+                topics.EFFORT_COMMANDS,
+                self.on_effort,
+                topics.subscriber_qos(self.lockstep, topics.EFFORT_COMMANDS),
+            )
+        else:
+            self.create_subscription(
+                JointState,
+                topics.MOTOR_TORQUE,
+                self.on_motor,
+                topics.subscriber_qos(self.lockstep, topics.MOTOR_TORQUE),
+            )
         self.metrics_ready = False
         if self.params["wait_for_metrics"]:
             self.create_subscription(
@@ -150,6 +178,8 @@ class PlantNode(GraphNode):
         )
         self._published_at[k] = time.perf_counter()
         self.pub_joints.publish(joints)
+        if self.pub_joint_states is not None:
+            self.pub_joint_states.publish(joints)
         self.pub_wrench.publish(wrench)
         self.pub_truth.publish(truth)
         if k % STATUS_EVERY == 0 or self.done:
@@ -203,6 +233,25 @@ class PlantNode(GraphNode):
             self.reject(f"{topic}:value", str(exc))
             return
         self.accept_cycle(topic, k)
+        self._take_motor(k, tau)
+
+    def on_effort(self, msg: Float64MultiArray) -> None:
+        """A forward_command_controller command (module docstring): the current cycle's."""
+        topic = self.name_of(topics.EFFORT_COMMANDS)
+        if not self.active:
+            self.reject(f"{topic}:inactive", f"{topic} ignored: the node is {self.lifecycle_state}")
+            return
+        try:
+            tau = self.vector(msg.data, self.robot.nv, "effort command")
+            tau = self.robot.clip_torque(tau)  # an absurd torque is refused, not saturated
+        except InputError as exc:
+            self.reject(f"{topic}:value", str(exc))
+            return
+        self.accepted[topic] += 1
+        self._take_motor(self.k, tau)
+
+    def _take_motor(self, k: int, tau: np.ndarray) -> None:
+        """τ^m of cycle k (accepted): the latency, then a step in lockstep."""
         sent = self._published_at.pop(k, None)
         if sent is not None:
             self.latencies.append(time.perf_counter() - sent)

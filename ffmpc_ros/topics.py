@@ -188,6 +188,48 @@ IMPACT_GRAPH_TOPICS: tuple[tuple[str, str, str], ...] = (
     (IMPACT_SUMMARY, "std_msgs/msg/String", "ffmpc_bringup"),
 )
 
+#: ros2_control's terms (graph parameter ``interfaces: ros2_control``, msgs_notes/topics.md,
+#: README "MPC on a ros2_control robot"). The agimus linear_feedback_controller's topics (its
+#: ``~/control`` and ``~/sensor``, relative to its controller name ``linear_feedback_controller``):
+#: the MPC publishes Control on LFC_CONTROL and reads Sensor on LFC_SENSOR; the low-level node of
+#: the graph (the PID, or the LFC-law node ``lfc``) plays the controller's part. The effort
+#: command topic of a forward_command_controller (``effort_controllers/JointGroupEffortController``
+#: named ``effort_controller``: its ``~/commands``, std_msgs/Float64MultiArray, one effort per
+#: configured joint, N·m, in that order, no stamp) drives the plant, which also publishes
+#: ``joint_states`` like joint_state_broadcaster. Remap them to a robot's names.
+LFC_CONTROL = "linear_feedback_controller/control"
+LFC_SENSOR = "linear_feedback_controller/sensor"
+EFFORT_COMMANDS = "effort_controller/commands"
+JOINT_STATES = "joint_states"
+#: The LFC-law node's stamped record of the effort it sent (JointState effort, N·m) and its
+#: status (layout ``lowlevel_status``), what the metrics node and the bring-up read.
+LFC_EFFORT = "lfc/effort"
+LFC_STATUS = "lfc/status"
+#: The interfaces of a graph node (graph parameter ``interfaces``).
+FFMPC_INTERFACES, ROS2_CONTROL_INTERFACES = "ffmpc", "ros2_control"
+INTERFACES = (FFMPC_INTERFACES, ROS2_CONTROL_INTERFACES)
+#: The topics that replace or join :data:`TOPICS` with ``interfaces: ros2_control``: the MPC's
+#: Control, the low level's Sensor and efforts, the plant's joint_states (the LFC-law node's
+#: rows; the PID node publishes the Sensor and the efforts in its place when it is the low level).
+ROS2_CONTROL_TOPICS: tuple[tuple[str, str, str], ...] = (
+    (LFC_CONTROL, "linear_feedback_controller_msgs/msg/Control", "mpc"),
+    (LFC_SENSOR, "linear_feedback_controller_msgs/msg/Sensor", "lfc"),
+    (EFFORT_COMMANDS, "std_msgs/msg/Float64MultiArray", "lfc"),
+    (JOINT_STATES, "sensor_msgs/msg/JointState", "plant"),
+    (LFC_EFFORT, "sensor_msgs/msg/JointState", "lfc"),
+    (LFC_STATUS, "std_msgs/msg/Float64MultiArray", "lfc"),
+)
+
+
+def low_level_topics(low_level: str) -> tuple[str, str, str]:
+    """(desired torque, motor torque, status) topics of the graph's low-level node: the PID's
+    (``pid/desired_torque``, ``pid/motor_torque``, ``pid/status``) or the LFC-law node's
+    (``lfc/effort`` twice, ``lfc/status``: it sends what it computes)."""
+    if low_level == "lfc":
+        return LFC_EFFORT, LFC_EFFORT, LFC_STATUS
+    return DESIRED_TORQUE, MOTOR_TORQUE, LOWLEVEL_STATUS
+
+
 #: Topics of the live view (``ffmpc run --view``, ffmpc_ros.view): the MPC's horizon, which the
 #: MPC node publishes only while something subscribes, and the markers of the view node.
 MPC_PREDICTION = "mpc/prediction"
@@ -242,6 +284,15 @@ QOS_CLASSES: dict[str, str] = {
     ROBOT_DESCRIPTION: LATCHED,
     MPC_REFERENCE: REFERENCE,
     MPC_FORCE_SETPOINT: REFERENCE,
+    # ros2_control's terms: the agimus controller's best-effort Sensor is a sensor topic; the
+    # Control, the efforts and their record are commands; joint_state_broadcaster's topic is
+    # reliable by default: a STATE topic here
+    LFC_SENSOR: SENSOR,
+    LFC_CONTROL: COMMAND,
+    EFFORT_COMMANDS: COMMAND,
+    LFC_EFFORT: COMMAND,
+    LFC_STATUS: STATE,
+    JOINT_STATES: STATE,
 }
 
 

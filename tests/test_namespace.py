@@ -87,6 +87,7 @@ def test_every_node_lives_in_its_namespace():
     classes = {
         **NODES,
         "metrics": "ffmpc_ros.metrics_node:MetricsNode",
+        "lfc": "ffmpc_ros.lfc_node:LfcNode",
         "impact_planner": "ffmpc_ros.impact_planner_node:ImpactPlannerNode",
         "contact_learner": "ffmpc_ros.contact_learner_node:ContactLearnerNode",
     }

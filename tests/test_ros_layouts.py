@@ -68,6 +68,7 @@ def test_every_topic_is_documented_with_its_type_and_publisher():
         | set(topics.IMPACT_TOPICS)
         | set(topics.IMPACT_GRAPH_TOPICS)
         | set(topics.VIEW_TOPICS)
+        | set(topics.ROS2_CONTROL_TOPICS)
     )
     assert documented == documented_sets | references
     assert len(topic_rows) == len(documented_sets) + len(references)

@@ -64,7 +64,10 @@ def test_every_parameter_has_a_description_and_numbers_a_range(ros):
     state = ros.add(
         StatePublisherNode(context=ros.context, parameter_overrides=overrides("state_publisher"))
     )
-    for n in (node, mpc, state):
+    from ffmpc_ros.lfc_node import LfcNode
+
+    lfc = ros.add(LfcNode(context=ros.context, parameter_overrides=overrides("lfc")))
+    for n in (node, mpc, state, lfc):
         names = [p for p in n.params]
         assert len(names) > 5
         for desc in n.describe_parameters(names):
@@ -79,6 +82,7 @@ def test_every_parameter_has_a_description_and_numbers_a_range(ros):
         "ft_sensor",
         "mpc",
         "pid",
+        "lfc",
         "metrics",
         "impact_planner",
         "contact_learner",
