@@ -5,18 +5,20 @@
 as :class:`sim_bridge.plant.Plant`, with the same units, frames and signs (rad, rad/s, N·m, m,
 N; world frame; the wrench the environment exerts on the tool, reduced to the contact frame
 origin). A closed loop, a sensing model or a reflex wrapper written against the protocol runs on
-either; ``scenes.make_plant(engine, ...)`` picks one.
+either; :func:`sim_bridge.scenes.make_plant` (``plant.engine``) picks one.
 
 The model. MuJoCo compiles the URDF the PyBullet plant loads
 (:func:`sim_bridge.plant.tool_urdf_text`: the robot's own description, mesh paths resolved, the
 tool link added at the contact frame, the Panda's fingers fixed at 0 and their collision shapes
-removed), with every link kept as a body (``fusestatic="false"``) and the inertias of the
-file. Like the PyBullet plant: no joint damping
-or friction (the URDF's ``<dynamics>`` are zeroed; joint friction belongs to the actuation model,
-eq 31), no motors (the torque is a generalized force), torques saturated to the data-sheet
-limits, the URDF's position limits enforced by the engine, semi-implicit Euler at the
-configuration's time step. Mass matrix and gravity equal pinocchio's to round-off
-(tests/test_mujoco_plant.py).
+removed), with every link kept as a body (``fusestatic="false"``) and the inertias of the file.
+Like the PyBullet plant: no joint damping or friction (the URDF's ``<dynamics>`` are zeroed;
+joint friction belongs to the actuation model, eq 31), no motors (the torque is a generalized
+force), torques saturated to the data-sheet limits, semi-implicit Euler at the configuration's
+time step; mass matrix, bias forces and accelerations equal pinocchio's to round-off
+(tests/test_mujoco_plant.py). Robot links never touch each other (no self-collision, as in
+PyBullet). The URDF's position limits are enforced by each engine its own way (Bullet's limit
+constraint, MuJoCo's soft limit with its default ``solref``): a motion that reaches a limit
+differs between the two, none other does.
 
 The contact (:mod:`sim_bridge.contact_forces`). MuJoCo's constraint solver never sees a contact:
 the dynamics run with contacts disabled, a second ``MjData`` runs MuJoCo's collision detection
@@ -178,8 +180,9 @@ class _Contacts:
     body2 is ``frame[i].T @ [λ, f_t1, f_t2]``, its opposite acts on body1), the points on
     body1's and body2's surfaces (m, world), the penetration δ (m, < 0 when apart), the
     combined material, and ``jacobian[i]`` = frame[i]·(J_body2(point2) − J_body1(point1))
-    (3×nv: separation speed and slip per q̇)."""
+    (3×nv: separation speed and slip per q̇), and the geom pair of each."""
 
+    geoms: np.ndarray
     body1: np.ndarray
     body2: np.ndarray
     frame: np.ndarray
@@ -201,6 +204,7 @@ class _Contacts:
             return self
         index = np.flatnonzero(keep)
         return _Contacts(
+            self.geoms[index],
             self.body1[index],
             self.body2[index],
             self.frame[index],
@@ -218,7 +222,15 @@ class _Contacts:
 class MujocoPlant:
     """A MuJoCo simulation of one torque-controlled arm with a spherical tool, a table and soft
     boxes (module docstring); the same constructor, methods and state as
-    :class:`sim_bridge.plant.Plant`. Use as a context manager or call :meth:`close`."""
+    :class:`sim_bridge.plant.Plant`. Use as a context manager or call :meth:`close`.
+
+    Attributes:
+        friction_sweep_limit_hits: sub-steps since the reset whose multi-contact friction
+            stopped at the sweep limit (:func:`~sim_bridge.contact_forces.coulomb_friction`:
+            admissible forces, not the optimum); 0 whenever at most one contact touches.
+    """
+
+    friction_sweep_limit_hits: int
 
     engine = "mujoco"
 
@@ -237,8 +249,8 @@ class MujocoPlant:
         self._push_body = self._tool_body
         self._push_steps = 0
         self._closed = False
-        self._last: _Contacts | None = None
-        self._last_forces = np.zeros((0, 3))
+        # per geom pair of the last sub-step's contacts: (friction on body2, N, world; λ, N; μ)
+        self._last_friction: dict[tuple[int, int], tuple[np.ndarray, float, float]] = {}
         self.reset(self.robot.q_nominal)
 
     # ------------------------------------------------------------------ construction
@@ -331,8 +343,8 @@ class MujocoPlant:
         self._t = 0.0
         self._tau[:] = 0.0
         self._push_steps = 0
-        self._last = None
-        self._last_forces = np.zeros((0, 3))
+        self._last_friction = {}
+        self.friction_sweep_limit_hits = 0
 
     def apply_external_push(
         self, force_world: np.ndarray, steps: int, link: str | None = None
@@ -413,21 +425,25 @@ class MujocoPlant:
     def _apply_contacts(self, nearby: _Contacts | None) -> None:
         """Add the forces of the penetrating contacts among ``nearby`` to ``qfrc_applied``."""
         contacts = None if nearby is None else nearby.penetrating()
+        self._last_friction = {}
         if contacts is None:
-            self._last, self._last_forces = None, np.zeros((0, 3))
             return
         forces = self._contact_forces(contacts, self._model.opt.timestep)
         self._data.qfrc_applied += np.einsum("ikv,ik->v", contacts.jacobian, forces)
-        self._last = contacts
-        self._last_forces = np.einsum("ikj,ik->ij", contacts.frame, forces)
+        friction = np.einsum("ikj,ik->ij", contacts.frame[:, 1:, :], forces[:, 1:])
+        for i, (g1, g2) in enumerate(contacts.geoms.tolist()):
+            self._last_friction[(g1, g2)] = (friction[i], forces[i, 0], contacts.friction[i])
 
-    def _detect(self, within: float) -> _Contacts | None:
-        """MuJoCo's collision detection at the plant's configuration, on the geometry data (the
-        dynamics data, after mj_step1, gives the Jacobians): the contacts of a scene geom closer
-        than ``within`` (m; 0: penetrating)."""
+    def _detect(self, within: float, jacobians: mujoco.MjData | None = None) -> _Contacts | None:
+        """MuJoCo's collision detection at the plant's configuration, on the geometry data: the
+        contacts of a scene geom closer than ``within`` (m; 0: penetrating), with the Jacobians
+        of ``jacobians`` (default: the dynamics data after mj_step1; the geometry data, brought
+        to that configuration here, otherwise)."""
         m, g = self._model, self._geometry
         g.qpos[:] = self._data.qpos
         mujoco.mj_kinematics(m, g)
+        if jacobians is g:
+            mujoco.mj_comPos(m, g)
         m.opt.disableflags &= ~_NO_CONTACT
         try:
             mujoco.mj_collision(m, g)
@@ -440,15 +456,24 @@ class MujocoPlant:
         if len(rows) == 0:
             return None
         return self._contact_rows(
-            contact.geom[rows], contact.dist[rows], contact.pos[rows], contact.frame[rows, :3]
+            contact.geom[rows],
+            contact.dist[rows],
+            contact.pos[rows],
+            contact.frame[rows, :3],
+            self._data if jacobians is None else jacobians,
         )
 
     def _contact_rows(
-        self, geoms: np.ndarray, dist: np.ndarray, pos: np.ndarray, normal: np.ndarray
+        self,
+        geoms: np.ndarray,
+        dist: np.ndarray,
+        pos: np.ndarray,
+        normal: np.ndarray,
+        d: mujoco.MjData,
     ) -> _Contacts:
         """The contact rows of MuJoCo's contacts (geom pairs, signed distances m, midpoints m
-        and normals from geom1 to geom2, world), with the dynamics data's Jacobians."""
-        m, d, nv, k = self._model, self._data, self._model.nv, len(dist)
+        and normals from geom1 to geom2, world), with the Jacobians of ``d``."""
+        m, nv, k = self._model, self._model.nv, len(dist)
         body1, body2 = m.geom_bodyid[geoms[:, 0]], m.geom_bodyid[geoms[:, 1]]
         point1 = pos - 0.5 * dist[:, None] * normal  # each surface point lies inside the other
         point2 = pos + 0.5 * dist[:, None] * normal
@@ -473,6 +498,7 @@ class MujocoPlant:
             friction[i] = material.friction
             labels.append(self._scene_geoms.get(g1, self._scene_geoms.get(g2, "")))
         return _Contacts(
+            geoms,
             body1,
             body2,
             frame,
@@ -512,23 +538,31 @@ class MujocoPlant:
         solved = np.empty_like(tangential)
         mujoco.mj_solveM(m, d, solved, tangential)
         inverse_inertia = tangential @ solved.T
-        forces[:, 1:] = coulomb_friction(inverse_inertia, slip, bounds, h).reshape(k, 2)
+        friction, converged = coulomb_friction(inverse_inertia, slip, bounds, h)
+        if not converged:
+            self.friction_sweep_limit_hits += 1
+        forces[:, 1:] = friction.reshape(k, 2)
         return forces
 
     def state(self) -> PlantState:
-        """The true state after the last step (see :class:`~sim_bridge.plant.PlantState`)."""
+        """The true state after the last step (see :class:`~sim_bridge.plant.PlantState`).
+
+        The wrench is the contact's at this state, as a sensor sampling with the encoders
+        measures it: the normal force ``K·δ + B·δ̇`` of the current penetration and its rate
+        (the force the next step starts from), and the friction of the step just taken (at
+        its end), rescaled to that normal force where the contact slid (μ·λ).
+        """
         self._ensure_open()
-        m, g = self._model, self._geometry
-        g.qpos[:] = self._data.qpos
-        mujoco.mj_kinematics(m, g)
+        g = self._geometry
+        contacts = self._detect(within=0.0, jacobians=g)  # leaves g at this configuration
         origin = g.xpos[self._tool_body].copy()
         rotation = g.xmat[self._tool_body].reshape(3, 3).copy()
         force, moment = np.zeros(3), np.zeros(3)
         normal_force_table, weight = 0.0, 0.0
         contact_point = origin.copy()
         robot_collision = False
-        contacts = self._last
         if contacts is not None:
+            forces, normal = self._forces_at_state(contacts)
             weighted = np.zeros(3)
             for i in range(len(contacts.depth)):
                 b1, b2 = int(contacts.body1[i]), int(contacts.body2[i])
@@ -536,7 +570,7 @@ class MujocoPlant:
                     robot_collision = robot_collision or bool({b1, b2} & self._robot_bodies)
                     continue
                 on_body2 = b2 == self._tool_body
-                f = self._last_forces[i] if on_body2 else -self._last_forces[i]  # on the tool
+                f = forces[i] if on_body2 else -forces[i]  # on the tool
                 point = contacts.point2[i] if on_body2 else contacts.point1[i]
                 force += f
                 lever = point - origin
@@ -547,10 +581,9 @@ class MujocoPlant:
                 )
                 if contacts.scene_label[i] == "table" and self._table_normal is not None:
                     normal_force_table += float(f @ self._table_normal)
-                lam = float(self._last_forces[i] @ contacts.frame[i, 0])
-                if lam > 0.0:
-                    weighted += lam * point
-                    weight += lam
+                if normal[i] > 0.0:
+                    weighted += normal[i] * point
+                    weight += normal[i]
             if weight > 0.0:
                 contact_point = weighted / weight
         return PlantState(
@@ -567,6 +600,32 @@ class MujocoPlant:
             in_contact=weight > 0.0,
             robot_collision=robot_collision,
         )
+
+    def _forces_at_state(self, contacts: _Contacts) -> tuple[np.ndarray, np.ndarray]:
+        """The contact forces on body2 at the current state (:meth:`state`), N, world (k×3),
+        and their normal parts λ (k)."""
+        velocity = contacts.jacobian[:, 0, :] @ self._data.qvel  # separation speeds, m/s
+        k = len(contacts.depth)
+        forces, normal = np.zeros((k, 3)), np.zeros(k)
+        for i in range(k):
+            lam = normal_force(
+                contacts.stiffness[i], contacts.damping[i], contacts.depth[i], -velocity[i]
+            )
+            n = contacts.frame[i, 0]
+            forces[i] = lam * n
+            normal[i] = lam
+            last = self._last_friction.get((int(contacts.geoms[i, 0]), int(contacts.geoms[i, 1])))
+            if last is None or lam <= 0.0:
+                continue
+            friction, last_lam, mu = last
+            friction = friction - (friction @ n) * n  # onto this state's tangent plane
+            size = float(np.linalg.norm(friction))
+            if last_lam > 0.0 and size >= mu * last_lam * (1.0 - 1e-9):  # it slid
+                friction = friction * (lam / last_lam)
+            elif size > mu * lam:  # it stuck: at most the disc of this normal force
+                friction = friction * (mu * lam / size)
+            forces[i] += friction
+        return forces, normal
 
     # ------------------------------------------------------------------ lifetime
     def _ensure_open(self) -> None:

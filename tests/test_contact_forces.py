@@ -99,7 +99,8 @@ def test_several_contacts_reach_the_joint_optimum(seed):
     rng = np.random.default_rng(100 + seed)
     inverse_inertia, slip, bounds = _random_problem(rng, 3)
     slip *= 5.0  # some contacts slide
-    f = coulomb_friction(inverse_inertia, slip, bounds, STEP)
+    f, converged = coulomb_friction(inverse_inertia, slip, bounds, STEP)
+    assert converged
     final = slip + STEP * inverse_inertia @ f
     for i, bound in enumerate(bounds):
         fi, ui = f[2 * i : 2 * i + 2], final[2 * i : 2 * i + 2]
@@ -121,6 +122,19 @@ def test_several_contacts_reach_the_joint_optimum(seed):
 
 
 def test_no_contact_and_no_bound_give_no_friction():
-    assert coulomb_friction(np.zeros((0, 0)), np.zeros(0), np.zeros(0), STEP).shape == (0,)
+    forces, converged = coulomb_friction(np.zeros((0, 0)), np.zeros(0), np.zeros(0), STEP)
+    assert forces.shape == (0,) and converged
     inverse_inertia, slip, _ = _random_problem(np.random.default_rng(0), 2)
-    assert np.allclose(coulomb_friction(inverse_inertia, slip, np.zeros(2), STEP), 0.0)
+    forces, converged = coulomb_friction(inverse_inertia, slip, np.zeros(2), STEP)
+    assert np.allclose(forces, 0.0) and converged
+
+
+def test_unconverged_sweeps_still_give_admissible_forces():
+    """One sweep on 4 coupled contacts does not converge; the forces stay in their discs and
+    dissipate (lower objective than no friction)."""
+    inverse_inertia, slip, bounds = _random_problem(np.random.default_rng(7), 4)
+    forces, converged = coulomb_friction(inverse_inertia, slip, bounds, STEP, max_sweeps=1)
+    assert not converged
+    for i, bound in enumerate(bounds):
+        assert np.linalg.norm(forces[2 * i : 2 * i + 2]) <= bound * (1 + 1e-12)
+    assert _objective(inverse_inertia, slip)(forces) < 0.0
