@@ -95,6 +95,12 @@ def test_plant_flag_and_set_must_agree(capsys):
     argv = ["run", "polishing", "--plant", "mujoco", "--set", "plant.engine=pybullet"]
     assert main(argv) == 2
     assert "give one" in capsys.readouterr().err
+    argv = ["run", "impact", "--plant", "mujoco", "--set", "plant.engine=pybullet"]
+    assert main(argv) == 2
+    assert "give one" in capsys.readouterr().err
+    argv = ["study", "impact", "--plant", "mujoco", "--set", "plant.engine=pybullet"]
+    assert main(argv) == 2
+    assert "--plant" in capsys.readouterr().err
     with pytest.raises(ConfigError, match="plant.engine"):
         load_scenario("polishing", {"plant.engine": "gazebo"})
     with pytest.raises(ConfigError, match="engine"):
