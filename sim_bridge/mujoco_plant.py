@@ -232,8 +232,6 @@ class MujocoPlant:
 
     friction_sweep_limit_hits: int
 
-    engine = "mujoco"
-
     def __init__(self, robot: RobotModel | str = "iiwa", config: PlantConfig | None = None) -> None:
         self.robot = load_robot(robot) if isinstance(robot, str) else robot
         self.config = config if config is not None else PlantConfig()

@@ -155,7 +155,9 @@ def _polishing_overrides(args: argparse.Namespace) -> dict:
         if not isinstance(doc, dict) or not all(isinstance(k, str) for k in doc):
             raise ConfigError(f"--set-file {path}: expected a mapping NAME: VALUE")
         items += [f"{name}={json.dumps(value)}" for name, value in doc.items()]
-    return with_plant_engine(_parse_overrides(items + list(args.set or [])), args.plant)
+    return with_plant_engine(
+        _parse_overrides(items + list(args.set or [])), getattr(args, "plant", None)
+    )
 
 
 def _add_execution_arguments(p: argparse.ArgumentParser, cache_dir: bool = False) -> None:
