@@ -1,7 +1,8 @@
 """The one plant shape every closed loop drives (no simulator here: a protocol only).
 
-Two plants have it: the PyBullet plant (:class:`sim_bridge.plant.Plant`, state
-:class:`sim_bridge.plant.PlantState`) and an OCP formulation's own dynamics
+Three plants have it: the PyBullet plant (:class:`sim_bridge.plant.Plant`, state
+:class:`sim_bridge.plant.PlantState`), the MuJoCo plant
+(:class:`sim_bridge.mujoco_plant.MujocoPlant`, the same state) and an OCP formulation's own dynamics
 (:class:`ffmpc_core.model_plant.ModelPlant`, state :class:`ffmpc_core.mpc.MpcMeasurement`).
 A closed loop written against :class:`Plant` runs on either.
 """

@@ -37,6 +37,9 @@ from ffmpc_core.config import BACKENDS, FORMULATIONS, TORQUE_STATES, ContactConf
 from ffmpc_core.errors import ConfigError
 
 SECTIONS = ("plant", "joint_sensor", "ft_sensor", "mpc", "pid")
+#: Simulators of the plant (``plant.engine``): the PyBullet plant (:class:`sim_bridge.plant.Plant`)
+#: or the MuJoCo plant (:class:`sim_bridge.mujoco_plant.MujocoPlant`), same model and contact.
+PLANT_ENGINES = ("pybullet", "mujoco")
 #: ``mpc.command_delay`` settings besides a number of seconds.
 COMMAND_DELAY_PID = "pid"
 COMMAND_DELAY_MEASURED = "measured"
@@ -92,6 +95,7 @@ class TaskSection:
 
 @dataclass(frozen=True)
 class PlantSection:
+    engine: str = "pybullet"  # PLANT_ENGINES
     time_step: float = 1e-3
     table_tilt_deg: float = 0.0
     table_tilt_axis: tuple[float, float, float] = (0.0, 1.0, 0.0)
@@ -387,6 +391,7 @@ _TABLE: dict[str, tuple[str, Any, str]] = {
         (0.0, 1e6),
         "z entry of the in-contact Q4 of the position cost (0: the paper's diag(1, 1, 0))",
     ),
+    "plant.engine": ("", list(PLANT_ENGINES), "simulator of the plant: pybullet | mujoco"),
     "plant.time_step": ("s", (1e-5, 0.01), "physics step = control cycle; stamps are multiples"),
     "plant.table_tilt_deg": ("deg", (-45.0, 45.0), "table tilt θ when random_tilt_deg is 0"),
     "plant.table_tilt_axis": ("", (-1.0, 1.0), "horizontal tilt axis, world frame"),

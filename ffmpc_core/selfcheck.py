@@ -32,6 +32,7 @@ REPORTED_PACKAGES = (
     "osqp",
     "daqp",
     "pybullet",
+    "mujoco",
     "mcap",
     "mcap-ros2-support",
     "rosbags",

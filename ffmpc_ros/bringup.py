@@ -182,6 +182,7 @@ class GraphResult:
     timing: dict | None = None  # deadlines met, fallback time, latencies (module docstring)
     warnings: list[str] = field(default_factory=list)
     safety: dict | None = None  # ratios, safe_hold_s; lockstep also faults, rejected_messages
+    plant_engine: str = "pybullet"  # the plant's simulator (plant.engine)
 
     @property
     def real_time_factor(self) -> float:
@@ -201,6 +202,7 @@ class GraphResult:
         timing = self.timing or {}
         return {
             "mode": "lockstep" if self.lockstep else "real_time",
+            "plant_engine": self.plant_engine,
             "formulation": self.formulation,
             "seed": self.seed,
             "single_process": self.single_process,
@@ -779,6 +781,7 @@ def run_graph(
         "rejected_messages": {name: rejected.get(name) for name in [*table, "metrics"]},
     }
     return GraphResult(
+        plant_engine=scenario.plant.engine,
         formulation=scenario.mpc.formulation,
         seed=scenario.seed,
         single_process=single_process,
@@ -834,6 +837,7 @@ def _run_real_time(
         "wall_time": s["wall_time_s"],
     }
     return GraphResult(
+        plant_engine=scenario.plant.engine,
         formulation=scenario.mpc.formulation,
         seed=scenario.seed,
         single_process=False,

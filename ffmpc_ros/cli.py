@@ -17,7 +17,9 @@ from typing import TYPE_CHECKING
 
 from ffmpc_core.errors import ConfigError, FfmpcError
 from ffmpc_ros.cli_args import (
+    PLANT_ENGINE_PARAMETER,
     STUDY_FORMULATIONS,
+    add_plant_argument,
     finite_float,
     new_path,
     nonnegative_int,
@@ -26,6 +28,7 @@ from ffmpc_ros.cli_args import (
     positive_float,
     positive_int,
     seed_int,
+    with_plant_engine,
 )
 from ffmpc_ros.cli_args import parse_overrides as _parse_overrides
 from ffmpc_ros.cli_extensions import BENCH_GROUP, COMMAND_GROUP, add_extension_parsers
@@ -124,6 +127,10 @@ def _cmd_run_impact(args: argparse.Namespace) -> int:
     if given:
         raise ConfigError(f"{', '.join(given)}: polishing-graph options (not for ffmpc run impact)")
     overrides = list(args.set or [])  # the study's defaults (strategy touch_first)
+    if args.plant is not None:
+        if any(item.partition("=")[0].strip() == PLANT_ENGINE_PARAMETER for item in overrides):
+            raise ConfigError(f"--plant and --set {PLANT_ENGINE_PARAMETER}: give one")
+        overrides.append(f"{PLANT_ENGINE_PARAMETER}={args.plant}")
     if args.duration is not None:
         overrides.append(f"duration={args.duration!r}")
     try:
@@ -188,7 +195,7 @@ def _run_options(args: argparse.Namespace) -> dict:
     given = [flag for dest, flag in IMPACT_ONLY.items() if getattr(args, dest, None)]
     if given:
         raise ConfigError(f"{', '.join(given)}: options of ffmpc run impact only")
-    overrides = _parse_overrides(args.set)
+    overrides = with_plant_engine(_parse_overrides(args.set), args.plant)
     if args.formulation:
         overrides["mpc.formulation"] = args.formulation
     if args.seed is not None:
@@ -487,6 +494,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--duration", type=positive_float, default=None, help="simulated s (default: task)"
     )
     run.add_argument("--formulation", choices=STUDY_FORMULATIONS, default=None)
+    add_plant_argument(run)
     run.add_argument(
         "--seed",
         type=seed_int,

@@ -14,6 +14,32 @@ from ffmpc_core.errors import ConfigError
 #: ffmpc_core.config.FORMULATIONS, spelled out so that building a parser imports nothing heavy
 #: (``ffmpc run --formulation``, ``ffmpc study ... --formulations``, ``ffmpc tune``).
 STUDY_FORMULATIONS = ("classical", "torque_feedback", "force_feedback")
+#: ffmpc_core.scenario.PLANT_ENGINES, spelled out likewise (``--plant``).
+PLANT_ENGINES = ("pybullet", "mujoco")
+#: The scenario parameter ``--plant`` sets (every scenario and study names it so).
+PLANT_ENGINE_PARAMETER = "plant.engine"
+
+
+def add_plant_argument(parser: argparse.ArgumentParser) -> None:
+    """``--plant pybullet|mujoco``: the simulator of the plant (= ``--set plant.engine=…``)."""
+    parser.add_argument(
+        "--plant",
+        choices=PLANT_ENGINES,
+        default=None,
+        help="simulator of the plant: pybullet or mujoco (the same robot, scene and contact "
+        "parameters; = --set plant.engine=ENGINE; default: the scenario's, pybullet)",
+    )
+
+
+def with_plant_engine(overrides: dict, plant: str | None) -> dict:
+    """``overrides`` with ``--plant``'s ``plant.engine`` (ConfigError if ``--set`` gave another
+    engine)."""
+    if plant is None:
+        return overrides
+    given = overrides.get(PLANT_ENGINE_PARAMETER, plant)
+    if given != plant:
+        raise ConfigError(f"--plant {plant} and --set {PLANT_ENGINE_PARAMETER}={given}: give one")
+    return {**overrides, PLANT_ENGINE_PARAMETER: plant}
 
 
 # -- argument types: each refuses a malformed value with argparse's one-line error -------------

@@ -1,5 +1,6 @@
 """The dice plant node: the Panda and the soft dice of the impact experiment (Dehio & Kheddar
-2020, Sec. VI) in PyBullet, and the simulated clock of the impact graph.
+2020, Sec. VI) in the plant's simulator (``plant.engine``: PyBullet or MuJoCo), and the
+simulated clock of the impact graph.
 
 The plant is the ROS-free impact study's own (``sim_bridge.scenes.impact_plant_config``: no table,
 the fixed soft dice, the spherical tool), started at ``ffmpc_core.impact.scenario.start_pose``
@@ -51,15 +52,14 @@ class DicePlantNode(GraphNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("dice_plant", **kwargs)
         from ffmpc_core.impact.scenario import start_pose
-        from sim_bridge.plant import Plant
-        from sim_bridge.scenes import impact_plant_config
+        from sim_bridge.scenes import impact_plant_config, make_plant
 
         if not self.params["lockstep"]:
             raise ConfigError("the dice plant runs in lockstep only (lockstep: true)")
         self.config = impact_config_from_parameters(self.spec, self.params)
         robot = self.robot = load_robot(self.scenario.robot)
         self.joint_names = list(robot.joint_names)
-        self.plant = Plant(robot, impact_plant_config(self.config))
+        self.plant = make_plant(robot, impact_plant_config(self.config), self.config.engine)
         self.plant.reset(start_pose(self.config, robot))
         self.steps = int(round(self.config.duration / self.time_step))
         self.k = 0

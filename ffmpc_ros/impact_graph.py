@@ -238,10 +238,12 @@ class ImpactGraphResult:
     bag: dict | None = None
     safe: bool = False
     rejected: dict = field(default_factory=dict)
+    plant_engine: str = "pybullet"  # the dice plant's simulator (plant.engine)
 
     def summary(self) -> dict:
         return {
             "graph": "impact",
+            "plant_engine": self.plant_engine,
             "approach": self.approach,
             "regulation": self.regulation,
             **json.loads(json.dumps(metrics_summary(self.metrics), default=float)),
@@ -585,6 +587,7 @@ def run_impact_graph(
         tmp.cleanup()
     stepping = done - (watch.first_step or done)
     return ImpactGraphResult(
+        plant_engine=cfg.engine,
         approach=approach,
         regulation=regulation,
         metrics=metrics,

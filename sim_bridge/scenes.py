@@ -1,13 +1,15 @@
-"""The simulated scenes of the experiments: which PyBullet plant a scenario runs on.
+"""The simulated scenes of the experiments: which plant a scenario runs on.
 
 Plant-side only: the scenario is pure data in ``ffmpc_core``; this module turns it into a
-:class:`~sim_bridge.plant.PlantConfig` and a plant. The polishing scenes
-(:class:`~ffmpc_core.scenario.Scenario`: the tilted table, the actuation model of eq 31, the
+:class:`~sim_bridge.plant.PlantConfig` and a plant of the scenario's engine (``plant.engine``:
+:func:`make_plant`, the PyBullet plant :class:`sim_bridge.plant.Plant` or the MuJoCo plant
+:class:`sim_bridge.mujoco_plant.MujocoPlant`, the same configuration and state). The polishing
+scenes (:class:`~ffmpc_core.scenario.Scenario`: the tilted table, the actuation model of eq 31, the
 external push; :func:`polishing_plant_config`, :func:`simulated_robot`, used by the ROS-free run,
 the plant node and the real-time loop alike) and the impact and exploration scenes
 (:mod:`ffmpc_core.impact.scenario`: no table, the fixed soft dice, the spherical tool).
-PyBullet is imported on first use of a function (through :mod:`sim_bridge.plant`), not to import
-this module, so a study's settings parse without it.
+PyBullet (and MuJoCo) are imported on first use of a function, not to import this module, so a
+study's settings parse without them.
 
 Units: m, s, N/m, N·s/m; positions in the world frame.
 """
@@ -15,22 +17,25 @@ Units: m, s, N/m, N·s/m; positions in the world frame.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from ffmpc_core.actuation import ActuationModel
+from ffmpc_core.errors import ConfigError
 from ffmpc_core.polishing import PolishingSchedule, RunDraws, actuation_model, build_task, draw_run
 from ffmpc_core.robots import RobotModel
-from ffmpc_core.scenario import Scenario
+from ffmpc_core.scenario import PLANT_ENGINES, Scenario
 
 if TYPE_CHECKING:  # the plant imports PyBullet: loaded when a scene is built, not to parse
     from ffmpc_core.impact.scenario import DiceConfig, ImpactStudyConfig
-    from sim_bridge.plant import Plant, PlantConfig, SoftBoxConfig
+    from sim_bridge.plant import PlantConfig, PlantState, SoftBoxConfig
 
 __all__ = [
     "EXPLORATION_TOOL_RADIUS",
+    "ScenePlant",
     "SimulatedRobot",
+    "make_plant",
     "polishing_plant_config",
     "simulated_robot",
     "dice_box",
@@ -45,8 +50,55 @@ __all__ = [
 EXPLORATION_TOOL_RADIUS = 0.04
 
 
+class ScenePlant(Protocol):
+    """What the experiments use of a simulated plant, whatever its engine: the
+    :class:`ffmpc_core.plant.Plant` shape with :class:`~sim_bridge.plant.PlantState`, the
+    external push, the table normal and the plant's lifetime (both :class:`sim_bridge.plant.Plant`
+    and :class:`sim_bridge.mujoco_plant.MujocoPlant` have it)."""
+
+    dt: float
+    robot: RobotModel
+    config: PlantConfig
+
+    def reset(self, q: np.ndarray, v: np.ndarray | None = None) -> None: ...
+
+    def step(self, tau: np.ndarray, /) -> None: ...
+
+    def state(self) -> PlantState: ...
+
+    def apply_external_push(
+        self, force_world: np.ndarray, steps: int, link: str | None = None
+    ) -> None: ...
+
+    @property
+    def t(self) -> float: ...
+
+    @property
+    def table_normal(self) -> np.ndarray: ...
+
+    def close(self) -> None: ...
+
+    def __enter__(self) -> ScenePlant: ...
+
+    def __exit__(self, *exc: object) -> None: ...
+
+
+def make_plant(robot: RobotModel, config: PlantConfig, engine: str = "pybullet") -> ScenePlant:
+    """The plant of ``config`` in the simulator ``engine`` (:data:`PLANT_ENGINES`; ConfigError
+    for another name); the engine's module is imported here."""
+    if engine == "pybullet":
+        from sim_bridge.plant import Plant
+
+        return Plant(robot, config)
+    if engine == "mujoco":
+        from sim_bridge.mujoco_plant import MujocoPlant
+
+        return MujocoPlant(robot, config)
+    raise ConfigError(f"plant engine must be one of {PLANT_ENGINES}, got {engine!r}")
+
+
 def dice_box(dice: DiceConfig) -> SoftBoxConfig:
-    """The PyBullet box of ``dice``: static (Bullet mass 0), its centre ``size/2`` below the
+    """The plant's box of ``dice``: static (Bullet mass 0), its centre ``size/2`` below the
     top face, the dice's true stiffness (N/m), damping (N·s/m), friction and collision margin."""
     from sim_bridge.plant import SoftBoxConfig
 
@@ -63,8 +115,9 @@ def dice_box(dice: DiceConfig) -> SoftBoxConfig:
 
 
 def impact_plant_config(cfg: ImpactStudyConfig) -> PlantConfig:
-    """The PyBullet plant of the impact experiment: no table, the dice, the spherical tool of
-    radius ``cfg.tool_radius`` (m), stepped every ``cfg.time_step`` (s)."""
+    """The plant configuration of the impact experiment (its engine: ``cfg.engine``): no table,
+    the dice, the spherical tool of radius ``cfg.tool_radius`` (m), stepped every
+    ``cfg.time_step`` (s)."""
     from sim_bridge.plant import PlantConfig, ToolConfig
 
     return PlantConfig(
@@ -109,15 +162,16 @@ def polishing_plant_config(scenario: Scenario, task: PolishingSchedule, tilt: fl
 @dataclass
 class SimulatedRobot:
     """The simulated side of one run, built from its scenario (:func:`simulated_robot`): the
-    run's random draws, the task, the actuation model of eq 31, the PyBullet plant reset to the
-    nominal posture, and the external push (cycle ``push_at``, −1 for none; ``push_steps``
-    cycles of ``push_force`` N, world frame). The ROS-free runner, the plant node and the
-    real-time loop all build it here, so they simulate the same robot."""
+    run's random draws, the task, the actuation model of eq 31, the plant of the scenario's
+    engine (``plant.engine``) reset to the nominal posture, and the external push (cycle
+    ``push_at``, −1 for none; ``push_steps`` cycles of ``push_force`` N, world frame). The
+    ROS-free runner, the plant node and the real-time loop all build it here, so they simulate
+    the same robot."""
 
     draws: RunDraws
     task: PolishingSchedule
     actuation: ActuationModel
-    plant: Plant
+    plant: ScenePlant
     push_at: int
     push_steps: int
     push_force: np.ndarray
@@ -139,9 +193,8 @@ def simulated_robot(
     draws = draw_run(scenario, robot, draw_rng)
     task = build_task(scenario, robot)
     actuation = actuation_model(scenario, robot, draws, actuation_rng)
-    from sim_bridge.plant import Plant
-
-    plant = Plant(robot, polishing_plant_config(scenario, task, draws.tilt_angle))
+    config = polishing_plant_config(scenario, task, draws.tilt_angle)
+    plant = make_plant(robot, config, scenario.plant.engine)
     plant.reset(robot.q_nominal)
     p, dt = scenario.plant, scenario.plant.time_step
     return SimulatedRobot(

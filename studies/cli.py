@@ -17,6 +17,7 @@ from pathlib import Path
 from ffmpc_core.errors import ConfigError
 from ffmpc_ros.cli_args import (
     STUDY_FORMULATIONS,
+    add_plant_argument,
     existing_file,
     new_path,
     nonnegative_float,
@@ -25,6 +26,7 @@ from ffmpc_ros.cli_args import (
     positive_float,
     positive_int,
     seed_int,
+    with_plant_engine,
 )
 from ffmpc_ros.cli_args import parse_overrides as _parse_overrides
 from ffmpc_ros.cli_extensions import CommandExtension
@@ -117,8 +119,9 @@ def _cmd_study(args: argparse.Namespace) -> int:
 
 
 def _add_set_argument(p: argparse.ArgumentParser, what: str, example: str) -> None:
-    """``--set NAME=VALUE`` (repeatable), ``--set-file FILE`` and ``--no-progress`` of the
-    polishing studies."""
+    """``--set NAME=VALUE`` (repeatable), ``--set-file FILE``, ``--plant`` and
+    ``--no-progress`` of the polishing studies."""
+    add_plant_argument(p)
     p.add_argument(
         "--set",
         action="append",
@@ -137,8 +140,8 @@ def _add_set_argument(p: argparse.ArgumentParser, what: str, example: str) -> No
 
 
 def _polishing_overrides(args: argparse.Namespace) -> dict:
-    """The overrides of ``--set-file`` files (in order) then ``--set``, each checked by the
-    scenario schema (ConfigError naming the file or the pair)."""
+    """The overrides of ``--set-file`` files (in order), ``--set``, each checked by the scenario
+    schema (ConfigError naming the file or the pair), then ``--plant``."""
     import json
 
     import yaml
@@ -154,7 +157,9 @@ def _polishing_overrides(args: argparse.Namespace) -> dict:
         if not isinstance(doc, dict) or not all(isinstance(k, str) for k in doc):
             raise ConfigError(f"--set-file {path}: expected a mapping NAME: VALUE")
         items += [f"{name}={json.dumps(value)}" for name, value in doc.items()]
-    return _parse_overrides(items + list(args.set or []))
+    return with_plant_engine(
+        _parse_overrides(items + list(args.set or [])), getattr(args, "plant", None)
+    )
 
 
 def _add_execution_arguments(p: argparse.ArgumentParser, cache_dir: bool = False) -> None:
@@ -356,6 +361,7 @@ IMPACT_SHORTHANDS = {
     "prior_stiffness": "planner.prior_stiffness",
     "prior_damping": "planner.prior_damping",
     "target_force": "target_force",
+    "plant": "plant.engine",
 }
 #: ``ffmpc study explore`` flags (argparse dest) → the scenario names they set (shorthands).
 EXPLORE_SHORTHANDS = {
@@ -528,7 +534,8 @@ def _add_impact_study_parser(study_sub: SubParsers) -> None:
     p = study_sub.add_parser(
         "impact",
         help="safe maximal impact on a soft dice vs a near-zero-velocity baseline (Fig. 4)",
-        description="The Panda, 0.46 m above a soft dice simulated in PyBullet, approaches it "
+        description="The Panda, 0.46 m above a soft dice simulated in PyBullet (or MuJoCo: --plant "
+        "mujoco), approaches it "
         "either at the maximal safe pre-impact velocity (eq 9-14, every cycle) or with the "
         "baseline (static target, near-zero contact velocity), then regulates 60 N with the "
         "paper's admittance controller or hands over to the force-feedback MPC with the "
@@ -575,6 +582,7 @@ def _add_impact_study_parser(study_sub: SubParsers) -> None:
     )
     p.add_argument("--prior-stiffness", type=positive_float, help="planner's prior stiffness, N/m")
     p.add_argument("--prior-damping", type=nonnegative_float, help="planner's prior damping, N.s/m")
+    add_plant_argument(p)
     _add_study_config_arguments(p, "impact", "plant.dice_stiffness=4800")
     p.add_argument("--no-progress", action="store_true", help="no progress lines")
     p.set_defaults(study_main=_cmd_study_impact)

@@ -1,4 +1,5 @@
-"""The safe-maximal-impact experiment of Dehio & Kheddar 2020 (Sec. VI, Fig. 4) in PyBullet.
+"""The safe-maximal-impact experiment of Dehio & Kheddar 2020 (Sec. VI, Fig. 4) in PyBullet
+(or MuJoCo: ``plant.engine``, the same scene, :mod:`sim_bridge.mujoco_plant`).
 
 Setup (``ffmpc study impact``):
 
@@ -135,6 +136,9 @@ from studies.execute import (
     study_cache,
 )
 from studies.study import DIVERGENCE_ERRORS
+
+#: How the study's texts name each plant engine.
+ENGINE_NAMES = {"pybullet": "PyBullet", "mujoco": "MuJoCo"}
 
 if TYPE_CHECKING:  # the plant imports PyBullet: loaded when a run starts, not to parse
     from sim_bridge.plant import PlantState
@@ -325,10 +329,10 @@ def run_impact(
     )
     touch_first = controller.touch_first
 
-    from sim_bridge.plant import Plant
+    from sim_bridge.scenes import make_plant
 
     scenario = _ImpactLoop(robot, top, steps, dt)
-    with Plant(robot, plant_config(cfg)) as plant:
+    with make_plant(robot, plant_config(cfg), cfg.engine) as plant:
         plant.reset(q0)
         run_scenario(scenario, plant, [controller], LockstepClock(dt, steps))
         s = plant.state()
@@ -472,8 +476,9 @@ def format_table(runs: list[ImpactRun], config: ImpactStudyConfig) -> str:
         )
     lines += [
         "",
-        f"Learner (eq 19–21) at the end of each run vs the dice set in PyBullet "
-        f"(stiffness {dice.stiffness:g} N/m, damping {dice.damping:g} N·s/m; planner prior "
+        f"Learner (eq 19–21) at the end of each run vs the dice set in the plant "
+        f"({ENGINE_NAMES[config.engine]}; "
+        f"stiffness {dice.stiffness:g} N/m, damping {dice.damping:g} N·s/m; planner prior "
         f"{config.prior_stiffness:g} N/m, {config.prior_damping:g} N·s/m):",
         "",
         "| run | samples | stiffness α̂ (N/m) | error | damping β̂ (N·s/m) | error | "
@@ -660,6 +665,7 @@ def run_impact_study(
         "command_line": command_line,
         "created": datetime.now(timezone.utc).isoformat(),
         "python": platform.python_version(),
+        "plant_engine": cfg.engine,
         "config": json.loads(json.dumps(asdict(cfg), default=str)),
         "paper": PAPER,
         "runs": [r.summary() for r in results],

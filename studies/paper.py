@@ -299,6 +299,7 @@ def run_paper(
         "formulations": list(formulations),
         "command_delays": list(command_delays),
         "duration_s": duration,
+        "plant_engine": sections[SECTIONS[0].key]["study"]["plant_engine"],
         "overrides": dict(overrides or {}),
         "push_recovery_window_s": PUSH_RECOVERY_WINDOW,
         "plot_seed": plot_seed,
@@ -517,6 +518,8 @@ def paper_report(document: dict) -> str:
             else f"Simulated time per run: {duration:g} s (a SMOKE RUN: shorter than the task, "
             "the numbers are not the paper's experiment)."
         ),
+        "",
+        f"Plant simulator (`plant.engine`): {document.get('plant_engine', 'pybullet')}.",
         "",
         "Metrics from the plant's TRUE normal force along the tilted table normal, over the "
         "circle phase (the square signal for Experiment 1): E_P, E_λ mean ± std over the seeds, "

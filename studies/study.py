@@ -582,6 +582,7 @@ def study_document(
         "kind": kind,
         "scenario": scenario.name,
         "scenario_file": str(resolve_scenario_path(first.scenario)),
+        "plant_engine": scenario.plant.engine,
         "overrides": overrides,
         "duration_s": first.duration,
         "grid": grid,
@@ -814,7 +815,8 @@ def polishing_tables(doc: dict) -> str:
         f"{len(doc['grid']['seeds'])} seeds ({_seed_range(doc['grid']['seeds'])}); each seed "
         "draws the table tilt θ ~ U(±θmax) and the actuation bias (a, b), the same for every "
         f"controller. Command: `{doc['command_line']}`. Wall time {doc['wall_time_s']:.0f} s "
-        f"on {doc['workers']} worker(s).",
+        f"on {doc['workers']} worker(s). Plant simulator (`plant.engine`): "
+        f"{doc.get('plant_engine', 'pybullet')}.",
         "",
         "Aggregation as the paper: E_P, E_λ mean ± std over the seeds; λmax and t_break the max "
         "over the seeds (eq 34–35); metrics over the circle phase.",

@@ -45,11 +45,12 @@ def test_no_import_cycle(level: str) -> None:
     assert not found, f"{level} import cycles: {found}"
 
 
-def test_sim_bridge_holds_the_plant_and_the_scenes_only() -> None:
+def test_sim_bridge_holds_the_plants_and_the_scenes_only() -> None:
     """No experiment and no closed loop in sim_bridge: the experiments are in studies/, the top
-    layer, and the loop is ffmpc_core.runner (scenes: the scenarios as PyBullet plants)."""
+    layer, and the loop is ffmpc_core.runner (scenes: the scenarios as plants; the PyBullet
+    plant, the MuJoCo plant and its contact forces)."""
     modules = {p.stem for p in (ROOT / "sim_bridge").glob("*.py")}
-    assert modules == {"__init__", "plant", "scenes"}
+    assert modules == {"__init__", "plant", "mujoco_plant", "contact_forces", "scenes"}
 
 
 def test_the_layer_order_is_core_simulator_ros_studies() -> None:
@@ -87,7 +88,7 @@ def test_the_old_arrow_ros_to_studies_is_reported(tmp_path: Path) -> None:
 
 
 def test_core_imports_neither_ros_nor_the_simulator() -> None:
-    banned = {"rclpy", "pybullet", "rosbags", "mcap", "mcap_ros2"}
+    banned = {"rclpy", "pybullet", "mujoco", "rosbags", "mcap", "mcap_ros2"}
     hits = []
     for path in sorted((ROOT / "ffmpc_core").rglob("*.py")):
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):

@@ -47,7 +47,7 @@ from ffmpc_core.impact.robust import MaterialInterval, check_force_target
 from ffmpc_core.impact.task_space import JointLimitGuardConfig, TaskSpaceGains
 from ffmpc_core.impact.touch_first import TouchFirstConfig
 from ffmpc_core.robots import RobotModel
-from ffmpc_core.scenario import ConfigSchema, FieldDecl, cost_weight_specs
+from ffmpc_core.scenario import PLANT_ENGINES, ConfigSchema, FieldDecl, cost_weight_specs
 
 # -- the impact experiment ----------------------------------------------------------------------
 #: How the maximal approach treats the unknown material: ``touch_first`` (touch at the bound
@@ -151,6 +151,8 @@ class ImpactStudyConfig:
             blend is admissible: q̈ is affine in τ and the admissible set is convex); 0 = switch.
         tool_radius: radius of the simulated spherical tool, m (1 cm); with the dice's
             collision margin it must exceed z̄ (see :attr:`DiceConfig.collision_margin`).
+        engine: the simulator of the plant (:data:`ffmpc_core.scenario.PLANT_ENGINES`:
+            ``pybullet`` or ``mujoco``; the same robot, dice and contact parameters).
     """
 
     dice: DiceConfig = field(default_factory=DiceConfig)
@@ -183,6 +185,7 @@ class ImpactStudyConfig:
     touch: TouchFirstConfig = field(default_factory=TouchFirstConfig)
     handover_blend: float = HandoverConfig.blend
     tool_radius: float = 0.01
+    engine: str = "pybullet"
 
     def __post_init__(self) -> None:
         positive = (
@@ -220,6 +223,8 @@ class ImpactStudyConfig:
             raise ConfigError("replan_period must be >= 0")
         if self.strategy not in STRATEGIES:
             raise ConfigError(f"strategy must be one of {STRATEGIES}, got {self.strategy!r}")
+        if self.engine not in PLANT_ENGINES:
+            raise ConfigError(f"engine must be one of {PLANT_ENGINES}, got {self.engine!r}")
         if not (np.isfinite(self.handover_blend) and self.handover_blend >= 0):
             raise ConfigError("handover_blend must be >= 0 (s)")
         reach = self.tool_radius + self.dice.collision_margin
@@ -253,6 +258,7 @@ IMPACT_NAMES: dict[str, str] = {
     "dice.": "plant.dice_",
     "time_step": "plant.time_step",
     "tool_radius": "plant.tool_radius",
+    "engine": "plant.engine",
     "prior_": "planner.prior_",
     "mpc_": "mpc.",
     "learner_": "learner.",
@@ -260,8 +266,8 @@ IMPACT_NAMES: dict[str, str] = {
 _INF = float("inf")
 #: Unit, range or choices and meaning of every impact-study parameter (kinds: the annotations).
 IMPACT_TABLE: dict[str, FieldDecl] = {
-    "plant.dice_stiffness": ("N/m", (1.0, 1e7), "true stiffness of the dice set in PyBullet"),
-    "plant.dice_damping": ("N·s/m", (0.0, 1e5), "true damping of the dice set in PyBullet"),
+    "plant.dice_stiffness": ("N/m", (1.0, 1e7), "true stiffness of the dice set in the plant"),
+    "plant.dice_damping": ("N·s/m", (0.0, 1e5), "true damping of the dice set in the plant"),
     "plant.dice_size": ("m", (0.01, 1.0), "edge length of the dice"),
     "plant.dice_mass": ("kg", (0.0, 100.0), "recorded only: the dice is fixed"),
     "plant.dice_position_xy": ("m", (-2.0, 2.0), "centre of the dice, horizontal, world frame"),
@@ -271,6 +277,7 @@ IMPACT_TABLE: dict[str, FieldDecl] = {
     "plant.dice_collision_margin": ("m", (1e-4, 0.5), "Bullet's collision margin of the dice"),
     "plant.time_step": ("s", (1e-5, 0.01), "plant step = control period"),
     "plant.tool_radius": ("m", (1e-3, 0.2), "radius of the spherical tool"),
+    "plant.engine": ("", list(PLANT_ENGINES), "simulator of the plant: pybullet | mujoco"),
     "planner.prior_stiffness": ("N/m", (1.0, 1e7), "prior α of the planner and the MPC"),
     "planner.prior_damping": ("N·s/m", (0.0, 1e5), "prior β of the planner and the MPC"),
     "planner.horizon": ("steps", (2, 1000), "h of eq 12-14"),
