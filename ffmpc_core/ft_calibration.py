@@ -40,6 +40,7 @@ Files (:func:`save_calibration`, :func:`load_calibration`): YAML, format
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import math
 import os
@@ -407,6 +408,4 @@ def load_calibration(path: str | os.PathLike) -> FtCalibration:
             raise ValueError("bias must be 6 and centre of mass 3 finite numbers")
     except (TypeError, ValueError) as exc:
         raise CalibrationError(f"F/T calibration file {path}: {exc}") from None
-    return FtCalibration(
-        **{**body, "bias": bias, "center_of_mass": (com[0], com[1], com[2])}  # type: ignore[arg-type]
-    )
+    return dataclasses.replace(calibration, bias=bias, center_of_mass=(com[0], com[1], com[2]))

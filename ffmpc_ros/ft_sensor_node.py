@@ -114,17 +114,12 @@ class FtSensorNode(GraphNode):
             self._truth: dict[int, tuple[np.ndarray, np.ndarray]] = {}
             self._sensed: dict[int, tuple[np.ndarray, np.ndarray]] = {}
             self._last_cycle_done = -1
-            fields = self.joint_fields("position", "velocity")
-            for topic, store in (
-                (topics.PLANT_JOINT_STATES, self._truth),
-                (topics.SENSED_JOINT_STATES, self._sensed),
+            for topic, callback in (
+                (topics.PLANT_JOINT_STATES, self._on_true_joints),
+                (topics.SENSED_JOINT_STATES, self._on_sensed_joints),
             ):
-                self.create_subscription(
-                    JointState,
-                    topic,
-                    lambda msg, t=topic, d=store: self._on_joints(msg, t, d, fields),
-                    topics.subscriber_qos(True, topic),
-                )
+                qos = topics.subscriber_qos(True, topic)
+                self.create_subscription(JointState, topic, callback, qos)
 
     @property
     def in_contact(self) -> bool:
@@ -172,7 +167,16 @@ class FtSensorNode(GraphNode):
         moment = None if self.moments is None else self.moments.step(wrench[3:])
         self._publish(msg.header.stamp, raw, moment)
 
-    def _on_joints(self, msg: JointState, topic: str, store: dict[int, tuple], fields: Any) -> None:
+    def _on_true_joints(self, msg: JointState) -> None:
+        self._on_joints(msg, topics.PLANT_JOINT_STATES, self._truth)
+
+    def _on_sensed_joints(self, msg: JointState) -> None:
+        self._on_joints(msg, topics.SENSED_JOINT_STATES, self._sensed)
+
+    def _on_joints(
+        self, msg: JointState, topic: str, store: dict[int, tuple[np.ndarray, np.ndarray]]
+    ) -> None:
+        fields = self.joint_fields("position", "velocity")
         got = self.receive(self.name_of(topic), msg, fields)
         if got is None:
             return
