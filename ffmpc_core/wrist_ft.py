@@ -28,9 +28,9 @@ tool's weight [m̂·ĝ_S; ĉ × m̂·ĝ_S] with ĝ_S = R̂_WSᵀ·g from the MEA
 and the FZI controllers' gravity compensations) and, with ``inertial_wrench``, the tool's
 inertial wrench from the measured q̂, q̇̂ (a point mass m̂ at ĉ); it moves the result to C's
 origin in world axes (the frame of the MPC's force, ``contact_world_aligned``). The inertial
-part is large in this simulation: the simulated wrist shakes at ~200 Hz (joint accelerations
-of 100–250 rad/s² RMS on joints 5–7 in the polishing run), which a 1 kg tool turns into tens of
-newtons of inertial force (README "The wrist F/T sensor").
+part is large in this simulation: the simulated wrist shakes at a few hundred Hz (joint
+accelerations of 62–249 rad/s² RMS on joints 5–7 in the polishing run, seed 0), which a 1 kg
+tool turns into tens of newtons of inertial force (README "The wrist F/T sensor").
 
 Every random number comes from the generator handed in (the ``force_sensor`` device's during
 the run), six draws per reading in the order fx, fy, fz, mx, my, mz.

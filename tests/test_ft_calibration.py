@@ -6,6 +6,7 @@ zero in free motion for any wrist orientation, contact hysteresis, and the scena
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import numpy as np
 import pinocchio as pin
@@ -363,7 +364,8 @@ def test_ffmpc_ft_calibrate_writes_a_file_the_runs_accept(tmp_path, capfd):
     out = tmp_path / "ft.yaml"
     assert main(["ft", "calibrate", *tool, "--out", str(out)]) == 0
     printed = capfd.readouterr().out
-    assert "mass 1.0000 ± 0.0001 kg" in printed and f"written: {out}" in printed
+    assert re.search(r"mass (0\.9999|1\.0000|1\.0001) ± 0\.000\d kg", printed), printed
+    assert f"written: {out}" in printed
     c = load_calibration(out)
     robot = load_robot("iiwa")
     check_calibration(c, robot, calibration_poses(robot), TOOL, 60.0, c.created + 1.0)
