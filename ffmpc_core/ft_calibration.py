@@ -320,8 +320,8 @@ def check_calibration(
     age = now - c.created
     if age > max_age or age < -60.0:
         raise CalibrationError(
-            f"{where} refused: stale, taken {age / 3600:.2f} h ago (calibration_max_age "
-            f"{max_age / 3600:.2f} h)"
+            f"{where} refused: stale, taken {age:.0f} s ({age / 3600:.2f} h) ago, older than "
+            f"calibration_max_age {max_age:g} s"
             if age > max_age
             else f"{where} refused: dated {-age:.0f} s in the future"
         )

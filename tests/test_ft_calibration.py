@@ -175,7 +175,12 @@ def _calibrated(arm=None, **changes):
 @pytest.mark.parametrize(
     ("changes", "tool", "now", "reason"),
     [
-        ({}, TOOL, 100.0 + 3601.0, "stale, taken 1.00 h ago"),
+        (
+            {},
+            TOOL,
+            100.0 + 3601.0,
+            "stale, taken 3601 s (1.00 h) ago, older than calibration_max_age 3600 s",
+        ),
         ({}, TOOL, 0.0, "in the future"),
         ({"robot": "panda"}, TOOL, 100.0, "taken on robot 'panda'"),
         ({"poses_sha256": "0123456789abcdef"}, TOOL, 100.0, "another pose set"),
@@ -346,7 +351,10 @@ def test_pipeline_refuses_a_stale_file_and_accepts_a_fresh_one(tmp_path):
     )
     ok = force_pipeline(from_file, robot, np.random.default_rng(0), cal_rng, 1000.0 + 3600.0)
     assert ok.compensator.mass == c.mass
-    with pytest.raises(CalibrationError, match="stale, taken 8.03 h ago"):
+    with pytest.raises(
+        CalibrationError,
+        match=r"stale, taken 28900 s \(8.03 h\) ago, older than calibration_max_age 28800 s",
+    ):
         force_pipeline(from_file, robot, np.random.default_rng(0), cal_rng, 1000.0 + 28900.0)
 
 
