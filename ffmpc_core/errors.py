@@ -11,6 +11,11 @@ class ConfigError(FfmpcError, ValueError):
     """A configuration value is missing, out of range or inconsistent."""
 
 
+class CalibrationError(ConfigError):
+    """A sensor calibration is refused: stale, for another cell or tool, or implausible (the
+    message says which and the numbers)."""
+
+
 class ModelError(FfmpcError):
     """A robot or contact model is wrong (bad frame, wrong size, failed self-check)."""
 

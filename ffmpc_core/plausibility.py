@@ -25,6 +25,12 @@ Ranges and why:
 * **Tare offset**: |offset_j| ≤ ``TARE_OFFSET_MAX`` = 50 N per axis — a tare removes a sensor
   bias and the weight of a tool, not a contact force; a larger mean means the sensor is loaded
   or broken. The tare is refused while in contact.
+* **Wrist F/T calibration** (``ffmpc_core.ft_calibration``): a tool mass in
+  [0, ``TOOL_MASS_MAX``] = [0, 20] kg (the iiwa 7 carries 7 kg, the Panda 3 kg: 20 kg is no
+  tool of theirs), its centre of mass within ``TOOL_COM_RADIUS_MAX`` = 0.3 m of the sensor (a
+  wrist tool, not a beam), a force bias within ``TARE_OFFSET_MAX`` per axis and a moment bias
+  within ``BIAS_MOMENT_MAX`` = 5 N·m per axis (a 6-axis sensor of the 500 N class has a
+  ~10–50 N·m range; a larger offset is an overloaded sensor).
 * **Learned contact stiffness** α̂ ∈ [``STIFFNESS_MIN``, ``STIFFNESS_MAX``] = [10, 1e6] N/m: from a
   soft foam to a stiff surface seen through the tool (the project's materials: 1e3–1e4 N/m).
   Below, the material pushes back less than 1 N per 10 cm (no contact to model); above, the
@@ -50,6 +56,10 @@ MEASURED_TORQUE_FACTOR = 5.0
 FORCE_MAX = 2000.0
 #: Largest plausible |tare offset| per axis, N.
 TARE_OFFSET_MAX = 50.0
+#: Largest plausible calibrated tool mass, kg; centre of mass distance from the sensor, m.
+TOOL_MASS_MAX, TOOL_COM_RADIUS_MAX = 20.0, 0.3
+#: Largest plausible |moment bias| per axis of the wrist F/T sensor, N·m.
+BIAS_MOMENT_MAX = 5.0
 #: Range of a learned contact stiffness α̂, N/m.
 STIFFNESS_MIN, STIFFNESS_MAX = 10.0, 1e6
 #: Range of a learned contact damping β̂, N·s/m.
@@ -121,12 +131,15 @@ def check_contact_parameters(stiffness: float, damping: float) -> tuple[float, f
 
 
 __all__ = [
+    "BIAS_MOMENT_MAX",
     "DAMPING_MAX",
     "DAMPING_MIN",
     "FORCE_MAX",
     "STIFFNESS_MAX",
     "STIFFNESS_MIN",
     "TARE_OFFSET_MAX",
+    "TOOL_COM_RADIUS_MAX",
+    "TOOL_MASS_MAX",
     "COMMAND_TORQUE_FACTOR",
     "MEASURED_TORQUE_FACTOR",
     "check_contact_parameters",

@@ -23,8 +23,15 @@ import numpy as np
 import pinocchio as pin
 
 from ffmpc_core.actuation import ActuationModel, ActuationParams
-from ffmpc_core.config import ContactConfig
 from ffmpc_core.errors import ConfigError
+from ffmpc_core.ft_calibration import (
+    CalibrationNoise,
+    FtCalibration,
+    calibration_poses,
+    check_calibration,
+    load_calibration,
+    startup_calibration,
+)
 from ffmpc_core.lowlevel import LowLevelConfig, LowLevelController
 from ffmpc_core.metrics import (
     PUSH_RECOVERY_WINDOW,
@@ -35,16 +42,24 @@ from ffmpc_core.metrics import (
 )
 from ffmpc_core.mpc import MpcConfig
 from ffmpc_core.pid import TorquePid, TorquePidGains
-from ffmpc_core.robots import RobotModel
+from ffmpc_core.robots import RobotModel, ToolLoad, load_robot, with_tool_load
 from ffmpc_core.scenario import COMMAND_DELAY_MEASURED, COMMAND_DELAY_PID, Scenario
 from ffmpc_core.sensing import ForceSensingModel, SensingModel, SensingParams
+from ffmpc_core.sensing import measured_force as measured_force  # (its home until issue 27)
 from ffmpc_core.tasks import ForceSquareTask, LiveTask, PhaseWeights, PolishingTask
+from ffmpc_core.wrist_ft import (
+    ContactForceSensing,
+    WristCompensator,
+    WristForceSensing,
+    WristSensorModel,
+)
 
 #: The task schedules of a scenario (:func:`build_task`).
 PolishingSchedule = PolishingTask | ForceSquareTask
 
-#: The devices owning a generator, in spawn order (see :func:`spawn_generators`).
-DEVICES = ("draws", "joint_sensor", "force_sensor", "actuation")
+#: The devices owning a generator, in spawn order (see :func:`spawn_generators`); the wrist
+#: F/T sensor's calibration run draws from ``ft_calibration`` (its joint and sensor readings).
+DEVICES = ("draws", "joint_sensor", "force_sensor", "actuation", "ft_calibration")
 
 
 @dataclass(frozen=True)
@@ -58,7 +73,8 @@ class RunDraws:
 
 def spawn_generators(seed: int) -> list[np.random.Generator]:
     """The run's generators, in this order: draws (tilt, bias), joint sensor, force sensor,
-    actuation. Each device (and its ROS node) owns one; same seed → same streams."""
+    actuation, F/T calibration. Each device (and its ROS node) owns one; same seed → same
+    streams (a device added at the end leaves the others' streams unchanged)."""
     return np.random.default_rng(seed).spawn(len(DEVICES))
 
 
@@ -220,8 +236,6 @@ def resolve_command_delay(
     record: dict = {"setting": setting}
     if setting == COMMAND_DELAY_MEASURED:
         if measured is None:
-            from ffmpc_core.robots import load_robot
-
             robot = robot or load_robot(scenario.robot)
             measured = measure_mpc_step_time(scenario, robot, steps)
             record["calibration_steps"] = steps
@@ -243,14 +257,96 @@ def resolve_command_delay(
     return scenario, record
 
 
-def measured_force(wrench_world: np.ndarray, contact: ContactConfig) -> np.ndarray:
-    """The MPC's force from the tool wrench (world axes): 1-D → the world-z component
-    (LOCAL_WORLD_ALIGNED normal, config.py's convention), 3-D → the world force."""
-    if contact.frame_type != "LOCAL_WORLD_ALIGNED":
-        raise ConfigError("the study feeds world-aligned forces; use LOCAL_WORLD_ALIGNED")
-    if contact.dimension == 1:
-        return wrench_world[contact.normal_axis : contact.normal_axis + 1].copy()
-    return wrench_world[:3].copy()
+def tool_load(scenario: Scenario) -> ToolLoad:
+    """The tool on the flange (``plant.tool_mass``, ``plant.tool_center_of_mass``)."""
+    p = scenario.plant
+    return ToolLoad(p.tool_mass, p.tool_center_of_mass)
+
+
+def scenario_robot(scenario: Scenario) -> RobotModel:
+    """The controllers' robot model: the scenario's robot carrying its tool (the cell's load
+    data, :func:`~ffmpc_core.robots.with_tool_load`); the bare robot without a tool."""
+    return with_tool_load(load_robot(scenario.robot), tool_load(scenario))
+
+
+def wrist_sensor_model(
+    scenario: Scenario, robot: RobotModel, rng: np.random.Generator
+) -> WristSensorModel:
+    """The wrist F/T sensor of ``ft_sensor.model: wrist`` (bias, δs, σ_f, σ_m) carrying the
+    scenario's tool; ``robot``: the bare robot (kinematics)."""
+    fs = scenario.ft_sensor
+    return WristSensorModel(
+        robot,
+        tool_load(scenario),
+        fs.bias,
+        fs.delay_cycles,
+        fs.force_noise_std,
+        fs.moment_noise_std,
+        scenario.plant.time_step,
+        rng,
+        inertial=fs.inertial_wrench,
+    )
+
+
+def tool_calibration(
+    scenario: Scenario,
+    sensor: WristSensorModel,
+    rng: np.random.Generator,
+    now: float,
+) -> FtCalibration | None:
+    """The checked calibration of the wrist sensor (``ft_sensor.calibration``): "startup" runs
+    the calibration poses now (:func:`~ffmpc_core.ft_calibration.startup_calibration`, drawing
+    from ``rng``), "file" loads ``calibration_file``; "none" gives None. CalibrationError, with
+    the reason, for a stale, foreign or implausible one. ``now``: UNIX time, s."""
+    fs = scenario.ft_sensor
+    if fs.calibration == "none":
+        return None
+    robot = sensor.robot
+    poses = calibration_poses(robot)
+    if fs.calibration == "file":
+        calibration = load_calibration(fs.calibration_file)
+    else:
+        noise = CalibrationNoise(
+            fs.force_noise_std,
+            fs.moment_noise_std,
+            scenario.joint_sensor.position_noise_std,
+            fs.calibration_samples,
+        )
+        calibration = startup_calibration(sensor, poses, noise, rng, now)
+    check_calibration(calibration, robot, poses, tool_load(scenario), fs.calibration_max_age, now)
+    return calibration
+
+
+def wrist_compensator(
+    scenario: Scenario, robot: RobotModel, calibration: FtCalibration | None
+) -> WristCompensator:
+    """The force node's compensation with ``calibration`` (None: ``calibration: none``, the
+    raw reading only moved to the contact frame); ``robot``: the bare robot (kinematics)."""
+    dt, inertial = scenario.plant.time_step, scenario.ft_sensor.inertial_wrench
+    if calibration is None:
+        return WristCompensator(robot, np.zeros(6), 0.0, np.zeros(3), dt, enabled=False)
+    bias, mass, com = calibration.bias, calibration.mass, calibration.center_of_mass
+    return WristCompensator(robot, bias, mass, com, dt, inertial=inertial)
+
+
+def force_pipeline(
+    scenario: Scenario,
+    robot: RobotModel,
+    rng: np.random.Generator,
+    calibration_rng: np.random.Generator,
+    now: float,
+) -> ContactForceSensing | WristForceSensing:
+    """What the loop reads λ̂ through (``ft_sensor.model``): the paper's sensor (eq 32), or the
+    wrist sensor with the calibration of :func:`tool_calibration` compensated by the measured
+    joint state (the raw reading with ``calibration: none``). ``rng``: the force sensor's
+    generator, ``calibration_rng``: the ``ft_calibration`` device's; ``robot``: the robot (its
+    kinematics; a tool in its model is not used); ``now``: UNIX time, s."""
+    contact = scenario.mpc.contact
+    if scenario.ft_sensor.model == "contact":
+        return ContactForceSensing(force_sensing_model(scenario, rng), contact)
+    sensor = wrist_sensor_model(scenario, robot, rng)
+    calibration = tool_calibration(scenario, sensor, calibration_rng, now)
+    return WristForceSensing(sensor, wrist_compensator(scenario, robot, calibration), contact)
 
 
 def joint_sensing_model(scenario: Scenario, nv: int, rng: np.random.Generator) -> SensingModel:

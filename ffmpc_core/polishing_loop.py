@@ -2,9 +2,11 @@
 :func:`ffmpc_core.runner.run_scenario`.
 
 * :class:`PolishingLoop` (the scenario): sensing (eq 30, 32: q̂, q̇̂, λ̂ = true values δs
-  cycles ago + noise), the injected faults (they change only what the controllers read), the
-  actuation (eq 31: τ̂ = a·τ^m(t − δs) + b − friction + noise, applied to the plant and measured:
-  the next cycle's PID and torque-feedback MPC read it), the external push, the run's log
+  cycles ago + noise; or the wrist F/T sensor compensated with q̂,
+  :class:`~ffmpc_core.wrist_ft.WristForceSensing`), the injected faults (they change only
+  what the controllers read), the actuation (eq 31: τ̂ = a·τ^m(t − δs) + b − friction +
+  noise, applied to the plant and measured: the next cycle's PID and torque-feedback MPC read
+  it), the external push, the run's log
   (:class:`~ffmpc_core.polishing.PolishingLog`) and its safety traces.
 * :class:`MpcStage`: every ``mpc.period`` the MPC solves from the reading if its inputs are
   plausible, else (or when the solve raises) it asks for the safe hold.
@@ -30,9 +32,10 @@ from ffmpc_core.faults import Fault, active_kinds
 from ffmpc_core.lowlevel import LowLevelController, LowLevelMeasurement, LowLevelOutput
 from ffmpc_core.mpc import ModelPredictiveController, MpcCommand, MpcMeasurement
 from ffmpc_core.plausibility import check_force, torque_plausible
-from ffmpc_core.polishing import PolishingLog, measured_force
+from ffmpc_core.polishing import PolishingLog
 from ffmpc_core.robots import RobotModel
-from ffmpc_core.sensing import ForceSensingModel, SensingModel
+from ffmpc_core.sensing import SensingModel
+from ffmpc_core.wrist_ft import ForcePipeline
 
 __all__ = ["LowLevelStage", "MpcDecision", "MpcStage", "PolishingLoop", "PolishingReading"]
 
@@ -163,7 +166,8 @@ class PolishingLoop:
         robot: the robot model.
         contact: the MPC's contact model (which components of the wrench λ̂ holds).
         joint_sensing, force_sensing, actuation: the run's device models (each drawing from its
-            own generator: they draw every cycle, faults or not).
+            own generator: they draw every cycle, faults or not); ``force_sensing`` reads λ̂
+            from the plant's state and this cycle's q̂ (:func:`ffmpc_core.polishing.force_pipeline`).
         log: the run's log (one row per cycle).
         mpc_every: plant cycles per MPC period.
         faults: the faults to inject (they change what the controllers read, never the plant).
@@ -176,7 +180,7 @@ class PolishingLoop:
         robot: RobotModel,
         contact: ContactConfig,
         joint_sensing: SensingModel,
-        force_sensing: ForceSensingModel,
+        force_sensing: ForcePipeline,
         actuation: ActuationModel,
         log: PolishingLog,
         mpc_every: int,
@@ -205,7 +209,7 @@ class PolishingLoop:
     def measure(self, k: int, t: float, state: PolishingPlantState, /) -> PolishingReading:
         active = active_kinds(self.faults, t) if self.faults else {}
         q_hat, v_hat, _ = self.joint_sensing.step(state.q, state.v)
-        f_hat = self.force_sensing.step(measured_force(state.wrench_world, self.contact))
+        f_hat = self.force_sensing.measure(state.q, state.v, state.wrench_world, q_hat, v_hat)
         # What the controllers read this cycle (faults change only this).
         tau_read, f_read = self.tau_hat, f_hat
         if "torque-spike" in active:

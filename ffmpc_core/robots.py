@@ -16,7 +16,7 @@ Both contact frames have non-identity placements on purpose: derivatives are tes
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pinocchio as pin
@@ -125,6 +125,52 @@ class RobotModel:
         """
         tau = check_torque(tau, self.torque_limit)
         return np.clip(tau, -self.torque_limit, self.torque_limit)
+
+
+@dataclass(frozen=True)
+class ToolLoad:
+    """A rigid tool fixed to the flange, behind the wrist force/torque sensor (the robot's load
+    data, as a robot controller is configured with it).
+
+    Attributes:
+        mass: kg (0: no tool).
+        center_of_mass: m, in the flange (= sensor) frame.
+        radius: m, the tool's rotational inertia is a solid sphere's of this radius about the
+            centre of mass, 2/5·m·r² (the PyBullet plant's spherical tool).
+    """
+
+    mass: float = 0.0
+    center_of_mass: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    radius: float = 0.01
+
+    def __post_init__(self) -> None:
+        com = np.asarray(self.center_of_mass, dtype=float)
+        if not (np.isfinite(self.mass) and self.mass >= 0.0):
+            raise ConfigError(f"tool mass must be finite and >= 0 kg, got {self.mass!r}")
+        if com.shape != (3,) or not np.all(np.isfinite(com)):
+            raise ConfigError(f"tool centre of mass must be 3 finite numbers (m), got {com}")
+        if not (np.isfinite(self.radius) and self.radius > 0.0):
+            raise ConfigError(f"tool radius must be > 0 m, got {self.radius!r}")
+
+    def inertia(self) -> pin.Inertia:
+        """The tool's spatial inertia about the flange frame origin, flange axes."""
+        rotational = 0.4 * self.mass * self.radius**2 * np.eye(3)
+        return pin.Inertia(self.mass, np.asarray(self.center_of_mass, float), rotational)
+
+
+def with_tool_load(robot: RobotModel, load: ToolLoad) -> RobotModel:
+    """``robot`` carrying ``load`` on its flange: a copy whose pinocchio model has the tool's
+    inertia added to the flange's body (the model the controllers use when the cell is
+    configured with this load; ``sim_bridge.plant.model_with_tool`` is the one PyBullet
+    simulates). A massless load returns ``robot`` itself (the same model, bit for bit)."""
+    if load.mass == 0.0:
+        return robot
+    model = pin.Model(robot.model)
+    flange = model.frames[model.getFrameId(robot.flange_frame)]
+    model.appendBodyToJoint(
+        flange.parentJoint, flange.placement.act(load.inertia()), pin.SE3.Identity()
+    )
+    return replace(robot, model=model)
 
 
 def _iiwa_urdf_path() -> str:

@@ -40,6 +40,9 @@ SECTIONS = ("plant", "joint_sensor", "ft_sensor", "mpc", "pid")
 #: Simulators of the plant (``plant.engine``): the PyBullet plant (:class:`sim_bridge.plant.Plant`)
 #: or the MuJoCo plant (:class:`sim_bridge.mujoco_plant.MujocoPlant`), same model and contact.
 PLANT_ENGINES = ("pybullet", "mujoco")
+#: ``ft_sensor.model`` and ``ft_sensor.calibration`` settings.
+FT_MODELS = ("contact", "wrist")
+FT_CALIBRATIONS = ("startup", "file", "none")
 #: ``mpc.command_delay`` settings besides a number of seconds.
 COMMAND_DELAY_PID = "pid"
 COMMAND_DELAY_MEASURED = "measured"
@@ -113,6 +116,10 @@ class PlantSection:
     push_time: float = 0.0
     push_force: tuple[float, float, float] = (0.0, 0.0, 0.0)
     push_duration: float = 0.0
+    #: The tool on the flange (behind the wrist F/T sensor): the plant simulates it and the
+    #: controllers' robot model carries it (the cell's load data); kg, and m in the flange frame.
+    tool_mass: float = 0.0
+    tool_center_of_mass: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -131,6 +138,22 @@ class ForceSensorSection:
     contact_on_force: float = 5.0  # N, filtered normal force that starts a contact
     contact_off_force: float = 2.0  # N, filtered normal force that ends it (hysteresis)
     tare_samples: int = 50  # measurements averaged by the tare service
+    #: "contact": the paper's sensor (eq 32: the contact force + noise on the MPC's axes);
+    #: "wrist": a 6-axis sensor on the flange that also reads the tool's weight and its bias,
+    #: calibrated and compensated (ffmpc_core.wrist_ft, ffmpc_core.ft_calibration). The keys
+    #: below apply to the wrist sensor only (a changed one with "contact" is refused).
+    model: str = "contact"
+    bias: tuple[float, float, float, float, float, float] = (0.0,) * 6  # N, N·m, sensor frame
+    moment_noise_std: float = 0.0005  # N·m, σ_m of the wrist sensor's moments
+    #: "startup": calibrate at the start of the run; "file": load calibration_file; "none": no
+    #: compensation (the raw reading, bias and tool weight included, reaches the MPC)
+    calibration: str = "startup"
+    calibration_file: str = ""
+    calibration_samples: int = 100  # readings averaged per calibration pose
+    calibration_max_age: float = 28800.0  # s: an older calibration file is refused (8 h)
+    #: the sensor also reads the tool's inertial wrench (from the plant's motion), and the
+    #: compensation removes it with the measured q̂, q̇̂; false: the tool is weighed as at rest
+    inertial_wrench: bool = False
 
 
 @dataclass(frozen=True)
@@ -409,6 +432,12 @@ _TABLE: dict[str, tuple[str, Any, str]] = {
     "plant.push_time": ("s", (0.0, 3600.0), "push start"),
     "plant.push_force": ("N", (-1e4, 1e4), "push force, world frame"),
     "plant.push_duration": ("s", (0.0, 60.0), "push duration"),
+    "plant.tool_mass": (
+        "kg",
+        (0.0, 20.0),
+        "mass of the tool on the flange (simulated; the controllers' load data)",
+    ),
+    "plant.tool_center_of_mass": ("m", (-0.5, 0.5), "the tool's centre of mass, flange frame"),
     "joint_sensor.delay_cycles": ("cycles", (0, 1000), "sensing delay δs (eq 30)"),
     "joint_sensor.position_noise_std": ("rad", (0.0, 1.0), "σ_q (eq 30)"),
     "joint_sensor.velocity_noise_std": ("rad/s", (0.0, 10.0), "σ_q̇ (eq 30)"),
@@ -418,6 +447,30 @@ _TABLE: dict[str, tuple[str, Any, str]] = {
     "ft_sensor.contact_on_force": ("N", (0.0, 1e4), "filtered normal force starting a contact"),
     "ft_sensor.contact_off_force": ("N", (0.0, 1e4), "filtered normal force ending it"),
     "ft_sensor.tare_samples": ("", (1, 100000), "measurements averaged by the tare service"),
+    "ft_sensor.model": (
+        "",
+        list(FT_MODELS),
+        "contact: the paper's sensor (eq 32); wrist: 6 axes on the flange, tool weight and bias",
+    ),
+    "ft_sensor.bias": (
+        "N, N·m",
+        (-100.0, 100.0),
+        "wrist sensor bias (fx fy fz mx my mz), its frame",
+    ),
+    "ft_sensor.moment_noise_std": ("N·m", (0.0, 10.0), "wrist sensor: σ of the moments"),
+    "ft_sensor.calibration": (
+        "",
+        list(FT_CALIBRATIONS),
+        "wrist sensor: calibrate at startup, load calibration_file, or none (no compensation)",
+    ),
+    "ft_sensor.calibration_file": ("", None, "wrist sensor: calibration file (calibration: file)"),
+    "ft_sensor.calibration_samples": ("", (1, 100000), "wrist sensor: readings per pose"),
+    "ft_sensor.calibration_max_age": ("s", (0.0, 1e9), "wrist sensor: oldest calibration taken"),
+    "ft_sensor.inertial_wrench": (
+        "",
+        None,
+        "wrist sensor: also read the tool's inertial wrench, compensated with q̂ and q̇̂",
+    ),
     "mpc.formulation": ("", list(FORMULATIONS), "OCP formulation"),
     "mpc.backend": (
         "",
@@ -721,11 +774,37 @@ def _scenario_from_flat(name: str, flat: dict[str, Any]) -> Scenario:
         mpc=mpc,
         pid=_coerce(PidSection, _split(flat, "pid")),
     )
+    check_force_sensor(scenario.ft_sensor)
     fixed = command_delay_seconds(scenario.mpc.command_delay)
     if fixed is not None:  # a fixed δo sets the PID's delay line
         cycles = delay_in_plant_steps(fixed, scenario.plant.time_step)
         scenario = replace(scenario, pid=replace(scenario.pid, delay_cycles=cycles))
     return scenario
+
+
+#: The ``ft_sensor`` keys of the wrist sensor only.
+WRIST_ONLY = (
+    "bias",
+    "moment_noise_std",
+    "calibration",
+    "calibration_file",
+    "calibration_samples",
+    "calibration_max_age",
+    "inertial_wrench",
+)
+
+
+def check_force_sensor(section: ForceSensorSection) -> None:
+    """ConfigError for wrist-sensor keys changed with ``model: contact`` (they would do
+    nothing) and for ``calibration: file`` without a ``calibration_file``."""
+    default = ForceSensorSection()
+    if section.model == "contact":
+        changed = [k for k in WRIST_ONLY if getattr(section, k) != getattr(default, k)]
+        if changed:
+            names = ", ".join(f"ft_sensor.{k}" for k in changed)
+            raise ConfigError(f"{names}: only with ft_sensor.model: wrist (the model is contact)")
+    if section.calibration == "file" and not section.calibration_file:
+        raise ConfigError("ft_sensor.calibration: file needs ft_sensor.calibration_file")
 
 
 def _command_delay_setting(value: Any, spec: ParamSpec) -> str:

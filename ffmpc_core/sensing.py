@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from ffmpc_core.config import ContactConfig
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.plausibility import check_force, check_tare_offset
 
@@ -117,6 +118,16 @@ def force_measurement(
 ) -> np.ndarray:
     """Eq 32: λ̂(t) = λ(t − δs) + ν_λ, ν_λ ~ N(0, σ_λ²); N, in the frame λ is given in."""
     return force_delayed + force_noise_std * rng.standard_normal(force_delayed.shape)
+
+
+def measured_force(wrench_world: np.ndarray, contact: ContactConfig) -> np.ndarray:
+    """The MPC's force from the tool wrench (world axes): 1-D → the world-z component
+    (LOCAL_WORLD_ALIGNED normal, config.py's convention), 3-D → the world force."""
+    if contact.frame_type != "LOCAL_WORLD_ALIGNED":
+        raise ConfigError("the study feeds world-aligned forces; use LOCAL_WORLD_ALIGNED")
+    if contact.dimension == 1:
+        return wrench_world[contact.normal_axis : contact.normal_axis + 1].copy()
+    return wrench_world[:3].copy()
 
 
 @dataclass(frozen=True)
@@ -269,3 +280,31 @@ class ForceTare:
         offset = check_tare_offset(np.mean(np.array(self._recent), axis=0))
         self.offset = offset
         return offset.copy()
+
+
+class ContactHysteresis:
+    """Contact detection with hysteresis on a normal force (N): contact starts once the force
+    exceeds ``on`` and ends once it falls below ``off`` (``off`` ≤ ``on``); between the two the
+    state is kept, so noise around one threshold does not toggle it (the agimus deburring
+    controller's contact detector uses two thresholds the same way)."""
+
+    def __init__(self, on: float, off: float) -> None:
+        if not (np.isfinite(on) and np.isfinite(off)) or off > on:
+            raise ConfigError(
+                f"contact thresholds need off <= on (N), got on {on!r}, off {off!r}: "
+                "contact_off_force must not exceed contact_on_force"
+            )
+        self.on = float(on)
+        self.off = float(off)
+        self.in_contact = False
+
+    def reset(self) -> None:
+        self.in_contact = False
+
+    def update(self, normal_force: float) -> bool:
+        """The contact state after this normal force (N)."""
+        if self.in_contact and normal_force < self.off:
+            self.in_contact = False
+        elif not self.in_contact and normal_force > self.on:
+            self.in_contact = True
+        return self.in_contact

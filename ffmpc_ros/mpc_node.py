@@ -83,9 +83,9 @@ from ffmpc_core.polishing import (
     measured_force,
     mpc_config,
     mpc_schedule,
+    scenario_robot,
     steps_per_mpc_period,
 )
-from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import SCHEMA
 from ffmpc_core.tasks import PhaseWeights
 from ffmpc_ros import layouts, topics
@@ -110,7 +110,7 @@ class MpcNode(GraphNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("mpc", **kwargs)
         s = self.scenario
-        self.robot = load_robot(s.robot)
+        self.robot = scenario_robot(s)  # carrying the tool (the cell's load data)
         self.joint_names = list(self.robot.joint_names)
         self.config = mpc_config(s)
         self.task = build_task(s, self.robot)

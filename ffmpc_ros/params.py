@@ -198,6 +198,8 @@ REMOVE_GRAVITY = GraphParameter(
 
 _TIME_STEP = ("plant.time_step",)
 _CONTACT = ("mpc.contact.dimension", "mpc.contact.normal_axis", "mpc.contact.frame_type")
+#: The tool on the flange (the controllers' load data, the wrist F/T sensor's weighed tool).
+_TOOL = ("plant.tool_mass", "plant.tool_center_of_mass")
 
 # -- the impact nodes (Dehio & Kheddar 2020) and the MPC's use of the learned contact ----------
 # The impact study's values (target force, planner, prior, admittance, learner, touch-first, …)
@@ -357,13 +359,17 @@ NODE_SPECS: dict[str, NodeSpec] = {
         "joint_sensor", "joint_sensor", ("robot", "seed"), _TIME_STEP, (MAX_AGE,)
     ),
     "ft_sensor": NodeSpec(
-        "ft_sensor", "ft_sensor", ("seed",), _TIME_STEP + _CONTACT, (MAX_AGE, MEASURE_MOMENTS)
+        "ft_sensor",
+        "ft_sensor",
+        ("robot", "seed"),
+        _TIME_STEP + _CONTACT + _TOOL + ("joint_sensor.position_noise_std",),
+        (MAX_AGE, MEASURE_MOMENTS),
     ),
     "mpc": NodeSpec(
         "mpc",
         "mpc",
         ("robot", "task.*"),
-        _TIME_STEP + ("pid.delay_cycles",),
+        _TIME_STEP + _TOOL + ("pid.delay_cycles",),
         (
             LOCKSTEP,
             MAX_AGE,
@@ -378,7 +384,7 @@ NODE_SPECS: dict[str, NodeSpec] = {
         "pid",
         "pid",
         ("robot",),
-        _TIME_STEP + _CONTACT + ("mpc.period", "mpc.formulation", "mpc.riccati_feedback"),
+        _TIME_STEP + _CONTACT + _TOOL + ("mpc.period", "mpc.formulation", "mpc.riccati_feedback"),
         (LOCKSTEP, LOCKSTEP_TIMEOUT, MAX_AGE, INTERFACES, REMOVE_GRAVITY),
         PID_LIVE,
     ),

@@ -71,8 +71,12 @@ from std_msgs.msg import Float64MultiArray
 
 from ffmpc_core.errors import InputError
 from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement, LowLevelMode, LowLevelOutput
-from ffmpc_core.polishing import lowlevel_controller, measured_force, steps_per_mpc_period
-from ffmpc_core.robots import load_robot
+from ffmpc_core.polishing import (
+    lowlevel_controller,
+    measured_force,
+    scenario_robot,
+    steps_per_mpc_period,
+)
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import GraphNode, drop_stale_cycles, interfaces_of, run_node
 from ffmpc_ros.command_msg import command_fields
@@ -92,7 +96,7 @@ class PidNode(GraphNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("pid", **kwargs)
         s = self.scenario
-        self.robot = load_robot(s.robot)
+        self.robot = scenario_robot(s)  # carrying the tool (the cell's load data)
         self.joint_names = list(self.robot.joint_names)
         self.lowlevel = lowlevel_controller(s, self.robot)
         self.every = steps_per_mpc_period(s)

@@ -54,8 +54,8 @@ from ffmpc_core.errors import InputError
 from ffmpc_core.polishing import (
     device_generator,
     lowlevel_controller,
+    scenario_robot,
 )
-from ffmpc_core.robots import load_robot
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import (
     GraphNode,
@@ -80,7 +80,7 @@ class PlantNode(GraphNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("plant", **kwargs)
         s = self.scenario
-        robot = self.robot = load_robot(s.robot)
+        robot = self.robot = scenario_robot(s)  # carrying the tool (the cell's load data)
         self.joint_names = list(robot.joint_names)
         self.sim = simulated_robot(
             s, robot, device_generator(s.seed, "draws"), device_generator(s.seed, "actuation")

@@ -107,14 +107,13 @@ from ffmpc_core.metrics import PolishingMetrics, limit_ratios
 from ffmpc_core.polishing import (
     PolishingLog,
     device_generator,
-    force_sensing_model,
+    force_pipeline,
     joint_sensing_model,
     lowlevel_controller,
-    measured_force,
     polishing_run_metrics,
+    scenario_robot,
     steps_per_mpc_period,
 )
-from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import Scenario
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import (
@@ -451,7 +450,7 @@ class RealtimeLoop:
         plant_node = self.nodes["plant"]
         s = plant_node.scenario
         self.scenario = s
-        robot = self.robot = load_robot(s.robot)
+        robot = self.robot = scenario_robot(s)  # carrying the tool (the cell's load data)
         self.joint_names = list(robot.joint_names)
         self.time_step = plant_node.time_step
         self.step_ns = plant_node.step_ns
@@ -473,7 +472,13 @@ class RealtimeLoop:
         )
         ft = self.nodes["ft_sensor"].scenario
         self.contact = ft.mpc.contact
-        self.force_model = force_sensing_model(ft, device_generator(ft.seed, "force_sensor"))
+        self.force_model = force_pipeline(  # eq 32, or the wrist sensor, calibrated now
+            ft,
+            robot,
+            device_generator(ft.seed, "force_sensor"),
+            device_generator(ft.seed, "ft_calibration"),
+            time.time(),
+        )
         self.force_axes = [self.contact.normal_axis] if self.contact.dimension == 1 else [0, 1, 2]
         # torque loop (as PidNode), with the fixed MPC latency counted (real_time_pid_settings)
         ps = real_time_pid_settings(self.nodes["pid"].scenario)
@@ -623,7 +628,6 @@ class RealtimeLoop:
         f_hat = np.zeros(len(self.force_axes))
         out: LowLevelOutput | None = None
         state = self.plant.state()
-        contact = self.contact
         stalls = _StallSchedule(self.stalls, dt, self.mpc_pid)
         gc.collect()
         gc.freeze()
@@ -653,7 +657,7 @@ class RealtimeLoop:
                 stamp = stamp_at(k, self.step_ns)
                 # sensing (eq 30, 32) and the measurement the MPC reads, first: the MPC's time
                 q_hat, v_hat, _ = self.joint_model.step(state.q, state.v)
-                f_hat = self.force_model.step(measured_force(state.wrench_world, contact))
+                f_hat = self.force_model.measure(state.q, state.v, state.wrench_world, q_hat, v_hat)
                 if act["clock"]:
                     self.pub_clock.publish(ClockMsg(clock=stamp))
                 self.pub_joints.publish(
@@ -720,8 +724,8 @@ class RealtimeLoop:
         model (eq 31), and the cycle is recorded as missed (the mode and desired torque of the
         previous cycle, latency inf). Returns (τ̂ applied, N·m; the plant state after the step)."""
         q_true, v_true, force_true = state.q, state.v, state.normal_force
-        self.joint_model.step(state.q, state.v)
-        self.force_model.step(measured_force(state.wrench_world, self.contact))
+        q_hat, v_hat, _ = self.joint_model.step(state.q, state.v)
+        self.force_model.measure(state.q, state.v, state.wrench_world, q_hat, v_hat)
         self.sim.push_if_due(k)
         tau_hat = self.actuation.step(held, state.v)
         self.plant.step(tau_hat)

@@ -203,6 +203,9 @@ class ToolConfig:
         lateral_friction: multiplied with the other body's (1 passes the table's through).
         stiffness: contact stiffness of the tool surface, N/m (1e9: rigid next to the table).
         damping: contact damping of the tool surface, N·s/m (0: the table's passes through).
+        center_of_mass: the tool's centre of mass, m, in the FLANGE frame (where the wrist
+            force/torque sensor is); None: the sphere's centre. Its rotational inertia is the
+            solid sphere's (2/5·m·r²) about this point, as ``ffmpc_core.robots.ToolLoad``'s.
     """
 
     radius: float = 0.01
@@ -210,6 +213,7 @@ class ToolConfig:
     lateral_friction: float = 1.0
     stiffness: float = 1e9
     damping: float = 0.0
+    center_of_mass: tuple[float, float, float] | None = None
 
     def __post_init__(self) -> None:
         _positive(self.radius, "radius")
@@ -217,10 +221,18 @@ class ToolConfig:
         _positive(self.lateral_friction, "lateral_friction", allow_zero=True)
         _positive(self.stiffness, "stiffness")
         _positive(self.damping, "damping", allow_zero=True)
+        if self.center_of_mass is not None:
+            _vector3(self.center_of_mass, "center_of_mass")
 
     def sphere_center(self, robot: RobotModel) -> np.ndarray:
         """Centre of the tool sphere in the flange frame, m."""
         return robot.tool_placement.act(np.array([0.0, 0.0, -self.radius]))
+
+    def mass_center(self, robot: RobotModel) -> np.ndarray:
+        """The tool's centre of mass in the flange frame, m."""
+        if self.center_of_mass is None:
+            return self.sphere_center(robot)
+        return np.asarray(self.center_of_mass, dtype=float)
 
 
 @dataclass(frozen=True)
@@ -291,7 +303,7 @@ class PlantState:
 def tool_spatial_inertia(robot: RobotModel, tool: ToolConfig) -> pin.Inertia:
     """Spatial inertia of the tool (solid sphere of ``tool.mass``) in the flange frame."""
     sphere = pin.Inertia.FromSphere(tool.mass, tool.radius)
-    return pin.SE3(np.eye(3), tool.sphere_center(robot)).act(sphere)
+    return pin.SE3(np.eye(3), tool.mass_center(robot)).act(sphere)
 
 
 def model_with_tool(robot: RobotModel, tool: ToolConfig) -> pin.Model:
@@ -383,10 +395,16 @@ def tool_urdf_text(robot: RobotModel, tool: ToolConfig, visuals: bool = False) -
         raise ModelError(f"{urdf_path} already has a link named {TOOL_LINK!r}")
 
     center = np.array([0.0, 0.0, -tool.radius])
+    # the inertial origin in the tool link's frame (= the contact frame)
+    mass_center = (
+        center
+        if tool.center_of_mass is None
+        else robot.tool_placement.actInv(np.asarray(tool.center_of_mass, dtype=float))
+    )
     sphere_inertia = 0.4 * tool.mass * tool.radius**2
     link = ET.SubElement(root, "link", name=TOOL_LINK)
     inertial = ET.SubElement(link, "inertial")
-    ET.SubElement(inertial, "origin", xyz=_fmt(center), rpy="0 0 0")
+    ET.SubElement(inertial, "origin", xyz=_fmt(mass_center), rpy="0 0 0")
     ET.SubElement(inertial, "mass", value=f"{tool.mass:.17g}")
     ET.SubElement(
         inertial,

@@ -23,7 +23,14 @@ import numpy as np
 
 from ffmpc_core.actuation import ActuationModel
 from ffmpc_core.errors import ConfigError
-from ffmpc_core.polishing import PolishingSchedule, RunDraws, actuation_model, build_task, draw_run
+from ffmpc_core.polishing import (
+    PolishingSchedule,
+    RunDraws,
+    actuation_model,
+    build_task,
+    draw_run,
+    tool_load,
+)
 from ffmpc_core.robots import RobotModel
 from ffmpc_core.scenario import PLANT_ENGINES, Scenario
 
@@ -143,10 +150,15 @@ def exploration_plant_config(dice: DiceConfig, time_step: float) -> PlantConfig:
 
 
 def polishing_plant_config(scenario: Scenario, task: PolishingSchedule, tilt: float) -> PlantConfig:
-    """Table tilted by θ about an axis through the circle centre (or the contact point)."""
-    from sim_bridge.plant import PlantConfig, TableConfig
+    """Table tilted by θ about an axis through the circle centre (or the contact point); the
+    scenario's tool on the flange (``plant.tool_mass`` at ``plant.tool_center_of_mass``)."""
+    from sim_bridge.plant import PlantConfig, TableConfig, ToolConfig
 
     p = scenario.plant
+    load = tool_load(scenario)  # the tool on the flange: the same numbers as the controllers'
+    tool = ToolConfig(radius=load.radius)
+    if load.mass > 0.0:
+        tool = ToolConfig(radius=load.radius, mass=load.mass, center_of_mass=load.center_of_mass)
     pivot = task.circle_center() if hasattr(task, "circle_center") else task.contact_position
     table = TableConfig(
         surface_point=tuple(pivot),
@@ -156,7 +168,7 @@ def polishing_plant_config(scenario: Scenario, task: PolishingSchedule, tilt: fl
         damping=p.table_damping,
         lateral_friction=p.table_friction,
     )
-    return PlantConfig(time_step=p.time_step, table=table)
+    return PlantConfig(time_step=p.time_step, table=table, tool=tool)
 
 
 @dataclass

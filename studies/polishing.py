@@ -57,7 +57,7 @@ from ffmpc_core.polishing import (
     PolishingLog,
     RunDraws,
     command_delay,
-    force_sensing_model,
+    force_pipeline,
     joint_sensing_model,
     lowlevel_controller,
     mpc_config,
@@ -65,11 +65,12 @@ from ffmpc_core.polishing import (
     polishing_push_metrics,
     polishing_run_metrics,
     resolve_command_delay,
+    scenario_robot,
     spawn_generators,
     steps_per_mpc_period,
 )
 from ffmpc_core.polishing_loop import LowLevelStage, MpcStage, PolishingLoop
-from ffmpc_core.robots import RobotModel, load_robot
+from ffmpc_core.robots import RobotModel
 from ffmpc_core.runner import LockstepClock
 from ffmpc_core.scenario import Scenario
 from sim_bridge.scenes import simulated_robot
@@ -196,11 +197,11 @@ def run_polishing(
     wall_start = time.perf_counter()
     faults = faults_from(faults)
     require_kinds(faults, RUNNER_KINDS, "the ROS-free runner")
-    robot = load_robot(scenario.robot)
+    robot = scenario_robot(scenario)  # carrying the tool, if any (the cell's load data)
     # mpc.command_delay: measured → time this MPC here (the studies resolve it beforehand).
     scenario, _ = resolve_command_delay(scenario, robot)
     # One generator per device, spawned in a fixed order; the ROS nodes spawn the same ones.
-    draw_rng, joint_rng, force_rng, act_rng = spawn_generators(scenario.seed)
+    draw_rng, joint_rng, force_rng, act_rng, calibration_rng = spawn_generators(scenario.seed)
     sim = simulated_robot(scenario, robot, draw_rng, act_rng)
     draws, task, actuation = sim.draws, sim.task, sim.actuation
     duration = task.duration if duration is None else duration
@@ -215,7 +216,7 @@ def run_polishing(
         robot,
         config.contact,
         joint_sensing_model(scenario, robot.nv, joint_rng),
-        force_sensing_model(scenario, force_rng),
+        force_pipeline(scenario, robot, force_rng, calibration_rng, time.time()),
         actuation,
         log,
         steps_per_mpc_period(scenario),

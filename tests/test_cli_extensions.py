@@ -45,12 +45,13 @@ def test_the_installed_groups_name_the_studies_commands() -> None:
     bench = {ep.name: ep.value for ep in metadata.entry_points(group=BENCH_GROUP)}
     assert commands == {
         "demo": "studies.cli:DemoCommand",
+        "ft": "studies.ft_cli:FtCommand",
         "study": "studies.cli:StudyCommand",
         "tune": "studies.cli:TuneCommand",
     }
     assert bench == {"impact": "studies.cli:BenchImpactVerb", "mpc": "studies.cli:BenchMpcVerb"}
     loaded = load_extensions(COMMAND_GROUP, warn=pytest.fail)
-    assert sorted(loaded) == ["demo", "study", "tune"]
+    assert sorted(loaded) == ["demo", "ft", "study", "tune"]
 
 
 def test_load_skips_broken_foreign_and_repeated_entry_points() -> None:

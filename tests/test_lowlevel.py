@@ -269,7 +269,7 @@ def _in_pybullet(robot, overrides: dict, seed: int, cycles: int, command=None):
     from sim_bridge.plant import Plant, PlantConfig
 
     scenario = load_scenario("polishing", overrides)
-    draw_rng, joint_rng, _, act_rng = spawn_generators(seed)
+    draw_rng, joint_rng, _, act_rng, _ = spawn_generators(seed)
     draws = draw_run(scenario, robot, draw_rng)
     sensing = joint_sensing_model(scenario, robot.nv, joint_rng)
     actuation = actuation_model(scenario, robot, draws, act_rng)

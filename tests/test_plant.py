@@ -11,7 +11,7 @@ import pytest
 
 from ffmpc_core.actuation import ActuationModel, ActuationParams
 from ffmpc_core.errors import ConfigError, InputError, ModelError
-from ffmpc_core.robots import load_robot
+from ffmpc_core.robots import ToolLoad, load_robot, with_tool_load
 from sim_bridge.plant import (
     TOOL_LINK,
     Plant,
@@ -73,6 +73,27 @@ def test_massive_tool_is_accounted_for(robot):
     scale = np.abs(a_tool).max()
     assert np.abs(a_pb - a_rigid).max() > 1e-4 * scale  # the tool mass is visible ...
     assert np.allclose(a_pb, a_tool, rtol=1e-8, atol=1e-8 * scale)  # ... and accounted for
+
+
+def test_tool_with_an_offset_centre_of_mass_is_the_controllers_load(robot):
+    """A 1 kg tool whose centre of mass is off the tool axis (flange frame): PyBullet's dynamics
+    equal pinocchio's with ``ffmpc_core.robots.with_tool_load`` of the same numbers (the load the
+    controllers carry) and ``model_with_tool``."""
+    com = (0.03, -0.02, 0.08)
+    tool = ToolConfig(mass=1.0, center_of_mass=com)
+    q, v, tau = random_state(robot, np.random.default_rng(8))
+    with Plant(robot, PlantConfig(table=None, tool=tool)) as plant:
+        a_pb = one_step_acceleration(plant, q, v, tau)
+    loaded = with_tool_load(robot, ToolLoad(1.0, com, radius=tool.radius)).model
+    a_load = pin.aba(loaded, loaded.createData(), q, v, tau)
+    augmented = model_with_tool(robot, tool)
+    a_tool = pin.aba(augmented, augmented.createData(), q, v, tau)
+    scale = np.abs(a_load).max()
+    np.testing.assert_allclose(a_tool, a_load, rtol=1e-12, atol=1e-12 * scale)
+    assert np.allclose(a_pb, a_load, rtol=1e-8, atol=1e-8 * scale)
+    centred = with_tool_load(robot, ToolLoad(1.0, (0.0, 0.0, 0.08))).model
+    a_centred = pin.aba(centred, centred.createData(), q, v, tau)
+    assert np.abs(a_centred - a_load).max() > 1e-4 * scale  # the offset is visible
 
 
 def test_contact_frame_is_pinocchio_contact_frame(robot):
