@@ -40,6 +40,11 @@ def _bench_mpc(arg: str | None) -> str:
     return render.bench_mpc_table(doc)
 
 
+def _bench_impact(arg: str | None) -> str:
+    doc = json.loads((RESULTS / "bench" / "bench_impact.json").read_text(encoding="utf-8"))
+    return render.bench_impact_table(doc)
+
+
 def _study(arg: str | None) -> str:
     study = next(s for s in sources.study_parameters() if s.key == arg)
     return render.study_page(study)
@@ -81,6 +86,7 @@ GENERATORS: dict[str, Callable[[str | None], str]] = {
     "equations": _equations,
     "results": _results,
     "bench-mpc": _bench_mpc,
+    "bench-impact": _bench_impact,
 }
 
 #: Documents that hold a marker (filled by ``source-read``), re-read on every build.
@@ -208,8 +214,33 @@ def _is_type_variable(name: str) -> bool:
         return False
 
 
+_LITERAL = re.compile(r"(``.+?``|`[^`]+`)")
+
+
+def _bars_are_text(
+    app: Sphinx, what: str, name: str, obj: Any, options: Any, lines: list[str]
+) -> None:
+    """``|x|`` in a docstring is an absolute value or a norm, never a reStructuredText
+    substitution (the project's docstrings have none): escape the bars outside literals
+    (inline ````code````, roles, ``::`` literal blocks)."""
+    block: int | None = None  # indent of the line that opened a literal block
+    for i, line in enumerate(lines):
+        indent = len(line) - len(line.lstrip())
+        if block is not None and (not line.strip() or indent > block):
+            continue
+        block = None
+        if line.rstrip().endswith("::"):
+            block = indent
+        if "|" in line:
+            parts = _LITERAL.split(line)
+            lines[i] = "".join(
+                part if k % 2 else part.replace("|", "\\|") for k, part in enumerate(parts)
+            )
+
+
 def setup(app: Sphinx) -> dict[str, Any]:
     app.add_config_value("ffmpc_api_package", "ffmpc_core", "env")
+    app.connect("autodoc-process-docstring", _bars_are_text)
     app.connect("missing-reference", _missing_reference)
     app.connect("source-read", _source_read)
     app.connect("env-get-outdated", _outdated)

@@ -504,41 +504,53 @@ def provenance(doc: dict[str, Any], path: str) -> str:
     return "\n".join(lines)
 
 
+def _ms(value: Any) -> str:
+    return f"{value:.3f}" if isinstance(value, int | float) else ""
+
+
 def bench_mpc_table(doc: dict[str, Any]) -> str:
     """The cases of ``ffmpc bench mpc --json`` as a table."""
     rows = []
     for c in doc.get("cases", []):
-        rows.append(
-            [
-                str(c.get("horizon", "")),
-                number(c.get("dt", 0) * 1e3) if c.get("dt") else "",
-                code(c.get("formulation", c.get("name", ""))),
-                *(
-                    number(round(c[k], 3)) if isinstance(c.get(k), int | float) else ""
-                    for k in (
-                        "step_median_ms",
-                        "step_p90_ms",
-                        "solve_median_ms",
-                        "iterations_median",
-                        "iterations_max",
-                        "ratio",
-                        "force_end",
-                    )
-                ),
-            ]
-        )
+        rows.append([
+            str(c.get("nodes", "")),
+            number(round(c["dt"] * 1e3, 6)) if isinstance(c.get("dt"), float) else "",
+            code(c.get("formulation", "")),
+            _ms(c.get("step_median_ms")), _ms(c.get("p90_ms")), _ms(c.get("solve_median_ms")),
+            number(c.get("iterations_median", 0)), number(c.get("iterations_max", 0)),
+            f"{100 * c.get('cap_hit_fraction', 0):.1f} %",
+            f"{c.get('ratio_to_reference', 0):.2f}", f"{c.get('final_force_N', 0):.2f}",
+        ])  # fmt: skip
     return table(
-        [
-            "N",
-            "Δt (ms)",
-            "formulation",
-            "step median (ms)",
-            "step p90 (ms)",
-            "solve median (ms)",
-            "iterations median",
-            "iterations max",
-            "ratio to reference",
-            "force at end (N)",
-        ],
+        ["N", "Δt (ms)", "formulation", "step median (ms)", "step p90 (ms)",
+         "solve median (ms)", "iterations median", "iterations max", "cap hit",
+         "ratio to reference", "force at end (N)"],
         rows,
-    )
+    )  # fmt: skip
+
+
+def bench_impact_table(doc: dict[str, Any]) -> str:
+    """The two pipelines of ``ffmpc bench impact --json`` as a table."""
+    rows = []
+    for label, p in (("daqp", doc.get("daqp", {})), ("osqp (reference)", doc.get("reference", {}))):
+        rows.append([
+            esc(label), _ms(p.get("median_ms")), _ms(p.get("p90_ms")), _ms(p.get("p99_ms")),
+            _ms(p.get("cpu_median_ms")), _ms(p.get("mapping_median_ms")),
+            _ms(p.get("eq14_median_ms")), str(p.get("eq14_failures", "")),
+            str(p.get("eq14_highs_fallbacks", "")),
+        ])  # fmt: skip
+    out = table(
+        ["pipeline", "median (ms)", "p90 (ms)", "p99 (ms)", "CPU median (ms)",
+         "mapping median (ms)", "eq 14 median (ms)", "eq 14 failures", "HiGHS fallbacks"],
+        rows,
+    )  # fmt: skip
+    ratio = doc.get("ratio_reference_over_new")
+    if isinstance(ratio, int | float):
+        out += (
+            f"\nOSQP over DAQP (median): {ratio:.1f}× wall time, "
+            f"{doc.get('cpu_ratio_reference_over_new', 0):.1f}× CPU time, over "
+            f"{doc.get('cycles', '?')} cycles; the largest difference of the pre-impact velocity "
+            f"from the polished OSQP solution {doc.get('max_velocity_difference_polished', 0):.1e} "
+            f"m/s; load average {doc.get('load_average_1min', 0):.1f}.\n"
+        )
+    return out
