@@ -79,9 +79,9 @@ docs: $(STAMP) $(NATIVE) $(DOCS_STAMP)
 	@echo "manual: docs/_build/html/index.html"
 
 lint: $(STAMP)
-	$(BIN)/ruff check ffmpc_core sim_bridge studies ffmpc_ros tests benchmarks
+	$(BIN)/ruff check ffmpc_core sim_bridge studies ffmpc_ros tests benchmarks docs
 	$(BIN)/python tests/layer_check.py  # ffmpc_core <- sim_bridge <- ffmpc_ros <- studies, no cycles
-	$(BIN)/ruff format --check ffmpc_core sim_bridge studies ffmpc_ros tests benchmarks
+	$(BIN)/ruff format --check ffmpc_core sim_bridge studies ffmpc_ros tests benchmarks docs
 	$(BIN)/mypy  # ffmpc_core, sim_bridge, studies, ffmpc_ros: pyproject.toml [tool.mypy]
 
 bench: $(STAMP) $(NATIVE)

@@ -73,6 +73,15 @@ def _strip_links(text: str) -> str:
     return re.sub(r"\[([^\]]+)\]\([^)]+\)", r"\1", text)
 
 
+def notes_md(text: str) -> str:
+    """A cell of ``msgs_notes/`` (Markdown already) for a table here: links as their text
+    (they point into the notes), ``<`` escaped; inline code and emphasis kept."""
+    parts = re.split(r"(`[^`]*`)", _strip_links(text))
+    return "".join(p if k % 2 else p.replace("<", "\\<") for k, p in enumerate(parts)).replace(
+        "|", "\\|"
+    )
+
+
 # -- the command line ----------------------------------------------------------------------------
 def cli_page(root: src.CliCommand) -> str:
     """Every command of ``ffmpc``, depth first: usage, description, sub-commands, arguments."""
@@ -299,24 +308,27 @@ def node_page(nodes: list[src.NodeParams]) -> str:
 def topics_page(
     topics: list[src.Topic], overrides: list[src.GraphOverride], absolute: tuple[str, ...]
 ) -> str:
-    """Every topic by graph, its QoS, and the bring-up's overrides."""
+    """Every topic by graph (an overview, then each topic's QoS profiles and content), and the
+    bring-up's overrides."""
     out = []
     for graph, _attr in src.GRAPHS:
         rows = [t for t in topics if graph in t.graphs]
         out.append(f"({slug('topics ' + graph)})=\n### {graph.capitalize()}\n")
         out.append(
             table(
-                ["topic", "type", "publisher", "subscribers", "rate", "QoS", "content"],
+                ["topic", "type", "publisher", "rate", "QoS class"],
                 [
-                    [
-                        code(t.name),
-                        code(t.type),
-                        esc(t.publisher),
-                        esc(_strip_links(t.subscribers)),
-                        esc(_strip_links(t.rate)),
-                        _qos_cell(t),
-                        esc(_strip_links(t.content)),
-                    ]
+                    [code(t.name), code(t.type), esc(t.publisher), notes_md(t.rate),
+                     code(t.qos_class)]
+                    for t in rows
+                ],
+            )
+        )  # fmt: skip
+        out.append(
+            table(
+                ["topic", "subscribers", "QoS profiles", "content"],
+                [
+                    [code(t.name), notes_md(t.subscribers), _qos_cell(t), notes_md(t.content)]
                     for t in rows
                 ],
             )
@@ -348,7 +360,7 @@ def topics_page(
 
 
 def _qos_cell(t: src.Topic) -> str:
-    text = f"{code(t.qos_class)}: publisher {esc(t.publisher_qos.text)}"
+    text = f"publisher {esc(t.publisher_qos.text)}"
     lock, rt = t.subscriber_qos_lockstep, t.subscriber_qos_real_time
     if lock == t.publisher_qos and rt == lock:
         return text + "; subscribers the same"
@@ -361,10 +373,7 @@ def services_page(services: list[src.Service]) -> str:
     """The services of the graph."""
     return table(
         ["service", "type", "server", "effect"],
-        [
-            [code(s.name), code(s.type), esc(s.server), esc(_strip_links(s.effect))]
-            for s in services
-        ],
+        [[code(s.name), code(s.type), esc(s.server), notes_md(s.effect)] for s in services],
     )
 
 
@@ -454,7 +463,9 @@ def equations_page(implementations: list[eq.Implementation]) -> str:
             objs = [i for i in implementations if i.paper == paper.key and n in i.equations]
             if objs:
                 where = "<br>".join(
-                    f"{{{_ROLE[i.kind]}}}`~{i.qualname}` ({esc(i.kind)})" for i in objs
+                    f"{{{_ROLE[i.kind]}}}`{i.qualname.removeprefix('ffmpc_core.')} <{i.qualname}>` "
+                    f"({esc(i.kind)})"
+                    for i in objs
                 )
             else:
                 where = "not implemented: " + esc(eq.NOT_IMPLEMENTED.get((paper.key, n), "?"))
@@ -488,7 +499,7 @@ def provenance(doc: dict[str, Any], path: str) -> str:
     pinned = ", ".join(f"{k} {versions[k]}" for k in _PINNED if k in versions)
     ffmpc = versions.get("ffmpc", "not recorded in the file")
     lines = [
-        f"```{{admonition}} Provenance of `{path}`\n",
+        f":::{{admonition}} Provenance of `{path}`\n",
         f"- Command: {code(command)}",
         f"- Date: {esc(when)}",
         f"- ffmpc version: {esc(ffmpc)}",
@@ -500,7 +511,7 @@ def provenance(doc: dict[str, Any], path: str) -> str:
         if isinstance(machine, dict):
             machine = ", ".join(f"{k} {v}" for k, v in machine.items())
         lines.append(f"- Machine: {esc(machine)}")
-    lines.append("```\n")
+    lines.append(":::\n")
     return "\n".join(lines)
 
 
