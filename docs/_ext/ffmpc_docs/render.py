@@ -264,21 +264,14 @@ def node_page(nodes: list[src.NodeParams]) -> str:
         if declared:
             rows = []
             for p in declared:
-                same = p.ros_name == p.source_name
                 where = "scenario" if p.origin == "scenario" else "impact study"
                 target = (
                     slug("param " + _group(p.source_name))
                     if p.origin == "scenario"
-                    else ("params-impact")
+                    else "params-impact"
                 )
                 source = f"{where} {{ref}}`{p.source_name} <{target}>`"
-                rows.append(
-                    [
-                        code(p.ros_name),
-                        "same name" if same else source if False else source,
-                        "**live**" if p.live else "read-only",
-                    ]
-                )
+                rows.append([code(p.ros_name), source, "**live**" if p.live else "read-only"])
             out.append(
                 "Scenario and study values it declares (type, unit, range and default as "
                 "in their tables):\n"
