@@ -196,6 +196,7 @@ class ActuationModel:
 
     @property
     def nv(self) -> int:
+        """Number of actuated joints."""
         return self.params.nv
 
     def reset(self) -> None:

@@ -94,6 +94,7 @@ class CostWeights:
         return _diag(getattr(self, f"{name}_diag"), n, f"{name}_diag")
 
     def with_(self, **changes: Any) -> CostWeights:
+        """A copy with the named weights changed (``weights.with_(force=10.0)``)."""
         return replace(self, **changes)
 
 
@@ -153,6 +154,7 @@ class ContactConfig:
 
     @property
     def pin_frame(self) -> pin.ReferenceFrame:
+        """``frame_type`` as pinocchio's reference frame (``LOCAL`` or ``LOCAL_WORLD_ALIGNED``)."""
         return _FRAME_TYPES[self.frame_type]
 
     def stiffness_vector(self) -> np.ndarray:

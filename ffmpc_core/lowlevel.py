@@ -315,6 +315,7 @@ class LowLevelController:
 
     @property
     def mode(self) -> LowLevelMode:
+        """What the low level does this cycle: hold, blend, track or fallback."""
         return self._mode
 
     @property

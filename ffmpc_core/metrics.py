@@ -153,6 +153,7 @@ class PolishingMetrics:
     torque_mae: float | None = None  # E_τ, N·m (None when the torques were not given)
 
     def to_dict(self) -> dict[str, float | None]:
+        """The metrics by field name (JSON-ready; None where a metric is undefined)."""
         return asdict(self)
 
 
@@ -207,6 +208,7 @@ class PushPhaseMetrics:
     max_force: float | None  # max |λ| over the phase, N
 
     def to_dict(self) -> dict[str, float | int | None]:
+        """The metrics by field name (JSON-ready; None where a window is empty)."""
         return asdict(self)
 
 

@@ -174,6 +174,7 @@ class ClosedLoopLog:
     converged: list[bool] = field(default_factory=list)
 
     def arrays(self) -> dict[str, np.ndarray]:
+        """Every logged series as a numpy array, by field name (one row per cycle)."""
         return {k: np.asarray(v) for k, v in self.__dict__.items()}
 
 

@@ -100,9 +100,13 @@ class Schedule(Protocol):
     path); a schedule without it is asked for a new ``reference`` per node instead.
     """
 
-    def reference(self, t: float, dimension: int = 1) -> NodeReference: ...
+    def reference(self, t: float, dimension: int = 1) -> NodeReference:
+        """A new reference of a node at time t (s); ``dimension``: force entries."""
+        ...
 
-    def reference_into(self, t: float, ref: NodeReference) -> NodeReference: ...
+    def reference_into(self, t: float, ref: NodeReference) -> NodeReference:
+        """Write the reference of a node at time t (s) into ``ref``; returns it."""
+        ...
 
 
 @dataclass(frozen=True)

@@ -81,6 +81,7 @@ class TorquePidGains:
 
     @property
     def nv(self) -> int:
+        """Number of joints the gains are for."""
         return int(self.kp.size)
 
     @classmethod
@@ -179,6 +180,7 @@ class TorquePid:
 
     @property
     def delay_cycles(self) -> int:
+        """δo of eq 33 in control cycles: how late the desired torque reaches the PID."""
         return self._desired.delay
 
     @property

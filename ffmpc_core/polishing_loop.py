@@ -45,13 +45,24 @@ class PolishingPlantState(Protocol):
     N·m, world axes) and the normal force on the table, N."""
 
     @property
-    def q(self) -> np.ndarray: ...
+    def q(self) -> np.ndarray:
+        """Joint positions, rad."""
+        ...
+
     @property
-    def v(self) -> np.ndarray: ...
+    def v(self) -> np.ndarray:
+        """Joint velocities, rad/s."""
+        ...
+
     @property
-    def wrench_world(self) -> np.ndarray: ...
+    def wrench_world(self) -> np.ndarray:
+        """Wrench on the tool, [f; m] in N and N·m, world axes."""
+        ...
+
     @property
-    def normal_force(self) -> float: ...
+    def normal_force(self) -> float:
+        """Normal force on the table along its true normal, N."""
+        ...
 
 
 @dataclass(frozen=True)
@@ -101,6 +112,7 @@ class MpcStage:
         self.solve_states: list[tuple[float, np.ndarray]] = []
 
     def reset(self) -> None:
+        """Reset the MPC and forget the counts and logs."""
         self.mpc.reset()
         self.failures = 0
         self.solve_times.clear()
@@ -108,6 +120,8 @@ class MpcStage:
         self.solve_states.clear()
 
     def step(self, reading: PolishingReading, t: float, /) -> MpcDecision:
+        """Solve on a solve cycle (t in s) or pass the reading on; ask for the safe hold on an
+        implausible input or a failed solve."""
         if not reading.solve:
             return MpcDecision(reading, None, False)
         needs_ok = (self.formulation != "force_feedback" or reading.force_ok) and (
@@ -143,9 +157,12 @@ class LowLevelStage:
         self.lowlevel = lowlevel
 
     def reset(self) -> None:
+        """Reset the low-level controller (PID, safe hold, blend)."""
         self.lowlevel.reset()
 
     def step(self, decision: MpcDecision, t: float, /) -> LowLevelOutput:
+        """The motor torque of this cycle (t in s) from the MPC's decision: a new command, the
+        safe hold, or the one in force."""
         if decision.hold:
             self.lowlevel.engage_hold()
         elif decision.command is not None:
@@ -207,6 +224,8 @@ class PolishingLoop:
         self.trace_mode = np.zeros(steps, dtype=int)
 
     def measure(self, k: int, t: float, state: PolishingPlantState, /) -> PolishingReading:
+        """What the controllers read at cycle k (t in s): the sensing models of eq 30 and 32
+        applied to the plant's state, with the injected faults."""
         active = active_kinds(self.faults, t) if self.faults else {}
         q_hat, v_hat, _ = self.joint_sensing.step(state.q, state.v)
         f_hat = self.force_sensing.measure(state.q, state.v, state.wrench_world, q_hat, v_hat)
@@ -232,6 +251,8 @@ class PolishingLoop:
     def actuate(
         self, k: int, t: float, state: PolishingPlantState, command: LowLevelOutput, /
     ) -> np.ndarray:
+        """The joint torque the plant applies at cycle k: the actuation model of eq 31 on the
+        motor torque (N·m)."""
         self.tau_hat = self.actuation.step(command.motor_torque, state.v)
         if self.disturbance is not None:
             self.disturbance(k)
@@ -247,6 +268,7 @@ class PolishingLoop:
         joint_input: np.ndarray | None,
         /,
     ) -> None:
+        """Log cycle k into the run's :class:`~ffmpc_core.polishing.PolishingLog`."""
         assert joint_input is not None  # the polishing loop never ends early
         self.log.record(
             k,

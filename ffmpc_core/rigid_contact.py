@@ -30,7 +30,7 @@ horizon of the paper (5 nodes × 3 ms), and K_d·Δt = 0.15 ≪ 1, so the discre
 
 **Costs** ℓ0 (eq 25, = eq 27 for this formulation), crocoddyl convention c·½·Σ Q_i r_i²:
 
-=================  ========================================================================
+================== ========================================================================
 ``posture``        eq 25.1, ``ResidualModelState`` (q part), weight c1
 ``joint_velocity`` eq 25.2, ``ResidualModelState`` (v part), weight c2
 ``torque``         eq 25.3, τ − τ_g(q, λ) with τ_g = g(q) − J(q)ᵀλ (running only)
@@ -40,7 +40,7 @@ horizon of the paper (5 nodes × 3 ms), and K_d·Δt = 0.15 ≪ 1, so the discre
 ``state_limit``    joint-limit barrier on (q, v): ``ResidualModelState`` under crocoddyl's
                    ``ActivationModelQuadraticBarrier`` (bounds: ``state_limit_fraction`` of the
                    robot's position range and velocity limits), weight c_lim; not in the paper
-=================  ========================================================================
+================== ========================================================================
 
 Terminal nodes keep the state terms only (posture, joint_velocity, ee_position, ee_velocity,
 state_limit).

@@ -68,10 +68,12 @@ class RobotModel:
 
     @property
     def nq(self) -> int:
+        """Size of the configuration q."""
         return self.model.nq
 
     @property
     def nv(self) -> int:
+        """Size of the velocity q̇ (the number of joints)."""
         return self.model.nv
 
     def create_data(self) -> pin.Data:

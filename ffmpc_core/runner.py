@@ -129,11 +129,13 @@ class PeriodicController(Generic[InT_contra, OutT_co]):
         self._held: OutT_co | None = None
 
     def reset(self) -> None:
+        """Reset the wrapped controller and the hold."""
         self.controller.reset()
         self._k = 0
         self._held = None
 
     def step(self, measurement: InT_contra, t: float, /) -> OutT_co:
+        """Step the wrapped controller every ``every`` cycles; hold its output in between."""
         if self._k % self.every == 0 or self._held is None:
             self._held = self.controller.step(measurement, t)
         self._k += 1

@@ -98,6 +98,8 @@ class TaskSection:
 
 @dataclass(frozen=True)
 class PlantSection:
+    """The simulated plant: step, table, actuation model (eq 31) and pushes."""
+
     engine: str = "pybullet"  # PLANT_ENGINES
     time_step: float = 1e-3
     table_tilt_deg: float = 0.0
@@ -124,6 +126,8 @@ class PlantSection:
 
 @dataclass(frozen=True)
 class JointSensorSection:
+    """The joint measurement model (eq 30): delay and noise."""
+
     delay_cycles: int = 1
     position_noise_std: float = 1e-3
     velocity_noise_std: float = 1e-3
@@ -131,6 +135,9 @@ class JointSensorSection:
 
 @dataclass(frozen=True)
 class ForceSensorSection:
+    """The force measurement model (eq 32) and the F/T sensor node's filter, contact detection
+    and tare."""
+
     delay_cycles: int = 1
     force_noise_std: float = 0.01  # N, the authors' σ_λ
     # Outputs of the F/T sensor node beside the eq-32 measurement (the runner does not use them):
@@ -158,6 +165,8 @@ class ForceSensorSection:
 
 @dataclass(frozen=True)
 class MpcSection:
+    """The MPC: formulation, horizon, solver, δo, contact model and cost weights."""
+
     formulation: str = "force_feedback"
     horizon: int = 5
     dt: float = 0.003
@@ -184,6 +193,8 @@ class MpcSection:
     weights: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def cost_weights(self, formulation: str | None = None) -> CostWeights:
+        """The :class:`~ffmpc_core.config.CostWeights` of ``formulation`` (default: the
+        section's)."""
         values = dict(self.weights.get(formulation or self.formulation, {}))
         values.pop("force_phase", None)
         values.pop("ee_position_phase", None)
@@ -193,11 +204,15 @@ class MpcSection:
             raise ConfigError(f"mpc weights: {exc}") from None
 
     def phase_weight(self, name: str, default: float, formulation: str | None = None) -> float:
+        """A task phase weight (``force_phase`` c6, ``ee_position_phase`` c4) of
+        ``formulation``, or ``default``."""
         return float(self.weights.get(formulation or self.formulation, {}).get(name, default))
 
 
 @dataclass(frozen=True)
 class PidSection:
+    """The torque PID (eq 33) and the low-level loop around it (safe hold, blend, limits)."""
+
     enabled: bool = True
     kp: float = 0.1
     ki: float = 20.0  # 1/s; see ffmpc_core/pid.py for why these gains
@@ -301,6 +316,7 @@ class ParamSpec:
         return "'pid', 'measured' or a number of seconds >= 0"  # DELAY
 
     def error(self, value: Any, length: int | None = None) -> ConfigError:
+        """The ConfigError for a bad ``value`` (``name = value: expected …``)."""
         return config_error(self.name, value, self.expected(length))
 
     def check(self, value: Any, length: int | None = None) -> Any:
@@ -714,6 +730,7 @@ def _build_schema() -> dict[str, ParamSpec]:
     return dataclass_schema(Scenario, _TABLE, exclude=("name", "mpc.weights"), given=given)
 
 
+#: Every scenario parameter by dotted name: the one declaration of its kind, unit and range.
 SCHEMA: dict[str, ParamSpec] = _build_schema()
 
 

@@ -69,6 +69,7 @@ class DynamicsCheck:
 
     @property
     def ok(self) -> bool:
+        """Whether the largest error is within the tolerance."""
         return bool(self.max_error <= self.tolerance)
 
 

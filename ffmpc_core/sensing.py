@@ -226,6 +226,7 @@ class ForceSensingModel:
         self._force = DelayLine(delay, force_dim)
 
     def reset(self) -> None:
+        """Forget the delayed forces."""
         self._force.reset()
 
     def step(self, force: np.ndarray) -> np.ndarray:

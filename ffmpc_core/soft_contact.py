@@ -889,6 +889,7 @@ class SoftContactNode:
 
     @property
     def terminal(self) -> bool:
+        """Whether this is the terminal node of the horizon."""
         return self.model.terminal
 
     def set_reference(self, ref: NodeReference) -> bool:

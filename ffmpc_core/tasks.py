@@ -188,14 +188,17 @@ class PolishingTask(_ApproachThenContact):
 
     @property
     def circle_start(self) -> float:
+        """Time the circle starts, s."""
         return self.contact_time + self.force_ramp
 
     @property
     def circle_end(self) -> float:
+        """Time the circle ends, s."""
         return self.circle_start + self.circle
 
     @property
     def duration(self) -> float:
+        """Length of the whole task, s."""
         return self.circle_end + self.stop
 
     @classmethod
@@ -295,19 +298,23 @@ class ForceSquareTask(_ApproachThenContact):
 
     @property
     def square_start(self) -> float:
+        """Time the square signal starts, s."""
         return self.contact_time + self.force_ramp
 
     @property
     def duration(self) -> float:
+        """Length of the whole task, s."""
         return self.square_start + self.period * self.cycles
 
     def ee_position(self, t: float) -> np.ndarray:
+        """Contact-frame position reference at t (s), m, world frame."""
         return self.approach_position(t)
 
     def _ee_position_into(self, t: float, out: np.ndarray) -> np.ndarray:
         return self._approach_position_into(t, out)
 
     def force(self, t: float) -> float:
+        """Normal force reference at t (s), N: the ramp, then the square signal."""
         if t < self.contact_time:
             return 0.0
         if t < self.square_start:
@@ -347,12 +354,15 @@ class PressTask:
             raise ConfigError("PressTask.force must be finite and >= 0 (N)")
 
     def ee_position(self, t: float) -> np.ndarray:
+        """The fixed contact-frame position, m, world frame."""
         return np.asarray(self.position, dtype=float).copy()
 
     def in_contact(self, t: float) -> bool:
+        """Always in contact."""
         return True
 
     def reference(self, t: float, dimension: int = 1) -> NodeReference:
+        """A new reference of a node at t (s); ``dimension``: force entries."""
         return self.reference_into(t, NodeReference.empty(dimension))
 
     def reference_into(self, t: float, ref: NodeReference) -> NodeReference:
@@ -482,9 +492,12 @@ class LiveTask:
 
     # -- schedule ---------------------------------------------------------------------------
     def reference(self, t: float, dimension: int = 1) -> NodeReference:
+        """A new reference of a node at t (s); ``dimension``: force entries."""
         return self.reference_into(t, NodeReference.empty(dimension))
 
     def reference_into(self, t: float, ref: NodeReference) -> NodeReference:
+        """The wrapped task's reference at t (s) with the live offset and force scale, written
+        into ``ref``; returns it."""
         self.task.reference_into(t, ref)
         if self._shifted:
             ref.ee_position += self._offset.at(t)

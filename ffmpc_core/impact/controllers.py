@@ -80,6 +80,7 @@ __all__ = [
 
 #: The approaches (before contact) and the regulations (after) of :class:`ImpactTaskController`.
 APPROACHES = ("maximal", "baseline")
+#: The regulations after contact: the paper's admittance, or the hand-over to the FF-MPC.
 REGULATIONS = ("admittance", "ff_mpc")
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 

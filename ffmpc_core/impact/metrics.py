@@ -41,6 +41,7 @@ class LimitViolations:
 
     @property
     def total(self) -> int:
+        """Control steps beyond a limit, all kinds together (q, q̇, q̈ and τ)."""
         return self.position + self.velocity + self.acceleration + self.torque
 
 

@@ -136,7 +136,7 @@ class AccelerationBox:
 
 class JointLimitGuard:
     """Keeps the commanded joint accelerations and torques within eq 1b–1e, as the paper's QP
-    controller does (Sec. VI: "a QP-control framework"): every control step one small QP
+    controller does (Sec. VI: "a QP-control framework"): every control step one small QP::
 
         min_q̈  ½ q̈ᵀ H q̈ + gᵀ q̈
         s.t.   lower ≤ q̈ ≤ upper                                   (the acceleration box)
