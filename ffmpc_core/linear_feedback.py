@@ -124,6 +124,7 @@ class LinearFeedbackLoop:
 
     @property
     def mode(self) -> LowLevelMode:
+        """The loop's mode: the safe hold, the transition to the law, or the law."""
         return self._mode
 
     @property

@@ -300,6 +300,7 @@ class ContactHysteresis:
         self.in_contact = False
 
     def reset(self) -> None:
+        """Out of contact (the state before any reading)."""
         self.in_contact = False
 
     def update(self, normal_force: float) -> bool:

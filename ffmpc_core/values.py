@@ -148,11 +148,14 @@ class RosYamlLoader(yaml.SafeLoader):
     strings, and mapping keys are always strings (as rcl's parameter names)."""
 
     def resolve(self, kind: Any, value: Any, implicit: Any) -> str:
+        """The tag of a node: a plain scalar without a tag is read by :func:`parse_scalar`
+        (rcl's rules), not by YAML 1.1's resolvers."""
         if kind is yaml.ScalarNode and implicit[0]:  # a plain scalar without a tag
             return _NULL_TAG if value in _NULLS else PLAIN_TAG
         return str(super().resolve(kind, value, implicit))
 
     def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
+        """A mapping whose plain keys stay strings (parameter names are never numbers)."""
         for key, _ in node.value:
             if key.tag == PLAIN_TAG:
                 key.tag = _STR_TAG

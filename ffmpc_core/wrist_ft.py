@@ -299,7 +299,9 @@ class ForcePipeline(Protocol):
         wrench_world: np.ndarray,
         q_hat: np.ndarray,
         v_hat: np.ndarray,
-    ) -> np.ndarray: ...
+    ) -> np.ndarray:
+        """λ̂ of this cycle, N (the MPC's contact components)."""
+        ...
 
 
 class ContactForceSensing:
@@ -318,6 +320,7 @@ class ContactForceSensing:
         q_hat: np.ndarray,
         v_hat: np.ndarray,
     ) -> np.ndarray:
+        """λ̂ = λ(t − δs) + ν_λ (eq 32), N, from the true contact wrench (world axes)."""
         return self.model.step(measured_force(wrench_world, self.contact))
 
 
@@ -355,4 +358,5 @@ class WristForceSensing:
         q_hat: np.ndarray,
         v_hat: np.ndarray,
     ) -> np.ndarray:
+        """λ̂, N: the MPC's components of the compensated wrench (:meth:`wrench`)."""
         return measured_force(self.wrench(q, v, wrench_world, q_hat, v_hat), self.contact)

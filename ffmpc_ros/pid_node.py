@@ -183,13 +183,11 @@ class PidNode(GraphNode):
                 raise InputError(
                     f"command for nx={fields['nx']}; this loop has nx={self.lowlevel.nx}"
                 )
-            command = self.lowlevel.check_command(
-                LowLevelCommand(fields["torque"], fields["state"], fields["feedback_gain"])
-            )
+            command = self._checked_command(fields)
         except InputError as exc:
             self.reject(f"{topic}:value", str(exc))
             return
-        self._take_command(topic, fields)
+        self._take_command(topic, fields, command)
 
     def on_control(self, msg: Control) -> None:
         """ros2_control's terms: the MPC's ``Control`` (module docstring)."""
@@ -199,14 +197,21 @@ class PidNode(GraphNode):
             fields.update(
                 low_level_command(fields, self.scenario.mpc.formulation, self.lowlevel.nx)
             )
+            command = self._checked_command(fields)
         except InputError as exc:
-            self.reject(f"{topic}:value", str(exc))
-            self.lowlevel.engage_hold()  # an unusable control: safe hold from the next cycle
+            self.reject(f"{topic}:value", str(exc))  # changes nothing, as for on_command
             return
-        self._take_command(topic, fields)
+        self._take_command(topic, fields, command)
 
-    def _take_command(self, topic: str, fields: dict) -> None:
-        """A parsed command (torque, state, feedback_gain, stamp) for the cycle of its stamp."""
+    def _checked_command(self, fields: dict) -> LowLevelCommand:
+        """The low level's command of parsed ``fields``, checked whole (InputError) before it
+        may claim a cycle."""
+        return self.lowlevel.check_command(
+            LowLevelCommand(fields["torque"], fields["state"], fields["feedback_gain"])
+        )
+
+    def _take_command(self, topic: str, fields: dict, command: LowLevelCommand) -> None:
+        """A checked command (``fields``: its stamp and time) for the cycle of its stamp."""
         k = self.cycle_of(fields["stamp"])
         if k is None:
             self.reject(f"{topic}:stamp", f"command time {fields['t']} s off the grid")
