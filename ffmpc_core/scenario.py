@@ -98,6 +98,9 @@ class PlantSection:
     push_time: float = 0.0
     push_force: tuple[float, float, float] = (0.0, 0.0, 0.0)
     push_duration: float = 0.0
+    #: The robot's own reflexes (ffmpc_core.reflex): stop on a data-sheet limit or missing
+    #: commands and abort the run; off: the crossings are reported, nothing is stopped.
+    reflex: bool = True
 
 
 @dataclass(frozen=True)
@@ -393,6 +396,12 @@ _TABLE: dict[str, tuple[str, Any, str]] = {
     "plant.push_time": ("s", (0.0, 3600.0), "push start"),
     "plant.push_force": ("N", (-1e4, 1e4), "push force, world frame"),
     "plant.push_duration": ("s", (0.0, 60.0), "push duration"),
+    "plant.reflex": (
+        "",
+        None,
+        "the robot's own reflexes: stop on a data-sheet limit or missing commands, run aborted "
+        "(false: crossings reported only)",
+    ),
     "joint_sensor.delay_cycles": ("cycles", (0, 1000), "sensing delay δs (eq 30)"),
     "joint_sensor.position_noise_std": ("rad", (0.0, 1.0), "σ_q (eq 30)"),
     "joint_sensor.velocity_noise_std": ("rad/s", (0.0, 10.0), "σ_q̇ (eq 30)"),

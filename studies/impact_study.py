@@ -124,6 +124,7 @@ from ffmpc_core.impact.scenario import (
     start_pose,
     task_config,
 )
+from ffmpc_core.reflex import reflex_plant
 from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_core.runner import LockstepClock, run_scenario
 from sim_bridge.scenes import impact_plant_config as plant_config
@@ -185,6 +186,8 @@ class ImpactRun:
         decision_time: when the strike was decided (or refused) from the learned model, s.
         refusal: why the target was refused ("" if it was not); contact_time is then NaN.
         strike_knowledge: the material interval the strike was planned with.
+        reflex: the robot's reflexes over the run (``ffmpc_core.reflex.RobotReflex.report``:
+            ``aborted``, the ``event``, the largest ratio of each kind); :attr:`aborted`.
     """
 
     approach: str
@@ -215,10 +218,16 @@ class ImpactRun:
     decision_time: float = float("nan")
     refusal: str = ""
     strike_knowledge: str = ""
+    reflex: dict[str, Any] = field(default_factory=dict)
 
     @property
     def name(self) -> str:
         return f"{self.approach}+{self.regulation}"
+
+    @property
+    def aborted(self) -> bool:
+        """A reflex of the robot stopped it: the run was aborted."""
+        return bool(self.reflex.get("aborted", False))
 
     def summary(self) -> dict:
         """JSON-friendly, without the time series."""
@@ -330,7 +339,8 @@ def run_impact(
     scenario = _ImpactLoop(robot, top, steps, dt)
     with Plant(robot, plant_config(cfg)) as plant:
         plant.reset(q0)
-        run_scenario(scenario, plant, [controller], LockstepClock(dt, steps))
+        stepped = reflex_plant(plant, robot, enabled=cfg.reflex)
+        run_scenario(scenario, stepped, [controller], LockstepClock(dt, steps))
         s = plant.state()
         scenario.qs[steps], scenario.vs[steps] = s.q, s.v
     log, qs, vs, taus = scenario.log, scenario.qs, scenario.vs, scenario.taus
@@ -378,6 +388,7 @@ def run_impact(
         planner_failures=0 if approach_ctrl is None else approach_ctrl.solver_failures,
         mpc_solve_time_median=float(np.median(solve_times)) if solve_times else float("nan"),
         log=log | {"learned_in_mpc": np.array(learned_in_mpc), "q": qs[:steps], "v": vs[:steps]},
+        reflex=stepped.reflex.report(),
     )
 
 
