@@ -135,6 +135,7 @@ from studies.execute import (
     prepare_output_dir,
     study_cache,
 )
+from studies.reflexes import reflex_cell, reflex_note
 from studies.study import DIVERGENCE_ERRORS
 
 if TYPE_CHECKING:  # the plant imports PyBullet: loaded when a run starts, not to parse
@@ -467,9 +468,9 @@ def format_table(runs: list[ImpactRun], config: ImpactStudyConfig) -> str:
     head = (
         "| run | pre-impact velocity (m/s) | contact (s) | steady force (s) | "
         "peak force (N) | peak penetration (mm) | final force (N) | "
-        "violations q / q̇ / q̈ / τ | max q̈/q̈_max | wall (s) |"
+        "violations q / q̇ / q̈ / τ | max q̈/q̈_max | reflex | wall (s) |"
     )
-    lines = [head, "|" + "---|" * 10]
+    lines = [head, "|" + "---|" * 11]
     for r in runs:
         v = r.violations
         settle = r.steady_time - r.contact_time
@@ -479,9 +480,11 @@ def format_table(runs: list[ImpactRun], config: ImpactStudyConfig) -> str:
             f"| {_fmt(r.peak_force, '.1f')} | {_fmt(1e3 * r.peak_penetration, '.1f')} "
             f"| {_fmt(r.final_force, '.2f')} "
             f"| {v.position} / {v.velocity} / {v.acceleration} / {v.torque} "
-            f"| {v.max_ratio['acceleration']:.3f} | {r.wall_time:.1f} |"
+            f"| {v.max_ratio['acceleration']:.3f} | {reflex_cell(r.reflex)} | {r.wall_time:.1f} |"
         )
     lines += [
+        "",
+        reflex_note([r.reflex for r in runs]),
         "",
         f"Learner (eq 19–21) at the end of each run vs the dice set in PyBullet "
         f"(stiffness {dice.stiffness:g} N/m, damping {dice.damping:g} N·s/m; planner prior "
