@@ -54,6 +54,7 @@ from __future__ import annotations
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -243,7 +244,7 @@ def run_polishing(
     )
     mpc_stage = MpcStage(mpc, robot)
     with sim.plant as plant:
-        stages = [mpc_stage, LowLevelStage(lowlevel)]
+        stages: list[closed_loop.Controller[Any, Any]] = [mpc_stage, LowLevelStage(lowlevel)]
         closed_loop.run_scenario(loop, sim.reflex_plant, stages, clock)
         normal = plant.table_normal
 

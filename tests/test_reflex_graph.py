@@ -25,9 +25,7 @@ PUSH = {
 }
 
 
-def test_a_graph_run_over_a_limit_is_aborted_as_the_runner_s_and_ffmpc_run_exits_3(
-    tmp_path, capfd
-):
+def test_a_graph_run_over_a_limit_is_aborted_as_the_runner_s_and_ffmpc_run_exits_3(tmp_path, capfd):
     path = tmp_path / "run.json"
     args = ["run", "polishing", "--single-process", "--duration", "0.2", "--json", str(path)]
     args += ["--set", "plant.push_enabled=true", "--set", "plant.push_time=0.05"]
