@@ -367,3 +367,40 @@ def test_a_polishing_run_over_a_limit_is_aborted_and_says_where(robot):
     # before the crossing both runs are the same run
     k = int(round(event["t"] / DT))
     np.testing.assert_array_equal(on.safety_log["v"][: k + 1], off.safety_log["v"][: k + 1])
+
+
+# -- how the studies report it ---------------------------------------------------------------
+def test_the_study_helpers_count_and_describe_aborted_runs():
+    from studies.paper import _aborted_lines
+    from studies.reflexes import aborted_count, reflex_cell, reflex_note, reflexes_enabled
+
+    event = {"kind": "velocity", "joint": 3, "t": 0.634, "stopped": True, "message": "velocity ..."}
+    on = {"enabled": True, "aborted": True, "event": event}
+    off = {"enabled": False, "aborted": False, "event": {**event, "stopped": False}}
+    clean = {"enabled": True, "aborted": False, "event": None}
+    assert aborted_count([on, clean, None, {}]) == 1
+    assert reflexes_enabled([on, clean]) is True and reflexes_enabled([off]) is False
+    assert reflexes_enabled([on, off]) is None and reflexes_enabled([None]) is None
+    assert reflex_cell(on) == "aborted: velocity joint 4 at 0.634 s"
+    assert reflex_cell(off) == "would abort: velocity joint 4 at 0.634 s"
+    assert reflex_cell(clean) == "—" and reflex_cell(None) == "—"
+    comm = {**on, "event": {**event, "kind": "communication", "joint": None}}
+    assert reflex_cell(comm) == "aborted: communication at 0.634 s"
+    assert reflex_note([on, clean]).endswith("1 of 2 runs.")
+    assert reflex_note([off, off]).startswith(
+        "Reflexes OFF"
+    ) and "2 of 2 runs would" in reflex_note([off, off])
+    assert "(reflexes on in some runs only)" in reflex_note([on, off])
+    runs = [
+        (
+            "Experiment 1",
+            {"formulation": "classical", "pid_enabled": True, "seed": 3, "reflex": on},
+        ),
+        (
+            "Experiment 1",
+            {"formulation": "classical", "pid_enabled": True, "seed": 4, "reflex": clean},
+        ),
+    ]
+    lines = _aborted_lines(runs)
+    assert "- Experiment 1: Classical, PID on, seed 3: velocity ..." in lines
+    assert not any("seed 4" in line for line in lines)
