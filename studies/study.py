@@ -692,9 +692,9 @@ def paired_comparison(
     """Per seed, ``reference`` (the force-feedback MPC) minus each other controller, for E_λ (N)
     and E_P (mm), PID mode ``pid``, from the ``source`` force ("true" or "measured").
 
-    Only the seeds where both runs succeeded are paired. Returns ``{other formulation:
-    {"seeds": [...], "force_mae": {"differences", "mean", "std", **wilcoxon_test},
-    "position_mae_mm": {...}}}`` (std: numpy's, ddof 0, as the tables' other std).
+    Only the seeds where both runs succeeded (no failure, no reflex abort) are paired. Returns
+    ``{other formulation: {"seeds": [...], "force_mae": {"differences", "mean", "std",
+    **wilcoxon_test}, "position_mae_mm": {...}}}`` (std: numpy's, ddof 0, as the tables' other std).
     """
     forms = doc["grid"]["formulations"]
     if reference not in forms:
@@ -756,7 +756,8 @@ def paired_table(doc: dict, pid: bool, title: str, source: str = "true") -> list
         "",
         f"Per seed, force-feedback minus the other controller ({source} force; negative: the "
         f"force-feedback MPC has the lower error); mean ± std over the pairs. Only seeds where "
-        f"both runs succeeded are paired (pairs out of {total} seeds). p: Wilcoxon signed-rank, "
+        f"both runs succeeded (neither failed nor aborted by a reflex) are paired (pairs out of "
+        f"{total} seeds). p: Wilcoxon signed-rank, "
         f"paired, two-sided, `{WILCOXON_CALL}`: zero differences are dropped; without zeros or "
         "ties the p is exact, at least 2/2ⁿ for n pairs, so fewer than 6 pairs can never give "
         "p < 0.05; all differences 0 → scipy returns p = 1.",
