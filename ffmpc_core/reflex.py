@@ -94,6 +94,9 @@ __all__ = [
 REFLEX_KINDS = ("position", "velocity", "acceleration", "torque", "torque_rate", "communication")
 #: Tolerance on the communication timeout, s (steps are floats).
 _TIME_EPS = 1e-9
+#: Largest Δt·gain·n of the stop's per-axis loops (gain: the brake rate b, or 2ω of the hold's
+#: damping): below 1, no mode of the unsaturated loop overshoots (module docstring).
+_NO_OVERSHOOT = 0.98
 
 
 @dataclass(frozen=True)
@@ -106,8 +109,10 @@ class ReflexConfig:
             (None: the data sheet's, :attr:`DataSheet.command_timeout`).
         brake_rate: b of the drives' brake, 1/s (140: a 7 ms time constant per axis while not
             saturated; Δt·b·n = 0.98 < 1 at 1 kHz and 7 joints, so no mode of the unsaturated
-            brake can overshoot whatever the coupling; module docstring).
-        hold_frequency: ω/2π of the drives' position hold once at rest, Hz.
+            brake can overshoot whatever the coupling; module docstring). A plant with a
+            longer step gets b = 0.98/(Δt·n) (:attr:`RobotReflex.brake_rate`).
+        hold_frequency: ω/2π of the drives' position hold once at rest, Hz (capped the same
+            way: 2ω·Δt·n ≤ 0.98).
         rest_speed: largest |q̇_i| counted as rest, rad/s.
     """
 
@@ -223,7 +228,12 @@ class RobotReflex:
         self._data = robot.create_data()
         self._mid = 0.5 * (self.sheet.position_upper + self.sheet.position_lower)
         self._half = 0.5 * (self.sheet.position_upper - self.sheet.position_lower)
-        self._omega = 2.0 * math.pi * self.config.hold_frequency
+        # The stop's gains within the bound that keeps its unsaturated per-axis loops from
+        # overshooting at this step, Δt·gain·n < 1 (module docstring): the configured ones at
+        # 1 kHz, lower for a slower plant.
+        bound = _NO_OVERSHOOT / (robot.nv * self.dt)
+        self.brake_rate = min(self.config.brake_rate, bound)
+        self._omega = min(2.0 * math.pi * self.config.hold_frequency, 0.5 * bound)
         self.reset(robot.q_nominal, np.zeros(robot.nv))
 
     # -- state ---------------------------------------------------------------------------------
@@ -351,7 +361,7 @@ class RobotReflex:
             w = self._omega
             drive = self._hold_m * (-w * w * (q - self._hold_q) - 2.0 * w * v)
         else:
-            drive = -self.config.brake_rate * self._axis_inertia(q) * v
+            drive = -self.brake_rate * self._axis_inertia(q) * v
         limit = self.sheet.torque
         room = np.maximum(limit - np.abs(gravity), 0.0)
         return np.clip(gravity + np.clip(drive, -room, room), -limit, limit)

@@ -278,6 +278,19 @@ def test_with_the_reflex_off_nothing_stops_and_the_raw_excess_is_reported(robot)
         assert not report["aborted"] and not report["enabled"] and report["event"] is not None
 
 
+def test_the_stop_s_gains_keep_their_loops_from_overshooting_at_the_plant_s_step(robot):
+    """Δt·gain·n < 1: at 1 kHz the configured brake (140 s⁻¹) and hold (5 Hz); at 2 ms the brake
+    is halved to 70 s⁻¹ (the hold's 2ω = 63 s⁻¹ stays under its bound of 70 s⁻¹)."""
+    fast = RobotReflex(robot, 1e-3)
+    assert fast.brake_rate == pytest.approx(140.0) and fast._omega == pytest.approx(2 * np.pi * 5)
+    slow = RobotReflex(robot, 2e-3)
+    assert slow.brake_rate == pytest.approx(0.98 / (7 * 2e-3)) == pytest.approx(70.0)
+    assert 2 * slow._omega * 2e-3 * 7 <= 0.98
+    slower = RobotReflex(robot, 5e-3)
+    assert slower.brake_rate * 5e-3 * 7 == pytest.approx(0.98)
+    assert 2 * slower._omega * 5e-3 * 7 == pytest.approx(0.98)
+
+
 def test_the_reflex_refuses_a_plant_of_another_time_step(robot):
     from sim_bridge.plant import Plant, PlantConfig
 
