@@ -3,12 +3,17 @@
 Two 7-DoF torque-controlled arms are supported:
 
 * ``"iiwa"`` — the KUKA LBR iiwa URDF shipped with ``pybullet_data`` (``kuka_iiwa/model.urdf``).
-  Its URDF carries placeholder limits (300 N·m, 10 rad/s on every joint); we replace them with the
-  manufacturer's LBR iiwa 7 R800 data sheet values, which match the URDF's link masses.
+  Its URDF carries placeholder limits (300 N·m, 10 rad/s on every joint); the limits are the
+  LBR iiwa 14 R820's data sheet (the paper's hardware robot, :data:`ffmpc_core.datasheet.
+  IIWA14_R820`; the URDF's link masses are lighter than the 14's: see that module).
   The URDF ends at the flange (``lbr_iiwa_link_7``); we add a ``contact`` frame for the polishing
   tool: 0.10 m along the flange z axis, rotated by -45° about z (the F/T sensor's mounting).
 * ``"panda"`` — the Franka Emika Panda of ``example-robot-data``; the two finger joints are locked
-  (closed) to get a 7-DoF arm, and the ``contact`` frame is ``panda_hand_tcp``.
+  (closed) to get a 7-DoF arm, and the ``contact`` frame is ``panda_hand_tcp``. Its limits are
+  Franka's data sheet (:data:`ffmpc_core.datasheet.PANDA`; the URDF carries the same q, q̇, τ).
+
+Every limit of a :class:`RobotModel` (and of its pinocchio model) comes from
+:mod:`ffmpc_core.datasheet`, the one place the data sheets are written down.
 
 Both contact frames have non-identity placements on purpose: derivatives are tested with them.
 """
@@ -21,12 +26,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import pinocchio as pin
 
+from ffmpc_core.datasheet import DataSheet, datasheet
 from ffmpc_core.errors import ConfigError, ModelError
 from ffmpc_core.plausibility import check_torque
-
-#: LBR iiwa 7 R800 data sheet: maximum joint torques (N·m) and speeds (deg/s).
-IIWA7_TORQUE_LIMIT = np.array([176.0, 176.0, 110.0, 110.0, 110.0, 40.0, 40.0])
-IIWA7_VELOCITY_LIMIT = np.deg2rad([98.0, 98.0, 100.0, 130.0, 140.0, 180.0, 180.0])
 
 #: The contact frame of every robot model is called so.
 CONTACT_FRAME = "contact"
@@ -41,12 +43,13 @@ class RobotModel:
 
     Attributes:
         name: ``"iiwa"`` or ``"panda"``.
-        model: pinocchio model (fixed base, ``nq == nv == 7``).
+        model: pinocchio model (fixed base, ``nq == nv == 7``; its effort, velocity and
+            position limits are the data sheet's).
         contact_frame_id: id in ``model.frames`` of the contact/tool frame (``"contact"``).
         joint_names: actuated joint names, in the order of q, v and τ.
-        torque_limit: maximum absolute joint torque, N·m.
-        velocity_limit: maximum absolute joint velocity, rad/s.
-        position_lower, position_upper: joint position limits, rad.
+        torque_limit: maximum absolute joint torque, N·m (the data sheet's).
+        velocity_limit: maximum absolute joint velocity, rad/s (the data sheet's).
+        position_lower, position_upper: joint position limits, rad (the data sheet's).
         q_nominal: a posture with the tool pointing down above a table, rad.
         urdf_path: URDF file the model was built from (the simulator loads the same file).
         flange_frame: name of the parent link of the contact frame (where PyBullet attaches tools).
@@ -70,6 +73,12 @@ class RobotModel:
     def nq(self) -> int:
         """Size of the configuration q."""
         return self.model.nq
+
+    @property
+    def datasheet(self) -> DataSheet:
+        """Every data-sheet limit of this robot (q̈, q⃛, τ̇ too, where published) and what its
+        controller stops on (:mod:`ffmpc_core.datasheet`)."""
+        return datasheet(self.name)
 
     @property
     def nv(self) -> int:
@@ -194,23 +203,31 @@ def _add_contact_frame(model: pin.Model, parent_frame: str, placement: pin.SE3) 
     return model.addFrame(frame)
 
 
+def _set_datasheet_limits(model: pin.Model, sheet: DataSheet) -> None:
+    """The pinocchio model's effort, velocity and position limits from the data sheet."""
+    model.effortLimit = sheet.torque.copy()
+    model.velocityLimit = sheet.velocity.copy()
+    model.lowerPositionLimit = sheet.position_lower.copy()
+    model.upperPositionLimit = sheet.position_upper.copy()
+
+
 def _load_iiwa() -> RobotModel:
     urdf = _iiwa_urdf_path()
     model = pin.buildModelFromUrdf(urdf)
     tool = pin.SE3(pin.utils.rotate("z", -np.pi / 4), np.array([0.0, 0.0, 0.10]))
     fid = _add_contact_frame(model, "lbr_iiwa_link_7", tool)
-    model.effortLimit = IIWA7_TORQUE_LIMIT.copy()
-    model.velocityLimit = IIWA7_VELOCITY_LIMIT.copy()
+    sheet = datasheet("iiwa")
+    _set_datasheet_limits(model, sheet)
     names = tuple(model.names[1:])
     return RobotModel(
         name="iiwa",
         model=model,
         contact_frame_id=fid,
         joint_names=names,
-        torque_limit=IIWA7_TORQUE_LIMIT.copy(),
-        velocity_limit=IIWA7_VELOCITY_LIMIT.copy(),
-        position_lower=model.lowerPositionLimit.copy(),
-        position_upper=model.upperPositionLimit.copy(),
+        torque_limit=sheet.torque.copy(),
+        velocity_limit=sheet.velocity.copy(),
+        position_lower=sheet.position_lower.copy(),
+        position_upper=sheet.position_upper.copy(),
         q_nominal=np.array([0.0, 0.6, 0.0, -1.5, 0.0, 1.04, 0.0]),
         urdf_path=urdf,
         flange_frame="lbr_iiwa_link_7",
@@ -241,15 +258,17 @@ def _load_panda() -> RobotModel:
     )
     flange_id = model.getFrameId("panda_link8")
     tool = model.frames[flange_id].placement.inverse() * parent.placement
+    sheet = datasheet("panda")
+    _set_datasheet_limits(model, sheet)
     return RobotModel(
         name="panda",
         model=model,
         contact_frame_id=fid,
         joint_names=tuple(model.names[1:]),
-        torque_limit=model.effortLimit.copy(),
-        velocity_limit=model.velocityLimit.copy(),
-        position_lower=model.lowerPositionLimit.copy(),
-        position_upper=model.upperPositionLimit.copy(),
+        torque_limit=sheet.torque.copy(),
+        velocity_limit=sheet.velocity.copy(),
+        position_lower=sheet.position_lower.copy(),
+        position_upper=sheet.position_upper.copy(),
         q_nominal=np.array([0.0, -0.785398, 0.0, -2.356194, 0.0, 1.570796, 0.785398]),
         urdf_path=robot.urdf,
         flange_frame="panda_link8",

@@ -122,6 +122,9 @@ class PlantSection:
     #: controllers' robot model carries it (the cell's load data); kg, and m in the flange frame.
     tool_mass: float = 0.0
     tool_center_of_mass: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: The robot's own reflexes (ffmpc_core.reflex): stop on a data-sheet limit or missing
+    #: commands and abort the run; off: the crossings are reported, nothing is stopped.
+    reflex: bool = True
 
 
 @dataclass(frozen=True)
@@ -454,6 +457,12 @@ _TABLE: dict[str, tuple[str, Any, str]] = {
         "mass of the tool on the flange (simulated; the controllers' load data)",
     ),
     "plant.tool_center_of_mass": ("m", (-0.5, 0.5), "the tool's centre of mass, flange frame"),
+    "plant.reflex": (
+        "",
+        None,
+        "the robot's own reflexes: stop on a data-sheet limit or missing commands, run aborted "
+        "(false: crossings reported only)",
+    ),
     "joint_sensor.delay_cycles": ("cycles", (0, 1000), "sensing delay δs (eq 30)"),
     "joint_sensor.position_noise_std": ("rad", (0.0, 1.0), "σ_q (eq 30)"),
     "joint_sensor.velocity_noise_std": ("rad/s", (0.0, 10.0), "σ_q̇ (eq 30)"),

@@ -221,6 +221,18 @@ class GraphResult:
             **(self.safety or {}),
         }
 
+    @property
+    def aborted(self) -> bool:
+        """A reflex of the robot stopped it (``ffmpc_core.reflex``): the run was aborted."""
+        return bool((self.safety or {}).get("aborted", False))
+
+    @property
+    def reflex_event(self) -> dict | None:
+        """The reflex's event of the run (``ReflexEvent.to_dict``), None without a crossing."""
+        reflex = (self.safety or {}).get("reflex") or {}
+        event: dict | None = reflex.get("event")
+        return event
+
     def limit_failures(self) -> list[str]:
         """Joint velocity or torque limits broken (ratio > 1), one line per joint."""
         out = []
@@ -229,6 +241,24 @@ class GraphResult:
                 if ratio is None or not ratio <= 1.0:
                     out.append(f"joint {j + 1} {what} limit broken: max |{what}|/limit = {ratio}")
         return out
+
+
+def reflex_summary(status: Mapping[str, float] | None, joint_names: Sequence[str]) -> dict:
+    """``aborted`` and ``reflex`` (enabled, aborted, the event: ``ReflexEvent.to_dict``) of a
+    lockstep graph run, from the plant's newest ``/plant/status`` (``layouts.reflex_status``);
+    an empty dict without a status."""
+    if not status or "reflex_kind" not in status:
+        return {}
+    event = layouts.reflex_event_from_status(dict(status), list(joint_names))
+    aborted = bool(status["reflex_stopped"])
+    return {
+        "aborted": aborted,
+        "reflex": {
+            "enabled": bool(status["reflex_enabled"]),
+            "aborted": aborted,
+            "event": None if event is None else event.to_dict(),
+        },
+    }
 
 
 #: Timing statistics copied to the top level of a run's summary (``ffmpc run --json``).
@@ -779,6 +809,7 @@ def run_graph(
         "metrics_filled": int(metrics.filled),
         "faults": [] if injector is None else injector.report(),
         "rejected_messages": {name: rejected.get(name) for name in [*table, "metrics"]},
+        **reflex_summary(status, robot.joint_names),
     }
     return GraphResult(
         plant_engine=scenario.plant.engine,

@@ -39,6 +39,11 @@ if TYPE_CHECKING:
 
 #: Exit status of every malformed input (argparse's own for syntax errors).
 EXIT_USAGE = 2
+#: Exit status of ``ffmpc run`` when the robot's own reflex stopped it (a data-sheet limit it
+#: stops on, or commands missing; ``ffmpc_core.reflex``) in a run without an injected fault:
+#: the run was aborted, as on the real robot. With ``--fault``, a reflex stop is a safe
+#: outcome (exit 0, said on stderr).
+EXIT_ABORTED = 3
 #: Default port of ``ffmpc run --view`` (ffmpc_ros.view.DEFAULT_PORT).
 VIEW_PORT = 8765
 #: The commands of this package; an entry point of ``ffmpc.command`` may not take these names.
@@ -178,6 +183,12 @@ def _cmd_run_impact(args: argparse.Namespace) -> int:
         f"{result.wall_time:.1f} s wall: {'safe' if result.safe else 'NOT SAFE'}",
         file=sys.stderr,
     )
+    event = result.reflex_event
+    if event is not None:
+        head = "ABORTED: the robot stopped itself" if result.aborted else "reflex off"
+        print(f"{head}: {event['message']}", file=sys.stderr)
+    if result.aborted:
+        return EXIT_ABORTED
     return 0 if result.safe else 1
 
 
@@ -388,18 +399,40 @@ def _cmd_run(args: argparse.Namespace) -> int:
     limits = result.limit_failures()
     for failure in limits:
         print(f"FAILED: {failure}", file=sys.stderr)
+    return _run_verdict(summary, result.reflex_event, result.aborted, failures, limits)
+
+
+def _run_verdict(
+    summary: dict, event: dict | None, aborted: bool, failures: list[str], limits: list[str]
+) -> int:
+    """The exit status of ``ffmpc run`` (printing the reflex and fault lines): a run a reflex
+    aborted → :data:`EXIT_ABORTED`, unless faults were injected (a reflex stop is then a safe
+    outcome: 0); a fault run is judged on its safety (timing failures reported), others on
+    timing and limits (1)."""
+    if event is not None:
+        head = "ABORTED: the robot stopped itself" if aborted else "reflex off"
+        print(f"{head}: {event['message']}", file=sys.stderr)
     if summary.get("faults"):
         ratios = (max(summary["max_velocity_ratio"]), max(summary["max_torque_ratio"]))
-        verdict = "broke a joint limit" if limits else "handled safely"
+        if aborted:
+            assert event is not None
+            verdict = f"handled safely: the robot's own {event['kind']} reflex stopped it"
+        else:
+            verdict = "broke a joint limit" if limits else "handled safely"
         print(
             f"faults {', '.join(f['fault'] for f in summary['faults'])}: {verdict} (max "
             f"|q̇|/limit {ratios[0]:.3f}, max |τ|/limit {ratios[1]:.3f}, safe hold "
             f"{summary['safe_hold_s']:.3f} s)",
             file=sys.stderr,
         )
-    if summary.get("faults") and failures:  # the verdict of a fault run is its safety
-        print("(timing failures of a fault run are reported, not the exit status)", file=sys.stderr)
-        return 1 if limits else 0
+        if failures:  # the verdict of a fault run is its safety
+            print(
+                "(timing failures of a fault run are reported, not the exit status)",
+                file=sys.stderr,
+            )
+        return 1 if limits and not aborted else 0
+    if aborted:
+        return EXIT_ABORTED
     return 1 if failures or limits else 0
 
 
@@ -467,7 +500,10 @@ def build_parser() -> argparse.ArgumentParser:
         "at its own rate (ffmpc_ros/realtime.py). Both modes print the fraction of MPC and "
         "loop deadlines met, latency percentiles and the time in fallback; exit 1 when more "
         "than 1 % of either kind of deadline was missed or the loop fell back outside a "
-        "--fault-window.",
+        "--fault-window. The robot's own reflexes are on (plant.reflex): a joint over a "
+        f"data-sheet limit it stops on, or commands missing, stops it and aborts the run: exit "
+        f"{EXIT_ABORTED} (with --fault: a safe outcome, exit 0); the JSON has 'aborted' and "
+        "'reflex'.",
     )
     run.add_argument(
         "scenario",
@@ -572,7 +608,8 @@ def build_parser() -> argparse.ArgumentParser:
         "torque-spike, node-kill[:NODE] (default the MPC). Multi-process lockstep: all; "
         "--single-process: the message kinds; real time: none (exit 2). The JSON gains "
         "max_velocity_ratio, max_torque_ratio, safe_hold_s, faults and rejected_messages; "
-        "exit 1 when a joint limit was broken (ffmpc_ros/fault_injector.py)",
+        "exit 1 when a joint limit was broken, 0 when the robot's own reflex stopped it (a "
+        "safe outcome) (ffmpc_ros/fault_injector.py)",
     )
     run.add_argument(
         "--namespace",

@@ -15,11 +15,15 @@ publishes, stamped t_k = k·time_step:
   torque applied over the step that ended at t_k (N·m; 0 at t_0);
 * ``plant/wrench`` — the true wrench the dice exerts on the tool, frame
   ``contact_world_aligned`` (N, N·m);
-* ``plant/status`` (layout ``plant_status``) every 100 cycles and at the end.
+* ``plant/status`` (layout ``plant_status``) every 100 cycles, when a reflex stops the robot,
+  and at the end.
 
 Subscribes ``impact_controller/torque`` (sensor_msgs/JointState, effort N·m): the torque of
 cycle k is applied for one step (the plant saturates it to the torque limits, as the ROS-free
-run's plant does; a non-finite or absurd torque is rejected). With ``exit_when_done`` the
+run's plant does; a non-finite or absurd torque is rejected), through the robot's reflexes
+(``plant.reflex``, on by default: :mod:`ffmpc_core.reflex`, the ROS-free run's model: a
+crossing of a data-sheet limit the Panda stops on — q, q̇, τ̇ — brakes it to rest and holds it,
+later torques are ignored, the run is aborted; one log line). With ``exit_when_done`` the
 process exits 1 s (wall) after the last state (the launch file's ``on_exit: shutdown``).
 Lockstep only: the plant steps
 once the torque of its current cycle has arrived, so a run does not depend on the CPU speed.
@@ -39,6 +43,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.reflex import reflex_plant
 from ffmpc_core.robots import load_robot
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import GraphNode, run_node
@@ -61,6 +66,8 @@ class DicePlantNode(GraphNode):
         self.joint_names = list(robot.joint_names)
         self.plant = make_plant(robot, impact_plant_config(self.config), self.config.engine)
         self.plant.reset(start_pose(self.config, robot))
+        self.reflex_plant = reflex_plant(self.plant, robot, enabled=self.config.reflex)
+        self._reflex_reported = False
         self.steps = int(round(self.config.duration / self.time_step))
         self.k = 0
         self.applied = np.zeros(robot.nv)
@@ -108,25 +115,30 @@ class DicePlantNode(GraphNode):
         )
         self.pub_wrench.publish(wrench_message(stamp, s.wrench_world))
         if k % STATUS_EVERY == 0 or self.done:
-            lat = np.array(self.latencies) if self.latencies else np.zeros(1)
-            self.pub_status.publish(
-                layouts.PLANT_STATUS.pack(
-                    {
-                        "t": self.t_of(k),
-                        "steps": k,
-                        "done": float(self.done),
-                        "lockstep": 1.0,
-                        "deadline_misses": 0.0,
-                        "latency_count": len(self.latencies),
-                        "latency_mean": float(lat.mean()),
-                        "latency_p50": float(np.percentile(lat, 50)),
-                        "latency_p99": float(np.percentile(lat, 99)),
-                        "latency_max": float(lat.max()),
-                        "wall_time": time.perf_counter()
-                        - (self._wall_start or time.perf_counter()),
-                    }
-                )
+            self.publish_status()
+
+    def publish_status(self) -> None:
+        """``plant/status`` of the present cycle (the reflex's event included)."""
+        k = self.k
+        lat = np.array(self.latencies) if self.latencies else np.zeros(1)
+        self.pub_status.publish(
+            layouts.PLANT_STATUS.pack(
+                {
+                    "t": self.t_of(k),
+                    "steps": k,
+                    "done": float(self.done),
+                    "lockstep": 1.0,
+                    "deadline_misses": 0.0,
+                    "latency_count": len(self.latencies),
+                    "latency_mean": float(lat.mean()),
+                    "latency_p50": float(np.percentile(lat, 50)),
+                    "latency_p99": float(np.percentile(lat, 99)),
+                    "latency_max": float(lat.max()),
+                    "wall_time": time.perf_counter() - (self._wall_start or time.perf_counter()),
+                    **layouts.reflex_status(self.reflex_plant.reflex),
+                }
             )
+        )
 
     def on_torque(self, msg: JointState) -> None:
         """The torque of the current cycle: one physics step, then the next state."""
@@ -148,10 +160,15 @@ class DicePlantNode(GraphNode):
             return
         if self._published_at is not None:
             self.latencies.append(time.perf_counter() - self._published_at)
-        self.plant.step(tau)
+        self.reflex_plant.step(tau)
         self.k += 1
-        self.state = self.plant.state()
+        self.state = self.reflex_plant.state()
         self.applied = self.state.tau
+        event = self.reflex_plant.reflex.event
+        if event is not None and not self._reflex_reported:
+            self._reflex_reported = True
+            self.get_logger().warning(event.describe())
+            self.publish_status()
         self.publish_state()
         if self.done:
             self.get_logger().info(f"done: {self.k} cycles, {self.t_of(self.k):.3f} s simulated")

@@ -240,6 +240,17 @@ class ImpactGraphResult:
     rejected: dict = field(default_factory=dict)
     plant_engine: str = "pybullet"  # the dice plant's simulator (plant.engine)
 
+    @property
+    def aborted(self) -> bool:
+        """A reflex of the robot stopped it (``ffmpc_core.reflex``): the run was aborted."""
+        return bool(self.metrics.get("aborted", False))
+
+    @property
+    def reflex_event(self) -> dict | None:
+        """The reflex's event (``ReflexEvent.to_dict``), None without a crossing."""
+        event: dict | None = (self.metrics.get("reflex") or {}).get("event")
+        return event
+
     def summary(self) -> dict:
         return {
             "graph": "impact",
@@ -283,6 +294,7 @@ class _Probe:
         self.status: dict[int, dict] = {}
         self.planner: dict | None = None  # the planner's newest status
         self.estimate: dict | None = None
+        self.plant_status: dict | None = None  # the dice plant's newest (its reflex's event)
         self.cycle = -1
 
         def qos(topic: str) -> QoSProfile:
@@ -308,6 +320,12 @@ class _Probe:
         )
         node.create_subscription(
             Float64MultiArray, topics.IMPACT_STATUS, self._on_planner, qos(topics.IMPACT_STATUS)
+        )
+        node.create_subscription(
+            Float64MultiArray,
+            topics.PLANT_STATUS,
+            self._on_plant_status,
+            topics.subscriber_qos(False, topics.PLANT_STATUS),
         )
         self.nv = nv
 
@@ -337,6 +355,11 @@ class _Probe:
         status = layouts.IMPACT_STATUS.unpack(msg)
         if self.planner is None or status["t"] >= self.planner["t"]:
             self.planner = status
+
+    def _on_plant_status(self, msg: Float64MultiArray) -> None:
+        status = layouts.PLANT_STATUS.unpack(msg)
+        if self.plant_status is None or status["t"] >= self.plant_status["t"]:
+            self.plant_status = status
 
     def _on_estimate(self, msg: Float64MultiArray) -> None:
         estimate = layouts.CONTACT_ESTIMATE.unpack(msg)
@@ -392,6 +415,9 @@ def _graph_metrics(
         handover_time=nan if last["handover_time"] < 0 else last["handover_time"],
         safe_hold_cycles=int(sum(s["safe_hold"] > 0 for s in probe.status.values())),
     )
+    from ffmpc_ros.bringup import reflex_summary
+
+    metrics.update(reflex_summary(probe.plant_status, robot.joint_names))
     if probe.touch_first:
         from ffmpc_core.impact.metrics import touch_metrics
 

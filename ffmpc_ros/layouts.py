@@ -19,11 +19,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from ffmpc_core.errors import InputError
+
+if TYPE_CHECKING:  # (the reflex model imports pinocchio: loaded where a status is built)
+    from ffmpc_core.reflex import ReflexEvent, RobotReflex
 
 
 @dataclass(frozen=True)
@@ -143,7 +147,7 @@ PLANT_TRUTH = ArrayLayout(
 #: /plant/status — progress and timing of the plant node.
 PLANT_STATUS = ArrayLayout(
     "plant_status",
-    1,
+    2,
     (
         Field("t", 1, "s", "simulated time"),
         Field("steps", 1, "-", "plant steps done"),
@@ -166,6 +170,54 @@ PLANT_STATUS = ArrayLayout(
         Field("latency_p99", 1, "s", "99th percentile of that latency"),
         Field("latency_max", 1, "s", "maximum of that latency"),
         Field("wall_time", 1, "s", "wall time since the first step"),
+        Field(
+            "reflex_enabled",
+            1,
+            "-",
+            "1 when the robot's reflexes stop it (plant.reflex), 0 when they only record",
+        ),
+        Field(
+            "reflex_stopped",
+            1,
+            "-",
+            "1 once a reflex has stopped the robot: the run is aborted",
+        ),
+        Field(
+            "reflex_kind",
+            1,
+            "-",
+            "the first crossing's kind: index in ffmpc_core.reflex.REFLEX_KINDS, -1 none",
+        ),
+        Field(
+            "reflex_joint",
+            1,
+            "-",
+            "its joint, 0-based (-1: none, or communication)",
+        ),
+        Field(
+            "reflex_value",
+            1,
+            "SI",
+            "its measured value (rad, rad/s, rad/s², N·m, N·m/s; s without a command; 0 none)",
+        ),
+        Field(
+            "reflex_limit",
+            1,
+            "SI",
+            "the data-sheet limit it crossed, same unit (0 none)",
+        ),
+        Field(
+            "reflex_ratio",
+            1,
+            "-",
+            "value/limit (position: distance of q from mid-range / half range; 0 none)",
+        ),
+        Field(
+            "reflex_t",
+            1,
+            "s",
+            "simulated time of the crossing (0 none)",
+        ),
     ),
 )
 
@@ -354,3 +406,50 @@ LAYOUTS: dict[str, ArrayLayout] = {
         MPC_PREDICTION,
     )
 }
+
+
+def reflex_status(reflex: RobotReflex) -> dict[str, float]:
+    """The ``reflex_*`` fields of ``plant_status`` (layout ``plant_status``): enabled, stopped,
+    the event's kind (index in :data:`~ffmpc_core.reflex.REFLEX_KINDS`, −1 none), joint
+    (0-based, −1 none or communication), value, limit, ratio and time (0 without an event)."""
+    from ffmpc_core.reflex import REFLEX_KINDS
+
+    event = reflex.event
+    if event is None:
+        kind, joint, value, limit, ratio, t = -1, -1, 0.0, 0.0, 0.0, 0.0
+    else:
+        kind = REFLEX_KINDS.index(event.kind)
+        joint = -1 if event.joint is None else event.joint
+        value, limit, ratio, t = event.value, event.limit, event.ratio, event.t
+    return {
+        "reflex_enabled": float(reflex.config.enabled),
+        "reflex_stopped": float(reflex.stopped),
+        "reflex_kind": float(kind),
+        "reflex_joint": float(joint),
+        "reflex_value": value,
+        "reflex_limit": limit,
+        "reflex_ratio": ratio,
+        "reflex_t": t,
+    }
+
+
+def reflex_event_from_status(
+    status: dict[str, float], joint_names: tuple[str, ...] | list[str]
+) -> ReflexEvent | None:
+    """The reflex event a ``plant_status`` carries (:func:`reflex_status`), None without one."""
+    from ffmpc_core.reflex import REFLEX_KINDS, ReflexEvent
+
+    kind = int(round(status["reflex_kind"]))
+    if kind < 0:
+        return None
+    joint = int(round(status["reflex_joint"]))
+    return ReflexEvent(
+        kind=REFLEX_KINDS[kind],
+        joint=None if joint < 0 else joint,
+        joint_name=None if joint < 0 else joint_names[joint],
+        value=float(status["reflex_value"]),
+        limit=float(status["reflex_limit"]),
+        ratio=float(status["reflex_ratio"]),
+        t=float(status["reflex_t"]),
+        stopped=bool(status["reflex_stopped"]),
+    )

@@ -10,7 +10,8 @@ Publishes, for every cycle k, stamped t_k = k·time_step:
 * ``/plant/wrench`` — the true contact wrench the environment exerts on the tool, frame
   ``contact_world_aligned`` (N, N·m);
 * ``/plant/truth`` (layout ``plant_truth``) and ``/plant/status`` (layout ``plant_status``,
-  every 100 cycles and at the end).
+  every 100 cycles, when a reflex stops the robot, and at the end; it carries the reflex's
+  event).
 
 Subscribes ``/pid/motor_torque``: τ^m of cycle k (saturated to the torque limits here too) goes
 through the actuation model (eq 31, the ``actuation`` generator: τ̂ = a·τ^m(t − δs) + b −
@@ -26,10 +27,19 @@ size, non-finite or implausible is rejected with one throttled log line (the pla
 in lockstep, keeps its last torque in real time), as forward_command_controller refuses a
 command whose size is not its number of joints.
 
+The robot's reflexes (``plant.reflex``, on by default; :mod:`ffmpc_core.reflex`, the same model
+as the ROS-free runner and the real-time loop): the plant steps through the scenario's
+:class:`~ffmpc_core.reflex.ReflexPlant`. A measured value over a data-sheet limit the robot stops
+on, or motor torques missing for longer than the data sheet's command timeout (real time: the
+drives' own safe stop, which replaced the node's former hold after ``max_input_age``), stops the
+robot: the drives brake it to rest and hold it, every later motor torque is ignored, the run is
+aborted (one log line, ``/plant/status`` at once).
+
 Lockstep (default): the plant steps only once the motor torque of the current cycle has arrived,
 so a run does not depend on the CPU speed. Real time (``lockstep: false``, this node on its
 own): the plant steps on a wall-clock timer of period time_step with the newest motor torque; a
-step taken without the torque of its own cycle is a deadline miss. ``ffmpc run --real-time``
+step taken without the torque of its own cycle is a deadline miss (and a step without a new
+command for the communication reflex). ``ffmpc run --real-time``
 does not use this path: it composes the plant with the sensor and PID nodes in one wall-clock
 loop (``ffmpc_ros.realtime``), since separate processes cannot hold 1 kHz in Python. The
 sensor-to-torque latency (wall time from publishing the state of cycle k to receiving its motor
@@ -87,6 +97,8 @@ class PlantNode(GraphNode):
         )
         self.draws, self.task, self.actuation = self.sim.draws, self.sim.task, self.sim.actuation
         self.plant = self.sim.plant
+        self.reflex_plant = self.sim.reflex_plant  # the robot's reflexes (module docstring)
+        self._reflex_reported = False
         duration = float(self.params["duration"]) or self.task.duration
         self.steps = int(round(duration / self.time_step))
         self.lockstep = bool(self.params["lockstep"])
@@ -94,12 +106,6 @@ class PlantNode(GraphNode):
         self.tau_hat = robot.gravity(robot.q_nominal)  # the motors hold the robot at start
         self.motor_torque = self.tau_hat.copy()  # real time: used until a command arrives
         self._motor_cycle = -1  # cycle of self.motor_torque
-        # The drives' own safe hold (real time, ``ros2 run``): when no valid motor torque came
-        # for ``max_input_age``, the robot brakes and holds (the low level's safe hold on the
-        # true joint state) instead of applying the last torque forever.
-        self._drive_hold = lowlevel_controller(s, robot)
-        self._drive_torque: np.ndarray | None = None
-        self.drive_hold_cycles = 0
         self.deadline_misses = 0
         self.latencies: list[float] = []
         self._published_at: dict[int, float] = {}
@@ -202,6 +208,7 @@ class PlantNode(GraphNode):
                     "latency_p99": float(np.percentile(lat, 99)),
                     "latency_max": float(lat.max()),
                     "wall_time": time.perf_counter() - (self._wall_start or time.perf_counter()),
+                    **layouts.reflex_status(self.reflex_plant.reflex),
                 }
             )
         )
@@ -269,37 +276,28 @@ class PlantNode(GraphNode):
             self.publish_state()  # the first state; its command is due at the next tick
             self._wall_start = time.perf_counter()
             return
-        if self._motor_cycle != self.k:
+        fresh = self._motor_cycle == self.k
+        if not fresh:
             self.deadline_misses += 1
-        if (self.k - max(self._motor_cycle, 0)) * self.time_step > self.max_input_age:
-            if self.drive_hold_cycles == 0:
-                self._drive_hold.reset()
-                self.reject(
-                    f"{self.name_of(topics.MOTOR_TORQUE)}:missing",
-                    f"no valid motor torque for {self.max_input_age} s: the drives brake and hold",
-                )
-            self.drive_hold_cycles += 1
-            hold = self._drive_hold.hold_torque(self.state.q, self.state.v)
-            # applied by the drives themselves: no actuation model (bias, delay) in between
-            self._drive_torque = np.clip(hold, -self.robot.torque_limit, self.robot.torque_limit)
-        else:
-            self._drive_torque = None
-        self.step_plant()
+        self.step_plant(fresh)
 
-    def step_plant(self) -> None:
-        """Cycle k: actuation (eq 31) of τ^m, one physics step, publish cycle k + 1."""
+    def step_plant(self, fresh: bool = True) -> None:
+        """Cycle k: actuation (eq 31) of τ^m, one physics step through the reflexes (``fresh``:
+        τ^m is this cycle's; otherwise the drives hold the newest one), publish cycle k + 1."""
         if self._wall_start is None:
             self._wall_start = time.perf_counter()
         self.sim.push_if_due(self.k)
-        if self._drive_torque is not None:
-            self.tau_hat = self._drive_torque
-        else:
-            self.tau_hat = self.actuation.step(self.motor_torque, self.state.v)
-        self.plant.step(self.tau_hat)
+        self.tau_hat = self.actuation.step(self.motor_torque, self.state.v)
+        self.reflex_plant.step(self.tau_hat, fresh=fresh)
         for old in [c for c in self._published_at if c < self.k - 1000]:
             del self._published_at[old]
         self.k += 1
-        self.state = self.plant.state()
+        self.state = self.reflex_plant.state()
+        reflex = self.reflex_plant.reflex
+        if reflex.event is not None and not self._reflex_reported:
+            self._reflex_reported = True
+            self.get_logger().warning(reflex.event.describe())
+            self.publish_status()
         self.publish_state()
 
     def destroy_node(self) -> None:

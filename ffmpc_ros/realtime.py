@@ -462,6 +462,7 @@ class RealtimeLoop:
         )
         self.draws, self.task, self.actuation = self.sim.draws, self.sim.task, self.sim.actuation
         self.plant = self.sim.plant
+        self.reflex_plant = self.sim.reflex_plant  # the robot's reflexes (module docstring)
         duration = float(plant_node.params["duration"]) or self.task.duration
         self.steps = int(round(duration / self.time_step))
         self.start_delay = float(plant_node.params["start_delay"])
@@ -627,7 +628,8 @@ class RealtimeLoop:
         last_motor = tau_hat.copy()
         f_hat = np.zeros(len(self.force_axes))
         out: LowLevelOutput | None = None
-        state = self.plant.state()
+        state = self.reflex_plant.state()
+        contact = self.contact
         stalls = _StallSchedule(self.stalls, dt, self.mpc_pid)
         gc.collect()
         gc.freeze()
@@ -686,8 +688,9 @@ class RealtimeLoop:
                 self.sim.push_if_due(k)
                 q_true, v_true, force_true = state.q, state.v, state.normal_force
                 tau_hat = self.actuation.step(applied, state.v)
-                self.plant.step(tau_hat)
-                state = self.plant.state()
+                # a torque past its deadline: the drives hold the one before (not a new command)
+                self.reflex_plant.step(tau_hat, fresh=late == 0)
+                state = self.reflex_plant.state()
                 rec["cycle_latency"][k] = time.perf_counter() - release
                 # records and the observer topics (off the deadline)
                 self._record(rec, k, q_true, v_true, force_true, f_hat, tau_hat, applied)
@@ -728,13 +731,13 @@ class RealtimeLoop:
         self.force_model.measure(state.q, state.v, state.wrench_world, q_hat, v_hat)
         self.sim.push_if_due(k)
         tau_hat = self.actuation.step(held, state.v)
-        self.plant.step(tau_hat)
+        self.reflex_plant.step(tau_hat, fresh=False)  # no new command: the communication reflex
         self._record(rec, k, q_true, v_true, force_true, f_hat, tau_hat, held)
         rec["tau_desired"][k] = rec["tau_desired"][k - 1] if k else 0.0
         rec["mode"][k] = rec["mode"][k - 1] if k else int(LowLevelMode.HOLD)
         rec["cycle_latency"][k] = math.inf
         rec["missed"][k] = True
-        return tau_hat, self.plant.state()
+        return tau_hat, self.reflex_plant.state()
 
     @staticmethod
     def _record(
@@ -831,6 +834,7 @@ class RealtimeLoop:
                     "latency_p99": float(np.percentile(lat, 99)),
                     "latency_max": float(lat.max()),
                     "wall_time": rec["wall_time"],
+                    **layouts.reflex_status(self.reflex_plant.reflex),
                 }
             )
         )
@@ -892,7 +896,9 @@ class RealtimeLoop:
         """The run's joint-limit ratios (as the lockstep graph's summary): per joint the largest
         |q̇|/velocity limit, |τ^m|/torque limit (the PID's motor torque) and |τ̂|/torque limit
         (the actuation output), the times of the largest (s), the time in the safe hold (s:
-        hold and fallback cycles) and the commands the velocity guard dropped (0 with it off)."""
+        hold and fallback cycles), the commands the velocity guard dropped (0 with it off), and
+        the robot's reflexes: ``aborted`` (a reflex stopped the robot) and ``reflex``
+        (:meth:`ffmpc_core.reflex.RobotReflex.report`)."""
         robot, dt = self.robot, self.time_step
         velocity, k_velocity = limit_ratios(rec["v"], robot.velocity_limit)
         torque, k_torque = limit_ratios(rec["tau_motor"], robot.torque_limit)
@@ -906,6 +912,8 @@ class RealtimeLoop:
             "max_torque_ratio_at_s": None if k_torque is None else k_torque * dt,
             "safe_hold_s": float(np.count_nonzero(hold) * dt),
             "velocity_guard_trips": self.lowlevel.velocity_guard_trips,
+            "aborted": self.reflex_plant.stopped,
+            "reflex": self.reflex_plant.reflex.report(),
         }
 
     def close(self) -> None:

@@ -31,6 +31,7 @@ from ffmpc_core.polishing import (
     draw_run,
     tool_load,
 )
+from ffmpc_core.reflex import ReflexPlant, reflex_plant
 from ffmpc_core.robots import RobotModel
 from ffmpc_core.scenario import PLANT_ENGINES, Scenario
 
@@ -175,15 +176,17 @@ def polishing_plant_config(scenario: Scenario, task: PolishingSchedule, tilt: fl
 class SimulatedRobot:
     """The simulated side of one run, built from its scenario (:func:`simulated_robot`): the
     run's random draws, the task, the actuation model of eq 31, the plant of the scenario's
-    engine (``plant.engine``) reset to the nominal posture, and the external push (cycle
-    ``push_at``, −1 for none; ``push_steps`` cycles of ``push_force`` N, world frame). The
-    ROS-free runner, the plant node and the real-time loop all build it here, so they simulate
-    the same robot."""
+    engine (``plant.engine``) reset to the nominal posture, the same plant with the robot's
+    reflexes (``reflex_plant``: step the robot through it, :mod:`ffmpc_core.reflex`; on unless
+    ``plant.reflex`` is false), and the external push (cycle ``push_at``, −1 for none;
+    ``push_steps`` cycles of ``push_force`` N, world frame). The ROS-free runner, the plant node
+    and the real-time loop all build it here, so they simulate the same robot."""
 
     draws: RunDraws
     task: PolishingSchedule
     actuation: ActuationModel
     plant: ScenePlant
+    reflex_plant: ReflexPlant[PlantState]
     push_at: int
     push_steps: int
     push_force: np.ndarray
@@ -214,6 +217,7 @@ def simulated_robot(
         task=task,
         actuation=actuation,
         plant=plant,
+        reflex_plant=reflex_plant(plant, robot, enabled=p.reflex),
         push_at=int(round(p.push_time / dt)) if p.push_enabled else -1,
         push_steps=int(round(p.push_duration / dt)),
         push_force=np.array(p.push_force, dtype=float),

@@ -116,6 +116,7 @@ from ffmpc_core.impact.scenario import (
     start_configuration,
 )
 from ffmpc_core.impact.task_space import JointLimitGuardConfig
+from ffmpc_core.reflex import reflex_plant
 from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_core.runner import LockstepClock, run_scenario
 from studies.execute import (
@@ -125,6 +126,7 @@ from studies.execute import (
     prepare_output_dir,
     study_cache,
 )
+from studies.reflexes import reflex_cell, reflex_note
 from studies.study import DIVERGENCE_ERRORS
 
 if TYPE_CHECKING:  # the plant imports PyBullet: loaded when a run starts, not to parse
@@ -157,6 +159,8 @@ class ExplorationRun:
         violations: against the data-sheet limits. guard_stats: the guard's counters.
         onset_samples: contact episodes' first samples (not fed to the main learner).
         wall_time: s. log: time series (t, z, zd, force, z_ref, phase, fed, onset, ...).
+        reflex: the robot's reflexes over the run (``ffmpc_core.reflex.RobotReflex.report``);
+            :attr:`aborted`: a reflex stopped the robot.
     """
 
     material: Material
@@ -171,10 +175,16 @@ class ExplorationRun:
     onset_samples: int
     wall_time: float
     log: dict[str, np.ndarray] = field(repr=False)
+    reflex: dict[str, Any] = field(default_factory=dict)
 
     @property
     def final(self) -> Checkpoint:
         return self.checkpoints[-1]
+
+    @property
+    def aborted(self) -> bool:
+        """A reflex of the robot stopped it: the run was aborted."""
+        return bool(self.reflex.get("aborted", False))
 
     def summary(self) -> dict[str, Any]:
         """JSON-friendly, without the time series."""
@@ -382,7 +392,8 @@ def run_exploration(
     with Plant(robot, plant_cfg) as plant:
         plant.reset(q0)
         scenario.plant, scenario.box = plant, plant.soft_boxes[0]
-        k = run_scenario(scenario, plant, [controller], LockstepClock(dt, n_max))
+        stepped = reflex_plant(plant, robot, enabled=cfg.reflex)
+        k = run_scenario(scenario, stepped, [controller], LockstepClock(dt, n_max))
         s = plant.state()
         scenario.qs[k], scenario.vs[k] = s.q, s.v
     log, qs, vs, taus = scenario.log, scenario.qs, scenario.vs, scenario.taus
@@ -431,6 +442,7 @@ def run_exploration(
         onset_samples=int(np.count_nonzero(log["onset"])),
         wall_time=time.perf_counter() - wall,
         log=log,
+        reflex=stepped.reflex.report(),
     )
 
 
@@ -499,8 +511,8 @@ def format_summary(runs: list[ExplorationRun]) -> str:
     lines = [
         "| material | α (N/m) | β (N·s/m) | α̂ error | β̂ error | β̂ error with onsets "
         "| α̂, β̂ errors with z from the nominal top | ... from Bullet's contact distance "
-        "| surface offset (µm) | peak z / z̄ | violations | wall (s) |",
-        "|" + "---|" * 12,
+        "| surface offset (µm) | peak z / z̄ | violations | reflex | wall (s) |",
+        "|" + "---|" * 13,
     ]
     for r in runs:
         m, c = r.material, r.final
@@ -514,8 +526,9 @@ def format_summary(runs: list[ExplorationRun]) -> str:
             f"| {m.name} | {m.stiffness:g} | {m.damping:g} | {100 * ea:+.4f} % | {100 * eb:+.4f} % "
             f"| {100 * eb_on:+.3f} % | {alt[0]} | {alt[1]} | {1e6 * r.surface_offset:+.1f} "
             f"| {r.peak_penetration / m.max_penetration:.2f} | {r.violations.total} "
-            f"| {r.wall_time:.1f} |"
+            f"| {reflex_cell(r.reflex)} | {r.wall_time:.1f} |"
         )
+    lines += ["", reflex_note([r.reflex for r in runs])]
     return "\n".join(lines)
 
 

@@ -125,6 +125,7 @@ from ffmpc_core.impact.scenario import (
     start_pose,
     task_config,
 )
+from ffmpc_core.reflex import reflex_plant
 from ffmpc_core.robots import RobotModel, load_robot
 from ffmpc_core.runner import LockstepClock, run_scenario
 from sim_bridge.scenes import impact_plant_config as plant_config
@@ -135,6 +136,7 @@ from studies.execute import (
     prepare_output_dir,
     study_cache,
 )
+from studies.reflexes import reflex_cell, reflex_note
 from studies.study import DIVERGENCE_ERRORS
 
 #: How the study's texts name each plant engine.
@@ -189,6 +191,8 @@ class ImpactRun:
         decision_time: when the strike was decided (or refused) from the learned model, s.
         refusal: why the target was refused ("" if it was not); contact_time is then NaN.
         strike_knowledge: the material interval the strike was planned with.
+        reflex: the robot's reflexes over the run (``ffmpc_core.reflex.RobotReflex.report``:
+            ``aborted``, the ``event``, the largest ratio of each kind); :attr:`aborted`.
     """
 
     approach: str
@@ -219,10 +223,16 @@ class ImpactRun:
     decision_time: float = float("nan")
     refusal: str = ""
     strike_knowledge: str = ""
+    reflex: dict[str, Any] = field(default_factory=dict)
 
     @property
     def name(self) -> str:
         return f"{self.approach}+{self.regulation}"
+
+    @property
+    def aborted(self) -> bool:
+        """A reflex of the robot stopped it: the run was aborted."""
+        return bool(self.reflex.get("aborted", False))
 
     def summary(self) -> dict:
         """JSON-friendly, without the time series."""
@@ -334,7 +344,8 @@ def run_impact(
     scenario = _ImpactLoop(robot, top, steps, dt)
     with make_plant(robot, plant_config(cfg), cfg.engine) as plant:
         plant.reset(q0)
-        run_scenario(scenario, plant, [controller], LockstepClock(dt, steps))
+        stepped = reflex_plant(plant, robot, enabled=cfg.reflex)
+        run_scenario(scenario, stepped, [controller], LockstepClock(dt, steps))
         s = plant.state()
         scenario.qs[steps], scenario.vs[steps] = s.q, s.v
     log, qs, vs, taus = scenario.log, scenario.qs, scenario.vs, scenario.taus
@@ -382,6 +393,7 @@ def run_impact(
         planner_failures=0 if approach_ctrl is None else approach_ctrl.solver_failures,
         mpc_solve_time_median=float(np.median(solve_times)) if solve_times else float("nan"),
         log=log | {"learned_in_mpc": np.array(learned_in_mpc), "q": qs[:steps], "v": vs[:steps]},
+        reflex=stepped.reflex.report(),
     )
 
 
@@ -460,9 +472,9 @@ def format_table(runs: list[ImpactRun], config: ImpactStudyConfig) -> str:
     head = (
         "| run | pre-impact velocity (m/s) | contact (s) | steady force (s) | "
         "peak force (N) | peak penetration (mm) | final force (N) | "
-        "violations q / q̇ / q̈ / τ | max q̈/q̈_max | wall (s) |"
+        "violations q / q̇ / q̈ / τ | max q̈/q̈_max | reflex | wall (s) |"
     )
-    lines = [head, "|" + "---|" * 10]
+    lines = [head, "|" + "---|" * 11]
     for r in runs:
         v = r.violations
         settle = r.steady_time - r.contact_time
@@ -472,9 +484,11 @@ def format_table(runs: list[ImpactRun], config: ImpactStudyConfig) -> str:
             f"| {_fmt(r.peak_force, '.1f')} | {_fmt(1e3 * r.peak_penetration, '.1f')} "
             f"| {_fmt(r.final_force, '.2f')} "
             f"| {v.position} / {v.velocity} / {v.acceleration} / {v.torque} "
-            f"| {v.max_ratio['acceleration']:.3f} | {r.wall_time:.1f} |"
+            f"| {v.max_ratio['acceleration']:.3f} | {reflex_cell(r.reflex)} | {r.wall_time:.1f} |"
         )
     lines += [
+        "",
+        reflex_note([r.reflex for r in runs]),
         "",
         f"Learner (eq 19–21) at the end of each run vs the dice set in the plant "
         f"({ENGINE_NAMES[config.engine]}; "

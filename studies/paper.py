@@ -38,6 +38,7 @@ from ffmpc_core.errors import ConfigError
 from ffmpc_core.metrics import PUSH_RECOVERY_WINDOW
 from ffmpc_core.scenario import resolve_scenario_path
 from studies.execute import RunOutcome, prepare_output_dir, study_cache, write_json
+from studies.reflexes import reflex_note
 from studies.study import (
     LABELS,
     PAPER_FORCE_SQUARE_MAE,
@@ -491,6 +492,24 @@ def _weights_line(weights: dict[str, dict[str, float]]) -> str:
     return "; ".join(parts)
 
 
+def _aborted_lines(runs: Sequence[tuple[str, dict]]) -> list[str]:
+    """ "Aborted runs": how many runs of every section the robot's reflexes aborted (and whether
+    they were on: ``studies.reflexes.reflex_note``), then each one with its section and event."""
+    lines = ["## Aborted runs (the robot's own reflexes; left out of every aggregate)", ""]
+    lines += [reflex_note([r.get("reflex") for _, r in runs]), ""]
+    for title, r in runs:
+        event = (r.get("reflex") or {}).get("event")
+        if event is None:
+            continue
+        pid = "on" if r["pid_enabled"] else "off"
+        delta = f", {delta_o_label(r['delta_o_setting'])}" if "delta_o_setting" in r else ""
+        lines.append(
+            f"- {title}: {LABELS[r['formulation']]}, PID {pid}{delta}, seed {r['seed']}: "
+            f"{event['message']}"
+        )
+    return lines + [""]
+
+
 def paper_report(document: dict) -> str:
     """``paper.md``: every section's tables beside the paper's values, seeds, scenario files,
     cost weights and the wall time."""
@@ -523,7 +542,9 @@ def paper_report(document: dict) -> str:
         "",
         "Metrics from the plant's TRUE normal force along the tilted table normal, over the "
         "circle phase (the square signal for Experiment 1): E_P, E_λ mean ± std over the seeds, "
-        "λmax and t_break the max over the seeds (eq 34–35). The measured-force metrics of every "
+        "λmax and t_break the max over the seeds (eq 34–35); runs the robot's own reflexes "
+        "aborted are counted under each table ('Runs: ... (n aborted)') and left out of the "
+        "aggregates (listed under 'Aborted runs'). The measured-force metrics of every "
         "run are in results.json. Columns '(paper)': the paper's printed values (Tables II–IV "
         "simulation; Experiment 1 and Tables V–VII on the robot); '–': the paper prints none.",
         "",
@@ -532,6 +553,7 @@ def paper_report(document: dict) -> str:
         sets = ", ".join(f"`{k}={v}`" for k, v in document["overrides"].items())
         lines += [f"Overrides applied to every section: {sets}.", ""]
     failures = []
+    aborted: list[tuple[str, dict]] = []
     for key, section_doc in document["sections"].items():
         section = next(s for s in SECTIONS if s.key == key)
         doc = section_doc["study"]
@@ -568,6 +590,8 @@ def paper_report(document: dict) -> str:
                 "",
             ]
         failures += [(section_doc["title"], f) for f in doc["failures"]]
+        aborted += [(section_doc["title"], r) for r in doc["runs"]]
+    lines += _aborted_lines(aborted)
     lines += ["## Failed runs (left out of every aggregate)", ""]
     if not failures:
         lines += ["None.", ""]

@@ -38,6 +38,15 @@ its gain error a ∈ [0.8, 1.2], offset, friction and noise can take a saturated
 limit, which no controller can prevent and a real drive's current limit would clip) and
 ``safe_hold_s`` (time spent in the safe hold, s); ``safety_log`` holds their time series (not
 part of ``log``, which the node graph reproduces).
+
+The robot's reflexes (``plant.reflex``, on by default; :mod:`ffmpc_core.reflex`): the plant is
+stepped through :class:`~ffmpc_core.reflex.ReflexPlant`. A measured value over a data-sheet limit
+the robot stops on (the iiwa: q, q̇) stops it: from the next cycle on, the drives brake it to
+rest and hold it, the controllers' commands are ignored (the loop runs on, its log still holds
+what they asked for), and the run is **aborted**: ``aborted`` and ``reflex`` (which limit, which
+joint, the value, the ratio, when; the largest ratio of each kind) in the results. With the
+reflex off nothing is stopped, and ``reflex`` reports the raw excess and the crossing that
+would have stopped the robot.
 """
 
 from __future__ import annotations
@@ -45,6 +54,7 @@ from __future__ import annotations
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -129,6 +139,13 @@ class RunResult:
     #: Experiment 3.3, per push: true-force E_λ (N), E_P (mm), max |λ| (N) during and after it
     #: (:func:`ffmpc_core.polishing.polishing_push_metrics`); empty without a push.
     push_metrics: list[dict] = field(default_factory=list)
+    #: The robot's reflexes (:meth:`ffmpc_core.reflex.RobotReflex.report`); empty if not run.
+    reflex: dict = field(default_factory=dict)
+
+    @property
+    def aborted(self) -> bool:
+        """The robot stopped itself (a reflex): the run was aborted."""
+        return bool(self.reflex.get("aborted", False))
 
     def summary(self) -> dict:
         """A JSON-friendly dict without the time series."""
@@ -152,6 +169,8 @@ class RunResult:
             "mpc_failures": self.mpc_failures,
             "faults": [str(f) for f in self.faults],
             "command_delay_s": self.command_delay,
+            "aborted": self.aborted,
+            "reflex": self.reflex,
             **({"push_true": self.push_metrics} if self.push_metrics else {}),
             **(
                 {"velocity_guard_trips": self.velocity_guard_trips}
@@ -226,7 +245,8 @@ def run_polishing(
     )
     mpc_stage = MpcStage(mpc, robot)
     with sim.plant as plant:
-        closed_loop.run_scenario(loop, plant, [mpc_stage, LowLevelStage(lowlevel)], clock)
+        stages: list[closed_loop.Controller[Any, Any]] = [mpc_stage, LowLevelStage(lowlevel)]
+        closed_loop.run_scenario(loop, sim.reflex_plant, stages, clock)
         normal = plant.table_normal
 
     metrics_true, metrics_measured = polishing_run_metrics(log.arrays, task, normal)
@@ -263,4 +283,5 @@ def run_polishing(
         },
         command_delay=round(command_delay(scenario), 12),
         push_metrics=pushes,
+        reflex=sim.reflex_plant.reflex.report(),
     )

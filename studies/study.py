@@ -24,7 +24,11 @@ Outputs, in a directory that must not exist yet (unless ``force``):
 
 A run that raises (a diverging controller: non-finite state, solver failure) is recorded as a
 failure with its error and left out of the aggregates; the tables say how many runs each cell
-has and list the failures.
+has and list the failures. A run the robot's own reflexes aborted (``plant.reflex``, on by
+default: a joint over a data-sheet limit the robot stops on; ``ffmpc_core.reflex``) is counted
+in its cell ("4/5 (1 aborted)"), left out of the aggregates and paired comparisons, and listed
+with its event under "Aborted runs"; a study run with ``--set plant.reflex=false`` says so
+under the tables, and its counts are of the runs that would have been aborted.
 """
 
 from __future__ import annotations
@@ -62,6 +66,7 @@ from studies.execute import (
     write_atomic,
     write_json,
 )
+from studies.reflexes import aborted_count, reflex_note, reflexes_enabled
 
 if TYPE_CHECKING:
     from distributed import Client
@@ -688,9 +693,9 @@ def paired_comparison(
     """Per seed, ``reference`` (the force-feedback MPC) minus each other controller, for E_λ (N)
     and E_P (mm), PID mode ``pid``, from the ``source`` force ("true" or "measured").
 
-    Only the seeds where both runs succeeded are paired. Returns ``{other formulation:
-    {"seeds": [...], "force_mae": {"differences", "mean", "std", **wilcoxon_test},
-    "position_mae_mm": {...}}}`` (std: numpy's, ddof 0, as the tables' other std).
+    Only the seeds where both runs succeeded (no failure, no reflex abort) are paired. Returns
+    ``{other formulation: {"seeds": [...], "force_mae": {"differences", "mean", "std",
+    **wilcoxon_test}, "position_mae_mm": {...}}}`` (std: numpy's, ddof 0, as the tables' other std).
     """
     forms = doc["grid"]["formulations"]
     if reference not in forms:
@@ -752,7 +757,8 @@ def paired_table(doc: dict, pid: bool, title: str, source: str = "true") -> list
         "",
         f"Per seed, force-feedback minus the other controller ({source} force; negative: the "
         f"force-feedback MPC has the lower error); mean ± std over the pairs. Only seeds where "
-        f"both runs succeeded are paired (pairs out of {total} seeds). p: Wilcoxon signed-rank, "
+        f"both runs succeeded (neither failed nor aborted by a reflex) are paired (pairs out of "
+        f"{total} seeds). p: Wilcoxon signed-rank, "
         f"paired, two-sided, `{WILCOXON_CALL}`: zero differences are dropped; without zeros or "
         "ties the p is exact, at least 2/2ⁿ for n pairs, so fewer than 6 pairs can never give "
         "p < 0.05; all differences 0 → scipy returns p = 1.",
@@ -764,8 +770,15 @@ def _metrics(run: dict, source: str) -> PolishingMetrics:
     return PolishingMetrics(**run[f"metrics_{source}"])
 
 
-def _select(runs: Sequence[dict], formulation: str, pid: bool) -> list[dict]:
+def _cell(runs: Sequence[dict], formulation: str, pid: bool) -> list[dict]:
+    """Every run of one table cell (formulation, PID mode), aborted ones included."""
     return [r for r in runs if r["formulation"] == formulation and r["pid_enabled"] == pid]
+
+
+def _select(runs: Sequence[dict], formulation: str, pid: bool) -> list[dict]:
+    """The runs of one cell that the aggregates use: those a reflex did not abort (an aborted
+    run's robot stopped itself mid-task; it is counted, not averaged)."""
+    return [r for r in _cell(runs, formulation, pid) if not r.get("aborted", False)]
 
 
 def _pm(mean: float | None, std: float | None) -> str:
@@ -799,8 +812,36 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
 
 
 def _counts(doc: dict, forms: Sequence[str], pid: bool) -> str:
+    """ "Classical 4/5 (1 aborted), ...": the runs each aggregate uses out of the seeds, and the
+    runs a reflex aborted (with the reflexes off: "would have aborted")."""
     total = len(doc["grid"]["seeds"])
-    return ", ".join(f"{LABELS[f]} {len(_select(doc['runs'], f, pid))}/{total}" for f in forms)
+    parts = []
+    for f in forms:
+        cell = _cell(doc["runs"], f, pid)
+        used = len(_select(doc["runs"], f, pid))
+        crossed = aborted_count([r.get("reflex") for r in cell])
+        off = reflexes_enabled([r.get("reflex") for r in cell]) is False
+        note = f" ({crossed} {'would have aborted' if off else 'aborted'})" if crossed else ""
+        parts.append(f"{LABELS[f]} {used}/{total}{note}")
+    return ", ".join(parts)
+
+
+def aborted_section(doc: dict, title: str = "") -> list[str]:
+    """The runs the robot's reflexes aborted (left out of every aggregate), each with its
+    event, and whether the reflexes were on (:func:`studies.reflexes.reflex_note`)."""
+    reports = [r.get("reflex") for r in doc["runs"]]
+    lines = [f"## Aborted runs{title} (the robot's own reflexes; left out of every aggregate)", ""]
+    lines += [reflex_note(reports), ""]
+    for r in doc["runs"]:
+        event = (r.get("reflex") or {}).get("event")
+        if event is None:
+            continue
+        pid = "on" if r["pid_enabled"] else "off"
+        delta = f", {delta_o_label(r['delta_o_setting'])}" if "delta_o_setting" in r else ""
+        lines.append(
+            f"- {LABELS[r['formulation']]}, PID {pid}{delta}, seed {r['seed']}: {event['message']}"
+        )
+    return lines + [""]
 
 
 def polishing_tables(doc: dict) -> str:
@@ -833,6 +874,7 @@ def polishing_tables(doc: dict) -> str:
         if delays:
             lines += [f"## {delta_o_label(setting)} (`mpc.command_delay: {setting}`)", ""]
         lines += polishing_body(sub, level=3 if delays else 2, delta=setting)
+    lines += aborted_section(doc)
     lines += _failures_section(doc)
     lines += _paper_section(forms)
     return "\n".join(lines) + "\n"
@@ -960,6 +1002,7 @@ def force_square_report(doc: dict) -> str:
         lines += [f"## {'With' if pid else 'Without'} torque PID", ""]
         lines += _table(["", *(LABELS[f] for f in forms)], rows)
         lines += ["", f"Runs: {_counts(doc, forms, pid)}.", ""]
+    lines += aborted_section(doc)
     lines += _failures_section(doc)
     return "\n".join(lines) + "\n"
 

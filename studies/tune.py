@@ -12,8 +12,10 @@ with E_λ in N, E_P in mm, t_break in % and λmax in N, r_v the run's largest jo
 limit (max over joints and the whole run of |q̇_j|/q̇_max,j) (:class:`Objective`; defaults:
 W = 0.5 N/mm, P_break = 10 N per % of the circle out of contact, P_force = 1 per N above
 λ_limit = 150 N, P_vel = 50 N per unit of r_v above 1: a search without it found weights that
-track better by spinning the wrist at up to 3.4× its speed limit). A run that diverges costs
-``FAILED_RUN_COST``. A stored search remembers its objective and is not resumed with another.
+track better by spinning the wrist at up to 3.4× its speed limit). A run that diverges, or that
+the robot's own reflexes aborted (``plant.reflex``, on by default: a real robot would have
+stopped it mid-task; ``ffmpc_core.reflex``), costs ``FAILED_RUN_COST``. A stored search
+remembers its objective and is not resumed with another.
 
 The search (seeded TPE sampler) keeps its trials in an Optuna RDB storage (an SQLite file by
 default), so a search that is stopped resumes where it stood: the same ``--storage`` and
@@ -176,7 +178,8 @@ def evaluate(
     batch = execute_specs(specs, 1 if client is None else None, False, cache=cache, client=client)
     total = 0.0
     for outcome in batch.outcomes:
-        if outcome.summary is None:  # the run diverged (its error is in the outcome)
+        if outcome.summary is None or outcome.summary.get("aborted", False):
+            # the run diverged (its error is in the outcome) or the robot stopped itself
             total += FAILED_RUN_COST
             continue
         m = outcome.summary["metrics_true"]

@@ -148,11 +148,12 @@ def _plant_steps(path: Path) -> list[str]:
 
 def test_run_scenario_is_the_only_closed_loop_of_the_library_and_the_studies() -> None:
     """No function of ffmpc_core, sim_bridge or studies steps a plant but run_scenario (the ROS
-    nodes step theirs on messages, one cycle per /clock tick)."""
+    nodes step theirs on messages, one cycle per /clock tick) and the reflex wrapper's own
+    ``ReflexPlant.step`` (a plant's step: it steps the plant it wraps once, no loop)."""
     stepping = [
         hit
         for package in ("ffmpc_core", "sim_bridge", "studies")
         for path in sorted((ROOT / package).rglob("*.py"))
         for hit in _plant_steps(path)
     ]
-    assert stepping == ["ffmpc_core/runner.py:run_scenario"]
+    assert stepping == ["ffmpc_core/reflex.py:step", "ffmpc_core/runner.py:run_scenario"]

@@ -199,7 +199,10 @@ def test_real_time_run_json_is_consistent(tmp_path):
     assert 0.0 <= doc["max_velocity_ratio_at_s"] < 1.0
     broken = max(doc["max_velocity_ratio"] + doc["max_torque_ratio"]) > 1.0
     assert doc["safe_hold_s"] >= timing["mode_cycles"]["fallback"] * 1e-3
-    assert code == (1 if timing_failures(timing) or broken else 0)
+    # the robot's reflexes ran in the loop (a loaded machine's long miss or a joint over its
+    # limit would have stopped it: exit 3, ffmpc_ros.cli.EXIT_ABORTED)
+    assert doc["reflex"]["enabled"] and doc["aborted"] == doc["reflex"]["aborted"]
+    assert code == (3 if doc["aborted"] else 1 if timing_failures(timing) or broken else 0)
 
 
 def _stalled_run(fault: str, overrides: dict | None = None):
@@ -214,7 +217,9 @@ def test_a_stalled_loop_misses_its_cycles_and_the_plant_steps_on_under_the_held_
     measurement. The plant is physical: it does not wait, so its steps 500-529 run under the motor
     torque of cycle 499 (zero-order hold: cycle 500's torque missed their start), cycles ~501-529
     are missed, and the loop resumes on its grid. (Before: the missed cycles ran back to back and
-    the MPC fell behind its plant; this stall gave 4.96x a velocity limit.)"""
+    the MPC fell behind its plant; this stall gave 4.96x a velocity limit.) 30 ms without a
+    command is more than the robot tolerates: its communication reflex stops it after 20 ms
+    (``ffmpc_core.reflex``), the run is aborted — the safe outcome."""
     result = _stalled_run("loop-stall@0.5+0.03")
     log, timing = result.log, result.timing
     missed = log["missed"]
@@ -241,6 +246,11 @@ def test_a_stalled_loop_misses_its_cycles_and_the_plant_steps_on_under_the_held_
     assert record["ended_at"] == pytest.approx(t_stall + 0.03)
     # the injected fault excuses the fallback it causes (its window plus FAULT_RECOVERY)
     assert timing["fault_windows"] == [[0.5, pytest.approx(0.58)]]
+    # 30 ms without a command is longer than the robot waits (the data sheet's 20 ms): its
+    # communication reflex stopped it — the safe outcome of this fault, as on the real robot
+    event = result.safety["reflex"]["event"]
+    assert result.aborted and event["kind"] == "communication" and event["stopped"], event
+    assert t_stall < event["t"] < t_stall + 0.03
 
 
 #: Fraction of the loop's cycles outside the fault windows that must meet their deadline for a

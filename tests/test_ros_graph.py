@@ -14,15 +14,19 @@ from studies.polishing import run_polishing
 
 
 def test_single_process_graph_equals_the_runner_for_one_second():
-    """Force-feedback with the Riccati feedback on (the PID node then also reads λ̂), seed 2:
-    1 s of simulated time, through first contact and the force ramp."""
+    """Force-feedback with the Riccati feedback on (the PID node then also reads λ̂), seed 0:
+    1 s of simulated time, through first contact and the force ramp — and the robot's velocity
+    reflex: joint A4 crosses the LBR iiwa 14's 75°/s at 0.634 s, the robot stops itself in both
+    (one reflex model), the nodes and the runner's loop run on to the end."""
     scenario = load_scenario(
-        "polishing", {"seed": 2, "mpc.formulation": "force_feedback", "mpc.riccati_feedback": True}
+        "polishing", {"seed": 0, "mpc.formulation": "force_feedback", "mpc.riccati_feedback": True}
     )
     graph = run_graph(scenario, duration=1.0, single_process=True, timeout=120)
     runner = run_polishing(scenario, duration=1.0)
     assert_same_run(graph, runner)
     assert graph.log["force_true"].max() > 5.0  # the run reached the table
+    assert graph.aborted and runner.aborted
+    assert graph.reflex_event == runner.reflex["event"] and runner.reflex["event"]["joint"] == 3
     status = graph.plant_status
     assert status["done"] == 1.0 and status["steps"] == 1000 and status["deadline_misses"] == 0
     assert status["latency_count"] == 1000

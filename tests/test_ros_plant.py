@@ -5,6 +5,7 @@ deadline misses counted and published."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from geometry_msgs.msg import WrenchStamped
 from ros_helpers import joint_state, overrides, recorder
 from rosgraph_msgs.msg import Clock
@@ -12,6 +13,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from ffmpc_core.polishing import actuation_model, build_task, device_generator, draw_run
+from ffmpc_core.reflex import reflex_plant
 from ffmpc_core.scenario import load_scenario
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.plant_node import PlantNode
@@ -50,9 +52,10 @@ def test_plant_node_steps_in_lockstep_like_the_plant_and_actuation(ros):
     actuation = actuation_model(scenario, robot, draws, device_generator(5, "actuation"))
     with Plant(robot, plant_config(scenario, task, draws.tilt_angle)) as plant:
         plant.reset(robot.q_nominal)
+        stepped = reflex_plant(plant, robot)  # the robot's reflexes, as the node's plant
         tau_hat = robot.gravity(robot.q_nominal)
         for k in range(7):
-            s = plant.state()
+            s = stepped.state()
             msg = states[k]
             assert node.cycle_of(msg.header.stamp) == k
             np.testing.assert_array_equal(msg.position, s.q)
@@ -69,7 +72,7 @@ def test_plant_node_steps_in_lockstep_like_the_plant_and_actuation(ros):
             np.testing.assert_array_equal(got["table_normal"], plant.table_normal)
             if k < 6:
                 tau_hat = actuation.step(robot.clip_torque(commands[k]), s.v)
-                plant.step(tau_hat)
+                stepped.step(tau_hat)
     ticks = [node.cycle_of(c.clock) for c in clock]  # /clock is volatile: late joiners miss some
     assert ticks[-1] == 6 and ticks == sorted(set(ticks)) and len(ticks) >= 5
     assert node.latencies and len(node.latencies) == 6
@@ -99,8 +102,9 @@ def test_plant_node_rejects_bad_motor_torques(ros):
 
 
 def test_plant_node_real_time_counts_deadline_misses(ros):
-    """No controller: every step of a 50-cycle real-time run misses its deadline; the plant keeps
-    applying the last torque (the gravity hold) and publishes the count."""
+    """No controller: every step of a 50-cycle real-time run misses its deadline; the drives hold
+    the last torque (the gravity hold) for the data sheet's 20 ms, then the communication reflex
+    stops the robot (``ffmpc_core.reflex``); the count and the reflex's event are published."""
     node, probe, _ = _plant(ros, load_scenario("polishing"), lockstep=False, duration=0.05)
     status = recorder(probe, Float64MultiArray, topics.PLANT_STATUS)
     assert ros.spin_until(lambda: node.done, timeout=10)
@@ -109,3 +113,52 @@ def test_plant_node_real_time_counts_deadline_misses(ros):
     assert final["steps"] == 50 and final["lockstep"] == 0.0
     assert final["deadline_misses"] == 50 and node.deadline_misses == 50
     assert final["wall_time"] >= 0.045  # paced by the wall clock (1 ms per step)
+    event = layouts.reflex_event_from_status(final, node.joint_names)
+    assert final["reflex_stopped"] == 1.0 and event is not None
+    # the first published state is cycle 0's, its step the first without a command: the 21st
+    # step without one (t = 0.020 s) is the first under the stop
+    assert event.kind == "communication" and event.t == pytest.approx(0.020)
+    assert event.value == pytest.approx(0.021) and event.limit == 0.02
+    assert node.reflex_plant.reflex.stop_cycles == 50 - 20
+
+
+def test_plant_node_steps_through_the_reflex_like_the_runner_s_plant(ros):
+    """Lockstep: motor torques that drive joint A4 over its velocity limit. The plant node's
+    states are the ROS-free reflex plant's bit for bit (one reflex model); the robot stops from
+    the cycle after the crossing, later torques are ignored, /plant/status carries the event."""
+    scenario = load_scenario("polishing", {"seed": 2})
+    node, probe, pub = _plant(ros, scenario)
+    states = recorder(probe, JointState, topics.PLANT_JOINT_STATES)
+    status = recorder(probe, Float64MultiArray, topics.PLANT_STATUS)
+    assert ros.spin_until(lambda: len(states) == 1)
+    robot = node.robot
+    push = np.array([0, 0, 0, 60.0, 0, 0, 0])
+    cycles = 60
+    for k in range(cycles):
+        s = states[k]
+        pub.publish(joint_state(node, k, [], [], robot.gravity(np.array(s.position)) + push))
+        assert ros.spin_until(lambda k=k: len(states) == k + 2)
+    assert ros.spin_until(
+        lambda: any(layouts.PLANT_STATUS.unpack(m)["reflex_stopped"] for m in status)
+    )
+    event = layouts.reflex_event_from_status(
+        layouts.PLANT_STATUS.unpack(status[-1]), node.joint_names
+    )
+    assert event is not None and event.kind == "velocity" and event.joint == 3 and event.stopped
+    draws = draw_run(scenario, robot, device_generator(2, "draws"))
+    task = build_task(scenario, robot)
+    actuation = actuation_model(scenario, robot, draws, device_generator(2, "actuation"))
+    with Plant(robot, plant_config(scenario, task, draws.tilt_angle)) as plant:
+        plant.reset(robot.q_nominal)
+        stepped = reflex_plant(plant, robot)
+        for k in range(cycles):
+            s = stepped.state()
+            np.testing.assert_array_equal(states[k].position, s.q)
+            np.testing.assert_array_equal(states[k].velocity, s.v)
+            tau_hat = actuation.step(robot.clip_torque(robot.gravity(s.q) + push), s.v)
+            stepped.step(tau_hat)
+        assert stepped.reflex.event == event
+    k_stop = int(round(event.t / 1e-3))
+    v4 = [abs(m.velocity[3]) for m in states]
+    assert v4[k_stop] > robot.velocity_limit[3] and v4[k_stop + 1] < v4[k_stop]
+    assert v4[-1] < 0.5 * v4[k_stop]  # braking while the torques keep pushing

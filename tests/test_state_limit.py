@@ -41,13 +41,13 @@ def iiwa():
 
 
 def test_bounds_are_the_fraction_of_the_position_range_and_velocity_limits(iiwa):
-    """Hand-computed for joint 2 of the iiwa (±120°, ±98°/s): the middle of the range ± the
+    """Hand-computed for joint 2 of the iiwa (±120°, ±85°/s): the middle of the range ± the
     fraction of its half, ± the fraction of the velocity limit; infinite limits stay ±inf."""
     lower, upper = iiwa.state_limit_bounds(FRACTION)
     assert lower.shape == upper.shape == (2 * iiwa.nv,)
     np.testing.assert_allclose(upper[1], FRACTION * np.deg2rad(120.0), rtol=1e-6)
     np.testing.assert_allclose(lower[1], -FRACTION * np.deg2rad(120.0), rtol=1e-6)
-    np.testing.assert_allclose(upper[iiwa.nv + 1], FRACTION * np.deg2rad(98.0), rtol=1e-12)
+    np.testing.assert_allclose(upper[iiwa.nv + 1], FRACTION * np.deg2rad(85.0), rtol=1e-12)
     np.testing.assert_allclose(lower[iiwa.nv :], -upper[iiwa.nv :], rtol=0)
     np.testing.assert_allclose(upper[iiwa.nv :], FRACTION * iiwa.velocity_limit, rtol=1e-15)
     # An asymmetric range (the Panda's joint 4: [-3.0718, -0.0698] rad) is centred on its middle.

@@ -129,14 +129,26 @@ def test_study_cli_writes_files_refuses_to_overwrite_and_tables_match_the_runs(
         assert len(tilts) == 1
     assert "TRUE normal force" in text and "MEASURED force" in text
 
-    # Tables II–III, true and measured: every cell equals summarize() of the JSON runs.
+    # Tables II–III, true and measured: every cell equals summarize() of the JSON runs a reflex
+    # did not abort (these 0.05 s reaches drive some seed-0 runs over the iiwa 14's velocity
+    # limits: the robot stopped itself; those are counted, not averaged).
+    completed = [r for r in doc["runs"] if not r["aborted"]]
+    assert all(r["reflex"]["enabled"] for r in doc["runs"])
+    for form in FORMULATIONS:
+        for pid in (False, True):
+            cell = [r for r in doc["runs"] if r["formulation"] == form and r["pid_enabled"] == pid]
+            aborted = sum(r["aborted"] for r in cell)
+            count = f"{LABELS[form]} {len(cell) - aborted}/2" + (
+                f" ({aborted} aborted)" * bool(aborted)
+            )
+            assert count in text, count
     for source in ("true", "measured"):
         for number, pid, what in (("II", False, "without"), ("III", True, "with")):
             cells = {}
             for form in FORMULATIONS:
                 runs = [
                     PolishingMetrics(**r[f"metrics_{source}"])
-                    for r in doc["runs"]
+                    for r in completed
                     if r["formulation"] == form and r["pid_enabled"] == pid
                 ]
                 cells[form] = summarize(runs)
@@ -148,11 +160,12 @@ def test_study_cli_writes_files_refuses_to_overwrite_and_tables_match_the_runs(
         for form in FORMULATIONS:
             by = {
                 (r["pid_enabled"], r["seed"]): r[f"metrics_{source}"]
-                for r in doc["runs"]
+                for r in completed
                 if r["formulation"] == form
             }
+            pairs = [s for s in (0, 1) if (False, s) in by and (True, s) in by]
             for row, key in (("ΔE_λ (N)", "force_mae"), ("ΔE_τ (N m)", "torque_mae")):
-                diffs = [by[(False, s)][key] - by[(True, s)][key] for s in (0, 1)]
+                diffs = [by[(False, s)][key] - by[(True, s)][key] for s in pairs]
                 mean, std = parse_cell(table[row][LABELS[form]])
                 assert mean == pytest.approx(np.mean(diffs), abs=0.0051)
                 assert std == pytest.approx(np.std(diffs), abs=0.0051)
@@ -182,13 +195,15 @@ def test_a_diverging_run_is_recorded_and_left_out_while_a_bug_propagates(monkeyp
 
     real = polishing.run_polishing
 
-    def diverge_on_seed_1(scenario, duration=None):
-        if scenario.seed == 1:
+    def diverge_on_seed_2(scenario, duration=None):
+        if scenario.seed == 2:
             raise InputError("measurement q is not finite: [nan ...]")
         return real(scenario, duration)
 
-    monkeypatch.setattr(polishing, "run_polishing", diverge_on_seed_1)
-    specs = grid_specs("polishing", ["classical"], [False], [0, 1], 0.3, SHORT)
+    # (seeds 1 and 2: seed 0 of these short classical runs crosses A5's velocity limit on its
+    # own and is aborted by the robot's reflex)
+    monkeypatch.setattr(polishing, "run_polishing", diverge_on_seed_2)
+    specs = grid_specs("polishing", ["classical"], [False], [1, 2], 0.3, SHORT)
     outcomes = run_specs(specs, workers=1, progress=False)
     assert outcomes[0].ok and not outcomes[1].ok
     assert outcomes[1].error.startswith("InputError: measurement q is not finite")
@@ -197,11 +212,11 @@ def test_a_diverging_run_is_recorded_and_left_out_while_a_bug_propagates(monkeyp
     )
     assert len(doc["runs"]) == 1
     assert doc["failures"] == [
-        {"formulation": "classical", "pid_enabled": False, "seed": 1, "error": outcomes[1].error}
+        {"formulation": "classical", "pid_enabled": False, "seed": 2, "error": outcomes[1].error}
     ]
     text = study.polishing_tables(doc)
     assert "Runs: Classical 1/2." in text
-    assert "- Classical, PID off, seed 1: InputError" in text
+    assert "- Classical, PID off, seed 2: InputError" in text
     table = parse_markdown_table(text, "### Table II — without low-level torque PID (true")
     only = PolishingMetrics(**doc["runs"][0]["metrics_true"])
     assert parse_cell(table["E_λ (N)"]["Classical"]) == pytest.approx(
@@ -214,6 +229,54 @@ def test_a_diverging_run_is_recorded_and_left_out_while_a_bug_propagates(monkeyp
     monkeypatch.setattr(polishing, "run_polishing", bug)
     with pytest.raises(NameError):
         execute_run(specs[0])
+
+
+#: A 100 N push on the tool for 50 ms at 0.05 s: joint A5 over its velocity limit at 0.052 s.
+PUSH = {
+    "plant.push_enabled": True,
+    "plant.push_time": 0.05,
+    "plant.push_force": (0.0, 100.0, 0.0),
+    "plant.push_duration": 0.05,
+}
+
+
+@pytest.mark.parametrize("reflex", [True, False])
+def test_a_run_the_reflex_aborts_is_counted_listed_and_left_out(monkeypatch, reflex) -> None:
+    """Seed 2 pushed over a velocity limit: with the reflexes on (the default) the tables count
+    it as aborted ("1/2 (1 aborted)"), list its event and average seed 1 only; with
+    ``plant.reflex=false`` nothing is aborted, both runs are averaged, and the tables say the
+    reflexes were off and which run would have been aborted. (Seeds 1 and 2: seed 0 of these
+    short classical runs crosses A5's velocity limit on its own, 1.006×, at 0.155 s.)"""
+    import studies.polishing as polishing
+
+    real = polishing.run_polishing
+
+    def push_seed_2(scenario, duration=None):
+        return real(scenario.with_overrides(PUSH) if scenario.seed == 2 else scenario, duration)
+
+    monkeypatch.setattr(polishing, "run_polishing", push_seed_2)
+    overrides = {**SHORT, "plant.reflex": reflex}
+    specs = grid_specs("polishing", ["classical"], [False], [1, 2], 0.3, overrides)
+    outcomes = run_specs(specs, workers=1, progress=False)
+    doc = study.study_document(
+        "polishing", specs, outcomes, command_line="test", workers=1, wall_time=1.0
+    )
+    runs = {r["seed"]: r for r in doc["runs"]}
+    assert runs[2]["aborted"] is reflex and not runs[1]["aborted"]
+    assert runs[2]["reflex"]["event"]["kind"] == "velocity" and runs[1]["reflex"]["event"] is None
+    text = study.polishing_tables(doc)
+    table = parse_markdown_table(text, "### Table II — without low-level torque PID (true")
+    averaged = [1] if reflex else [1, 2]
+    expected = np.mean([runs[k]["metrics_true"]["force_mae"] for k in averaged])
+    assert parse_cell(table["E_λ (N)"]["Classical"])[0] == pytest.approx(expected, abs=6e-3)
+    if reflex:
+        assert "Runs: Classical 1/2 (1 aborted)." in text
+        assert "`ffmpc_core.reflex`): 1 of 2 runs." in text  # the line under the tables
+        assert "- Classical, PID off, seed 2: velocity reflex at t = 0.05" in text
+    else:
+        assert "Runs: Classical 2/2 (1 would have aborted)." in text
+        assert "Reflexes OFF (`plant.reflex: false`)" in text and "1 of 2 runs would" in text
+        assert "reflex off: the robot went on (it would have stopped here)" in text
 
 
 def test_grid_rejects_bad_requests() -> None:

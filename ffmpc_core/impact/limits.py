@@ -35,6 +35,7 @@ import scipy.sparse as sp
 from scipy.optimize import linprog
 from scipy.spatial import ConvexHull, QhullError
 
+from ffmpc_core.datasheet import PANDA
 from ffmpc_core.errors import ConfigError, InputError, SolverError
 from ffmpc_core.impact.deformation import effective_mass_from, unit_direction
 from ffmpc_core.robots import RobotModel, mass_matrix
@@ -61,9 +62,9 @@ __all__ = [
 ]
 
 #: Franka Emika Panda data sheet ("Robot and interface specifications", limits in joint space):
-#: maximum joint accelerations q̈_max, rad/s². (Torque 87/12 N·m and velocity 2.175/2.61 rad/s
-#: limits come from the URDF via :class:`RobotModel` and match the same sheet.)
-PANDA_ACCELERATION_LIMIT = np.array([15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0])
+#: maximum joint accelerations q̈_max, rad/s² (:data:`ffmpc_core.datasheet.PANDA`, where the
+#: torque, velocity and position limits of :class:`RobotModel` come from too).
+PANDA_ACCELERATION_LIMIT = np.array(PANDA.acceleration)
 
 #: Solvers of :class:`ContactSpaceMapper` (and :class:`~ffmpc_core.impact.planner.ImpactPlanner`).
 MAPPER_SOLVERS = ("daqp", "osqp")
@@ -123,17 +124,18 @@ class JointLimits:
 def joint_limits(robot: RobotModel, acceleration_limit: np.ndarray | None = None) -> JointLimits:
     """Eq 1b–1e limits of ``robot``: positions, velocities and torques from the model.
 
-    Acceleration limits are not in the URDF: for the Panda the data-sheet values
-    :data:`PANDA_ACCELERATION_LIMIT` are used by default; any other robot needs
-    ``acceleration_limit`` (rad/s²) explicitly (no invented default).
+    Acceleration limits are not in the URDF: the robot's data sheet's are used by default
+    (:attr:`RobotModel.datasheet`: the Panda's :data:`PANDA_ACCELERATION_LIMIT`); a robot whose
+    data sheet has none (the iiwa) needs ``acceleration_limit`` (rad/s²) explicitly (no
+    invented default).
     """
     if acceleration_limit is None:
-        if robot.name != "panda":
+        acceleration_limit = robot.datasheet.acceleration
+        if acceleration_limit is None:
             raise ConfigError(
                 f"no data-sheet joint acceleration limits for {robot.name!r}: "
                 "pass acceleration_limit"
             )
-        acceleration_limit = PANDA_ACCELERATION_LIMIT
     return JointLimits(
         position_lower=robot.position_lower,
         position_upper=robot.position_upper,

@@ -153,6 +153,8 @@ class ImpactStudyConfig:
             collision margin it must exceed z̄ (see :attr:`DiceConfig.collision_margin`).
         engine: the simulator of the plant (:data:`ffmpc_core.scenario.PLANT_ENGINES`:
             ``pybullet`` or ``mujoco``; the same robot, dice and contact parameters).
+        reflex: the robot's own reflexes (:mod:`ffmpc_core.reflex`): stop on a data-sheet
+            limit, run aborted (False: crossings reported only).
     """
 
     dice: DiceConfig = field(default_factory=DiceConfig)
@@ -186,6 +188,7 @@ class ImpactStudyConfig:
     handover_blend: float = HandoverConfig.blend
     tool_radius: float = 0.01
     engine: str = "pybullet"
+    reflex: bool = True
 
     def __post_init__(self) -> None:
         positive = (
@@ -259,6 +262,7 @@ IMPACT_NAMES: dict[str, str] = {
     "time_step": "plant.time_step",
     "tool_radius": "plant.tool_radius",
     "engine": "plant.engine",
+    "reflex": "plant.reflex",
     "prior_": "planner.prior_",
     "mpc_": "mpc.",
     "learner_": "learner.",
@@ -278,6 +282,7 @@ IMPACT_TABLE: dict[str, FieldDecl] = {
     "plant.time_step": ("s", (1e-5, 0.01), "plant step = control period"),
     "plant.tool_radius": ("m", (1e-3, 0.2), "radius of the spherical tool"),
     "plant.engine": ("", list(PLANT_ENGINES), "simulator of the plant: pybullet | mujoco"),
+    "plant.reflex": ("", None, "the robot's own reflexes: stop on a limit, run aborted"),
     "planner.prior_stiffness": ("N/m", (1.0, 1e7), "prior α of the planner and the MPC"),
     "planner.prior_damping": ("N·s/m", (0.0, 1e5), "prior β of the planner and the MPC"),
     "planner.horizon": ("steps", (2, 1000), "h of eq 12-14"),
@@ -560,6 +565,8 @@ class ExplorationConfig:
             learner is confident (N/m, N·s/m): the stiffest material expected.
         learner_min_samples, learner_max_relative_std: when the learner is confident enough to
             predict the next force for the guard (samples; relative standard error).
+        reflex: the robot's own reflexes (:mod:`ffmpc_core.reflex`): stop on a data-sheet
+            limit, run aborted (False: crossings reported only).
     """
 
     material: Material = field(default_factory=lambda: MATERIALS["dice"])
@@ -580,6 +587,7 @@ class ExplorationConfig:
     prior_damping: float = 100.0
     learner_min_samples: int = 50
     learner_max_relative_std: float = 0.05
+    reflex: bool = True
 
     def __post_init__(self) -> None:
         positive = (
@@ -639,6 +647,7 @@ class ExplorationConfig:
 #: ``material`` is not a parameter: ``ffmpc study explore --materials`` picks from MATERIALS.
 EXPLORATION_NAMES: dict[str, str] = {
     "time_step": "plant.time_step",
+    "reflex": "plant.reflex",
     "prior_": "guard.prior_",
     "limit_margin": "guard.limit_margin",
     "lateral_weight": "guard.lateral_weight",
@@ -656,6 +665,7 @@ EXPLORATION_TABLE: dict[str, FieldDecl] = {
     "impact_height": ("m", (1e-5, 1.0), "the impacts start from rest this far above"),
     "dwell": ("s", (0.0, 60.0), "at the stop depth after each impact"),
     "plant.time_step": ("s", (1e-5, 0.01), "plant step = control period"),
+    "plant.reflex": ("", None, "the robot's own reflexes: stop on a limit, run aborted"),
     "guard.limit_margin": ("", (0.01, 1.0), "fraction of the data-sheet q̈ and q̇ limits used"),
     "guard.lateral_weight": ("", (1e-6, 1e6), "weight of the 5 directions other than d"),
     "gains.position": ("1/s²", (0.0, 1e6), "task-space PD: position gain"),
