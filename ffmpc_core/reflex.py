@@ -182,6 +182,7 @@ class ReflexEvent:
         return f"{self.kind} reflex at t = {self.t:.3f} s: {what}; {then}"
 
     def to_dict(self) -> dict[str, Any]:
+        """The event as plain data (JSON summaries, tables)."""
         return {
             "kind": self.kind,
             "joint": self.joint,

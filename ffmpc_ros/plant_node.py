@@ -61,11 +61,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64MultiArray
 
 from ffmpc_core.errors import InputError
-from ffmpc_core.polishing import (
-    device_generator,
-    lowlevel_controller,
-    scenario_robot,
-)
+from ffmpc_core.polishing import device_generator, scenario_robot
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import (
     GraphNode,

@@ -629,7 +629,6 @@ class RealtimeLoop:
         f_hat = np.zeros(len(self.force_axes))
         out: LowLevelOutput | None = None
         state = self.reflex_plant.state()
-        contact = self.contact
         stalls = _StallSchedule(self.stalls, dt, self.mpc_pid)
         gc.collect()
         gc.freeze()

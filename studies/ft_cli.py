@@ -31,7 +31,9 @@ def _calibrate(args: argparse.Namespace) -> int:
     from ffmpc_core.polishing import device_generator, tool_load, wrist_sensor_model
     from ffmpc_core.robots import load_robot
     from ffmpc_core.scenario import load_scenario
+    from ffmpc_ros.preflight import check_output, replace_forced
 
+    check_output(args.out, force=args.force, what="--out")  # before anything runs (issue 28)
     scenario = load_scenario(args.scenario, parse_overrides(args.set))
     fs = scenario.ft_sensor
     if fs.model != "wrist":
@@ -49,6 +51,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     rng = device_generator(scenario.seed, "ft_calibration")
     calibration = startup_calibration(sensor, poses, noise, rng, now)
     check_calibration(calibration, robot, poses, tool_load(scenario), fs.calibration_max_age, now)
+    replace_forced(args.out, args.force)
     save_calibration(calibration, args.out)
     print(f"{calibration.describe()}; {len(poses)} poses, condition {calibration.condition:.2f}")
     print(f"written: {args.out}")
@@ -105,6 +108,7 @@ class FtCommand(CommandExtension):
             "(exit 2). The file is for ft_sensor.calibration: file.",
         )
         cal.add_argument("--out", required=True, type=new_path, help="calibration file (YAML)")
+        cal.add_argument("--force", action="store_true", help="replace an existing --out")
         study = sub.add_parser(
             "tool-study",
             help="polishing without a tool vs a 1 kg tool, compensated or not",

@@ -108,14 +108,14 @@ def test_plant_flag_and_set_must_agree(capsys):
 
 
 def test_a_scenario_builds_the_plant_of_its_engine():
-    from ffmpc_core.polishing import spawn_generators
+    from ffmpc_core.polishing import device_generator
     from ffmpc_core.robots import load_robot
     from sim_bridge.scenes import simulated_robot
 
     scenario = load_scenario("polishing", {"plant.engine": "mujoco"})
     robot = load_robot(scenario.robot)
-    draw_rng, _, _, act_rng = spawn_generators(scenario.seed)
-    sim = simulated_robot(scenario, robot, draw_rng, act_rng)
+    draws, actuation = (device_generator(scenario.seed, d) for d in ("draws", "actuation"))
+    sim = simulated_robot(scenario, robot, draws, actuation)
     with sim.plant as plant:
         assert isinstance(plant, MujocoPlant)
         assert plant.config.table is not None

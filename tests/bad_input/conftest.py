@@ -20,7 +20,7 @@ def workdir(tmp_path_factory) -> Path:
     (root / "existing.json").write_text('{"keep": "me"}\n')
     shutil.copy(BAG, root / "existing.mcap")
     shutil.copy(BAG, root / "run.mcap")
-    truncate(BAG, root / "trunc.mcap", 400_000)  # 2775 readable messages of 6110
+    truncate(BAG, root / "trunc.mcap", 400_000)  # a few complete chunks of the reference bag
     truncate(BAG, root / "trunc0.mcap", 100_000)  # no complete chunk: 0 readable messages
     recover_bag(root / "trunc0.mcap", root / "empty.mcap")  # complete, 0 messages
     (root / "empty.yaml").write_text("")
@@ -36,3 +36,30 @@ def workdir(tmp_path_factory) -> Path:
     (root / "outdir").mkdir()
     (root / "outdir" / "old.log").write_text("old\n")
     return root
+
+
+@pytest.fixture(scope="module")
+def truncated_counts(workdir) -> dict[str, int]:
+    """What ``trunc.mcap`` really holds, counted with mcap's own stream reader (records read
+    until the cut): ``messages`` in its ``chunks`` complete chunks, of ``total`` in the whole
+    bag's summary. The refusals must name these numbers."""
+    from mcap.exceptions import McapError
+    from mcap.records import Chunk
+    from mcap.stream_reader import StreamReader, breakup_chunk
+
+    messages = chunks = 0
+    with open(workdir / "trunc.mcap", "rb") as fh:
+        try:
+            for record in StreamReader(fh, emit_chunks=True).records:
+                if isinstance(record, Chunk):
+                    chunks += 1
+                    messages += sum(type(r).__name__ == "Message" for r in breakup_chunk(record))
+        except (McapError, EOFError, ValueError):
+            pass  # the cut: the chunk it falls in is not complete
+    from mcap.reader import make_reader
+
+    with open(BAG, "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    total = sum(summary.statistics.channel_message_counts.values()) if summary else 0
+    assert 0 < messages < total, (messages, total)
+    return {"messages": messages, "chunks": chunks, "total": total}
