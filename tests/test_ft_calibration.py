@@ -379,7 +379,10 @@ def test_ffmpc_ft_calibrate_writes_a_file_the_runs_accept(tmp_path, capfd):
     check_calibration(c, robot, calibration_poses(robot), TOOL, 60.0, c.created + 1.0)
     # malformed or refused: one line, exit 2
     for argv, expected in (
-        (["ft", "calibrate", *tool, "--out", str(out)], "exists; never overwritten (--force replaces it)"),
+        (
+            ["ft", "calibrate", *tool, "--out", str(out)],
+            "exists; never overwritten (--force replaces it)",
+        ),
         (["ft", "calibrate", "--out", str(tmp_path / "a.yaml")], "needs ft_sensor.model: wrist"),
         (
             [
