@@ -183,8 +183,12 @@ class ImpactRun:
             force-free sample before it (m/s); NaN without a touch.
         touch_peak_force, touch_peak_penetration: N and m, from the touch to the decision.
         decision_time: when the strike was decided (or refused) from the learned model, s.
-        refusal: why the target was refused ("" if it was not); contact_time is then NaN.
-        strike_knowledge: the material interval the strike was planned with.
+        refusal: why the target was refused ("" if it was not); touch-first: contact_time is
+            then NaN (no strike); strike-first: the contact was the strike, then the retract.
+        strike_knowledge: the material interval the strike was planned with (touch-first) or
+            the knowledge at the end (strike-first: the learned interval once decided).
+        stopped_short: the regulation stopped at the penetration bound below the target (its
+            message with the numbers; "" if it did not).
     """
 
     approach: str
@@ -215,6 +219,7 @@ class ImpactRun:
     decision_time: float = float("nan")
     refusal: str = ""
     strike_knowledge: str = ""
+    stopped_short: str = ""
 
     @property
     def name(self) -> str:
@@ -323,7 +328,7 @@ def run_impact(
     controller = ImpactTaskController(
         robot, cfg.control_limits(limits), task_config(approach, regulation, cfg)
     )
-    touch_first = controller.touch_first
+    learning = controller.learning_approach
 
     from sim_bridge.plant import Plant
 
@@ -350,16 +355,15 @@ def run_impact(
     except InputError:  # never enough contact data
         learned = (float("nan"), float("nan"), (float("nan"), float("nan")))
     touch: dict[str, Any] = {}
-    if touch_first is not None:
+    if learning is not None:
         touch = dict(
-            touch_metrics(
-                log, touch_first.touch_time, touch_first.touch_velocity, touch_first.decision_time
-            )
+            touch_metrics(log, learning.touch_time, learning.touch_velocity, learning.decision_time)
         )
         touch.update(
-            refusal="" if touch_first.refusal is None else str(touch_first.refusal),
-            strike_knowledge=touch_first.knowledge.describe(),
+            refusal="" if learning.refusal is None else str(learning.refusal),
+            strike_knowledge=learning.knowledge.describe(),
         )
+    stopped = controller.stopped_short
     return ImpactRun(
         approach=approach,
         regulation=regulation,
@@ -378,6 +382,7 @@ def run_impact(
         planner_failures=0 if approach_ctrl is None else approach_ctrl.solver_failures,
         mpc_solve_time_median=float(np.median(solve_times)) if solve_times else float("nan"),
         log=log | {"learned_in_mpc": np.array(learned_in_mpc), "q": qs[:steps], "v": vs[:steps]},
+        stopped_short="" if stopped is None else stopped.message(),
     )
 
 
