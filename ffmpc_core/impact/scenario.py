@@ -190,7 +190,7 @@ class ImpactStudyConfig:
     learner_max_relative_std: float = HandoverConfig.learner_max_relative_std
     steady_band: float = 0.05
     steady_hold: float = 0.2
-    strategy: str = "touch_first"
+    strategy: str = "strike_first"
     touch: TouchFirstConfig = field(default_factory=TouchFirstConfig)
     strike: StrikeFirstConfig = field(default_factory=StrikeFirstConfig)
     handover_blend: float = HandoverConfig.blend

@@ -109,7 +109,7 @@ class StrikeFirstConfig:
 
     surface_tolerance: float = 0.02
     surface_offset: float = 0.0
-    braking_fraction: float = 0.5
+    braking_fraction: float = 0.8
     settle_time: float = 0.05
     max_decision_time: float = 0.5
     remembered_stiffness: tuple[float, float] | None = None
