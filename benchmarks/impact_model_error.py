@@ -46,7 +46,7 @@ def _note(run: dict[str, Any]) -> str:
     refusal = run.get("refusal") or ""
     m = _REFUSAL.search(refusal)
     if m:
-        when = "before the strike" if "before the strike" in refusal else "in contact"
+        when = "in contact" if "in contact" in refusal else "before the strike"
         return f"refused {when}: {m['f']} N / {m['k']} N/m = {m['z']} mm > z̄"
     if refusal:
         return "refused: " + refusal
@@ -79,7 +79,7 @@ def rows(root: Path) -> list[str]:
         v = r["violations"]
         pen = 1e3 * r["peak_penetration"]
         flag = " **over**" if pen > zbar else ""
-        ref = baseline.get((k, b, r["regulation"]), {})
+        ref = {} if strategy == "baseline" else baseline.get((k, b, r["regulation"]), {})
         out.append(
             f"| {strategy} | {k:g} | {b:g} | {r['regulation']} "
             f"| {_f(r.get('touch_velocity'), '.3f')} | {_f(r['pre_impact_velocity'], '.3f')} "

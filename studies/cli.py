@@ -607,9 +607,7 @@ def _add_impact_study_parser(study_sub: SubParsers) -> None:
         "previous run learned on --object (if FILE has one), and this run's learned interval "
         "is kept there for the next",
     )
-    p.add_argument(
-        "--object", default="dice", help="the object's name in --memory (default dice)"
-    )
+    p.add_argument("--object", default="dice", help="the object's name in --memory (default dice)")
     p.add_argument("--prior-stiffness", type=positive_float, help="planner's prior stiffness, N/m")
     p.add_argument("--prior-damping", type=nonnegative_float, help="planner's prior damping, N.s/m")
     _add_study_config_arguments(p, "impact", "plant.dice_stiffness=4800")

@@ -687,9 +687,7 @@ def remember_object(
     widened as the strike-first strategy widens its own: ``touch.sigmas`` and the floors);
     None, and nothing written, when no run learned a usable estimate."""
     usable = [
-        r
-        for r in runs
-        if np.isfinite(r.learned_stiffness) and np.all(np.isfinite(r.learned_std))
+        r for r in runs if np.isfinite(r.learned_stiffness) and np.all(np.isfinite(r.learned_std))
     ]
     if not usable:
         return None

@@ -33,8 +33,11 @@ from ffmpc_ros.params import parameter_overrides
 from studies.impact_study import run_impact
 
 MAXIMAL = ["strategy=prior", "approach_height=0.05", "duration=0.35"]
-#: The study's default strategy: touch at 0.199 s, strike decided at 0.349 s, the strike's
-#: contact at 1.034 s, the hand-over at 1.129 s.
+#: The study's default strategy: the strike's contact at 0.199 s, the target decided (admitted)
+#: at 0.248 s, the hand-over at 0.269 s.
+STRIKE_FIRST = ["approach_height=0.05", "duration=0.5"]
+#: Touch-first: touch at 0.199 s, strike decided at 0.349 s, the strike's contact at 1.034 s,
+#: the hand-over at 1.128 s.
 TOUCH_FIRST = ["strategy=touch_first", "approach_height=0.05", "duration=1.2"]
 BASELINE = ["strategy=prior", "approach_height=0.02", "duration=0.7"]
 
@@ -81,11 +84,28 @@ def test_touch_first_graph_equals_the_ros_free_run(touch_first_ff_mpc):
     assert runner.touch_time == pytest.approx(0.199)
     assert runner.decision_time == pytest.approx(0.349)
     assert runner.contact_time == pytest.approx(1.034)
-    assert runner.handover_time == pytest.approx(1.129)
+    assert runner.handover_time == pytest.approx(1.128)
     assert runner.learner_samples > 300 and runner.violations.total == 0
     assert compare_with_runner(graph, runner) == {}
     assert graph.metrics["touch_peak_force"] == runner.touch_peak_force
     assert graph.metrics["learned_damping"] == runner.learned_damping
+    assert graph.safe and graph.metrics["safe_hold_cycles"] == 0
+    assert all(not counts for counts in graph.rejected.values()), graph.rejected
+
+
+def test_strike_first_graph_equals_the_ros_free_run():
+    """The default strategy (strike-first) on the graph: the impact, the decision in contact
+    from the learner node's estimates (fed by the planner's gate), the hand-over once the
+    target is admitted, all on the same cycles and every metric equal bit for bit."""
+    graph = run_impact_graph("maximal", "ff_mpc", overrides=STRIKE_FIRST, timeout=300)
+    runner = _runner("maximal", "ff_mpc", STRIKE_FIRST)
+    assert runner.strategy == "strike_first" and np.isnan(runner.touch_time)
+    assert runner.contact_time == pytest.approx(0.199)
+    assert runner.decision_time == pytest.approx(0.248)
+    assert runner.handover_time == pytest.approx(0.269)
+    assert runner.refusal == "" and runner.violations.total == 0
+    assert compare_with_runner(graph, runner) == {}
+    assert graph.metrics["learned_stiffness"] == runner.learned_stiffness
     assert graph.safe and graph.metrics["safe_hold_cycles"] == 0
     assert all(not counts for counts in graph.rejected.values()), graph.rejected
 

@@ -8,8 +8,10 @@ workspace in the object, ``reset()`` and ``step(measurement, t) -> command``; no
 * :class:`BaselineApproach`: the paper's comparison approach, a critically damped reference to
   a static target along ``d``, its acceleration saturated at the contact-space bound (eq 10–11).
 * The maximal approach (eq 9–14 every cycle) is :class:`~ffmpc_core.impact.control.
-  ImpactController` (the paper's scheme) or :class:`~ffmpc_core.impact.touch_first.
-  TouchFirstImpactController` (touch, learn, strike).
+  ImpactController` (the paper's scheme), :class:`~ffmpc_core.impact.touch_first.
+  TouchFirstImpactController` (touch, learn, strike) or :class:`~ffmpc_core.impact.
+  strike_first.StrikeFirstImpactController` (the first contact is the impact; decide in
+  contact), built by :func:`maximal_approach`.
 * :class:`ForceFeedbackHandover`: the force-feedback MPC taking over after the impact, its
   torque blended in and kept admissible by the joint-limit guard.
 * :class:`ImpactTaskController`: the whole experiment's control (approach, contact, learner,
@@ -681,33 +683,36 @@ class ImpactTaskController:
 
     Each cycle: declare the contact at ``contact_threshold`` (with the touch-first strategy,
     only the strike's contact counts); feed the learner (eq 19–20, deformation from the last
-    force-free sample) unless the touch-first controller learns itself; predict the force an
-    impact during the next step would add (eq 3 one step ahead, for the guard); engage the
-    hand-over when it is ready; command the approach (maximal or baseline) or, after contact,
-    the admittance task, through the task-space law inside the joint-limit guard, blended with
-    the MPC's admissible torque (the admissible set is convex in τ: the blend is admissible).
+    force-free sample) unless a learning strategy's controller (touch-first, strike-first)
+    learns itself; predict the force an impact during the next step would add (eq 3 one step
+    ahead, for the guard); engage the hand-over when it is ready and allowed (a learning
+    strategy says when; otherwise once the learner admits the target and the regulation has
+    not stopped short of it); command the approach (maximal or baseline) or, after contact,
+    the admittance task (never deeper than its depth bound below the contact's surface),
+    through the task-space law inside the joint-limit guard, blended with the MPC's admissible
+    torque (the admissible set is convex in τ: the blend is admissible).
 
     Args:
         robot: the robot model (contact frame = end-effector).
         limits: the control limits the planner and the guard use.
         config: see :class:`ImpactTaskConfig`.
         learner: the learner the hand-over reads and this controller feeds (default: its own
-            :class:`RecursiveContactLearner`, or the touch-first controller's; the impact
-            graph's controller node gives one that holds the contact learner node's
-            estimates). With the touch-first strategy this controller never feeds it (the
-            touch-first controller's feeding rule does, where it runs).
+            :class:`RecursiveContactLearner`, or the learning strategy's; the impact graph's
+            controller node gives one that holds the contact learner node's estimates). With
+            a learning strategy this controller never feeds it (the strategy's feeding rule
+            does, where it runs).
         external_approach: the maximal approach runs elsewhere (the impact planner node):
             :meth:`step` then takes its part of the cycle (:class:`ExternalApproach`); only
             with a given ``learner``.
 
     Raises:
-        InfeasibleTargetError: touch-first, before any motion, when no plausible material can
-            hold the target (or the touch force is unsafe for the softest one).
+        InfeasibleTargetError: touch-first and strike-first, before any motion (see them).
 
     Attributes: ``learner``, ``guard``, ``approach_controller`` (maximal: the
-    :class:`ImpactController`, else None), ``touch_first``, ``baseline``, ``admittance``,
-    ``handover``; after steps ``contact_time`` (s), ``touch_speed`` (m/s at the last
-    force-free sample before contact), ``handover_time`` (s).
+    :class:`ImpactController`, else None), ``learning_approach`` (the same object with a
+    learning strategy, else None), ``baseline``, ``admittance``, ``handover``; after steps
+    ``contact_time`` (s), ``touch_speed`` (m/s at the last force-free sample before contact),
+    ``handover_time`` (s), :attr:`stopped_short`.
     """
 
     def __init__(

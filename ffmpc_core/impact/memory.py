@@ -65,9 +65,7 @@ class RememberedMaterial:
     ) -> RememberedMaterial:
         """The learner's confidence interval of ``estimate`` (the widths of
         :meth:`MaterialInterval.from_estimate`); InputError for an unusable estimate."""
-        box = MaterialInterval.from_estimate(
-            estimate, 1.0, sigmas, stiffness_floor, damping_floor
-        )
+        box = MaterialInterval.from_estimate(estimate, 1.0, sigmas, stiffness_floor, damping_floor)
         return cls(
             stiffness=(box.stiffness_lower, box.stiffness_upper),
             damping=(box.damping_lower, box.damping_upper),
@@ -120,9 +118,7 @@ def recall(memory: Mapping[str, Any], name: str) -> RememberedMaterial | None:
     return None if entry is None else RememberedMaterial.from_dict(entry)
 
 
-def remember(
-    memory: Mapping[str, Any], name: str, material: RememberedMaterial
-) -> dict[str, Any]:
+def remember(memory: Mapping[str, Any], name: str, material: RememberedMaterial) -> dict[str, Any]:
     """A new memory with ``name``'s entry replaced by ``material`` (the others kept)."""
     if not name:
         raise ConfigError("an object needs a name to be remembered")

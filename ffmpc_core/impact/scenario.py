@@ -339,8 +339,8 @@ IMPACT_TABLE: dict[str, FieldDecl] = {
     "touch.penetration_margin": ("m", (0.0, 0.5), "off z̄ in eq 12 for touch and strike"),
     "strike.surface_tolerance": (
         "m",
-        (0.0, _INF),
-        "contact possible this far above the expected surface (inf: surface unknown)",
+        (0.0, 10.0),
+        "contact possible this far above the expected surface (null: surface unknown)",
     ),
     "strike.surface_offset": ("m", (-1.0, 1.0), "expected surface above the dice's top face"),
     "strike.braking_fraction": ("", (1e-6, 1.0), "of the deceleration bound, before the band"),

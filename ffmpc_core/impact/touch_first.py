@@ -243,6 +243,9 @@ class TouchFirstImpactController(ImpactController):
     ``last_robust_plan`` (:class:`RobustPlan` of the last approach cycle).
     """
 
+    #: When the target is checked from the learned interval (in a refusal's message).
+    decision_moment = "before the strike"
+
     def __init__(
         self,
         robot: RobotModel,
@@ -479,7 +482,7 @@ class TouchFirstImpactController(ImpactController):
         except (InputError, ConfigError):
             self.knowledge = self.prior_knowledge  # nothing usable learned: keep the range
         try:
-            check_force_target(self.config.target_force, self.knowledge, "before the strike")
+            check_force_target(self.config.target_force, self.knowledge, self.decision_moment)
             self.phase = RETRACT
         except InfeasibleTargetError as exc:
             self.refusal = exc
