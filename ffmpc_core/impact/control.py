@@ -53,26 +53,20 @@ class AdmittanceForceController:
     The reference velocity (m/s) follows ``v ← γ v + (1 − γ) clip(G (f_des − f), ±v_max)``:
     admittance ``G`` (m/(N·s)), filter ``γ`` per step of ``nominal_dt`` (s), ``v_max`` (m/s).
     The position reference is the integral of ``v``. ``f`` is the measured pressing force (N).
-    Near a deepest reference position (:func:`admittance_step`'s ``max_position``) the speed
-    towards it is at most ``sqrt(2 a δ)`` with δ the distance left and a
-    ``landing_deceleration`` (m/s²): the reference lands on it instead of stopping dead (a
-    tool following a reference that stopped dead at 0.1 m/s overshot it by 1.1 mm on a
-    1200 N/m dice). That deepest position is ``depth_margin`` (m) above z̄ (:meth:`max_depth`:
-    at rest on the 1200 N/m dice the tool sat 1.1 mm below a reference landed softly).
+    The reference never goes deeper than :func:`admittance_step`'s ``max_position``, the
+    contact's surface + :meth:`max_depth`: z̄ less ``depth_margin`` (m; at rest at that depth
+    on a 1200 N/m dice the tool sat 1.1 mm below its reference).
     """
 
     admittance: float = 2e-3
     max_velocity: float = 0.1
     velocity_filter: float = 0.8
     nominal_dt: float = 1e-3
-    landing_deceleration: float = 1.0
     depth_margin: float = 0.002
 
     def __post_init__(self) -> None:
         if not (self.admittance > 0 and self.max_velocity > 0 and self.nominal_dt > 0):
             raise ConfigError("admittance, max_velocity and nominal_dt must be positive")
-        if not (np.isfinite(self.landing_deceleration) and self.landing_deceleration > 0):
-            raise ConfigError("landing_deceleration must be positive (m/s²)")
         if not (np.isfinite(self.depth_margin) and self.depth_margin >= 0):
             raise ConfigError("depth_margin must be ≥ 0 (m)")
         if not 0.0 <= self.velocity_filter < 1.0:
@@ -256,14 +250,11 @@ def admittance_step(
 
     ``max_position`` (m along d from ``origin``): the reference never goes deeper — the
     material's bound z̄ below the contact's surface. A target the material cannot hold within
-    it is stopped short of: the reference lands there (braking at the admittance's
-    ``landing_deceleration``) and stays at rest, the force is what the material gives at z̄.
+    it is stopped short of: the reference stops there and stays at rest (its velocity is not
+    allowed to point deeper), the force is what the material gives at that depth.
 
     Returns the Cartesian command and the new reference."""
     velocity = admittance.velocity(reference.velocity, force, target_force, dt)
-    if np.isfinite(max_position):
-        left = max(max_position - reference.position, 0.0)
-        velocity = min(velocity, float(np.sqrt(2.0 * admittance.landing_deceleration * left)))
     position = reference.position + velocity * dt
     if position >= max_position:
         position, velocity = max_position, min(velocity, 0.0)

@@ -311,7 +311,6 @@ IMPACT_TABLE: dict[str, FieldDecl] = {
     "admittance.max_velocity": ("m/s", (1e-6, 10.0), "v_max"),
     "admittance.velocity_filter": ("", (0.0, 1.0), "γ per nominal_dt, in [0, 1)"),
     "admittance.nominal_dt": ("s", (1e-6, 1.0), "step of γ"),
-    "admittance.landing_deceleration": ("m/s²", (1e-6, 1e3), "braking to the depth bound"),
     "admittance.depth_margin": ("m", (0.0, 0.5), "the depth bound is this far above z̄"),
     "handover_speed": ("m/s", (1e-6, 10.0), "in-contact speed below which the MPC takes over"),
     "mpc.period": ("s", (1e-5, 1.0), "force-feedback MPC period (whole plant steps)"),

@@ -224,9 +224,9 @@ def test_object_memory_keeps_the_learned_interval_per_object():
 # ---------------------------------------------------------------- the regulation stops short
 def test_admittance_stops_short_of_a_target_the_spring_cannot_hold():
     """A position-controlled point on a 1000 N/m spring, 60 N target, depth bound 28 mm: the
-    reference lands on the bound (never past it, never faster than the landing allows), the
-    force stays at 28 N, and the stop is reported once with the numbers; a 3000 N/m spring
-    reaches 60 N at 20 mm without the bound acting."""
+    reference stops at the bound (never past it), the force stays at 28 N, and the stop is
+    reported once with the numbers; a 3000 N/m spring reaches 60 N at 20 mm without the bound
+    acting."""
     adm = AdmittanceForceController()
     depth = adm.max_depth(ZBAR)
     assert depth == pytest.approx(ZBAR - adm.depth_margin)
@@ -235,12 +235,11 @@ def test_admittance_stops_short_of_a_target_the_spring_cannot_hold():
         origin, R = np.zeros(3), np.eye(3)
         for k in range(4000):
             force = stiffness * max(ref.position, 0.0)
-            left = depth - ref.position  # the distance left at the start of the step
             _, ref = admittance_step(
                 adm, ref, origin, R, DOWN, force, 60.0, 1e-3, max_position=depth
             )
             deepest = max(deepest, ref.position)
-            assert ref.velocity <= np.sqrt(2 * adm.landing_deceleration * left) + 1e-12
+            assert ref.position < depth or ref.velocity <= 0.0
             if event is None:
                 event = stop_short_event(ref, depth, stiffness * ref.position, 60.0, adm, ZBAR, k)
         assert deepest <= depth
