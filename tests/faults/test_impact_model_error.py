@@ -2,9 +2,10 @@
 
 The planner's prior is 2400 N/m, 15 N·s/m; the simulated dice spans 0.5×–3× of both. With the
 touch-first strategy (``ffmpc_core.impact.touch_first``; the study's default is now
-strike-first, tested in tests/faults/test_impact_strike_first.py) every run must keep the penetration
-within z̄ and every joint within its data-sheet limits (q, q̇, q̈, τ), or refuse the 60 N target
-before the strike when the dice cannot hold it within z̄ (60 N / 1200 N/m = 50 mm > 30 mm).
+strike-first, tested in tests/faults/test_impact_strike_first.py) every run must keep the
+penetration within z̄ and every joint within its data-sheet limits (q, q̇, q̈, τ), or refuse the
+60 N target before the strike when the dice cannot hold it within z̄ (60 N / 1200 N/m = 50 mm
+> 30 mm).
 
 The closed-loop runs are the ROS-free study code, shortened: 2.5 s of simulated time (touch at
 ≈ 1.3 s, strike at ≈ 2.2 s) and eq 9–14 re-solved every 5 ms (as in tests/test_impact_study.py).
