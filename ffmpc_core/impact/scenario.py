@@ -336,11 +336,8 @@ IMPACT_TABLE: dict[str, FieldDecl] = {
     "touch.retract_acceleration_fraction": ("", (0.0, 1.0), "peak of the retract profile"),
     "touch.impact_force_factor": ("", (0.0, 100.0), "κ of the guard's impact force"),
     "touch.penetration_margin": ("m", (0.0, 0.5), "off z̄ in eq 12 for touch and strike"),
-    "strike.surface_tolerance": (
-        "m",
-        (0.0, 10.0),
-        "contact possible this far above the expected surface (null: surface unknown)",
-    ),
+    "strike.surface_known": ("", None, "the approach is given the dice's surface"),
+    "strike.surface_tolerance": ("m", (0.0, 10.0), "contact possible this far above it"),
     "strike.surface_offset": ("m", (-1.0, 1.0), "expected surface above the dice's top face"),
     "strike.braking_fraction": ("", (1e-6, 1.0), "of the deceleration bound, before the band"),
     "strike.settle_time": ("s", (0.0, 10.0), "at the eq 14 bound before the band"),

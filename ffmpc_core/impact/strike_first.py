@@ -12,13 +12,14 @@ plausible material; this controller makes that impact the task's:
    the prior's plausible range (:meth:`MaterialInterval.from_prior`), or the interval a previous
    run learned on this object (:attr:`StrikeFirstConfig.remembered_stiffness`,
    :attr:`~StrikeFirstConfig.remembered_damping`). Where the approach knows the object cannot be
-   touched yet — the object's surface is known to within ``surface_tolerance`` along d, the
+   touched yet — the object's surface is known (``surface_known``) to within
+   ``surface_tolerance`` along d, the
    premise of the paper's baseline, which has the contact location as its target — the tool may
    move faster than the eq 14 bound, as long as it can still brake to that bound at
    ``braking_fraction`` of the contact-space deceleration bound (eq 10–11, zero force) before
    the earliest possible contact (:func:`approach_speed_limit`; the braking ends
    ``settle_time`` at that bound before the band). Inside that band, or with an
-   unknown surface (``surface_tolerance`` None: the paper's premise, the impact may come at the
+   unknown surface (``surface_known`` false: the paper's premise, the impact may come at the
    next step), the speed is the eq 14 bound.
 2. **contact** — at the contact threshold, the regulation of the target force (admittance;
    the task controller may hand over to the force-feedback MPC once the target is admitted)
@@ -89,9 +90,11 @@ class StrikeFirstConfig:
     (:class:`~ffmpc_core.impact.touch_first.TouchFirstConfig`), shared.
 
     Attributes:
+        surface_known: the approach is given the object's surface (False: its position is
+            unknown, the paper's premise: the impact may come at the next step, the approach
+            never exceeds the eq 14 bound).
         surface_tolerance: how far (m, along −d) above the expected surface the object may
-            begin; None: its position is unknown (the paper's premise: the impact may come at
-            the next step, the approach never exceeds the eq 14 bound).
+            begin.
         surface_offset: where the approach expects the surface, m along −d from the object's
             true top face (0: where it is; > 0: expected above it). The true surface must lie
             within ``surface_tolerance`` above the expected one for the strike to be safe.
@@ -107,7 +110,8 @@ class StrikeFirstConfig:
             learned on this object, the knowledge before contact (None: none, both or neither).
     """
 
-    surface_tolerance: float | None = 0.02
+    surface_known: bool = True
+    surface_tolerance: float = 0.02
     surface_offset: float = 0.0
     braking_fraction: float = 0.8
     settle_time: float = 0.05
@@ -117,10 +121,8 @@ class StrikeFirstConfig:
 
     def __post_init__(self) -> None:
         tol = self.surface_tolerance
-        if tol is not None and not (np.isfinite(tol) and tol >= 0.0):
-            raise ConfigError(
-                f"StrikeFirstConfig.surface_tolerance must be ≥ 0 (m) or None, got {tol}"
-            )
+        if not (np.isfinite(tol) and tol >= 0.0):
+            raise ConfigError(f"StrikeFirstConfig.surface_tolerance must be ≥ 0 (m), got {tol}")
         if not np.isfinite(self.surface_offset):
             raise ConfigError("StrikeFirstConfig.surface_offset must be finite (m)")
         if not 0.0 < self.braking_fraction <= 1.0:
@@ -190,7 +192,7 @@ class StrikeFirstImpactController(TouchFirstImpactController):
             guard impact force, penetration margin, retract height).
         strike: see :class:`StrikeFirstConfig`.
         surface: the expected surface point (m, world frame) the approach brakes before (None:
-            unknown, as ``surface_tolerance`` None).
+            unknown, as ``surface_known`` False).
 
     Raises:
         InfeasibleTargetError: before any motion, see the module docstring.
@@ -259,7 +261,7 @@ class StrikeFirstImpactController(TouchFirstImpactController):
         earliest possible contact (``surface_tolerance`` above the expected surface); −inf
         without a known surface (the contact may come at the next step)."""
         tol = self.strike.surface_tolerance
-        if self.surface is None or tol is None:
+        if self.surface is None or not self.strike.surface_known:
             return -np.inf
         d = self.config.direction
         expected = self.surface - self.strike.surface_offset * d

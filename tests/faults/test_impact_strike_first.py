@@ -175,7 +175,7 @@ def test_band_distance_and_guard_impact_force(robot):
     assert controller.impact_force_estimate(1.0, 1e-3, 0.0, point) == 0.0
     near = np.array([0.6, 0.0, top + 0.021])
     assert controller.impact_force_estimate(1.0, 1e-3, 0.0, near) > 0.0
-    unknown = _controller(robot, StrikeFirstConfig(surface_tolerance=None))
+    unknown = _controller(robot, StrikeFirstConfig(surface_known=False))
     assert unknown.band_distance(point) == -np.inf
     assert unknown.impact_force_estimate(1.0, 1e-3, 0.0, point) > 0.0
     shifted = _controller(robot, StrikeFirstConfig(surface_offset=0.01))
