@@ -131,7 +131,7 @@ def _cmd_run_impact(args: argparse.Namespace) -> int:
     given = [flag for dest, flag in POLISHING_ONLY.items() if getattr(args, dest, None)]
     if given:
         raise ConfigError(f"{', '.join(given)}: polishing-graph options (not for ffmpc run impact)")
-    overrides = list(args.set or [])  # the study's defaults (strategy touch_first)
+    overrides = list(args.set or [])  # the study's defaults (strategy strike_first)
     if args.plant is not None:
         if any(item.partition("=")[0].strip() == PLANT_ENGINE_PARAMETER for item in overrides):
             raise ConfigError(f"--plant and --set {PLANT_ENGINE_PARAMETER}: give one")
@@ -510,7 +510,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="a shipped scenario name or a scenario YAML path; 'impact': the safe-maximal-impact "
         "experiment (Dehio & Kheddar 2020) as a node graph (dice plant, sensors, impact planner, "
         "contact learner, impact controller; ffmpc_ros/impact_graph.py) with --approach, "
-        "--regulation, --set (impact-study names and defaults: strategy touch_first), --duration, "
+        "--regulation, --set (impact-study names and defaults: strategy strike_first), --duration, "
         "--record, --json; exit 1 when a joint limit was broken",
     )
     run.add_argument(

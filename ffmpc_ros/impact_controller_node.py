@@ -66,6 +66,7 @@ from ffmpc_core.impact.controllers import (
 )
 from ffmpc_core.impact.learner import ContactEstimate
 from ffmpc_core.impact.limits import joint_limits
+from ffmpc_core.impact.scenario import LEARNING_STRATEGIES, ImpactStudyConfig
 from ffmpc_core.robots import load_robot
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import run_node
@@ -85,17 +86,38 @@ ROTATION_TOLERANCE = 1e-6
 PHASE_CODES = layouts.IMPACT_PHASES
 
 
-def reference_approach(fields: dict, touch_first: bool) -> ExternalApproach:
+def reference_approach(
+    fields: dict, learning: bool, config: ImpactStudyConfig | None = None
+) -> ExternalApproach:
     """The ExternalApproach of an ``impact_reference`` message (InputError when its rotation is
-    not a rotation or its phase no phase)."""
+    not a rotation or its phase no phase); ``learning``: a learning strategy's inputs are in it;
+    ``config``: the study's, for the regulation's stop short of the target (its target, depth
+    and z̄; None: not reported)."""
+    from ffmpc_core.impact.control import StoppedShort
     from ffmpc_core.impact.touch_first import TouchCycleInputs
 
     touch = (
-        TouchCycleInputs(strike=fields["strike"] > 0, impact_force=fields["impact_force"])
-        if touch_first
+        TouchCycleInputs(
+            strike=fields["strike"] > 0,
+            impact_force=fields["impact_force"],
+            handover_allowed=fields["handover_allowed"] > 0,
+        )
+        if learning
         else None
     )
-    return ExternalApproach(reference_command(fields), layouts.impact_phase(fields["phase"]), touch)
+    stopped = None
+    if config is not None and fields["stopped_short_time"] >= 0.0:
+        zbar = config.dice.max_penetration
+        stopped = StoppedShort(
+            fields["stopped_short_time"],
+            fields["stopped_short_force"],
+            config.target_force,
+            config.admittance.max_depth(zbar),
+            zbar,
+        )
+    return ExternalApproach(
+        reference_command(fields), layouts.impact_phase(fields["phase"]), touch, stopped
+    )
 
 
 def reference_command(fields: dict) -> CartesianCommand:
@@ -135,7 +157,9 @@ class ImpactControllerNode(MeasuredCycleNode):
             raise ConfigError("the impact controller runs in lockstep only (lockstep: true)")
         self.config = impact_config_from_parameters(self.spec, p)
         self.approach, self.regulation = str(p["approach"]), str(p["regulation"])
-        self.touch_first = self.approach == "maximal" and self.config.strategy == "touch_first"
+        self.learning_strategy = (
+            self.approach == "maximal" and self.config.strategy in LEARNING_STRATEGIES
+        )
         self.robot = load_robot(self.scenario.robot)
         self.joint_names = list(self.robot.joint_names)
         self._data = self.robot.create_data()
@@ -193,7 +217,7 @@ class ImpactControllerNode(MeasuredCycleNode):
         topic = self.name_of(topics.IMPACT_REFERENCE)
         try:
             fields, k = reference_fields(self, msg)
-            command = reference_approach(fields, self.touch_first)
+            command = reference_approach(fields, self.learning_strategy, self.config)
         except InputError as exc:
             # the planner sends one reference per cycle, in order: this one was the next's
             self.reject(f"{topic}:value", f"{exc}; that cycle holds its pose")
@@ -228,7 +252,7 @@ class ImpactControllerNode(MeasuredCycleNode):
     def _ready(self, k: int, m: ContactMeasurement) -> bool:
         if self.external and k not in self._references and self._bad_references == 0:
             return False
-        if self.touch_first:  # the planner's count says whether the learner fed cycle k
+        if self.learning_strategy:  # the planner's count says whether the learner fed cycle k
             if not self.uses_learner or k not in self._references:
                 return True
             fed = self._references[k][1]
@@ -270,7 +294,7 @@ class ImpactControllerNode(MeasuredCycleNode):
         estimate = self._estimates.pop(k, None)
         for old in [c for c in self._estimates if c < k]:
             self._estimates.pop(old)
-        if estimate is not None and not self.touch_first:
+        if estimate is not None and not self.learning_strategy:
             self.learner.receive(estimate)
         t = self.t_of(k)
         command = None
@@ -279,7 +303,7 @@ class ImpactControllerNode(MeasuredCycleNode):
                 command = self.controller.step(m, t, reference)
             except FfmpcError as exc:
                 self.reject("step", f"cycle {k}: {exc}; the cycle holds its pose")
-        if self.touch_first:  # after the step: the hand-over of cycle k read cycle k−1's
+        if self.learning_strategy:  # after the step: the hand-over of cycle k read cycle k−1's
             if fed is not None:
                 self.learner.samples = fed
             if estimate is not None:
@@ -327,6 +351,7 @@ class ImpactControllerNode(MeasuredCycleNode):
         def finite(value: float | None, default: float) -> float:
             return default if value is None or not math.isfinite(value) else float(value)
 
+        stopped = c.stopped_short
         status = {
             "t": self.t_of(k),
             "safe_hold": float(command is None),
@@ -344,6 +369,8 @@ class ImpactControllerNode(MeasuredCycleNode):
             "mpc_learned": float(command is not None and command.mpc_learned),
             "mpc_force": finite(None if command is None else command.mpc_force, 0.0),
             "learner_samples": float(self.learner.samples),
+            "stopped_short_time": -1.0 if stopped is None else stopped.time,
+            "stopped_short_force": 0.0 if stopped is None else stopped.force,
             "rejected": float(sum(self.rejected.values())),
             "nv": float(self.robot.nv),
             "torque": torque,

@@ -86,8 +86,9 @@ COMPARED = (
     "learned_damping",
     "learner_samples",
     "handover_time",
+    "stopped_short",
 )
-#: ... and with the touch-first strategy (the maximal approach's exploratory touch).
+#: ... and with a learning strategy (touch-first's exploratory touch; both: the decision).
 COMPARED_TOUCH = (
     "touch_time",
     "touch_velocity",
@@ -131,7 +132,7 @@ def impact_node_parameters(
     approach, regulation, scenario or override (the schema's message)."""
     from ffmpc_core.impact.controllers import APPROACHES, REGULATIONS
     from ffmpc_core.impact.limits import PANDA_ACCELERATION_LIMIT
-    from ffmpc_core.impact.scenario import IMPACT_SCHEMA, load_impact_config
+    from ffmpc_core.impact.scenario import IMPACT_SCHEMA, LEARNING_STRATEGIES, load_impact_config
     from ffmpc_ros.cli_args import parse_overrides
 
     if approach not in APPROACHES or regulation not in REGULATIONS:
@@ -141,7 +142,7 @@ def impact_node_parameters(
         )
     items = [str(i) for i in overrides]
     cfg = load_impact_config(scenario, parse_overrides(items, schema=IMPACT_SCHEMA.params))
-    touch_first = approach == "maximal" and cfg.strategy == "touch_first"
+    learning = approach == "maximal" and cfg.strategy in LEARNING_STRATEGIES
     nodes = graph_nodes(approach)
     common = {"robot": ROBOT, "plant.time_step": cfg.time_step}
     # the sensors: the ROS-free study measures the true state and the whole world wrench
@@ -180,8 +181,9 @@ def impact_node_parameters(
             "feed_force": 0.0,
             "skip_onset_samples": 0,
             "regularization": 1e-9,  # RecursiveContactLearner's default
-            # touch-first: the planner's feeding rule selects the samples (its gate)
-            "planner_gate": touch_first,
+            # touch-first, strike-first: the planner's feeding rule selects the samples (its
+            # gate)
+            "planner_gate": learning,
             # no node waits for the learner before the touch: in lockstep it may fall behind
             # the plant's clock; its inputs stay usable as long as the publishers keep them
             # (measured: 54 ms behind at 0.6 s of a 46 cm approach, then every input of the
@@ -283,10 +285,10 @@ class _Probe:
     status and the learner's estimates, per cycle."""
 
     def __init__(
-        self, node: Node, steps: int, nv: int, time_step: float, touch_first: bool = False
+        self, node: Node, steps: int, nv: int, time_step: float, learning: bool = False
     ) -> None:
         self.steps, self.time_step = steps, time_step
-        self.touch_first = touch_first
+        self.learning_strategy = learning
         self.q = np.full((steps + 1, nv), np.nan)
         self.v = np.full((steps + 1, nv), np.nan)
         self.wrench = np.full((steps + 1, 6), np.nan)
@@ -373,7 +375,7 @@ class _Probe:
         if len(self.status) < self.steps or np.isnan(self.q).any() or np.isnan(self.wrench).any():
             return False
         fed = int(self.status[self.steps - 1]["learner_samples"])
-        if self.touch_first and (
+        if self.learning_strategy and (
             self.planner is None or int(round(self.planner["t"] / self.time_step)) < self.steps - 1
         ):
             return False
@@ -414,11 +416,12 @@ def _graph_metrics(
         learner_samples=int(last["learner_samples"]),
         handover_time=nan if last["handover_time"] < 0 else last["handover_time"],
         safe_hold_cycles=int(sum(s["safe_hold"] > 0 for s in probe.status.values())),
+        stopped_short=_stopped_short(cfg, last),
     )
     from ffmpc_ros.bringup import reflex_summary
 
     metrics.update(reflex_summary(probe.plant_status, robot.joint_names))
-    if probe.touch_first:
+    if probe.learning_strategy:
         from ffmpc_core.impact.metrics import touch_metrics
 
         pl = probe.planner
@@ -438,6 +441,23 @@ def _graph_metrics(
     log["in_contact"] = np.array([probe.status[k]["in_contact"] for k in range(steps)])
     log["mpc_weight"] = np.array([probe.status[k]["mpc_weight"] for k in range(steps)])
     return metrics, log
+
+
+def _stopped_short(cfg: ImpactStudyConfig, status: dict) -> str:
+    """The run's ``stopped_short`` (``ImpactRun``'s: the message, "" if none) from the
+    controller's last status."""
+    from ffmpc_core.impact.control import StoppedShort
+
+    if status["stopped_short_time"] < 0:
+        return ""
+    zbar = cfg.dice.max_penetration
+    return StoppedShort(
+        status["stopped_short_time"],
+        status["stopped_short_force"],
+        cfg.target_force,
+        cfg.admittance.max_depth(zbar),
+        zbar,
+    ).message()
 
 
 def is_safe(metrics: dict[str, Any]) -> bool:
@@ -534,8 +554,10 @@ def run_impact_graph(
         if not allow_foreign:
             _refuse_foreign(node, domain, namespace)
         summary_pub = node.create_publisher(String, topics.IMPACT_SUMMARY, topics.latched_qos())
-        touch_first = approach == "maximal" and cfg.strategy == "touch_first"
-        probe = _Probe(node, steps, robot.nv, cfg.time_step, touch_first)
+        from ffmpc_core.impact.scenario import LEARNING_STRATEGIES
+
+        learning = approach == "maximal" and cfg.strategy in LEARNING_STRATEGIES
+        probe = _Probe(node, steps, robot.nv, cfg.time_step, learning)
         children, logs = _spawn(params, tmp.name, domain, {}, namespace, nodes)
         _bring_up(node, executor, list(nodes), children, logs, start + start_timeout, "dice_plant")
         if record is not None:
@@ -632,7 +654,8 @@ def compare_with_runner(result: ImpactGraphResult, run: Any) -> dict[str, tuple[
     :data:`COMPARED_TOUCH` for a touch-first run) that differs (bit for bit;
     NaN equals NaN) between a graph run and ``studies.impact_study.run_impact``'s ImpactRun."""
     out = {}
-    names = COMPARED + (COMPARED_TOUCH if run.strategy == "touch_first" else ())
+    learning = run.strategy in ("touch_first", "strike_first")  # LEARNING_STRATEGIES
+    names = COMPARED + (COMPARED_TOUCH if learning else ())
     for name in names:
         a, b = result.metrics.get(name), getattr(run, name)
         if not _same(a, b):

@@ -84,11 +84,12 @@ from ffmpc_core.impact.control import (
     ImpactControllerConfig,
     ImpactMeasurement,
 )
-from ffmpc_core.impact.controllers import contact_measurement
+from ffmpc_core.impact.controllers import contact_measurement, maximal_approach
 from ffmpc_core.impact.deformation import SoftMaterial
 from ffmpc_core.impact.learner import confident
 from ffmpc_core.impact.limits import joint_limits
-from ffmpc_core.impact.scenario import ImpactStudyConfig, task_config
+from ffmpc_core.impact.scenario import LEARNING_STRATEGIES, ImpactStudyConfig, task_config
+from ffmpc_core.impact.strike_first import StrikeFirstImpactController
 from ffmpc_core.impact.touch_first import (
     TouchCycleInputs,
     TouchFirstImpactController,
@@ -146,20 +147,20 @@ class ImpactPlannerNode(MeasuredCycleNode):
         self.config = controller_config(self.study, p)
         self.direction = self.config.direction
         self.strategy = self.study.strategy
-        self.touch_first = self.strategy == "touch_first"
+        #: a learning strategy (touch-first, strike-first): the learner node feeds by its gate
+        self.learning_strategy = self.strategy in LEARNING_STRATEGIES
+        task = replace(task_config("maximal", "admittance", self.study), controller=self.config)
         self.controller: ImpactController
-        if self.touch_first:
+        if self.learning_strategy:
             if bool(p["use_learned_material"]) or not bool(p["lockstep"]):
                 raise ConfigError(
-                    "strategy touch_first: use_learned_material false (the strike plans from "
-                    "the learned interval itself) and lockstep true"
+                    f"strategy {self.strategy}: use_learned_material false (the strategy plans "
+                    "from the learned interval itself) and lockstep true"
                 )
             self.learner = ReceivedEstimates()
-            self.controller = TouchFirstImpactController(
-                self.robot, self.limits, self.config, self.study.touch, learner=self.learner
-            )
+            self.controller = maximal_approach(self.robot, self.limits, task, self.learner)
         else:
-            self.controller = ImpactController(self.robot, self.limits, self.config)
+            self.controller = maximal_approach(self.robot, self.limits, task)
         self._data = self.robot.create_data()
         self.lockstep_timeout = float(p["lockstep_timeout"])
         self._pending: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, float]] = {}
@@ -183,7 +184,7 @@ class ImpactPlannerNode(MeasuredCycleNode):
             Float64MultiArray,
             topics.CONTACT_ESTIMATE,
             self.on_estimate,
-            topics.subscriber_qos(self.touch_first, topics.CONTACT_ESTIMATE),
+            topics.subscriber_qos(self.learning_strategy, topics.CONTACT_ESTIMATE),
         )
         self.create_service(Trigger, topics.IMPACT_RESET_SERVICE, self.on_reset)
         self.create_timer(
@@ -192,7 +193,7 @@ class ImpactPlannerNode(MeasuredCycleNode):
 
     # -- the control cycle -------------------------------------------------------------------
     def process_cycle(self, k: int, q: np.ndarray, v: np.ndarray, wrench: np.ndarray) -> None:
-        if not self.touch_first:
+        if not self.learning_strategy:
             self._step(k, q, v, wrench)
             return
         self._pending[k] = (q, v, wrench, time.monotonic())
@@ -229,7 +230,9 @@ class ImpactPlannerNode(MeasuredCycleNode):
         try:
             if isinstance(self.controller, TouchFirstImpactController):
                 m = contact_measurement(self.robot, self._data, q, v, wrench, self.direction)
-                self._touch_inputs = self.controller.cycle_inputs(m.speed, self.time_step, m.force)
+                self._touch_inputs = self.controller.cycle_inputs(
+                    m.speed, self.time_step, m.force, m.position
+                )
             command = self.controller.step(ImpactMeasurement(q=q, v=v, force=wrench[:3]), t)
         except FfmpcError as exc:
             self.reject("step", f"cycle {k}: {exc}")
@@ -276,6 +279,7 @@ class ImpactPlannerNode(MeasuredCycleNode):
             "touch_time": time_or(None if tf is None else tf.touch_time, -1.0),
             "touch_velocity": time_or(None if tf is None else tf.touch_velocity, 0.0),
             "decision_time": time_or(None if tf is None else tf.decision_time, -1.0),
+            "admitted": float(isinstance(c, StrikeFirstImpactController) and c.admitted),
             "force": command.force,
             "target_force": command.target_force,
             "contact_time": -1.0 if c.contact_time is None else c.contact_time,
@@ -292,17 +296,21 @@ class ImpactPlannerNode(MeasuredCycleNode):
         touch = self._touch_inputs
         gate = None if tf is None else tf.learning_gate()
         surface = None if gate is None else gate.surface
+        stopped = c.stopped_short
         reference = {
             "t": self.t_of(k),
             "safe_stop": fields["safe_stop"],
             "phase": layouts.IMPACT_PHASES[c.phase],
             "strike": 1.0 if touch is None else float(touch.strike),
             "impact_force": 0.0 if touch is None else touch.impact_force,
+            "handover_allowed": 1.0 if touch is None else float(touch.handover_allowed),
             "learner_samples": float(c.learner.samples),
             "gate_phase": -1.0 if gate is None else layouts.IMPACT_PHASES[gate.phase],
             "gate_learn": float(gate is not None and gate.learn),
             "gate_surface_valid": float(surface is not None),
             "gate_surface": np.zeros(3) if surface is None else surface,
+            "stopped_short_time": -1.0 if stopped is None else stopped.time,
+            "stopped_short_force": 0.0 if stopped is None else stopped.force,
             "bound_valid": float(math.isfinite(bound) and not stop),
             "pre_impact_velocity": bound if math.isfinite(bound) and not stop else 0.0,
             "position": command.position,
@@ -349,7 +357,7 @@ class ImpactPlannerNode(MeasuredCycleNode):
 
     def _watchdog(self) -> None:
         """Stop once when no complete cycle came for ``max_input_age`` (simulated time)."""
-        if self.touch_first:
+        if self.learning_strategy:
             self._run_ready(timed_out=True)
         if self._stopped or self._last_good is None:
             return
@@ -372,7 +380,7 @@ class ImpactPlannerNode(MeasuredCycleNode):
             self.reject(f"{topic}:direction", f"estimate along {direction}, planning along d")
             return
         self.accept_cycle(topic, k)
-        if self.touch_first:
+        if self.learning_strategy:
             self._estimates[k] = estimate
             self._run_ready()
             return

@@ -287,7 +287,7 @@ def impact_phase(code: float) -> str:
 
 IMPACT_STATUS = ArrayLayout(
     "impact_status",
-    2,
+    3,
     (
         Field("t", 1, "s", "simulated time of the measurement the command is computed from"),
         Field("phase", 1, "-", "the planner's phase after the cycle: " + _PHASES),
@@ -313,7 +313,13 @@ IMPACT_STATUS = ArrayLayout(
         Field("position", 3, "m", "reference position of the contact frame, world frame"),
         Field("touch_time", 1, "s", "touch-first: time the exploratory touch began (−1 before)"),
         Field("touch_velocity", 1, "m/s", "touch-first: speed along d at the touch (0 before)"),
-        Field("decision_time", 1, "s", "touch-first: time the strike was decided (−1 before)"),
+        Field(
+            "decision_time",
+            1,
+            "s",
+            "touch-first: the strike decided; strike-first: the target decided in contact (−1)",
+        ),
+        Field("admitted", 1, "-", "strike-first: 1 once the target is admitted in contact"),
     ),
 )
 
@@ -322,7 +328,7 @@ IMPACT_STATUS = ArrayLayout(
 #: velocity part).
 IMPACT_REFERENCE = ArrayLayout(
     "impact_reference",
-    2,
+    3,
     (
         Field("t", 1, "s", "simulated time of the measurement the command is computed from"),
         Field("safe_stop", 1, "-", "1: zero-velocity stop after bad, stale or missing input"),
@@ -337,20 +343,38 @@ IMPACT_REFERENCE = ArrayLayout(
         Field("target_force", 1, "N", "force regulated in contact"),
         Field("strike", 1, "-", "1 unless touch-first before its strike (the touch is no contact)"),
         Field(
-            "impact_force", 1, "N", "touch-first: the guard's impact force along d (0 otherwise)"
+            "impact_force",
+            1,
+            "N",
+            "touch-/strike-first: the guard's impact force along d (0 otherwise)",
         ),
-        Field("learner_samples", 1, "-", "touch-first: samples its feeding rule fed so far"),
-        Field("gate_phase", 1, "-", "touch-first: the learning gate's phase (code as phase)"),
-        Field("gate_learn", 1, "-", "touch-first: 1 when the planner learns online"),
+        Field(
+            "handover_allowed",
+            1,
+            "-",
+            "touch-/strike-first: 1 when the MPC may take over (strike-first: target admitted)",
+        ),
+        Field(
+            "learner_samples", 1, "-", "touch-/strike-first: samples its feeding rule fed so far"
+        ),
+        Field("gate_phase", 1, "-", "touch-/strike-first: the learning gate's phase (as phase)"),
+        Field("gate_learn", 1, "-", "touch-/strike-first: 1 when the planner learns online"),
         Field("gate_surface_valid", 1, "-", "1 when gate_surface is set"),
         Field("gate_surface", 3, "m", "the learning gate's surface point, world frame (or 0)"),
+        Field(
+            "stopped_short_time",
+            1,
+            "s",
+            "the regulation stopped at its depth bound below the target then (−1: not)",
+        ),
+        Field("stopped_short_force", 1, "N", "the force measured then (0: not stopped)"),
     ),
 )
 
 #: /impact_controller/status — the impact experiment's controller each cycle (Sec. VI).
 IMPACT_CONTROL = ArrayLayout(
     "impact_control",
-    2,
+    3,
     (
         Field("t", 1, "s", "simulated time of the measurement the torque is computed from"),
         Field("safe_hold", 1, "-", "1: the torque holds the pose after a rejected reference"),
@@ -366,6 +390,13 @@ IMPACT_CONTROL = ArrayLayout(
         Field("mpc_learned", 1, "-", "1 when that contact model is the learner's estimate"),
         Field("mpc_force", 1, "N", "the MPC's predicted contact force at its next node (0 before)"),
         Field("learner_samples", 1, "-", "samples fed to the contact learner so far"),
+        Field(
+            "stopped_short_time",
+            1,
+            "s",
+            "the regulation stopped at its depth bound below the target then (−1: not)",
+        ),
+        Field("stopped_short_force", 1, "N", "the force measured then (0: not stopped)"),
         Field("rejected", 1, "-", "inputs rejected by the node so far"),
         Field("nv", 1, "-", "number of joints (7)"),
         Field("torque", "nv", "N·m", "the joint torque sent (impact_controller/torque)"),

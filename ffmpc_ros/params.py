@@ -241,12 +241,13 @@ IMPACT_PLANNER_GRAPH: tuple[GraphParameter, ...] = (
         "use_learned_material",
         False,
         "strategy prior: plan with /contact_learner/estimate once it is confident (false: the "
-        "prior only, the paper's scheme; touch_first needs false)",
+        "prior only, the paper's scheme; touch_first and strike_first need false)",
     ),
 )
 #: The IMPACT_SCHEMA names the impact planner declares: what its controller
 #: (``ffmpc_core.impact.scenario.task_config``'s ``controller``), its limits, its prior and the
-#: touch-first strategy are built from.
+#: touch-first and strike-first strategies (and the dice's surface the latter is given) are
+#: built from.
 IMPACT_PLANNER_SCHEMA: tuple[str, ...] = (
     "plant.time_step",
     "plant.dice_max_penetration",
@@ -259,6 +260,9 @@ IMPACT_PLANNER_SCHEMA: tuple[str, ...] = (
     "learner.*",
     "strategy",
     "touch.*",
+    "strike.*",
+    "plant.dice_position_xy",
+    "plant.dice_top_height",
 )
 #: The IMPACT_SCHEMA names the dice plant declares: the scene (the dice, the tool, the plant
 #: step), the start pose (``approach_height`` above the dice) and the run's ``duration``.

@@ -76,7 +76,8 @@ def approach_problems(sim_duration: float, robot: RobotModel | None = None) -> A
     if not (np.isfinite(sim_duration) and sim_duration > 0):
         raise ConfigError(f"sim_duration must be positive, got {sim_duration}")
     robot = robot if robot is not None else load_robot("panda")
-    cfg = ImpactStudyConfig(duration=float(sim_duration))
+    # the paper's scheme: the approach eq 14 is solved on every cycle until the contact
+    cfg = ImpactStudyConfig(duration=float(sim_duration), strategy="prior")
     run = run_impact("maximal", "admittance", cfg, robot)
     log = run.log
     approach = ~log["in_contact_phase"]

@@ -498,9 +498,21 @@ def _cmd_study_impact(args: argparse.Namespace) -> int:
 
     _check_execution_arguments(args)  # before importing PyBullet
     from ffmpc_core.impact.scenario import IMPACT_SCHEMA, load_impact_config
-    from studies.impact_study import default_out_dir, run_impact_study
+    from studies.impact_study import (
+        default_out_dir,
+        recall_object,
+        remember_object,
+        run_impact_study,
+    )
 
     overrides = _study_overrides(args, IMPACT_SCHEMA.params, IMPACT_SHORTHANDS)
+    if args.strategies and "strategy" in overrides:
+        raise ConfigError("--strategies runs each strategy given: no --strategy with it")
+    if args.memory is not None:
+        recalled = recall_object(args.memory, args.object, overrides)
+        if recalled:
+            print(f"recalled for {args.object!r} from {args.memory}: {recalled}")
+        overrides = {**overrides, **recalled}
     config = load_impact_config(args.scenario or "impact", overrides)
     runs = tuple(tuple(name.split("+")) for name in args.runs)
     result = run_impact_study(
@@ -510,6 +522,7 @@ def _cmd_study_impact(args: argparse.Namespace) -> int:
         force=args.force,
         progress=not args.no_progress,
         command_line=shlex.join(["ffmpc", *getattr(args, "argv", [])]),
+        strategies=tuple(args.strategies) if args.strategies else None,
         workers=args.workers,
         scheduler=args.scheduler,
         cache=not args.no_cache,
@@ -519,6 +532,10 @@ def _cmd_study_impact(args: argparse.Namespace) -> int:
     print(f"wall time {result.wall_time:.1f} s; files:")
     for path in result.files:
         print(f"  {path}")
+    if args.memory is not None:
+        kept = remember_object(args.memory, args.object, result.runs, config)
+        if kept is not None:
+            print(f"remembered for {args.object!r} in {args.memory}: {kept.describe()}")
     refused = [r for r in result.runs if r.refusal]
     for r in refused:
         print(f"ffmpc study impact: {r.name} refused: {r.refusal}", file=sys.stderr)
@@ -526,6 +543,10 @@ def _cmd_study_impact(args: argparse.Namespace) -> int:
         return 2
     failed = [r for r in result.runs if r.violations.total or not r.contact_time >= 0.0]
     return 1 if failed else 0
+
+
+#: ``ffmpc study impact --strategy/--strategies`` (ffmpc_core.impact.scenario.STRATEGIES).
+STRATEGY_CHOICES = ("strike_first", "touch_first", "prior")
 
 
 def _add_impact_study_parser(study_sub: SubParsers) -> None:
@@ -542,11 +563,13 @@ def _add_impact_study_parser(study_sub: SubParsers) -> None:
         "stiffness and damping learned online (eq 19-21). Prints pre-impact velocity, contact "
         "time, time to a steady force, peak force and penetration, joint-limit violations and "
         "the learned material per run; writes table.md, results.json and impact_fig4.png. "
-        "By default (--strategy touch_first) the maximal approach first touches the dice at "
-        "the bound safe for every plausible material, learns it, and strikes at the bound of "
-        "the learned model; a force target the (worst-case) material cannot hold within the "
-        "penetration bound is refused before the strike. Exit 1 if a run never touched the "
-        "dice or broke a limit, 2 on bad input or a refused target (the reason on stderr).",
+        "By default (--strategy strike_first) the maximal approach's first contact is the "
+        "task's impact, at the bound safe for every plausible material (faster where the "
+        "known surface rules a contact out); the learner sharpens the model from the impact "
+        "and the regulation, and a force target the (worst-case) learned material cannot hold "
+        "within the penetration bound is refused in contact (retract and hold). Exit 1 if a "
+        "run never touched the dice or broke a limit, 2 on bad input or a refused target "
+        "(the reason on stderr).",
     )
     _add_execution_arguments(p)
     p.add_argument(
@@ -576,10 +599,27 @@ def _add_impact_study_parser(study_sub: SubParsers) -> None:
     )
     p.add_argument(
         "--strategy",
-        choices=("touch_first", "prior"),
-        help="maximal approach: touch, learn, then strike (default), or plan from the prior "
-        "as if it were the truth (the paper's scheme)",
+        choices=STRATEGY_CHOICES,
+        help="maximal approach: strike_first (the first contact is the task's impact, at the "
+        "bound safe for every material still plausible; the target decided in contact), "
+        "touch_first (touch, learn, retract, strike) or prior (plan from the prior as if it "
+        "were the truth: the paper's scheme); = --set strategy=S",
     )
+    p.add_argument(
+        "--strategies",
+        nargs="+",
+        choices=STRATEGY_CHOICES,
+        metavar="S",
+        help="run the maximal approach once per strategy (one table; the baseline once)",
+    )
+    p.add_argument(
+        "--memory",
+        metavar="FILE",
+        help="object memory (JSON): the strike-first strategy starts from the interval a "
+        "previous run learned on --object (if FILE has one), and this run's learned interval "
+        "is kept there for the next",
+    )
+    p.add_argument("--object", default="dice", help="the object's name in --memory (default dice)")
     p.add_argument("--prior-stiffness", type=positive_float, help="planner's prior stiffness, N/m")
     p.add_argument("--prior-damping", type=nonnegative_float, help="planner's prior damping, N.s/m")
     add_plant_argument(p)

@@ -100,7 +100,7 @@ from __future__ import annotations
 import json
 import platform
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -115,10 +115,13 @@ from ffmpc_core.impact.controllers import (
     ImpactTaskCommand,
     ImpactTaskController,
 )
+from ffmpc_core.impact.learner import ContactEstimate
 from ffmpc_core.impact.limits import joint_limits
+from ffmpc_core.impact.memory import RememberedMaterial, recall, remember
 from ffmpc_core.impact.metrics import LimitViolations, run_metrics, touch_metrics
 from ffmpc_core.impact.scenario import (
     IMPACT_SCHEMA,
+    STRATEGIES,
     ImpactStudyConfig,
     check_before_motion,
     dice_measurement,
@@ -153,7 +156,10 @@ __all__ = [
     "default_out_dir",
     "execute_impact_job",
     "format_table",
+    "impact_jobs",
     "plot_runs",
+    "recall_object",
+    "remember_object",
     "run_impact",
     "run_impact_study",
 ]
@@ -189,8 +195,12 @@ class ImpactRun:
             force-free sample before it (m/s); NaN without a touch.
         touch_peak_force, touch_peak_penetration: N and m, from the touch to the decision.
         decision_time: when the strike was decided (or refused) from the learned model, s.
-        refusal: why the target was refused ("" if it was not); contact_time is then NaN.
-        strike_knowledge: the material interval the strike was planned with.
+        refusal: why the target was refused ("" if it was not); touch-first: contact_time is
+            then NaN (no strike); strike-first: the contact was the strike, then the retract.
+        strike_knowledge: the material interval the strike was planned with (touch-first) or
+            the knowledge at the end (strike-first: the learned interval once decided).
+        stopped_short: the regulation stopped at the penetration bound below the target (its
+            message with the numbers; "" if it did not).
         reflex: the robot's reflexes over the run (``ffmpc_core.reflex.RobotReflex.report``:
             ``aborted``, the ``event``, the largest ratio of each kind); :attr:`aborted`.
     """
@@ -224,6 +234,7 @@ class ImpactRun:
     refusal: str = ""
     strike_knowledge: str = ""
     reflex: dict[str, Any] = field(default_factory=dict)
+    stopped_short: str = ""
 
     @property
     def name(self) -> str:
@@ -233,6 +244,11 @@ class ImpactRun:
     def aborted(self) -> bool:
         """A reflex of the robot stopped it: the run was aborted."""
         return bool(self.reflex.get("aborted", False))
+
+    @property
+    def label(self) -> str:
+        """The name, with the strategy for the maximal approach."""
+        return f"{self.name} [{self.strategy}]" if self.approach == "maximal" else self.name
 
     def summary(self) -> dict:
         """JSON-friendly, without the time series."""
@@ -337,7 +353,7 @@ def run_impact(
     controller = ImpactTaskController(
         robot, cfg.control_limits(limits), task_config(approach, regulation, cfg)
     )
-    touch_first = controller.touch_first
+    learning = controller.learning_approach
 
     from sim_bridge.scenes import make_plant
 
@@ -365,16 +381,15 @@ def run_impact(
     except InputError:  # never enough contact data
         learned = (float("nan"), float("nan"), (float("nan"), float("nan")))
     touch: dict[str, Any] = {}
-    if touch_first is not None:
+    if learning is not None:
         touch = dict(
-            touch_metrics(
-                log, touch_first.touch_time, touch_first.touch_velocity, touch_first.decision_time
-            )
+            touch_metrics(log, learning.touch_time, learning.touch_velocity, learning.decision_time)
         )
         touch.update(
-            refusal="" if touch_first.refusal is None else str(touch_first.refusal),
-            strike_knowledge=touch_first.knowledge.describe(),
+            refusal="" if learning.refusal is None else str(learning.refusal),
+            strike_knowledge=learning.knowledge.describe(),
         )
+    stopped = controller.stopped_short
     return ImpactRun(
         approach=approach,
         regulation=regulation,
@@ -394,6 +409,7 @@ def run_impact(
         mpc_solve_time_median=float(np.median(solve_times)) if solve_times else float("nan"),
         log=log | {"learned_in_mpc": np.array(learned_in_mpc), "q": qs[:steps], "v": vs[:steps]},
         reflex=stepped.reflex.report(),
+        stopped_short="" if stopped is None else stopped.message(),
     )
 
 
@@ -423,7 +439,8 @@ class ImpactJob:
 
     @property
     def label(self) -> str:
-        return f"{self.approach}+{self.regulation}"
+        base = f"{self.approach}+{self.regulation}"
+        return f"{base} [{self.config.strategy}]" if self.approach == "maximal" else base
 
     @property
     def cost_rank(self) -> int:
@@ -467,10 +484,10 @@ def _fmt(value: float, spec: str) -> str:
 
 
 def format_table(runs: list[ImpactRun], config: ImpactStudyConfig) -> str:
-    """The study's table (Markdown), one row per run, then the learner's estimates."""
-    dice = config.dice
+    """The study's table (Markdown), one row per run (the maximal approach's strategy in its
+    own column), then the learner's estimates and each learning strategy's details."""
     head = (
-        "| run | pre-impact velocity (m/s) | contact (s) | steady force (s) | "
+        "| run | strategy | pre-impact velocity (m/s) | contact (s) | steady force (s) | "
         "peak force (N) | peak penetration (mm) | final force (N) | "
         "violations q / q̇ / q̈ / τ | max q̈/q̈_max | reflex | wall (s) |"
     )
@@ -478,54 +495,22 @@ def format_table(runs: list[ImpactRun], config: ImpactStudyConfig) -> str:
     for r in runs:
         v = r.violations
         settle = r.steady_time - r.contact_time
+        strategy = r.strategy if r.approach == "maximal" else "—"
         lines.append(
-            f"| {r.name} | {_fmt(r.pre_impact_velocity, '.3f')} | {_fmt(r.contact_time, '.3f')} "
+            f"| {r.name} | {strategy} | {_fmt(r.pre_impact_velocity, '.3f')} "
+            f"| {_fmt(r.contact_time, '.3f')} "
             f"| {_fmt(r.steady_time, '.3f')} (+{_fmt(settle, '.3f')}) "
             f"| {_fmt(r.peak_force, '.1f')} | {_fmt(1e3 * r.peak_penetration, '.1f')} "
             f"| {_fmt(r.final_force, '.2f')} "
             f"| {v.position} / {v.velocity} / {v.acceleration} / {v.torque} "
             f"| {v.max_ratio['acceleration']:.3f} | {reflex_cell(r.reflex)} | {r.wall_time:.1f} |"
         )
-    lines += [
-        "",
-        reflex_note([r.reflex for r in runs]),
-        "",
-        f"Learner (eq 19–21) at the end of each run vs the dice set in the plant "
-        f"({ENGINE_NAMES[config.engine]}; "
-        f"stiffness {dice.stiffness:g} N/m, damping {dice.damping:g} N·s/m; planner prior "
-        f"{config.prior_stiffness:g} N/m, {config.prior_damping:g} N·s/m):",
-        "",
-        "| run | samples | stiffness α̂ (N/m) | error | damping β̂ (N·s/m) | error | "
-        "MPC handover (s) |",
-        "|" + "---|" * 7,
-    ]
-    for r in runs:
-        ek = (r.learned_stiffness / dice.stiffness - 1.0) * 100.0
-        ed = (r.learned_damping / dice.damping - 1.0) * 100.0 if dice.damping > 0 else np.nan
-        lines.append(
-            f"| {r.name} | {r.learner_samples} | {_fmt(r.learned_stiffness, '.1f')} "
-            f"| {_fmt(ek, '+.1f')} % | {_fmt(r.learned_damping, '.2f')} | {_fmt(ed, '+.1f')} % "
-            f"| {_fmt(r.handover_time, '.3f')} |"
-        )
-    touched = [r for r in runs if r.strategy == "touch_first"]
-    if touched:
-        lines += [
-            "",
-            "Touch first (the maximal approach's exploratory touch at the eq 14 bound safe for "
-            "the plausible range, then the strike planned from the learned interval):",
-            "",
-            "| run | touch (s) | touch velocity (m/s) | touch peak force (N) | "
-            "touch peak penetration (mm) | decision (s) | strike planned with | refusal |",
-            "|" + "---|" * 8,
-        ]
-        for r in touched:
-            lines.append(
-                f"| {r.name} | {_fmt(r.touch_time, '.3f')} | {_fmt(r.touch_velocity, '.3f')} "
-                f"| {_fmt(r.touch_peak_force, '.1f')} "
-                f"| {_fmt(1e3 * r.touch_peak_penetration, '.1f')} "
-                f"| {_fmt(r.decision_time, '.3f')} | {r.strike_knowledge} "
-                f"| {r.refusal or '—'} |"
-            )
+    lines += ["", reflex_note([r.reflex for r in runs])]
+    lines += _learner_table(runs, config) + _learning_strategy_tables(runs)
+    stopped = [r for r in runs if r.stopped_short]
+    if stopped:
+        lines += ["", "Stopped short of the target (the regulation's depth bound):", ""]
+        lines += [f"- {r.label}: {r.stopped_short}" for r in stopped]
     lines += [
         "",
         f"Steady force: |f − {config.target_force:g}| ≤ {100 * config.steady_band:g} % for "
@@ -539,13 +524,89 @@ def format_table(runs: list[ImpactRun], config: ImpactStudyConfig) -> str:
     return "\n".join(lines)
 
 
-#: Line styles of the runs in the figure.
+def _learner_table(runs: list[ImpactRun], config: ImpactStudyConfig) -> list[str]:
+    """The learner's estimate at the end of each run against the dice, Markdown lines."""
+    dice = config.dice
+    lines = [
+        "",
+        f"Learner (eq 19–21) at the end of each run vs the dice set in the plant "
+        f"({ENGINE_NAMES[config.engine]}; stiffness {dice.stiffness:g} N/m, "
+        f"damping {dice.damping:g} N·s/m; planner prior "
+        f"{config.prior_stiffness:g} N/m, {config.prior_damping:g} N·s/m):",
+        "",
+        "| run | samples | stiffness α̂ (N/m) | error | damping β̂ (N·s/m) | error | "
+        "MPC handover (s) |",
+        "|" + "---|" * 7,
+    ]
+    for r in runs:
+        ek = (r.learned_stiffness / dice.stiffness - 1.0) * 100.0
+        ed = (r.learned_damping / dice.damping - 1.0) * 100.0 if dice.damping > 0 else np.nan
+        lines.append(
+            f"| {r.label} | {r.learner_samples} | {_fmt(r.learned_stiffness, '.1f')} "
+            f"| {_fmt(ek, '+.1f')} % | {_fmt(r.learned_damping, '.2f')} | {_fmt(ed, '+.1f')} % "
+            f"| {_fmt(r.handover_time, '.3f')} |"
+        )
+    return lines
+
+
+def _learning_strategy_tables(runs: list[ImpactRun]) -> list[str]:
+    """The touch-first runs' touch and the strike-first runs' decision, Markdown lines."""
+    lines: list[str] = []
+    touched = [r for r in runs if r.approach == "maximal" and r.strategy == "touch_first"]
+    if touched:
+        lines += [
+            "",
+            "Touch first (the maximal approach's exploratory touch at the eq 14 bound safe for "
+            "the plausible range, then the strike planned from the learned interval):",
+            "",
+            "| run | touch (s) | touch velocity (m/s) | touch peak force (N) | "
+            "touch peak penetration (mm) | decision (s) | strike planned with | refusal |",
+            "|" + "---|" * 8,
+        ]
+        for r in touched:
+            lines.append(
+                f"| {r.label} | {_fmt(r.touch_time, '.3f')} | {_fmt(r.touch_velocity, '.3f')} "
+                f"| {_fmt(r.touch_peak_force, '.1f')} "
+                f"| {_fmt(1e3 * r.touch_peak_penetration, '.1f')} "
+                f"| {_fmt(r.decision_time, '.3f')} | {r.strike_knowledge} "
+                f"| {r.refusal or '—'} |"
+            )
+    struck = [r for r in runs if r.approach == "maximal" and r.strategy == "strike_first"]
+    if struck:
+        lines += [
+            "",
+            "Strike first (the first contact is the task's impact at the eq 14 bound safe for "
+            "the knowledge before contact; the target decided in contact from the learned "
+            "interval):",
+            "",
+            "| run | contact (s) | decision (s) | knowledge after the decision | refusal |",
+            "|" + "---|" * 5,
+        ]
+        for r in struck:
+            lines.append(
+                f"| {r.label} | {_fmt(r.contact_time, '.3f')} | {_fmt(r.decision_time, '.3f')} "
+                f"| {r.strike_knowledge} | {r.refusal or '—'} |"
+            )
+    return lines
+
+
+#: Line styles of the runs in the figure: colour by run, line style by the maximal
+#: approach's strategy (the baseline dashed).
 _STYLE = {
     ("maximal", "admittance"): dict(color="black", ls="-"),
     ("maximal", "ff_mpc"): dict(color="tab:red", ls="-"),
     ("baseline", "admittance"): dict(color="tab:cyan", ls="--"),
     ("baseline", "ff_mpc"): dict(color="tab:purple", ls="--"),
 }
+_STRATEGY_LINE = {"strike_first": "-", "touch_first": ":", "prior": "-."}
+
+
+def _style(run: ImpactRun, several: bool) -> dict[str, Any]:
+    """The figure's style of a run (``several``: the maximal runs of several strategies)."""
+    style = dict(_STYLE.get((run.approach, run.regulation), {}))
+    if several and run.approach == "maximal":
+        style["ls"] = _STRATEGY_LINE.get(run.strategy, "-")
+    return style
 
 
 def plot_runs(runs: list[ImpactRun], config: ImpactStudyConfig, path: Path) -> Path:
@@ -558,10 +619,11 @@ def plot_runs(runs: list[ImpactRun], config: ImpactStudyConfig, path: Path) -> P
 
     fig, (ax_v, ax_f, ax_z) = plt.subplots(3, 1, figsize=(7.0, 6.6), sharex=True, dpi=90)
     bound_drawn = False
+    several = len({r.strategy for r in runs if r.approach == "maximal"}) > 1
     for r in runs:
         t, log = r.log["t"], r.log
-        style = _STYLE.get((r.approach, r.regulation), {})
-        label = r.name.replace("ff_mpc", "FF-MPC")
+        style = _style(r, several)
+        label = (r.label if several else r.name).replace("ff_mpc", "FF-MPC")
         ax_v.plot(t, log["speed"], lw=1.2, label=label, **style)
         if r.approach == "maximal" and not bound_drawn:
             ax_v.plot(
@@ -571,7 +633,7 @@ def plot_runs(runs: list[ImpactRun], config: ImpactStudyConfig, path: Path) -> P
                 lw=5.0,
                 alpha=0.3,
                 zorder=1,
-                label="max. safe pre-impact velocity (eq 14)",
+                label=f"max. safe pre-impact velocity (eq 14, {r.strategy})",
             )
             bound_drawn = True
         ax_f.plot(t, log["force"], lw=1.2, label=label, **style)
@@ -606,6 +668,69 @@ def plot_runs(runs: list[ImpactRun], config: ImpactStudyConfig, path: Path) -> P
     return path
 
 
+def _read_memory(path: str | Path) -> dict[str, Any]:
+    """An object memory file (JSON, :mod:`ffmpc_core.impact.memory`); {} if it does not
+    exist, ConfigError if it is not one."""
+    path = Path(path)
+    if not path.exists():
+        return {}
+    try:
+        memory = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"{path}: not an object memory ({exc})") from None
+    if not isinstance(memory, dict):
+        raise ConfigError(f"{path}: not an object memory (a JSON object of objects)")
+    return memory
+
+
+def recall_object(path: str | Path, name: str, overrides: dict[str, Any]) -> dict[str, Any]:
+    """The ``--set`` values that hand the interval remembered for object ``name`` in the
+    memory file ``path`` to the strike-first strategy ({}: no file or no entry); ConfigError if
+    ``overrides`` already give them."""
+    entry = recall(_read_memory(path), name)
+    if entry is None:
+        return {}
+    values = entry.overrides()
+    for key in values:
+        if key in overrides:
+            raise ConfigError(f"--set {key}: also given by --memory; give it once")
+    return values
+
+
+def remember_object(
+    path: str | Path, name: str, runs: list[ImpactRun], config: ImpactStudyConfig
+) -> RememberedMaterial | None:
+    """Keep in the memory file ``path`` (created if missing, other objects kept) the interval
+    learned on object ``name`` by the run with the most learner samples (its end estimate,
+    widened as the strike-first strategy widens its own: ``touch.sigmas`` and the floors);
+    None, and nothing written, when no run learned a usable estimate."""
+    usable = [
+        r for r in runs if np.isfinite(r.learned_stiffness) and np.all(np.isfinite(r.learned_std))
+    ]
+    if not usable:
+        return None
+    best = max(usable, key=lambda r: r.learner_samples)
+    estimate = ContactEstimate(
+        best.learned_stiffness,
+        best.learned_damping,
+        best.learned_std[0],
+        best.learned_std[1],
+        float("nan"),
+        best.learner_samples,
+        float("nan"),
+    )
+    tc = config.touch
+    try:
+        material = RememberedMaterial.from_estimate(
+            estimate, tc.sigmas, tc.stiffness_floor, tc.damping_floor
+        )
+    except InputError:
+        return None
+    memory = remember(_read_memory(path), name, material)
+    Path(path).write_text(json.dumps(memory, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+    return material
+
+
 def default_out_dir() -> Path:
     """``benchmarks/results/impact_study/<UTC time>`` under the current directory."""
     stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
@@ -622,6 +747,34 @@ class ImpactStudyResult:
     wall_time: float
 
 
+def impact_jobs(
+    config: ImpactStudyConfig,
+    runs: tuple[tuple[str, str], ...] = DEFAULT_RUNS,
+    strategies: tuple[str, ...] | None = None,
+) -> list[ImpactJob]:
+    """The study's jobs in table order: each maximal run once per strategy of ``strategies``
+    (None: ``config.strategy`` only), each baseline run once (with ``config``). Runs
+    :func:`check_before_motion` for every strategy (InfeasibleTargetError before any motion)
+    and refuses unknown runs or strategies (ConfigError)."""
+    names = (config.strategy,) if strategies is None else tuple(strategies)
+    for name in names:
+        if name not in STRATEGIES:
+            raise ConfigError(f"strategy must be one of {STRATEGIES}, got {name!r}")
+    if not names or len(set(names)) != len(names):
+        raise ConfigError(f"strategies must be distinct and at least one, got {names}")
+    for approach, regulation in runs:
+        if approach not in APPROACHES or regulation not in REGULATIONS:
+            raise ConfigError(f"unknown run {approach}+{regulation}")
+    configs = [config if n == config.strategy else replace(config, strategy=n) for n in names]
+    jobs = []
+    for approach, regulation in runs:
+        for cfg in configs if approach == "maximal" else [config]:
+            if approach == "maximal":
+                check_before_motion(cfg)  # refuse before any motion
+            jobs.append(ImpactJob(cfg, approach, regulation))
+    return jobs
+
+
 def run_impact_study(
     config: ImpactStudyConfig | None = None,
     runs: tuple[tuple[str, str], ...] = DEFAULT_RUNS,
@@ -630,27 +783,26 @@ def run_impact_study(
     progress: bool = True,
     command_line: str = "",
     *,
+    strategies: tuple[str, ...] | None = None,
     workers: int | None = None,
     scheduler: str | None = None,
     cache: bool = True,
     fresh: bool = False,
 ) -> ImpactStudyResult:
-    """Run ``runs`` (:class:`ImpactJob`, through :func:`studies.execute.execute_jobs`: a Dask
-    ``LocalCluster`` of ``workers`` processes by default, ``1`` in this process, or the workers
-    of a running ``scheduler``), write ``results.json``, ``table.md`` and ``impact_fig4.png``
-    into ``out_dir`` (refused if it exists, unless ``force`` or it holds an interrupted study:
-    ``cache/`` and no ``results.json``, then the finished runs are read from its cache)."""
+    """Run ``runs`` (:func:`impact_jobs`: the maximal ones once per strategy of
+    ``strategies``, default ``config.strategy``; through :func:`studies.execute.execute_jobs`:
+    a Dask ``LocalCluster`` of ``workers`` processes by default, ``1`` in this process, or the
+    workers of a running ``scheduler``), write ``results.json``, ``table.md`` and
+    ``impact_fig4.png`` into ``out_dir`` (refused if it exists, unless ``force`` or it holds an
+    interrupted study: ``cache/`` and no ``results.json``, then the finished runs are read from
+    its cache)."""
     cfg = config if config is not None else ImpactStudyConfig()
-    if any(approach == "maximal" for approach, _ in runs):
-        check_before_motion(cfg)  # refuse before any motion (and before writing anything)
-    for approach, regulation in runs:
-        if approach not in APPROACHES or regulation not in REGULATIONS:
-            raise ConfigError(f"unknown run {approach}+{regulation}")
+    # refuse before any motion (and before writing anything)
+    jobs = impact_jobs(cfg, runs, strategies)
     out = prepare_output_dir(
         out_dir if out_dir is not None else default_out_dir(), force, resume=cache and not fresh
     )
     start = time.perf_counter()
-    jobs = [ImpactJob(cfg, approach, regulation) for approach, regulation in runs]
     run_cache = study_cache(out, cache)
     batch = execute_jobs(
         jobs,
@@ -668,7 +820,7 @@ def run_impact_study(
     if progress:
         for r in results:
             print(
-                f"  {r.name}: contact {_fmt(r.contact_time, '.3f')} s, {r.violations.total} "
+                f"  {r.label}: contact {_fmt(r.contact_time, '.3f')} s, {r.violations.total} "
                 f"limit violations, {r.wall_time:.1f} s wall",
                 flush=True,
             )

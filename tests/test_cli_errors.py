@@ -117,7 +117,7 @@ CASES: list[tuple[str, list[str], str]] = [
     ),
     ("impact-set-range", ["study", "impact", "--set", "plant.dice_stiffness=0"], "in [1, 1e+07]"),
     ("impact-set-type", ["study", "impact", "--set", "planner.horizon=2.5"], "an integer"),
-    ("impact-set-choice", ["study", "impact", "--set", "strategy=fast"], "one of 'touch_first'"),
+    ("impact-set-choice", ["study", "impact", "--set", "strategy=fast"], "one of 'strike_first'"),
     (
         "impact-set-twice",
         ["study", "impact", "--dice-stiffness", "3000", "--set", "plant.dice_stiffness=4000"],

@@ -33,8 +33,11 @@ from ffmpc_ros.params import parameter_overrides
 from studies.impact_study import run_impact
 
 MAXIMAL = ["strategy=prior", "approach_height=0.05", "duration=0.35"]
-#: The study's default strategy: touch at 0.199 s, strike decided at 0.349 s, the strike's
-#: contact at 1.034 s, the hand-over at 1.129 s.
+#: The study's default strategy: the strike's contact at 0.199 s, the target decided (admitted)
+#: at 0.248 s, the hand-over at 0.269 s.
+STRIKE_FIRST = ["approach_height=0.05", "duration=0.5"]
+#: Touch-first: touch at 0.199 s, strike decided at 0.349 s, the strike's contact at 1.034 s,
+#: the hand-over at 1.129 s.
 TOUCH_FIRST = ["strategy=touch_first", "approach_height=0.05", "duration=1.2"]
 BASELINE = ["strategy=prior", "approach_height=0.02", "duration=0.7"]
 
@@ -86,6 +89,23 @@ def test_touch_first_graph_equals_the_ros_free_run(touch_first_ff_mpc):
     assert compare_with_runner(graph, runner) == {}
     assert graph.metrics["touch_peak_force"] == runner.touch_peak_force
     assert graph.metrics["learned_damping"] == runner.learned_damping
+    assert graph.safe and graph.metrics["safe_hold_cycles"] == 0
+    assert all(not counts for counts in graph.rejected.values()), graph.rejected
+
+
+def test_strike_first_graph_equals_the_ros_free_run():
+    """The default strategy (strike-first) on the graph: the impact, the decision in contact
+    from the learner node's estimates (fed by the planner's gate), the hand-over once the
+    target is admitted, all on the same cycles and every metric equal bit for bit."""
+    graph = run_impact_graph("maximal", "ff_mpc", overrides=STRIKE_FIRST, timeout=300)
+    runner = _runner("maximal", "ff_mpc", STRIKE_FIRST)
+    assert runner.strategy == "strike_first" and np.isnan(runner.touch_time)
+    assert runner.contact_time == pytest.approx(0.199)
+    assert runner.decision_time == pytest.approx(0.248)
+    assert runner.handover_time == pytest.approx(0.269)
+    assert runner.refusal == "" and runner.violations.total == 0
+    assert compare_with_runner(graph, runner) == {}
+    assert graph.metrics["learned_stiffness"] == runner.learned_stiffness
     assert graph.safe and graph.metrics["safe_hold_cycles"] == 0
     assert all(not counts for counts in graph.rejected.values()), graph.rejected
 
@@ -261,11 +281,14 @@ def _reference(k: int, position, rotation, velocity=(0.0, 0.0, -0.1)) -> Float64
             "target_force": 60.0,
             "strike": 1.0,
             "impact_force": 0.0,
+            "handover_allowed": 1.0,
             "learner_samples": 0.0,
             "gate_phase": -1.0,
             "gate_learn": 0.0,
             "gate_surface_valid": 0.0,
             "gate_surface": np.zeros(3),
+            "stopped_short_time": -1.0,
+            "stopped_short_force": 0.0,
         }
     )
 
@@ -337,9 +360,9 @@ def test_the_launch_file_starts_the_nodes_ffmpc_run_impact_derives():
     settings = {"regulation": "ff_mpc", "duration": "0.5", "approach_height": "0.3"}
     description = load_launch_file(path, settings)
     launched = {n.name: dict(n.parameters) for n in description.nodes}
-    items = ["duration=0.5", "approach_height=0.3"]  # the study's default strategy: touch first
+    items = ["duration=0.5", "approach_height=0.3"]  # the default strategy: strike first
     cfg, params = impact_node_parameters("maximal", "ff_mpc", overrides=items)
-    assert cfg.strategy == "touch_first" and "strategy" not in params["impact_planner"]
+    assert cfg.strategy == "strike_first" and "strategy" not in params["impact_planner"]
     # only what differs from the schema's defaults is given, to the nodes that declare it
     assert (
         params["dice_plant"]["duration"] == 0.5 and params["dice_plant"]["approach_height"] == 0.3

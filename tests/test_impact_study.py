@@ -7,6 +7,7 @@ The closed-loop runs (module fixture, ~15–30 s) re-solve eq 9–14 every 5 ms 
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -18,7 +19,7 @@ from ffmpc_core.impact.control import CartesianCommand, ImpactControllerConfig
 from ffmpc_core.impact.deformation import SoftMaterial
 from ffmpc_core.impact.limits import joint_limits
 from ffmpc_core.impact.metrics import count_limit_violations, time_to_steady_force
-from ffmpc_core.impact.scenario import ImpactStudyConfig, start_configuration
+from ffmpc_core.impact.scenario import IMPACT_SCHEMA, ImpactStudyConfig, start_configuration
 from ffmpc_core.impact.task_space import (
     JointLimitGuard,
     JointLimitGuardConfig,
@@ -27,7 +28,16 @@ from ffmpc_core.impact.task_space import (
 )
 from ffmpc_core.robots import load_robot
 from ffmpc_core.tasks import PressTask
-from studies.impact_study import format_table, plot_runs, run_impact, run_impact_study
+from studies.impact_study import (
+    DEFAULT_RUNS,
+    format_table,
+    impact_jobs,
+    plot_runs,
+    recall_object,
+    remember_object,
+    run_impact,
+    run_impact_study,
+)
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 # The paper's scheme (plan from the prior as if it were the truth); the touch-first strategy,
@@ -125,6 +135,65 @@ def test_table_and_figure(runs, tmp_path):
     path = plot_runs(list(runs.values()), CONFIG, tmp_path / "fig.png")
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert 10_000 < path.stat().st_size < 200_000
+
+
+def test_jobs_per_strategy_and_the_strategy_column(runs):
+    """--strategies: the maximal runs once per strategy, the baseline once; the table names
+    each maximal run's strategy."""
+    names = ("strike_first", "touch_first", "prior")
+    jobs = impact_jobs(CONFIG, DEFAULT_RUNS, names)
+    assert [j.label for j in jobs] == [
+        "maximal+admittance [strike_first]",
+        "maximal+admittance [touch_first]",
+        "maximal+admittance [prior]",
+        "maximal+ff_mpc [strike_first]",
+        "maximal+ff_mpc [touch_first]",
+        "maximal+ff_mpc [prior]",
+        "baseline+admittance",
+        "baseline+ff_mpc",
+    ]
+    assert [j.config.strategy for j in jobs[:3]] == list(names)
+    assert jobs[-1].config == CONFIG
+    assert [j.config for j in impact_jobs(CONFIG)] == [CONFIG] * 4
+    for bad in (("fastest",), ("prior", "prior"), ()):
+        with pytest.raises(ConfigError):
+            impact_jobs(CONFIG, DEFAULT_RUNS, bad)
+    with pytest.raises(ConfigError, match="unknown run"):
+        impact_jobs(CONFIG, (("maximal", "pid"),))
+    struck = replace(runs["maximal+admittance"], strategy="strike_first")
+    table = format_table([struck, runs["maximal+admittance"], runs["baseline+admittance"]], CONFIG)
+    assert "| maximal+admittance | strike_first |" in table
+    assert "| maximal+admittance | prior |" in table and "| baseline+admittance | — |" in table
+    assert "Strike first" in table and "| maximal+admittance [strike_first] |" in table
+
+
+def test_object_memory_file(runs, tmp_path):
+    """--memory: the interval learned by the run with the most samples is kept per object (the
+    other objects kept), handed back as the strike-first strategy's --set values; a value also
+    given by --set, or a file that is no memory, is refused."""
+    path = tmp_path / "memory.json"
+    assert recall_object(path, "dice", {}) == {}  # no file yet
+    path.write_text(
+        json.dumps(
+            {"cup": {"stiffness": [1, 2], "damping": [0, 1], "estimate": [1.5, 0.5], "samples": 9}}
+        )
+    )
+    kept = remember_object(path, "dice", list(runs.values()), CONFIG)
+    best = max(runs.values(), key=lambda r: r.learner_samples)
+    assert kept is not None and kept.samples == best.learner_samples
+    assert kept.estimate == (best.learned_stiffness, best.learned_damping)
+    lo, hi = kept.stiffness
+    assert lo < CONFIG.dice.stiffness < hi
+    values = recall_object(path, "dice", {})
+    assert values == kept.overrides()
+    assert "cup" in json.loads(path.read_text())
+    cfg = IMPACT_SCHEMA.build(values, CONFIG)
+    assert cfg.strike.remembered_stiffness == pytest.approx(kept.stiffness)
+    with pytest.raises(ConfigError, match="also given by --memory"):
+        recall_object(path, "dice", {"strike.remembered_damping": [1.0, 2.0]})
+    path.write_text("[1, 2]")
+    with pytest.raises(ConfigError, match="not an object memory"):
+        recall_object(path, "dice", {})
 
 
 def test_study_refuses_to_overwrite(tmp_path):

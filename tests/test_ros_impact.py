@@ -40,7 +40,8 @@ from ffmpc_ros.impact_planner_node import ImpactPlannerNode
 from ffmpc_ros.mpc_node import MpcNode
 
 DOWN = np.array([0.0, 0.0, -1.0])
-#: The paper's scheme with the learner's material (the study's default strategy is touch_first).
+#: The paper's scheme with the learner's material (the study's default strategy is
+#: strike_first).
 PRIOR = {"strategy": "prior", "use_learned_material": True}
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
@@ -520,13 +521,15 @@ def test_impact_nodes_declare_the_impact_schema_with_its_descriptors(ros):
             ), desc.name
         if name == "impact_planner":
             declared_set = set(declared)
-            for pattern in ("planner.", "admittance.", "touch.", "learner."):
+            for pattern in ("planner.", "admittance.", "touch.", "strike.", "learner."):
                 assert {n for n in IMPACT_SCHEMA.params if n.startswith(pattern)} <= declared_set
             # defaults: the study's; the controller: the ROS-free run's
-            assert node.study == ImpactStudyConfig() and node.strategy == "touch_first"
-            wanted = task_config("maximal", "admittance", ImpactStudyConfig()).controller
-            assert _same(node.config, wanted)
+            assert node.study == ImpactStudyConfig() and node.strategy == "strike_first"
+            wanted = task_config("maximal", "admittance", ImpactStudyConfig())
+            assert _same(node.config, wanted.controller)
             assert node.controller.touch == ImpactStudyConfig().touch
+            assert node.controller.strike == ImpactStudyConfig().strike
+            assert np.array_equal(node.controller.surface, wanted.surface)
 
 
 def test_impact_nodes_refuse_what_the_study_refuses_with_its_message(ros):

@@ -13,6 +13,9 @@ Modules:
         confidence interval) and the infeasible-force-target check.
     touch_first: learn before striking hard: a touch safe for every plausible material, the
         learner's interval, then the maximal strike (or a refusal of the target).
+    strike_first: the first contact is the task's impact, at the bound safe for every material
+        still plausible; the target decided in contact from the learned interval.
+    memory: what a run learned about an object, kept for the next run on it.
     task_space: a task-space inverse-dynamics law from the Cartesian command to joint torques.
 
 Sign convention of the package: the deformation ``z`` and the pressing force ``f`` are positive
@@ -58,6 +61,7 @@ from ffmpc_core.impact.robust import (
     check_force_target,
     steady_penetration,
 )
+from ffmpc_core.impact.strike_first import StrikeFirstConfig, StrikeFirstImpactController
 from ffmpc_core.impact.task_space import TaskSpaceGains, TaskSpaceInverseDynamics
 from ffmpc_core.impact.touch_first import TouchFirstConfig, TouchFirstImpactController
 
@@ -80,6 +84,8 @@ __all__ = [
     "RecursiveContactLearner",
     "RobustImpactPlanner",
     "SoftMaterial",
+    "StrikeFirstConfig",
+    "StrikeFirstImpactController",
     "TaskSpaceGains",
     "TaskSpaceInverseDynamics",
     "TouchFirstConfig",

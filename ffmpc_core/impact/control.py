@@ -38,6 +38,8 @@ __all__ = [
     "ImpactController",
     "ImpactControllerConfig",
     "ImpactMeasurement",
+    "StoppedShort",
+    "stop_short_event",
 ]
 
 APPROACH = "approach"
@@ -51,18 +53,29 @@ class AdmittanceForceController:
     The reference velocity (m/s) follows ``v ← γ v + (1 − γ) clip(G (f_des − f), ±v_max)``:
     admittance ``G`` (m/(N·s)), filter ``γ`` per step of ``nominal_dt`` (s), ``v_max`` (m/s).
     The position reference is the integral of ``v``. ``f`` is the measured pressing force (N).
+    The reference never goes deeper than :func:`admittance_step`'s ``max_position``, the
+    contact's surface + :meth:`max_depth`: z̄ less ``depth_margin`` (m; at rest at that depth
+    on a 1200 N/m dice the tool sat 1.1 mm below its reference).
     """
 
     admittance: float = 2e-3
     max_velocity: float = 0.1
     velocity_filter: float = 0.8
     nominal_dt: float = 1e-3
+    depth_margin: float = 0.002
 
     def __post_init__(self) -> None:
         if not (self.admittance > 0 and self.max_velocity > 0 and self.nominal_dt > 0):
             raise ConfigError("admittance, max_velocity and nominal_dt must be positive")
+        if not (np.isfinite(self.depth_margin) and self.depth_margin >= 0):
+            raise ConfigError("depth_margin must be ≥ 0 (m)")
         if not 0.0 <= self.velocity_filter < 1.0:
             raise ConfigError("velocity_filter must be in [0, 1)")
+
+    def max_depth(self, max_penetration: float) -> float:
+        """The deepest reference below the contact's surface, m: z̄ (``max_penetration``, m)
+        less ``depth_margin`` (at least half of z̄)."""
+        return max(max_penetration - self.depth_margin, 0.5 * max_penetration)
 
     def velocity(self, previous: float, force: float, target_force: float, dt: float) -> float:
         """One update of the reference velocity (m/s) over ``dt`` s."""
@@ -167,6 +180,56 @@ class AdmittanceReference:
     velocity: float
 
 
+@dataclass(frozen=True)
+class StoppedShort:
+    """The regulation reached the penetration bound below its target force (the target is
+    unreachable for this material within z̄): it stopped there and holds.
+
+    Attributes:
+        time: s, when the reference first stopped at the bound. force: N, measured then.
+        target_force: N. depth: the bound below the contact's surface, m.
+        max_penetration: z̄, m.
+    """
+
+    time: float
+    force: float
+    target_force: float
+    depth: float
+    max_penetration: float
+
+    def message(self) -> str:
+        """One line with the numbers."""
+        return (
+            f"target {self.target_force:g} N not reached: the regulation stopped "
+            f"{1e3 * self.depth:.1f} mm deep (z̄ = {1e3 * self.max_penetration:.1f} mm) with "
+            f"{self.force:.1f} N at t = {self.time:.3f} s and holds there"
+        )
+
+
+def stop_short_event(
+    reference: AdmittanceReference,
+    max_position: float,
+    force: float,
+    target_force: float,
+    admittance: AdmittanceForceController,
+    max_penetration: float,
+    t: float,
+) -> StoppedShort | None:
+    """A :class:`StoppedShort` when the admittance ``reference`` (after its step) stands at
+    ``max_position`` (m along d) while the measured ``force`` (N) is below ``target_force``
+    (N), else None; the admittance's depth below z̄ (``max_penetration``, m) and ``t`` (s)
+    for the report."""
+    if reference.position >= max_position and force < target_force:
+        return StoppedShort(
+            float(t),
+            float(force),
+            float(target_force),
+            admittance.max_depth(max_penetration),
+            float(max_penetration),
+        )
+    return None
+
+
 def admittance_step(
     admittance: AdmittanceForceController,
     reference: AdmittanceReference,
@@ -177,6 +240,7 @@ def admittance_step(
     target_force: float,
     dt: float,
     phase: str = CONTACT,
+    max_position: float = float("inf"),
 ) -> tuple[CartesianCommand, AdmittanceReference]:
     """One cycle of the post-contact admittance task (Sec. VI), the one function every impact
     controller uses after contact: the reference velocity along d (m/s) follows
@@ -184,9 +248,16 @@ def admittance_step(
     (N), the reference position along d is its integral over ``dt`` (s) from ``origin`` (m,
     world), the lateral position and the orientation ``rotation`` are held.
 
+    ``max_position`` (m along d from ``origin``): the reference never goes deeper — the
+    material's bound z̄ below the contact's surface. A target the material cannot hold within
+    it is stopped short of: the reference stops there and stays at rest (its velocity is not
+    allowed to point deeper), the force is what the material gives at that depth.
+
     Returns the Cartesian command and the new reference."""
     velocity = admittance.velocity(reference.velocity, force, target_force, dt)
     position = reference.position + velocity * dt
+    if position >= max_position:
+        position, velocity = max_position, min(velocity, 0.0)
     command = CartesianCommand(
         phase=phase,
         position=origin + position * direction,
@@ -245,6 +316,12 @@ class ImpactController:
         self.contact_velocity: float | None = None
         self.solver_failures = 0
         self._last_plan: tuple[float, float, float, float, PenetrationPlan | None] | None = None
+        self._free_along = 0.0  # along d at the last force-free sample, m
+        # the admittance reference's deepest point (m along d from the hold point): the
+        # surface of the contact + z̄ (inf before contact)
+        self._regulation_limit = float("inf")
+        #: the regulation's first stop at the penetration bound short of its target
+        self.stopped_short: StoppedShort | None = None
         self.learner.reset()
 
     def _frame_state(
@@ -294,11 +371,16 @@ class ImpactController:
         q, v, dt, p, R, pdot, along, speed, force = self._cycle_state(measurement, t)
         cfg = self.config
 
+        if self.phase == APPROACH and force <= 0.0:
+            self._free_along = along
         if self.phase == APPROACH and force >= cfg.contact_threshold:
             self.phase = CONTACT
             self.contact_time = t
             self.contact_velocity = speed
             self._contact_position = p.copy()
+            self._regulation_limit = self._free_along + cfg.admittance.max_depth(
+                cfg.material.max_penetration
+            )
             self._x_ref = along
             self._v_ref = speed
         if self.phase == CONTACT:
@@ -391,7 +473,8 @@ class ImpactController:
     def _admittance_command(
         self, force: float, target_force: float, dt: float, phase: str
     ) -> CartesianCommand:
-        """:func:`admittance_step` from the held pose, on this controller's reference."""
+        """:func:`admittance_step` from the held pose, on this controller's reference, never
+        deeper than the regulation limit (records :attr:`stopped_short`)."""
         hold_position, hold_rotation = self._hold_pose()
         command, reference = admittance_step(
             self.config.admittance,
@@ -403,6 +486,17 @@ class ImpactController:
             target_force,
             dt,
             phase,
+            self._regulation_limit,
         )
         self._x_ref, self._v_ref = reference.position, reference.velocity
+        if self.stopped_short is None and self._t_prev is not None:
+            self.stopped_short = stop_short_event(
+                reference,
+                self._regulation_limit,
+                force,
+                target_force,
+                self.config.admittance,
+                self.config.material.max_penetration,
+                self._t_prev,
+            )
         return command

@@ -8,8 +8,10 @@ workspace in the object, ``reset()`` and ``step(measurement, t) -> command``; no
 * :class:`BaselineApproach`: the paper's comparison approach, a critically damped reference to
   a static target along ``d``, its acceleration saturated at the contact-space bound (eq 10–11).
 * The maximal approach (eq 9–14 every cycle) is :class:`~ffmpc_core.impact.control.
-  ImpactController` (the paper's scheme) or :class:`~ffmpc_core.impact.touch_first.
-  TouchFirstImpactController` (touch, learn, strike).
+  ImpactController` (the paper's scheme), :class:`~ffmpc_core.impact.touch_first.
+  TouchFirstImpactController` (touch, learn, strike) or :class:`~ffmpc_core.impact.
+  strike_first.StrikeFirstImpactController` (the first contact is the impact; decide in
+  contact), built by :func:`maximal_approach`.
 * :class:`ForceFeedbackHandover`: the force-feedback MPC taking over after the impact, its
   torque blended in and kept admissible by the joint-limit guard.
 * :class:`ImpactTaskController`: the whole experiment's control (approach, contact, learner,
@@ -36,7 +38,9 @@ from ffmpc_core.impact.control import (
     ImpactController,
     ImpactControllerConfig,
     ImpactMeasurement,
+    StoppedShort,
     admittance_step,
+    stop_short_event,
 )
 from ffmpc_core.impact.deformation import (
     SoftMaterial,
@@ -46,6 +50,8 @@ from ffmpc_core.impact.deformation import (
 )
 from ffmpc_core.impact.learner import RecursiveContactLearner
 from ffmpc_core.impact.limits import ContactSpaceMapper, JointLimits
+from ffmpc_core.impact.robust import admits_target
+from ffmpc_core.impact.strike_first import StrikeFirstConfig, StrikeFirstImpactController
 from ffmpc_core.impact.task_space import (
     JointLimitGuard,
     JointLimitGuardConfig,
@@ -172,24 +178,32 @@ class AdmittanceConfig:
         direction: unit push direction d, world frame.
         target_force: N (paper: 60).
         time_step: control period, s (the reference is integrated over it each step).
+        max_penetration: z̄, m: how far below the contact's surface the reference may go
+            (reported in :class:`~ffmpc_core.impact.control.StoppedShort`; the depth itself is
+            :meth:`AdmittanceRegulator.start`'s).
     """
 
     direction: np.ndarray
     target_force: float = 60.0
     time_step: float = 1e-3
     admittance: AdmittanceForceController = field(default_factory=AdmittanceForceController)
+    max_penetration: float = float("inf")
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "direction", unit_direction(self.direction))
         _positive("AdmittanceConfig", target_force=self.target_force, time_step=self.time_step)
+        if not self.max_penetration > 0:
+            raise ConfigError("AdmittanceConfig.max_penetration must be > 0 (m)")
 
 
 class AdmittanceRegulator:
     """Sec. VI's admittance task as ``reset()`` / ``start(...)`` / ``step(measurement, t)``.
 
-    :meth:`start` latches the contact pose (origin m, rotation, world) and the speed along d
-    (m/s) the reference starts from; each :meth:`step` then moves the reference along d by
-    :func:`~ffmpc_core.impact.control.admittance_step` from the measured pressing force."""
+    :meth:`start` latches the contact pose (origin m, rotation, world), the speed along d
+    (m/s) the reference starts from and the deepest reference (m along d from the origin: the
+    surface + z̄); each :meth:`step` then moves the reference along d by
+    :func:`~ffmpc_core.impact.control.admittance_step` from the measured pressing force, and
+    records :attr:`stopped_short` the first time it stops at that depth below the target."""
 
     def __init__(self, config: AdmittanceConfig) -> None:
         self.config = config
@@ -201,21 +215,33 @@ class AdmittanceRegulator:
         self._rotation: np.ndarray | None = None
         self.reference = AdmittanceReference(0.0, 0.0)
         self._t_prev: float | None = None
+        self.max_position = float("inf")
+        self.stopped_short: StoppedShort | None = None
 
     @property
     def started(self) -> bool:
         """True once :meth:`start` latched a contact pose."""
         return self._origin is not None
 
-    def start(self, origin: np.ndarray, rotation: np.ndarray, speed: float) -> None:
-        """Latch the task's origin (m, world), its held orientation and the initial reference
-        speed along d (m/s, usually the speed at contact)."""
+    def start(
+        self,
+        origin: np.ndarray,
+        rotation: np.ndarray,
+        speed: float,
+        max_position: float = float("inf"),
+    ) -> None:
+        """Latch the task's origin (m, world), its held orientation, the initial reference
+        speed along d (m/s, usually the speed at contact) and the deepest reference
+        ``max_position`` (m along d from the origin; inf: none)."""
         o = np.asarray(origin, dtype=float)
         R = np.asarray(rotation, dtype=float)
         if o.shape != (3,) or R.shape != (3, 3) or not np.isfinite(speed):
             raise InputError("start needs a 3-vector origin, a 3×3 rotation and a finite speed")
+        if np.isnan(max_position) or max_position <= 0.0:
+            raise InputError(f"max_position must be > 0 (m along d), got {max_position}")
         self._origin, self._rotation = o.copy(), R.copy()
         self.reference = AdmittanceReference(0.0, float(speed))
+        self.max_position = float(max_position)
 
     def step(self, measurement: ContactMeasurement, t: float) -> CartesianCommand:
         """One cycle at ``t`` (s): the command of the contact frame (world frame)."""
@@ -233,7 +259,18 @@ class AdmittanceRegulator:
             measurement.force,
             cfg.target_force,
             cfg.time_step,
+            max_position=self.max_position,
         )
+        if self.stopped_short is None:
+            self.stopped_short = stop_short_event(
+                self.reference,
+                self.max_position,
+                measurement.force,
+                cfg.target_force,
+                cfg.admittance,
+                cfg.max_penetration,
+                t,
+            )
         return command
 
 
@@ -532,6 +569,10 @@ class ImpactTaskConfig:
             target force, contact threshold and admittance serve every approach.
         touch: the touch-first strategy of the maximal approach; None = plan from the prior
             as if it were the truth (the paper's scheme).
+        strike: with ``touch`` (its shared parameters), the strike-first strategy instead
+            (:class:`~ffmpc_core.impact.strike_first.StrikeFirstImpactController`).
+        surface: the object's expected surface point (m, world frame) the strike-first
+            approach brakes before (None: unknown).
         baseline: the baseline approach (required for ``approach="baseline"``).
         handover: the hand-over (required for ``regulation="ff_mpc"``).
         guard: the joint-limit QP every torque goes through.
@@ -544,10 +585,14 @@ class ImpactTaskConfig:
     guard: JointLimitGuardConfig
     time_step: float = 1e-3
     touch: TouchFirstConfig | None = None
+    strike: StrikeFirstConfig | None = None
+    surface: np.ndarray | None = None
     baseline: BaselineApproachConfig | None = None
     handover: HandoverConfig | None = None
 
     def __post_init__(self) -> None:
+        if self.strike is not None and self.touch is None:
+            raise ConfigError("ImpactTaskConfig: the strike-first strategy needs `touch` too")
         if self.approach not in APPROACHES:
             raise ConfigError(f"approach must be one of {APPROACHES}, got {self.approach!r}")
         if self.regulation not in REGULATIONS:
@@ -592,14 +637,46 @@ class ExternalApproach:
     Attributes:
         command: the approach's Cartesian command of the cycle.
         phase: the approach controller's phase after its step.
-        touch: with the touch-first strategy, its inputs from before its step
+        touch: with a learning strategy (touch-first, strike-first), its inputs from before
+            its step
             (:meth:`~ffmpc_core.impact.touch_first.TouchFirstImpactController.cycle_inputs`);
             None with the paper's scheme.
+        stopped_short: the approach controller's regulation has stopped at its depth bound
+            short of the target (:attr:`~ffmpc_core.impact.control.ImpactController.
+            stopped_short`; the paper's scheme hands over no more then), None: not.
     """
 
     command: CartesianCommand
     phase: str
     touch: TouchCycleInputs | None = None
+    stopped_short: StoppedShort | None = None
+
+
+def maximal_approach(
+    robot: RobotModel,
+    limits: JointLimits,
+    config: ImpactTaskConfig,
+    learner: RecursiveContactLearner | None = None,
+) -> ImpactController:
+    """The maximal approach's controller of ``config``'s strategy: the paper's scheme
+    (:class:`ImpactController`, its own learner), touch-first or strike-first (with
+    ``learner``, default their own). The ROS-free task controller and the impact planner node
+    build it with this one function. Raises InfeasibleTargetError before any motion (see the
+    strategies)."""
+    ctrl = config.controller
+    if config.touch is None:
+        return ImpactController(robot, limits, ctrl)
+    if config.strike is None:
+        return TouchFirstImpactController(robot, limits, ctrl, config.touch, learner=learner)
+    return StrikeFirstImpactController(
+        robot,
+        limits,
+        ctrl,
+        config.touch,
+        config.strike,
+        surface=config.surface,
+        learner=learner,
+    )
 
 
 class ImpactTaskController:
@@ -607,33 +684,36 @@ class ImpactTaskController:
 
     Each cycle: declare the contact at ``contact_threshold`` (with the touch-first strategy,
     only the strike's contact counts); feed the learner (eq 19–20, deformation from the last
-    force-free sample) unless the touch-first controller learns itself; predict the force an
-    impact during the next step would add (eq 3 one step ahead, for the guard); engage the
-    hand-over when it is ready; command the approach (maximal or baseline) or, after contact,
-    the admittance task, through the task-space law inside the joint-limit guard, blended with
-    the MPC's admissible torque (the admissible set is convex in τ: the blend is admissible).
+    force-free sample) unless a learning strategy's controller (touch-first, strike-first)
+    learns itself; predict the force an impact during the next step would add (eq 3 one step
+    ahead, for the guard); engage the hand-over when it is ready and allowed (a learning
+    strategy says when; otherwise once the learner admits the target and the regulation has
+    not stopped short of it); command the approach (maximal or baseline) or, after contact,
+    the admittance task (never deeper than its depth bound below the contact's surface),
+    through the task-space law inside the joint-limit guard, blended with the MPC's admissible
+    torque (the admissible set is convex in τ: the blend is admissible).
 
     Args:
         robot: the robot model (contact frame = end-effector).
         limits: the control limits the planner and the guard use.
         config: see :class:`ImpactTaskConfig`.
         learner: the learner the hand-over reads and this controller feeds (default: its own
-            :class:`RecursiveContactLearner`, or the touch-first controller's; the impact
-            graph's controller node gives one that holds the contact learner node's
-            estimates). With the touch-first strategy this controller never feeds it (the
-            touch-first controller's feeding rule does, where it runs).
+            :class:`RecursiveContactLearner`, or the learning strategy's; the impact graph's
+            controller node gives one that holds the contact learner node's estimates). With
+            a learning strategy this controller never feeds it (the strategy's feeding rule
+            does, where it runs).
         external_approach: the maximal approach runs elsewhere (the impact planner node):
             :meth:`step` then takes its part of the cycle (:class:`ExternalApproach`); only
             with a given ``learner``.
 
     Raises:
-        InfeasibleTargetError: touch-first, before any motion, when no plausible material can
-            hold the target (or the touch force is unsafe for the softest one).
+        InfeasibleTargetError: touch-first and strike-first, before any motion (see them).
 
     Attributes: ``learner``, ``guard``, ``approach_controller`` (maximal: the
-    :class:`ImpactController`, else None), ``touch_first``, ``baseline``, ``admittance``,
-    ``handover``; after steps ``contact_time`` (s), ``touch_speed`` (m/s at the last
-    force-free sample before contact), ``handover_time`` (s).
+    :class:`ImpactController`, else None), ``learning_approach`` (the same object with a
+    learning strategy, else None), ``baseline``, ``admittance``, ``handover``; after steps
+    ``contact_time`` (s), ``touch_speed`` (m/s at the last force-free sample before contact),
+    ``handover_time`` (s), :attr:`stopped_short`.
     """
 
     def __init__(
@@ -651,7 +731,7 @@ class ImpactTaskController:
         self.guard = JointLimitGuard(robot, limits, config.guard)
         self.law = TaskSpaceInverseDynamics(robot, guard=self.guard)
         self.approach_controller: ImpactController | None = None
-        self.touch_first: TouchFirstImpactController | None = None
+        self.learning_approach: TouchFirstImpactController | None = None
         self.baseline: BaselineApproach | None = None
         self.external_approach = external_approach and config.approach == "maximal"
         if self.external_approach and learner is None:
@@ -659,16 +739,13 @@ class ImpactTaskController:
                 "an external maximal approach (the impact planner node) needs the learner the "
                 "hand-over reads"
             )
-        #: the touch-first strategy of the maximal approach (here or external)
-        self.touch_strategy = config.approach == "maximal" and config.touch is not None
+        #: a learning strategy of the maximal approach (touch-first or strike-first; here or
+        #: external): its feeding rule feeds the learner, its inputs gate the contact
+        self.gated_strategy = config.approach == "maximal" and config.touch is not None
         if config.approach == "maximal" and not self.external_approach:
-            if config.touch is not None:
-                self.touch_first = TouchFirstImpactController(
-                    robot, limits, ctrl, config.touch, learner=learner
-                )
-                self.approach_controller = self.touch_first
-            else:
-                self.approach_controller = ImpactController(robot, limits, ctrl)
+            self.approach_controller = maximal_approach(robot, limits, config, learner)
+            if isinstance(self.approach_controller, TouchFirstImpactController):
+                self.learning_approach = self.approach_controller
         elif config.approach == "baseline":
             assert config.baseline is not None  # checked by ImpactTaskConfig
             self.baseline = BaselineApproach(robot, limits, config.baseline)
@@ -678,13 +755,14 @@ class ImpactTaskController:
                 target_force=ctrl.target_force,
                 time_step=config.time_step,
                 admittance=ctrl.admittance,
+                max_penetration=ctrl.material.max_penetration,
             )
         )
         # The touch-first controller's rule feeds the learner (during the touch and after the
         # strike): the MPC then takes its estimate. Otherwise this controller feeds it.
         self.learner = (
-            self.touch_first.learner
-            if self.touch_first is not None
+            self.learning_approach.learner
+            if self.learning_approach is not None
             else (learner if learner is not None else RecursiveContactLearner())
         )
         self.handover: ForceFeedbackHandover | None = None
@@ -698,13 +776,14 @@ class ImpactTaskController:
         for part in (self.approach_controller, self.baseline, self.admittance, self.handover):
             if part is not None:
                 part.reset()
-        if self.touch_first is None:  # (the touch-first controller resets its learner)
+        if self.learning_approach is None:  # (a learning approach resets its learner)
             self.learner.reset()
         self.contact_time: float | None = None
         self.touch_position: np.ndarray | None = None
         self.touch_speed = float("nan")
         self.handover_time: float | None = None
         self._hold_rotation: np.ndarray | None = None
+        self._external_stopped: StoppedShort | None = None
 
     @property
     def prior(self) -> SoftMaterial:
@@ -723,6 +802,39 @@ class ImpactTaskController:
             prior = self.prior
             return -one_step_impact_force(prior.stiffness, prior.damping, m.speed, dt) * d
         return None
+
+    def _handover_allowed(
+        self, touch: TouchCycleInputs | None, approach: ExternalApproach | None
+    ) -> bool:
+        """Whether the force-feedback MPC may take over the regulation (it presses for the
+        target and does not know z̄): a learning strategy says so (strike-first: once the
+        target is admitted from the learned interval); otherwise once the learner this
+        controller feeds admits the target (:func:`~ffmpc_core.impact.robust.admits_target`)
+        and the regulation has not stopped short of it."""
+        if touch is not None:
+            return touch.handover_allowed
+        if self.stopped_short is not None:
+            return False
+        h = self.config.handover
+        assert h is not None  # only asked with the ff_mpc regulation
+        estimate = self.learner.confident_estimate(
+            h.learner_min_samples, h.learner_max_relative_std
+        )
+        material = self.config.controller.material
+        return estimate is not None and admits_target(
+            estimate, self.config.controller.target_force, material.max_penetration
+        )
+
+    @property
+    def stopped_short(self) -> StoppedShort | None:
+        """The regulation's stop at its depth bound short of the target (None: not): the
+        maximal approach's (here, or the external one's of the last cycle) or the baseline's
+        admittance task's."""
+        if self.approach_controller is not None:
+            return self.approach_controller.stopped_short
+        if self.external_approach:
+            return self._external_stopped
+        return self.admittance.stopped_short
 
     def step(
         self,
@@ -743,9 +855,11 @@ class ImpactTaskController:
             approach = ExternalApproach(approach, approach.phase)
         ctrl = self.config.controller
         touch: TouchCycleInputs | None = None
-        if self.touch_first is not None:
-            touch = self.touch_first.cycle_inputs(m.speed, self.config.time_step, m.force)
-        elif approach is not None and self.touch_strategy:
+        if self.learning_approach is not None:
+            touch = self.learning_approach.cycle_inputs(
+                m.speed, self.config.time_step, m.force, m.position
+            )
+        elif approach is not None and self.gated_strategy:
             if approach.touch is None:
                 raise InputError("the touch-first approach's cycle inputs are missing")
             touch = approach.touch
@@ -759,9 +873,16 @@ class ImpactTaskController:
                 self.contact_time = t
                 if self.touch_position is None:  # in contact from the start (not expected)
                     self.touch_position, self.touch_speed = m.position.copy(), m.speed
-                self.admittance.start(m.position, self._hold_rotation, m.speed)
+                # the reference stops z̄ below the last force-free sample
+                depth = float(ctrl.direction @ (m.position - self.touch_position))
+                self.admittance.start(
+                    m.position,
+                    self._hold_rotation,
+                    m.speed,
+                    max(ctrl.admittance.max_depth(ctrl.material.max_penetration) - depth, 1e-6),
+                )
         in_contact = self.contact_time is not None
-        if in_contact and m.force > 0.0 and not self.touch_strategy:
+        if in_contact and m.force > 0.0 and not self.gated_strategy:
             assert self.touch_position is not None  # latched with the contact
             z = measured_deformation(m.position, self.touch_position, ctrl.direction)
             self.learner.update(z, m.speed, m.force)
@@ -770,7 +891,10 @@ class ImpactTaskController:
         nan = float("nan")
         handover = self.handover
         mpc: HandoverCommand | None = None
-        if handover is not None and (handover.engaged or handover.ready(in_contact, m.speed)):
+        if handover is not None and (
+            handover.engaged
+            or (handover.ready(in_contact, m.speed) and self._handover_allowed(touch, approach))
+        ):
             if not handover.engaged:
                 self.handover_time = t
             mpc = handover.step(m, t)
@@ -799,8 +923,10 @@ class ImpactTaskController:
             tau, phase = mpc.torque, "ff_mpc"
             # the approach controller is not stepped here: keep learning (an external one, the
             # planner node's, is stepped on and learns with the same rule)
-            if self.touch_first is not None:
-                self.touch_first.learn(m.position, m.speed, m.force)
+            if self.learning_approach is not None:
+                self.learning_approach.learn(m.position, m.speed, m.force)
+        if approach is not None:  # its state after its step, as an approach stepped here
+            self._external_stopped = approach.stopped_short
         return ImpactTaskCommand(
             torque=tau,
             in_contact=in_contact,

@@ -137,12 +137,14 @@ def touch_metrics(
     """The touch-first run's touch metrics (:class:`studies.impact_study.ImpactRun`) from the
     log (``t`` s, ``force`` N, ``penetration`` m) and the touch-first controller's touch time
     (s), touch velocity (m/s) and decision time (s) (None: never). The ROS-free run and the
-    impact graph both summarise with it."""
+    impact graph both summarise with it. Without a touch (strike-first) only the decision
+    time is set."""
     nan = float("nan")
     t_log = log["t"]
     t_touch = nan if touch_time is None else float(touch_time)
     t_decide = nan if decision_time is None else float(decision_time)
-    window = (t_log >= t_touch) & (t_log <= t_decide) if np.isfinite(t_decide) else None
+    touched = np.isfinite(t_touch) and np.isfinite(t_decide)
+    window = (t_log >= t_touch) & (t_log <= t_decide) if touched else None
     return dict(
         touch_time=t_touch,
         touch_velocity=nan if touch_velocity is None else float(touch_velocity),

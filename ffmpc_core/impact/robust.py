@@ -51,6 +51,7 @@ from ffmpc_core.impact.planner import ImpactPlanner, PenetrationPlan, PlannerCon
 
 __all__ = [
     "MaterialInterval",
+    "admits_target",
     "RobustPlan",
     "RobustImpactPlanner",
     "check_force_target",
@@ -227,6 +228,27 @@ def check_force_target(
             "penetration"
         )
     return z
+
+
+def admits_target(
+    estimate: ContactEstimate,
+    target_force: float,
+    max_penetration: float,
+    sigmas: float = 3.0,
+    stiffness_floor: float = 0.1,
+    damping_floor: float = 0.25,
+) -> bool:
+    """Whether the learner's confidence interval (:meth:`MaterialInterval.from_estimate` with
+    these widths) admits ``target_force`` (N): its softest material holds it within z̄
+    (``max_penetration``, m). False for an unusable estimate."""
+    try:
+        interval = MaterialInterval.from_estimate(
+            estimate, max_penetration, sigmas, stiffness_floor, damping_floor
+        )
+        check_force_target(target_force, interval)
+    except (InputError, InfeasibleTargetError):
+        return False
+    return True
 
 
 @dataclass(frozen=True)

@@ -44,16 +44,23 @@ from ffmpc_core.impact.learner import ExplorationReference, exploration_referenc
 from ffmpc_core.impact.limits import JointLimits
 from ffmpc_core.impact.planner import PlannerConfig
 from ffmpc_core.impact.robust import MaterialInterval, check_force_target
+from ffmpc_core.impact.strike_first import StrikeFirstConfig, remembered_interval
 from ffmpc_core.impact.task_space import JointLimitGuardConfig, TaskSpaceGains
 from ffmpc_core.impact.touch_first import TouchFirstConfig
 from ffmpc_core.robots import RobotModel
 from ffmpc_core.scenario import PLANT_ENGINES, ConfigSchema, FieldDecl, cost_weight_specs
 
 # -- the impact experiment ----------------------------------------------------------------------
-#: How the maximal approach treats the unknown material: ``touch_first`` (touch at the bound
-#: safe for the plausible range, learn, re-plan from the learned interval, then strike) or
-#: ``prior`` (the paper's scheme with the prior as if it were the truth; the fault of issue 12).
-STRATEGIES = ("touch_first", "prior")
+#: How the maximal approach treats the unknown material: ``strike_first`` (the first contact
+#: is the task's impact, at the bound safe for every material still plausible; learn from the
+#: impact and the regulation, decide the target in contact), ``touch_first`` (touch at the
+#: bound safe for the plausible range, learn, re-plan from the learned interval, then strike)
+#: or ``prior`` (the paper's scheme with the prior as if it were the truth; the fault of
+#: issue 12).
+STRATEGIES = ("strike_first", "touch_first", "prior")
+#: The strategies whose approach controller feeds the learner by its own rule
+#: (:func:`~ffmpc_core.impact.touch_first.fed_surface`) and gates the contact.
+LEARNING_STRATEGIES = ("strike_first", "touch_first")
 DOWN = np.array([0.0, 0.0, -1.0])
 
 
@@ -145,7 +152,11 @@ class ImpactStudyConfig:
         steady_hold: ... for at least this long, s (0.2).
         strategy: the maximal approach's treatment of the unknown material (:data:`STRATEGIES`).
         touch: parameters of the ``touch_first`` strategy
-            (:class:`~ffmpc_core.impact.touch_first.TouchFirstConfig`).
+            (:class:`~ffmpc_core.impact.touch_first.TouchFirstConfig`); the plausible range,
+            the learner's confidence, the learned interval's width, the guard's impact force,
+            eq 12's penetration margin and the retract height serve ``strike_first`` too.
+        strike: parameters of the ``strike_first`` strategy
+            (:class:`~ffmpc_core.impact.strike_first.StrikeFirstConfig`).
         handover_blend: the force-feedback MPC's torque is blended in linearly over this long,
             s, from the admittance controller's (both through the joint-limit guard, so every
             blend is admissible: q̈ is affine in τ and the admissible set is convex); 0 = switch.
@@ -183,8 +194,9 @@ class ImpactStudyConfig:
     learner_max_relative_std: float = HandoverConfig.learner_max_relative_std
     steady_band: float = 0.05
     steady_hold: float = 0.2
-    strategy: str = "touch_first"
+    strategy: str = "strike_first"
     touch: TouchFirstConfig = field(default_factory=TouchFirstConfig)
+    strike: StrikeFirstConfig = field(default_factory=StrikeFirstConfig)
     handover_blend: float = HandoverConfig.blend
     tool_radius: float = 0.01
     engine: str = "pybullet"
@@ -311,6 +323,7 @@ IMPACT_TABLE: dict[str, FieldDecl] = {
     "admittance.max_velocity": ("m/s", (1e-6, 10.0), "v_max"),
     "admittance.velocity_filter": ("", (0.0, 1.0), "γ per nominal_dt, in [0, 1)"),
     "admittance.nominal_dt": ("s", (1e-6, 1.0), "step of γ"),
+    "admittance.depth_margin": ("m", (0.0, 0.5), "the depth bound is this far above z̄"),
     "handover_speed": ("m/s", (1e-6, 10.0), "in-contact speed below which the MPC takes over"),
     "mpc.period": ("s", (1e-5, 1.0), "force-feedback MPC period (whole plant steps)"),
     "mpc.horizon": ("nodes", (1, 1000), "OCP nodes N"),
@@ -320,7 +333,7 @@ IMPACT_TABLE: dict[str, FieldDecl] = {
     "learner.max_relative_std": ("", (1e-9, 10.0), "largest relative std error of α̂, β̂"),
     "steady_band": ("", (1e-6, 1.0), "|f − target| ≤ this · target counts as steady"),
     "steady_hold": ("s", (1e-6, 60.0), "... for at least this long"),
-    "strategy": ("", list(STRATEGIES), "maximal approach: touch_first or prior"),
+    "strategy": ("", list(STRATEGIES), "maximal approach: strike_first, touch_first or prior"),
     "touch.stiffness_factors": ("", (1e-3, 1e3), "plausible α range, factors of the prior"),
     "touch.damping_factors": ("", (1e-3, 1e3), "plausible β range, factors of the prior"),
     "touch.touch_force": ("N", (0.01, 500.0), "force regulated during the touch"),
@@ -335,6 +348,14 @@ IMPACT_TABLE: dict[str, FieldDecl] = {
     "touch.retract_acceleration_fraction": ("", (0.0, 1.0), "peak of the retract profile"),
     "touch.impact_force_factor": ("", (0.0, 100.0), "κ of the guard's impact force"),
     "touch.penetration_margin": ("m", (0.0, 0.5), "off z̄ in eq 12 for touch and strike"),
+    "strike.surface_known": ("", None, "the approach is given the dice's surface"),
+    "strike.surface_tolerance": ("m", (0.0, 10.0), "contact possible this far above it"),
+    "strike.surface_offset": ("m", (-1.0, 1.0), "expected surface above the dice's top face"),
+    "strike.braking_fraction": ("", (1e-6, 1.0), "of the deceleration bound, before the band"),
+    "strike.settle_time": ("s", (0.0, 10.0), "at the eq 14 bound before the band"),
+    "strike.max_decision_time": ("s", (1e-3, 60.0), "decide by then after the contact"),
+    "strike.remembered_stiffness": ("N/m", (0.0, 1e7), "[lo, hi] a previous run learned"),
+    "strike.remembered_damping": ("N·s/m", (0.0, 1e5), "[lo, hi] a previous run learned"),
     "handover_blend": ("s", (0.0, 10.0), "admittance → MPC torque blend (0: switch)"),
 }
 #: The impact study's schema: ``ffmpc study impact --scenario/--set`` and impact.yaml.
@@ -404,7 +425,9 @@ def task_config(approach: str, regulation: str, cfg: ImpactStudyConfig) -> Impac
             task_weights=(cfg.lateral_weight, cfg.lateral_weight, 1.0) + (cfg.lateral_weight,) * 3,
         ),
         time_step=dt,
-        touch=cfg.touch if cfg.strategy == "touch_first" else None,
+        touch=cfg.touch if cfg.strategy in LEARNING_STRATEGIES else None,
+        strike=cfg.strike if cfg.strategy == "strike_first" else None,
+        surface=expected_surface(cfg),
         baseline=BaselineApproachConfig(
             direction=DOWN,
             distance=cfg.approach_height + cfg.baseline_target_depth,
@@ -417,7 +440,7 @@ def task_config(approach: str, regulation: str, cfg: ImpactStudyConfig) -> Impac
             target_force=cfg.target_force,
             time_step=dt,
             handover_speed=cfg.handover_speed,
-            symmetric_speed=cfg.strategy == "touch_first" and approach == "maximal",
+            symmetric_speed=cfg.strategy in LEARNING_STRATEGIES and approach == "maximal",
             blend=cfg.handover_blend,
             mpc_period=cfg.mpc_period,
             mpc_horizon=cfg.mpc_horizon,
@@ -430,6 +453,14 @@ def task_config(approach: str, regulation: str, cfg: ImpactStudyConfig) -> Impac
             learner_max_relative_std=cfg.learner_max_relative_std,
         ),
     )
+
+
+def expected_surface(cfg: ImpactStudyConfig) -> np.ndarray:
+    """The object's surface point the strike-first approach is given (m, world): the centre of
+    the dice's top face, where the baseline's target is taken from too (the controller expects
+    the surface ``strike.surface_offset`` above it)."""
+    x, y = cfg.dice.position_xy
+    return np.array([x, y, cfg.dice.top_height])
 
 
 def dice_measurement(
@@ -449,16 +480,25 @@ def start_pose(cfg: ImpactStudyConfig, robot: RobotModel) -> np.ndarray:
 
 
 def check_before_motion(config: ImpactStudyConfig) -> None:
-    """The touch-first strategy's checks before any motion (see
-    :class:`~ffmpc_core.impact.touch_first.TouchFirstImpactController`): raises
-    :class:`~ffmpc_core.errors.InfeasibleTargetError` if the touch force is unsafe for the
-    softest plausible material or no plausible material can hold the target within z̄."""
-    if config.strategy != "touch_first":
+    """The learning strategies' checks before any motion (the constructors'), here before a
+    study writes anything: raises :class:`~ffmpc_core.errors.InfeasibleTargetError` if the
+    touch force is unsafe for the softest plausible material (touch-first), no plausible
+    material can hold the target within z̄ (both), or the softest material of a remembered
+    interval cannot (strike-first, then instead of the plausible range)."""
+    if config.strategy == "strike_first":
+        remembered = remembered_interval(config.strike, config.dice.max_penetration)
+        if remembered is not None:
+            check_force_target(
+                config.target_force, remembered, "from the interval a previous run learned"
+            )
+            return
+    elif config.strategy != "touch_first":
         return
     prior = MaterialInterval.from_prior(
         config.prior, config.touch.stiffness_factors, config.touch.damping_factors
     )
-    check_force_target(config.touch.touch_force, prior, "the exploratory touch force")
+    if config.strategy == "touch_first":
+        check_force_target(config.touch.touch_force, prior, "the exploratory touch force")
     check_force_target(
         config.target_force,
         prior,

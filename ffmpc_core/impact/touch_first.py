@@ -138,10 +138,14 @@ class TouchCycleInputs:
         strike: the approach is in its strike (a contact declared now is the task's contact;
             the exploratory touch's is not).
         impact_force: the joint-limit guard's impact force along d (N,
-            :meth:`TouchFirstImpactController.impact_force_estimate`)."""
+            :meth:`TouchFirstImpactController.impact_force_estimate`).
+        handover_allowed: the regulation may be handed over to the force-feedback MPC (the
+            strike-first strategy: only once the target is admitted from the learned
+            interval; touch-first strikes only after that check)."""
 
     strike: bool
     impact_force: float
+    handover_allowed: bool = True
 
 
 @dataclass(frozen=True)
@@ -239,6 +243,9 @@ class TouchFirstImpactController(ImpactController):
     ``last_robust_plan`` (:class:`RobustPlan` of the last approach cycle).
     """
 
+    #: When the target is checked from the learned interval (in a refusal's message).
+    decision_moment = "before the strike"
+
     def __init__(
         self,
         robot: RobotModel,
@@ -252,9 +259,17 @@ class TouchFirstImpactController(ImpactController):
         self.prior_knowledge = MaterialInterval.from_prior(
             config.material, self.touch.stiffness_factors, self.touch.damping_factors
         )
+        self.config = config
+        self._check_before_motion()
+        self.robust = RobustImpactPlanner(config.planner, self.touch.penetration_margin)
+        super().__init__(robot, limits, config, learner=learner)
+
+    def _check_before_motion(self) -> None:
+        """The checks before any motion (module docstring); InfeasibleTargetError."""
+        config = self.config
         if self.touch.touch_force <= config.contact_threshold:
             raise ConfigError("touch_force must be above the contact threshold (N)")
-        # Before any motion: the touch must be safe for the softest plausible material ...
+        # The touch must be safe for the softest plausible material ...
         check_force_target(
             self.touch.touch_force, self.prior_knowledge, "the exploratory touch force"
         )
@@ -265,8 +280,6 @@ class TouchFirstImpactController(ImpactController):
             "even the stiffest plausible material cannot hold it",
             worst_case=False,
         )
-        self.robust = RobustImpactPlanner(config.planner, self.touch.penetration_margin)
-        super().__init__(robot, limits, config, learner=learner)
 
     def reset(self) -> None:
         """Back to the touch approach with the prior's plausible range as the knowledge."""
@@ -296,20 +309,31 @@ class TouchFirstImpactController(ImpactController):
             self.phase, None if surface is None else surface.copy(), self.config.learn_online
         )
 
-    def cycle_inputs(self, speed: float, dt: float, force: float) -> TouchCycleInputs:
+    def cycle_inputs(
+        self, speed: float, dt: float, force: float, position: np.ndarray | None = None
+    ) -> TouchCycleInputs:
         """The task controller's inputs of this cycle, before :meth:`step`: speed along d
-        (m/s), control period (s) and pressing force (N) of the cycle's measurement."""
+        (m/s), control period (s), pressing force (N) and contact-frame position (m, world)
+        of the cycle's measurement."""
         return TouchCycleInputs(
             strike=self.phase == STRIKE,
-            impact_force=self.impact_force_estimate(speed, dt, force),
+            impact_force=self.impact_force_estimate(speed, dt, force, position),
+            handover_allowed=self.handover_allowed(),
         )
+
+    def handover_allowed(self) -> bool:
+        """Whether the regulation may be handed over to the force-feedback MPC: always (the
+        strike comes only after the target was admitted from the learned interval)."""
+        return True
 
     def learner_confident(self) -> ContactEstimate | None:
         """The learner's estimate if it meets the confidence of :class:`TouchFirstConfig`."""
         tc = self.touch
         return self.learner.confident_estimate(tc.learner_min_samples, tc.learner_max_relative_std)
 
-    def impact_force_estimate(self, speed: float, dt: float, force: float = 0.0) -> float:
+    def impact_force_estimate(
+        self, speed: float, dt: float, force: float = 0.0, position: np.ndarray | None = None
+    ) -> float:
         """Force (N) of an impact during the next step at ``speed`` (m/s along d), for the
         joint-limit guard: ``κ (β + α Δt) ż`` with the current knowledge's NOMINAL material (the
         prior during the touch, the learned one for the strike); 0 when not approaching.
@@ -330,7 +354,9 @@ class TouchFirstImpactController(ImpactController):
         with the corner's force (4× the prior) the predicted Δq̈ of the light wrist joints
         exceeds q̈_max, which turns the box into a forced acceleration towards the object (we
         measured the strike overrunning the eq 14 bound by 0.1 m/s). The corners already
-        bound the impact in eq 14 (``f_1 = β ż_imp`` inside the eq 11 polytope for each)."""
+        bound the impact in eq 14 (``f_1 = β ż_imp`` inside the eq 11 polytope for each).
+        ``position`` (the contact frame, m, world) is not used here (see the strike-first
+        strategy)."""
         if self.phase not in APPROACH_PHASES:
             return 0.0
         k = self.knowledge
@@ -373,6 +399,10 @@ class TouchFirstImpactController(ImpactController):
                     self.phase = CONTACT
                     self.contact_time, self.contact_velocity = t, speed
                 self._contact_position = self._free_position.copy()
+                # the regulation never references deeper than z̄ below this surface
+                self._regulation_limit = float(
+                    d @ (self._free_position - self._hold_position)
+                ) + cfg.admittance.max_depth(cfg.material.max_penetration)
                 self._x_ref = along
                 self._v_ref = speed
         if self.phase == TOUCH_CONTACT:
@@ -452,7 +482,7 @@ class TouchFirstImpactController(ImpactController):
         except (InputError, ConfigError):
             self.knowledge = self.prior_knowledge  # nothing usable learned: keep the range
         try:
-            check_force_target(self.config.target_force, self.knowledge, "before the strike")
+            check_force_target(self.config.target_force, self.knowledge, self.decision_moment)
             self.phase = RETRACT
         except InfeasibleTargetError as exc:
             self.refusal = exc

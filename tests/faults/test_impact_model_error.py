@@ -1,9 +1,11 @@
 """Impact safety under model error (issue 12, item 9): the dice in PyBullet is not the prior.
 
 The planner's prior is 2400 N/m, 15 N·s/m; the simulated dice spans 0.5×–3× of both. With the
-touch-first strategy (``ffmpc_core.impact.touch_first``) every run must keep the penetration
-within z̄ and every joint within its data-sheet limits (q, q̇, q̈, τ), or refuse the 60 N target
-before the strike when the dice cannot hold it within z̄ (60 N / 1200 N/m = 50 mm > 30 mm).
+touch-first strategy (``ffmpc_core.impact.touch_first``; the study's default is now
+strike-first, tested in tests/faults/test_impact_strike_first.py) every run must keep the
+penetration within z̄ and every joint within its data-sheet limits (q, q̇, q̈, τ), or refuse the
+60 N target before the strike when the dice cannot hold it within z̄ (60 N / 1200 N/m = 50 mm
+> 30 mm).
 
 The closed-loop runs are the ROS-free study code, shortened: 2.5 s of simulated time (touch at
 ≈ 1.3 s, strike at ≈ 2.2 s) and eq 9–14 re-solved every 5 ms (as in tests/test_impact_study.py).
@@ -53,7 +55,7 @@ ZBAR = 0.03
 #: 2×/0.5× (4800 N/m, 7.5 N·s/m), where the 1 cm tool's second Bullet contact point doubled the
 #: force at 2.71 s and broke the acceleration limit (hence 3 s for that run).
 CORNERS = [(0.5, 0.5), (3.0, 3.0), (0.5, 3.0), (3.0, 0.5), (1.0, 1.0), (2.0, 0.5)]
-FAST = ImpactStudyConfig(replan_period=0.005, duration=2.5)
+FAST = ImpactStudyConfig(replan_period=0.005, duration=2.5, strategy="touch_first")
 DURATION = {(2.0, 0.5): 3.0}
 
 
