@@ -1,7 +1,7 @@
 """What a run learned about an object, kept for the next run on the same object: the
 strike-first strategy's knowledge before contact (Dehio & Kheddar 2020, eq 21's estimate and
-its confidence, as the interval of :meth:`~ffmpc_core.impact.robust.MaterialInterval.
-from_estimate`).
+its confidence, as the interval of
+:meth:`~ffmpc_core.impact.robust.MaterialInterval.from_estimate`).
 
 An object memory is a plain mapping ``{object name: RememberedMaterial.to_dict()}`` (JSON on
 disk, written and read by the study, :mod:`studies.impact_study`); nothing here does I/O. The
