@@ -327,7 +327,8 @@ class ModelPredictiveController:
             # x₀ = x̂ is fixed: node 0's state-only rows are constants, never constraints.
             free = np.full(self.bounds.n_state_rows, np.inf)
             self.nodes[0].set_state_bounds(-free, free)
-            self._write_node_bounds(self.bounds.node_bounds(config.horizon, config.dt)[0])
+            self._margin_bounds = self.bounds.node_bounds(config.horizon)[0]
+            self._write_node_bounds(self._margin_bounds)
         self.nx = {
             "classical": 2 * nv,
             "torque_feedback": 3 * nv,
@@ -406,6 +407,7 @@ class ModelPredictiveController:
         self._sent: list[tuple[float, np.ndarray]] = []  # (time, model control) in flight
         self._active = False  # the last constrained solution had a bound active
         self._first_step_data: dict[int, crocoddyl.ActionDataAbstract] = {}
+        self._excess = 0.0  # the last solution's largest signed excess over a bound
 
     def set_contact_parameters(self, stiffness: npt.ArrayLike, damping: npt.ArrayLike) -> None:
         """Change the force-feedback model's K (N/m) and B (N·s/m) in place, for every node and
@@ -641,29 +643,36 @@ class ModelPredictiveController:
             xs_opt, us_opt = np.array(sqp.xs), np.array(sqp.us)
             if csqp is None:
                 return bool(converged), xs_opt, us_opt, 0
-            assert self.bounds is not None  # set with the constrained solver
-            if self.bounds.violation(xs_opt, us_opt, self._node_bounds)[0] <= 0.0:
+            assert self.bounds is not None and self._node_bounds is not None
+            self._excess = self.bounds.excess(xs_opt, us_opt, self._node_bounds)
+            if self._excess <= 0.0:
                 return bool(converged), xs_opt, us_opt, 0
             screened = int(sqp.iter)
         converged = csqp.solve(xs, us, maxiter, False)
         self.solver = csqp
         xs_opt, us_opt = np.array(csqp.xs), np.array(csqp.us)
         assert self.bounds is not None and self._node_bounds is not None
-        self._active = self.bounds.slack(xs_opt, us_opt, self._node_bounds) <= ACTIVE_MARGIN
+        self._excess = self.bounds.excess(xs_opt, us_opt, self._node_bounds)
+        self._active = self._excess >= -ACTIVE_MARGIN
         return bool(converged), xs_opt, us_opt, screened
 
     def _relax_bounds(self, x0: np.ndarray) -> bool:
         """Set nodes 1..N's state-only bounds for a solve from x̂ = ``x0``: the margins', or
         relaxed where the state a row starts from lies beyond them
         (:meth:`OcpBounds.node_bounds`; the torque-feedback q, v rows start from x₁, predicted
-        here with node 0's model). True when relaxed."""
-        if self.bounds is None:
+        here with node 0's model). True when relaxed. Nodes are written only on a change."""
+        bounds = self.bounds
+        if bounds is None:
             return False
         x1 = None
         if self.config.formulation == "torque_feedback":
             x1 = self._first_step(x0)
-        bounds, relaxed = self.bounds.node_bounds(self.config.horizon, self.config.dt, x0, x1)
-        self._write_node_bounds(bounds)
+        if not bounds.beyond(x0, x1):
+            if self._node_bounds is not self._margin_bounds:
+                self._write_node_bounds(self._margin_bounds)
+            return False
+        node_bounds, relaxed = bounds.node_bounds(self.config.horizon, x0, x1)
+        self._write_node_bounds(node_bounds)
         return relaxed
 
     def _first_step(self, x0: np.ndarray) -> np.ndarray:
@@ -689,10 +698,13 @@ class ModelPredictiveController:
         """The solution's largest excess over a bound (a fraction of its limit); beyond
         ``violation_tolerance`` nothing may be sent: the next solve starts cold (its guess,
         x̂ at every node, meets every state bound) and ConstraintViolationError is raised."""
-        if self.bounds is None:
+        if self.bounds is None or self._node_bounds is None:
             return 0.0
-        violation, where = self.bounds.violation(xs, us, self._node_bounds)
         tolerance = self.config.constraints.violation_tolerance
+        excess = self._excess  # of this solution (_solve)
+        if excess <= tolerance:
+            return max(excess, 0.0)
+        violation, where = self.bounds.violation(xs, us, self._node_bounds)
         if violation > tolerance:
             self._prev_xs = self._prev_us = None
             raise ConstraintViolationError(
