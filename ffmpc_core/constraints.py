@@ -81,8 +81,9 @@ class ConstraintConfig:
             Δt·N·v ≈ 0.03 rad ahead at the velocity bound, so the margin, not the horizon, is
             what leaves room to brake; 5 % is 0.10–0.15 rad on the iiwa and the Panda.
         position_braking_time: T_b of the joint-position rows q + T_b·v, s (module docstring):
-            a joint nearing its position bound decelerates at up to v/T_b, 9–15 rad/s² at the
-            iiwa's velocity bounds for 0.1 s, well within what its torques give.
+            a joint that reaches its position row at its velocity bound must decelerate at
+            v/T_b, 15–28 rad/s² for the iiwa's velocity bounds (0.9 × 1.71–3.14 rad/s); a
+            shorter T_b asks more of the torques, a longer one slows joints earlier.
         velocity_margin: fraction of the velocity limits kept free (0.10: |v| ≤ 0.9·limit, the
             bound the quadratic barrier had). The MPC bounds its predicted velocities, but the
             robot moves with what the prediction does not see (δo, sensing delay, actuation
@@ -94,14 +95,31 @@ class ConstraintConfig:
             150 N is three times the polishing reference (50 N) and the study's bound on λmax.
         friction_coefficient: μ of the friction cone on the 3-D force state (the table's μ of
             the paper's simulation, VI-B: 0.5); the pyramid is inscribed (μ/√2 per axis).
-        max_qp_iterations: ADMM iterations per SQP iteration at most (``max_qp_iters``).
-        eps_abs, eps_rel: ADMM termination tolerances on the primal and dual residuals
-            (``eps_abs``/``eps_rel``; checked every ``rho_update_interval`` iterations).
+        max_qp_iterations: ADMM iterations per SQP iteration at most (``max_qp_iters``): 100
+            is four convergence checks at ``rho_update_interval`` 25 and bounds the work of a
+            QP that does not converge (the median is the first check, 25).
+        eps_abs, eps_rel: ADMM termination tolerances on the primal and dual residuals, in the
+            rows' units (fractions of the limits): 1e-3 is a tenth of ``violation_tolerance``.
+            Tighter ones cost more ADMM iterations for the same closed loop (README).
         rho_update_interval: ADMM iterations between two convergence checks (and updates of
-            the penalty ρ with a new factorisation).
+            the penalty ρ with a new factorisation): mim_solvers' default, 25. With 5 the
+            force-capped force-feedback MPC (``ffmpc bench mpc``'s ``force_feedback_capped``)
+            used all 8 SQP iterations in 74 % of its solves, with 25 in 2.5 % (README).
+        kkt_tolerance: termination tolerance of ``SolverCSQP`` on its KKT residual, which
+            contains the ADMM's multipliers: at ``eps_abs`` 1e-3 they keep it near 1e-3, so the
+            unconstrained 1e-4 (``MpcConfig.kkt_tolerance``) made every solve with an active
+            bound use all 8 SQP iterations (measured).
+        unconstrained_first: solve with ``SolverSQP`` first and call ``SolverCSQP`` only when
+            that solution breaks a bound, or when the last constrained solution had one
+            active. An unconstrained solution inside every bound is the constrained optimum (a
+            KKT point with zero multipliers), and the Riccati solve is exact where the ADMM is
+            approximate and costs several passes per SQP iteration (README: the bench's cost).
         max_solve_time: wall-clock cap of one solve, s (0: none). Applied in real-time runs
             only (the MPC node with ``lockstep`` false): a lockstep run must give the same
-            numbers whatever the CPU speed, so it never uses a wall-clock cap.
+            numbers whatever the CPU speed, so it never uses a wall-clock cap. 0 by default in
+            real time too: on a shared machine a late solve is mostly preemption, which a cap
+            cannot shorten, and a cut ADMM solution breaks its bounds more often (then refused);
+            the low level already holds when a command is late (``pid.stale_timeout``).
         violation_tolerance: largest excess over a bound allowed in a solution, as a fraction
             of that row's limit (velocity limit, torque limit, half range, max_force); beyond
             it the solve raises :class:`ConstraintViolationError`. 0.01 keeps a tolerated
@@ -118,7 +136,7 @@ class ConstraintConfig:
     max_qp_iterations: int = 100
     eps_abs: float = 1e-3
     eps_rel: float = 1e-3
-    rho_update_interval: int = 5
+    rho_update_interval: int = 25
     kkt_tolerance: float = 1e-3
     unconstrained_first: bool = True
     max_solve_time: float = 0.0
