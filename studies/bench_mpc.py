@@ -191,7 +191,8 @@ def run_cases(
             assert ref is not None  # the reference runs first in every configuration
             row["ratio_to_reference"] = row["median_ms"] / ref["median_ms"]
             row["solve_ratio_to_reference"] = row["solve_median_ms"] / ref["solve_median_ms"]
-            twin = done.get(_unconstrained_twin(case))
+            name = _unconstrained_twin(case)
+            twin = None if name is None else done.get(name)
             if row["constraints"] and twin is not None:
                 row["constraint_cost_ratio"] = row["median_ms"] / twin["median_ms"]
             done[case] = row
@@ -201,10 +202,12 @@ def run_cases(
     return rows
 
 
-def _unconstrained_twin(case: str) -> str:
-    """The unconstrained case a constrained one's cost is stated against."""
-    formulation = case.removesuffix("_capped").removesuffix("_python")
-    return f"{formulation}_unconstrained"
+def _unconstrained_twin(case: str) -> str | None:
+    """The unconstrained case a constrained one's cost is stated against (the capped case's:
+    the same formulation's; none for the Python models, which have no unconstrained case)."""
+    if case.endswith("_python"):
+        return None
+    return f"{case.removesuffix('_capped')}_unconstrained"
 
 
 def _run_order(case: str) -> int:
