@@ -322,6 +322,27 @@ def test_force_reference_above_the_maximum_is_held_at_the_maximum(robot):
     assert cmd.qp_iterations > 0  # the constrained solver gave the solution
 
 
+def test_tangential_force_stays_in_the_friction_cone(robot):
+    """3-D force-feedback, λ̂ = (15, 0, 50) N inside the pyramid (15/50 < 0.5/√2) and a force
+    reference (60, 0, 50) N outside it: the unconstrained plan leaves the cone (|λx|/λz up to
+    1.2), the constrained one stays on its face."""
+    contact = ContactConfig(dimension=3, stiffness=1e3, damping=50.0)
+    schedule = _Hold(_tool(robot), 50.0, dimension=3)
+    schedule.ref.force[0] = 60.0
+    schedule.ref.ee_position_weight = 0.0
+    meas = MpcMeasurement(q=robot.q_nominal, v=np.zeros(7), force=np.array([15.0, 0.0, 50.0]))
+    config = MpcConfig(contact=contact)
+    free = replace(config, constraints=replace(config.constraints, enabled=False))
+    face = config.constraints.friction_coefficient / np.sqrt(2.0)
+    _, unconstrained = _solve(robot, free, schedule, meas)
+    force = unconstrained.xs[1:, -3:]
+    assert np.max(np.abs(force[:, 0]) / force[:, 2]) > 2.0 * face
+    _, cmd = _solve(robot, config, schedule, meas)
+    force = cmd.xs[1:, -3:]
+    assert np.all(np.abs(force[:, 0]) <= face * force[:, 2] + 1e-3 * 150.0)
+    assert np.max(np.abs(force[:, 0]) / force[:, 2]) > 0.99 * face  # on the face: active
+
+
 def test_force_state_never_pulls(robot):
     """λ̄ = 0 N from λ̂ = 2 N, a strong force weight: the plan brings λ to 0, never below."""
     meas = MpcMeasurement(q=robot.q_nominal, v=np.array([0, 0, 0, 0.3, 0, 0, 0]), force=[2.0])
