@@ -31,16 +31,24 @@ std::shared_ptr<crocoddyl::CostDataSum> cost_data_of(
 
 IntegratedActionModelLPF::IntegratedActionModelLPF(
     std::shared_ptr<DifferentialActionModelAbstract> differential, double dt,
-    double cutoff_frequency, double lowpass_input_weight, const std::string& torque_cost)
+    double cutoff_frequency, double lowpass_input_weight, const std::string& torque_cost,
+    const Eigen::MatrixXd& constraint_matrix, const Eigen::VectorXd& control_scale,
+    bool control_rows)
     : Base(std::make_shared<crocoddyl::StateVector>(3 * differential->get_state()->get_nv()),
-           differential->get_state()->get_nv()),
+           differential->get_state()->get_nv(), 0,
+           ConstraintRows(constraint_matrix, control_scale,
+                          3 * differential->get_state()->get_nv(),
+                          differential->get_state()->get_nv(), control_rows)
+               .ng(),
+           0, static_cast<std::size_t>(constraint_matrix.rows()), 0),
       differential_(differential),
       dt_(dt),
       cutoff_frequency_(cutoff_frequency),
       alpha_(0.0),
       lowpass_input_weight_(lowpass_input_weight),
       torque_cost_(torque_cost),
-      nv_(differential->get_state()->get_nv()) {
+      nv_(differential->get_state()->get_nv()),
+      constraint_rows_(constraint_matrix, control_scale, 3 * nv_, nv_, control_rows) {
   if (differential->get_state()->get_nq() != nv_) {
     throw ModelError("IntegratedActionModelLPF needs nq == nv (Euclidean configuration space)");
   }
@@ -84,6 +92,7 @@ void IntegratedActionModelLPF::calc(const std::shared_ptr<ActionDataAbstract>& d
   // eq 28: r_w = w − τ_g(q, λ^r), τ_g = τ − r_torque
   d->lowpass_residual = u - (tau - d->torque_residual->r);
   d->cost = dt_ * (dd->cost + 0.5 * lowpass_input_weight_ * d->lowpass_residual.squaredNorm());
+  constraint_rows_.calc(d->g, x, u);
 }
 
 void IntegratedActionModelLPF::calc(const std::shared_ptr<ActionDataAbstract>& data,
@@ -98,6 +107,7 @@ void IntegratedActionModelLPF::calc(const std::shared_ptr<ActionDataAbstract>& d
   }
   d->xnext = x;
   d->cost = d->differential->cost;
+  constraint_rows_.calc(d->g, x);
 }
 
 void IntegratedActionModelLPF::calcDiff(const std::shared_ptr<ActionDataAbstract>& data,
@@ -150,6 +160,7 @@ void IntegratedActionModelLPF::calcDiff(const std::shared_ptr<ActionDataAbstract
   d->Lu = (cw * dt_) * d->lowpass_residual;
   d->Luu.setZero();
   d->Luu.diagonal().setConstant(cw * dt_);
+  constraint_rows_.calcDiff(d->Gx, d->Gu);
 }
 
 void IntegratedActionModelLPF::calcDiff(const std::shared_ptr<ActionDataAbstract>& data,
@@ -175,6 +186,7 @@ void IntegratedActionModelLPF::calcDiff(const std::shared_ptr<ActionDataAbstract
   }
   d->Lx.head(n2) = dd->Lx;
   d->Lxx.topLeftCorner(n2, n2) = dd->Lxx;
+  constraint_rows_.calcDiff(d->Gx, d->Gu);
 }
 
 std::shared_ptr<crocoddyl::ActionDataAbstract> IntegratedActionModelLPF::createData() {
@@ -197,7 +209,8 @@ std::shared_ptr<crocoddyl::ActionModelBase> IntegratedActionModelLPF::cloneAsFlo
 
 void IntegratedActionModelLPF::print(std::ostream& os) const {
   os << "IntegratedActionModelLPF {dt=" << dt_ << ", cutoff_frequency=" << cutoff_frequency_
-     << ", alpha=" << alpha_ << ", lowpass_input_weight=" << lowpass_input_weight_ << "}";
+     << ", alpha=" << alpha_ << ", lowpass_input_weight=" << lowpass_input_weight_
+     << ", ng=" << ng_ << "}";
 }
 
 IntegratedActionDataLPF::IntegratedActionDataLPF(IntegratedActionModelLPF* const model)

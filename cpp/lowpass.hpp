@@ -13,6 +13,7 @@
 #include <crocoddyl/core/diff-action-base.hpp>
 #include <crocoddyl/core/residual-base.hpp>
 
+#include "constraint_rows.hpp"
 #include "errors.hpp"
 #include "residuals.hpp"
 
@@ -42,9 +43,13 @@ class IntegratedActionModelLPF : public crocoddyl::ActionModelAbstract {
 
   /// `differential`: control τ (nu == nv), nq == nv. `dt` Δt in s (> 0); `cutoff_frequency`
   /// f_c in Hz, in [0, ∞]; `lowpass_input_weight` c_w in 1/(N·m)², ≥ 0.
+  /// `constraint_matrix`: the state-only constraint rows S on (q, v, τ) (0 rows: none);
+  /// `control_rows`: also the rows control_scale .* w (a running node). Bounds: g_lb, g_ub.
   IntegratedActionModelLPF(std::shared_ptr<DifferentialActionModelAbstract> differential,
                            double dt, double cutoff_frequency, double lowpass_input_weight,
-                           const std::string& torque_cost);
+                           const std::string& torque_cost,
+                           const Eigen::MatrixXd& constraint_matrix,
+                           const Eigen::VectorXd& control_scale, bool control_rows);
   virtual ~IntegratedActionModelLPF() = default;
 
   void calc(const std::shared_ptr<ActionDataAbstract>& data,
@@ -71,6 +76,7 @@ class IntegratedActionModelLPF : public crocoddyl::ActionModelAbstract {
   double get_lowpass_input_weight() const { return lowpass_input_weight_; }
   std::size_t get_nv() const { return nv_; }
   const std::string& get_torque_cost() const { return torque_cost_; }
+  const ConstraintRows& get_constraint_rows() const { return constraint_rows_; }
 
  private:
   /// ModelError unless the differential model's data has the torque cost (eq 25.3).
@@ -83,6 +89,7 @@ class IntegratedActionModelLPF : public crocoddyl::ActionModelAbstract {
   double lowpass_input_weight_;
   std::string torque_cost_;
   std::size_t nv_;
+  ConstraintRows constraint_rows_;
 };
 
 /// Workspace of IntegratedActionModelLPF.

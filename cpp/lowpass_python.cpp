@@ -23,12 +23,14 @@ void expose_lowpass() {
       "Eq 13-14 and 28 as a crocoddyl action model on x = (q, v, tau), u = w (C++ port of\n"
       "ffmpc_core.lowpass.IntegratedActionModelLPF: same step, cost and derivatives).",
       bp::init<std::shared_ptr<crocoddyl::DifferentialActionModelAbstract>, double, double, double,
-               std::string>(
+               std::string, Eigen::MatrixXd, Eigen::VectorXd, bool>(
           bp::args("self", "differential", "dt", "cutoff_frequency", "lowpass_input_weight",
-                   "torque_cost"),
+                   "torque_cost", "constraint_matrix", "control_scale", "control_rows"),
           "differential: control tau (nu == nv == nq); dt: s; cutoff_frequency: f_c, Hz;\n"
           "lowpass_input_weight: c_w, 1/(N.m)^2; torque_cost: name of the eq 25.3 cost whose\n"
-          "residual tau - tau_g gives tau_g (running nodes)."))
+          "residual tau - tau_g gives tau_g (running nodes); constraint_matrix: the\n"
+          "state-only constraint rows S on (q, v, tau) (0 rows: none); control_rows: also the\n"
+          "rows control_scale .* w (running). Bounds in g_lb, g_ub."))
       .def<void (Model::*)(const std::shared_ptr<ActionDataAbstract>&, const ConstRef&,
                            const ConstRef&)>("calc", &Model::calc,
                                              bp::args("self", "data", "x", "u"),
@@ -53,7 +55,17 @@ void expose_lowpass() {
       .add_property("alpha", &Model::get_alpha, "alpha = exp(-2 pi f_c dt) of eq 13.")
       .add_property("lowpass_input_weight", &Model::get_lowpass_input_weight,
                     "c_w of eq 28, 1/(N.m)^2.")
+      // crocoddyl 3.2.1 binds ng / ng_T on its Python wrapper class only: a C++ subclass's
+      // Python object cannot read them there.
+      .add_property("ng", +[](const Model& m) { return m.get_ng(); },
+                    "Constraint rows of a node with a control (a running node).")
+      .add_property("ng_T", +[](const Model& m) { return m.get_ng_T(); },
+                    "Constraint rows of a call without a control (a terminal node).")
       .add_property("nv", &Model::get_nv, "Joint-velocity dimension.")
+      .add_property(
+          "constraint_matrix",
+          +[](const Model& m) { return Eigen::MatrixXd(m.get_constraint_rows().state_matrix); },
+          "The state-only constraint rows S (a copy).")
       .add_property("torque_cost",
                     bp::make_function(&Model::get_torque_cost,
                                       bp::return_value_policy<bp::copy_const_reference>()),

@@ -209,4 +209,55 @@ ResidualDataFrameLinearVelocityWorld::ResidualDataFrameLinearVelocityWorld(
   shared_pinocchio = multibody->pinocchio;
 }
 
+// ---- ResidualModelConstraintRows --------------------------------------------------------------
+
+ResidualModelConstraintRows::ResidualModelConstraintRows(
+    std::shared_ptr<crocoddyl::StateAbstract> state, std::size_t nu,
+    const Eigen::MatrixXd& state_matrix, const Eigen::VectorXd& control_scale, bool control)
+    : Base(state, ConstraintRows(state_matrix, control_scale, state->get_nx(), nu, control).ng(),
+           nu, true, true, control),
+      rows_(state_matrix, control_scale, state->get_nx(), nu, control) {
+  if (state->get_nx() != state->get_ndx()) {
+    throw ModelError("ResidualModelConstraintRows needs a vector state (nx == ndx)");
+  }
+  if (rows_.n_state() == 0) {
+    throw ConfigError("ResidualModelConstraintRows: the constraint matrix has no rows");
+  }
+}
+
+void ResidualModelConstraintRows::calc(const std::shared_ptr<ResidualDataAbstract>& data,
+                                       const Eigen::Ref<const VectorXd>& x,
+                                       const Eigen::Ref<const VectorXd>& u) {
+  rows_.calc(data->r, x, u);
+}
+
+void ResidualModelConstraintRows::calc(const std::shared_ptr<ResidualDataAbstract>& data,
+                                       const Eigen::Ref<const VectorXd>& x) {
+  rows_.calc(data->r, x);
+}
+
+void ResidualModelConstraintRows::calcDiff(const std::shared_ptr<ResidualDataAbstract>& data,
+                                           const Eigen::Ref<const VectorXd>&,
+                                           const Eigen::Ref<const VectorXd>&) {
+  rows_.calcDiff(data->Rx, data->Ru);
+}
+
+void ResidualModelConstraintRows::calcDiff(const std::shared_ptr<ResidualDataAbstract>& data,
+                                           const Eigen::Ref<const VectorXd>&) {
+  rows_.calcDiff(data->Rx, data->Ru);
+}
+
+std::shared_ptr<crocoddyl::ResidualModelBase> ResidualModelConstraintRows::cloneAsDouble() const {
+  return std::make_shared<ResidualModelConstraintRows>(*this);
+}
+
+std::shared_ptr<crocoddyl::ResidualModelBase> ResidualModelConstraintRows::cloneAsFloat() const {
+  throw std::logic_error("ResidualModelConstraintRows exists in double precision only");
+}
+
+void ResidualModelConstraintRows::print(std::ostream& os) const {
+  os << "ResidualModelConstraintRows {state rows=" << rows_.n_state()
+     << ", control rows=" << (rows_.control ? rows_.nu : 0) << "}";
+}
+
 }  // namespace ffmpc

@@ -1,6 +1,7 @@
 // Custom crocoddyl residuals of the classical and torque-feedback formulations (paper eq 25.3,
 // 25.5): C++ ports of ffmpc_core/rigid_contact.py's ResidualModelContactGravityTorque and
-// ResidualModelFrameLinearVelocityWorld, with the same residuals and exact derivatives.
+// ResidualModelFrameLinearVelocityWorld, with the same residuals and exact derivatives; and the
+// classical formulation's hard-constraint rows (ResidualModelConstraintRows, issue 23).
 #ifndef FFMPC_CPP_RESIDUALS_HPP_
 #define FFMPC_CPP_RESIDUALS_HPP_
 
@@ -17,6 +18,7 @@
 #include <pinocchio/multibody/data.hpp>
 #include <pinocchio/multibody/model.hpp>
 
+#include "constraint_rows.hpp"
 #include "errors.hpp"
 
 namespace ffmpc {
@@ -140,6 +142,40 @@ struct ResidualDataFrameLinearVelocityWorld : public crocoddyl::ResidualDataAbst
   Matrix6xd dv_dv;                    ///< ∂v_local/∂v = LOCAL frame Jacobian (6 × nv)
   Eigen::Matrix<double, 3, Eigen::Dynamic> dvl_dq;  ///< ∂v_l/∂q − [v_l]×·J_ω (3 × nv)
   VectorXd zero_a;                    ///< zero joint acceleration (nv)
+};
+
+/// The hard-constraint rows of a classical node as a residual (for crocoddyl's
+/// ConstraintModelResidual): r = [S x; c .* u] (constraint_rows.hpp; the control rows in a
+/// running node only), each row a fraction of its limit; Rx = [S; 0], Ru = [0; diag(c)]. C++
+/// port of ffmpc_core.rigid_contact.ResidualModelConstraintRows.
+class ResidualModelConstraintRows : public crocoddyl::ResidualModelAbstract {
+ public:
+  EIGEN_MAKE_ALIGNED_OPERATOR_NEW
+  typedef crocoddyl::ResidualModelAbstract Base;
+  typedef crocoddyl::ResidualDataAbstract ResidualDataAbstract;
+
+  ResidualModelConstraintRows(std::shared_ptr<crocoddyl::StateAbstract> state, std::size_t nu,
+                              const Eigen::MatrixXd& state_matrix,
+                              const Eigen::VectorXd& control_scale, bool control);
+  virtual ~ResidualModelConstraintRows() = default;
+
+  void calc(const std::shared_ptr<ResidualDataAbstract>& data,
+            const Eigen::Ref<const VectorXd>& x, const Eigen::Ref<const VectorXd>& u) override;
+  void calc(const std::shared_ptr<ResidualDataAbstract>& data,
+            const Eigen::Ref<const VectorXd>& x) override;
+  void calcDiff(const std::shared_ptr<ResidualDataAbstract>& data,
+                const Eigen::Ref<const VectorXd>& x,
+                const Eigen::Ref<const VectorXd>& u) override;
+  void calcDiff(const std::shared_ptr<ResidualDataAbstract>& data,
+                const Eigen::Ref<const VectorXd>& x) override;
+  std::shared_ptr<crocoddyl::ResidualModelBase> cloneAsDouble() const override;
+  std::shared_ptr<crocoddyl::ResidualModelBase> cloneAsFloat() const override;
+  void print(std::ostream& os) const override;
+
+  const ConstraintRows& get_rows() const { return rows_; }
+
+ private:
+  ConstraintRows rows_;
 };
 
 }  // namespace ffmpc

@@ -86,6 +86,23 @@ void expose_residuals() {
              boost::noncopyable>("ResidualDataFrameLinearVelocityWorld",
                                  "Workspace of ResidualModelFrameLinearVelocityWorld.",
                                  bp::no_init);
+
+  bp::class_<ResidualModelConstraintRows, bp::bases<crocoddyl::ResidualModelAbstract>,
+             std::shared_ptr<ResidualModelConstraintRows>>
+      rows("ResidualModelConstraintRows",
+           "The hard-constraint rows of a classical node: r = [S x; c .* u] (the control rows\n"
+           "in a running node only), each row a fraction of its limit (C++ port of\n"
+           "ffmpc_core.rigid_contact.ResidualModelConstraintRows).",
+           bp::init<std::shared_ptr<crocoddyl::StateAbstract>, std::size_t, Eigen::MatrixXd,
+                    Eigen::VectorXd, bool>(
+               bp::args("self", "state", "nu", "state_matrix", "control_scale", "control"),
+               "state: a vector state (nx == ndx); nu: control dimension; state_matrix: S\n"
+               "(rows x nx); control_scale: c (nu); control: whether there are control rows."));
+  def_calc(rows);
+  rows.add_property(
+      "state_matrix",
+      +[](const ResidualModelConstraintRows& m) { return Eigen::MatrixXd(m.get_rows().state_matrix); },
+      "S (a copy).");
 }
 
 }  // namespace ffmpc

@@ -348,16 +348,22 @@ void SoftContactDynamics::calc_gravity_compensation_diff(
 // ======================================================================= action model
 IntegratedActionModelSoftContact::IntegratedActionModelSoftContact(
     const pinocchio::Model& model, std::size_t frame_id, std::size_t nc, bool world_aligned,
-    std::size_t normal_axis, double dt, bool terminal)
+    std::size_t normal_axis, double dt, bool terminal, const Eigen::MatrixXd& constraint_matrix,
+    const Eigen::VectorXd& control_scale)
     : Base(std::make_shared<crocoddyl::StateVector>(2 * model.nv + nc), model.nv,
-           5 * model.nv + 12 + 2 * nc),
+           5 * model.nv + 12 + 2 * nc,
+           ConstraintRows(constraint_matrix, control_scale, 2 * model.nv + nc, model.nv, !terminal)
+               .ng(),
+           0,
+           static_cast<std::size_t>(constraint_matrix.rows()), 0),
       dynamics_(model, frame_id, nc, world_aligned, normal_axis),
       nv_(model.nv),
       nc_(nc),
       ndx_(2 * model.nv + nc),
       dt_(dt),
       terminal_(terminal),
-      in_contact_(true) {
+      in_contact_(true),
+      constraint_rows_(constraint_matrix, control_scale, 2 * model.nv + nc, model.nv, !terminal) {
   if (!std::isfinite(dt) || dt < 0.0 || (dt <= 0.0 && !terminal)) {
     std::ostringstream msg;
     msg << "dt must be positive and finite, got " << dt;
@@ -593,6 +599,7 @@ void IntegratedActionModelSoftContact::calc(const std::shared_ptr<ActionDataAbst
   d->xnext.head(nv) = vn * dt_ + q;
   d->xnext.tail(nc) = dd.force_rate * dt_ + lam;
   weighted_cost(*d, sqrt_w_running_);
+  constraint_rows_.calc(d->g, x, u);
 }
 
 void IntegratedActionModelSoftContact::calc(const std::shared_ptr<ActionDataAbstract>& data,
@@ -610,6 +617,7 @@ void IntegratedActionModelSoftContact::calc(const std::shared_ptr<ActionDataAbst
   r.segment(offset_[FORCE_RATE], nc).setZero();
   d->xnext = x;
   weighted_cost(*d, sqrt_w_state_);
+  constraint_rows_.calc(d->g, x);
 }
 
 void IntegratedActionModelSoftContact::state_residuals(VectorXd& r,
@@ -703,6 +711,7 @@ void IntegratedActionModelSoftContact::calcDiff(const std::shared_ptr<ActionData
   Fxu.bottomRows(nc) += dt_ * dd.force_rate_dxu;
   d->Fx = Fxu.leftCols(ndx_);
   d->Fu = Fxu.rightCols(nv);
+  constraint_rows_.calcDiff(d->Gx, d->Gu);
 }
 
 void IntegratedActionModelSoftContact::calcDiff(const std::shared_ptr<ActionDataAbstract>& data,
@@ -726,6 +735,7 @@ void IntegratedActionModelSoftContact::calcDiff(const std::shared_ptr<ActionData
   d->Lu.setZero();
   d->Luu.setZero();
   d->Lxu.setZero();
+  constraint_rows_.calcDiff(d->Gx, d->Gu);
 }
 
 std::shared_ptr<crocoddyl::ActionDataAbstractTpl<double>>
@@ -828,10 +838,13 @@ void expose_soft_contact() {
       "Force-feedback OCP node (eq 24 + costs eq 25, 29) in C++: see "
       "ffmpc_core.native.IntegratedActionModelSoftContactNative for the Python interface.",
       bp::init<const pinocchio::Model&, std::size_t, std::size_t, bool, std::size_t, double,
-               bool>(bp::args("self", "pin_model", "frame_id", "dimension", "world_aligned",
-                              "normal_axis", "dt", "terminal"),
-                     "Build a node; weights, activations, references and K, B start at zero "
-                     "(set them with the setters)."))
+               bool, Eigen::MatrixXd, Eigen::VectorXd>(
+          bp::args("self", "pin_model", "frame_id", "dimension", "world_aligned", "normal_axis",
+                   "dt", "terminal", "constraint_matrix", "control_scale"),
+          "Build a node; weights, activations, references and K, B start at zero (set them "
+          "with the setters). constraint_matrix: the state-only constraint rows S (0 rows: "
+          "none); a running node adds the control rows control_scale .* u; bounds in g_lb, "
+          "g_ub."))
       .def<void (Model::*)(const std::shared_ptr<ActionData>&, const Eigen::Ref<const VectorXd>&,
                            const Eigen::Ref<const VectorXd>&)>(
           "calc", &Model::calc, bp::args("self", "data", "x", "u"),
@@ -877,6 +890,15 @@ void expose_soft_contact() {
       .add_property("state_limit_upper",
                     +[](const Model& m) { return copy_vector(m.get_state_limit_upper()); },
                     "Upper bounds of the joint-limit barrier on (q, v), rad and rad/s (copy).")
+      .add_property("constraint_matrix",
+                    +[](const Model& m) { return Eigen::MatrixXd(m.get_constraint_matrix()); },
+                    "The state-only constraint rows S (a copy).")
+      // crocoddyl 3.2.1 binds ng / ng_T on its Python wrapper class only: a C++ subclass's
+      // Python object cannot read them there.
+      .add_property("ng", +[](const Model& m) { return m.get_ng(); },
+                    "Constraint rows of a node with a control (a running node).")
+      .add_property("ng_T", +[](const Model& m) { return m.get_ng_T(); },
+                    "Constraint rows of a call without a control (a terminal node).")
       .add_property("dt", &Model::get_dt, "Node duration, s.")
       .add_property("terminal", &Model::get_terminal)
       .add_property("in_contact", &Model::get_in_contact)

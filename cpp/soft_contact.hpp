@@ -19,6 +19,8 @@
 #include <pinocchio/multibody/data.hpp>
 #include <pinocchio/multibody/model.hpp>
 
+#include "constraint_rows.hpp"
+
 namespace ffmpc {
 
 typedef Eigen::VectorXd VectorXd;
@@ -144,9 +146,14 @@ class IntegratedActionModelSoftContact : public crocoddyl::ActionModelAbstractTp
   typedef crocoddyl::ActionModelAbstractTpl<double> Base;
   typedef crocoddyl::ActionDataAbstractTpl<double> ActionDataAbstract;
 
+  /// `constraint_matrix`: the state-only constraint rows S (n_s x nx, 0 rows: unconstrained);
+  /// a running node also has the control rows control_scale .* u (constraint_rows.hpp).
+  /// Bounds: g_lb, g_ub.
   IntegratedActionModelSoftContact(const pinocchio::Model& model, std::size_t frame_id,
                                    std::size_t nc, bool world_aligned, std::size_t normal_axis,
-                                   double dt, bool terminal);
+                                   double dt, bool terminal,
+                                   const Eigen::MatrixXd& constraint_matrix,
+                                   const Eigen::VectorXd& control_scale);
   virtual ~IntegratedActionModelSoftContact() = default;
 
   virtual void calc(const std::shared_ptr<ActionDataAbstract>& data,
@@ -207,6 +214,7 @@ class IntegratedActionModelSoftContact : public crocoddyl::ActionModelAbstractTp
   const VectorXd& get_weights_state() const { return w_state_; }
   const VectorXd& get_state_limit_lower() const { return state_limit_lower_; }
   const VectorXd& get_state_limit_upper() const { return state_limit_upper_; }
+  const Eigen::MatrixXd& get_constraint_matrix() const { return constraint_rows_.state_matrix; }
 
  private:
   void update_weights();
@@ -239,6 +247,7 @@ class IntegratedActionModelSoftContact : public crocoddyl::ActionModelAbstractTp
   VectorXd nominal_stiffness_, nominal_damping_;
   VectorXd state_limit_lower_, state_limit_upper_;  // 2 nv: rad, then rad/s
   VectorXd w_running_, w_state_, sqrt_w_running_, sqrt_w_state_;
+  ConstraintRows constraint_rows_;
 };
 
 /// Workspace of IntegratedActionModelSoftContact.

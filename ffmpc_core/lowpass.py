@@ -44,6 +44,7 @@ import crocoddyl
 import numpy as np
 
 from ffmpc_core.config import ContactConfig, CostWeights
+from ffmpc_core.constraints import ConstraintRows, OcpBounds
 from ffmpc_core.errors import ConfigError, InputError, ModelError
 from ffmpc_core.rigid_contact import (
     COST_TORQUE,
@@ -106,6 +107,9 @@ def make_lowpass_model(
     cutoff_frequency: float,
     lowpass_input_weight: float = 0.0,
     backend: str = DEFAULT_BACKEND,
+    constraint_matrix: np.ndarray | None = None,
+    control_rows: bool = True,
+    control_scale: np.ndarray | None = None,
 ) -> crocoddyl.ActionModelAbstract:
     """The low-pass integrator (eq 13–14, 28) around ``differential``: the C++ port
     (``backend="native"``) or the Python :class:`IntegratedActionModelLPF` (``"python"``).
@@ -113,10 +117,27 @@ def make_lowpass_model(
     Same arguments and units as :class:`IntegratedActionModelLPF`; validated here for both.
     """
     if not check_backend(backend):
-        return IntegratedActionModelLPF(differential, dt, cutoff_frequency, lowpass_input_weight)
+        return IntegratedActionModelLPF(
+            differential,
+            dt,
+            cutoff_frequency,
+            lowpass_input_weight,
+            constraint_matrix,
+            control_rows,
+            control_scale,
+        )
     check_lowpass_arguments(differential, dt, cutoff_frequency, lowpass_input_weight)
+    nv = differential.state.nv
+    matrix = np.zeros((0, 3 * nv)) if constraint_matrix is None else constraint_matrix
     return native_module().IntegratedActionModelLPF(
-        differential, float(dt), float(cutoff_frequency), float(lowpass_input_weight), COST_TORQUE
+        differential,
+        float(dt),
+        float(cutoff_frequency),
+        float(lowpass_input_weight),
+        COST_TORQUE,
+        np.asarray(matrix, dtype=np.float64),
+        np.ones(nv) if control_scale is None else np.asarray(control_scale, np.float64),
+        bool(control_rows),
     )
 
 
@@ -130,6 +151,11 @@ class IntegratedActionModelLPF(crocoddyl.ActionModelAbstract):
         dt: Δt, s.
         cutoff_frequency: f_c, Hz (see :func:`lowpass_alpha`).
         lowpass_input_weight: c_w of eq 28, 1/(N·m)².
+        constraint_matrix: the state-only hard-constraint rows S on (q, v, τ) (None: none;
+            :class:`ffmpc_core.constraints.ConstraintRows`: g = [S·x; c ∘ w], bounds in
+            ``g_lb``/``g_ub``).
+        control_rows: whether g also has the rows c ∘ w (a running node; False: terminal).
+        control_scale: c (nv; default 1), see ``constraint_matrix``.
 
     Called as ``calc(data, x)`` (a terminal node) it evaluates the differential model's cost on
     (q, v) only and leaves x unchanged, as crocoddyl's own integrators do; when that (terminal)
@@ -144,10 +170,15 @@ class IntegratedActionModelLPF(crocoddyl.ActionModelAbstract):
         dt: float,
         cutoff_frequency: float,
         lowpass_input_weight: float = 0.0,
+        constraint_matrix: np.ndarray | None = None,
+        control_rows: bool = True,
+        control_scale: np.ndarray | None = None,
     ) -> None:
         check_lowpass_arguments(differential, dt, cutoff_frequency, lowpass_input_weight)
         nv = differential.state.nv
-        super().__init__(crocoddyl.StateVector(3 * nv), nv)
+        rows = ConstraintRows(constraint_matrix, control_scale, 3 * nv, nv, control_rows)
+        super().__init__(crocoddyl.StateVector(3 * nv), nv, 0, rows.ng, 0, rows.ng_T, 0)
+        self.constraint_rows = rows
         self.differential = differential
         self.dt = float(dt)
         self.cutoff_frequency = float(cutoff_frequency)
@@ -176,6 +207,7 @@ class IntegratedActionModelLPF(crocoddyl.ActionModelAbstract):
                 self.differential.calc(dd, x[: 2 * nv], x[2 * nv :])
             data.xnext[:] = x
             data.cost = dd.cost
+            self.constraint_rows.calc(data.g, x)
             return
         tau = x[2 * nv :]
         self.differential.calc(dd, x[: 2 * nv], tau)
@@ -187,6 +219,7 @@ class IntegratedActionModelLPF(crocoddyl.ActionModelAbstract):
         r_w = data.lowpass_residual
         r_w[:] = u - self._gravity_torque(data, tau)
         data.cost = dt * (dd.cost + 0.5 * self.lowpass_input_weight * float(r_w @ r_w))
+        self.constraint_rows.calc(data.g, x, u)
 
     def _gravity_torque(self, data: IntegratedActionDataLPF, tau: np.ndarray) -> np.ndarray:
         """τ_g(q, λ^r(x)) = τ − r_torque after the differential calc, N·m."""
@@ -215,6 +248,7 @@ class IntegratedActionModelLPF(crocoddyl.ActionModelAbstract):
                 data.Lxx[n2:, n2:] = dd.Luu
             data.Lx[:n2] = dd.Lx
             data.Lxx[:n2, :n2] = dd.Lxx
+            self.constraint_rows.calc_diff(data.Gx, data.Gu)
             return
         tau = x[2 * nv :]
         self.differential.calcDiff(dd, x[: 2 * nv], tau)
@@ -259,6 +293,7 @@ class IntegratedActionModelLPF(crocoddyl.ActionModelAbstract):
         data.Lxu[:, :] = (-cw * dt) * dtau_g.T
         data.Lu[:] = (cw * dt) * r_w
         data.Luu[:, :] = self._luu
+        self.constraint_rows.calc_diff(data.Gx, data.Gu)
 
 
 class IntegratedActionDataLPF(crocoddyl.ActionDataAbstract):
@@ -306,9 +341,11 @@ class LowPassNode(SwitchableContactNode):
         in_contact: bool,
         baumgarte_velocity_gain: float | None,
         backend: str = DEFAULT_BACKEND,
+        bounds: OcpBounds | None = None,
     ) -> None:
         check_backend(backend)
         self.backend = backend
+        self.bounds = bounds
         self.robot = robot
         self.contact = contact
         self.dt = float(dt)
@@ -330,11 +367,31 @@ class LowPassNode(SwitchableContactNode):
                 terminal_torque=True,
             )
             self._models[status] = make_lowpass_model(
-                dam, self.dt, cutoff_frequency, weights.lowpass_input, backend
+                dam,
+                self.dt,
+                cutoff_frequency,
+                weights.lowpass_input,
+                backend,
+                None if bounds is None else bounds.state_matrix,
+                not self.terminal,
+                None if bounds is None else bounds.control_scale,
             )
             self._handles[status] = CommonCostHandles(dam, robot.nv, weights.diag("ee_position", 3))
         self.in_contact = bool(in_contact) and not self.terminal
         self.model = self._models[self.in_contact]
+        if bounds is not None:
+            self.set_state_bounds(bounds.state_lower, bounds.state_upper)
+
+    def set_state_bounds(self, lower: np.ndarray, upper: np.ndarray) -> None:
+        """Bounds of the state-only constraint rows on (q, v, τ) (``bounds.n_state_rows``
+        each; ±inf: none) in both models (contact and free); w's rows keep ``bounds``'.
+        ModelError without constraints."""
+        if self.bounds is None:
+            raise ModelError("this node has no constraints")
+        lb, ub = self.bounds.bounds(self.terminal, lower, upper)
+        for model in self._models.values():
+            model.g_lb = lb
+            model.g_ub = ub
 
     def contact_force(self, data: IntegratedActionDataLPF) -> np.ndarray:
         """λ^r(x) of this node (eq 14b) from ``data`` (created by ``model``) after calc, N."""
@@ -353,6 +410,7 @@ def make_lowpass_node(
     in_contact: bool = False,
     baumgarte_velocity_gain: float | None = None,
     backend: str = DEFAULT_BACKEND,
+    bounds: OcpBounds | None = None,
 ) -> LowPassNode:
     """Build a node of the torque-feedback OCP (eq 10–14, cost eq 28).
 
@@ -363,6 +421,8 @@ def make_lowpass_node(
         terminal: terminal node.
         cutoff_frequency: f_c of the actuation filter, Hz (paper: 50 Hz).
         backend: ``"native"`` (C++) or ``"python"`` (the reference classes).
+        bounds: the hard constraints (:func:`ffmpc_core.constraints.ocp_bounds` of the
+            torque-feedback formulation: rows on (q, v, τ) and on w; None: none).
     """
     if not math.isfinite(dt) or dt <= 0:
         raise ConfigError(f"dt must be > 0 s, got {dt}")
@@ -377,6 +437,7 @@ def make_lowpass_node(
         in_contact,
         baumgarte_velocity_gain,
         backend,
+        bounds,
     )
 
 

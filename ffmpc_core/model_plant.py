@@ -160,8 +160,11 @@ class ModelPlant:
 class ClosedLoopLog:
     """Time series of a closed-loop run: rows per plant step, and per MPC step for
     ``iterations``, ``solve_time`` (s, the SQP solve alone), ``step_time`` (s, wall time of the
-    whole ``ModelPredictiveController.step``: state, references, warm start, solve, command) and
-    ``converged``."""
+    whole ``ModelPredictiveController.step``: state, references, warm start, solve, command),
+    ``converged``, ``qp_iterations`` (ADMM iterations of the last SQP iteration; 0 without
+    constraints), ``constraint_violation`` (the solution's largest excess over a bound, a
+    fraction of its limit) and ``screen_iterations`` (SQP iterations of an unconstrained screen
+    that broke a bound: ``MpcCommand``)."""
 
     t: list[float] = field(default_factory=list)
     force: list[np.ndarray] = field(default_factory=list)
@@ -172,6 +175,9 @@ class ClosedLoopLog:
     solve_time: list[float] = field(default_factory=list)
     step_time: list[float] = field(default_factory=list)
     converged: list[bool] = field(default_factory=list)
+    qp_iterations: list[int] = field(default_factory=list)
+    constraint_violation: list[float] = field(default_factory=list)
+    screen_iterations: list[int] = field(default_factory=list)
 
     def arrays(self) -> dict[str, np.ndarray]:
         """Every logged series as a numpy array, by field name (one row per cycle)."""
@@ -196,6 +202,9 @@ class _TimedMpc:
         self.log.iterations.append(command.iterations)
         self.log.solve_time.append(command.solve_time)
         self.log.converged.append(command.converged)
+        self.log.qp_iterations.append(command.qp_iterations)
+        self.log.constraint_violation.append(command.constraint_violation)
+        self.log.screen_iterations.append(command.screen_iterations)
         return command
 
 

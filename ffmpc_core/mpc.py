@@ -13,8 +13,14 @@ Every ``step``:
    its contact status changes);
 3. warm-starts from the previous solution shifted by the elapsed time (linear interpolation
    along the horizon, first state replaced by x̂);
-4. solves with ``mim_solvers.SolverSQP`` (filter line search, ≤ 8 iterations, KKT tolerance 1e-4,
-   paper VII-A4);
+4. solves with ``mim_solvers.SolverCSQP`` under the hard constraints of
+   :mod:`ffmpc_core.constraints` (joint position, velocity and torque boxes in every
+   formulation, the torque-feedback τ box, the force-feedback force box and 3-D friction cone;
+   ADMM QPs warm-started with the previous duals), or, with ``constraints.enabled`` false, the
+   unconstrained problem with ``mim_solvers.SolverSQP``; filter line search, ≤ 8 SQP
+   iterations, KKT tolerance 1e-4 (paper VII-A4). A solution that breaks a bound by more than
+   ``constraints.violation_tolerance`` raises :class:`ConstraintViolationError` (the caller's
+   safe hold): a violated limit is never sent silently;
 5. returns the torque to send (u₀* for classical and force-feedback; eq 15's interpolation for
    torque-feedback), the local feedback gain, the prediction and solver statistics.
 """
@@ -24,7 +30,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Protocol, cast
+from typing import Any, Protocol, cast
 
 import crocoddyl  # noqa: F401  (must be imported before mim_solvers: it loads boost)
 import mim_solvers
@@ -39,6 +45,12 @@ from ffmpc_core.config import (
     ContactConfig,
     CostWeights,
     NodeReference,
+)
+from ffmpc_core.constraints import (
+    ConstraintConfig,
+    ConstraintViolationError,
+    OcpBounds,
+    ocp_bounds,
 )
 from ffmpc_core.contact_friction import coulomb_friction_torque
 from ffmpc_core.errors import ConfigError, InputError, SolverError
@@ -56,6 +68,9 @@ RESUME_GAP_PERIODS = 10
 #: After an outage, the schedule's clock comes back to speed over this time, s (its rate follows
 #: a minimum-jerk ramp from 0 to 1: :func:`resume_lag`).
 RESUME_RAMP = 0.3
+#: A constrained solution with a row this close to a bound (a fraction of its limit) has an
+#: active constraint: the next solve goes to ``SolverCSQP`` directly (``unconstrained_first``).
+ACTIVE_MARGIN = 1e-3
 
 
 def resume_lag(elapsed: float, ramp: float = RESUME_RAMP) -> float:
@@ -77,6 +92,9 @@ class OcpNode(Protocol):
 
     def set_reference(self, ref: NodeReference) -> bool:
         """Update the node in place; True when ``model`` is now a different object."""
+
+    def set_state_bounds(self, lower: np.ndarray, upper: np.ndarray) -> None:
+        """Bounds of the node's state-only constraint rows (:mod:`ffmpc_core.constraints`)."""
 
 
 class SoftContactOcpNode(OcpNode, Protocol):
@@ -138,6 +156,10 @@ class MpcConfig:
             :mod:`ffmpc_core.native`, the default) or ``"python"`` (the readable reference,
             e.g. :mod:`ffmpc_core.soft_contact`). Both give the same numbers (tests hold them
             equal); formulations without a native model use the Python one.
+        constraints: the hard constraints and their solver's settings
+            (:class:`~ffmpc_core.constraints.ConstraintConfig`; on by default). Its
+            ``max_solve_time`` is applied as given: :func:`ffmpc_core.polishing.mpc_config`
+            passes it for real-time runs only.
     """
 
     formulation: str = "force_feedback"
@@ -154,6 +176,7 @@ class MpcConfig:
     prediction_step: float = 0.001
     torque_state: str = "measured"
     backend: str = "native"
+    constraints: ConstraintConfig = field(default_factory=ConstraintConfig)
 
     def __post_init__(self) -> None:
         if self.torque_state not in TORQUE_STATES:
@@ -197,9 +220,19 @@ class MpcCommand:
             torque at a nearby state x (from the first Riccati gain; crocoddyl's u = u* − K·Δx,
             so G = −K, chained through eq 15 for torque-feedback).
         xs, us: predicted states and controls over the horizon.
-        iterations, kkt: SQP iterations used and final KKT residual.
+        iterations, kkt: SQP iterations of the solver that gave the solution and its final KKT
+            residual.
         solve_time: wall time of the solve, s (statistics only; never used for control).
         converged: whether the KKT tolerance was reached within ``max_iterations``.
+        qp_iterations: ADMM iterations of the last SQP iteration (0 without constraints).
+        constraint_violation: the solution's largest excess over a bound, as a fraction of
+            its limit (0 without constraints; at most ``violation_tolerance``, else the step
+            raised).
+        relaxed: whether x̂ lay beyond a bound, so that the bounds were relaxed for this solve
+            (:meth:`~ffmpc_core.constraints.OcpBounds.node_bounds`).
+        screen_iterations: SQP iterations of the unconstrained screen whose solution broke a
+            bound, so that ``SolverCSQP`` solved again (``constraints.unconstrained_first``);
+            0 when the screen's solution was the answer or there was none.
     """
 
     torque: np.ndarray
@@ -211,31 +244,50 @@ class MpcCommand:
     kkt: float
     solve_time: float
     converged: bool
+    qp_iterations: int = 0
+    constraint_violation: float = 0.0
+    relaxed: bool = False
+    screen_iterations: int = 0
+
+
+def problem_bounds(robot: RobotModel, config: MpcConfig) -> OcpBounds | None:
+    """The hard constraints of ``config``'s formulation (None when they are off)."""
+    if not config.constraints.enabled:
+        return None
+    return ocp_bounds(robot, config.formulation, config.contact, config.constraints)
 
 
 def _node_factory(
     robot: RobotModel, config: MpcConfig, q_ref: np.ndarray | None
 ) -> Callable[[bool], OcpNode]:
-    """A function terminal -> node for the configured formulation."""
+    """A function terminal -> node for the configured formulation (with its constraints)."""
     args = (robot, config.contact, config.weights, config.dt)
+    bounds = problem_bounds(robot, config)
     if config.formulation == "classical":
         from ffmpc_core.rigid_contact import make_rigid_contact_node
 
         return lambda terminal: make_rigid_contact_node(
-            *args, terminal, q_reference=q_ref, backend=config.backend
+            *args, terminal, q_reference=q_ref, backend=config.backend, bounds=bounds
         )
     if config.formulation == "torque_feedback":
         from ffmpc_core.lowpass import make_lowpass_node
 
         return lambda terminal: make_lowpass_node(
-            *args, terminal, config.cutoff_frequency, q_reference=q_ref, backend=config.backend
+            *args,
+            terminal,
+            config.cutoff_frequency,
+            q_reference=q_ref,
+            backend=config.backend,
+            bounds=bounds,
         )
     if config.backend == "native":
         from ffmpc_core.native import make_native_soft_contact_node as make_soft_contact_node
     else:
         from ffmpc_core.soft_contact import make_soft_contact_node
 
-    return lambda terminal: make_soft_contact_node(*args, terminal, q_reference=q_ref)
+    return lambda terminal: make_soft_contact_node(
+        *args, terminal, q_reference=q_ref, bounds=bounds
+    )
 
 
 class ModelPredictiveController:
@@ -246,7 +298,9 @@ class ModelPredictiveController:
         config: MPC parameters.
         schedule: task schedule giving each node's reference at a time t.
         node_factory: ``terminal -> node`` replacing the formulation's own nodes (benchmarks
-            use it for a reference problem); the state layout must stay the formulation's.
+            use it for a reference problem); the state layout must stay the formulation's, and
+            its nodes must carry the constraints of ``config`` (:func:`problem_bounds`) when
+            they are on.
     """
 
     def __init__(
@@ -263,8 +317,22 @@ class ModelPredictiveController:
         self.nc = config.contact.dimension
         q_ref = robot.q_nominal if config.q_reference is None else np.asarray(config.q_reference)
         make = node_factory or _node_factory(robot, config, q_ref)
+        self.bounds = problem_bounds(robot, config)
         self.nodes: list[OcpNode] = [make(False) for _ in range(config.horizon)]
         self.terminal_node: OcpNode = make(True)
+        # bounds of the state-only rows at nodes 1..N as written in the nodes (constraints.py)
+        self._node_bounds: np.ndarray | None = None
+        if self.bounds is not None:
+            if any(getattr(n, "bounds", None) is None for n in (*self.nodes, self.terminal_node)):
+                raise ConfigError(
+                    "the nodes lack the hard constraints of config.constraints (enabled): build "
+                    "them with bounds=problem_bounds(robot, config), or disable the constraints"
+                )
+            # x₀ = x̂ is fixed: node 0's state-only rows are constants, never constraints.
+            free = np.full(self.bounds.n_state_rows, np.inf)
+            self.nodes[0].set_state_bounds(-free, free)
+            self._margin_bounds = self.bounds.node_bounds(config.horizon)[0]
+            self._write_node_bounds(self._margin_bounds)
         self.nx = {
             "classical": 2 * nv,
             "torque_feedback": 3 * nv,
@@ -288,6 +356,7 @@ class ModelPredictiveController:
                 dt=config.prediction_step,
                 command_delay=0.0,
                 formulation=pred_form or config.formulation,
+                constraints=replace(config.constraints, enabled=False),  # only integrated
             )
             self._predictor = _node_factory(robot, pred_cfg, q_ref)(False)
             self._predictor_data = self._predictor.model.createData()
@@ -311,10 +380,25 @@ class ModelPredictiveController:
             # An all-C++ problem defaults to one thread per core; on a loaded 2-core machine that
             # made problem.calc 7.6 ms instead of 0.05 ms (N=5, measured). Python models get 1.
             self.problem.nthreads = 1
-        self.solver = mim_solvers.SolverSQP(self.problem)
-        self.solver.use_filter_line_search = True
-        self.solver.termination_tolerance = self.config.kkt_tolerance
-        self.solver.with_callbacks = False
+        c = self.config.constraints
+        self.unconstrained_solver = mim_solvers.SolverSQP(self.problem)
+        self.constrained_solver: Any = None
+        if self.bounds is not None:
+            csqp = mim_solvers.SolverCSQP(self.problem)
+            csqp.max_qp_iters = c.max_qp_iterations
+            csqp.eps_abs = c.eps_abs
+            csqp.eps_rel = c.eps_rel
+            csqp.rho_update_interval = c.rho_update_interval
+            csqp.max_solve_time = c.max_solve_time if c.max_solve_time > 0 else np.inf
+            csqp.termination_tolerance = c.kkt_tolerance
+            self.constrained_solver = csqp
+        for solver in (self.unconstrained_solver, self.constrained_solver):
+            if solver is not None:
+                solver.use_filter_line_search = True
+                solver.with_callbacks = False
+        self.unconstrained_solver.termination_tolerance = self.config.kkt_tolerance
+        #: the solver that gave the last solution (its K, iter, KKT are the command's)
+        self.solver: Any = self.constrained_solver or self.unconstrained_solver
 
     # -- controller shape -------------------------------------------------------------------
     def reset(self) -> None:
@@ -325,6 +409,9 @@ class ModelPredictiveController:
         self._prev_xs: np.ndarray | None = None
         self._prev_us: np.ndarray | None = None
         self._sent: list[tuple[float, np.ndarray]] = []  # (time, model control) in flight
+        self._active = False  # the last constrained solution had a bound active
+        self._first_step_data: dict[int, crocoddyl.ActionDataAbstract] = {}
+        self._excess = 0.0  # the last solution's largest signed excess over a bound
 
     def set_contact_parameters(self, stiffness: npt.ArrayLike, damping: npt.ArrayLike) -> None:
         """Change the force-feedback model's K (N/m) and B (N·s/m) in place, for every node and
@@ -408,13 +495,13 @@ class ModelPredictiveController:
             self._sent.clear()  # the next solve starts from the measured state itself
             raise SolverError(f"the δo prediction from t = {t} s is not finite")
         self._update_references(t + self.config.command_delay)
+        relaxed = self._relax_bounds(x0)
         self.problem.x0 = x0
         xs, us = self._warm_start(x0, t)
         start = time.perf_counter()
-        converged = self.solver.solve(xs, us, self.config.max_iterations, False)
+        converged, xs_opt, us_opt, screened = self._solve(xs, us)
         solve_time = time.perf_counter() - start
-        xs_opt = np.array(self.solver.xs)
-        us_opt = np.array(self.solver.us)
+        violation = self._check_constraints(xs_opt, us_opt, t)
         self._prev_t, self._prev_xs, self._prev_us = t, xs_opt, us_opt
         torque, gain = self._command(x0, xs_opt, us_opt)
         try:
@@ -437,6 +524,12 @@ class ModelPredictiveController:
             kkt=float(self.solver.KKT),
             solve_time=solve_time,
             converged=bool(converged),
+            qp_iterations=int(self.solver.qp_iters)
+            if self.solver is self.constrained_solver
+            else 0,
+            screen_iterations=screened,
+            constraint_violation=violation,
+            relaxed=relaxed,
         )
 
     def prediction(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -533,6 +626,99 @@ class ModelPredictiveController:
         return x
 
     # -- internals ---------------------------------------------------------------------------
+    def _solve(self, xs: list, us: list) -> tuple[bool, np.ndarray, np.ndarray, int]:
+        """Solve from the guess (xs, us): (converged, xs*, us*, SQP iterations of an
+        unconstrained screen that was not the answer).
+
+        Without constraints: ``SolverSQP``. With them, ``SolverCSQP`` from the guess, unless
+        ``constraints.unconstrained_first`` and the last solution had no bound active (within
+        :data:`ACTIVE_MARGIN`): then ``SolverSQP`` first, whose solution is the constrained
+        optimum when it is inside every bound (a KKT point with zero multipliers); else
+        ``SolverCSQP`` from the same guess (not from that solution: measured, its torques far
+        beyond the bounds made the ADMM fail to converge). ``self.solver`` is the solver that
+        gave the solution."""
+        maxiter = self.config.max_iterations
+        csqp = self.constrained_solver
+        screened = 0
+        if csqp is None or (self.config.constraints.unconstrained_first and not self._active):
+            sqp = self.unconstrained_solver
+            converged = sqp.solve(xs, us, maxiter, False)
+            self.solver = sqp
+            xs_opt, us_opt = np.array(sqp.xs), np.array(sqp.us)
+            if csqp is None:
+                return bool(converged), xs_opt, us_opt, 0
+            assert self.bounds is not None and self._node_bounds is not None
+            self._excess = self.bounds.excess(xs_opt, us_opt, self._node_bounds)
+            if self._excess <= 0.0:
+                return bool(converged), xs_opt, us_opt, 0
+            screened = int(sqp.iter)
+        converged = csqp.solve(xs, us, maxiter, False)
+        self.solver = csqp
+        xs_opt, us_opt = np.array(csqp.xs), np.array(csqp.us)
+        assert self.bounds is not None and self._node_bounds is not None
+        self._excess = self.bounds.excess(xs_opt, us_opt, self._node_bounds)
+        self._active = self._excess >= -ACTIVE_MARGIN
+        return bool(converged), xs_opt, us_opt, screened
+
+    def _relax_bounds(self, x0: np.ndarray) -> bool:
+        """Set nodes 1..N's state-only bounds for a solve from x̂ = ``x0``: the margins', or
+        relaxed where the state a row starts from lies beyond them
+        (:meth:`OcpBounds.node_bounds`; the torque-feedback q, v rows start from x₁, predicted
+        here with node 0's model). True when relaxed. Nodes are written only on a change."""
+        bounds = self.bounds
+        if bounds is None:
+            return False
+        x1 = None
+        if self.config.formulation == "torque_feedback":
+            x1 = self._first_step(x0)
+        if not bounds.beyond(x0, x1):
+            if self._node_bounds is not self._margin_bounds:
+                self._write_node_bounds(self._margin_bounds)
+            return False
+        node_bounds, relaxed = bounds.node_bounds(self.config.horizon, x0, x1)
+        self._write_node_bounds(node_bounds)
+        return relaxed
+
+    def _first_step(self, x0: np.ndarray) -> np.ndarray:
+        """x₁ = f(x̂, u) of node 0's model; its (q, v) do not depend on u in the torque-feedback
+        formulation (the filtered τ₀ of x̂ drives them), u = τ₀ is any control."""
+        model = self.nodes[0].model
+        data = self._first_step_data.get(id(model))
+        if data is None:
+            data = self._first_step_data[id(model)] = model.createData()
+        model.calc(data, x0, x0[2 * self.robot.nv :])
+        return np.array(data.xnext)
+
+    def _write_node_bounds(self, bounds: np.ndarray) -> None:
+        """Write the state-only bounds (N, 2, rows) of nodes 1..N where they changed."""
+        previous = self._node_bounds
+        nodes = [*self.nodes[1:], self.terminal_node]
+        for k, node in enumerate(nodes):
+            if previous is None or not np.array_equal(previous[k], bounds[k]):
+                node.set_state_bounds(bounds[k, 0], bounds[k, 1])
+        self._node_bounds = bounds
+
+    def _check_constraints(self, xs: np.ndarray, us: np.ndarray, t: float) -> float:
+        """The solution's largest excess over a bound (a fraction of its limit); beyond
+        ``violation_tolerance`` nothing may be sent: the next solve starts cold (its guess,
+        x̂ at every node, meets every state bound) and ConstraintViolationError is raised."""
+        if self.bounds is None or self._node_bounds is None:
+            return 0.0
+        tolerance = self.config.constraints.violation_tolerance
+        excess = self._excess  # of this solution (_solve)
+        if excess <= tolerance:
+            return max(excess, 0.0)
+        violation, where = self.bounds.violation(xs, us, self._node_bounds)
+        if violation > tolerance:
+            self._prev_xs = self._prev_us = None
+            raise ConstraintViolationError(
+                f"MPC solution at t = {t:.4f} s breaks {where} by {violation:.3g} of its limit "
+                f"(tolerance {tolerance:g}): not sent",
+                violation,
+                where,
+            )
+        return violation
+
     def _normal_component(self, force: np.ndarray) -> float:
         """The normal entry of a contact force in the contact configuration's layout, N."""
         return float(force[0] if self.nc == 1 else force[self.config.contact.normal_axis])

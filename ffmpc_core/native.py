@@ -23,6 +23,7 @@ import numpy.typing as npt
 
 import ffmpc_core._native as _native  # (this form lets mypy skip the compiled module)
 from ffmpc_core.config import ContactConfig, CostWeights
+from ffmpc_core.constraints import OcpBounds
 from ffmpc_core.errors import ConfigError, FfmpcError, InputError
 from ffmpc_core.robots import RobotModel
 from ffmpc_core.soft_contact import (
@@ -76,7 +77,9 @@ class IntegratedActionModelSoftContactNative(_native.IntegratedActionModelSoftCo
     ``q_reference``, ``ee_position_reference``, ``force_reference``, ``rotation_reference``,
     ``in_contact``, control limits ``u_lb``/``u_ub``). References and parameters read back as
     copies; change them with the setters. ``data.dynamics`` exposes the dynamics workspace
-    (``ddq``, ``force_rate``, ...).
+    (``ddq``, ``force_rate``, ...). ``constraint_matrix``: the hard-constraint rows as the
+    Python model's (:class:`ffmpc_core.constraints.ConstraintRows`: g = [S·x; u], bounds in
+    ``g_lb``/``g_ub``).
     """
 
     def __init__(
@@ -87,9 +90,13 @@ class IntegratedActionModelSoftContactNative(_native.IntegratedActionModelSoftCo
         dt: float,
         terminal: bool = False,
         q_reference: np.ndarray | None = None,
+        constraint_matrix: np.ndarray | None = None,
+        control_scale: np.ndarray | None = None,
     ) -> None:
         dt = _scalar(dt, "dt", ConfigError)
         check_soft_contact_robot(robot)
+        nx = 2 * robot.nv + int(contact.dimension)
+        matrix = np.zeros((0, nx)) if constraint_matrix is None else constraint_matrix
         super().__init__(
             robot.model,
             int(robot.contact_frame_id),
@@ -98,6 +105,8 @@ class IntegratedActionModelSoftContactNative(_native.IntegratedActionModelSoftCo
             int(contact.normal_axis),
             dt,
             bool(terminal),
+            np.asarray(matrix, dtype=np.float64),
+            np.ones(robot.nv) if control_scale is None else np.asarray(control_scale, np.float64),
         )
         nv, nc = self.nv, self.nc
         self._slices = residual_slices(nv, nc)
@@ -189,12 +198,16 @@ def make_native_soft_contact_node(
     dt: float,
     terminal: bool,
     q_reference: np.ndarray | None = None,
+    bounds: OcpBounds | None = None,
 ) -> SoftContactNode:
     """Build a native force-feedback node (running or terminal) with Δt in s.
 
-    Same initial references as :func:`ffmpc_core.soft_contact.make_soft_contact_node`.
+    Same initial references and constraints (``bounds``) as
+    :func:`ffmpc_core.soft_contact.make_soft_contact_node`.
     """
+    matrix = None if bounds is None else bounds.state_matrix
+    scale = None if bounds is None else bounds.control_scale
     model = IntegratedActionModelSoftContactNative(
-        robot, contact, weights, dt, terminal, q_reference
+        robot, contact, weights, dt, terminal, q_reference, matrix, scale
     )
-    return SoftContactNode(model)
+    return SoftContactNode(model, bounds)

@@ -159,11 +159,13 @@ def draw_run(scenario: Scenario, robot: RobotModel, rng: np.random.Generator) ->
     return RunDraws(float(tilt), tuple(map(float, gain)), tuple(map(float, offset)))
 
 
-def mpc_config(scenario: Scenario) -> MpcConfig:
+def mpc_config(scenario: Scenario, real_time: bool = False) -> MpcConfig:
     """The MPC's parameters; with ``mpc.delay_compensation`` it plans for t + δo.
 
     δo = ``pid.delay_cycles`` plant steps; ``mpc.command_delay: measured`` must have been
-    resolved first (:func:`resolve_command_delay`).
+    resolved first (:func:`resolve_command_delay`). ``mpc.constraints.max_solve_time`` (a
+    wall-clock cap) is passed for a real-time run only (``real_time``): a lockstep run's solves
+    never depend on the CPU's speed.
     """
     m = scenario.mpc
     if m.command_delay == COMMAND_DELAY_MEASURED:
@@ -183,6 +185,7 @@ def mpc_config(scenario: Scenario) -> MpcConfig:
         kkt_tolerance=m.kkt_tolerance,
         backend=m.backend,
         torque_state=m.torque_state,
+        constraints=m.constraints if real_time else replace(m.constraints, max_solve_time=0.0),
         command_delay=scenario.pid.delay_cycles * scenario.plant.time_step
         if m.delay_compensation
         else 0.0,

@@ -27,6 +27,7 @@ import numpy as np
 
 from ffmpc_core.actuation import ActuationModel
 from ffmpc_core.config import ContactConfig
+from ffmpc_core.constraints import ConstraintViolationError
 from ffmpc_core.errors import FfmpcError, InputError
 from ffmpc_core.faults import Fault, active_kinds
 from ffmpc_core.lowlevel import LowLevelController, LowLevelMeasurement, LowLevelOutput
@@ -98,15 +99,19 @@ class MpcDecision:
 class MpcStage:
     """The MPC side of Fig. 2 (a :class:`~ffmpc_core.runner.Controller`): on a solve cycle the
     MPC solves from (q̂, q̇̂, λ̂ or τ̂) if the input its formulation needs is plausible; an
-    implausible input or a solve that raises asks for the safe hold. Counts the failures and keeps
-    the solve times (s), SQP iterations, and each solve's time t (s) with the state x̂ it started
-    from (``solve_states``: with a δo, the prediction at t + δo)."""
+    implausible input or a solve that raises asks for the safe hold. Counts the failures (among
+    them ``constraint_failures``: solutions that broke a hard constraint beyond its tolerance,
+    :class:`~ffmpc_core.constraints.ConstraintViolationError`) and keeps the solve times (s),
+    SQP iterations, and each solve's time t (s) with the state x̂ it started from
+    (``solve_states``: with a δo, the prediction at t + δo)."""
 
     def __init__(self, mpc: ModelPredictiveController, robot: RobotModel) -> None:
         self.mpc = mpc
         self.robot = robot
         self.formulation = mpc.config.formulation
         self.failures = 0
+        self.constraint_failures = 0
+        self.relaxed_solves = 0  # solves from an x̂ beyond a bound (relaxed bounds)
         self.solve_times: list[float] = []
         self.iterations: list[int] = []
         self.solve_states: list[tuple[float, np.ndarray]] = []
@@ -115,6 +120,8 @@ class MpcStage:
         """Reset the MPC and forget the counts and logs."""
         self.mpc.reset()
         self.failures = 0
+        self.constraint_failures = 0
+        self.relaxed_solves = 0
         self.solve_times.clear()
         self.iterations.clear()
         self.solve_states.clear()
@@ -135,6 +142,10 @@ class MpcStage:
             )
             try:
                 command = self.mpc.step(meas, t)
+            except ConstraintViolationError:
+                command = None
+                self.failures += 1
+                self.constraint_failures += 1
             except FfmpcError:
                 command = None
                 self.failures += 1
@@ -142,6 +153,7 @@ class MpcStage:
             return MpcDecision(reading, None, True)  # an implausible input or a failed solve
         self.solve_times.append(command.solve_time)
         self.iterations.append(command.iterations)
+        self.relaxed_solves += command.relaxed
         self.solve_states.append((t, command.state))
         return MpcDecision(reading, command, False)
 

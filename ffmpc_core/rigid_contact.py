@@ -85,6 +85,7 @@ import numpy.typing as npt
 import pinocchio as pin
 
 from ffmpc_core.config import BACKENDS, ContactConfig, CostWeights, NodeReference
+from ffmpc_core.constraints import ConstraintRows, OcpBounds
 from ffmpc_core.errors import ConfigError, InputError, ModelError
 from ffmpc_core.robots import RobotModel
 
@@ -111,6 +112,10 @@ COST_EE_ANGULAR_VELOCITY = "ee_angular_velocity"
 COST_FORCE = "force"
 #: Name of the joint-limit barrier on x = (q, v) (``CostWeights.state_limit``).
 COST_STATE_LIMIT = "state_limit"
+#: Name of the hard constraints in crocoddyl's ``ConstraintModelManager`` (issue 23): the rows of
+#: :mod:`ffmpc_core.constraints` (the box on x = (q, v) at every node, on the torque u in running
+#: nodes), :class:`ResidualModelConstraintRows`.
+CONSTRAINT_LIMITS = "limits"
 
 
 def check_backend(backend: str) -> bool:
@@ -430,6 +435,57 @@ def make_costs(
     return costs
 
 
+class ResidualModelConstraintRows(crocoddyl.ResidualModelAbstract):
+    """The hard-constraint rows of a classical node as a crocoddyl residual (issue 23):
+    r = [S·x; c ∘ u] (:class:`ffmpc_core.constraints.ConstraintRows`; the control rows in a
+    running node only), each row a fraction of its limit; Rx = [S; 0], Ru = [0; diag(c)].
+    ``ffmpc_core._native.ResidualModelConstraintRows`` is its C++ port."""
+
+    def __init__(
+        self,
+        state: crocoddyl.StateAbstract,
+        nu: int,
+        state_matrix: np.ndarray,
+        control_scale: np.ndarray,
+        control: bool,
+    ) -> None:
+        rows = ConstraintRows(state_matrix, control_scale, state.nx, nu, control)
+        if rows.n_state == 0:
+            raise ConfigError("ResidualModelConstraintRows: the constraint matrix has no rows")
+        super().__init__(state, rows.ng, nu, True, True, rows.control)
+        self.rows = rows
+
+    def calc(self, data: Any, x: np.ndarray, u: np.ndarray | None = None) -> None:
+        self.rows.calc(data.r, x, u)
+
+    def calcDiff(  # noqa: N802 (crocoddyl API)
+        self, data: Any, x: np.ndarray, u: np.ndarray | None = None
+    ) -> None:
+        self.rows.calc_diff(data.Rx, data.Ru)
+
+
+def make_constraints(
+    state: crocoddyl.StateMultibody, bounds: OcpBounds, terminal: bool, backend: str
+) -> crocoddyl.ConstraintModelManager:
+    """The hard constraints of a classical node (issue 23, :mod:`ffmpc_core.constraints`): one
+    crocoddyl ``ConstraintModelResidual`` over :class:`ResidualModelConstraintRows` (its C++
+    port for ``backend="native"``) — the box on x = (q, v) and, in a running node, on the
+    torque u — with ``bounds``' bounds; a terminal node's rows are its state's only."""
+    nu = state.nv
+    args = (state, nu, bounds.state_matrix, bounds.control_scale, not terminal)
+    if check_backend(backend):
+        residual = native_module().ResidualModelConstraintRows(*args)
+    else:
+        residual = ResidualModelConstraintRows(*args)
+    lower, upper = bounds.bounds(terminal)
+    manager = crocoddyl.ConstraintModelManager(state, nu)
+    manager.addConstraint(
+        CONSTRAINT_LIMITS,
+        crocoddyl.ConstraintModelResidual(state, residual, lower, upper, terminal),
+    )
+    return manager
+
+
 def make_differential_model(
     robot: RobotModel,
     contact: ContactConfig,
@@ -442,12 +498,15 @@ def make_differential_model(
     builtin_residuals: bool = False,
     backend: str = DEFAULT_BACKEND,
     terminal_torque: bool = False,
+    bounds: OcpBounds | None = None,
 ) -> crocoddyl.DifferentialActionModelAbstract:
     """Continuous dynamics (eq 5–6; free dynamics when not in contact) with the cost ℓ0.
 
     Control: joint torque τ, N·m (full actuation). A terminal model has the state terms only
     and free dynamics (a terminal node has no dynamics). ``backend``, ``terminal_torque``: see
     :func:`make_costs`. ``baumgarte_velocity_gain``: K_d, 1/s (None: ``contact``'s).
+    ``bounds``: the hard constraints of the classical formulation (:func:`make_constraints`;
+    None: none). The torque-feedback model keeps its constraints in its integrator instead.
     """
     if baumgarte_velocity_gain is None:
         baumgarte_velocity_gain = contact.baumgarte_velocity_gain
@@ -467,13 +526,22 @@ def make_differential_model(
         backend=backend,
         terminal_torque=terminal_torque,
     )
+    constraints = None if bounds is None else make_constraints(state, bounds, terminal, backend)
     if not in_contact:
-        return crocoddyl.DifferentialActionModelFreeFwdDynamics(state, actuation, costs)
+        if constraints is None:
+            return crocoddyl.DifferentialActionModelFreeFwdDynamics(state, actuation, costs)
+        return crocoddyl.DifferentialActionModelFreeFwdDynamics(
+            state, actuation, costs, constraints
+        )
     contacts = make_contact_model(
         state, robot.contact_frame_id, contact, actuation.nu, baumgarte_velocity_gain
     )
+    if constraints is None:
+        return crocoddyl.DifferentialActionModelContactFwdDynamics(
+            state, actuation, contacts, costs, 0.0, True
+        )
     return crocoddyl.DifferentialActionModelContactFwdDynamics(
-        state, actuation, contacts, costs, 0.0, True
+        state, actuation, contacts, costs, constraints, 0.0, True
     )
 
 
@@ -645,11 +713,13 @@ class RigidContactNode(SwitchableContactNode):
         baumgarte_velocity_gain: float | None,
         builtin_residuals: bool = False,
         backend: str = DEFAULT_BACKEND,
+        bounds: OcpBounds | None = None,
     ) -> None:
         if not np.isfinite(dt) or dt <= 0:
             raise ConfigError(f"dt must be > 0 s, got {dt}")
         check_backend(backend)
         self.backend = backend
+        self.bounds = bounds
         self.robot = robot
         self.contact = contact
         self.dt = float(dt)
@@ -659,6 +729,7 @@ class RigidContactNode(SwitchableContactNode):
             baumgarte_velocity_gain=baumgarte_velocity_gain,
             builtin_residuals=builtin_residuals,
             backend=backend,
+            bounds=bounds,
         )
         self._models: dict[bool, crocoddyl.IntegratedActionModelEuler] = {}
         self._handles: dict[bool, CommonCostHandles] = {}
@@ -675,6 +746,17 @@ class RigidContactNode(SwitchableContactNode):
         """λ^r of this node (eq 8b) from ``data`` (created by ``model``) after calc, N."""
         return rigid_contact_force(data.differential, self.contact)
 
+    def set_state_bounds(self, lower: np.ndarray, upper: np.ndarray) -> None:
+        """Bounds of the state rows on x = (q, v) (``bounds.n_state_rows`` each, fractions of
+        the limits; ±inf: none) in both models (contact and free); the torque rows keep
+        ``bounds``'. ModelError without constraints."""
+        if self.bounds is None:
+            raise ModelError("this node has no constraints")
+        lb, ub = self.bounds.bounds(self.terminal, lower, upper)
+        for model in self._models.values():
+            item = model.differential.constraints.constraints[CONSTRAINT_LIMITS]
+            item.constraint.updateBounds(lb, ub)
+
 
 def make_rigid_contact_node(
     robot: RobotModel,
@@ -688,6 +770,7 @@ def make_rigid_contact_node(
     baumgarte_velocity_gain: float | None = None,
     builtin_residuals: bool = False,
     backend: str = DEFAULT_BACKEND,
+    bounds: OcpBounds | None = None,
 ) -> RigidContactNode:
     """Build a node of the classical OCP (eq 5–8, cost eq 27); see :class:`RigidContactNode`.
 
@@ -702,6 +785,8 @@ def make_rigid_contact_node(
         baumgarte_velocity_gain: K_d, 1/s (module docstring; None: ``contact``'s).
         builtin_residuals: benchmark reference only (see :func:`make_costs`).
         backend: ``"native"`` (C++ custom residuals) or ``"python"`` (module docstring).
+        bounds: the hard constraints (:func:`ffmpc_core.constraints.ocp_bounds` of the
+            classical formulation, :func:`make_constraints`; None: none).
     """
     return RigidContactNode(
         robot,
@@ -714,4 +799,5 @@ def make_rigid_contact_node(
         baumgarte_velocity_gain,
         builtin_residuals,
         backend,
+        bounds,
     )

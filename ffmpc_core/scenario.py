@@ -34,6 +34,7 @@ import numpy as np
 import yaml
 
 from ffmpc_core.config import BACKENDS, FORMULATIONS, TORQUE_STATES, ContactConfig, CostWeights
+from ffmpc_core.constraints import ConstraintConfig
 from ffmpc_core.errors import ConfigError
 
 SECTIONS = ("plant", "joint_sensor", "ft_sensor", "mpc", "pid")
@@ -192,6 +193,8 @@ class MpcSection:
     #: stays where the task puts it. Live on the MPC node (parameter ``position_offset``).
     position_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
     contact: ContactConfig = field(default_factory=ContactConfig)
+    #: the hard constraints and their solver (ffmpc_core.constraints.ConstraintConfig)
+    constraints: ConstraintConfig = field(default_factory=ConstraintConfig)
     #: per formulation: CostWeights fields plus ``force_phase`` (c6) and ``ee_position_phase``
     weights: dict[str, dict[str, Any]] = field(default_factory=dict)
 
@@ -537,6 +540,65 @@ _TABLE: dict[str, tuple[str, Any, str]] = {
         "Coulomb friction μ of the surface in the δo predictor (0: the paper's sliding contact)",
     ),
     "mpc.contact.friction_velocity": ("m/s", (1e-6, 10.0), "v_s of that friction's tanh"),
+    "mpc.constraints.enabled": (
+        "",
+        None,
+        "hard constraints on (mim_solvers SolverCSQP); off: unconstrained SolverSQP",
+    ),
+    "mpc.constraints.position_margin": (
+        "",
+        (0.0, 0.99),
+        "fraction of each joint's half range kept free by the joint-position box",
+    ),
+    "mpc.constraints.position_braking_time": (
+        "s",
+        (0.0, 10.0),
+        "T_b of the joint-position rows q + T_b·q̇ (a joint brakes smoothly near its bound)",
+    ),
+    "mpc.constraints.velocity_margin": (
+        "",
+        (0.0, 0.99),
+        "fraction of the joint velocity limits kept free by the velocity box",
+    ),
+    "mpc.constraints.torque_margin": (
+        "",
+        (0.0, 0.99),
+        "fraction of the joint torque limits kept free by the torque box (u; τ state)",
+    ),
+    "mpc.constraints.max_force": (
+        "N",
+        (1e-3, 1e5),
+        "largest normal force of the force-feedback state (its box is [0, this])",
+    ),
+    "mpc.constraints.friction_coefficient": (
+        "",
+        (0.0, 10.0),
+        "μ of the friction cone on the 3-D force state (inscribed pyramid, μ/√2 per axis)",
+    ),
+    "mpc.constraints.max_qp_iterations": ("", (1, 100000), "ADMM iterations per SQP iteration"),
+    "mpc.constraints.eps_abs": ("", (1e-12, 1.0), "ADMM absolute tolerance"),
+    "mpc.constraints.eps_rel": ("", (1e-12, 1.0), "ADMM relative tolerance"),
+    "mpc.constraints.rho_update_interval": (
+        "",
+        (1, 100000),
+        "ADMM iterations between convergence checks and penalty updates",
+    ),
+    "mpc.constraints.kkt_tolerance": ("", (1e-12, 1.0), "KKT tolerance of the constrained SQP"),
+    "mpc.constraints.unconstrained_first": (
+        "",
+        None,
+        "solve unconstrained (SolverSQP) first; SolverCSQP only when that breaks a bound",
+    ),
+    "mpc.constraints.max_solve_time": (
+        "s",
+        (0.0, 10.0),
+        "wall-clock cap of a solve in real-time runs only (lockstep runs ignore it); 0: none",
+    ),
+    "mpc.constraints.violation_tolerance": (
+        "",
+        (1e-9, 1.0),
+        "largest excess over a bound (fraction of its limit) before a solve is refused",
+    ),
     "pid.enabled": ("", None, "torque PID on (off: τ^m = τ^d(t − δo))"),
     "pid.kp": ("", (0.0, 100.0), "K_P (eq 33)"),
     "pid.ki": ("1/s", (0.0, 1e5), "K_I (eq 33)"),
@@ -782,13 +844,23 @@ def _scenario_from_flat(name: str, flat: dict[str, Any]) -> Scenario:
     contact = _coerce(
         ContactConfig, {k[8:]: v for k, v in mpc_flat.items() if k.startswith("contact.")}
     )
+    constraints = _coerce(
+        ConstraintConfig,
+        {k[12:]: v for k, v in mpc_flat.items() if k.startswith("constraints.")},
+    )
     weights: dict[str, dict[str, Any]] = {}
     for key, value in mpc_flat.items():
         if key.startswith("weights."):
             form, _, wname = key[8:].partition(".")
             weights.setdefault(form, {})[wname] = value
-    plain = {k: v for k, v in mpc_flat.items() if not k.startswith(("contact.", "weights."))}
-    mpc = replace(_coerce(MpcSection, plain), contact=contact, weights=weights)
+    plain = {
+        k: v
+        for k, v in mpc_flat.items()
+        if not k.startswith(("contact.", "constraints.", "weights."))
+    }
+    mpc = replace(
+        _coerce(MpcSection, plain), contact=contact, constraints=constraints, weights=weights
+    )
     scenario = Scenario(
         name=name,
         robot=flat.get("robot", "iiwa"),
@@ -874,10 +946,12 @@ def _scenario_to_flat(s: Scenario) -> dict[str, Any]:
         for f in fields(obj):
             flat[f"{section}.{f.name}"] = getattr(obj, f.name)
     for f in fields(s.mpc):
-        if f.name not in ("contact", "weights"):
+        if f.name not in ("contact", "constraints", "weights"):
             flat[f"mpc.{f.name}"] = getattr(s.mpc, f.name)
     for f in fields(s.mpc.contact):
         flat[f"mpc.contact.{f.name}"] = getattr(s.mpc.contact, f.name)
+    for f in fields(s.mpc.constraints):
+        flat[f"mpc.constraints.{f.name}"] = getattr(s.mpc.constraints, f.name)
     for form, values in s.mpc.weights.items():
         for k, v in values.items():
             flat[f"mpc.weights.{form}.{k}"] = v

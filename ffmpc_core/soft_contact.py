@@ -46,6 +46,7 @@ import numpy.typing as npt
 import pinocchio as pin
 
 from ffmpc_core.config import ContactConfig, CostWeights, NodeReference
+from ffmpc_core.constraints import ConstraintRows, OcpBounds
 from ffmpc_core.errors import ConfigError, FfmpcError, InputError, ModelError
 from ffmpc_core.robots import RobotModel
 
@@ -545,6 +546,8 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
         dt: float,
         terminal: bool = False,
         q_reference: np.ndarray | None = None,
+        constraint_matrix: np.ndarray | None = None,
+        control_scale: np.ndarray | None = None,
     ) -> None:
         dt = float(dt)
         if not np.isfinite(dt) or (dt <= 0.0 and not terminal) or dt < 0.0:
@@ -553,7 +556,13 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
         nv, nc = self.dynamics.nv, self.dynamics.nc
         self._slices = residual_slices(nv, nc)
         nr = self._slices[RESIDUAL_TERMS[-1]].stop
-        crocoddyl.ActionModelAbstract.__init__(self, crocoddyl.StateVector(2 * nv + nc), nv, nr)
+        rows = ConstraintRows(constraint_matrix, control_scale, 2 * nv + nc, nv, not terminal)
+        crocoddyl.ActionModelAbstract.__init__(
+            self, crocoddyl.StateVector(2 * nv + nc), nv, nr, rows.ng, 0, rows.ng_T, 0
+        )
+        #: The hard-constraint rows g = [S·x; u] (:mod:`ffmpc_core.constraints`); bounds in
+        #: ``g_lb``/``g_ub``.
+        self.constraint_rows = rows
         self.robot = robot
         self.contact = contact
         self.weights = weights
@@ -761,6 +770,7 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
         np.multiply(sqrt_w, r, out=data.weighted_residual)
         data.r[:] = data.weighted_residual
         data.cost = 0.5 * float(data.weighted_residual @ data.weighted_residual)
+        self.constraint_rows.calc(data.g, x, None if self.terminal else u)
 
     def calcDiff(  # noqa: N802 (crocoddyl API)
         self, data: IntegratedActionDataSoftContact, x: np.ndarray, u: np.ndarray | None = None
@@ -803,6 +813,7 @@ class IntegratedActionModelSoftContact(crocoddyl.ActionModelAbstract):
         np.multiply(w[:, None], Ru, out=WRu)
         data.Lx[:] = Rx.T @ wr
         data.Lxx[:, :] = Rx.T @ WRx
+        self.constraint_rows.calc_diff(data.Gx, data.Gu)
         if state_only:
             data.Fx[:, :] = data.identity_ndx
             data.Fu[:, :] = 0.0
@@ -882,10 +893,26 @@ class SoftContactNode:
 
     Attributes:
         model: the :class:`IntegratedActionModelSoftContact` (the object never changes).
+        bounds: its hard constraints (None: none); the state-only rows' bounds change with
+            :meth:`set_state_bounds`.
     """
 
-    def __init__(self, model: IntegratedActionModelSoftContact) -> None:
+    def __init__(
+        self, model: IntegratedActionModelSoftContact, bounds: OcpBounds | None = None
+    ) -> None:
         self.model = model
+        self.bounds = bounds
+        if bounds is not None:
+            self.set_state_bounds(bounds.state_lower, bounds.state_upper)
+
+    def set_state_bounds(self, lower: np.ndarray, upper: np.ndarray) -> None:
+        """Bounds of the state-only constraint rows (``bounds.n_state_rows`` each; ±inf: none);
+        the control rows keep ``bounds``'. ModelError without constraints."""
+        if self.bounds is None:
+            raise ModelError("this node has no constraints")
+        lb, ub = self.bounds.bounds(self.terminal, lower, upper)
+        self.model.g_lb = lb
+        self.model.g_ub = ub
 
     @property
     def terminal(self) -> bool:
@@ -929,11 +956,18 @@ def make_soft_contact_node(
     dt: float,
     terminal: bool,
     q_reference: np.ndarray | None = None,
+    bounds: OcpBounds | None = None,
 ) -> SoftContactNode:
     """Build a force-feedback node (running or terminal) with Δt in s.
 
     Initial references: q̄ = ``q_reference`` (default the robot's nominal posture), p̄ = the
     contact position at q̄ (m, world), λ̄ = 0, c4 and c6 from ``weights``, in contact.
+    ``bounds``: the hard constraints (:func:`ffmpc_core.constraints.ocp_bounds` of the
+    force-feedback formulation; None: none).
     """
-    model = IntegratedActionModelSoftContact(robot, contact, weights, dt, terminal, q_reference)
-    return SoftContactNode(model)
+    matrix = None if bounds is None else bounds.state_matrix
+    scale = None if bounds is None else bounds.control_scale
+    model = IntegratedActionModelSoftContact(
+        robot, contact, weights, dt, terminal, q_reference, matrix, scale
+    )
+    return SoftContactNode(model, bounds)

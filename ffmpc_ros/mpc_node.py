@@ -112,7 +112,9 @@ class MpcNode(GraphNode):
         s = self.scenario
         self.robot = scenario_robot(s)  # carrying the tool (the cell's load data)
         self.joint_names = list(self.robot.joint_names)
-        self.config = mpc_config(s)
+        self.lockstep = bool(self.params["lockstep"])
+        # a wall-clock cap on the solve (mpc.constraints.max_solve_time) in real time only
+        self.config = mpc_config(s, real_time=not self.lockstep)
         self.task = build_task(s, self.robot)
         self.schedule = mpc_schedule(self.task, s)
         self.mpc = ModelPredictiveController(self.robot, self.config, self.schedule)
@@ -130,7 +132,6 @@ class MpcNode(GraphNode):
         self.sequence = 0
         self.solve_times: list[float] = []
         self._diagnosed_solves = (0, 0)  # (solves, failed solves) at the last report
-        self.lockstep = bool(self.params["lockstep"])
         if not self.lockstep:
             self.warm_up()
         self.ros2_control = interfaces_of(self) == topics.ROS2_CONTROL_INTERFACES

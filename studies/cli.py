@@ -850,8 +850,9 @@ class BenchMpcVerb(CommandExtension):
     description = (
         "Median and p90 MPC step time (references, warm start and solve), median solve time, "
         "iterations and iteration-cap hits of each formulation on the iiwa, at N=5, dt=3 ms and "
-        "N=20, dt=10 ms, and the ratio to crocoddyl's built-in classical contact model on the "
-        "same problem, measured in the same run."
+        "N=20, dt=10 ms, with and without its hard constraints, and the ratios to crocoddyl's "
+        "built-in classical contact model on the same problem and of the constrained solve to "
+        "the unconstrained one, measured in the same run."
     )
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
@@ -860,10 +861,12 @@ class BenchMpcVerb(CommandExtension):
         parser.add_argument(
             "--cases",
             nargs="+",
-            metavar="FORMULATION[:N]",
-            help="formulations to run (classical, torque_feedback, force_feedback), optionally "
-            "restricted to one configuration with :5 or :20 (default: all); the reference "
-            "always runs in each configuration used",
+            metavar="CASE[:N]",
+            help="cases to run: a formulation (classical, torque_feedback, force_feedback; with "
+            "its constraints), FORMULATION_unconstrained, FORMULATION_python, "
+            "force_feedback_capped; optionally restricted to one configuration with :5 or :20 "
+            "(default: every case but the Python ones of classical and torque_feedback); the "
+            "reference always runs in each configuration used",
         )
         parser.add_argument(
             "--json", metavar="FILE", type=output_file, help='also write {"cases": [...]} to FILE'

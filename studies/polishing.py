@@ -109,7 +109,9 @@ class RunResult:
     """Outcome of one run: metrics from the true and from the measured normal force, the draws,
     the time series (``log``), timing statistics, and the safety figures (module docstring):
     ``max_velocity_ratio`` / ``max_torque_ratio`` per joint, ``safe_hold_s`` (s), the MPC
-    solves that raised (``mpc_failures``; the hold took over), the commands the velocity guard
+    solves that raised (``mpc_failures``; the hold took over; among them
+    ``constraint_failures``, solutions refused for breaking a hard constraint), the commands
+    the velocity guard
     dropped (``velocity_guard_trips``, None with the guard off), the faults injected, and
     ``safety_log`` (t s; v rad/s and tau_applied N·m per joint; mode, the ``LowLevelMode`` of
     each cycle); ``solve_log``: per MPC solve, t (s) and state, the x̂ it started from (with a
@@ -131,6 +133,9 @@ class RunResult:
     max_applied_torque_ratio: np.ndarray = field(default_factory=lambda: np.zeros(0))
     safe_hold_s: float = 0.0
     mpc_failures: int = 0
+    constraint_failures: int = 0
+    #: solves whose x̂ lay beyond a hard constraint's bound (relaxed for that solve)
+    relaxed_solves: int = 0
     velocity_guard_trips: int | None = None
     faults: tuple[Fault, ...] = ()
     safety_log: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
@@ -167,6 +172,8 @@ class RunResult:
             "max_applied_torque_ratio": [float(x) for x in self.max_applied_torque_ratio],
             "safe_hold_s": self.safe_hold_s,
             "mpc_failures": self.mpc_failures,
+            "constraint_failures": self.constraint_failures,
+            "relaxed_solves": self.relaxed_solves,
             "faults": [str(f) for f in self.faults],
             "command_delay_s": self.command_delay,
             "aborted": self.aborted,
@@ -268,6 +275,8 @@ def run_polishing(
         max_applied_torque_ratio=limit_ratios(loop.trace_applied, robot.torque_limit)[0],
         safe_hold_s=float(np.sum(np.isin(loop.trace_mode, _HOLD_MODES)) * dt),
         mpc_failures=mpc_stage.failures,
+        constraint_failures=mpc_stage.constraint_failures,
+        relaxed_solves=mpc_stage.relaxed_solves,
         velocity_guard_trips=lowlevel.velocity_guard_trips if scenario.pid.velocity_guard else None,
         faults=faults,
         safety_log={

@@ -22,11 +22,16 @@ KEYS = {
     "ratio_to_reference",
     "step_median_ms",
     "solve_median_ms",
+    "constraints",
+    "csqp_fraction",
+    "qp_iterations_median",
+    "constraint_violation_max",
 }
 
 
 def test_parse_cases():
-    # By default: the three formulations (native) and the Python force-feedback model.
+    # By default: the three formulations (native) with and without their constraints, the
+    # force-capped force-feedback case and the Python force-feedback model.
     assert parse_cases(None) == [
         (
             n,
@@ -36,6 +41,10 @@ def test_parse_cases():
                 "classical",
                 "torque_feedback",
                 "force_feedback",
+                "classical_unconstrained",
+                "torque_feedback_unconstrained",
+                "force_feedback_unconstrained",
+                "force_feedback_capped",
                 "force_feedback_python",
             ],
         )
@@ -56,12 +65,19 @@ def test_parse_cases():
 def test_bench_writes_json(tmp_path, capsys):
     path = tmp_path / "bench.json"
     argv = ["bench", "mpc", "--solves", "4", "--cases", "classical:5", "force_feedback:5"]
+    argv += ["force_feedback_unconstrained:5"]
     assert main([*argv, "--json", str(path)]) == 0
     printed = capsys.readouterr().out
     assert "step med" in printed and "force_feedback" in printed  # the table is still printed
     doc = json.loads(path.read_text())
     cases = doc["cases"]
-    assert [c["formulation"] for c in cases] == ["reference", "classical", "force_feedback"]
+    # the unconstrained twin runs before the constrained case it is the cost's reference of
+    names = ["reference", "force_feedback_unconstrained", "classical", "force_feedback"]
+    assert [c["formulation"] for c in cases] == names
+    assert [c["constraints"] for c in cases] == [False, False, True, True]
+    ff, twin = cases[3], cases[1]
+    assert ff["constraint_cost_ratio"] == pytest.approx(ff["median_ms"] / twin["median_ms"])
+    assert "constraint_cost_ratio" not in cases[2]  # its twin did not run
     ref = cases[0]
     for case in cases:
         assert KEYS <= set(case)

@@ -29,7 +29,7 @@ from ffmpc_core.config import BACKENDS, ContactConfig, CostWeights
 from ffmpc_core.errors import ConfigError, InputError, ModelError
 from ffmpc_core.lowpass import IntegratedActionModelLPF, make_lowpass_model, make_lowpass_node
 from ffmpc_core.model_plant import run_model_closed_loop
-from ffmpc_core.mpc import ModelPredictiveController, MpcConfig
+from ffmpc_core.mpc import ModelPredictiveController, MpcConfig, problem_bounds
 from ffmpc_core.rigid_contact import (
     COST_EE_VELOCITY,
     COST_TORQUE,
@@ -318,11 +318,13 @@ def test_closed_loop_on_own_dynamics_native_equals_python(formulation):
         torque = in_contact.differential.costs.costs[COST_TORQUE].cost.residual
         assert isinstance(torque, _native.ResidualModelContactGravityTorque)
 
+    bounds = problem_bounds(robot, config)  # the constraints are on by default
+
     def python_nodes(terminal):
         args = (robot, config.contact, config.weights, config.dt, terminal)
         if formulation == "classical":
-            return make_rigid_contact_node(*args, backend="python")
-        return make_lowpass_node(*args, config.cutoff_frequency, backend="python")
+            return make_rigid_contact_node(*args, backend="python", bounds=bounds)
+        return make_lowpass_node(*args, config.cutoff_frequency, backend="python", bounds=bounds)
 
     duration = 0.2
     logs = {
@@ -358,7 +360,9 @@ def test_native_errors_are_ffmpc_errors(robot):
         with pytest.raises(ConfigError):
             make_lowpass_model(terminal_dam, dt, cutoff, cw, backend="native")
         with pytest.raises(ConfigError):  # the C++ constructor checks too
-            _native.IntegratedActionModelLPF(terminal_dam, dt, cutoff, cw, COST_TORQUE)
+            _native.IntegratedActionModelLPF(
+                terminal_dam, dt, cutoff, cw, COST_TORQUE, np.zeros((0, 3 * nv)), np.ones(nv), False
+            )
     # a running step needs the torque term (eq 25.3) of a running differential model
     lpf = make_lowpass_model(terminal_dam, DT, CUTOFF, 1e-3, backend="native")
     data = lpf.createData()
