@@ -212,10 +212,12 @@ class OcpBounds:
 
     @property
     def n_state_rows(self) -> int:
+        """Rows of the state constraint matrix (position, velocity and force-state boxes)."""
         return int(self.state_matrix.shape[0])
 
     @property
     def has_cone(self) -> bool:
+        """Whether the friction-cone rows on the 3-D force state are present."""
         return self.friction_coefficient is not None
 
     def ng(self, terminal: bool) -> int:
