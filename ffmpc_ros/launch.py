@@ -15,7 +15,8 @@ a tested subset of the YAML launch syntax (``launch_yaml``), one process per nod
   ``ros2 launch`` resolves them).
 
 Run with the real ``ros2 launch`` too (launch 3.4.3, launch_ros 0.26.6, the Jazzy releases,
-built from source here: README, "Decisions and measured facts"), the same files give the same
+built from source here: docs/explanation/design.md, "More measured facts"), the same files give the
+same
 command lines and parameters (``tests/test_launch.py`` compares them when a launch_ros is found)
 and the same metrics. As there, parameter files are passed unchanged: a namespaced node
 (``polishing.launch.yaml namespace:=/arm1``) gets ``-r __ns:=/arm1`` and reads the sections keyed

@@ -50,7 +50,8 @@ force outside ``task.normal_force``'s range is rejected and counted (:meth:`Grap
 In real time the node serves the reference topics from its wait set, but not the parameter
 services (it has no executor).
 
-ros2_control's terms (graph parameter ``interfaces: ros2_control``; README "MPC on a ros2_control
+ros2_control's terms (graph parameter ``interfaces: ros2_control``; docs/explanation/ros.md "MPC on
+a ros2_control
 robot"): the node reads ``linear_feedback_controller/sensor`` (``linear_feedback_controller_msgs/
 Sensor``: q̂, q̇̂, τ̂ stamped t_k, as the agimus linear_feedback_controller publishes them) instead
 of the joint states, and publishes ``linear_feedback_controller/control``

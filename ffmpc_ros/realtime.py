@@ -1,6 +1,7 @@
 """Real-time mode: the 1 kHz loop and the 500 Hz MPC on the wall clock, deadlines measured.
 
-Execution model (chosen by measurement on the 2-core machine, see the README):
+Execution model (chosen by measurement on the 2-core machine, see docs/explanation/ros.md, "Real
+time"):
 
 * **the loop process** composes the ``plant``, ``joint_sensor``, ``ft_sensor`` and ``pid`` ROS
   nodes in one process, as ROS 2 components with intra-process communication would be: four

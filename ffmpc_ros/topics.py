@@ -13,7 +13,8 @@ QoS, as ROS 2 users expect (every profile is a function of this module; msgs_not
 * REFERENCE — the MPC's reference inputs (``mpc/reference``, ``mpc/force_setpoint``), written by
   an operator or a planner outside the graph: the MPC reads them RELIABLE, VOLATILE,
   KEEP_LAST(1), which matches a default ``ros2 topic pub`` (RELIABLE, VOLATILE) and a latched
-  publisher alike (a TRANSIENT_LOCAL reader never matched the default publisher: the README's
+  publisher alike (a TRANSIENT_LOCAL reader never matched the default publisher:
+  docs/explanation/ros.md,
   ``ros2 topic pub --once`` waited for ever). The last target is kept by the MPC itself: a
   message sets its live parameter (``task.normal_force``, ``position_offset``), which holds until
   the next one and reads back with ``ros2 param get``;
@@ -43,7 +44,8 @@ two robot cells run side by side on one ROS domain. Four names stay absolute
 * ``/clock``, ROS's convention (rclpy's time source subscribes the absolute ``/clock``). A
   namespaced graph remaps it to its own clock with the standard rule ``-r /clock:=clock``
   (:func:`graph_ros_args`; ``/arm1/clock``): two lockstep graphs on one ``/clock`` would each
-  step on the other's time (measured: README, "Namespaces"). At the root the rule is the
+  step on the other's time (measured: docs/explanation/ros.md, "Namespaces"). At the root the rule
+  is the
   identity and nothing changes.
 * ``/diagnostics``, the diagnostic aggregator's convention: every node of every graph reports
   there, its status named by the node's fully qualified name (``/arm1/mpc``).
@@ -189,7 +191,8 @@ IMPACT_GRAPH_TOPICS: tuple[tuple[str, str, str], ...] = (
 )
 
 #: ros2_control's terms (graph parameter ``interfaces: ros2_control``, msgs_notes/topics.md,
-#: README "MPC on a ros2_control robot"). The agimus linear_feedback_controller's topics (its
+#: docs/explanation/ros.md "MPC on a ros2_control robot"). The agimus linear_feedback_controller's
+#: topics (its
 #: ``~/control`` and ``~/sensor``, relative to its controller name ``linear_feedback_controller``):
 #: the MPC publishes Control on LFC_CONTROL and reads Sensor on LFC_SENSOR; the low-level node of
 #: the graph (the PID, or the LFC-law node ``lfc``) plays the controller's part. The effort

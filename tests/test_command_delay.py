@@ -36,7 +36,8 @@ def test_pid_setting_keeps_pid_delay_cycles_and_an_explicit_cycle_override_wins(
     resolved, record = resolve_command_delay(scenario)
     assert resolved == scenario and record["delta_o_s"] == pytest.approx(5 * DT)
     fixed = scenario.with_overrides({"mpc.command_delay": 0.002})
-    again = fixed.with_overrides({"pid.delay_cycles": 0})  # README's paper-timing override
+    # the paper-timing override (docs/tutorials/polishing.md)
+    again = fixed.with_overrides({"pid.delay_cycles": 0})
     assert again.pid.delay_cycles == 0 and again.mpc.command_delay == "pid"
     with pytest.raises(ConfigError, match="whole number of plant steps"):
         scenario.with_overrides({"mpc.command_delay": 0.0025})

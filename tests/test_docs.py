@@ -378,7 +378,8 @@ HISTORY = re.compile(
     r"\bat commit\b|\bthe base commit\b",
     re.I,
 )
-HASH = re.compile(r"\b(?=[0-9a-f]*[a-f])(?=[0-9a-f]*[0-9])[0-9a-f]{7,40}\b")
+#: A hex word with a letter and a digit, not part of a number (``1.9768855627488868e-07``).
+HASH = re.compile(r"(?<![\w.-])(?=[0-9a-f]*[a-f])(?=[0-9a-f]*[0-9])[0-9a-f]{7,40}(?![\w-])")
 
 
 def test_no_page_carries_history_or_commit_hashes(site: Path) -> None:

@@ -159,7 +159,7 @@ def test_ffmpc_launch_runs_the_graph_and_equals_the_runner(tmp_path, namespace):
         )
 
 
-# --- the real launch_ros, when one is found (not on CI: no wheel; README, "Decisions and
+# --- the real launch_ros, when one is found (not on CI: no wheel; docs/explanation/design.md, "More
 # measured facts", has the recipe that builds it into a venv of its own) ---
 
 #: Run with a Python that has launch_ros: the command line launch_ros builds for every node of

@@ -264,7 +264,8 @@ def _timely_stalled_run(fault: str, overrides: dict):
     """A real-time run of ``fault`` on a machine that kept the loop's deadlines outside the fault
     window (up to TIMELY_ATTEMPTS runs), or a skip that says what the machine did. Whether the
     loop keeps a 1 ms period is the machine's doing, not the controller's: on the shared 2-core
-    VM the loop's median cycle latency was 0.8–1.4 ms for a while (0.5 ms measured before, README
+    VM the loop's median cycle latency was 0.8–1.4 ms for a while (0.5 ms measured before,
+    docs/explanation/ros.md
     "Overruns"), the plant then stepped on under held torques for tens of ms and a joint reached
     1.8× its velocity limit; a fresh-clone .ci/run failed on this test then (joint A3 1.06×)."""
     fractions = []

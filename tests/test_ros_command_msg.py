@@ -191,7 +191,7 @@ def test_a_typed_command_of_another_robot_is_refused_by_the_pid(ros, robot):
 def test_rerun_refuses_a_bag_recorded_with_the_array_layout(ros):
     """A bag from before the typed command (mpc/command as std_msgs/Float64MultiArray, version
     1) is refused by ``ffmpc bag rerun`` with the reason, never fed to a node that cannot take
-    it (the real version-1 bag gives the same line: README, "Typed messages")."""
+    it (the real version-1 bag gives the same line: docs/explanation/ros.md, "Typed messages")."""
     from dataclasses import replace
 
     from ffmpc_ros.bag.reader import BagReader

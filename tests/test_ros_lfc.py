@@ -158,7 +158,8 @@ def test_ros2_control_graph_with_the_pid_equals_the_runner():
     assert graph.log["force_true"].max() > 5.0  # the run reached the table
 
 
-#: The LFC graph against the normal one (the tolerances README, "MPC on a ros2_control robot",
+#: The LFC graph against the normal one (the tolerances docs/explanation/ros.md, "MPC on a
+#: ros2_control robot",
 #: states with both sets of metrics): same MPC, scenario and seed; the low level differs by
 #: design (the LFC's τ_ff + K·(x₀ ⊖ x) at 1 kHz instead of τ* through the torque PID of eq 33,
 #: which also rejects the actuation bias and gain of eq 31), so the metrics differ, both ways.

@@ -84,7 +84,7 @@ def test_default_polishing_keeps_every_joint_below_its_velocity_limit() -> None:
     max |v|/limit stays below 1. Without the barrier (c_lim = 0, the code before it) joint 3
     reached 1.0049 at t = 2.97 s; with c_lim 0.01, measured 0.836. With the orientation terms
     (rotation 20, angular velocity 0.05) and c_lim 0.01, 1.36; the defaults (rotation 5,
-    c_lim 1): 0.841 (README). ~5 s wall."""
+    c_lim 1): 0.841 (docs/explanation/mpc.md). ~5 s wall."""
     scenario = load_scenario("polishing")
     assert scenario.seed == 0 and scenario.mpc.formulation == "force_feedback"
     assert scenario.mpc.cost_weights().state_limit > 0.0
