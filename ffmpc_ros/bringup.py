@@ -63,7 +63,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -95,6 +95,7 @@ from ffmpc_ros.graph_nodes import (
     node_table,
     write_params_file,
 )
+from ffmpc_ros.node_results import read_node_results
 from ffmpc_ros.params import parameter_overrides
 
 if TYPE_CHECKING:
@@ -516,7 +517,8 @@ def run_graph(
         stall_timeout: lockstep: wall s without a new plant cycle before GraphError.
         start_timeout: lockstep: wall s from the call to the first plant cycle.
         node_ros_args: multi-process: extra ROS arguments per node, after the parameter file
-            (e.g. ``{"pid": ["-p", "mpc.formulation:=classical"]}``).
+            (e.g. ``{"pid": ["-p", "kp:=0.2"]}``); one that sets a scenario value other nodes
+            take too is refused (:func:`check_unshared`).
         view: serve the live view (Foxglove WebSocket) on this port of ``view_host`` (None:
             no view); ViewError when the port is busy.
         view_wait: the run starts only once a Foxglove client subscribes to
@@ -759,7 +761,7 @@ def run_graph(
             node.destroy_node()
         executor.shutdown()
         rclpy.shutdown(context=context)
-        rejected.update(_rejected_from_logs(logs))
+        rejected.update(rejected_from_results(tmp.name, logs))
         if not quiet:
             print_logs(logs)
         view_result = None
@@ -903,6 +905,7 @@ def _spawn(
         with open(logs[name], "w", encoding="utf-8") as out:
             args = ["--ros-args", "--params-file", path, *graph_args, *node_ros_args.get(name, ())]
             args += ["-p", "autostart:=false"]  # the bring-up drives the lifecycle (run_graph)
+            args += ["-p", f"results_file:={results_path(directory, name)}"]
             children[name] = subprocess.Popen(  # type: ignore[call-overload]
                 # (process_group needs Python 3.11, the ROS wheels' Python; mypy checks 3.10)
                 _launch(marker, signal.SIGKILL, module, args),
@@ -1255,16 +1258,18 @@ def check_unshared(node_ros_args: Mapping[str, Sequence[str]], nodes: Sequence[s
                 )
 
 
-def _rejected_from_logs(logs: Mapping[str, str]) -> dict[str, dict]:
-    """{node: {kind: count}} from the line every node prints at exit (base.REJECTED_MARKER)."""
-    from ffmpc_ros.base import REJECTED_MARKER
+def results_path(directory: str, node: str) -> str:
+    """The results file of node process ``node`` in the run's ``directory``
+    (:mod:`ffmpc_ros.node_results`)."""
+    return os.path.join(directory, f"{node}.results.json")
 
+
+def rejected_from_results(directory: str, names: Iterable[str]) -> dict[str, dict]:
+    """{node: {kind: count}} of the node processes ``names`` that wrote their results file
+    (the others, e.g. a killed node, the view or the recorder, wrote none)."""
     out = {}
-    for name, path in logs.items():
-        with contextlib.suppress(OSError), open(path, encoding="utf-8", errors="replace") as fh:
-            for line in fh:
-                if line.startswith(REJECTED_MARKER):
-                    counts = json.loads(line[len(REJECTED_MARKER) :])
-                    counts.pop("node", None)
-                    out[name] = counts
+    for name in names:
+        results = read_node_results(results_path(directory, name))
+        if results is not None:
+            out[name] = results[1]
     return out

@@ -159,8 +159,14 @@ AUTOSTART = GraphParameter(
     "until a lifecycle transition, `ros2 lifecycle set NODE configure` then `activate`, or "
     "the bring-up's)",
 )
-#: Graph parameters every node declares (lifecycle start, ffmpc_ros.base).
-COMMON_GRAPH: tuple[GraphParameter, ...] = (AUTOSTART, START_CLOCK_SUBSCRIBERS)
+RESULTS_FILE = GraphParameter(
+    "results_file",
+    "",
+    "where the node writes what it hands back as it exits (its rejected-input counts; "
+    "ffmpc_ros.node_results; the bring-up sets it; empty: nowhere)",
+)
+#: Graph parameters every node declares (lifecycle start, ffmpc_ros.base; the results file).
+COMMON_GRAPH: tuple[GraphParameter, ...] = (AUTOSTART, START_CLOCK_SUBSCRIBERS, RESULTS_FILE)
 
 WAIT_FOR_METRICS = GraphParameter(
     "wait_for_metrics",
