@@ -253,7 +253,7 @@ class Scenario:
 
     def with_overrides(self, overrides: dict[str, Any]) -> Scenario:
         """A copy with dotted-name overrides applied (``"mpc.formulation"``, ``"seed"``)."""
-        flat = _scenario_to_flat(self)
+        flat = SCENARIO_SCHEMA.flatten(self)
         for key, value in overrides.items():
             if not isinstance(key, str) or key not in SCHEMA:
                 raise unknown_parameter(str(key), value)
@@ -408,7 +408,7 @@ def unknown_parameter(
 INF = float("inf")
 _NONNEG = (0.0, INF)
 #: name: (unit, (low, high) range or [choices], description). Kinds come from the dataclass
-#: defaults (tuples: lists); _build_schema checks that this table and the dataclasses agree.
+#: defaults (tuples: lists); dataclass_schema checks that this table and the dataclasses agree.
 _TABLE: dict[str, tuple[str, Any, str]] = {
     "robot": ("", ["iiwa", "panda"], "robot model"),
     "seed": ("", (0, 2**31 - 1), "seed of every random draw of the run (numpy Generator spawn)"),
@@ -785,7 +785,11 @@ def cost_weight_specs(prefix: str, force_length: int | str) -> dict[str, ParamSp
     return out
 
 
-def _build_schema() -> dict[str, ParamSpec]:
+def _scenario_given_specs() -> dict[str, ParamSpec]:
+    """The scenario's specs that its dataclass annotations cannot give: ``mpc.command_delay``
+    (seconds or a word), K and B (one per contact axis, ``mpc.contact.dimension``) and the
+    per-formulation weights of ``mpc.weights`` (a dict field: :class:`CostWeights`' fields
+    plus the phase weights c6, c4)."""
     given: dict[str, ParamSpec] = {
         "mpc.command_delay": _spec_from_table("mpc.command_delay", DELAY, None, _TABLE),
     }
@@ -798,19 +802,7 @@ def _build_schema() -> dict[str, ParamSpec]:
             given[prefix + phase] = ParamSpec(
                 prefix + phase, FLOAT, f"{what} of the task phases (ffmpc_core.tasks)", "", _NONNEG
             )
-    return dataclass_schema(Scenario, _TABLE, exclude=("name", "mpc.weights"), given=given)
-
-
-#: Every scenario parameter by dotted name: the one declaration of its kind, unit and range.
-SCHEMA: dict[str, ParamSpec] = _build_schema()
-
-
-_SectionT = TypeVar("_SectionT")
-
-
-def _coerce(cls: type[_SectionT], values: dict[str, Any]) -> _SectionT:
-    """A section dataclass from values already checked by :func:`validate_flat`."""
-    return cls(**values)
+    return given
 
 
 def validate_flat(
@@ -833,45 +825,11 @@ def validate_flat(
     return out
 
 
-def _split(flat: dict[str, Any], prefix: str) -> dict[str, Any]:
-    n = len(prefix) + 1
-    return {k[n:]: v for k, v in flat.items() if k.startswith(prefix + ".")}
-
-
 def _scenario_from_flat(name: str, flat: dict[str, Any]) -> Scenario:
-    flat = validate_flat(flat)
-    mpc_flat = _split(flat, "mpc")
-    contact = _coerce(
-        ContactConfig, {k[8:]: v for k, v in mpc_flat.items() if k.startswith("contact.")}
-    )
-    constraints = _coerce(
-        ConstraintConfig,
-        {k[12:]: v for k, v in mpc_flat.items() if k.startswith("constraints.")},
-    )
-    weights: dict[str, dict[str, Any]] = {}
-    for key, value in mpc_flat.items():
-        if key.startswith("weights."):
-            form, _, wname = key[8:].partition(".")
-            weights.setdefault(form, {})[wname] = value
-    plain = {
-        k: v
-        for k, v in mpc_flat.items()
-        if not k.startswith(("contact.", "constraints.", "weights."))
-    }
-    mpc = replace(
-        _coerce(MpcSection, plain), contact=contact, constraints=constraints, weights=weights
-    )
-    scenario = Scenario(
-        name=name,
-        robot=flat.get("robot", "iiwa"),
-        seed=flat.get("seed", 0),
-        task=_coerce(TaskSection, _split(flat, "task")),
-        plant=_coerce(PlantSection, _split(flat, "plant")),
-        joint_sensor=_coerce(JointSensorSection, _split(flat, "joint_sensor")),
-        ft_sensor=_coerce(ForceSensorSection, _split(flat, "ft_sensor")),
-        mpc=mpc,
-        pid=_coerce(PidSection, _split(flat, "pid")),
-    )
+    """The :class:`Scenario` ``name`` of dotted-name values (the schema's defaults for the
+    others), checked by :data:`SCENARIO_SCHEMA`, with the cross-section rules applied (the
+    wrist-only keys, a fixed δo setting the PID's delay line)."""
+    scenario = SCENARIO_SCHEMA.build(flat, Scenario(name=name))
     check_force_sensor(scenario.ft_sensor)
     fixed = command_delay_seconds(scenario.mpc.command_delay)
     if fixed is not None:  # a fixed δo sets the PID's delay line
@@ -939,28 +897,9 @@ def delay_in_plant_steps(delay: float, time_step: float) -> int:
     return int(round(cycles))
 
 
-def _scenario_to_flat(s: Scenario) -> dict[str, Any]:
-    flat: dict[str, Any] = {"robot": s.robot, "seed": s.seed}
-    for section in ("task", "plant", "joint_sensor", "ft_sensor", "pid"):
-        obj = getattr(s, section)
-        for f in fields(obj):
-            flat[f"{section}.{f.name}"] = getattr(obj, f.name)
-    for f in fields(s.mpc):
-        if f.name not in ("contact", "constraints", "weights"):
-            flat[f"mpc.{f.name}"] = getattr(s.mpc, f.name)
-    for f in fields(s.mpc.contact):
-        flat[f"mpc.contact.{f.name}"] = getattr(s.mpc.contact, f.name)
-    for f in fields(s.mpc.constraints):
-        flat[f"mpc.constraints.{f.name}"] = getattr(s.mpc.constraints, f.name)
-    for form, values in s.mpc.weights.items():
-        for k, v in values.items():
-            flat[f"mpc.weights.{form}.{k}"] = v
-    return flat
-
-
 def scenario_parameters(s: Scenario) -> dict[str, dict[str, Any]]:
     """The scenario as ROS parameters: ``{section: {dotted_name: value}}`` (``/**`` included)."""
-    flat = _scenario_to_flat(s)
+    flat = SCENARIO_SCHEMA.flatten(s)
     out: dict[str, dict[str, Any]] = {WILDCARD: {}}
     for key, value in flat.items():
         head, _, rest = key.partition(".")
@@ -1119,6 +1058,10 @@ class ConfigSchema(Generic[_ConfigT]):
     root: type[_ConfigT]
     params: dict[str, ParamSpec]
     paths: dict[str, str]  # dotted name → field path in the dataclass tree
+    #: Field paths of the dict-valued fields ``{key: {name: value}}`` (the polishing
+    #: scenario's ``mpc.weights``: ``{formulation: {weight: value}}``), whose parameters are
+    #: ``<path>.<key>.<name>`` (their specs are ``given``); an unset entry is absent.
+    maps: tuple[str, ...] = ()
 
     @classmethod
     def of(
@@ -1128,13 +1071,16 @@ class ConfigSchema(Generic[_ConfigT]):
         names: dict[str, str] | None = None,
         exclude: tuple[str, ...] = (),
         given: dict[str, ParamSpec] | None = None,
+        maps: tuple[str, ...] = (),
     ) -> ConfigSchema[_ConfigT]:
-        """The schema of ``root`` (arguments of :func:`dataclass_schema`)."""
-        params = dataclass_schema(root, table, names, exclude, given)
-        paths = {public_name(p, names or {}): p for p in dataclass_leaves(root, exclude)}
-        if set(paths) != set(params):
+        """The schema of ``root`` (arguments of :func:`dataclass_schema`; ``maps``: the
+        dict-valued fields, :attr:`maps`)."""
+        params = dataclass_schema(root, table, names, exclude + maps, given)
+        paths = {public_name(p, names or {}): p for p in dataclass_leaves(root, exclude + maps)}
+        in_maps = {n for n in params if n.startswith(tuple(m + "." for m in maps))}
+        if set(paths) != set(params) - in_maps:
             raise AssertionError(f"schema: names without a field: {set(params) ^ set(paths)}")
-        return cls(root, params, paths)
+        return cls(root, params, paths, maps)
 
     @property
     def sections(self) -> tuple[str, ...]:
@@ -1144,25 +1090,46 @@ class ConfigSchema(Generic[_ConfigT]):
     def build(self, flat: dict[str, Any], base: _ConfigT | None = None) -> _ConfigT:
         """``base`` (default: ``root()``) with the dotted-name values of ``flat``, checked
         (ConfigError ``name = value: …``, the first bad or unknown one; the dataclasses' own
-        cross-field checks raise theirs)."""
+        cross-field checks raise theirs). Entries of a dict field (:attr:`maps`) are merged
+        into ``base``'s."""
+        config = self.root() if base is None else base
         checked = validate_flat(flat, self.params)
-        values = {self.paths[k]: v for k, v in checked.items()}
-        return _replace_tree(self.root() if base is None else base, values, "")
+        values: dict[str, Any] = {}
+        for name, value in checked.items():
+            field_map = self._map_of(name)
+            if field_map is None:
+                values[self.paths[name]] = value
+                continue
+            if field_map not in values:
+                values[field_map] = {k: dict(v) for k, v in _get_path(config, field_map).items()}
+            key, _, entry = name[len(field_map) + 1 :].partition(".")
+            values[field_map].setdefault(key, {})[entry] = value
+        return _replace_tree(config, values, "")
 
     def flatten(self, config: _ConfigT) -> dict[str, Any]:
-        """``{dotted name: value}`` of every parameter of ``config``."""
-        out: dict[str, Any] = {}
-        for name, path in self.paths.items():
-            value: Any = config
-            for part in path.split("."):
-                value = getattr(value, part)
-            out[name] = value
+        """``{dotted name: value}`` of every parameter of ``config`` (of a dict field, its
+        entries)."""
+        out = {name: _get_path(config, path) for name, path in self.paths.items()}
+        for field_map in self.maps:
+            for key, entries in _get_path(config, field_map).items():
+                out.update({f"{field_map}.{key}.{k}": v for k, v in entries.items()})
         return out
+
+    def _map_of(self, name: str) -> str | None:
+        """The dict field (:attr:`maps`) ``name`` is an entry of, or None."""
+        return next((m for m in self.maps if name.startswith(m + ".")), None)
 
     def load(self, name_or_path: str | os.PathLike, overrides: dict | None = None) -> _ConfigT:
         """A scenario file (a shipped name or a path) with dotted-name ``overrides`` applied."""
         _, flat = read_parameter_file(name_or_path, self.sections)
         return self.build(flat | dict(overrides or {}))
+
+
+def _get_path(obj: Any, path: str) -> Any:
+    """The value at the dotted field path ``path`` of the dataclass tree ``obj``."""
+    for part in path.split("."):
+        obj = getattr(obj, part)
+    return obj
 
 
 def _replace_tree(obj: Any, values: dict[str, Any], prefix: str) -> Any:
@@ -1176,3 +1143,15 @@ def _replace_tree(obj: Any, values: dict[str, Any], prefix: str) -> Any:
         elif path in values:
             changes[f.name] = values[path]
     return replace(obj, **changes) if changes else obj
+
+
+#: The polishing scenario's schema: its tree is :class:`Scenario` (the sections, the MPC's
+#: :class:`~ffmpc_core.config.ContactConfig` and
+#: :class:`~ffmpc_core.constraints.ConstraintConfig` as they are), its names the dotted field
+#: paths. :func:`load_scenario`, :meth:`Scenario.with_overrides`, ``--set``/``--set-file`` and
+#: the node parameters (``ffmpc_ros.params``) all check values with it.
+SCENARIO_SCHEMA: ConfigSchema[Scenario] = ConfigSchema.of(
+    Scenario, _TABLE, exclude=("name",), given=_scenario_given_specs(), maps=("mpc.weights",)
+)
+#: Every scenario parameter by dotted name: the one declaration of its kind, unit and range.
+SCHEMA: dict[str, ParamSpec] = SCENARIO_SCHEMA.params

@@ -107,6 +107,7 @@ from ffmpc_core.errors import ConfigError, FfmpcError, InputError
 from ffmpc_core.scenario import CONTACT_DIMENSION, SCHEMA, Scenario
 from ffmpc_ros import topics
 from ffmpc_ros.discovery import check_ros_environment, ensure_local_discovery
+from ffmpc_ros.node_results import write_node_results
 from ffmpc_ros.params import (
     NODE_SPECS,
     declare_node_parameters,
@@ -996,12 +997,15 @@ def run_node(
         # Shutting down, to the end of the process (run_node is its main): SIGINT is ignored.
         _on_sigint(signal.SIG_IGN)
         if node is not None:
-            # One line the bring-up reads from this process's log (rejected_messages).
+            # One line for the log's reader; the bring-up reads the results file.
             print(
                 REJECTED_MARKER + json.dumps({"node": node.get_name(), **dict(node.rejected)}),
                 file=sys.stderr,
                 flush=True,
             )
+            results_file = str(node.params.get("results_file", ""))
+            if results_file:
+                write_node_results(results_file, node.get_name(), node.rejected)
             node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()

@@ -57,14 +57,13 @@ from __future__ import annotations
 
 import contextlib
 import json
-import math
 import os
 import signal
 import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -96,6 +95,7 @@ from ffmpc_ros.graph_nodes import (
     node_table,
     write_params_file,
 )
+from ffmpc_ros.node_results import read_node_results
 from ffmpc_ros.params import parameter_overrides
 
 if TYPE_CHECKING:
@@ -116,8 +116,6 @@ LOG_TAIL = 8
 FAULT_RECOVERY = 0.05
 #: Wall s after the plant's last state before a run with faults fills the missing measurements.
 FILL_GRACE = 2.0
-#: Parameters several nodes declare that may differ between them (none today).
-UNSHARED_PARAMETERS: frozenset[str] = frozenset()
 #: The launcher of every child: die with the bring-up (PR_SET_PDEATHSIG), refuse to start if it
 #: is already gone, then run the module as ``python -m`` would. argv: marker, signal, module, args.
 _LAUNCHER = (
@@ -519,7 +517,8 @@ def run_graph(
         stall_timeout: lockstep: wall s without a new plant cycle before GraphError.
         start_timeout: lockstep: wall s from the call to the first plant cycle.
         node_ros_args: multi-process: extra ROS arguments per node, after the parameter file
-            (e.g. ``{"pid": ["-p", "mpc.formulation:=classical"]}``).
+            (e.g. ``{"pid": ["-p", "kp:=0.2"]}``); one that sets a scenario value other nodes
+            take too is refused (:func:`check_unshared`).
         view: serve the live view (Foxglove WebSocket) on this port of ``view_host`` (None:
             no view); ViewError when the port is busy.
         view_wait: the run starts only once a Foxglove client subscribes to
@@ -559,6 +558,7 @@ def run_graph(
         raise ConfigError(
             f"per-node ROS arguments for unknown nodes {unknown}; nodes: {list(table)}"
         )
+    check_unshared(node_ros_args or {}, [*table, "metrics"])
     metrics_cls = load_node_class(METRICS_NODE)
     # Task duration from the metrics node's own view of the scenario when not given.
     if duration is None:
@@ -633,7 +633,6 @@ def run_graph(
             nodes += graph_nodes
             for graph_node in graph_nodes:
                 executor.add_node(graph_node)
-            values = {n.get_name(): _own_parameters(n) for n in graph_nodes}
             if view is not None:
                 from ffmpc_ros.view import ViewNode
 
@@ -672,15 +671,6 @@ def run_graph(
                     namespace,
                     view is not None,  # with the view, the recorder also writes /tf
                 )
-            values = _fetch_parameters(
-                probe_node, executor, list(table), children, logs, start + start_timeout
-            )
-        mismatches = parameter_mismatches(values)
-        if mismatches:
-            raise GraphError(
-                "shared parameters differ between nodes, the run was not started: "
-                + "; ".join(mismatches)
-            )
         if children:
             _bring_up(probe_node, executor, list(table), children, logs, start + start_timeout)
         if faults:
@@ -743,8 +733,7 @@ def run_graph(
                 # plant is done, fill them with the previous value (the real-time rule,
                 # counted in metrics_filled) rather than wait forever.
                 if now - watch.last_progress > FILL_GRACE:
-                    metrics._last_state_at = time.monotonic() - 1e3  # past its grace
-                    metrics._check_finish()
+                    metrics.finish_now()
             watch.check(probe.cycle, now, lambda: _progress(probe, pid_probe, children))
             executor.spin_once(timeout_sec=0.05)
             _check_stop()
@@ -772,7 +761,7 @@ def run_graph(
             node.destroy_node()
         executor.shutdown()
         rclpy.shutdown(context=context)
-        rejected.update(_rejected_from_logs(logs))
+        rejected.update(rejected_from_results(tmp.name, logs))
         if not quiet:
             print_logs(logs)
         view_result = None
@@ -916,6 +905,7 @@ def _spawn(
         with open(logs[name], "w", encoding="utf-8") as out:
             args = ["--ros-args", "--params-file", path, *graph_args, *node_ros_args.get(name, ())]
             args += ["-p", "autostart:=false"]  # the bring-up drives the lifecycle (run_graph)
+            args += ["-p", f"results_file:={results_path(directory, name)}"]
             children[name] = subprocess.Popen(  # type: ignore[call-overload]
                 # (process_group needs Python 3.11, the ROS wheels' Python; mypy checks 3.10)
                 _launch(marker, signal.SIGKILL, module, args),
@@ -1158,40 +1148,6 @@ def _node_name_clashes(
         time.sleep(0.05)
 
 
-def _own_parameters(node: Node) -> dict:
-    """{name: value} of every parameter of an in-process node."""
-    names = node.list_parameters([], 0).names
-    return {p.name: p.value for p in node.get_parameters(names)}
-
-
-def _fetch_parameters(
-    node: Node,
-    executor: Executor,
-    names: Sequence[str],
-    children: Mapping[str, subprocess.Popen],
-    logs: Mapping[str, str],
-    deadline: float,
-) -> dict[str, dict[str, Any]]:
-    """{node: {name: value}} of the nodes ``names`` through their parameter services."""
-    from ffmpc_ros.bag.recorder import _ParameterFetch
-
-    prefix = node.get_namespace().rstrip("/")  # the graph's namespace (the probe's own)
-    fetches = {n: _ParameterFetch(node, f"{prefix}/{n}") for n in names}
-    while not all(f.poll() for f in fetches.values()):
-        _check_children(children, logs, set())
-        if time.perf_counter() > deadline:
-            missing = [n for n, f in fetches.items() if f.values is None]
-            raise GraphError(
-                f"the parameters of {missing} could not be read: the run did not start"
-            )
-        executor.spin_once(timeout_sec=0.05)  # (an unanswered request is sent again: poll)
-        _check_stop()
-    for f in fetches.values():
-        node.destroy_client(f.list_client)
-        node.destroy_client(f.get_client)
-    return {n: f.values for n, f in fetches.items() if f.values is not None}  # all, polled
-
-
 #: Lifecycle transitions of the bring-up, in order (lifecycle_msgs/msg/Transition labels).
 BRING_UP_TRANSITIONS = ("configure", "activate")
 #: The state each transition of the bring-up leads to.
@@ -1281,50 +1237,39 @@ def _bring_up(
             node.destroy_client(client)
 
 
-def parameter_mismatches(values: Mapping[str, Mapping[str, object]]) -> list[str]:
-    """One line per parameter declared by several nodes with different values (both nodes and
-    both values named)."""
-    from ffmpc_ros.params import NODE_SPECS, node_scenario_names, scenario_flat
+def check_unshared(node_ros_args: Mapping[str, Sequence[str]], nodes: Sequence[str]) -> None:
+    """ConfigError for a per-node ``-p NAME:=VALUE`` (``--node-param``) that sets a scenario
+    value other nodes of the graph (``nodes``) take too: each node gets its slice of the one
+    scenario, so a value given to one of them alone would make them disagree; it belongs in
+    ``--set`` (:func:`ffmpc_ros.params.sharing_nodes`)."""
+    from ffmpc_ros.params import sharing_nodes
 
-    flat = scenario_flat(Scenario(name="names"))
-    out = []
-    # a node's own-section parameters drop their prefix (pid's delay_cycles is
-    # pid.delay_cycles): compare under the scenario's dotted name
-    owners: dict[str, list[tuple[str, str]]] = {}
-    for node, params in values.items():
-        spec = NODE_SPECS.get(node)
-        canonical = {} if spec is None else node_scenario_names(spec, flat)
-        for name in params:
-            owners.setdefault(canonical.get(name, name), []).append((node, name))
-    for key, where in sorted(owners.items()):
-        if len(where) < 2 or key in UNSHARED_PARAMETERS:
-            continue
-        first, first_name = where[0]
-        for other, other_name in where[1:]:
-            a, b = values[first][first_name], values[other][other_name]
-            if not _same(a, b):
-                out.append(f"{key} is {a!r} in {first} but {b!r} in {other}")
-                break
-    return out
+    for node, args in node_ros_args.items():
+        for flag, assignment in zip(args[:-1], args[1:], strict=True):
+            if flag != "-p":
+                continue
+            name = assignment.partition(":=")[0]
+            scenario_name, others = sharing_nodes(node, name, nodes)
+            if others:
+                raise ConfigError(
+                    f"{node}:{name}: the scenario value {scenario_name}, which "
+                    f"{', '.join(others)} also take; give it to every node with --set "
+                    f"{scenario_name}=VALUE (the run was not started)"
+                )
 
 
-def _same(a: Any, b: Any) -> bool:
-    """Equal parameter values (NaN equals NaN; a list equals a tuple or array of its items)."""
-    if isinstance(a, float | int) and isinstance(b, float | int):
-        return a == b or (math.isnan(a) and math.isnan(b))
-    return list(a) == list(b) if isinstance(a, list | tuple) else a == b
+def results_path(directory: str, node: str) -> str:
+    """The results file of node process ``node`` in the run's ``directory``
+    (:mod:`ffmpc_ros.node_results`)."""
+    return os.path.join(directory, f"{node}.results.json")
 
 
-def _rejected_from_logs(logs: Mapping[str, str]) -> dict[str, dict]:
-    """{node: {kind: count}} from the line every node prints at exit (base.REJECTED_MARKER)."""
-    from ffmpc_ros.base import REJECTED_MARKER
-
+def rejected_from_results(directory: str, names: Iterable[str]) -> dict[str, dict]:
+    """{node: {kind: count}} of the node processes ``names`` that wrote their results file
+    (the others, e.g. a killed node, the view or the recorder, wrote none)."""
     out = {}
-    for name, path in logs.items():
-        with contextlib.suppress(OSError), open(path, encoding="utf-8", errors="replace") as fh:
-            for line in fh:
-                if line.startswith(REJECTED_MARKER):
-                    counts = json.loads(line[len(REJECTED_MARKER) :])
-                    counts.pop("node", None)
-                    out[name] = counts
+    for name in names:
+        results = read_node_results(results_path(directory, name))
+        if results is not None:
+            out[name] = results[1]
     return out

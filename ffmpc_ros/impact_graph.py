@@ -521,12 +521,12 @@ def run_impact_graph(
         _check_children,
         _check_stop,
         _refuse_foreign,
-        _rejected_from_logs,
         _spawn,
         _spawn_child,
         _stop,
         graph_context,
         print_logs,
+        rejected_from_results,
     )
 
     start = time.perf_counter()
@@ -623,7 +623,7 @@ def run_impact_graph(
             node.destroy_node()
         executor.shutdown()
         rclpy.shutdown(context=context)
-        rejected = _rejected_from_logs(logs)
+        rejected = rejected_from_results(tmp.name, logs)
         if not quiet:
             print_logs(logs)
         bag = None

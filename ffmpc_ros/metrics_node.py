@@ -90,6 +90,19 @@ class MetricsNode(GraphNode):
         if not self.lockstep:
             self.create_timer(0.1, self._check_finish, clock=steady)
 
+    @property
+    def has_states(self) -> bool:
+        """Whether a plant state came in since the last (attempted) finish."""
+        return self._last_state_at is not None
+
+    def finish_now(self) -> None:
+        """Finish with the cycles that are in now, as real time does once the last state is
+        :data:`FINISH_GRACE` old (a missing measurement takes the previous value, counted in
+        ``filled``): the bring-up's, once the plant is done and a stopped sensor's
+        measurements will not come; the bag's metrics of a real-time run."""
+        self._last_state_at = time.monotonic() - FINISH_GRACE
+        self._check_finish()
+
     def _check_finish(self) -> None:
         """Real time: finish with the cycles that are in, once the last state is old enough."""
         if self.metrics is not None or self._last_state_at is None or self.table_normal is None:

@@ -35,6 +35,7 @@ gives the same ConfigError as the runner's, so both accept and refuse the same e
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from fnmatch import fnmatchcase
 from typing import Any
@@ -53,12 +54,11 @@ from ffmpc_core.scenario import (
     FLOAT_OR_FLOATS,
     FLOATS,
     INT,
+    SCENARIO_SCHEMA,
     SCHEMA,
-    WILDCARD,
     ParamSpec,
     Scenario,
     config_error,
-    scenario_parameters,
 )
 from ffmpc_core.tasks import PhaseWeights
 
@@ -159,8 +159,14 @@ AUTOSTART = GraphParameter(
     "until a lifecycle transition, `ros2 lifecycle set NODE configure` then `activate`, or "
     "the bring-up's)",
 )
-#: Graph parameters every node declares (lifecycle start, ffmpc_ros.base).
-COMMON_GRAPH: tuple[GraphParameter, ...] = (AUTOSTART, START_CLOCK_SUBSCRIBERS)
+RESULTS_FILE = GraphParameter(
+    "results_file",
+    "",
+    "where the node writes what it hands back as it exits (its rejected-input counts; "
+    "ffmpc_ros.node_results; the bring-up sets it; empty: nowhere)",
+)
+#: Graph parameters every node declares (lifecycle start, ffmpc_ros.base; the results file).
+COMMON_GRAPH: tuple[GraphParameter, ...] = (AUTOSTART, START_CLOCK_SUBSCRIBERS, RESULTS_FILE)
 
 WAIT_FOR_METRICS = GraphParameter(
     "wait_for_metrics",
@@ -483,10 +489,7 @@ def _weight_defaults() -> dict[str, Any]:
 def scenario_flat(scenario: Scenario) -> dict[str, Any]:
     """The scenario as dotted scenario names (``plant.time_step``, ``robot``, ``task.reach``),
     with every MPC weight present."""
-    flat: dict[str, Any] = {}
-    for section, values in scenario_parameters(scenario).items():
-        prefix = "" if section == WILDCARD else section + "."
-        flat.update({prefix + k: v for k, v in values.items()})
+    flat = SCENARIO_SCHEMA.flatten(scenario)
     weights = _weight_defaults()
     weights.update({k: v for k, v in flat.items() if k.startswith("mpc.weights.")})
     flat.update(weights)
@@ -516,6 +519,24 @@ def node_scenario_names(spec: NodeSpec, flat: dict[str, Any]) -> dict[str, str]:
     for key in _select(flat, spec.shared) + _select(flat, spec.foreign):
         out[key] = key
     return out
+
+
+def sharing_nodes(node: str, ros_name: str, nodes: Sequence[str]) -> tuple[str, list[str]]:
+    """``(scenario name, other nodes)``: the scenario parameter node ``node``'s ROS parameter
+    ``ros_name`` holds and the other nodes among ``nodes`` that declare it too (``("", [])``
+    for a name that is no scenario parameter of the node)."""
+    flat = scenario_flat(Scenario(name="names"))
+    scenario_name = node_scenario_names(NODE_SPECS[node], flat).get(ros_name)
+    if scenario_name is None:
+        return "", []
+    others = [
+        other
+        for other in nodes
+        if other != node
+        and other in NODE_SPECS
+        and scenario_name in node_scenario_names(NODE_SPECS[other], flat).values()
+    ]
+    return scenario_name, others
 
 
 #: Names of both schemas: an impact node declares them from IMPACT_SCHEMA and its

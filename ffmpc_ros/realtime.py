@@ -115,7 +115,7 @@ from ffmpc_core.polishing import (
     scenario_robot,
     steps_per_mpc_period,
 )
-from ffmpc_core.scenario import Scenario
+from ffmpc_core.scenario import Scenario, flatten
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import (
     GraphNode,
@@ -973,17 +973,7 @@ def _params_from_args(argv: Sequence[str]) -> dict[str, dict]:
     for node in ("plant", "joint_sensor", "ft_sensor", "pid"):
         # keyed by the bare name, or by the fully qualified one under a namespace
         key = next(k for k in doc if k == node or k.rsplit("/", 1)[-1] == node)
-        out[node] = _flatten(doc[key]["ros__parameters"])
-    return out
-
-
-def _flatten(d: dict, prefix: str = "") -> dict:
-    out = {}
-    for key, value in d.items():
-        if isinstance(value, dict):
-            out.update(_flatten(value, prefix + key + "."))
-        else:
-            out[prefix + key] = value
+        out[node] = flatten(doc[key]["ros__parameters"])
     return out
 
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import os
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -74,7 +73,7 @@ class BagStudy:
 
 def bag_study(path: str | os.PathLike) -> BagStudy:
     """Rebuild the run's log and metrics from a bag (module docstring)."""
-    from ffmpc_ros.metrics_node import FINISH_GRACE, MetricsNode
+    from ffmpc_ros.metrics_node import MetricsNode
     from ffmpc_ros.params import parameter_overrides
 
     with BagReader(path) as bag:
@@ -116,9 +115,8 @@ def bag_study(path: str | os.PathLike) -> BagStudy:
             for m in bag.messages(list(subs)):
                 sub = subs[m.topic]
                 sub.callback(deserialize_message(m.data, sub.msg_type))
-            if node.metrics is None and not node.lockstep and node._last_state_at is not None:
-                node._last_state_at = time.monotonic() - FINISH_GRACE  # real time: finish now
-                node._check_finish()
+            if node.metrics is None and not node.lockstep and node.has_states:
+                node.finish_now()  # real time: finish with what the bag holds
             true, measured = node.metrics if node.metrics is not None else (None, None)
             return BagStudy(
                 bag=str(path),

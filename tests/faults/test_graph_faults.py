@@ -127,8 +127,9 @@ def test_unsupported_faults_are_refused_with_one_line(tmp_path, args, message):
     assert len(lines) == 1 and message in lines[0], err
 
 
-def test_shared_parameter_mismatch_stops_the_run_before_it_starts(tmp_path):
-    """The PID started with another formulation than the MPC (a per-node ``-p``)."""
+def test_shared_parameter_for_one_node_stops_the_run_before_it_starts(tmp_path):
+    """The PID given another formulation than the MPC (a per-node ``-p``): refused before any
+    node is spawned (each node gets its slice of the one scenario; nothing is read back)."""
     code, err, summary = ffmpc_run(
         tmp_path,
         "--duration",
@@ -140,5 +141,22 @@ def test_shared_parameter_mismatch_stops_the_run_before_it_starts(tmp_path):
         timeout=120.0,
     )
     assert code == 2 and summary is None
-    assert "shared parameters differ" in err
-    assert "mpc.formulation is 'force_feedback' in" in err and "but 'classical' in pid" in err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert "pid:mpc.formulation: the scenario value mpc.formulation" in lines[0]
+    assert "mpc, metrics also take" in lines[0] and "--set mpc.formulation=VALUE" in lines[0]
+
+
+def test_only_a_shared_scenario_value_is_refused_for_one_node():
+    """check_unshared: a node's own value (the PID's gain) and graph parameters pass; the
+    control period the PID and the MPC both take does not."""
+    from ffmpc_core.errors import ConfigError
+    from ffmpc_ros.bringup import check_unshared
+
+    graph = ["plant", "joint_sensor", "ft_sensor", "mpc", "pid", "state_publisher", "metrics"]
+    check_unshared({"pid": ["-p", "kp:=0.2", "-p", "lockstep_timeout:=9.0"]}, graph)
+    check_unshared({"mpc": ["-p", "horizon:=7"]}, graph)
+    with pytest.raises(ConfigError, match=r"pid:mpc.period: the scenario value mpc.period"):
+        check_unshared({"pid": ["-p", "kp:=0.2", "-p", "mpc.period:=0.004"]}, graph)
+    with pytest.raises(ConfigError, match="plant.time_step, which plant, joint_sensor"):
+        check_unshared({"mpc": ["-p", "plant.time_step:=0.002"]}, graph)
