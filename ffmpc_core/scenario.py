@@ -86,6 +86,12 @@ class TaskSection:
     start_height: float = 0.05  # m above the believed table at the circle start
     still: float = 0.1
     reach: float = 0.4
+    #: the touch phase (ffmpc_core.tasks): the reach ends approach_clearance (m) above the
+    #: believed table, then the nodes are in contact with the force reference touch_force (N)
+    #: for touch (s) before the force ramp; 0, 0, 0: the paper's schedule
+    approach_clearance: float = 0.0
+    touch: float = 0.0
+    touch_force: float = 0.0
     force_ramp: float = 0.5
     stop: float = 0.3
     low_force: float = 20.0  # force_square
@@ -425,6 +431,9 @@ _TABLE: dict[str, tuple[str, Any, str]] = {
     "task.start_height": ("m", (0.0, 0.5), "start height above the believed table"),
     "task.still": ("s", (0.0, 60.0), "phase duration: stand still"),
     "task.reach": ("s", (0.0, 60.0), "phase duration: reach the table"),
+    "task.approach_clearance": ("m", (0.0, 0.5), "the reach ends this far above the table"),
+    "task.touch": ("s", (0.0, 60.0), "phase duration: touch the table under touch_force"),
+    "task.touch_force": ("N", (0.0, 500.0), "force reference of the touch phase"),
     "task.force_ramp": ("s", (0.0, 60.0), "phase duration: ramp the force"),
     "task.stop": ("s", (0.0, 60.0), "phase duration after the circle"),
     "task.low_force": ("N", (0.0, 500.0), "force_square low level"),
