@@ -143,7 +143,7 @@ def test_scenario_circle_ramp_lengthens_the_circle_by_the_ramp():
     from ffmpc_core.scenario import load_scenario
 
     robot = load_robot("iiwa")
-    plain = build_task(load_scenario("polishing"), robot)
+    plain = build_task(load_scenario("polishing", {"task.circle_ramp": 0.0}), robot)
     ramped = build_task(load_scenario("polishing", {"task.circle_ramp": 0.25}), robot)
     assert ramped.circle == pytest.approx(plain.circle + 0.25)
     assert ramped.duration == pytest.approx(plain.duration + 0.25)
