@@ -33,7 +33,13 @@ from studies.polishing import run_polishing
 #: Contact early (the reach in 0.15 s: in 0.1 s, with the LBR iiwa 14's 75°/s on joint A4, the
 #: force-feedback MPC at the scenario's weights crossed that velocity limit at 0.22 s, 1.04×,
 #: and the robot's velocity reflex stopped it before any fault; 0.885× with 0.15 s).
+#: The paper's schedule (no touch phase, the circle stepped), for which the fault times below
+#: were chosen: in contact at 50 N and circling at full speed at 0.7 s.
 EARLY_CONTACT = {
+    "task.approach_clearance": 0.0,
+    "task.touch": 0.0,
+    "task.touch_force": 0.0,
+    "task.circle_ramp": 0.0,
     "task.still": 0.0,
     "task.reach": 0.15,
     "task.force_ramp": 0.3,
