@@ -82,12 +82,16 @@ class ConstraintConfig:
             what leaves room to brake; 5 % is 0.10–0.15 rad on the iiwa and the Panda.
         position_braking_time: T_b of the joint-position rows q + T_b·v, s (module docstring):
             a joint that reaches its position row at its velocity bound must decelerate at
-            v/T_b, 15–28 rad/s² for the iiwa's velocity bounds (0.9 × 1.71–3.14 rad/s); a
+            v/T_b, 15–28 rad/s² for velocity bounds of 0.9 × 1.71–3.14 rad/s; a
             shorter T_b asks more of the torques, a longer one slows joints earlier.
         velocity_margin: fraction of the velocity limits kept free (0.10: |v| ≤ 0.9·limit, the
             bound the quadratic barrier had). The MPC bounds its predicted velocities, but the
             robot moves with what the prediction does not see (δo, sensing delay, actuation
-            bias, contact transients): the margin is the room for that.
+            bias, contact transients): the margin is the room for that. The polishing
+            scenarios set 0.20: with 0.10 the elbow (joint 3) overshot its bound by ~13 % at
+            the circle's start and the robot's velocity reflex stopped it (1.015×, seed 101);
+            0.20 leaves it at 0.90×. The impact's force-feedback MPC keeps 0.10 (with 0.20 it
+            brakes harder at the handover and breaks the Panda's acceleration limits).
         torque_margin: fraction of the torque limits kept free on the MPC's torque (u for
             classical and force-feedback, the filtered τ of the torque-feedback state); 0.05
             leaves room for the low level's PID and feedback corrections before its saturation.

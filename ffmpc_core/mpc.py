@@ -85,6 +85,24 @@ def resume_lag(elapsed: float, ramp: float = RESUME_RAMP) -> float:
     return max(elapsed, 0.0) - ramp * x**4 * (2.5 - 3.0 * x + x * x) if x < 1.0 else 0.5 * ramp
 
 
+def resume_force_reference(
+    reference: np.ndarray, resumed_force: np.ndarray, elapsed: float, ramp: float = RESUME_RAMP
+) -> np.ndarray:
+    """The force reference λ̄ (N, written in place and returned) ``elapsed`` s after the MPC
+    resumed from an outage with the measured force ``resumed_force`` (N, same entries): a
+    minimum-jerk blend from the measured force to the schedule's over ``ramp`` s, so the MPC
+    does not press back to the schedule's force at once. During the outage the low level held
+    the robot and the contact force relaxed (50 → 1 N in a 0.5 s dropout mid-circle); the step
+    back to 50 N drove the wrist to 1.003× its speed limit and the robot's reflex stopped it."""
+    if ramp <= 0.0 or elapsed >= ramp:
+        return reference
+    x = max(elapsed / ramp, 0.0)
+    s = x**3 * (10.0 - 15.0 * x + 6.0 * x * x)
+    reference *= s
+    reference += (1.0 - s) * resumed_force
+    return reference
+
+
 class OcpNode(Protocol):
     """What the MPC needs of one node of any formulation."""
 
@@ -405,6 +423,7 @@ class ModelPredictiveController:
         """Forget the warm start and any task pause; the next step starts from a static guess."""
         self.task_pause = 0.0  # s the task's clock stood still for outages (see step)
         self._resumed_at: float | None = None  # controller time of the last resumption, s
+        self._resumed_force: np.ndarray | None = None  # measured λ at that resumption, N
         self._prev_t: float | None = None
         self._prev_xs: np.ndarray | None = None
         self._prev_us: np.ndarray | None = None
@@ -490,6 +509,9 @@ class ModelPredictiveController:
             self.reset()
             self.task_pause = pause
             self._resumed_at = t
+            if meas.force is not None and len(meas.force) == self.nc:
+                force = np.asarray(meas.force, dtype=float)
+                self._resumed_force = force.copy() if np.all(np.isfinite(force)) else None
         x0 = self.predict(self.state_from(meas), t)
         if not np.all(np.isfinite(x0)):
             self._sent.clear()  # the next solve starts from the measured state itself
@@ -741,11 +763,16 @@ class ModelPredictiveController:
 
     def _reference(self, t: float, ref: NodeReference) -> NodeReference:
         """The schedule's reference at controller time t (at :meth:`task_time`), written into
-        ``ref`` when the schedule can."""
-        t = self.task_time(t)
+        ``ref`` when the schedule can; after a resumption its force blends in from the measured
+        one (:func:`resume_force_reference`)."""
+        task_t = self.task_time(t)
         if self._reference_into is not None:
-            return self._reference_into(t, ref)
-        return self.schedule.reference(t, self.nc)
+            ref = self._reference_into(task_t, ref)
+        else:
+            ref = self.schedule.reference(task_t, self.nc)
+        if self._resumed_force is not None and self._resumed_at is not None and ref.in_contact:
+            resume_force_reference(ref.force, self._resumed_force, t - self._resumed_at)
+        return ref
 
     def _update_references(self, t: float) -> None:
         """Node k gets the reference at t + kΔt, the terminal node the one at t + NΔt."""

@@ -113,6 +113,9 @@ def build_task(scenario: Scenario, robot: RobotModel) -> PolishingSchedule:
         contact_position=contact,
         still=task.still,
         reach=task.reach,
+        clearance=task.approach_clearance,
+        touch=task.touch,
+        touch_force=task.touch_force,
         force_ramp=task.force_ramp,
         weights=weights,
     )

@@ -81,11 +81,23 @@ class TaskSection:
     angular_velocity: float = 3.0
     circles: float = 2.0
     # s, minimum-jerk ramp of the angular velocity at the circle's start and end (0: the
-    # paper's step; ffmpc_core.tasks.PolishingTask.circle_angle)
-    circle_ramp: float = 0.0
+    # paper's step; ffmpc_core.tasks.PolishingTask.circle_angle). 0.2 s by default: with the
+    # step, the tangential velocity jumps at the circle's start and the elbow (joint 3) runs
+    # over its speed limit on some seeds (measured: issue 23 report)
+    circle_ramp: float = 0.2
     start_height: float = 0.05  # m above the believed table at the circle start
     still: float = 0.1
     reach: float = 0.4
+    #: the touch phase (ffmpc_core.tasks): the reach ends approach_clearance (m) above the
+    #: believed table, then the nodes are in contact with the force reference touch_force (N)
+    #: for touch (s) before the force ramp; 0, 0, 0: the paper's schedule. The defaults: 1 cm
+    #: clears the table's height at the circle start under the study's ±6° tilt (7.3 mm at
+    #: 7 cm), 1 N keeps the force-feedback MPC's descent slow (its 15 ms horizon asks for the
+    #: speed that makes the reference force within it: ~0.07 m/s at 1 N, ~0.3 m/s at 5 N, which
+    #: bounces the tool off the 10 kN/m table), 0.3 s lets the tool settle in contact
+    approach_clearance: float = 0.01
+    touch: float = 0.3
+    touch_force: float = 1.0
     force_ramp: float = 0.5
     stop: float = 0.3
     low_force: float = 20.0  # force_square
@@ -425,6 +437,9 @@ _TABLE: dict[str, tuple[str, Any, str]] = {
     "task.start_height": ("m", (0.0, 0.5), "start height above the believed table"),
     "task.still": ("s", (0.0, 60.0), "phase duration: stand still"),
     "task.reach": ("s", (0.0, 60.0), "phase duration: reach the table"),
+    "task.approach_clearance": ("m", (0.0, 0.5), "the reach ends this far above the table"),
+    "task.touch": ("s", (0.0, 60.0), "phase duration: touch the table under touch_force"),
+    "task.touch_force": ("N", (0.0, 500.0), "force reference of the touch phase"),
     "task.force_ramp": ("s", (0.0, 60.0), "phase duration: ramp the force"),
     "task.stop": ("s", (0.0, 60.0), "phase duration after the circle"),
     "task.low_force": ("N", (0.0, 500.0), "force_square low level"),

@@ -63,11 +63,21 @@ def _diag_of(ref: NodeReference) -> np.ndarray:
 
 
 class _ApproachThenContact:
-    """What the approach-then-contact tasks share: the tool stands still, reaches
-    ``contact_position`` with a minimum-jerk path, then the contact phases begin.
+    """What the approach-then-contact tasks share: the tool stands still, reaches a point
+    ``clearance`` above ``contact_position`` with a minimum-jerk path, touches the table under
+    a light force (the touch phase), then the contact phases begin.
+
+    The touch phase is the guarded move of the approach:
+    the nodes are in contact from the end of the reach on, with the force reference
+    ``touch_force`` for ``touch`` s, so the tool comes down onto the table under force control
+    wherever the table is within ``clearance`` of the belief (a tilt unknown to the controller
+    moves it), and the force ramp starts from a light contact, not from a free tool or from a
+    tool already pressed into the table by the position cost. ``clearance`` = ``touch`` = 0
+    is the paper's schedule (reach the believed table, switch, ramp from 0 N).
 
     A subclass provides ``start_position``, ``contact_position``, ``still``, ``reach``,
-    ``weights``, ``force(t)``, ``ee_position(t)`` and ``_ee_z_weight_in_contact``.
+    ``clearance``, ``touch``, ``touch_force``, ``weights``, ``force(t)``, ``ee_position(t)``
+    and ``_ee_z_weight_in_contact``.
     """
 
     _ee_z_weight_in_contact: float = 0.0
@@ -77,16 +87,37 @@ class _ApproachThenContact:
         contact_position: np.ndarray
         still: float
         reach: float
+        clearance: float
+        touch: float
+        touch_force: float
         weights: PhaseWeights
 
         def force(self, t: float) -> float: ...
 
         def ee_position(self, t: float) -> np.ndarray: ...
 
+    def _check_approach(self) -> None:
+        """ConfigError for a negative duration, clearance or touch force."""
+        for name in ("still", "reach", "touch", "clearance", "touch_force"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ConfigError(f"{name} must be finite and >= 0, got {value}")
+
     @property
     def contact_time(self) -> float:
-        """Time at which the OCP switches to the contact model, s."""
+        """Time at which the OCP switches to the contact model (the touch phase starts), s."""
         return self.still + self.reach
+
+    @property
+    def force_start(self) -> float:
+        """Time at which the force ramp starts (the touch phase ends), s."""
+        return self.contact_time + self.touch
+
+    def approach_target(self) -> np.ndarray:
+        """Where the reach ends: ``clearance`` above ``contact_position`` (world z), m."""
+        target = np.array(self.contact_position, dtype=float)
+        target[2] += self.clearance
+        return target
 
     def approach_position(self, t: float) -> np.ndarray:
         """p̄(t) up to the contact time: at rest, then a minimum-jerk reach, m, world frame."""
@@ -97,11 +128,25 @@ class _ApproachThenContact:
         if t < self.still:
             out[:] = start
             return out
+        if t >= self.contact_time:  # touch and contact: the believed table point
+            out[:] = self.contact_position
+            return out
         s = min_jerk((t - self.still) / max(self.reach, 1e-9))
-        np.subtract(np.asarray(self.contact_position, float), start, out=out)
+        np.subtract(self.approach_target(), start, out=out)
         out *= s
         out += start
         return out
+
+    def _ramped_force(self, t: float, level: float, ramp: float) -> float:
+        """The force reference up to the force ramp's end, N: 0 before the contact time,
+        ``touch_force`` during the touch phase, then a minimum-jerk ramp of ``ramp`` s from
+        ``touch_force`` to ``level``."""
+        if t < self.contact_time:
+            return 0.0
+        if t < self.force_start:
+            return self.touch_force
+        s = min_jerk((t - self.force_start) / max(ramp, 1e-9))
+        return self.touch_force + (level - self.touch_force) * s
 
     def _ee_position_into(self, t: float, out: np.ndarray) -> np.ndarray:
         """p̄(t) written into ``out`` (3 entries), m, world frame; subclasses may override."""
@@ -145,8 +190,10 @@ class PolishingTask(_ApproachThenContact):
         normal_force: target normal force λ̄ during polishing, N (paper: 50 N).
         circle_radius: m (paper: 0.07 m, i.e. 14 cm diameter).
         angular_velocity: rad/s along the circle (paper: 3 rad/s; fast variant 6 rad/s).
-        still, reach, force_ramp, circle, stop: phase durations, s. ``circle`` defaults to two
-            turns at the nominal angular velocity.
+        still, reach, touch, force_ramp, circle, stop: phase durations, s. ``circle`` defaults
+            to two turns at the nominal angular velocity.
+        clearance: the reach ends this far above ``contact_position``, m (world z).
+        touch_force: the force reference of the touch phase, N (the ramp starts from it).
         circle_ramp: s over which the angular velocity rises from 0 to ``angular_velocity`` at
             the circle's start and falls back to 0 at its end (minimum jerk,
             :meth:`circle_angle`); 0, the paper's circle, steps it (the reference's tangential
@@ -169,13 +216,17 @@ class PolishingTask(_ApproachThenContact):
     weights: PhaseWeights = PhaseWeights()
     ee_z_weight_in_contact: float = 0.0
     circle_ramp: float = 0.0
+    clearance: float = 0.0
+    touch: float = 0.0
+    touch_force: float = 0.0
 
     @property
     def _ee_z_weight_in_contact(self) -> float:  # type: ignore[override]
         return self.ee_z_weight_in_contact
 
     def __post_init__(self) -> None:
-        for name in ("still", "reach", "force_ramp", "circle", "stop"):
+        self._check_approach()
+        for name in ("force_ramp", "circle", "stop"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"phase duration {name} must be >= 0")
         if self.circle_radius < 0 or self.normal_force < 0:
@@ -189,7 +240,7 @@ class PolishingTask(_ApproachThenContact):
     @property
     def circle_start(self) -> float:
         """Time the circle starts, s."""
-        return self.contact_time + self.force_ramp
+        return self.force_start + self.force_ramp
 
     @property
     def circle_end(self) -> float:
@@ -266,10 +317,7 @@ class PolishingTask(_ApproachThenContact):
 
     def force(self, t: float) -> float:
         """Desired normal force λ̄(t), N (positive: the table pushes the tool up)."""
-        if t < self.contact_time:
-            return 0.0
-        ramp = (t - self.contact_time) / max(self.force_ramp, 1e-9)
-        return self.normal_force * min_jerk(ramp)
+        return self._ramped_force(t, self.normal_force, self.force_ramp)
 
     def in_circle(self, t: np.ndarray) -> np.ndarray:
         """Mask of times inside the circle phase (where the paper's metrics are computed)."""
@@ -295,11 +343,17 @@ class ForceSquareTask(_ApproachThenContact):
     reach: float = 0.4
     force_ramp: float = 0.5
     weights: PhaseWeights = PhaseWeights()
+    clearance: float = 0.0
+    touch: float = 0.0
+    touch_force: float = 0.0
+
+    def __post_init__(self) -> None:
+        self._check_approach()
 
     @property
     def square_start(self) -> float:
         """Time the square signal starts, s."""
-        return self.contact_time + self.force_ramp
+        return self.force_start + self.force_ramp
 
     @property
     def duration(self) -> float:
@@ -315,10 +369,8 @@ class ForceSquareTask(_ApproachThenContact):
 
     def force(self, t: float) -> float:
         """Normal force reference at t (s), N: the ramp, then the square signal."""
-        if t < self.contact_time:
-            return 0.0
         if t < self.square_start:
-            return self.low_force * min_jerk((t - self.contact_time) / max(self.force_ramp, 1e-9))
+            return self._ramped_force(t, self.low_force, self.force_ramp)
         phase = ((t - self.square_start) % self.period) / self.period
         return self.high_force if phase < 0.5 else self.low_force
 

@@ -25,14 +25,24 @@ WRIST = {**TOOL, "ft_sensor.model": "wrist", "ft_sensor.bias": list(BIAS)}
 
 
 def test_wrist_sensor_graph_equals_the_runner():
-    """Single process, 0.8 s through first contact and the force ramp, force-feedback with the
-    Riccati feedback (the PID node reads λ̂ too): every logged signal and both metric sets."""
+    """Single process, 1.1 s through first contact (the touch phase) into the force ramp,
+    force-feedback with the Riccati feedback (the PID node reads λ̂ too): every logged signal
+    and both metric sets. The robot's reflex is off here: with the Riccati feedback and the
+    1 kg tool the wrist (A5) goes over its speed limit at 0.108 s (1.093x, the same in both
+    paths), which would stop the robot before the table; this test is about the two paths
+    being equal, the reflex about the limits (tests/test_reflex*.py)."""
     scenario = load_scenario(
         "polishing",
-        {"seed": 2, "mpc.formulation": "force_feedback", "mpc.riccati_feedback": True, **WRIST},
+        {
+            "seed": 2,
+            "mpc.formulation": "force_feedback",
+            "mpc.riccati_feedback": True,
+            "plant.reflex": False,
+            **WRIST,
+        },
     )
-    graph = run_graph(scenario, duration=0.8, single_process=True, timeout=300)
-    runner = run_polishing(scenario, duration=0.8)
+    graph = run_graph(scenario, duration=1.1, single_process=True, timeout=300)
+    runner = run_polishing(scenario, duration=1.1)
     assert_same_run(graph, runner)
     assert graph.log["force_true"].max() > 5.0  # the run reached the table
 

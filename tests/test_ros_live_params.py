@@ -283,7 +283,15 @@ def test_force_setpoint_mid_run_retargets_a_lockstep_graph(ros):
     from ffmpc_ros.params import parameter_overrides
 
     scenario = load_scenario(
-        "polishing", {"task.still": 0.05, "task.reach": 0.25, "task.force_ramp": 0.3}
+        "polishing",
+        {
+            "task.still": 0.05,
+            "task.reach": 0.25,
+            "task.force_ramp": 0.3,
+            "task.approach_clearance": 0.0,  # the paper's schedule: no touch phase
+            "task.touch": 0.0,
+            "task.touch_force": 0.0,
+        },
     )
     duration, change = 1.5, 0.7
     params = graph_parameters(scenario, lockstep=True, duration=duration)

@@ -18,6 +18,10 @@ from studies.polishing import run_polishing
 #: with circle_radius 0 the table pivots about the point under the tool, so the tilt cannot lift
 #: the surface away nor push it into the tool), the force ramps 0 → 50 N over 0.3 s.
 EARLY_CONTACT = {
+    "task.approach_clearance": 0.0,  # the paper's schedule: no touch phase, the circle stepped
+    "task.touch": 0.0,
+    "task.touch_force": 0.0,
+    "task.circle_ramp": 0.0,
     "task.still": 0.0,
     "task.reach": 0.1,
     "task.force_ramp": 0.3,

@@ -33,6 +33,10 @@ from studies.study import (
 
 #: Contact at once and the circle from t = 0.15 s: a 0.3 s run has a 0.15 s metrics window.
 SHORT = {
+    "task.approach_clearance": 0.0,  # the paper's schedule: no touch phase, the circle stepped
+    "task.touch": 0.0,
+    "task.touch_force": 0.0,
+    "task.circle_ramp": 0.0,
     "task.still": 0.0,
     "task.reach": 0.05,
     "task.force_ramp": 0.1,

@@ -143,10 +143,66 @@ def test_scenario_circle_ramp_lengthens_the_circle_by_the_ramp():
     from ffmpc_core.scenario import load_scenario
 
     robot = load_robot("iiwa")
-    plain = build_task(load_scenario("polishing"), robot)
+    plain = build_task(load_scenario("polishing", {"task.circle_ramp": 0.0}), robot)
     ramped = build_task(load_scenario("polishing", {"task.circle_ramp": 0.25}), robot)
     assert ramped.circle == pytest.approx(plain.circle + 0.25)
     assert ramped.duration == pytest.approx(plain.duration + 0.25)
     np.testing.assert_allclose(
         ramped.ee_position(ramped.circle_end), ramped.ee_position(ramped.circle_start), atol=1e-12
     )
+
+
+def test_touch_phase_reaches_above_the_table_then_touches_under_a_light_force():
+    plain = make_task()
+    task = make_task(clearance=0.01, touch=0.3, touch_force=1.0)
+    # the reach ends 1 cm above the believed table point, at the same time as the paper's
+    np.testing.assert_allclose(task.ee_position(task.contact_time - 1e-9), [0.55, 0.0, 0.31])
+    np.testing.assert_allclose(task.approach_target(), [0.55, 0.0, 0.31])
+    assert task.contact_time == plain.contact_time
+    # the touch phase: in contact (the nodes switch), the light force, the x-y point held
+    for t in (task.contact_time, task.contact_time + 0.15, task.force_start - 1e-9):
+        ref = task.reference(t)
+        assert ref.in_contact and ref.force[0] == pytest.approx(1.0)
+        np.testing.assert_allclose(ref.ee_position[:2], [0.55, 0.0])
+        np.testing.assert_allclose(ref.ee_position_diag, [1, 1, 0])  # z free in contact
+    assert task.force(task.contact_time - 1e-6) == 0.0
+    # the ramp runs from the touch force to the polishing force, then the circle as before
+    assert task.force_start == pytest.approx(plain.contact_time + 0.3)
+    assert task.force(task.force_start) == pytest.approx(1.0)
+    mid = task.force(task.force_start + 0.5 * task.force_ramp)
+    assert mid == pytest.approx(1.0 + 0.5 * 49.0)
+    assert task.force(task.circle_start) == pytest.approx(50.0)
+    assert task.circle_start == pytest.approx(plain.circle_start + 0.3)
+    assert task.duration == pytest.approx(plain.duration + 0.3)
+    shift = 0.3
+    for t in np.linspace(plain.circle_start, plain.circle_end, 7):
+        np.testing.assert_allclose(task.ee_position(t + shift), plain.ee_position(t), atol=1e-12)
+
+
+def test_touch_phase_zero_is_the_papers_schedule():
+    plain, zero = make_task(), make_task(clearance=0.0, touch=0.0, touch_force=0.0)
+    for t in np.linspace(0.0, plain.duration, 301):
+        assert zero.force(t) == plain.force(t)
+        np.testing.assert_array_equal(zero.ee_position(t), plain.ee_position(t))
+
+
+@pytest.mark.parametrize("name", ["clearance", "touch", "touch_force"])
+def test_touch_phase_rejects_negative_or_nan(name):
+    for bad in (-0.1, float("nan")):
+        with pytest.raises(ConfigError, match=name):
+            make_task(**{name: bad})
+        with pytest.raises(ConfigError, match=name):
+            ForceSquareTask(np.array([0.5, 0, 0.45]), np.array([0.55, 0, 0.3]), **{name: bad})
+
+
+def test_force_square_touch_phase_ramps_from_the_touch_force():
+    task = ForceSquareTask(
+        np.array([0.5, 0, 0.45]),
+        np.array([0.55, 0, 0.3]),
+        clearance=0.01,
+        touch=0.2,
+        touch_force=1.0,
+    )
+    assert task.force(task.contact_time + 0.1) == pytest.approx(1.0)
+    assert task.square_start == pytest.approx(task.contact_time + 0.2 + task.force_ramp)
+    assert task.force(task.square_start - 1e-9) == pytest.approx(20.0, abs=1e-6)

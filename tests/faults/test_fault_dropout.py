@@ -33,7 +33,13 @@ from studies.polishing import run_polishing
 #: Contact early (the reach in 0.15 s: in 0.1 s, with the LBR iiwa 14's 75°/s on joint A4, the
 #: force-feedback MPC at the scenario's weights crossed that velocity limit at 0.22 s, 1.04×,
 #: and the robot's velocity reflex stopped it before any fault; 0.885× with 0.15 s).
+#: The paper's schedule (no touch phase, the circle stepped), for which the fault times below
+#: were chosen: in contact at 50 N and circling at full speed at 0.7 s.
 EARLY_CONTACT = {
+    "task.approach_clearance": 0.0,
+    "task.touch": 0.0,
+    "task.touch_force": 0.0,
+    "task.circle_ramp": 0.0,
     "task.still": 0.0,
     "task.reach": 0.15,
     "task.force_ramp": 0.3,
@@ -182,3 +188,41 @@ def test_an_outage_pauses_the_task_clock_of_the_mpc():
     assert mpc.task_time(after + gap) == pytest.approx(task_before + period)
     mpc.reset()
     assert mpc.task_pause == 0.0 and mpc.task_time(1.0) == 1.0
+
+
+def test_after_an_outage_the_force_reference_blends_in_from_the_measured_force():
+    """resume_force_reference: the measured force at the resumption, then a minimum-jerk blend
+    to the schedule's over RESUME_RAMP (half way at half the ramp), the schedule's after it; the
+    MPC applies it to its nodes' references in contact after an outage, not before one."""
+    from ffmpc_core.mpc import (
+        RESUME_GAP_PERIODS,
+        RESUME_RAMP,
+        ModelPredictiveController,
+        MpcMeasurement,
+        resume_force_reference,
+    )
+    from ffmpc_core.polishing import build_task, mpc_config
+
+    measured = np.array([2.0])
+    assert resume_force_reference(np.array([50.0]), measured, 0.0)[0] == pytest.approx(2.0)
+    half = resume_force_reference(np.array([50.0]), measured, 0.5 * RESUME_RAMP)[0]
+    assert half == pytest.approx(26.0)
+    assert resume_force_reference(np.array([50.0]), measured, RESUME_RAMP)[0] == 50.0
+    ts = np.linspace(0.0, RESUME_RAMP, 50)
+    values = [resume_force_reference(np.array([50.0]), measured, t)[0] for t in ts]
+    assert np.all(np.diff(values) > 0.0)
+
+    scenario = load_scenario("polishing")
+    robot = load_robot(scenario.robot)
+    task = build_task(scenario, robot)
+    mpc = ModelPredictiveController(robot, mpc_config(scenario), task)
+    t0 = task.circle_start + 0.5  # in contact at 50 N
+    period = mpc.config.period
+    meas = MpcMeasurement(q=robot.q_nominal, v=np.zeros(7), force=np.array([2.0]))
+    mpc.step(meas, t0)
+    mpc.step(meas, t0 + period)
+    assert mpc._refs[0].force[0] == pytest.approx(50.0)  # no outage: the schedule's
+    back = t0 + period + (RESUME_GAP_PERIODS + 1) * period
+    mpc.step(meas, back)
+    first = mpc._refs[0].force[0]  # the first node's reference (written in place)
+    assert 2.0 <= first < 3.0, first  # from the measured 2 N, not the schedule's 50 N
