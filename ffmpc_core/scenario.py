@@ -71,6 +71,18 @@ def flatten(tree: dict, prefix: str = "") -> dict[str, Any]:
     return out
 
 
+#: Overrides that give the paper's task schedule (Fig. 2 of the force-feedback paper): the reach
+#: ends on the believed table, the OCP switches to contact there and the force ramps from 0 N
+#: (no touch phase), and the circle's angular velocity is stepped (no ramp). The polishing
+#: scenarios' defaults add the touch phase and the circle ramp (``ffmpc_core.tasks``).
+PAPER_SCHEDULE: dict[str, float] = {
+    "task.approach_clearance": 0.0,
+    "task.touch": 0.0,
+    "task.touch_force": 0.0,
+    "task.circle_ramp": 0.0,
+}
+
+
 @dataclass(frozen=True)
 class TaskSection:
     """The task of the run (shared by every node). Durations in s, forces in N."""

@@ -12,7 +12,7 @@ from ffmpc_core.config import ContactConfig
 from ffmpc_core.contact_friction import contact_normal, coulomb_friction_torque
 from ffmpc_core.errors import ConfigError
 from ffmpc_core.robots import load_robot
-from ffmpc_core.scenario import load_scenario
+from ffmpc_core.scenario import PAPER_SCHEDULE, load_scenario
 from studies.polishing import PREDICTABLE_PLANT, prediction_offsets, run_polishing
 
 
@@ -103,6 +103,7 @@ def _polishing_with_predictions(friction: float) -> tuple[float, float]:
         "polishing",
         {
             **PREDICTABLE_PLANT,
+            **PAPER_SCHEDULE,  # the circle window below is the paper's schedule's
             "seed": 100,
             "mpc.command_delay": 0.005,
             "mpc.contact.friction_coefficient": friction,

@@ -15,7 +15,7 @@ from scipy.stats import wilcoxon
 
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.metrics import push_phase_metrics, push_phase_windows
-from ffmpc_core.scenario import load_scenario
+from ffmpc_core.scenario import PAPER_SCHEDULE, load_scenario
 from ffmpc_ros.cli import main
 from studies import study
 from studies.paper import SECTIONS, paper_specs
@@ -233,10 +233,7 @@ def test_push_windows_during_and_after_each_push_on_a_synthetic_log() -> None:
 
 #: The push scenario, shortened: contact at once, the circle from 0.15 s, a 0.05 s push at 0.2 s.
 SHORT_PUSH = {
-    "task.approach_clearance": 0.0,  # the paper's schedule: no touch phase, the circle stepped
-    "task.touch": 0.0,
-    "task.touch_force": 0.0,
-    "task.circle_ramp": 0.0,
+    **PAPER_SCHEDULE,  # no touch phase, the circle stepped
     "task.still": 0.0,
     "task.reach": 0.05,
     "task.force_ramp": 0.1,

@@ -19,7 +19,7 @@ from std_msgs.msg import Float64
 
 from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement
 from ffmpc_core.polishing import lowlevel_controller
-from ffmpc_core.scenario import load_scenario
+from ffmpc_core.scenario import PAPER_SCHEDULE, load_scenario
 from ffmpc_ros import topics
 from ffmpc_ros.mpc_node import MpcNode
 from ffmpc_ros.params import NODE_SPECS
@@ -288,9 +288,7 @@ def test_force_setpoint_mid_run_retargets_a_lockstep_graph(ros):
             "task.still": 0.05,
             "task.reach": 0.25,
             "task.force_ramp": 0.3,
-            "task.approach_clearance": 0.0,  # the paper's schedule: no touch phase
-            "task.touch": 0.0,
-            "task.touch_force": 0.0,
+            **PAPER_SCHEDULE,  # no touch phase, the circle stepped
         },
     )
     duration, change = 1.5, 0.7

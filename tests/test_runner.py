@@ -11,17 +11,14 @@ import pytest
 
 from ffmpc_core.metrics import limit_ratios
 from ffmpc_core.robots import load_robot
-from ffmpc_core.scenario import load_scenario
+from ffmpc_core.scenario import PAPER_SCHEDULE, load_scenario
 from studies.polishing import run_polishing
 
 #: Contact from the first instant: the tool starts ON the believed table (start_height 0, and
 #: with circle_radius 0 the table pivots about the point under the tool, so the tilt cannot lift
 #: the surface away nor push it into the tool), the force ramps 0 → 50 N over 0.3 s.
 EARLY_CONTACT = {
-    "task.approach_clearance": 0.0,  # the paper's schedule: no touch phase, the circle stepped
-    "task.touch": 0.0,
-    "task.touch_force": 0.0,
-    "task.circle_ramp": 0.0,
+    **PAPER_SCHEDULE,  # no touch phase, the circle stepped
     "task.still": 0.0,
     "task.reach": 0.1,
     "task.force_ramp": 0.3,

@@ -18,7 +18,7 @@ from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.metrics import PolishingMetrics, summarize
 from ffmpc_core.polishing import draw_run
 from ffmpc_core.robots import load_robot
-from ffmpc_core.scenario import load_scenario
+from ffmpc_core.scenario import PAPER_SCHEDULE, load_scenario
 from ffmpc_ros.cli import main
 from studies import study
 from studies.study import (
@@ -33,10 +33,7 @@ from studies.study import (
 
 #: Contact at once and the circle from t = 0.15 s: a 0.3 s run has a 0.15 s metrics window.
 SHORT = {
-    "task.approach_clearance": 0.0,  # the paper's schedule: no touch phase, the circle stepped
-    "task.touch": 0.0,
-    "task.touch_force": 0.0,
-    "task.circle_ramp": 0.0,
+    **PAPER_SCHEDULE,  # no touch phase, the circle stepped
     "task.still": 0.0,
     "task.reach": 0.05,
     "task.force_ramp": 0.1,

@@ -27,7 +27,7 @@ import pytest
 from ffmpc_core.faults import Fault
 from ffmpc_core.lowlevel import LowLevelMode
 from ffmpc_core.robots import load_robot
-from ffmpc_core.scenario import load_scenario
+from ffmpc_core.scenario import PAPER_SCHEDULE, load_scenario
 from studies.polishing import run_polishing
 
 #: Contact early (the reach in 0.15 s: in 0.1 s, with the LBR iiwa 14's 75°/s on joint A4, the
@@ -36,10 +36,7 @@ from studies.polishing import run_polishing
 #: The paper's schedule (no touch phase, the circle stepped), for which the fault times below
 #: were chosen: in contact at 50 N and circling at full speed at 0.7 s.
 EARLY_CONTACT = {
-    "task.approach_clearance": 0.0,
-    "task.touch": 0.0,
-    "task.touch_force": 0.0,
-    "task.circle_ramp": 0.0,
+    **PAPER_SCHEDULE,
     "task.still": 0.0,
     "task.reach": 0.15,
     "task.force_ramp": 0.3,
