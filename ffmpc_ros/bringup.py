@@ -103,6 +103,10 @@ if TYPE_CHECKING:
 
 #: Wall s the bring-up listens for foreign publishers on the graph's topics before starting.
 FOREIGN_DISCOVERY_WAIT = 2.0
+#: s of discovery given, after a node refused a bring-up transition, to show that another graph's
+#: node of the same name answered (only on that failure path, so a long wait costs a working
+#: start nothing; 2 s missed it on a loaded 2-core machine, the refusal then read as the node's own)
+CLASH_DISCOVERY_WAIT = 10.0
 #: At most this many wall s, from the first foreign node seen, to gather the others' names.
 FOREIGN_GATHER_MAX = 6.0
 #: Default wall s without a new plant cycle before a lockstep run is stopped.
@@ -1221,7 +1225,7 @@ def _bring_up(
                     # check before the start found nothing when discovery was slower than
                     # FOREIGN_DISCOVERY_WAIT (a fresh clone on a slow machine: the running
                     # graph's plant, already active, refused this graph's configure)
-                    clashes = _node_name_clashes(node, names)
+                    clashes = _node_name_clashes(node, names, wait=CLASH_DISCOVERY_WAIT)
                     if clashes:
                         domain = node.context.get_domain_id()
                         raise _foreign_error(domain, node.get_namespace(), clashes)

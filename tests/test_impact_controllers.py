@@ -295,3 +295,24 @@ def test_exploration_controller_refuses_a_start_in_contact(robot):
     pressed = ContactMeasurement(m.q, m.v, m.position, m.rotation, 0.0, 5.0, np.zeros(6))
     with pytest.raises(ConfigError, match="in contact at the start"):
         controller.step(pressed, 0.0)
+
+
+@pytest.mark.parametrize("constraints", [False, True])
+def test_the_handover_mpc_has_the_hard_constraints_the_study_says(robot, constraints):
+    """``mpc.constraints`` of the impact study reaches the hand-over's MPC: off by default (the
+    constrained MPC broke limits on model-error dice, ``HandoverConfig``), on when asked."""
+    from ffmpc_core.impact.scenario import load_impact_config
+
+    assert load_impact_config().mpc_constraints is False
+    study = load_impact_config(overrides={"mpc.constraints": constraints})
+    assert study.mpc_constraints is constraints
+    limits = joint_limits(robot)
+    guard = JointLimitGuard(robot, limits, JointLimitGuardConfig(dt=DT))
+    config = HandoverConfig(direction=DOWN, mpc_constraints=study.mpc_constraints)
+    handover = ForceFeedbackHandover(robot, guard, RecursiveContactLearner(), config)
+    data = robot.create_data()
+    wrench = np.array([0.0, 0.0, 20.0, 0.0, 0.0, 0.0])
+    m = contact_measurement(robot, data, robot.q_nominal, np.zeros(7), wrench, DOWN)
+    handover.step(m, 0.0)
+    assert handover.mpc is not None
+    assert handover.mpc.config.constraints.enabled is constraints

@@ -30,6 +30,7 @@ import numpy as np
 import pinocchio as pin
 
 from ffmpc_core.config import ContactConfig, CostWeights
+from ffmpc_core.constraints import ConstraintConfig
 from ffmpc_core.errors import ConfigError, InputError, SolverError
 from ffmpc_core.impact.control import (
     AdmittanceForceController,
@@ -381,6 +382,12 @@ class HandoverConfig:
             confident, N/m, N·s/m.
         learner_min_samples, learner_max_relative_std: when the learner's estimate replaces
             the prior (checked every MPC period).
+        mpc_constraints: the MPC's hard constraints (:mod:`ffmpc_core.constraints`, default
+            settings) on or off. Off by default here: with them on, the hand-over MPC on the
+            model-error dice of the impact study raised ``ConstraintViolationError`` on the
+            force box (2400/7.5, 7200/7.5, 7200/15 N/m, N·s/m) or ended in a position or
+            velocity reflex stop (4800/7.5, 4800/15, 7200/45), where without them every run
+            kept every limit; the joint-limit guard bounds the hand-over's q̈ either way.
     """
 
     direction: np.ndarray
@@ -398,6 +405,7 @@ class HandoverConfig:
     prior_damping: float = 15.0
     learner_min_samples: int = 20
     learner_max_relative_std: float = 0.05
+    mpc_constraints: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "direction", unit_direction(self.direction))
@@ -511,6 +519,7 @@ class ForceFeedbackHandover:
                 contact=ContactConfig(stiffness=cfg.prior_stiffness, damping=cfg.prior_damping),
                 weights=cfg.mpc_weights,
                 q_reference=tuple(float(x) for x in measurement.q),
+                constraints=ConstraintConfig(enabled=cfg.mpc_constraints),
             ),
             PressTask(
                 position=measurement.position,

@@ -146,6 +146,8 @@ class ImpactStudyConfig:
             eq 14 certified.
         mpc_period, mpc_horizon, mpc_dt: force-feedback MPC rate (s), nodes, node length (s).
         mpc_force_weight: c6 of the pressing nodes; mpc_weights: the other cost weights.
+        mpc_constraints: the hand-over MPC's hard constraints on or off (off by default:
+            :class:`~ffmpc_core.impact.controllers.HandoverConfig` says why).
         learner_min_samples: samples before the learner's estimate may replace the prior.
         learner_max_relative_std: ... and the largest relative standard error of α̂ and β̂.
         steady_band: |f − target| ≤ steady_band · target counts as steady (5 %).
@@ -190,6 +192,7 @@ class ImpactStudyConfig:
     mpc_dt: float = HandoverConfig.mpc_dt
     mpc_force_weight: float = HandoverConfig.mpc_force_weight
     mpc_weights: CostWeights = field(default_factory=handover_mpc_weights)
+    mpc_constraints: bool = HandoverConfig.mpc_constraints
     learner_min_samples: int = HandoverConfig.learner_min_samples
     learner_max_relative_std: float = HandoverConfig.learner_max_relative_std
     steady_band: float = 0.05
@@ -329,6 +332,7 @@ IMPACT_TABLE: dict[str, FieldDecl] = {
     "mpc.horizon": ("nodes", (1, 1000), "OCP nodes N"),
     "mpc.dt": ("s", (1e-5, 1.0), "OCP node duration"),
     "mpc.force_weight": ("1/N²", (0.0, _INF), "c6 of the pressing nodes"),
+    "mpc.constraints": ("", None, "the hand-over MPC's hard constraints (off: see docs)"),
     "learner.min_samples": ("", (3, 10**6), "samples before the estimate replaces the prior"),
     "learner.max_relative_std": ("", (1e-9, 10.0), "largest relative std error of α̂, β̂"),
     "steady_band": ("", (1e-6, 1.0), "|f − target| ≤ this · target counts as steady"),
@@ -451,6 +455,7 @@ def task_config(approach: str, regulation: str, cfg: ImpactStudyConfig) -> Impac
             prior_damping=cfg.prior_damping,
             learner_min_samples=cfg.learner_min_samples,
             learner_max_relative_std=cfg.learner_max_relative_std,
+            mpc_constraints=cfg.mpc_constraints,
         ),
     )
 
