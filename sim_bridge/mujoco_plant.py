@@ -69,6 +69,7 @@ from sim_bridge.plant import (
     PlantState,
     SoftBoxConfig,
     TableConfig,
+    checked_push,
     tool_urdf_text,
 )
 
@@ -350,17 +351,9 @@ class MujocoPlant:
         """Apply ``force_world`` (N, world frame) at the centre of mass of ``link`` (a URDF link
         name; default the tool link) during the next ``steps`` steps (Experiment 3.3). A new
         push replaces a pending one."""
-        force = np.asarray(force_world, dtype=float)
-        if force.shape != (3,) or not np.all(np.isfinite(force)):
-            raise InputError(f"force_world must be 3 finite numbers, got {force_world!r}")
-        if int(steps) != steps or steps < 0:
-            raise InputError(f"steps must be a non-negative integer, got {steps!r}")
-        name = TOOL_LINK if link is None else link
-        if name not in self.link_indices:
-            raise InputError(f"unknown link {name!r}; links: {sorted(self.link_indices)}")
-        self._push_force = force.copy()
-        self._push_body = self.link_indices[name]
-        self._push_steps = int(steps)
+        self._push_force, self._push_body, self._push_steps = checked_push(
+            force_world, steps, link, self.link_indices
+        )
 
     def step(self, tau: np.ndarray) -> None:
         """Apply the joint torque ``tau`` (N·m, saturated to the torque limits) for one step."""

@@ -434,6 +434,24 @@ def tool_urdf_text(robot: RobotModel, tool: ToolConfig, visuals: bool = False) -
     return ET.tostring(root, encoding="unicode")
 
 
+def checked_push(
+    force_world: object, steps: object, link: str | None, link_indices: dict[str, int]
+) -> tuple[np.ndarray, int, int]:
+    """A push request checked for either plant: the force (N, world frame; a copy), the index
+    of ``link`` (default the tool link) in ``link_indices`` and the number of steps. Raises
+    InputError on a force that is not 3 finite numbers, a negative or fractional step count,
+    or an unknown link."""
+    force = np.asarray(force_world, dtype=float)
+    if force.shape != (3,) or not np.all(np.isfinite(force)):
+        raise InputError(f"force_world must be 3 finite numbers, got {force_world!r}")
+    if int(steps) != steps or steps < 0:  # type: ignore[call-overload, operator]
+        raise InputError(f"steps must be a non-negative integer, got {steps!r}")
+    name = TOOL_LINK if link is None else link
+    if name not in link_indices:
+        raise InputError(f"unknown link {name!r}; links: {sorted(link_indices)}")
+    return force.copy(), link_indices[name], int(steps)  # type: ignore[call-overload]
+
+
 class Plant:
     """A PyBullet simulation of one torque-controlled arm with a spherical tool, a table and
     soft boxes (the :class:`ffmpc_core.plant.Plant` shape, state :class:`PlantState`). Use as a
@@ -658,17 +676,9 @@ class Plant:
         """Apply ``force_world`` (N, world frame) at the centre of mass of ``link`` (a URDF link
         name; default the tool link) during the next ``steps`` physics steps (Experiment 3.3).
         A new push replaces a pending one."""
-        force = np.asarray(force_world, dtype=float)
-        if force.shape != (3,) or not np.all(np.isfinite(force)):
-            raise InputError(f"force_world must be 3 finite numbers, got {force_world!r}")
-        if int(steps) != steps or steps < 0:
-            raise InputError(f"steps must be a non-negative integer, got {steps!r}")
-        name = TOOL_LINK if link is None else link
-        if name not in self.link_indices:
-            raise InputError(f"unknown link {name!r}; links: {sorted(self.link_indices)}")
-        self._push_force = force.copy()
-        self._push_link = self.link_indices[name]
-        self._push_steps = int(steps)
+        self._push_force, self._push_link, self._push_steps = checked_push(
+            force_world, steps, link, self.link_indices
+        )
 
     def step(self, tau: np.ndarray) -> None:
         """Apply the joint torque ``tau`` (N·m, saturated to the torque limits) for one step."""
