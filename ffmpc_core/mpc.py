@@ -684,9 +684,10 @@ class ModelPredictiveController:
 
     def _relax_bounds(self, x0: np.ndarray) -> bool:
         """Set nodes 1..N's state-only bounds for a solve from x̂ = ``x0``: the margins', or
-        relaxed where the state a row starts from lies beyond them
-        (:meth:`OcpBounds.node_bounds`; the torque-feedback q, v rows start from x₁, predicted
-        here with node 0's model). True when relaxed. Nodes are written only on a change."""
+        relaxed where the state a row starts from lies beyond them, coming back to them with
+        ``constraints.recovery_time`` (:meth:`OcpBounds.node_bounds`; the torque-feedback q, v
+        rows start from x₁, predicted here with node 0's model). True when relaxed. Nodes are
+        written only on a change."""
         bounds = self.bounds
         if bounds is None:
             return False
@@ -697,7 +698,7 @@ class ModelPredictiveController:
             if self._node_bounds is not self._margin_bounds:
                 self._write_node_bounds(self._margin_bounds)
             return False
-        node_bounds, relaxed = bounds.node_bounds(self.config.horizon, x0, x1)
+        node_bounds, relaxed = bounds.node_bounds(self.config.horizon, x0, x1, self.config.dt)
         self._write_node_bounds(node_bounds)
         return relaxed
 

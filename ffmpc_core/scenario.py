@@ -587,6 +587,11 @@ _TABLE: dict[str, tuple[str, Any, str]] = {
         (0.0, 0.99),
         "fraction of the joint velocity limits kept free by the velocity box",
     ),
+    "mpc.constraints.recovery_time": (
+        "s",
+        (1e-4, 10.0),
+        "T_r: a row that starts beyond its bound is planned back inside, exp(−t/T_r)",
+    ),
     "mpc.constraints.torque_margin": (
         "",
         (0.0, 0.99),
