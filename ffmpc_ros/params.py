@@ -62,6 +62,7 @@ from ffmpc_core.scenario import (
     ParamSpec,
     Scenario,
     config_error,
+    scenario_from_flat,
 )
 from ffmpc_core.tasks import PhaseWeights
 
@@ -815,8 +816,6 @@ def scenario_from_parameters(spec: NodeSpec, values: dict[str, Any], name: str) 
     scenario names) built by :func:`ffmpc_core.scenario.scenario_from_flat` over the schema's
     defaults, with the checks and cross-section rules of a scenario file; what the node does
     not declare keeps its default (nothing of it is read)."""
-    from ffmpc_core.scenario import scenario_from_flat
-
     mapping = node_scenario_names(spec, scenario_flat(Scenario(name="names")))
     flat = {scenario_name: plain_value(values[ros]) for ros, scenario_name in mapping.items()}
     for shared in _IMPACT_IN_SCENARIO:
