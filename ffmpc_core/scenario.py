@@ -284,7 +284,7 @@ class Scenario:
             flat[key] = value
         if "pid.delay_cycles" in overrides and "mpc.command_delay" not in overrides:
             flat["mpc.command_delay"] = COMMAND_DELAY_PID  # the explicit δo in cycles wins
-        return _scenario_from_flat(self.name, flat)
+        return scenario_from_flat(self.name, flat)
 
 
 # -- the schema: one declaration of every scenario parameter's type, unit and range ----------
@@ -857,7 +857,7 @@ def validate_flat(
     return out
 
 
-def _scenario_from_flat(name: str, flat: dict[str, Any]) -> Scenario:
+def scenario_from_flat(name: str, flat: dict[str, Any]) -> Scenario:
     """The :class:`Scenario` ``name`` of dotted-name values (the schema's defaults for the
     others), checked by :data:`SCENARIO_SCHEMA`, with the cross-section rules applied (the
     wrist-only keys, a fixed δo setting the PID's delay line)."""
@@ -1071,7 +1071,7 @@ def load_scenario(name_or_path: str | os.PathLike, overrides: dict | None = None
             f"{path.stem!r} is the scenario of 'ffmpc study {path.stem}', not of the node graph"
         )
     path, flat = read_parameter_file(path, SECTIONS)
-    scenario = _scenario_from_flat(path.stem, flat)
+    scenario = scenario_from_flat(path.stem, flat)
     return scenario.with_overrides(overrides) if overrides else scenario
 
 

@@ -133,9 +133,12 @@ def write_params_file(
     path: str,
     namespace: str | None = topics.ROOT_NAMESPACE,
 ) -> None:
-    """A ROS 2 parameter file with one section per node (:func:`params_file_key`)."""
+    """A ROS 2 parameter file with one section per node (:func:`params_file_key`), each
+    node's ``{ROS name: value}`` written as it is: dotted names stay dotted keys
+    (``contact.stiffness: 10000.0``; rcl reads a dotted key as the parameter of that name,
+    as it reads the nested form)."""
     doc = {
-        params_file_key(node, namespace): {"ros__parameters": nested_parameters(values)}
+        params_file_key(node, namespace): {"ros__parameters": dict(values)}
         for node, values in params.items()
     }
     with open(path, "w", encoding="utf-8") as fh:

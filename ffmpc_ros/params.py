@@ -28,9 +28,12 @@ parameters"), and applied from the node's next solve or cycle.
 
 The descriptors of scenario parameters are generated from :data:`ffmpc_core.scenario.SCHEMA`
 (the impact study's from ``IMPACT_SCHEMA``), the one declaration of each parameter's type, unit
-and range; the node rebuilds a :class:`~ffmpc_core.scenario.Scenario` from its values with the same
-validation as the ROS-free runner (:func:`scenario_from_parameters`), and a value rclpy refuses
-gives the same ConfigError as the runner's, so both accept and refuse the same experiments.
+and range; the node builds its :class:`~ffmpc_core.scenario.Scenario` from its slice alone (its
+values, the schema's defaults for the rest) with the same validation as the ROS-free runner
+(:func:`scenario_from_parameters`), and a value rclpy refuses gives the same ConfigError as the
+runner's, so both accept and refuse the same experiments. The bring-up writes each node's
+``{ROS name: value}`` into the run's parameter file as it is, dotted names as dotted keys
+(``ffmpc_ros.graph_nodes.write_params_file``).
 """
 
 from __future__ import annotations
@@ -59,6 +62,7 @@ from ffmpc_core.scenario import (
     ParamSpec,
     Scenario,
     config_error,
+    scenario_from_flat,
 )
 from ffmpc_core.tasks import PhaseWeights
 
@@ -808,16 +812,16 @@ def _graph_expected(g: GraphParameter) -> str:
 
 
 def scenario_from_parameters(spec: NodeSpec, values: dict[str, Any], name: str) -> Scenario:
-    """The Scenario a node runs, from its parameter values (validated like a scenario file)."""
-    flat = scenario_flat(Scenario(name="defaults"))
-    mapping = node_scenario_names(spec, flat)
-    overrides = {}
-    for ros, scenario_name in mapping.items():
-        overrides[scenario_name] = plain_value(values[ros])
+    """The Scenario a node runs: its slice of the scenario (its parameter values under their
+    scenario names) built by :func:`ffmpc_core.scenario.scenario_from_flat` over the schema's
+    defaults, with the checks and cross-section rules of a scenario file; what the node does
+    not declare keeps its default (nothing of it is read)."""
+    mapping = node_scenario_names(spec, scenario_flat(Scenario(name="names")))
+    flat = {scenario_name: plain_value(values[ros]) for ros, scenario_name in mapping.items()}
     for shared in _IMPACT_IN_SCENARIO:
         if shared in node_impact_names(spec):
-            overrides[shared] = plain_value(values[shared])
-    return Scenario(name=name).with_overrides(overrides)
+            flat[shared] = plain_value(values[shared])
+    return scenario_from_flat(name, flat)
 
 
 def impact_config_from_parameters(

@@ -62,9 +62,10 @@ def test_generated_parameter_file_is_a_ros_parameter_file(tmp_path):
     assert set(doc) == {
         *("plant", "joint_sensor", "ft_sensor", "mpc", "pid", "metrics", "state_publisher")
     }
+    # each node's slice as flat dotted names (rcl reads them as those parameters)
     assert doc["mpc"]["ros__parameters"]["formulation"] == "torque_feedback"
-    assert doc["mpc"]["ros__parameters"]["pid"]["delay_cycles"] == 5  # another section's value
-    assert doc["pid"]["ros__parameters"]["mpc"]["formulation"] == "torque_feedback"
-    assert doc["plant"]["ros__parameters"]["task"]["normal_force"] == 50.0
-    with pytest.raises(KeyError):
-        doc["joint_sensor"]["ros__parameters"]["mpc"]
+    assert doc["mpc"]["ros__parameters"]["pid.delay_cycles"] == 5  # another section's value
+    assert doc["mpc"]["ros__parameters"]["contact.stiffness"] == scenario.mpc.contact.stiffness
+    assert doc["pid"]["ros__parameters"]["mpc.formulation"] == "torque_feedback"
+    assert doc["plant"]["ros__parameters"]["task.normal_force"] == 50.0
+    assert not any(k.startswith("mpc.") for k in doc["joint_sensor"]["ros__parameters"])

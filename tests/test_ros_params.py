@@ -56,6 +56,39 @@ def test_nodes_load_the_scenario_file_into_the_runner_scenario(ros):
     assert mpc.get_parameter("use_sim_time").value is True
 
 
+def test_nodes_read_the_run_parameter_file_into_the_runner_scenario(ros, tmp_path):
+    """The parameter file ``ffmpc run`` writes (each node's parameters as flat dotted keys,
+    ``contact.stiffness: 1234.5``), read by rcl: the MPC and PID nodes build the sections they
+    declare equal to the runner's, the ``--set`` values included."""
+    from ffmpc_ros.graph_nodes import graph_parameters, write_params_file
+    from ffmpc_ros.pid_node import PidNode
+
+    reference = load_scenario(
+        "polishing",
+        {
+            "mpc.contact.stiffness": 1234.5,
+            "mpc.weights.force_feedback.force_diag": 2.0,
+            "pid.kp": 0.2,
+            "pid.delay_cycles": 4,
+        },
+    )
+    path = tmp_path / "graph_params.yaml"
+    write_params_file(graph_parameters(reference, lockstep=True, duration=0.5), str(path))
+    mpc_section = yaml.safe_load(path.read_text())["mpc"]["ros__parameters"]
+    assert mpc_section["contact.stiffness"] == 1234.5 and "contact" not in mpc_section
+    args = ["--ros-args", "--params-file", str(path)]
+    mpc = ros.add(MpcNode(context=ros.context, cli_args=args))
+    pid = ros.add(PidNode(context=ros.context, cli_args=args))
+    assert mpc.get_parameter("contact.stiffness").value == 1234.5
+    assert replace(mpc.scenario.mpc, weights={}) == replace(reference.mpc, weights={})
+    for form in FORMULATIONS:
+        assert mpc.scenario.mpc.cost_weights(form) == reference.mpc.cost_weights(form)
+    assert mpc.scenario.task == reference.task
+    assert mpc.scenario.pid.delay_cycles == 4
+    assert pid.scenario.pid == reference.pid
+    assert pid.scenario.mpc.period == reference.mpc.period
+
+
 def test_every_parameter_has_a_description_and_numbers_a_range(ros):
     node = ros.add(
         JointSensorNode(context=ros.context, parameter_overrides=overrides("joint_sensor"))
