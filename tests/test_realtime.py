@@ -212,15 +212,6 @@ def _stalled_run(fault: str, overrides: dict | None = None):
     return run_graph(scenario, lockstep=False, duration=1.0, faults=[fault], timeout=180.0)
 
 
-@pytest.mark.xfail(
-    reason=(
-        "known defect, open: at the scenario defaults the constrained force-feedback MPC misses "
-        "its real-time deadlines (on an idle 2-core VM: solve median 6.1 ms, 3 % of deadlines "
-        "met; 0.5 ms and 90 % with mpc.constraints.enabled false), the loop falls back and the "
-        "velocity reflex stops the robot before the stall is injected"
-    ),
-    strict=False,
-)
 def test_a_stalled_loop_misses_its_cycles_and_the_plant_steps_on_under_the_held_torque():
     """loop-stall@0.5+0.03: the loop thread sleeps 30 ms wall in cycle 500, after publishing its
     measurement. The plant is physical: it does not wait, so its steps 500-529 run under the motor
