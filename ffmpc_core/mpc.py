@@ -178,6 +178,13 @@ class MpcConfig:
             (:class:`~ffmpc_core.constraints.ConstraintConfig`; on by default). Its
             ``max_solve_time`` is applied as given: :func:`ffmpc_core.polishing.mpc_config`
             passes it for real-time runs only.
+        constrained_iterations: SQP iterations of ``SolverCSQP`` per solve, at most (0:
+            ``max_iterations``, as every lockstep run). The real-time MPC node sets 1 (its graph
+            parameter ``real_time_iterations``, :mod:`ffmpc_ros.mpc_node`): one SQP iteration
+            per tick, the real-time iteration scheme (Diehl et al. 2005), whose QP is still
+            solved to the ADMM's tolerances, so that its plan keeps the linear bounds. The
+            unconstrained ``SolverSQP`` (the screen of ``unconstrained_first``, or the solve
+            with the constraints off) keeps ``max_iterations``.
     """
 
     formulation: str = "force_feedback"
@@ -195,6 +202,7 @@ class MpcConfig:
     torque_state: str = "measured"
     backend: str = "native"
     constraints: ConstraintConfig = field(default_factory=ConstraintConfig)
+    constrained_iterations: int = 0
 
     def __post_init__(self) -> None:
         if self.torque_state not in TORQUE_STATES:
@@ -213,6 +221,11 @@ class MpcConfig:
             raise ConfigError("command_delay must be in [0, horizon·dt), prediction_step > 0")
         if self.cutoff_frequency <= 0 or self.max_iterations < 1 or self.kkt_tolerance <= 0:
             raise ConfigError("cutoff_frequency, max_iterations, kkt_tolerance must be > 0")
+        if self.constrained_iterations < 0:
+            raise ConfigError(
+                f"constrained_iterations must be >= 0 (0: max_iterations), "
+                f"got {self.constrained_iterations}"
+            )
 
 
 @dataclass
@@ -657,8 +670,9 @@ class ModelPredictiveController:
         :data:`ACTIVE_MARGIN`): then ``SolverSQP`` first, whose solution is the constrained
         optimum when it is inside every bound (a KKT point with zero multipliers); else
         ``SolverCSQP`` from the same guess (not from that solution: measured, its torques far
-        beyond the bounds made the ADMM fail to converge). ``self.solver`` is the solver that
-        gave the solution."""
+        beyond the bounds made the ADMM fail to converge), with at most
+        ``config.constrained_iterations`` SQP iterations when set (the real-time budget).
+        ``self.solver`` is the solver that gave the solution."""
         maxiter = self.config.max_iterations
         csqp = self.constrained_solver
         screened = 0
@@ -674,7 +688,7 @@ class ModelPredictiveController:
             if self._excess <= 0.0:
                 return bool(converged), xs_opt, us_opt, 0
             screened = int(sqp.iter)
-        converged = csqp.solve(xs, us, maxiter, False)
+        converged = csqp.solve(xs, us, self.config.constrained_iterations or maxiter, False)
         self.solver = csqp
         xs_opt, us_opt = np.array(csqp.xs), np.array(csqp.us)
         assert self.bounds is not None and self._node_bounds is not None

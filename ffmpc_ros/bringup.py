@@ -522,7 +522,8 @@ def run_graph(
         start_timeout: lockstep: wall s from the call to the first plant cycle.
         node_ros_args: multi-process: extra ROS arguments per node, after the parameter file
             (e.g. ``{"pid": ["-p", "kp:=0.2"]}``); one that sets a scenario value other nodes
-            take too is refused (:func:`check_unshared`).
+            take too is refused (:func:`check_unshared`). Real time: the ``mpc`` node's only
+            (the MPC process; the loop process composes the other nodes from the file).
         view: serve the live view (Foxglove WebSocket) on this port of ``view_host`` (None:
             no view); ViewError when the port is busy.
         view_wait: the run starts only once a Foxglove client subscribes to
@@ -555,8 +556,10 @@ def run_graph(
             "interfaces='ros2_control' runs the lockstep graph only (no real time, record, "
             "view or faults yet)"
         )
-    if node_ros_args and (single_process or not lockstep):
-        raise ConfigError("per-node ROS arguments need the multi-process lockstep graph")
+    if node_ros_args and (single_process or (not lockstep and set(node_ros_args) - {"mpc"})):
+        raise ConfigError(
+            "per-node ROS arguments need the multi-process graph (real time: the mpc node's only)"
+        )
     unknown = sorted(set(node_ros_args or {}) - set(table))
     if unknown:
         raise ConfigError(
@@ -581,7 +584,17 @@ def run_graph(
                 "--view are lockstep options"
             )
         return _run_real_time(
-            scenario, params, timeout, domain, quiet, windows, cpus, priority, faults, namespace
+            scenario,
+            params,
+            timeout,
+            domain,
+            quiet,
+            windows,
+            cpus,
+            priority,
+            faults,
+            namespace,
+            (node_ros_args or {}).get("mpc", ()),
         )
     from ffmpc_core.polishing import steps_per_mpc_period
 
@@ -836,6 +849,7 @@ def _run_real_time(
     priority: int | None,
     faults: Sequence[Fault],
     namespace: str,
+    mpc_ros_args: Sequence[str] = (),
 ) -> GraphResult:
     """Real time (``ffmpc_ros.realtime``): the loop process and the MPC process."""
     from ffmpc_ros.realtime import DEFAULT_PRIORITY, run_realtime
@@ -850,6 +864,7 @@ def _run_real_time(
         fault_windows=fault_windows,
         stalls=faults,
         namespace=namespace,
+        mpc_ros_args=mpc_ros_args,
     )
     s, timing = run.summary, run.summary["timing"]
     loop = timing["loop"]

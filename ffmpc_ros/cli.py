@@ -287,8 +287,11 @@ def _node_ros_args(items: list[str], args: argparse.Namespace) -> dict[str, list
     from ffmpc_ros.graph_nodes import NODES
     from ffmpc_ros.params import check_node_parameter
 
-    if items and (args.single_process or args.real_time):
-        raise ConfigError("--node-param needs the multi-process lockstep graph")
+    real_time_foreign = args.real_time and any(not i.startswith("mpc:") for i in items)
+    if items and (args.single_process or real_time_foreign):
+        raise ConfigError(
+            "--node-param needs the multi-process graph (with --real-time: the mpc node's only)"
+        )
     out: dict[str, list[str]] = {}
     for item in items:
         node, sep, assignment = item.partition(":")
@@ -658,7 +661,8 @@ def build_parser() -> argparse.ArgumentParser:
         action="append",
         metavar="NODE:NAME:=VALUE",
         help="multi-process: one more ROS parameter of one node (after the generated file); "
-        "shared parameters that then differ between nodes stop the run before it starts",
+        "shared parameters that then differ between nodes stop the run before it starts; "
+        "--real-time: the mpc node's only (e.g. mpc:real_time_iterations:=0)",
     )
     run.set_defaults(func=_cmd_run_guarded, needs_ros=True)
     from ffmpc_ros.bag.cli import add_bag_parser

@@ -230,6 +230,14 @@ LEARNER_MAX_RELATIVE_STD = GraphParameter(
     "an estimate is used only when both standard errors are at most this fraction of the value",
     (0.0, 1e3),
 )
+REAL_TIME_ITERATIONS = GraphParameter(
+    "real_time_iterations",
+    1,
+    "real time only (lockstep false): SQP iterations of the constrained solver (SolverCSQP) "
+    "per solve, at most: 1, one per MPC tick (the real-time iteration scheme), keeps the "
+    "constrained solve inside the 2 ms period; 0: mpc.max_iterations, as lockstep",
+    (0, 1000),
+)
 USE_LEARNED_CONTACT = GraphParameter(
     "use_learned_contact",
     False,
@@ -387,6 +395,7 @@ NODE_SPECS: dict[str, NodeSpec] = {
         (
             LOCKSTEP,
             MAX_AGE,
+            REAL_TIME_ITERATIONS,
             USE_LEARNED_CONTACT,
             LEARNER_MIN_SAMPLES,
             LEARNER_MAX_RELATIVE_STD,

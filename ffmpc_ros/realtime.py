@@ -13,7 +13,9 @@ time"):
   (``take_message``, ~2 µs when empty). The garbage collector is frozen and disabled for the run.
 * **the MPC process** is the ordinary ``mpc`` node (``ffmpc_ros.mpc_node``) with
   ``lockstep: false``: it blocks on a wait set over its inputs (no executor), solves on the
-  newest measurement of each MPC tick and publishes ``/mpc/command``.
+  newest measurement of each MPC tick and publishes ``/mpc/command``; its constrained solve
+  makes one SQP iteration per tick (its ``real_time_iterations``, the budget that keeps it
+  inside the MPC period; ``mpc_ros_args`` of :func:`run_realtime` can set it).
 * They talk over ROS topics: ``/joint_sensor/joint_states`` and ``/ft_sensor/wrench`` (loop →
   MPC, every cycle), ``/mpc/command`` (MPC → loop) and ``/clock``. The observer topics
   (``/plant/*``, ``/pid/*``) are published only while something subscribes to them.
@@ -817,8 +819,14 @@ class RealtimeLoop:
             )
 
     def publish_status(self, rec: dict, timing: dict) -> None:
-        """The final /plant/status (latencies: cycle latency, s; misses: loop deadlines)."""
+        """The final /plant/status (latencies: cycle latency of the cycles that ran, s, all 0
+        when none did; misses: loop deadlines, the missed cycles included). A missed cycle's
+        latency is inf in the log, and a status with a non-finite value is refused by every
+        reader of the layout."""
         lat = rec["cycle_latency"]
+        lat = lat[np.isfinite(lat)]
+        if lat.size == 0:
+            lat = np.zeros(1)
         loop = timing["loop"]
         self.pub_status.publish(
             layouts.PLANT_STATUS.pack(
@@ -828,7 +836,7 @@ class RealtimeLoop:
                     "done": 1.0,
                     "lockstep": 0.0,
                     "deadline_misses": loop["cycles"] - loop["deadlines_met"],
-                    "latency_count": lat.size,
+                    "latency_count": int(np.count_nonzero(np.isfinite(rec["cycle_latency"]))),
                     "latency_mean": float(lat.mean()),
                     "latency_p50": float(np.percentile(lat, 50)),
                     "latency_p99": float(np.percentile(lat, 99)),
@@ -1007,6 +1015,7 @@ def run_realtime(
     fault_windows: FaultWindows = (),
     stalls: Sequence[Fault] = (),
     namespace: str | None = None,
+    mpc_ros_args: Sequence[str] = (),
 ) -> RealtimeRun:
     """Start the MPC process and the loop process, wait for the run, return its results.
 
@@ -1020,6 +1029,8 @@ def run_realtime(
         stalls: ``loop-stall`` / ``mpc-stall`` faults the loop injects (their windows are the
             caller's to add to ``fault_windows``).
         namespace: ROS namespace of both processes' nodes (``topics.graph_ros_args``).
+        mpc_ros_args: ROS arguments of the MPC process after the parameter file (``-p``
+            ``NAME:=VALUE`` pairs, e.g. ``["-p", "real_time_iterations:=0"]``).
     """
     from ffmpc_ros.graph_nodes import NODES, write_params_file
 
@@ -1042,7 +1053,7 @@ def run_realtime(
         faults = [a for w in fault_windows for a in ("--fault-window", str(w[0]), str(w[1]))]
         faults += [a for f in stalls for a in ("--stall", str(f))]
         commands = {
-            "mpc": [sys.executable, "-m", "ffmpc_ros.mpc_node", *ros],
+            "mpc": [sys.executable, "-m", "ffmpc_ros.mpc_node", *ros, *mpc_ros_args],
             "loop": [sys.executable, "-m", "ffmpc_ros.realtime", "--out", out, *faults, *ros],
         }
         children: dict[str, subprocess.Popen] = {}

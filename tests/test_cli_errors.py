@@ -74,6 +74,16 @@ CASES: list[tuple[str, list[str], str]] = [
     ("run-json-dir", ["run", "polishing", "--json", "{exists_dir}"], "argument --json"),
     ("run-cpus-bad", ["run", "polishing", "--real-time", "--cpus", "a,b"], "--cpus"),
     ("run-priority-high", ["run", "polishing", "--real-time", "--priority", "200"], "0..99"),
+    (
+        "run-real-time-node-param",
+        ["run", "polishing", "--real-time", "--node-param", "pid:kp:=0.2"],
+        "the mpc node's only",
+    ),
+    (
+        "run-real-time-iterations-negative",
+        ["run", "polishing", "--real-time", "--node-param", "mpc:real_time_iterations:=-1"],
+        "real_time_iterations",
+    ),
     ("run-yaml-broken", ["run", "{broken.yaml}"], "not a YAML file"),
     ("run-yaml-list", ["run", "{list.yaml}"], "expected a mapping"),
     ("run-yaml-section", ["run", "{badsection.yaml}"], "unknown node section"),

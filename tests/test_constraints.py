@@ -477,11 +477,48 @@ def test_an_unmodelled_outward_torque_does_not_ratchet_a_relaxed_bound(robot):
     assert recovered.max() < 0.97 and recovered[-1] < 0.95
 
 
+def test_one_sqp_iteration_per_solve_bounds_the_solve_and_keeps_the_bounds(robot):
+    """``constrained_iterations`` 1 (the real-time MPC node's default): λ̄ = 100 N > max_force =
+    60 N, so every solve needs SolverCSQP. Each capped solve makes one SQP iteration (one calc,
+    one QP of at most ``max_qp_iterations`` ADMM iterations, one line search) where the full
+    solves make up to 8. The first, cold one leaves the bound broken beyond the tolerance and is
+    refused (ConstraintViolationError: the caller's safe hold), never sent; from the next tick
+    on the plans keep the bound and their torque converges to the full solves' (the real-time
+    iteration scheme: the warm start carries the iterations over the ticks)."""
+    meas = MpcMeasurement(q=robot.q_nominal, v=np.zeros(7), force=np.array([55.0]))
+    schedule = _Hold(_tool(robot), 100.0)
+    full = MpcConfig(constraints=ConstraintConfig(max_force=60.0))
+    capped = replace(full, constrained_iterations=1)
+    mpc = ModelPredictiveController(robot, full, schedule)
+    reference = [mpc.step(meas, 0.002 * k) for k in range(10)]
+    assert reference[0].iterations == full.max_iterations  # the cap is what bounds it
+    mpc = ModelPredictiveController(robot, capped, schedule)
+    with pytest.raises(ConstraintViolationError) as info:
+        mpc.step(meas, 0.0)
+    assert info.value.violation > capped.constraints.violation_tolerance
+    commands = [mpc.step(meas, 0.002 * k) for k in range(1, 10)]
+    tolerance = capped.constraints.violation_tolerance
+    for cmd in commands:
+        assert mpc.solver is mpc.constrained_solver
+        assert cmd.iterations == 1 and 0 < cmd.qp_iterations <= 101  # (101: the ADMM's cap)
+        assert cmd.xs[1:, -1].max() <= 60.0 * (1.0 + tolerance)
+        assert cmd.constraint_violation <= tolerance
+    assert commands[-1].torque == pytest.approx(reference[-1].torque, abs=0.01 * 320.0)
+
+
+def test_constrained_iterations_must_not_be_negative():
+    with pytest.raises(ConfigError, match="constrained_iterations"):
+        MpcConfig(constrained_iterations=-1)
+
+
 # ------------------------------------------------------------------------- infeasible: refused
-def _infeasible_mpc(robot):
+def _infeasible_mpc(robot, constrained_iterations=0):
     """An MPC whose node 1 must reach a joint-4 velocity of 0.85·limit in one 3 ms step from
     rest with at most 5 % of the torque limits: no torque can do it."""
-    config = MpcConfig(constraints=ConstraintConfig(torque_margin=0.95))
+    config = MpcConfig(
+        constraints=ConstraintConfig(torque_margin=0.95),
+        constrained_iterations=constrained_iterations,
+    )
     mpc = ModelPredictiveController(robot, config, _Hold(_tool(robot), 10.0))
     b = mpc.bounds
     lower = b.state_lower.copy()
@@ -490,8 +527,10 @@ def _infeasible_mpc(robot):
     return mpc
 
 
-def test_a_constraint_that_cannot_be_met_raises(robot):
-    mpc = _infeasible_mpc(robot)
+@pytest.mark.parametrize("iterations", [0, 1])
+def test_a_constraint_that_cannot_be_met_raises(robot, iterations):
+    """With the SQP iterations of lockstep (0) and the real-time mode's one per solve (1)."""
+    mpc = _infeasible_mpc(robot, iterations)
     meas = MpcMeasurement(q=robot.q_nominal, v=np.zeros(7), force=np.array([10.0]))
     with pytest.raises(ConstraintViolationError) as info:
         mpc.step(meas, 0.0)

@@ -35,6 +35,8 @@ def test_mpc_node_solves_every_period_with_the_runner_numbers(ros, robot):
     are in (whatever their arrival order), bit-identical to ModelPredictiveController."""
     scenario = load_scenario("polishing")
     node = ros.add(MpcNode(context=ros.context, parameter_overrides=overrides("mpc", scenario)))
+    # lockstep: the solver's settings of the ROS-free runner (no real-time budget)
+    assert node.mpc.config.constrained_iterations == 0
     probe = ros.probe()
     out = recorder(probe, MpcCommand, topics.MPC_COMMAND)
     pub_j = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
@@ -225,6 +227,8 @@ def test_mpc_node_real_time_path_solves_on_ticks_only(ros, robot):
         assert [g["t"] for g in got] == [0.002, 0.004] and [g["sequence"] for g in got] == [0, 1]
         assert all(np.all(np.isfinite(g["torque"])) for g in got)
         assert node.mpc.nx == 14 and len(node.solve_times) == 2
+        # real time: one SQP iteration of the constrained solver per tick (real_time_iterations)
+        assert node.mpc.config.constrained_iterations == 1
     finally:
         rclpy.shutdown(context=context)
         spinner.join(timeout=5)

@@ -229,14 +229,6 @@ def test_the_ros2_control_launch_files_start_the_mpc_and_the_pid_against_remappe
     assert (topics.EFFORT_COMMANDS, "/lbr/effort_controller/commands") in pid.remaps
 
 
-@pytest.mark.xfail(
-    reason=(
-        "known defect, open: with the hard constraints in the MPC (real time, the launch file's "
-        "defaults) the LFC node accepts the Controls but was never seen in TRACK mode within "
-        "90 s; cause not found yet (the constrained MPC's real-time solves are the suspect)"
-    ),
-    strict=False,
-)
 def test_the_mpc_launch_file_drives_a_simulated_ros2_control_robot(ros, tmp_path):
     """``ffmpc launch ros2_control_mpc.launch.yaml`` (the MPC alone, real time, ros2_control's
     terms) against a simulated robot that speaks those terms: the plant in real time (it
