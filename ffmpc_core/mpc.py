@@ -60,6 +60,12 @@ from ffmpc_core.lowpass import (
     lowpass_alpha,
     lowpass_filter_step,
 )
+from ffmpc_core.plausibility import (
+    MEASURED_TORQUE_FACTOR,
+    check_force,
+    check_joint_state,
+    check_torque,
+)
 from ffmpc_core.robots import RobotModel
 
 #: A step more than this many MPC periods after the previous one is a resumption after an outage
@@ -495,13 +501,19 @@ class ModelPredictiveController:
         return t - self.task_pause - resume_lag(t - self._resumed_at)
 
     def state_from(self, meas: MpcMeasurement) -> np.ndarray:
-        """The OCP state x̂ of a measurement (eq 5, 10, 19), validated."""
-        nv = self.robot.nv
+        """The OCP state x̂ of a measurement (eq 5, 10, 19), validated: finite and plausible
+        (:mod:`ffmpc_core.plausibility`: joint positions and velocities, the measured torque, the
+        force), InputError otherwise."""
+        nv, robot = self.robot.nv, self.robot
         parts = [self._vector(meas.q, nv, "q"), self._vector(meas.v, nv, "v")]
+        check_joint_state(
+            parts[0], parts[1], robot.position_lower, robot.position_upper, robot.velocity_limit
+        )
         if self.config.formulation == "torque_feedback":
-            parts.append(self._vector(meas.torque, nv, "torque"))
+            tau = self._vector(meas.torque, nv, "torque")
+            parts.append(check_torque(tau, robot.torque_limit, "torque", MEASURED_TORQUE_FACTOR))
         elif self.config.formulation == "force_feedback":
-            parts.append(self._vector(meas.force, self.nc, "force"))
+            parts.append(check_force(self._vector(meas.force, self.nc, "force")))
         return np.concatenate(parts)
 
     def step(self, meas: MpcMeasurement, t: float) -> MpcCommand:

@@ -31,6 +31,12 @@ Ranges and why:
   wrist tool, not a beam), a force bias within ``TARE_OFFSET_MAX`` per axis and a moment bias
   within ``BIAS_MOMENT_MAX`` = 5 N·m per axis (a 6-axis sensor of the 500 N class has a
   ~10–50 N·m range; a larger offset is an overloaded sensor).
+* **Measured joint states** (the MPC's x̂): each q_i within its data-sheet range widened by
+  ``JOINT_POSITION_SLACK`` = 0.5 rad (an encoder that reads half a radian beyond a mechanical
+  stop is broken; a joint without a finite range: |q_i| ≤ ``JOINT_POSITION_MAX`` = 1e3 rad),
+  |q̇_i| ≤ ``MEASURED_VELOCITY_FACTOR`` = 5 × the joint's velocity limit (the robot's reflex
+  stops it at 1×). A joint position of −1e300 rad is finite, and an OCP started from it
+  overflows inside the solver (mim_solvers' line search aborts the process on a NaN cost).
 * **Learned contact stiffness** α̂ ∈ [``STIFFNESS_MIN``, ``STIFFNESS_MAX``] = [10, 1e6] N/m: from a
   soft foam to a stiff surface seen through the tool (the project's materials: 1e3–1e4 N/m).
   Below, the material pushes back less than 1 N per 10 cm (no contact to model); above, the
@@ -60,6 +66,11 @@ TARE_OFFSET_MAX = 50.0
 TOOL_MASS_MAX, TOOL_COM_RADIUS_MAX = 20.0, 0.3
 #: Largest plausible |moment bias| per axis of the wrist F/T sensor, N·m.
 BIAS_MOMENT_MAX = 5.0
+#: Largest plausible excess of a measured joint position beyond its range, rad; |q| of a joint
+#: without a finite range, rad.
+JOINT_POSITION_SLACK, JOINT_POSITION_MAX = 0.5, 1e3
+#: Largest plausible |q̇| measured, multiple of the joint velocity limit.
+MEASURED_VELOCITY_FACTOR = 5.0
 #: Range of a learned contact stiffness α̂, N/m.
 STIFFNESS_MIN, STIFFNESS_MAX = 10.0, 1e6
 #: Range of a learned contact damping β̂, N·s/m.
@@ -104,6 +115,32 @@ def check_force(force: npt.ArrayLike, name: str = "force") -> np.ndarray:
     return arr
 
 
+def check_joint_state(
+    q: np.ndarray,
+    v: np.ndarray,
+    position_lower: np.ndarray,
+    position_upper: np.ndarray,
+    velocity_limit: np.ndarray,
+) -> None:
+    """InputError unless every q_i (rad) lies within [lower_i − JOINT_POSITION_SLACK, upper_i +
+    JOINT_POSITION_SLACK] (|q_i| ≤ JOINT_POSITION_MAX where the range is not finite) and every
+    |q̇_i| (rad/s) ≤ MEASURED_VELOCITY_FACTOR × velocity_limit_i; q and v finite already."""
+    finite = np.isfinite(position_lower) & np.isfinite(position_upper)
+    low = np.where(finite, position_lower - JOINT_POSITION_SLACK, -JOINT_POSITION_MAX)
+    high = np.where(finite, position_upper + JOINT_POSITION_SLACK, JOINT_POSITION_MAX)
+    if np.any(q < low) or np.any(q > high):
+        raise InputError(
+            f"joint positions {np.array2string(q, precision=3)} rad: beyond the joint ranges by "
+            f"more than {JOINT_POSITION_SLACK:g} rad (a broken encoder): refused"
+        )
+    top = MEASURED_VELOCITY_FACTOR * velocity_limit
+    if np.any(np.abs(v) > top):
+        raise InputError(
+            f"joint velocities {np.array2string(v, precision=3)} rad/s exceed "
+            f"{MEASURED_VELOCITY_FACTOR:g}× the velocity limits: refused"
+        )
+
+
 def check_tare_offset(offset: npt.ArrayLike) -> np.ndarray:
     """A tare offset (N) as a float array; InputError if |offset_j| > TARE_OFFSET_MAX."""
     arr = np.asarray(offset, dtype=float)
@@ -133,6 +170,10 @@ def check_contact_parameters(stiffness: float, damping: float) -> tuple[float, f
 __all__ = [
     "BIAS_MOMENT_MAX",
     "DAMPING_MAX",
+    "JOINT_POSITION_MAX",
+    "JOINT_POSITION_SLACK",
+    "MEASURED_VELOCITY_FACTOR",
+    "check_joint_state",
     "DAMPING_MIN",
     "FORCE_MAX",
     "STIFFNESS_MAX",

@@ -150,3 +150,45 @@ def test_fault_specs_parse_and_activate():
     for bad in ("mpc-dropout", "dropout@1", "mpc-dropout@x", "mpc-dropout@1+0", "mpc-dropout@-1"):
         with pytest.raises(ConfigError):
             parse_fault(bad)
+
+
+@pytest.mark.parametrize(
+    ("joint", "position", "velocity", "ok"),
+    [
+        (4, -1e300, 0.0, False),  # finite: the fuzz's state that aborted the solver's process
+        (4, None, 0.0, True),  # at its upper limit
+        (4, "beyond", 0.0, False),  # 0.6 rad beyond its upper limit
+        (2, 0.0, 4.9, True),  # below 5x its velocity limit (the reflex stops it at 1x)
+        (2, 0.0, -1e9, False),
+    ],
+)
+def test_the_mpc_refuses_an_implausible_joint_state_before_solving(joint, position, velocity, ok):
+    """A joint state that is finite but absurd (q = -1e300 rad) is refused with InputError by
+    the MPC before the OCP is built from it: started from it, the constrained solver's line
+    search met a NaN cost inside its OpenMP loop and the process aborted (SIGABRT)."""
+    from ffmpc_core.mpc import ModelPredictiveController, MpcConfig, MpcMeasurement
+    from ffmpc_core.polishing import build_task, mpc_config, mpc_schedule
+    from ffmpc_core.robots import load_robot
+    from ffmpc_core.scenario import load_scenario
+
+    robot = load_robot("iiwa")
+    q = robot.q_nominal.copy()
+    if position is None:
+        q[joint] = robot.position_upper[joint]
+    elif position == "beyond":
+        q[joint] = robot.position_upper[joint] + pl.JOINT_POSITION_SLACK + 0.1
+    else:
+        q[joint] = position
+    v = np.zeros(robot.nv)
+    v[joint] = velocity * robot.velocity_limit[joint] if abs(velocity) < 10 else velocity
+    scenario = load_scenario("polishing")
+    config: MpcConfig = mpc_config(scenario)
+    mpc = ModelPredictiveController(
+        robot, config, mpc_schedule(build_task(scenario, robot), scenario)
+    )
+    meas = MpcMeasurement(q=q, v=v, force=np.array([0.0]))
+    if ok:
+        assert np.all(np.isfinite(mpc.state_from(meas)))
+    else:
+        with pytest.raises(InputError, match="refused"):
+            mpc.step(meas, 0.0)
