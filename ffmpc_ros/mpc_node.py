@@ -26,7 +26,8 @@ accepted update is logged (at most one line per 2 s). Estimates are not synchron
 lockstep cycle: one applies from the first solve after its arrival.
 
 Live parameters (``ffmpc_ros.params.MPC_LIVE``; checked, logged and queued by
-:class:`~ffmpc_ros.base.GraphNode`), applied in place at the next solve (no rebuild of the OCP):
+:class:`~ffmpc_ros.live_parameters.LiveParameters`), applied in place at the next solve (no
+rebuild of the OCP):
 
 * ``contact.stiffness``, ``contact.damping``: K (N/m), B (N·s/m) of the force-feedback OCP
   (``ModelPredictiveController.set_contact_parameters``; refused for the other formulations);
@@ -46,7 +47,8 @@ target − the scenario's target (or ``task.normal_force``) through the node's o
 it is applied, logged and read back (``get_parameter``) like a live parameter. A message with a
 non-finite value, a frame_id other than ``world``, a stamp from the future, a target farther
 than the schema's bound on ``mpc.position_offset`` (0.1 m per axis) from the scenario's, or a
-force outside ``task.normal_force``'s range is rejected and counted (:meth:`GraphNode.reject`).
+force outside ``task.normal_force``'s range is rejected and counted
+(:meth:`ffmpc_ros.input_gate.InputGate.reject`).
 In real time the node serves the reference topics from its wait set, but not the parameter
 services (it has no executor).
 
@@ -90,16 +92,13 @@ from ffmpc_core.polishing import (
 from ffmpc_core.scenario import SCHEMA
 from ffmpc_core.tasks import PhaseWeights
 from ffmpc_ros import layouts, topics
-from ffmpc_ros.base import (
-    MAX_FUTURE_STAMP,
-    GraphNode,
-    drop_stale_cycles,
-    interfaces_of,
-    run_node,
-)
+from ffmpc_ros.base import GraphNode, interfaces_of, run_node
 from ffmpc_ros.command_msg import command_message
 from ffmpc_ros.impact_common import DIRECTION_TOLERANCE, receive_estimate
+from ffmpc_ros.input_gate import MAX_FUTURE_STAMP
 from ffmpc_ros.lfc_msgs import control_message, sensor_fields
+from ffmpc_ros.message_parsing import joint_fields, wrench_array
+from ffmpc_ros.time_grid import drop_stale_cycles
 
 _KEEP = 20  # cycles of unmatched measurements kept
 WARM_UP_SOLVES = 20  # real time: solves before the node subscribes to its inputs
@@ -109,7 +108,7 @@ class MpcNode(GraphNode):
     """ModelPredictiveController on topics (see the module docstring)."""
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__("mpc", **kwargs)
+        super().__init__("mpc", join=False, **kwargs)
         s = self.scenario
         self.robot = scenario_robot(s)  # carrying the tool (the cell's load data)
         self.joint_names = list(self.robot.joint_names)
@@ -186,6 +185,7 @@ class MpcNode(GraphNode):
                 self.on_estimate,
                 topics.subscriber_qos(False, topics.CONTACT_ESTIMATE),
             )
+        self.join_graph()
 
     def on_sensor(self, msg: Sensor) -> None:
         """ros2_control's terms: the measured state of a ``Sensor`` (its joint_state)."""
@@ -193,7 +193,9 @@ class MpcNode(GraphNode):
 
     def on_joints(self, msg: JointState, topic_name: str = topics.SENSED_JOINT_STATES) -> None:
         topic = self.name_of(topic_name)
-        got = self.receive(topic, msg, self.joint_fields("position", "velocity", "effort"))
+        got = self.gate.receive(
+            topic, msg, joint_fields(self.joint_names, "position", "velocity", "effort")
+        )
         if got is None:
             return
         k, arrays = got
@@ -202,8 +204,8 @@ class MpcNode(GraphNode):
 
     def on_wrench(self, msg: WrenchStamped) -> None:
         topic = self.name_of(topics.SENSED_WRENCH)
-        got = self.receive(
-            topic, msg, lambda m: measured_force(self.wrench_array(m), self.config.contact)
+        got = self.gate.receive(
+            topic, msg, lambda m: measured_force(wrench_array(m), self.config.contact)
         )
         if got is None:
             return
@@ -228,7 +230,7 @@ class MpcNode(GraphNode):
                     f"{contact.normal_axis}",
                 )
                 return
-        self.accept_cycle(topic, k)
+        self.gate.accept(topic, k)
         if not confident(estimate, self.learner_min_samples, self.learner_max_relative_std):
             return
         stiffness, damping = self.contact_stiffness.copy(), self.contact_damping.copy()
@@ -241,7 +243,7 @@ class MpcNode(GraphNode):
             return
         self.contact_stiffness, self.contact_damping = stiffness, damping
         self.contact_updates += 1
-        self.inform(
+        self.gate.inform(
             "contact_update",
             f"contact model from the learner: stiffness {estimate.stiffness:.1f} N/m, damping "
             f"{estimate.damping:.2f} N·s/m ({estimate.samples} samples, update "
@@ -271,7 +273,7 @@ class MpcNode(GraphNode):
 
     def apply_live(self, changes: dict, k: int) -> None:
         """Apply accepted live parameters before the solve of tick k (module docstring)."""
-        t_task = self.mpc.task_time(self.t_of(k))
+        t_task = self.mpc.task_time(self.grid.t_of(k))
         contact = self.mpc.config.contact
         stiffness = changes.get("contact.stiffness", contact.stiffness)
         damping = changes.get("contact.damping", contact.damping)
@@ -344,7 +346,7 @@ class MpcNode(GraphNode):
     def _set_from_topic(self, topic: str, param: Parameter) -> None:
         """Set a live parameter from a reference topic: checked first (a refusal is a rejected
         message, counted, one throttled line), then set like any parameter request."""
-        reason = self.parameter_refusal([param])
+        reason = self.live.refusal([param])
         if reason is not None:
             self.reject(f"{topic}:value", reason)
             return
@@ -460,8 +462,8 @@ class MpcNode(GraphNode):
         force = self._forces.pop(k, None)
         if self._behind_clock(k):
             return
-        t = self.t_of(k)
-        self.apply_pending(k)
+        t = self.grid.t_of(k)
+        self.live.apply_pending(k)
         try:
             command = self.mpc.step(MpcMeasurement(q=q, v=v, force=force, torque=tau), t)
         except FfmpcError as exc:
@@ -469,7 +471,7 @@ class MpcNode(GraphNode):
             return
         self._last_solve = k
         self.solve_times.append(command.solve_time)
-        stamp, formulation = self.stamp_of(k), self.config.formulation
+        stamp, formulation = self.grid.stamp_of(k), self.config.formulation
         self.publisher.publish(
             control_message(stamp, formulation, self.joint_names, command, self.force_axes)
             if self.ros2_control
