@@ -59,7 +59,7 @@ import signal
 import sys
 import threading
 from collections.abc import Callable, Iterator, Sequence
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 import rclpy
@@ -70,7 +70,6 @@ from rclpy.context import Context
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSPolicyKind, QoSProfile
@@ -187,8 +186,9 @@ class GraphNode(LifecycleNode):
                 self.diagnostic_problems,
             )
             self.diagnostics.publish_from(self)
-        except BaseException:
-            self._leave_graph()
+        except BaseException:  # (a bad parameter) the node leaves the graph now, see refuse
+            with contextlib.suppress(Exception):
+                self.destroy_node()
             raise
         if join:
             self.join_graph()
@@ -218,10 +218,11 @@ class GraphNode(LifecycleNode):
                 self.get_logger().info("unconfigured: waiting for the configure transition")
                 return
             if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
-                raise ConfigError(f"{self.get_name()}: configure refused: {self._refusal}")
+                self.refuse(f"{self.get_name()}: configure refused: {self._refusal}")
             self.trigger_activate()
-        except BaseException:
-            self._leave_graph()
+        except BaseException:  # (a bad parameter) the node leaves the graph now, see refuse
+            with contextlib.suppress(Exception):
+                self.destroy_node()
             raise
 
     # -- lifecycle (module docstring) -------------------------------------------------------------
@@ -237,10 +238,13 @@ class GraphNode(LifecycleNode):
         super().destroy_node()
         self._state_machine.destroy_when_not_in_use()
 
-    def _leave_graph(self) -> None:
-        """Destroy a node refused at construction (it leaves the graph now)."""
+    def refuse(self, reason: str) -> NoReturn:
+        """Refuse to construct this node: destroy it (it leaves the ROS graph now, not when its
+        context ends: a later graph saw it as foreign) and raise ConfigError(reason) (the
+        executable exits 2 with that line)."""
         with contextlib.suppress(Exception):
             self.destroy_node()
+        raise ConfigError(reason) from None
 
     def configure(self) -> str | None:
         """Why the node may not run (the configure transition then fails), or None. A node
@@ -355,7 +359,7 @@ class GraphNode(LifecycleNode):
 
 
 @contextlib.contextmanager
-def _qos_override_errors(node: Node, topic: str, role: str) -> Iterator[None]:
+def _qos_override_errors(node: GraphNode, topic: str, role: str) -> Iterator[None]:
     """A QoS override parameter rclpy cannot apply (``reliability:=bogus``, a depth of 0 on
     KEEP_LAST) becomes a ConfigError naming the parameter (one line, exit 2 from ``run_node``)."""
     try:
@@ -365,15 +369,15 @@ def _qos_override_errors(node: Node, topic: str, role: str) -> Iterator[None]:
         if "override" not in text.lower() and "qos" not in text.lower():
             raise
         name = f"qos_overrides.{node.resolve_topic_name(topic)}.{role}"
-        raise ConfigError(f"{name}: {_first_line(exc)}") from None
+        node.refuse(f"{name}: {_first_line(exc)}")
 
 
 def interfaces_of(node: GraphNode) -> str:
     """The node's graph parameter ``interfaces`` (``topics.INTERFACES``: ffmpc's own topics or
-    ros2_control's terms); ConfigError for another value."""
+    ros2_control's terms); another value refuses the node (:meth:`GraphNode.refuse`)."""
     value = str(node.params["interfaces"])
     if value not in topics.INTERFACES:
-        raise ConfigError(f"interfaces must be one of {list(topics.INTERFACES)}, got {value!r}")
+        node.refuse(f"interfaces must be one of {list(topics.INTERFACES)}, got {value!r}")
     return value
 
 

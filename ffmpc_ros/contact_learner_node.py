@@ -42,7 +42,7 @@ import pinocchio as pin
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
-from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.errors import InputError
 from ffmpc_core.impact.deformation import measured_deformation
 from ffmpc_core.impact.learner import ContactEstimate, RecursiveContactLearner
 from ffmpc_core.impact.touch_first import TOUCH, LearningGate, fed_surface
@@ -78,7 +78,7 @@ class ContactLearnerNode(MeasuredCycleNode):
         self.feed_force = float(p["feed_force"])
         self.skip_onset_samples = int(p["skip_onset_samples"])
         if self.surface_force >= self.contact_threshold:
-            raise ConfigError("surface_force must be below contact_threshold (N)")
+            self.refuse("surface_force must be below contact_threshold (N)")
         self.learner = RecursiveContactLearner(float(p["regularization"]))
         self._data = self.robot.create_data()
         self.published = 0

@@ -42,7 +42,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.errors import InputError
 from ffmpc_core.reflex import reflex_plant
 from ffmpc_core.robots import load_robot
 from ffmpc_ros import layouts, topics
@@ -61,7 +61,7 @@ class DicePlantNode(GraphNode):
         from sim_bridge.scenes import impact_plant_config, make_plant
 
         if not self.params["lockstep"]:
-            raise ConfigError("the dice plant runs in lockstep only (lockstep: true)")
+            self.refuse("the dice plant runs in lockstep only (lockstep: true)")
         self.config = impact_config_from_parameters(self.spec, self.params)
         robot = self.robot = load_robot(self.scenario.robot)
         self.joint_names = list(robot.joint_names)

@@ -56,7 +56,7 @@ from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from ffmpc_core.errors import ConfigError, FfmpcError, InputError
+from ffmpc_core.errors import FfmpcError, InputError
 from ffmpc_core.impact.control import APPROACH, CartesianCommand
 from ffmpc_core.impact.controllers import (
     ContactMeasurement,
@@ -154,7 +154,7 @@ class ImpactControllerNode(MeasuredCycleNode):
 
         p = self.params
         if not p["lockstep"]:
-            raise ConfigError("the impact controller runs in lockstep only (lockstep: true)")
+            self.refuse("the impact controller runs in lockstep only (lockstep: true)")
         self.config = impact_config_from_parameters(self.spec, p)
         self.approach, self.regulation = str(p["approach"]), str(p["regulation"])
         self.learning_strategy = (

@@ -77,7 +77,7 @@ from rclpy.clock import Clock, ClockType
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
-from ffmpc_core.errors import ConfigError, FfmpcError
+from ffmpc_core.errors import FfmpcError
 from ffmpc_core.impact.control import (
     CartesianCommand,
     ImpactController,
@@ -153,7 +153,7 @@ class ImpactPlannerNode(MeasuredCycleNode):
         self.controller: ImpactController
         if self.learning_strategy:
             if bool(p["use_learned_material"]) or not bool(p["lockstep"]):
-                raise ConfigError(
+                self.refuse(
                     f"strategy {self.strategy}: use_learned_material false (the strategy plans "
                     "from the learned interval itself) and lockstep true"
                 )

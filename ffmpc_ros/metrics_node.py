@@ -27,7 +27,7 @@ from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64MultiArray, String
 
-from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.errors import InputError
 from ffmpc_core.metrics import PolishingMetrics
 from ffmpc_core.polishing import PolishingLog, build_task, polishing_run_metrics
 from ffmpc_core.robots import load_robot
@@ -73,7 +73,7 @@ class MetricsNode(GraphNode):
         )
         low_level = str(self.params["low_level"])
         if low_level not in LOW_LEVELS:
-            raise ConfigError(f"low_level must be one of {list(LOW_LEVELS)}, got {low_level!r}")
+            self.refuse(f"low_level must be one of {list(LOW_LEVELS)}, got {low_level!r}")
         desired, motor, _ = topics.low_level_topics(low_level)
         self._subs = [
             self.create_subscription(msg_type, topic, callback, topics.subscriber_qos(True, topic))

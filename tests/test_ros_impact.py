@@ -429,12 +429,12 @@ def test_mpc_node_applies_a_learner_estimate_live_only_when_confident(ros):
     # Not confident: 10 % standard errors, then too few samples → the model is unchanged.
     send(_estimate(3000.0, 40.0, 0.10, 500, 0.001))
     send(_estimate(3000.0, 40.0, 0.01, 49, 0.002))
-    assert node.contact_updates == 0 and _contact_of(node.mpc) == {(1000.0, 100.0)}
+    assert node.learned.updates == 0 and _contact_of(node.mpc) == {(1000.0, 100.0)}
     # Confident: applied to every OCP node at once, logged once (throttled).
     send(_estimate(3000.0, 40.0, 0.01, 500, 0.003))
-    assert node.contact_updates == 1 and _contact_of(node.mpc) == {(3000.0, 40.0)}
+    assert node.learned.updates == 1 and _contact_of(node.mpc) == {(3000.0, 40.0)}
     send(_estimate(3100.0, 42.0, 0.02, 600, 0.004))
-    assert node.contact_updates == 2 and _contact_of(node.mpc) == {(3100.0, 42.0)}
+    assert node.learned.updates == 2 and _contact_of(node.mpc) == {(3100.0, 42.0)}
     assert node.log_lines["contact_update"] == 1
     assert node.rejected.total() == 0
     # Bad estimates: NaN, wrong direction (x, the contact is along z), out of order.
@@ -445,7 +445,7 @@ def test_mpc_node_applies_a_learner_estimate_live_only_when_confident(ros):
         pub_e.publish(msg)  # one at a time: the subscription keeps only the newest sample
         assert ros.spin_until(lambda i=i: node.rejected.total() == i + 1)
     assert {k.rsplit(":", 1)[1] for k in node.rejected} == {"value", "direction", "order"}
-    assert node.contact_updates == 2 and _contact_of(node.mpc) == {(3100.0, 42.0)}
+    assert node.learned.updates == 2 and _contact_of(node.mpc) == {(3100.0, 42.0)}
     # The next solve uses the learned model: the command equals a core MPC with K, B set.
     rng = np.random.default_rng(3)
     q = robot.q_nominal + 0.01 * rng.standard_normal(7)
