@@ -301,3 +301,33 @@ def test_live_parameters_check_type_range_and_rule_then_apply_at_the_next_cycle(
     live.apply_pending(43)  # nothing pending: nothing applied
     assert node.applied == [({"kp": pytest.approx(0.1)}, 42)]
     assert live.changes == [(42, "kp", pytest.approx(0.1))] and live.pending == {}
+
+
+def test_every_node_class_creates_its_entities_then_joins_the_graph_last() -> None:
+    """No set-up after ``__init__``: each node class passes ``join=False`` to the base and ends
+    its own ``__init__`` with ``self.join_graph()`` (its reliable /clock reader and lockstep
+    marker must be its last readers: the plant's start counts on them)."""
+    import ast
+    from pathlib import Path
+
+    import ffmpc_ros
+
+    checked = []
+    for path in sorted(Path(ffmpc_ros.__file__).parent.glob("*_node.py")):
+        for cls in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if not isinstance(cls, ast.ClassDef):
+                continue
+            bases = {b.id for b in cls.bases if isinstance(b, ast.Name)}
+            if not bases & {"GraphNode", "MeasuredCycleNode"}:
+                continue
+            init = next(
+                f for f in cls.body if isinstance(f, ast.FunctionDef) and f.name == "__init__"
+            )
+            first = init.body[0].value  # super().__init__(SPEC, join=False, **kwargs)
+            assert isinstance(first, ast.Call) and first.func.attr == "__init__", cls.name
+            joins = [k for k in first.keywords if k.arg == "join"]
+            assert joins and joins[0].value.value is False, cls.name
+            last = init.body[-1].value
+            assert isinstance(last, ast.Call) and last.func.attr == "join_graph", cls.name
+            checked.append(cls.name)
+    assert {"MpcNode", "PidNode", "PlantNode", "MetricsNode", "ImpactPlannerNode"} <= set(checked)
