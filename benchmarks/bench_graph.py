@@ -18,7 +18,7 @@ import platform
 import time
 
 from ffmpc_core.scenario import load_scenario
-from ffmpc_ros.bringup import run_graph
+from ffmpc_ros.bringup import GraphOptions, run_graph
 from studies.polishing import run_polishing
 
 
@@ -54,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
         f"-> real-time factor {args.duration / wall:.3f}"
     )
     for single in (False, True):
-        result = run_graph(scenario, duration=args.duration, single_process=single)
+        result = run_graph(scenario, GraphOptions(duration=args.duration, single_process=single))
         same = (result.metrics_true, result.metrics_measured) == (
             runner.metrics_true,
             runner.metrics_measured,
@@ -66,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
             f"{result.startup_time:.1f} s); metrics equal to the runner: {same}"
         )
         print(f"    {_latency(result.plant_status)}")
-    result = run_graph(scenario, duration=args.rt_duration, lockstep=False)
+    result = run_graph(scenario, GraphOptions(duration=args.rt_duration, lockstep=False))
     t = result.timing
     print(
         f"graph real time (ffmpc_ros.realtime, default scheduling): {args.rt_duration:.2f} s in "

@@ -17,7 +17,7 @@ import argparse
 import os
 
 from ffmpc_core.scenario import load_scenario
-from ffmpc_ros.bringup import run_graph
+from ffmpc_ros.bringup import GraphOptions, run_graph
 from ffmpc_ros.cli_args import parse_overrides
 from studies.polishing import run_polishing
 
@@ -50,7 +50,8 @@ def main() -> int:
     for label, cpus, priority in CONFIGS:
         for _ in range(args.repeats):
             r = run_graph(
-                scenario, duration=args.duration, lockstep=False, cpus=cpus, priority=priority
+                scenario,
+                GraphOptions(duration=args.duration, lockstep=False, cpus=cpus, priority=priority),
             )
             t = r.timing
             m = t["mpc"]

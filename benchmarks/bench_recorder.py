@@ -145,7 +145,7 @@ def bench_graph(duration: float, formulation: str, repeats: int) -> None:
 
     from ffmpc_core.scenario import load_scenario
     from ffmpc_ros.bag.reader import BagReader
-    from ffmpc_ros.bringup import run_graph
+    from ffmpc_ros.bringup import GraphOptions, run_graph
 
     published: Counter[str] = Counter()
     original = Publisher.publish
@@ -161,13 +161,17 @@ def bench_graph(duration: float, formulation: str, repeats: int) -> None:
             without, with_record = [], []
             for i in range(repeats):  # alternate, so a change of machine load hits both
                 without.append(
-                    run_graph(scenario, duration=duration, single_process=single).real_time_factor
+                    run_graph(
+                        scenario, GraphOptions(duration=duration, single_process=single)
+                    ).real_time_factor
                 )
                 published.clear()
                 Publisher.publish = counting
                 try:
                     bag = Path(tmp) / f"run_{single}_{i}.mcap"
-                    rec = run_graph(scenario, duration=duration, single_process=single, record=bag)
+                    rec = run_graph(
+                        scenario, GraphOptions(duration=duration, single_process=single, record=bag)
+                    )
                 finally:
                     Publisher.publish = original
                 with_record.append(rec.real_time_factor)

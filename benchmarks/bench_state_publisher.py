@@ -50,7 +50,7 @@ def bench(frequency: float, seconds: float) -> tuple[float, float, float, int]:
             msg = JointState(
                 name=names, position=(node.robot.q_nominal + 0.1 * rng.normal(size=7)).tolist()
             )
-            msg.header.stamp = node.stamp_of(k)
+            msg.header.stamp = node.grid.stamp_of(k)
             msgs.append(msg)
         grid, off = [], []
         cpu0 = time.process_time()

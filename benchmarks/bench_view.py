@@ -78,7 +78,7 @@ def bench(formulation: str, ticks: int, blocks: int) -> tuple[float, float, floa
                     times[subscribed].append(time.perf_counter() - start)
                     if subscribed:  # the prediction's share alone, once more
                         start = time.perf_counter()
-                        node.publish_prediction(node.t_of(k))
+                        node.publish_prediction(node.grid.t_of(k))
                         alone.append(time.perf_counter() - start)
                 k += node.every
             executor.spin_once(timeout_sec=0.0)

@@ -16,7 +16,7 @@ import argparse
 import time
 
 from ffmpc_core.scenario import load_scenario
-from ffmpc_ros.bringup import run_graph
+from ffmpc_ros.bringup import GraphOptions, run_graph
 
 NAMES = ("force_mae", "position_mae_mm", "max_force", "contact_break_percent", "torque_mae")
 
@@ -27,11 +27,13 @@ def _run(seed: int, duration: float | None, low_level: str) -> tuple[dict, dict,
     start = time.perf_counter()
     graph = run_graph(
         scenario,
-        duration=duration,
-        single_process=True,
-        timeout=3600,
-        interfaces=interfaces,
-        low_level=low_level,
+        GraphOptions(
+            duration=duration,
+            single_process=True,
+            timeout=3600,
+            interfaces=interfaces,
+            low_level=low_level,
+        ),
     )
     safety = {
         "max_velocity_ratio": max(graph.safety["max_velocity_ratio"]),

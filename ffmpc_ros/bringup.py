@@ -472,62 +472,14 @@ class _PidStatusProbe:
         }
 
 
-def run_graph(
-    scenario: Scenario,
-    *,
-    duration: float | None = None,
-    single_process: bool = False,
-    lockstep: bool = True,
-    timeout: float = 600.0,
-    domain_id: int | None = None,
-    quiet: bool = True,
-    record: str | os.PathLike | None = None,
-    fault_windows: Sequence[tuple[float, float]] = (),
-    cpus: tuple[int, int] | None | str = "auto",
-    priority: int | None = None,
-    faults: Sequence[Fault | str] = (),
-    allow_foreign: bool = False,
-    stall_timeout: float = STALL_TIMEOUT,
-    start_timeout: float = START_TIMEOUT,
-    node_ros_args: Mapping[str, Sequence[str]] | None = None,
-    view: int | None = None,
-    view_host: str = "127.0.0.1",
-    view_wait: bool = False,
-    namespace: str | None = None,
-    interfaces: str = topics.FFMPC_INTERFACES,
-    low_level: str = "pid",
-) -> GraphResult:
-    """Run ``scenario`` on the node graph and return the metrics node's result.
+@dataclass(frozen=True)
+class GraphOptions:
+    """How :func:`run_graph` runs a scenario; the defaults are ``ffmpc run``'s.
 
-    Args:
+    What runs:
         duration: simulated time, s (None: the task's duration).
         single_process: all nodes in this process on one executor.
         lockstep: lockstep (True) or real-time (False) plant.
-        timeout: wall-time limit, s (GraphError beyond).
-        domain_id: ROS domain of this run (default: ROS_DOMAIN_ID or 0).
-        quiet: multi-process: the children's output stays in their log files (otherwise each
-            log is printed to stderr once the run ends).
-        record: record the run into this MCAP bag (must not exist): every topic and every
-            node's parameters; the plant then also waits for the recorder to see the graph.
-        fault_windows: (start, end) simulated s of external faults: fallback inside them is
-            excused (every ``faults`` entry adds its own window).
-        cpus: real time: (loop CPU, MPC CPU) to pin the two processes to ("auto": the first
-            two CPUs; None: no pinning).
-        priority: real time: SCHED_FIFO priority of both processes (None:
-            ``realtime.DEFAULT_PRIORITY``; 0: normal scheduling).
-        faults: faults to inject (``Fault`` or ``KIND[:NODE]@T[+DURATION]``;
-            ``ffmpc_ros.fault_injector``); ConfigError for a kind the mode cannot inject.
-        allow_foreign: start even if other publishers are on the graph's topics.
-        stall_timeout: lockstep: wall s without a new plant cycle before GraphError.
-        start_timeout: lockstep: wall s from the call to the first plant cycle.
-        node_ros_args: multi-process: extra ROS arguments per node, after the parameter file
-            (e.g. ``{"pid": ["-p", "kp:=0.2"]}``); one that sets a scenario value other nodes
-            take too is refused (:func:`check_unshared`). Real time: the ``mpc`` node's only
-            (the MPC process; the loop process composes the other nodes from the file).
-        view: serve the live view (Foxglove WebSocket) on this port of ``view_host`` (None:
-            no view); ViewError when the port is busy.
-        view_wait: the run starts only once a Foxglove client subscribes to
-            ``/plant/joint_states`` (``start_timeout`` still applies).
         namespace: ROS namespace of the whole graph (module docstring; None: the root).
         interfaces: the topics between the MPC, the low level and the plant: ``"ffmpc"``
             (its own) or ``"ros2_control"`` (linear_feedback_controller_msgs Control/Sensor,
@@ -535,336 +487,488 @@ def run_graph(
             only, without record, view or faults (ConfigError).
         low_level: the low-level node: ``"pid"`` (ffmpc's torque PID) or ``"lfc"`` (the
             linear_feedback_controller's law, ``ffmpc_ros.lfc_node``; ros2_control only).
-    """
-    from ffmpc_ros.fault_injector import (
-        FAULT_LOCKSTEP_TIMEOUT,
-        PROCESS_KINDS,
-        FaultInjector,
-        check_supported,
-    )
+        node_ros_args: multi-process: extra ROS arguments per node, after the parameter file
+            (e.g. ``{"pid": ["-p", "kp:=0.2"]}``); one that sets a scenario value other nodes
+            take too is refused (:func:`check_unshared`). Real time: the ``mpc`` node's only
+            (the MPC process; the loop process composes the other nodes from the file).
 
-    start = time.perf_counter()
-    domain = _env_domain_id() if domain_id is None else domain_id
-    namespace = topics.normalize_namespace(namespace)
-    faults = faults_from(faults)
-    check_supported(faults, single_process, lockstep)
-    table = node_table(interfaces, low_level)
-    if interfaces != topics.FFMPC_INTERFACES and (
-        not lockstep or record is not None or view is not None or faults
+    Where, and for how long:
+        domain_id: ROS domain of this run (default: ROS_DOMAIN_ID or 0).
+        allow_foreign: start even if other publishers are on the graph's topics.
+        timeout: wall-time limit, s (GraphError beyond).
+        stall_timeout: lockstep: wall s without a new plant cycle before GraphError.
+        start_timeout: lockstep: wall s from the call to the first plant cycle.
+        quiet: multi-process: the children's output stays in their log files (otherwise each
+            log is printed to stderr once the run ends).
+
+    Faults:
+        faults: faults to inject (``Fault`` or ``KIND[:NODE]@T[+DURATION]``;
+            ``ffmpc_ros.fault_injector``); ConfigError for a kind the mode cannot inject.
+        fault_windows: (start, end) simulated s of external faults: fallback inside them is
+            excused (every ``faults`` entry adds its own window).
+
+    Outputs:
+        record: record the run into this MCAP bag (must not exist): every topic and every
+            node's parameters; the plant then also waits for the recorder to see the graph.
+        view: serve the live view (Foxglove WebSocket) on this port of ``view_host`` (None:
+            no view); ViewError when the port is busy.
+        view_host: the live view's address.
+        view_wait: the run starts only once a Foxglove client subscribes to
+            ``/plant/joint_states`` (``start_timeout`` still applies).
+
+    Real time:
+        cpus: (loop CPU, MPC CPU) to pin the two processes to ("auto": the first two CPUs;
+            None: no pinning).
+        priority: SCHED_FIFO priority of both processes (None: ``realtime.DEFAULT_PRIORITY``;
+            0: normal scheduling).
+    """
+
+    duration: float | None = None
+    single_process: bool = False
+    lockstep: bool = True
+    namespace: str | None = None
+    interfaces: str = topics.FFMPC_INTERFACES
+    low_level: str = "pid"
+    node_ros_args: Mapping[str, Sequence[str]] | None = None
+    domain_id: int | None = None
+    allow_foreign: bool = False
+    timeout: float = 600.0
+    stall_timeout: float = STALL_TIMEOUT
+    start_timeout: float = START_TIMEOUT
+    quiet: bool = True
+    faults: Sequence[Fault | str] = ()
+    fault_windows: Sequence[tuple[float, float]] = ()
+    record: str | os.PathLike | None = None
+    view: int | None = None
+    view_host: str = "127.0.0.1"
+    view_wait: bool = False
+    cpus: tuple[int, int] | None | str = "auto"
+    priority: int | None = None
+
+
+@dataclass
+class GraphPlan:
+    """What a run will start, checked before anything starts (:func:`plan_graph`)."""
+
+    scenario: Scenario
+    options: GraphOptions
+    domain: int  # the ROS domain
+    namespace: str  # normalised ("/" for the root)
+    faults: tuple[Fault, ...]
+    table: dict[str, str]  # node name → "module:class" (the metrics node apart)
+    duration: float  # simulated s
+    params: dict[str, dict[str, Any]]  # node → its parameters
+    windows: list[tuple[float, float]]  # simulated s where fallback is excused
+
+
+def plan_graph(scenario: Scenario, options: GraphOptions) -> GraphPlan:
+    """Check ``options`` against each other and the mode (ConfigError, BagExistsError,
+    ViewError: nothing has started) and work out every node's parameters."""
+    from ffmpc_ros.fault_injector import FAULT_LOCKSTEP_TIMEOUT, PROCESS_KINDS, check_supported
+
+    o = options
+    faults = faults_from(o.faults)
+    check_supported(faults, o.single_process, o.lockstep)
+    table = node_table(o.interfaces, o.low_level)
+    _check_options(o, table, faults)
+    namespace = topics.normalize_namespace(o.namespace)
+    duration = o.duration
+    if duration is None:  # the task's, as the metrics node sees the scenario
+        from ffmpc_core.polishing import build_task
+
+        duration = build_task(scenario, load_robot(scenario.robot)).duration
+    params = graph_parameters(scenario, o.lockstep, duration, namespace, o.interfaces, o.low_level)
+    windows = [(float(start), float(end)) for start, end in o.fault_windows]
+    # an injected fault's effects outlast it a little (queued messages): FAULT_RECOVERY
+    windows += [(f.start, min(f.end + FAULT_RECOVERY, float(duration))) for f in faults]
+    if o.lockstep:
+        if any(f.kind in PROCESS_KINDS for f in faults):
+            params[o.low_level]["lockstep_timeout"] = FAULT_LOCKSTEP_TIMEOUT
+        # the bring-up's probe (_StatusProbe) reads the joint states too, and subscribes before
+        # the metrics node exists, whose readiness the plant waits for: without counting it, the
+        # plant could start with the probe in the recorder's place, before the recorder's gate
+        # opened (a bag then lacked /plant/joint_states and the MPC's parameters, seen once in
+        # four runs); the recorder and the view are more subscribers the plant waits for
+        params["plant"]["start_subscribers"] += 1 + (o.record is not None) + (o.view is not None)
+        # and it reads /clock twice: the topic it records and its time source (simulated log
+        # times); every node's side of the start barrier counts them (its writers wait for the
+        # recorder's readers too: ffmpc_ros.start_barrier.StartBarrier.writers_matched)
+        for values in params.values():
+            values["start_clock_subscribers"] += 2 * (o.record is not None)
+    domain = _env_domain_id() if o.domain_id is None else o.domain_id
+    return GraphPlan(scenario, o, domain, namespace, faults, table, duration, params, windows)
+
+
+def _check_options(o: GraphOptions, table: Mapping[str, str], faults: Sequence[Fault]) -> None:
+    """ConfigError for options that do not go together (BagExistsError, ViewError: the bag
+    exists, the view's port is busy)."""
+    if o.interfaces != topics.FFMPC_INTERFACES and (
+        not o.lockstep or o.record is not None or o.view is not None or faults
     ):
         raise ConfigError(
             "interfaces='ros2_control' runs the lockstep graph only (no real time, record, "
             "view or faults yet)"
         )
-    if node_ros_args and (single_process or (not lockstep and set(node_ros_args) - {"mpc"})):
+    if o.node_ros_args and (
+        o.single_process or (not o.lockstep and set(o.node_ros_args) - {"mpc"})
+    ):
         raise ConfigError(
             "per-node ROS arguments need the multi-process graph (real time: the mpc node's only)"
         )
-    unknown = sorted(set(node_ros_args or {}) - set(table))
+    unknown = sorted(set(o.node_ros_args or {}) - set(table))
     if unknown:
         raise ConfigError(
             f"per-node ROS arguments for unknown nodes {unknown}; nodes: {list(table)}"
         )
-    check_unshared(node_ros_args or {}, [*table, "metrics"])
-    metrics_cls = load_node_class(METRICS_NODE)
-    # Task duration from the metrics node's own view of the scenario when not given.
-    if duration is None:
-        from ffmpc_core.polishing import build_task
-
-        duration = build_task(scenario, load_robot(scenario.robot)).duration
-    params = graph_parameters(scenario, lockstep, duration, namespace, interfaces, low_level)
-    windows = [(float(start), float(end)) for start, end in fault_windows]
-    # an injected fault's effects outlast it a little (queued messages): FAULT_RECOVERY
-    windows += [(f.start, min(f.end + FAULT_RECOVERY, float(duration))) for f in faults]
-    if not lockstep:
-        if single_process or record is not None or view is not None:
+    check_unshared(o.node_ros_args or {}, [*table, "metrics"])
+    if not o.lockstep:
+        if o.single_process or o.record is not None or o.view is not None:
             raise ConfigError(
                 "real time runs the loop nodes and the MPC node as two processes (one "
                 "interpreter each, see ffmpc_ros.realtime); --single-process, --record and "
                 "--view are lockstep options"
             )
-        return _run_real_time(
-            scenario,
-            params,
-            timeout,
-            domain,
-            quiet,
-            windows,
-            cpus,
-            priority,
-            faults,
-            namespace,
-            (node_ros_args or {}).get("mpc", ()),
-        )
-    from ffmpc_core.polishing import steps_per_mpc_period
-
-    if record is not None and os.path.exists(record):
+        return
+    if o.record is not None and os.path.exists(o.record):
         from ffmpc_ros.bag.errors import BagExistsError
 
-        raise BagExistsError(f"{record} exists; a bag is never overwritten")
-    if any(f.kind in PROCESS_KINDS for f in faults):
-        params[low_level]["lockstep_timeout"] = FAULT_LOCKSTEP_TIMEOUT
-    if view is not None:
+        raise BagExistsError(f"{o.record} exists; a bag is never overwritten")
+    if o.view is not None:
         from ffmpc_ros.view import check_port_free
 
-        check_port_free(view_host, view)
-    # the bring-up's probe (_StatusProbe) reads the joint states too, and subscribes before the
-    # metrics node exists, whose readiness the plant waits for: without counting it, the plant
-    # could start with the probe in the recorder's place, before the recorder's gate opened (a
-    # bag then lacked /plant/joint_states and the MPC's parameters, seen once in four runs);
-    # the recorder and the view are more subscribers the plant waits for
-    params["plant"]["start_subscribers"] += 1 + (record is not None) + (view is not None)
-    # and it reads /clock twice: the topic it records and its time source (simulated log times);
-    # every node's side of the start barrier counts them (its writers wait for the recorder's
-    # readers too: ffmpc_ros.base.GraphNode.writers_matched)
-    for values in params.values():
-        values["start_clock_subscribers"] += 2 * (record is not None)
-    robot = load_robot(scenario.robot)
-    time_step = scenario.plant.time_step
-    # every node of this context (probe, metrics, single-process nodes, recorder) in the graph's
-    # namespace, on the graph's clock
-    context, executor = graph_context(namespace, domain)
-    nodes: list[Node] = []
-    graph_nodes: list[GraphNode] = []
-    children: dict[str, subprocess.Popen] = {}
-    logs: dict[str, str] = {}
-    injector = None
-    recorder = None
-    counts_path = None
-    view_node = None
-    view_counts = None
-    tmp = tempfile.TemporaryDirectory(prefix="ffmpc_graph_")
+        check_port_free(o.view_host, o.view)
+
+
+def run_graph(scenario: Scenario, options: GraphOptions | None = None) -> GraphResult:
+    """Run ``scenario`` on the node graph and return the metrics node's result.
+
+    The steps (each its own function or :class:`GraphSession` method): :func:`plan_graph`
+    (check, parameters), :meth:`GraphSession.spawn` (processes or in-process nodes, the view,
+    the recorder), :meth:`GraphSession.bring_up` (configure, then activate, the plant last),
+    :meth:`GraphSession.watch` (fault injector, probes, the metrics node), :meth:`GraphSession.run`,
+    :meth:`GraphSession.stop` (whatever happened) and :meth:`GraphSession.collect`."""
+    options = GraphOptions() if options is None else options
+    start = time.perf_counter()
+    plan = plan_graph(scenario, options)
+    if not options.lockstep:
+        return _run_real_time(plan)
+    session = GraphSession(plan, start)
     try:
-        probe_node = Node("ffmpc_bringup", context=context)
-        nodes.append(probe_node)
-        executor.add_node(probe_node)
-        if not allow_foreign:
-            _refuse_foreign(probe_node, domain, namespace)
-        if single_process:
-            for name, path in table.items():
-                graph_nodes.append(
-                    load_node_class(path)(
-                        context=context, parameter_overrides=parameter_overrides(params[name])
-                    )
-                )
-            nodes += graph_nodes
-            for graph_node in graph_nodes:
-                executor.add_node(graph_node)
-            if view is not None:
+        session.spawn()
+        session.bring_up()
+        session.watch()
+        session.run()
+    finally:
+        outputs = session.stop()
+        failure = sys.exc_info()[1]
+        if isinstance(failure, GraphError) and outputs.view is not None and failure.args:
+            # a run that waited for a Foxglove client: say what the view still waited for
+            failure.args = (f"{failure.args[0]}; the view: {outputs.view.get('started')}",)
+    return session.collect(outputs)
+
+
+@dataclass
+class GraphOutputs:
+    """What a stopped graph leaves: rejections per node process, the view's report, the bag's
+    (``stop``)."""
+
+    rejected: dict[str, dict] = field(default_factory=dict)
+    view: dict | None = None
+    bag: dict[str, Any] | None = None
+
+
+class GraphSession:
+    """One lockstep run of a :class:`GraphPlan`: its ROS context, nodes, processes, probes.
+
+    Call :meth:`spawn`, :meth:`bring_up`, :meth:`watch`, :meth:`run`, then always :meth:`stop`
+    (it releases everything), then :meth:`collect`."""
+
+    def __init__(self, plan: GraphPlan, start: float) -> None:
+        self.plan = plan
+        self.start = start  # wall s (perf_counter) the run was asked for
+        self.robot = load_robot(plan.scenario.robot)
+        # every node of this context (probe, metrics, single-process nodes, recorder) in the
+        # graph's namespace, on the graph's clock
+        self.context, self.executor = graph_context(plan.namespace, plan.domain)
+        self.nodes: list[Node] = []  # destroyed by stop
+        self.graph_nodes: list[GraphNode] = []  # single process: the graph's nodes
+        self.children: dict[str, subprocess.Popen] = {}
+        self.logs: dict[str, str] = {}
+        self.tmp = tempfile.TemporaryDirectory(prefix="ffmpc_graph_")
+        self.probe_node: Node | None = None
+        self.view_node: Any = None
+        self.view_counts: str | None = None
+        self.counts_path: str | None = None
+        self.injector: Any = None
+        self.recorder: Any = None
+        self.metrics: Any = None  # the metrics node (watch)
+        self.probe: _StatusProbe  # the plant's (watch)
+        self.pid_probe: _PidStatusProbe  # the low level's (watch)
+        self.done = start  # wall s the metrics node finished
+
+    def _add(self, node: Node) -> None:
+        self.nodes.append(node)
+        self.executor.add_node(node)
+
+    def spawn(self) -> None:
+        """The bring-up's probe node (and the foreign-publisher check), then the graph's nodes:
+        in this process, or one child process each (with the view and the recorder)."""
+        plan, o = self.plan, self.plan.options
+        self.probe_node = Node("ffmpc_bringup", context=self.context)
+        self._add(self.probe_node)
+        if not o.allow_foreign:
+            _refuse_foreign(self.probe_node, plan.domain, plan.namespace)
+        if o.single_process:
+            for name, path in plan.table.items():
+                overrides = parameter_overrides(plan.params[name])
+                node = load_node_class(path)(context=self.context, parameter_overrides=overrides)
+                self.graph_nodes.append(node)
+                self._add(node)
+            if o.view is not None:
                 from ffmpc_ros.view import ViewNode
 
-                view_node = ViewNode(
-                    scenario.robot,
-                    host=view_host,
-                    port=view,
-                    context=context,
-                    wait_for_client=view_wait,
+                self.view_node = ViewNode(
+                    plan.scenario.robot,
+                    host=o.view_host,
+                    port=o.view,
+                    context=self.context,
+                    wait_for_client=o.view_wait,
                 )
-                nodes.append(view_node)
-                executor.add_node(view_node)
-        else:
-            children, logs = _spawn(params, tmp.name, domain, node_ros_args or {}, namespace, table)
-            if view is not None:
-                view_counts = os.path.join(tmp.name, "view_counts.json")
-                children["view"], logs["view"] = _spawn_view(
-                    scenario.robot,
-                    view_host,
-                    view,
-                    tmp.name,
-                    domain,
-                    view_counts,
-                    view_wait,
-                    namespace,
-                )
-            if record is not None:
-                counts_path = os.path.join(tmp.name, "recorder_counts.json")
-                children["recorder"], logs["recorder"] = _spawn_recorder(
-                    record,
-                    tmp.name,
-                    domain,
-                    scenario,
-                    params,
-                    counts_path,
-                    namespace,
-                    view is not None,  # with the view, the recorder also writes /tf
-                )
-        if children:
-            _bring_up(probe_node, executor, list(table), children, logs, start + start_timeout)
-        if faults:
-            injector = FaultInjector(probe_node, faults, children, time_step)
-            if injector.wants_sensors:
-                probe_node.create_subscription(
-                    JointState,
-                    topics.SENSED_JOINT_STATES,
-                    injector.on_sensed_joints,
-                    topics.graph_qos(topics.SENSED_JOINT_STATES, "subscription"),
-                )
-                from geometry_msgs.msg import WrenchStamped
+                self._add(self.view_node)
+            return
+        directory = self.tmp.name
+        self.children, self.logs = _spawn(
+            plan.params, directory, plan.domain, o.node_ros_args or {}, plan.namespace, plan.table
+        )
+        if o.view is not None:
+            self.view_counts = os.path.join(directory, "view_counts.json")
+            self.children["view"], self.logs["view"] = _spawn_view(
+                plan.scenario.robot,
+                o.view_host,
+                o.view,
+                directory,
+                plan.domain,
+                self.view_counts,
+                o.view_wait,
+                plan.namespace,
+            )
+        if o.record is not None:
+            self.counts_path = os.path.join(directory, "recorder_counts.json")
+            self.children["recorder"], self.logs["recorder"] = _spawn_recorder(
+                o.record,
+                directory,
+                plan.domain,
+                plan.scenario,
+                plan.params,
+                self.counts_path,
+                plan.namespace,
+                o.view is not None,  # with the view, the recorder also writes /tf
+            )
 
-                probe_node.create_subscription(
-                    WrenchStamped,
-                    topics.SENSED_WRENCH,
-                    injector.on_sensed_wrench,
-                    topics.graph_qos(topics.SENSED_WRENCH, "subscription"),
-                )
-        _, motor_topic, status_topic = topics.low_level_topics(low_level)
-        probe = _StatusProbe(
-            probe_node,
-            robot,
-            time_step,
-            None if injector is None else injector.on_cycle,
-            motor_topic,
+    def bring_up(self) -> None:
+        """Configure, then activate, every child node, the plant last (:func:`_bring_up`); the
+        in-process nodes started themselves."""
+        if self.children:
+            assert self.probe_node is not None
+            deadline = self.start + self.plan.options.start_timeout
+            names = list(self.plan.table)
+            _bring_up(self.probe_node, self.executor, names, self.children, self.logs, deadline)
+
+    def watch(self) -> None:
+        """What the bring-up watches the run with: the fault injector, the plant and low-level
+        probes, then the metrics node (the plant starts once it is ready: only now, after the
+        checks) and the in-process recorder."""
+        from ffmpc_ros.fault_injector import FaultInjector
+
+        plan, o, probe_node = self.plan, self.plan.options, self.probe_node
+        assert probe_node is not None
+        time_step = plan.scenario.plant.time_step
+        if plan.faults:
+            self.injector = FaultInjector(probe_node, plan.faults, self.children, time_step)
+            if self.injector.wants_sensors:
+                _subscribe_injector(probe_node, self.injector)
+        _, motor_topic, status_topic = topics.low_level_topics(o.low_level)
+        on_cycle = None if self.injector is None else self.injector.on_cycle
+        self.probe = _StatusProbe(probe_node, self.robot, time_step, on_cycle, motor_topic)
+        self.metrics = load_node_class(METRICS_NODE)(
+            context=self.context, parameter_overrides=parameter_overrides(plan.params["metrics"])
         )
-        # The plant starts once the metrics node is ready: only now, after the checks.
-        metrics = metrics_cls(
-            context=context, parameter_overrides=parameter_overrides(params["metrics"])
+        self.pid_probe = _PidStatusProbe(
+            probe_node, self.metrics.steps, self.metrics.time_step, status_topic
         )
-        pid_probe = _PidStatusProbe(probe_node, metrics.steps, metrics.time_step, status_topic)
-        nodes.append(metrics)
-        executor.add_node(metrics)
-        if record is not None and single_process:
+        self._add(self.metrics)
+        if o.record is not None and o.single_process:
             from ffmpc_ros.bag.recorder import graph_recorder
 
-            recorder = graph_recorder(
-                record,
-                context=context,
-                scenario=scenario,
-                run=params,
-                namespace=namespace,
-                view=None if view is None else scenario.robot,
+            self.recorder = graph_recorder(
+                o.record,
+                context=self.context,
+                scenario=plan.scenario,
+                run=plan.params,
+                namespace=plan.namespace,
+                view=None if o.view is None else plan.scenario.robot,
             )
-            nodes.append(recorder)
-            executor.add_node(recorder)
-        end = start + timeout
-        watch = ProgressWatch(start, stall_timeout, start_timeout)
+            self._add(self.recorder)
+
+    def run(self) -> None:
+        """Spin until the metrics node has every cycle (GraphError past the timeout, on a stall
+        or a dead child), then until the plant's final status, the recorder and the low level's
+        last status are in (at most 2 s more)."""
+        o, metrics, probe = self.plan.options, self.metrics, self.probe
+        end = self.start + o.timeout
+        watch = ProgressWatch(self.start, o.stall_timeout, o.start_timeout)
+        killed = set() if self.injector is None else self.injector.killed
         while not metrics.finished():
             now = time.perf_counter()
             if now > end:
                 raise GraphError(
-                    f"the graph did not finish within {timeout} s: {metrics.recorded} of "
-                    f"{metrics.steps} cycles recorded; {_progress(probe, pid_probe, children)}"
+                    f"the graph did not finish within {o.timeout} s: {metrics.recorded} of "
+                    f"{metrics.steps} cycles recorded; {self._progress()}"
                 )
-            _check_children(children, logs, set() if injector is None else injector.killed)
-            if faults and probe.cycle >= metrics.steps and metrics.metrics is None:
+            _check_children(self.children, self.logs, killed)
+            if self.plan.faults and probe.cycle >= metrics.steps and metrics.metrics is None:
                 # A stopped sensor loses measurements the metrics node waits for: once the
                 # plant is done, fill them with the previous value (the real-time rule,
                 # counted in metrics_filled) rather than wait forever.
                 if now - watch.last_progress > FILL_GRACE:
                     metrics.finish_now()
-            watch.check(probe.cycle, now, lambda: _progress(probe, pid_probe, children))
-            executor.spin_once(timeout_sec=0.05)
+            watch.check(probe.cycle, now, self._progress)
+            self.executor.spin_once(timeout_sec=0.05)
             _check_stop()
-        done = time.perf_counter()
+        self.done = time.perf_counter()
         # The final plant status (latencies, deadline misses) follows the last state.
         while (
             (probe.status is None or not probe.status["done"])
-            or not (recorder is None or recorder.complete)
-            or not pid_probe.complete
+            or not (self.recorder is None or self.recorder.complete)
+            or not self.pid_probe.complete
         ):
-            if time.perf_counter() > done + 2.0:
+            if time.perf_counter() > self.done + 2.0:
                 break
-            executor.spin_once(timeout_sec=0.05)
+            self.executor.spin_once(timeout_sec=0.05)
             _check_stop()
-        if "recorder" in children:  # it closes the bag once the metrics summary is in
+        if "recorder" in self.children:  # it closes the bag once the metrics summary is in
             with contextlib.suppress(subprocess.TimeoutExpired):
-                children["recorder"].wait(timeout=10.0)
-    finally:
-        if injector is not None:
-            injector.release()
-        _stop(children)
-        rejected = {n.get_name(): dict(n.rejected) for n in graph_nodes}
-        for node in nodes:
-            executor.remove_node(node)
+                self.children["recorder"].wait(timeout=10.0)
+
+    def _progress(self) -> str:
+        return _progress(self.probe, self.pid_probe, self.children)
+
+    def stop(self) -> GraphOutputs:
+        """Release the injected faults, stop the children, destroy the nodes and the context;
+        what the run left (rejections, the view's report, the bag's counts)."""
+        if self.injector is not None:
+            self.injector.release()
+        _stop(self.children)
+        outputs = GraphOutputs({n.get_name(): dict(n.rejected) for n in self.graph_nodes})
+        for node in self.nodes:
+            self.executor.remove_node(node)
             node.destroy_node()
-        executor.shutdown()
-        rclpy.shutdown(context=context)
-        rejected.update(rejected_from_results(tmp.name, logs))
-        if not quiet:
-            print_logs(logs)
-        view_result = None
-        if view_node is not None:
-            view_result = view_node.report()
-        elif view_counts is not None and os.path.exists(view_counts):
-            with open(view_counts, encoding="utf-8") as fh:
-                view_result = json.load(fh)
-        failure = sys.exc_info()[1]
-        if isinstance(failure, GraphError) and view_result is not None and failure.args:
-            # a run that waited for a Foxglove client: say what the view still waited for
-            failure.args = (f"{failure.args[0]}; the view: {view_result.get('started')}",)
-        bag: dict[str, Any] | None = None
+        self.executor.shutdown()
+        rclpy.shutdown(context=self.context)
+        outputs.rejected.update(rejected_from_results(self.tmp.name, self.logs))
+        if not self.plan.options.quiet:
+            print_logs(self.logs)
+        if self.view_node is not None:
+            outputs.view = self.view_node.report()
+        elif self.view_counts is not None:
+            outputs.view = _read_json(self.view_counts)
+        record = self.plan.options.record
         if record is not None:
-            bag = {"path": str(record)}
-            if recorder is not None:
-                bag["received"] = recorder.received
-            elif counts_path is not None and os.path.exists(counts_path):
-                with open(counts_path, encoding="utf-8") as fh:
-                    bag.update(json.load(fh))
-        tmp.cleanup()
-    rejected["metrics"] = dict(metrics.rejected)
-    status = probe.status or {}
-    stepping = status.get("wall_time", 0.0)
-    true, measured = metrics.metrics
-    hold = np.isin(pid_probe.mode, [int(LowLevelMode.HOLD), int(LowLevelMode.FALLBACK)])
-    safety = {
-        "max_velocity_ratio": [float(x) for x in probe.max_velocity_ratio],
-        "max_torque_ratio": [float(x) for x in probe.max_torque_ratio],
-        "max_applied_torque_ratio": [float(x) for x in probe.max_applied_torque_ratio],
-        "max_velocity_ratio_at_s": probe.worst_velocity_t,
-        "max_torque_ratio_at_s": probe.worst_torque_t,
-        "safe_hold_s": float(np.count_nonzero(hold) * time_step),
-        "metrics_filled": int(metrics.filled),
-        "faults": [] if injector is None else injector.report(),
-        "rejected_messages": {name: rejected.get(name) for name in [*table, "metrics"]},
-        **reflex_summary(status, robot.joint_names),
-    }
-    return GraphResult(
-        plant_engine=scenario.plant.engine,
-        formulation=scenario.mpc.formulation,
-        seed=scenario.seed,
-        single_process=single_process,
-        lockstep=lockstep,
-        namespace=namespace,
-        metrics_true=true,
-        metrics_measured=measured,
-        log=metrics.log.arrays,
-        sim_time=metrics.steps * metrics.time_step,
-        wall_time=stepping,
-        startup_time=(done - start) - stepping,
-        plant_status=status or None,
-        bag=bag,
-        view=view_result,
-        timing=pid_probe.timing(steps_per_mpc_period(scenario), status, windows),
-        safety=safety,
+            outputs.bag = {"path": str(record)}
+            if self.recorder is not None:
+                outputs.bag["received"] = self.recorder.received
+            elif self.counts_path is not None:
+                outputs.bag.update(_read_json(self.counts_path) or {})
+        self.tmp.cleanup()
+        return outputs
+
+    def collect(self, outputs: GraphOutputs) -> GraphResult:
+        """The run's result: the metrics node's metrics and log, the probes' safety figures and
+        timing, the rejections of every node."""
+        from ffmpc_core.polishing import steps_per_mpc_period
+
+        plan, metrics, probe, pid_probe = self.plan, self.metrics, self.probe, self.pid_probe
+        scenario, time_step = plan.scenario, plan.scenario.plant.time_step
+        rejected = {**outputs.rejected, "metrics": dict(metrics.rejected)}
+        status = probe.status or {}
+        stepping = status.get("wall_time", 0.0)
+        true, measured = metrics.metrics
+        hold = np.isin(pid_probe.mode, [int(LowLevelMode.HOLD), int(LowLevelMode.FALLBACK)])
+        safety = {
+            "max_velocity_ratio": [float(x) for x in probe.max_velocity_ratio],
+            "max_torque_ratio": [float(x) for x in probe.max_torque_ratio],
+            "max_applied_torque_ratio": [float(x) for x in probe.max_applied_torque_ratio],
+            "max_velocity_ratio_at_s": probe.worst_velocity_t,
+            "max_torque_ratio_at_s": probe.worst_torque_t,
+            "safe_hold_s": float(np.count_nonzero(hold) * time_step),
+            "metrics_filled": int(metrics.filled),
+            "faults": [] if self.injector is None else self.injector.report(),
+            "rejected_messages": {name: rejected.get(name) for name in [*plan.table, "metrics"]},
+            **reflex_summary(status, self.robot.joint_names),
+        }
+        return GraphResult(
+            plant_engine=scenario.plant.engine,
+            formulation=scenario.mpc.formulation,
+            seed=scenario.seed,
+            single_process=plan.options.single_process,
+            lockstep=True,
+            namespace=plan.namespace,
+            metrics_true=true,
+            metrics_measured=measured,
+            log=metrics.log.arrays,
+            sim_time=metrics.steps * metrics.time_step,
+            wall_time=stepping,
+            startup_time=(self.done - self.start) - stepping,
+            plant_status=status or None,
+            bag=outputs.bag,
+            view=outputs.view,
+            timing=pid_probe.timing(steps_per_mpc_period(scenario), status, plan.windows),
+            safety=safety,
+        )
+
+
+def _read_json(path: str) -> dict | None:
+    """The JSON object of ``path``, None when the file is not there (its writer died)."""
+    if not os.path.exists(path):
+        return None
+    with open(path, encoding="utf-8") as fh:
+        return json.load(fh)
+
+
+def _subscribe_injector(node: Node, injector: Any) -> None:
+    """The fault injector's readers of the sensed joint states and wrench (on ``node``)."""
+    from geometry_msgs.msg import WrenchStamped
+
+    node.create_subscription(
+        JointState,
+        topics.SENSED_JOINT_STATES,
+        injector.on_sensed_joints,
+        topics.graph_qos(topics.SENSED_JOINT_STATES, "subscription"),
+    )
+    node.create_subscription(
+        WrenchStamped,
+        topics.SENSED_WRENCH,
+        injector.on_sensed_wrench,
+        topics.graph_qos(topics.SENSED_WRENCH, "subscription"),
     )
 
 
-def _run_real_time(
-    scenario: Scenario,
-    params: dict[str, dict[str, Any]],
-    timeout: float,
-    domain: int,
-    quiet: bool,
-    fault_windows: Sequence[tuple[float, float]],
-    cpus: tuple[int, int] | None | str,
-    priority: int | None,
-    faults: Sequence[Fault],
-    namespace: str,
-    mpc_ros_args: Sequence[str] = (),
-) -> GraphResult:
+def _run_real_time(plan: GraphPlan) -> GraphResult:
     """Real time (``ffmpc_ros.realtime``): the loop process and the MPC process."""
     from ffmpc_ros.realtime import DEFAULT_PRIORITY, run_realtime
 
+    o, scenario = plan.options, plan.scenario
     run = run_realtime(
-        params,
-        timeout=timeout,
-        domain=domain,
-        quiet=quiet,
-        cpus=cpus,
-        priority=DEFAULT_PRIORITY if priority is None else priority,
-        fault_windows=fault_windows,
-        stalls=faults,
-        namespace=namespace,
-        mpc_ros_args=mpc_ros_args,
+        plan.params,
+        timeout=o.timeout,
+        domain=plan.domain,
+        quiet=o.quiet,
+        cpus=o.cpus,
+        priority=DEFAULT_PRIORITY if o.priority is None else o.priority,
+        fault_windows=plan.windows,
+        stalls=plan.faults,
+        namespace=plan.namespace,
+        mpc_ros_args=(o.node_ros_args or {}).get("mpc", ()),
     )
     s, timing = run.summary, run.summary["timing"]
     loop = timing["loop"]
@@ -881,7 +985,7 @@ def _run_real_time(
         seed=scenario.seed,
         single_process=False,
         lockstep=False,
-        namespace=namespace,
+        namespace=plan.namespace,
         metrics_true=run.metrics_true,
         metrics_measured=run.metrics_measured,
         log=run.log,

@@ -328,7 +328,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     import shlex
 
     from ffmpc_ros import preflight
-    from ffmpc_ros.bringup import run_graph
+    from ffmpc_ros.bringup import GraphOptions, run_graph
 
     if args.scenario == "impact":
         return _cmd_run_impact(args)
@@ -354,25 +354,27 @@ def _cmd_run(args: argparse.Namespace) -> int:
     preflight.replace_forced(args.record, args.force)
     result = run_graph(
         scenario,
-        faults=checked["faults"],
-        allow_foreign=args.allow_foreign_publishers,
-        stall_timeout=args.stall_timeout,
-        start_timeout=args.start_timeout,
-        node_ros_args=checked["node_ros_args"],
-        duration=args.duration,
-        single_process=args.single_process,
-        lockstep=not args.real_time,
-        timeout=args.timeout,
-        quiet=not args.verbose,
-        record=args.record,
-        fault_windows=checked["fault_windows"],
-        cpus=checked["cpus"],
-        priority=args.priority,
-        view=args.view_port if args.view else None,
-        view_wait=args.view_wait,
-        namespace=checked["namespace"],
-        interfaces=args.interfaces,
-        low_level=args.low_level,
+        GraphOptions(
+            faults=checked["faults"],
+            allow_foreign=args.allow_foreign_publishers,
+            stall_timeout=args.stall_timeout,
+            start_timeout=args.start_timeout,
+            node_ros_args=checked["node_ros_args"],
+            duration=args.duration,
+            single_process=args.single_process,
+            lockstep=not args.real_time,
+            timeout=args.timeout,
+            quiet=not args.verbose,
+            record=args.record,
+            fault_windows=checked["fault_windows"],
+            cpus=checked["cpus"],
+            priority=args.priority,
+            view=args.view_port if args.view else None,
+            view_wait=args.view_wait,
+            namespace=checked["namespace"],
+            interfaces=args.interfaces,
+            low_level=args.low_level,
+        ),
     )
     summary = result.summary()
     summary["command_line"] = shlex.join(["ffmpc", *args.argv])

@@ -42,7 +42,7 @@ import pinocchio as pin
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
-from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.errors import InputError
 from ffmpc_core.impact.deformation import measured_deformation
 from ffmpc_core.impact.learner import ContactEstimate, RecursiveContactLearner
 from ffmpc_core.impact.touch_first import TOUCH, LearningGate, fed_surface
@@ -68,7 +68,7 @@ class ContactLearnerNode(MeasuredCycleNode):
     """
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__("contact_learner", **kwargs)
+        super().__init__("contact_learner", join=False, **kwargs)
         p = self.params
         self.robot = load_robot(self.scenario.robot)
         self.joint_names = list(self.robot.joint_names)
@@ -78,7 +78,7 @@ class ContactLearnerNode(MeasuredCycleNode):
         self.feed_force = float(p["feed_force"])
         self.skip_onset_samples = int(p["skip_onset_samples"])
         if self.surface_force >= self.contact_threshold:
-            raise ConfigError("surface_force must be below contact_threshold (N)")
+            self.refuse("surface_force must be below contact_threshold (N)")
         self.learner = RecursiveContactLearner(float(p["regularization"]))
         self._data = self.robot.create_data()
         self.published = 0
@@ -100,6 +100,7 @@ class ContactLearnerNode(MeasuredCycleNode):
             )
         self.create_service(Trigger, topics.CONTACT_LEARNER_RESET_SERVICE, self.on_reset)
         self.forget()
+        self.join_graph()
 
     def forget(self) -> None:
         """Back to the start: no sample, no surface."""
@@ -134,9 +135,9 @@ class ContactLearnerNode(MeasuredCycleNode):
         except InputError as exc:
             self.reject(f"{topic}:value", str(exc))
             return
-        if not self.check_cycle(topic, k):
+        if not self.gate.check_cycle(topic, k):
             return
-        self.accept_cycle(topic, k)
+        self.gate.accept(topic, k)
         self._gates[k] = gate
         self._run_gated()
 
@@ -171,7 +172,7 @@ class ContactLearnerNode(MeasuredCycleNode):
                 self._last_free = p
             if f >= self.contact_threshold:
                 if self._last_free is None:
-                    self.inform("surface", "in contact from the first sample: surface = onset")
+                    self.gate.inform("surface", "in contact from the first sample: surface = onset")
                 self.surface = p if self._last_free is None else self._last_free
         self._contact_run = self._contact_run + 1 if f > self.feed_force else 0
         if self.surface is None or self._contact_run <= self.skip_onset_samples:
@@ -197,7 +198,7 @@ class ContactLearnerNode(MeasuredCycleNode):
             return
         self.estimate = estimate
         self.publisher.publish(
-            estimate_message(estimate, self.t_of(k), (z, zd, f), d, self.surface)
+            estimate_message(estimate, self.grid.t_of(k), (z, zd, f), d, self.surface)
         )
         self.published += 1
 

@@ -42,11 +42,12 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.errors import InputError
 from ffmpc_core.reflex import reflex_plant
 from ffmpc_core.robots import load_robot
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import GraphNode, run_node
+from ffmpc_ros.message_parsing import joint_arrays
 from ffmpc_ros.params import impact_config_from_parameters
 from ffmpc_ros.plant_node import STATUS_EVERY, joint_state_message, wrench_message
 
@@ -55,12 +56,12 @@ class DicePlantNode(GraphNode):
     """The impact experiment's plant on topics (see the module docstring)."""
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__("dice_plant", **kwargs)
+        super().__init__("dice_plant", join=False, **kwargs)
         from ffmpc_core.impact.scenario import start_pose
         from sim_bridge.scenes import impact_plant_config, make_plant
 
         if not self.params["lockstep"]:
-            raise ConfigError("the dice plant runs in lockstep only (lockstep: true)")
+            self.refuse("the dice plant runs in lockstep only (lockstep: true)")
         self.config = impact_config_from_parameters(self.spec, self.params)
         robot = self.robot = load_robot(self.scenario.robot)
         self.joint_names = list(robot.joint_names)
@@ -90,10 +91,12 @@ class DicePlantNode(GraphNode):
         self._start_timer = self.create_timer(
             0.01, self._try_start, clock=Clock(clock_type=ClockType.STEADY_TIME)
         )
+        self.join_graph()
 
     def _try_start(self) -> None:
-        """Publish cycle 0 once the start handshake holds (:meth:`GraphNode.start_handshake`)."""
-        if not self.start_handshake(self.pub_joints, self.pub_clock):
+        """Publish cycle 0 once the start handshake holds
+        (:meth:`ffmpc_ros.start_barrier.StartBarrier.handshake`)."""
+        if not self.barrier.handshake(self.active, self.pub_joints, self.pub_clock):
             return
         self._start_timer.cancel()
         self.started = True
@@ -107,7 +110,7 @@ class DicePlantNode(GraphNode):
     def publish_state(self) -> None:
         """Publish the state of cycle self.k (clock first)."""
         k, s = self.k, self.state
-        stamp = self.stamp_of(k)
+        stamp = self.grid.stamp_of(k)
         self.pub_clock.publish(ClockMsg(clock=stamp))
         self._published_at = time.perf_counter()
         self.pub_joints.publish(
@@ -124,7 +127,7 @@ class DicePlantNode(GraphNode):
         self.pub_status.publish(
             layouts.PLANT_STATUS.pack(
                 {
-                    "t": self.t_of(k),
+                    "t": self.grid.t_of(k),
                     "steps": k,
                     "done": float(self.done),
                     "lockstep": 1.0,
@@ -143,19 +146,19 @@ class DicePlantNode(GraphNode):
     def on_torque(self, msg: JointState) -> None:
         """The torque of the current cycle: one physics step, then the next state."""
         topic = self.name_of(topics.IMPACT_TORQUE)
-        k = self.check_stamp(topic, msg.header.stamp)
+        k = self.gate.check_stamp(topic, msg.header.stamp)
         if k is None:
             return
         if k != self.k:
             self.reject(f"{topic}:cycle", f"torque of cycle {k} while at cycle {self.k}")
             return
         try:
-            (tau,) = self.joint_arrays(msg, self.joint_names, ("effort",))
+            (tau,) = joint_arrays(msg, self.joint_names, ("effort",))
             self.robot.clip_torque(tau)  # an absurd torque is refused (the plant saturates)
         except InputError as exc:
             self.reject(f"{topic}:value", str(exc))
             return
-        self.accept_cycle(topic, k)
+        self.gate.accept(topic, k)
         if self.done:
             return
         if self._published_at is not None:
@@ -171,11 +174,13 @@ class DicePlantNode(GraphNode):
             self.publish_status()
         self.publish_state()
         if self.done:
-            self.get_logger().info(f"done: {self.k} cycles, {self.t_of(self.k):.3f} s simulated")
+            self.get_logger().info(
+                f"done: {self.k} cycles, {self.grid.t_of(self.k):.3f} s simulated"
+            )
 
     def diagnostic_values(self, period: float) -> dict[str, str]:
         """The plant's cycle and simulated time (s)."""
-        return {"cycle": str(self.k), "sim_time_s": f"{self.t_of(self.k):.3f}"}
+        return {"cycle": str(self.k), "sim_time_s": f"{self.grid.t_of(self.k):.3f}"}
 
     def finished(self) -> bool:
         """With ``exit_when_done``: 1 s (wall) after the last state; otherwise never (the

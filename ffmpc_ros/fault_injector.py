@@ -136,7 +136,7 @@ class FaultInjector:
         self.last_wrench = msg
 
     def _stamp(self, k: int) -> TimeMsg:
-        """The stamp of cycle k on the nodes' grid (``GraphNode.stamp_of``: k·step_ns)."""
+        """The stamp of cycle k on the nodes' grid (``TimeGrid.stamp_of``: k·step_ns)."""
         return stamp_at(k, int(round(self.time_step * 1e9)))
 
     # -- the clock ------------------------------------------------------------------------------

@@ -59,13 +59,9 @@ from ffmpc_core.robots import load_robot
 from ffmpc_core.sensing import ContactHysteresis, DelayLine, ForceTare
 from ffmpc_core.wrist_ft import WristForceSensing
 from ffmpc_ros import topics
-from ffmpc_ros.base import (
-    GraphNode,
-    drop_stale_cycles,
-    force_on_axes,
-    run_node,
-    wrench_stamped,
-)
+from ffmpc_ros.base import GraphNode, force_on_axes, run_node, wrench_stamped
+from ffmpc_ros.message_parsing import joint_fields, wrench_array
+from ffmpc_ros.time_grid import drop_stale_cycles
 
 _KEEP = 50  # cycles of unmatched wrist-sensor inputs kept
 
@@ -74,7 +70,7 @@ class FtSensorNode(GraphNode):
     """Eq 32 plus tare, filter and contact detection (see the module docstring)."""
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__("ft_sensor", **kwargs)
+        super().__init__("ft_sensor", join=False, **kwargs)
         s = self.scenario
         fs = s.ft_sensor
         self.detector = ContactHysteresis(fs.contact_on_force, fs.contact_off_force)
@@ -120,6 +116,7 @@ class FtSensorNode(GraphNode):
             ):
                 qos = topics.subscriber_qos(True, topic)
                 self.create_subscription(JointState, topic, callback, qos)
+        self.join_graph()
 
     @property
     def in_contact(self) -> bool:
@@ -155,7 +152,7 @@ class FtSensorNode(GraphNode):
 
     def on_wrench(self, msg: WrenchStamped) -> None:
         topic = self.name_of(topics.PLANT_WRENCH)
-        got = self.receive(topic, msg, self.wrench_array)
+        got = self.gate.receive(topic, msg, wrench_array)
         if got is None:
             return
         k, wrench = got
@@ -176,8 +173,8 @@ class FtSensorNode(GraphNode):
     def _on_joints(
         self, msg: JointState, topic: str, store: dict[int, tuple[np.ndarray, np.ndarray]]
     ) -> None:
-        fields = self.joint_fields("position", "velocity")
-        got = self.receive(self.name_of(topic), msg, fields)
+        fields = joint_fields(self.joint_names, "position", "velocity")
+        got = self.gate.receive(self.name_of(topic), msg, fields)
         if got is None:
             return
         k, (q, v) = got
@@ -198,7 +195,7 @@ class FtSensorNode(GraphNode):
         drop_stale_cycles((self._wrenches, self._truth, self._sensed), k, _KEEP)
         full = wrench.copy()
         raw = measured_force(wrench, self.contact)
-        self._publish(self.stamp_of(k), raw, full[3:], full[:3])
+        self._publish(self.grid.stamp_of(k), raw, full[3:], full[:3])
 
     def _publish(
         self,

@@ -29,7 +29,9 @@ from ffmpc_ros import layouts, topics
 
 if TYPE_CHECKING:
     pass
-from ffmpc_ros.base import GraphNode, drop_stale_cycles
+from ffmpc_ros.base import GraphNode
+from ffmpc_ros.message_parsing import joint_arrays, wrench_array
+from ffmpc_ros.time_grid import drop_stale_cycles
 
 #: Cycles an incomplete measurement waits for its partner before it is dropped: the publishers'
 #: history, so that a reader that lags (its process behind) can pair all it is handed at once.
@@ -133,7 +135,7 @@ def reference_fields(node: GraphNode, msg: Float64MultiArray) -> tuple[dict, int
     """The fields of an ``impact_planner/reference`` message (layout ``impact_reference``) and
     the cycle of its time; InputError for a malformed message or a time off the grid."""
     fields = layouts.IMPACT_REFERENCE.unpack(msg)
-    k = node.cycle_of_time(fields["t"])
+    k = node.grid.cycle_of_time(fields["t"])
     if k is None:
         raise InputError(f"reference time {fields['t']} s off the grid")
     return fields, k
@@ -143,7 +145,7 @@ def receive_estimate(
     node: GraphNode, msg: Float64MultiArray
 ) -> tuple[int, ContactEstimate, np.ndarray] | None:
     """A learner estimate message checked like any input: values, cycle on the grid, after the
-    last accepted one, neither from the future nor stale (``GraphNode.check_cycle``).
+    last accepted one, neither from the future nor stale (``InputGate.check_cycle``).
     ``(k, estimate, direction)``, or None after one throttled log line. The caller accepts the
     cycle (``node.accept_cycle``) once it has used the estimate."""
     topic = node.name_of(topics.CONTACT_ESTIMATE)
@@ -152,11 +154,11 @@ def receive_estimate(
     except InputError as exc:
         node.reject(f"{topic}:value", str(exc))
         return None
-    k = node.cycle_of_time(t)
+    k = node.grid.cycle_of_time(t)
     if k is None:
         node.reject(f"{topic}:stamp", f"estimate time {t} s off the grid")
         return None
-    if not node.check_cycle(topic, k):
+    if not node.gate.check_cycle(topic, k):
         return None
     return k, estimate, direction
 
@@ -203,10 +205,9 @@ class MeasuredCycleNode(GraphNode):
     # -- inputs ------------------------------------------------------------------------------
     def _checked_cycle(self, topic: str, stamp: TimeMsg) -> int | None:
         k_msg = self.cycle_of(stamp)
-        k = self.check_stamp(topic, stamp)
+        k = self.gate.check_stamp(topic, stamp)
         if k is None:
-            last = self._last_cycle.get(topic)
-            if not (k_msg is not None and last is not None and k_msg <= last):
+            if not (k_msg is not None and k_msg <= self.gate.last_cycle(topic)):
                 self.input_failed(k_msg)
         return k
 
@@ -216,12 +217,12 @@ class MeasuredCycleNode(GraphNode):
         if k is None:
             return
         try:
-            q, v = self.joint_arrays(msg, self.joint_names, ("position", "velocity"))
+            q, v = joint_arrays(msg, self.joint_names, ("position", "velocity"))
         except InputError as exc:
             self.reject(f"{topic}:value", str(exc))
             self.input_failed(k)
             return
-        self.accept_cycle(topic, k)
+        self.gate.accept(topic, k)
         self._joints[k] = (q, v)
         self._try_cycle(k)
 
@@ -231,12 +232,12 @@ class MeasuredCycleNode(GraphNode):
         if k is None:
             return
         try:
-            wrench = self.wrench_array(msg)
+            wrench = wrench_array(msg)
         except InputError as exc:
             self.reject(f"{topic}:value", str(exc))
             self.input_failed(k)
             return
-        self.accept_cycle(topic, k)
+        self.gate.accept(topic, k)
         self._wrenches[k] = wrench
         self._try_cycle(k)
 

@@ -56,7 +56,7 @@ from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from ffmpc_core.errors import ConfigError, FfmpcError, InputError
+from ffmpc_core.errors import FfmpcError, InputError
 from ffmpc_core.impact.control import APPROACH, CartesianCommand
 from ffmpc_core.impact.controllers import (
     ContactMeasurement,
@@ -149,12 +149,12 @@ class ImpactControllerNode(MeasuredCycleNode):
     """
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__("impact_controller", **kwargs)
+        super().__init__("impact_controller", join=False, **kwargs)
         from ffmpc_core.impact.scenario import task_config
 
         p = self.params
         if not p["lockstep"]:
-            raise ConfigError("the impact controller runs in lockstep only (lockstep: true)")
+            self.refuse("the impact controller runs in lockstep only (lockstep: true)")
         self.config = impact_config_from_parameters(self.spec, p)
         self.approach, self.regulation = str(p["approach"]), str(p["regulation"])
         self.learning_strategy = (
@@ -204,6 +204,7 @@ class ImpactControllerNode(MeasuredCycleNode):
         self.create_timer(
             WATCHDOG_PERIOD, self._watchdog, clock=Clock(clock_type=ClockType.STEADY_TIME)
         )
+        self.join_graph()
 
     # -- inputs ------------------------------------------------------------------------------
     def process_cycle(self, k: int, q: np.ndarray, v: np.ndarray, wrench: np.ndarray) -> None:
@@ -224,9 +225,9 @@ class ImpactControllerNode(MeasuredCycleNode):
             self._bad_references += 1
             self._run_ready()
             return
-        if not self.check_cycle(topic, k):
+        if not self.gate.check_cycle(topic, k):
             return
-        self.accept_cycle(topic, k)
+        self.gate.accept(topic, k)
         self._references[k] = (
             None if fields["safe_stop"] > 0 else command,
             int(fields["learner_samples"]),
@@ -238,7 +239,7 @@ class ImpactControllerNode(MeasuredCycleNode):
         if got is None:
             return
         k, estimate, _ = got
-        self.accept_cycle(topics.CONTACT_ESTIMATE, k)
+        self.gate.accept(topics.CONTACT_ESTIMATE, k)
         self._estimates[k] = estimate
         self._run_ready()
 
@@ -296,7 +297,7 @@ class ImpactControllerNode(MeasuredCycleNode):
             self._estimates.pop(old)
         if estimate is not None and not self.learning_strategy:
             self.learner.receive(estimate)
-        t = self.t_of(k)
+        t = self.grid.t_of(k)
         command = None
         if not hold:
             try:
@@ -343,7 +344,7 @@ class ImpactControllerNode(MeasuredCycleNode):
     ) -> None:
         from ffmpc_ros.plant_node import joint_state_message
 
-        stamp = self.stamp_of(k)
+        stamp = self.grid.stamp_of(k)
         zeros = np.zeros(self.robot.nv)
         self.pub_torque.publish(joint_state_message(stamp, self.joint_names, zeros, zeros, torque))
         c = self.controller
@@ -353,7 +354,7 @@ class ImpactControllerNode(MeasuredCycleNode):
 
         stopped = c.stopped_short
         status = {
-            "t": self.t_of(k),
+            "t": self.grid.t_of(k),
             "safe_hold": float(command is None),
             "in_contact": float(c.contact_time is not None),
             "phase": PHASE_CODES.get("" if command is None else command.phase, -1.0),

@@ -213,8 +213,8 @@ def impact_node_parameters(
             "acceleration_limit": [float(a) for a in PANDA_ACCELERATION_LIMIT],
             "use_learned_material": False,  # the paper's scheme plans with the prior
         }
-    # the lockstep start barrier (ffmpc_ros.base.GraphNode.writers_matched): every node waits to
-    # know every /clock reader, the plant for every node's token
+    # the lockstep start barrier (ffmpc_ros.start_barrier.StartBarrier.writers_matched): every
+    # node waits to know every /clock reader, the plant for every node's token
     assert sorted(params) == sorted(nodes), (params, nodes)
     for values in params.values():
         values["start_clock_subscribers"] = clock_readers

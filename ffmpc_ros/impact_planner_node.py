@@ -77,7 +77,7 @@ from rclpy.clock import Clock, ClockType
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
-from ffmpc_core.errors import ConfigError, FfmpcError
+from ffmpc_core.errors import FfmpcError
 from ffmpc_core.impact.control import (
     CartesianCommand,
     ImpactController,
@@ -134,7 +134,7 @@ class ImpactPlannerNode(MeasuredCycleNode):
     """
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__("impact_planner", **kwargs)
+        super().__init__("impact_planner", join=False, **kwargs)
         p = self.params
         self.robot = load_robot(self.scenario.robot)
         self.joint_names = list(self.robot.joint_names)
@@ -153,7 +153,7 @@ class ImpactPlannerNode(MeasuredCycleNode):
         self.controller: ImpactController
         if self.learning_strategy:
             if bool(p["use_learned_material"]) or not bool(p["lockstep"]):
-                raise ConfigError(
+                self.refuse(
                     f"strategy {self.strategy}: use_learned_material false (the strategy plans "
                     "from the learned interval itself) and lockstep true"
                 )
@@ -190,6 +190,7 @@ class ImpactPlannerNode(MeasuredCycleNode):
         self.create_timer(
             WATCHDOG_PERIOD, self._watchdog, clock=Clock(clock_type=ClockType.STEADY_TIME)
         )
+        self.join_graph()
 
     # -- the control cycle -------------------------------------------------------------------
     def process_cycle(self, k: int, q: np.ndarray, v: np.ndarray, wrench: np.ndarray) -> None:
@@ -225,7 +226,7 @@ class ImpactPlannerNode(MeasuredCycleNode):
             self._step(k, q, v, wrench)
 
     def _step(self, k: int, q: np.ndarray, v: np.ndarray, wrench: np.ndarray) -> None:
-        t = self.t_of(k)
+        t = self.grid.t_of(k)
         material = self.controller.material
         try:
             if isinstance(self.controller, TouchFirstImpactController):
@@ -264,7 +265,7 @@ class ImpactPlannerNode(MeasuredCycleNode):
         ``command`` (the newest command) with ``fields``."""
         c = self.controller
         msg = TwistStamped()
-        msg.header.stamp = self.stamp_of(k)
+        msg.header.stamp = self.grid.stamp_of(k)
         msg.header.frame_id = topics.COMMAND_FRAME
         msg.twist.linear.x, msg.twist.linear.y, msg.twist.linear.z = (float(x) for x in velocity)
         self.pub_command.publish(msg)
@@ -274,7 +275,7 @@ class ImpactPlannerNode(MeasuredCycleNode):
             return default if value is None else float(value)
 
         status = {
-            "t": self.t_of(k),
+            "t": self.grid.t_of(k),
             "phase": layouts.IMPACT_PHASES[c.phase],
             "touch_time": time_or(None if tf is None else tf.touch_time, -1.0),
             "touch_velocity": time_or(None if tf is None else tf.touch_velocity, 0.0),
@@ -298,7 +299,7 @@ class ImpactPlannerNode(MeasuredCycleNode):
         surface = None if gate is None else gate.surface
         stopped = c.stopped_short
         reference = {
-            "t": self.t_of(k),
+            "t": self.grid.t_of(k),
             "safe_stop": fields["safe_stop"],
             "phase": layouts.IMPACT_PHASES[c.phase],
             "strike": 1.0 if touch is None else float(touch.strike),
@@ -365,7 +366,7 @@ class ImpactPlannerNode(MeasuredCycleNode):
         if now is None:
             return
         age = (now - self._last_good) * self.time_step
-        if age > self.max_input_age:
+        if age > self.gate.max_input_age:
             self.reject("inputs:missing", f"no complete cycle for {age:.4f} s")
             self.safe_stop(now)
 
@@ -379,7 +380,7 @@ class ImpactPlannerNode(MeasuredCycleNode):
         if np.max(np.abs(direction - self.direction)) > DIRECTION_TOLERANCE:
             self.reject(f"{topic}:direction", f"estimate along {direction}, planning along d")
             return
-        self.accept_cycle(topic, k)
+        self.gate.accept(topic, k)
         if self.learning_strategy:
             self._estimates[k] = estimate
             self._run_ready()
@@ -393,7 +394,7 @@ class ImpactPlannerNode(MeasuredCycleNode):
         )
         self.controller.material = self.learned_material
         self.estimates_used += 1
-        self.inform(
+        self.gate.inform(
             "learned_material",
             f"planning with the learned material: stiffness {estimate.stiffness:.1f} N/m, "
             f"damping {estimate.damping:.2f} N·s/m ({estimate.samples} samples)",

@@ -16,13 +16,14 @@ from ffmpc_core.polishing import device_generator, joint_sensing_model
 from ffmpc_core.robots import load_robot
 from ffmpc_ros import topics
 from ffmpc_ros.base import GraphNode, run_node
+from ffmpc_ros.message_parsing import joint_fields
 
 
 class JointSensorNode(GraphNode):
     """Eq 30 on every plant joint state (one cycle per message)."""
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__("joint_sensor", **kwargs)
+        super().__init__("joint_sensor", join=False, **kwargs)
         s = self.scenario
         self.robot = load_robot(s.robot)
         self.joint_names = list(self.robot.joint_names)
@@ -38,10 +39,13 @@ class JointSensorNode(GraphNode):
             topics.subscriber_qos(lockstep, topics.PLANT_JOINT_STATES),
         )
         self.published = 0
+        self.join_graph()
 
     def on_joint_state(self, msg: JointState) -> None:
         topic = self.name_of(topics.PLANT_JOINT_STATES)
-        got = self.receive(topic, msg, self.joint_fields("position", "velocity", "effort"))
+        got = self.gate.receive(
+            topic, msg, joint_fields(self.joint_names, "position", "velocity", "effort")
+        )
         if got is None:
             return
         _, (q, v, effort) = got

@@ -43,12 +43,14 @@ from std_msgs.msg import Float64MultiArray
 
 from ffmpc_core.errors import InputError
 from ffmpc_core.linear_feedback import LinearFeedbackCommand, LinearFeedbackLoop
-from ffmpc_core.lowlevel import LowLevelMode, LowLevelOutput
 from ffmpc_core.polishing import lowlevel_controller, steps_per_mpc_period
 from ffmpc_core.robots import load_robot
-from ffmpc_ros import layouts, topics
-from ffmpc_ros.base import GraphNode, drop_stale_cycles, joint_state_message, run_node
+from ffmpc_ros import topics
+from ffmpc_ros.base import GraphNode, joint_state_message, run_node
 from ffmpc_ros.lfc_msgs import control_fields, effort_message, sensor_message
+from ffmpc_ros.low_level_report import LowLevelReport
+from ffmpc_ros.message_parsing import joint_fields
+from ffmpc_ros.time_grid import drop_stale_cycles
 
 _KEEP = 50  # cycles of pending inputs kept
 
@@ -57,7 +59,7 @@ class LfcNode(GraphNode):
     """LinearFeedbackLoop on topics (see the module docstring)."""
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__("lfc", **kwargs)
+        super().__init__("lfc", join=False, **kwargs)
         s = self.scenario
         self.robot = load_robot(s.robot)
         self.joint_names = list(self.robot.joint_names)
@@ -75,11 +77,15 @@ class LfcNode(GraphNode):
         self._controls: dict[int, LinearFeedbackCommand] = {}
         self._waiting_since: float | None = None
         self._skip_wait: set[int] = set()
-        self.last_output: LowLevelOutput | None = None
         self.pub_sensor = self.graph_publisher(Sensor, topics.LFC_SENSOR)
         self.pub_effort = self.graph_publisher(Float64MultiArray, topics.EFFORT_COMMANDS)
         self.pub_record = self.graph_publisher(JointState, topics.LFC_EFFORT)
-        self.pub_status = self.graph_publisher(Float64MultiArray, topics.LFC_STATUS)
+        self.report = LowLevelReport(
+            self.graph_publisher(Float64MultiArray, topics.LFC_STATUS),
+            self.rejected,
+            "Control",
+            "control_age_s",
+        )
         self.create_subscription(
             JointState,
             topics.SENSED_JOINT_STATES,
@@ -94,17 +100,20 @@ class LfcNode(GraphNode):
         )
         if self.lockstep:
             self.create_timer(0.05, self._check_wait, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.join_graph()
 
     # -- inputs ------------------------------------------------------------------------------
     def on_joints(self, msg: JointState) -> None:
         topic = self.name_of(topics.SENSED_JOINT_STATES)
-        got = self.receive(topic, msg, self.joint_fields("position", "velocity", "effort"))
+        got = self.gate.receive(
+            topic, msg, joint_fields(self.joint_names, "position", "velocity", "effort")
+        )
         if got is None:
             return
         k, (q, v, tau) = got
         self._joints[k] = (q, v)
         # the state the MPC solves from, before this cycle waits for its control
-        self.pub_sensor.publish(sensor_message(self.stamp_of(k), self.joint_names, q, v, tau))
+        self.pub_sensor.publish(sensor_message(self.grid.stamp_of(k), self.joint_names, q, v, tau))
         self._advance()
 
     def on_control(self, msg: Control) -> None:
@@ -119,9 +128,9 @@ class LfcNode(GraphNode):
         if k is None:
             self.reject(f"{topic}:stamp", f"control time {fields['t']} s is no time")
             return
-        if not self.check_cycle(topic, k):
+        if not self.gate.check_cycle(topic, k):
             return
-        self.accept_cycle(topic, k)
+        self.gate.accept(topic, k)
         self._controls[k] = LinearFeedbackCommand(
             fields["feedforward"], fields["feedback_gain"], fields["q0"], fields["v0"]
         )
@@ -157,7 +166,7 @@ class LfcNode(GraphNode):
             q, v = self._joints.pop(k)
             for kc in sorted(c for c in self._controls if c <= k):
                 try:
-                    self.loop.set_command(self._controls.pop(kc), self.t_of(kc))
+                    self.loop.set_command(self._controls.pop(kc), self.grid.t_of(kc))
                 except InputError as exc:
                     self.reject(f"{self.name_of(topics.LFC_CONTROL)}:value", str(exc))
             self._step(k, q, v)
@@ -165,42 +174,24 @@ class LfcNode(GraphNode):
 
     def _step(self, k: int, q: np.ndarray, v: np.ndarray) -> None:
         try:
-            out = self.loop.step(q, v, self.t_of(k))
+            out = self.loop.step(q, v, self.grid.t_of(k))
         except InputError as exc:
             self.reject("step", f"cycle {k}: {exc}")
             return
-        self.last_output = out
-        stamp = self.stamp_of(k)
+        stamp = self.grid.stamp_of(k)
         self.pub_effort.publish(effort_message(out.motor_torque))
         self.pub_record.publish(
             joint_state_message(stamp, self.joint_names, None, None, out.motor_torque)
         )
-        age = out.command_age if np.isfinite(out.command_age) else 1e9
-        self.pub_status.publish(
-            layouts.LOWLEVEL_STATUS.pack(
-                {
-                    "t": self.t_of(k),
-                    "mode": float(out.mode),
-                    "command_age": age,
-                    "blend": out.blend,
-                    "rejected": float(sum(self.rejected.values())),
-                }
-            )
-        )
+        self.report.publish(self.grid.t_of(k), out)
 
     def diagnostic_values(self, period: float) -> dict[str, str]:
-        """The loop's mode (hold, blend, track, fallback) and control age (s, simulated)."""
-        out = self.last_output
-        if out is None:
-            return {"mode": "none (no cycle yet)"}
-        return {"mode": out.mode.name.lower(), "control_age_s": f"{out.command_age:.4f}"}
+        """The loop's mode (hold, blend, track, fallback) and command age (s, simulated)."""
+        return self.report.values()
 
     def diagnostic_problems(self) -> list[str]:
-        """The safe hold after the controls went stale or were refused (FALLBACK)."""
-        out = self.last_output
-        if out is not None and out.mode == LowLevelMode.FALLBACK:
-            return [f"safe hold: no fresh Control (age {out.command_age:.4f} s)"]
-        return []
+        """The safe hold after the commands went stale or were refused (FALLBACK)."""
+        return self.report.problems()
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -27,12 +27,13 @@ from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64MultiArray, String
 
-from ffmpc_core.errors import ConfigError, InputError
+from ffmpc_core.errors import InputError
 from ffmpc_core.metrics import PolishingMetrics
 from ffmpc_core.polishing import PolishingLog, build_task, polishing_run_metrics
 from ffmpc_core.robots import load_robot
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import GraphNode, run_node
+from ffmpc_ros.message_parsing import joint_arrays, wrench_array
 
 #: The graph's low-level nodes whose torques the log records (graph parameter ``low_level``).
 LOW_LEVELS = ("pid", "lfc")
@@ -45,7 +46,7 @@ class MetricsNode(GraphNode):
     """Recorder + metrics (see the module docstring)."""
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__("metrics", **kwargs)
+        super().__init__("metrics", join=False, **kwargs)
         s = self.scenario
         self.robot = load_robot(s.robot)
         self.joint_names = list(self.robot.joint_names)
@@ -72,7 +73,7 @@ class MetricsNode(GraphNode):
         )
         low_level = str(self.params["low_level"])
         if low_level not in LOW_LEVELS:
-            raise ConfigError(f"low_level must be one of {list(LOW_LEVELS)}, got {low_level!r}")
+            self.refuse(f"low_level must be one of {list(LOW_LEVELS)}, got {low_level!r}")
         desired, motor, _ = topics.low_level_topics(low_level)
         self._subs = [
             self.create_subscription(msg_type, topic, callback, topics.subscriber_qos(True, topic))
@@ -89,6 +90,7 @@ class MetricsNode(GraphNode):
         self._ready_timer = self.create_timer(0.02, self._check_ready, clock=steady)
         if not self.lockstep:
             self.create_timer(0.1, self._check_finish, clock=steady)
+        self.join_graph()
 
     @property
     def has_states(self) -> bool:
@@ -154,7 +156,7 @@ class MetricsNode(GraphNode):
         self._q[k] = row["q"]
         self.log.record(
             k,
-            self.t_of(k),
+            self.grid.t_of(k),
             row["q"],
             row["force_true"],
             row["force_measured"],
@@ -167,7 +169,7 @@ class MetricsNode(GraphNode):
 
     def _joints(self, msg: JointState, fields: tuple[str, ...]) -> list[np.ndarray] | None:
         try:
-            return self.joint_arrays(msg, self.joint_names, fields)
+            return joint_arrays(msg, self.joint_names, fields)
         except InputError as exc:
             self.reject("joint_state", str(exc))
             return None
@@ -191,11 +193,11 @@ class MetricsNode(GraphNode):
             self.reject("truth", str(exc))
             return
         self.table_normal = truth["table_normal"]
-        self._put(self.cycle_of_time(truth["t"]), "force_true", truth["normal_force"])
+        self._put(self.grid.cycle_of_time(truth["t"]), "force_true", truth["normal_force"])
 
     def on_wrench(self, msg: WrenchStamped) -> None:
         try:
-            wrench = self.wrench_array(msg)
+            wrench = wrench_array(msg)
         except InputError as exc:
             self.reject("wrench", str(exc))
             return

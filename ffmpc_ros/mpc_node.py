@@ -34,7 +34,8 @@ accepted update is logged (at most one line per 2 s). Estimates are not synchron
 lockstep cycle: one applies from the first solve after its arrival.
 
 Live parameters (``ffmpc_ros.params.MPC_LIVE``; checked, logged and queued by
-:class:`~ffmpc_ros.base.GraphNode`), applied in place at the next solve (no rebuild of the OCP):
+:class:`~ffmpc_ros.live_parameters.LiveParameters`), applied in place at the next solve (no
+rebuild of the OCP):
 
 * ``contact.stiffness``, ``contact.damping``: K (N/m), B (N·s/m) of the force-feedback OCP
   (``ModelPredictiveController.set_contact_parameters``; refused for the other formulations);
@@ -54,7 +55,8 @@ target − the scenario's target (or ``task.normal_force``) through the node's o
 it is applied, logged and read back (``get_parameter``) like a live parameter. A message with a
 non-finite value, a frame_id other than ``world``, a stamp from the future, a target farther
 than the schema's bound on ``mpc.position_offset`` (0.1 m per axis) from the scenario's, or a
-force outside ``task.normal_force``'s range is rejected and counted (:meth:`GraphNode.reject`).
+force outside ``task.normal_force``'s range is rejected and counted
+(:meth:`ffmpc_ros.input_gate.InputGate.reject`).
 In real time the node serves the reference topics from its wait set, but not the parameter
 services (it has no executor).
 
@@ -71,8 +73,6 @@ executes it. The wrench input is the same.
 
 from __future__ import annotations
 
-import contextlib
-import gc
 from dataclasses import replace
 from typing import Any
 
@@ -85,8 +85,7 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray
 
-from ffmpc_core.errors import ConfigError, FfmpcError
-from ffmpc_core.impact.learner import confident
+from ffmpc_core.errors import FfmpcError
 from ffmpc_core.mpc import ModelPredictiveController, MpcMeasurement
 from ffmpc_core.polishing import (
     build_task,
@@ -96,19 +95,21 @@ from ffmpc_core.polishing import (
     scenario_robot,
     steps_per_mpc_period,
 )
-from ffmpc_core.scenario import SCHEMA
-from ffmpc_core.tasks import PhaseWeights
 from ffmpc_ros import layouts, topics
-from ffmpc_ros.base import (
-    MAX_FUTURE_STAMP,
-    GraphNode,
-    drop_stale_cycles,
-    interfaces_of,
-    run_node,
-)
+from ffmpc_ros.base import GraphNode, interfaces_of, run_node
 from ffmpc_ros.command_msg import command_message
-from ffmpc_ros.impact_common import DIRECTION_TOLERANCE, receive_estimate
+from ffmpc_ros.impact_common import receive_estimate
 from ffmpc_ros.lfc_msgs import control_message, sensor_fields
+from ffmpc_ros.message_parsing import joint_fields, wrench_array
+from ffmpc_ros.mpc_live import (
+    LearnedContact,
+    Refusal,
+    apply_live_changes,
+    live_refusal,
+    reference_offset,
+)
+from ffmpc_ros.time_grid import drop_stale_cycles
+from ffmpc_ros.wait_loop import Reader, spin_newest
 
 _KEEP = 20  # cycles of unmatched measurements kept
 WARM_UP_SOLVES = 20  # real time: solves before the node subscribes to its inputs
@@ -117,8 +118,11 @@ WARM_UP_SOLVES = 20  # real time: solves before the node subscribes to its input
 class MpcNode(GraphNode):
     """ModelPredictiveController on topics (see the module docstring)."""
 
+    #: When an accepted live parameter takes effect (for the log line).
+    applies_at = "next solve"
+
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__("mpc", **kwargs)
+        super().__init__("mpc", join=False, **kwargs)
         s = self.scenario
         self.robot = scenario_robot(s)  # carrying the tool (the cell's load data)
         self.joint_names = list(self.robot.joint_names)
@@ -150,6 +154,20 @@ class MpcNode(GraphNode):
         self.ros2_control = interfaces_of(self) == topics.ROS2_CONTROL_INTERFACES
         contact = self.config.contact
         self.force_axes = [contact.normal_axis] if contact.dimension == 1 else [0, 1, 2]
+        self.use_learned_contact = bool(self.params["use_learned_contact"])
+        if self.use_learned_contact and not self.needs_force:
+            self.refuse("use_learned_contact needs the force_feedback formulation")
+        self.learned = LearnedContact(
+            self.config,
+            int(self.params["learner_min_samples"]),
+            float(self.params["learner_max_relative_std"]),
+        )
+        self._create_endpoints()
+        self.join_graph()
+
+    def _create_endpoints(self) -> None:
+        """The command and prediction writers, the measurement, reference and (learned
+        contact) estimate readers (module docstring)."""
         command_type, command_topic = (
             (Control, topics.LFC_CONTROL)
             if self.ros2_control
@@ -181,17 +199,7 @@ class MpcNode(GraphNode):
                 Float64, topics.MPC_FORCE_SETPOINT, self.on_force_setpoint, ref_qos
             ),
         ]
-        self.use_learned_contact = bool(self.params["use_learned_contact"])
-        self.learner_min_samples = int(self.params["learner_min_samples"])
-        self.learner_max_relative_std = float(self.params["learner_max_relative_std"])
-        self.contact_updates = 0
         if self.use_learned_contact:
-            if not self.needs_force:
-                raise ConfigError("use_learned_contact needs the force_feedback formulation")
-            contact = self.config.contact
-            self.contact_stiffness = contact.stiffness_vector().copy()  # N/m, per force entry
-            self.contact_damping = contact.damping_vector().copy()  # N·s/m
-            self._learned_entry = 0 if contact.dimension == 1 else contact.normal_axis
             self.estimates = self.create_subscription(
                 Float64MultiArray,
                 topics.CONTACT_ESTIMATE,
@@ -199,13 +207,16 @@ class MpcNode(GraphNode):
                 topics.subscriber_qos(False, topics.CONTACT_ESTIMATE),
             )
 
+    # -- measurements ---------------------------------------------------------------------------
     def on_sensor(self, msg: Sensor) -> None:
         """ros2_control's terms: the measured state of a ``Sensor`` (its joint_state)."""
         self.on_joints(sensor_fields(msg), topics.LFC_SENSOR)
 
     def on_joints(self, msg: JointState, topic_name: str = topics.SENSED_JOINT_STATES) -> None:
         topic = self.name_of(topic_name)
-        got = self.receive(topic, msg, self.joint_fields("position", "velocity", "effort"))
+        got = self.gate.receive(
+            topic, msg, joint_fields(self.joint_names, "position", "velocity", "effort")
+        )
         if got is None:
             return
         k, arrays = got
@@ -214,8 +225,8 @@ class MpcNode(GraphNode):
 
     def on_wrench(self, msg: WrenchStamped) -> None:
         topic = self.name_of(topics.SENSED_WRENCH)
-        got = self.receive(
-            topic, msg, lambda m: measured_force(self.wrench_array(m), self.config.contact)
+        got = self.gate.receive(
+            topic, msg, lambda m: measured_force(wrench_array(m), self.config.contact)
         )
         if got is None:
             return
@@ -230,120 +241,56 @@ class MpcNode(GraphNode):
         if got is None:
             return
         k, estimate, direction = got
-        contact = self.config.contact
-        if contact.frame_type == "LOCAL_WORLD_ALIGNED":
-            along = abs(float(direction[contact.normal_axis]))
-            if along < 1.0 - DIRECTION_TOLERANCE:
-                self.reject(
-                    f"{topic}:direction",
-                    f"estimate along {direction}, the contact model's axis is "
-                    f"{contact.normal_axis}",
-                )
-                return
-        self.accept_cycle(topic, k)
-        if not confident(estimate, self.learner_min_samples, self.learner_max_relative_std):
+        refusal = self.learned.direction_refusal(direction)
+        if refusal is not None:
+            self.reject(f"{topic}:{refusal.kind}", refusal.reason)
             return
-        stiffness, damping = self.contact_stiffness.copy(), self.contact_damping.copy()
-        stiffness[self._learned_entry] = estimate.stiffness
-        damping[self._learned_entry] = estimate.damping
+        self.gate.accept(topic, k)
         try:
-            self.mpc.set_contact_parameters(stiffness, damping)
+            applied = self.learned.apply(self.mpc, estimate)
         except FfmpcError as exc:
             self.reject(f"{topic}:value", str(exc))
             return
-        self.contact_stiffness, self.contact_damping = stiffness, damping
-        self.contact_updates += 1
-        self.inform(
-            "contact_update",
-            f"contact model from the learner: stiffness {estimate.stiffness:.1f} N/m, damping "
-            f"{estimate.damping:.2f} N·s/m ({estimate.samples} samples, update "
-            f"{self.contact_updates})",
+        if applied:
+            self.gate.inform(
+                "contact_update",
+                f"contact model from the learner: stiffness {estimate.stiffness:.1f} N/m, "
+                f"damping {estimate.damping:.2f} N·s/m ({estimate.samples} samples, update "
+                f"{self.learned.updates})",
+            )
+
+    # -- live parameters and reference topics (ffmpc_ros.mpc_live) ------------------------------
+    def check_live(self, name: str, value: Any) -> str | None:
+        """The MPC's own rules (:func:`ffmpc_ros.mpc_live.live_refusal`)."""
+        task = self.scenario.task
+        nominal = bool(self.schedule.nominal_force)
+        return live_refusal(
+            name, value, self.config.formulation, task.name, nominal, task.normal_force
         )
 
-    # -- live parameters and reference topics ------------------------------------------------
-    applies_at = "next solve"
-
-    def check_live(self, name: str, value: Any) -> str | None:
-        """The MPC's own rules (module docstring): which formulation and task can take it."""
-        formulation = self.config.formulation
-        if name.startswith("contact.") and formulation != "force_feedback":
-            return f"the {formulation} formulation has no visco-elastic contact (K, B unused)"
-        if name.startswith("weights."):
-            form, _, term = name[len("weights.") :].partition(".")
-            if form != formulation:
-                return f"this node runs the {formulation} formulation, not {form}"
-            if term == "force_rate" and formulation != "force_feedback":
-                return "only the force-feedback formulation has the force-rate cost"
-        if name == "task.normal_force" and not self.schedule.nominal_force:
-            return (
-                f"the {self.scenario.task.name} task has no single positive force set-point "
-                f"(task.normal_force is {self.scenario.task.normal_force} N at start)"
-            )
-        return None
-
     def apply_live(self, changes: dict, k: int) -> None:
-        """Apply accepted live parameters before the solve of tick k (module docstring)."""
-        t_task = self.mpc.task_time(self.t_of(k))
-        contact = self.mpc.config.contact
-        stiffness = changes.get("contact.stiffness", contact.stiffness)
-        damping = changes.get("contact.damping", contact.damping)
-        phase = False
+        """Apply accepted live parameters before the solve of tick k
+        (:func:`ffmpc_ros.mpc_live.apply_live_changes`)."""
+        form = self.config.formulation
+
+        def phase_weights() -> tuple[float, float]:
+            force = self.get_parameter(f"weights.{form}.force_phase").value
+            return force, self.get_parameter(f"weights.{form}.ee_position_phase").value
+
+        t_task = self.mpc.task_time(self.grid.t_of(k))
         try:
-            if "contact.stiffness" in changes or "contact.damping" in changes:
-                self.mpc.set_contact_parameters(stiffness, damping)
-                if self.use_learned_contact:
-                    self.contact_stiffness = self.mpc.config.contact.stiffness_vector().copy()
-                    self.contact_damping = self.mpc.config.contact.damping_vector().copy()
-            for name, value in changes.items():
-                if name.startswith("weights."):
-                    term = name.rpartition(".")[2]
-                    if term in ("force_phase", "ee_position_phase"):
-                        phase = True
-                    else:
-                        self.mpc.set_cost_weight(term, value)
-            if phase:
-                form = self.config.formulation
-                force = self.get_parameter(f"weights.{form}.force_phase").value
-                ee = self.get_parameter(f"weights.{form}.ee_position_phase").value
-                self.schedule.set_phase_weights(
-                    PhaseWeights(free_ee_position=ee, contact_ee_position=ee, force=force)
-                )
-            if "task.normal_force" in changes:
-                self.schedule.set_force(changes["task.normal_force"], t_task)
-            if "position_offset" in changes:
-                self.schedule.set_position_offset(changes["position_offset"], t_task)
+            apply_live_changes(self.mpc, self.schedule, changes, t_task, phase_weights)
         except FfmpcError as exc:  # (checked when accepted: not expected)
             self.reject("parameter", f"cycle {k}: {exc}")
+        if self.use_learned_contact and any(n.startswith("contact.") for n in changes):
+            self.learned.follow(self.mpc)
 
     def on_reference(self, msg: PoseStamped) -> None:
         """A target position of the contact frame (module docstring)."""
         topic = topics.MPC_REFERENCE
-        if msg.header.frame_id != topics.WORLD_FRAME:
-            self.reject(
-                f"{topic}:frame",
-                f"frame_id {msg.header.frame_id!r}, expected {topics.WORLD_FRAME!r}",
-            )
-            return
-        stamp_ns = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
-        ahead = (stamp_ns - self.get_clock().now().nanoseconds) * 1e-9
-        if ahead > MAX_FUTURE_STAMP:
-            self.reject(f"{topic}:future", f"stamp {stamp_ns * 1e-9:.6f} s is {ahead:.4f} s ahead")
-            return
-        p = msg.pose.position
-        target = np.array([p.x, p.y, p.z], dtype=float)
-        if not np.all(np.isfinite(target)):
-            self.reject(f"{topic}:value", f"target position is not finite: {target}")
-            return
-        offset = target - self.nominal_target
-        bound = SCHEMA["mpc.position_offset"].range
-        assert bound is not None  # the schema bounds it
-        if np.any(offset < bound[0]) or np.any(offset > bound[1]):
-            self.reject(
-                f"{topic}:workspace",
-                f"target {np.round(target, 4).tolist()} m is {np.round(offset, 4).tolist()} m "
-                f"from the task's {np.round(self.nominal_target, 4).tolist()} m (bound "
-                f"[{bound[0]:g}, {bound[1]:g}] m per axis)",
-            )
+        offset = reference_offset(msg, self.nominal_target, self.get_clock().now().nanoseconds)
+        if isinstance(offset, Refusal):
+            self.reject(f"{topic}:{offset.kind}", offset.reason)
             return
         self._set_from_topic(topic, Parameter("position_offset", value=offset.tolist()))
 
@@ -356,7 +303,7 @@ class MpcNode(GraphNode):
     def _set_from_topic(self, topic: str, param: Parameter) -> None:
         """Set a live parameter from a reference topic: checked first (a refusal is a rejected
         message, counted, one throttled line), then set like any parameter request."""
-        reason = self.parameter_refusal([param])
+        reason = self.live.refusal([param])
         if reason is not None:
             self.reject(f"{topic}:value", reason)
             return
@@ -366,6 +313,7 @@ class MpcNode(GraphNode):
             return
         self.accepted[topic] += 1
 
+    # -- the solve ------------------------------------------------------------------------------
     def _due(self, k: int) -> bool:
         """Whether cycle k is an MPC tick to solve: k = j·every (the runner's grid, and the
         cycles the PID waits on in lockstep), after the last solve. Never off the grid: after
@@ -393,75 +341,6 @@ class MpcNode(GraphNode):
             return True
         return False
 
-    # -- real time ----------------------------------------------------------------------------
-    def warm_up(self, solves: int = WARM_UP_SOLVES) -> None:
-        """Real time: solve a few times from the start posture (t = 0), then forget it all
-        (``reset``): the first real solve then runs warm code, not a cold start."""
-        nv = self.robot.nv
-        q = self.robot.q_nominal
-        meas = MpcMeasurement(
-            q=q.copy(),
-            v=np.zeros(nv),
-            force=np.zeros(self.config.contact.dimension) if self.needs_force else None,
-            torque=self.robot.gravity(q),
-        )
-        for _ in range(solves):
-            self.mpc.reset()
-            self.mpc.step(meas, 0.0)
-        self.mpc.reset()
-
-    def _is_tick(self, stamp: TimeMsg) -> bool:
-        """Real time: whether a stamp is an MPC tick (other cycles are not parsed at all)."""
-        k = self.cycle_of(stamp)
-        return k is None or k % self.every == 0  # (a stamp that is no time: rejected there)
-
-    def spin_realtime(self) -> None:
-        """Real time, instead of an executor: block on a wait set over the inputs, take the
-        newest sample of each topic (older ones are worthless) and solve when it completes a
-        tick; until the context shuts down (SIGINT). The collector is frozen and disabled.
-        /clock is taken first at every wake-up (the newest sample): the node judges its inputs'
-        stamps against it like every node (stale, or from the future and never adopted)."""
-        from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
-
-        context_handle = self.context.handle
-        if context_handle is None:  # the context is already destroyed: nothing to wait for
-            return
-        gc.collect()
-        gc.freeze()
-        gc.disable()
-        # (subscription, handler, only on MPC ticks): measurements, then the learner's estimate
-        clock_topic = self.resolve_topic_name(topics.CLOCK)  # remapped: /arm1/clock
-        clock = [s for s in self.subscriptions if s.topic_name == clock_topic]
-        inputs = [(sub, sub.callback, False) for sub in clock]
-        inputs += [
-            (sub, handler, True)
-            for sub, handler in zip(self.inputs, (self._on_state, self.on_wrench), strict=False)
-        ]
-        if self.use_learned_contact:
-            inputs.append((self.estimates, self.on_estimate, False))
-        inputs += [(sub, sub.callback, False) for sub in self.references]
-        with contextlib.ExitStack() as stack:
-            for sub, _, _ in inputs:
-                stack.enter_context(sub.handle)
-            stack.enter_context(context_handle)
-            wait_set = _rclpy.WaitSet(len(inputs), 0, 0, 0, 0, 0, context_handle)
-            while self.context.ok():
-                wait_set.clear_entities()
-                for sub, _, _ in inputs:
-                    wait_set.add_subscription(sub.handle)
-                try:
-                    wait_set.wait(100_000_000)  # ns
-                except Exception:  # noqa: BLE001  (the context shut down while waiting)
-                    break
-                for sub, handler, ticks_only in inputs:
-                    newest = None
-                    while (taken := sub.handle.take_message(sub.msg_type, sub.raw)) is not None:
-                        newest = taken[0]
-                    if newest is None or (ticks_only and not self._is_tick(newest.header.stamp)):
-                        continue
-                    handler(newest)
-        gc.enable()
-
     def _try_solve(self, k: int) -> None:
         drop_stale_cycles((self._joints, self._forces), k, _KEEP)
         if not self._due(k) or k not in self._joints:
@@ -472,8 +351,8 @@ class MpcNode(GraphNode):
         force = self._forces.pop(k, None)
         if self._behind_clock(k):
             return
-        t = self.t_of(k)
-        self.apply_pending(k)
+        t = self.grid.t_of(k)
+        self.live.apply_pending(k)
         try:
             command = self.mpc.step(MpcMeasurement(q=q, v=v, force=force, torque=tau), t)
         except FfmpcError as exc:
@@ -481,7 +360,7 @@ class MpcNode(GraphNode):
             return
         self._last_solve = k
         self.solve_times.append(command.solve_time)
-        stamp, formulation = self.stamp_of(k), self.config.formulation
+        stamp, formulation = self.grid.stamp_of(k), self.config.formulation
         self.publisher.publish(
             control_message(stamp, formulation, self.joint_names, command, self.force_axes)
             if self.ros2_control
@@ -511,6 +390,46 @@ class MpcNode(GraphNode):
             )
         )
 
+    # -- real time ------------------------------------------------------------------------------
+    def warm_up(self, solves: int = WARM_UP_SOLVES) -> None:
+        """Real time: solve a few times from the start posture (t = 0), then forget it all
+        (``reset``): the first real solve then runs warm code, not a cold start."""
+        nv = self.robot.nv
+        q = self.robot.q_nominal
+        meas = MpcMeasurement(
+            q=q.copy(),
+            v=np.zeros(nv),
+            force=np.zeros(self.config.contact.dimension) if self.needs_force else None,
+            torque=self.robot.gravity(q),
+        )
+        for _ in range(solves):
+            self.mpc.reset()
+            self.mpc.step(meas, 0.0)
+        self.mpc.reset()
+
+    def _is_tick(self, stamp: TimeMsg) -> bool:
+        """Real time: whether a stamp is an MPC tick (other cycles are not parsed at all)."""
+        k = self.cycle_of(stamp)
+        return k is None or k % self.every == 0  # (a stamp that is no time: rejected there)
+
+    def spin_realtime(self) -> None:
+        """Real time, instead of an executor (:func:`ffmpc_ros.wait_loop.spin_newest`): /clock
+        first at every wake-up (the node judges its inputs' stamps against it like every
+        node), the measurements on MPC ticks only, then the learner's estimate and the
+        references."""
+        clock_topic = self.resolve_topic_name(topics.CLOCK)  # remapped: /arm1/clock
+        clock = [s for s in self.subscriptions if s.topic_name == clock_topic]
+        readers: list[Reader] = [(sub, sub.callback, False) for sub in clock]
+        readers += [
+            (sub, handler, True)
+            for sub, handler in zip(self.inputs, (self._on_state, self.on_wrench), strict=False)
+        ]
+        if self.use_learned_contact:
+            readers.append((self.estimates, self.on_estimate, False))
+        readers += [(sub, sub.callback, False) for sub in self.references]
+        spin_newest(self, readers, self._is_tick)
+
+    # -- diagnostics ----------------------------------------------------------------------------
     def diagnostic_values(self, period: float) -> dict[str, str]:
         """Solves over the period: rate (Hz, wall), median and max solve time (ms, wall)."""
         new = self.solve_times[self._diagnosed_solves[0] :]

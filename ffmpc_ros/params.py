@@ -23,8 +23,9 @@ Every parameter has a description and numeric ones a range. Most are read-only (
 their models once); the few a node applies in place while it runs are **live**
 (:attr:`NodeSpec.live`: the MPC's contact K and B, its scalar cost weights and phase weights, the
 force reference ``task.normal_force`` and ``position_offset``; the PID's gains): writable, with
-the same schema range, checked again by the node (:class:`ffmpc_ros.base.GraphNode`, "Live
-parameters"), and applied from the node's next solve or cycle.
+the same schema range, checked again by the node
+(:class:`ffmpc_ros.live_parameters.LiveParameters`), and applied from the node's next solve or
+cycle.
 
 The descriptors of scenario parameters are generated from :data:`ffmpc_core.scenario.SCHEMA`
 (the impact study's from ``IMPACT_SCHEMA``), the one declaration of each parameter's type, unit

@@ -70,15 +70,15 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from ffmpc_core.errors import InputError
-from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement, LowLevelMode, LowLevelOutput
+from ffmpc_core.lowlevel import LowLevelCommand, LowLevelMeasurement
 from ffmpc_core.polishing import (
     lowlevel_controller,
     measured_force,
     scenario_robot,
     steps_per_mpc_period,
 )
-from ffmpc_ros import layouts, topics
-from ffmpc_ros.base import GraphNode, drop_stale_cycles, interfaces_of, run_node
+from ffmpc_ros import topics
+from ffmpc_ros.base import GraphNode, interfaces_of, run_node
 from ffmpc_ros.command_msg import command_fields
 from ffmpc_ros.lfc_msgs import (
     control_fields,
@@ -86,6 +86,9 @@ from ffmpc_ros.lfc_msgs import (
     low_level_command,
     sensor_message,
 )
+from ffmpc_ros.low_level_report import LowLevelReport
+from ffmpc_ros.message_parsing import joint_fields, wrench_array
+from ffmpc_ros.time_grid import drop_stale_cycles
 
 _KEEP = 50  # cycles of pending inputs kept
 
@@ -94,7 +97,7 @@ class PidNode(GraphNode):
     """LowLevelController on topics (see the module docstring)."""
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__("pid", **kwargs)
+        super().__init__("pid", join=False, **kwargs)
         s = self.scenario
         self.robot = scenario_robot(s)  # carrying the tool (the cell's load data)
         self.joint_names = list(self.robot.joint_names)
@@ -112,10 +115,14 @@ class PidNode(GraphNode):
         self._last_step: int | None = None
         self._waiting_since: float | None = None
         self._skip_wait: set[int] = set()
-        self.last_output: LowLevelOutput | None = None
         self.pub_motor = self.graph_publisher(JointState, topics.MOTOR_TORQUE)
         self.pub_desired = self.graph_publisher(JointState, topics.DESIRED_TORQUE)
-        self.pub_status = self.graph_publisher(Float64MultiArray, topics.LOWLEVEL_STATUS)
+        self.report = LowLevelReport(
+            self.graph_publisher(Float64MultiArray, topics.LOWLEVEL_STATUS),
+            self.rejected,
+            "MPC command",
+            "command_age_s",
+        )
         sub_qos = topics.subscriber_qos(self.lockstep, topics.SENSED_JOINT_STATES)  # SENSOR
         self.create_subscription(JointState, topics.SENSED_JOINT_STATES, self.on_joints, sub_qos)
         self.ros2_control = interfaces_of(self) == topics.ROS2_CONTROL_INTERFACES
@@ -144,23 +151,28 @@ class PidNode(GraphNode):
             self.create_subscription(WrenchStamped, topics.SENSED_WRENCH, self.on_wrench, sub_qos)
         if self.lockstep:
             self.create_timer(0.05, self._check_wait, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.join_graph()
 
     # -- inputs ------------------------------------------------------------------------------
     def on_joints(self, msg: JointState) -> None:
         topic = self.name_of(topics.SENSED_JOINT_STATES)
-        got = self.receive(topic, msg, self.joint_fields("position", "velocity", "effort"))
+        got = self.gate.receive(
+            topic, msg, joint_fields(self.joint_names, "position", "velocity", "effort")
+        )
         if got is None:
             return
         k, arrays = got
         self._joints[k] = tuple(arrays)
         if self.pub_sensor is not None:  # the state the MPC solves from (ros2_control's terms)
-            self.pub_sensor.publish(sensor_message(self.stamp_of(k), self.joint_names, *arrays))
+            self.pub_sensor.publish(
+                sensor_message(self.grid.stamp_of(k), self.joint_names, *arrays)
+            )
         self._advance()
 
     def on_wrench(self, msg: WrenchStamped) -> None:
         topic = self.name_of(topics.SENSED_WRENCH)
-        got = self.receive(
-            topic, msg, lambda m: measured_force(self.wrench_array(m), self.scenario.mpc.contact)
+        got = self.gate.receive(
+            topic, msg, lambda m: measured_force(wrench_array(m), self.scenario.mpc.contact)
         )
         if got is None:
             k = self.cycle_of(msg.header.stamp)
@@ -222,9 +234,9 @@ class PidNode(GraphNode):
         if k in self._commands or (self._used_command is not None and k <= self._used_command):
             self.reject(f"{topic}:order", f"a command for cycle {k} was already taken")
             return
-        if not self.check_cycle(topic, k, ordered=False):
+        if not self.gate.check_cycle(topic, k, ordered=False):
             return
-        self.accept_cycle(topic, k)
+        self.gate.accept(topic, k)
         self._commands[k] = command
         self._advance()
 
@@ -283,7 +295,7 @@ class PidNode(GraphNode):
             for kc in sorted(c for c in self._commands if c <= k):
                 self._used_command = kc
                 try:
-                    self.lowlevel.set_command(self._commands.pop(kc), self.t_of(kc))
+                    self.lowlevel.set_command(self._commands.pop(kc), self.grid.t_of(kc))
                 except InputError as exc:
                     self.reject(f"{self.name_of(topics.MPC_COMMAND)}:value", str(exc))
             self._step(k, LowLevelMeasurement(q, v, tau, force))
@@ -313,15 +325,14 @@ class PidNode(GraphNode):
         )
 
     def _step(self, k: int, meas: LowLevelMeasurement) -> None:
-        self.apply_pending(k)
+        self.live.apply_pending(k)
         try:
-            out = self.lowlevel.step(meas, self.t_of(k))
+            out = self.lowlevel.step(meas, self.grid.t_of(k))
         except InputError as exc:
             self.reject("step", f"cycle {k}: {exc}")
             return
         self._last_step = k
-        self.last_output = out
-        stamp = self.stamp_of(k)
+        stamp = self.grid.stamp_of(k)
         for pub, value in (
             (self.pub_motor, out.motor_torque),
             (self.pub_desired, out.desired_torque),
@@ -336,32 +347,15 @@ class PidNode(GraphNode):
             if self.remove_gravity:  # drives that add gravity compensation themselves
                 effort = effort - self.robot.gravity(meas.q, self._gravity_data)
             self.pub_effort.publish(effort_message(effort))
-        age = out.command_age if np.isfinite(out.command_age) else 1e9
-        self.pub_status.publish(
-            layouts.LOWLEVEL_STATUS.pack(
-                {
-                    "t": self.t_of(k),
-                    "mode": float(out.mode),
-                    "command_age": age,
-                    "blend": out.blend,
-                    "rejected": float(sum(self.rejected.values())),
-                }
-            )
-        )
+        self.report.publish(self.grid.t_of(k), out)
 
     def diagnostic_values(self, period: float) -> dict[str, str]:
-        """The loop's mode (hold, blend, track, fallback) and MPC command age (s, simulated)."""
-        out = self.last_output
-        if out is None:
-            return {"mode": "none (no cycle yet)"}
-        return {"mode": out.mode.name.lower(), "command_age_s": f"{out.command_age:.4f}"}
+        """The loop's mode (hold, blend, track, fallback) and command age (s, simulated)."""
+        return self.report.values()
 
     def diagnostic_problems(self) -> list[str]:
-        """The safe hold after the MPC went stale or failed (FALLBACK)."""
-        out = self.last_output
-        if out is not None and out.mode == LowLevelMode.FALLBACK:
-            return [f"safe hold: no fresh MPC command (age {out.command_age:.4f} s)"]
-        return []
+        """The safe hold after the commands went stale or were refused (FALLBACK)."""
+        return self.report.problems()
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -70,6 +70,7 @@ from ffmpc_ros.base import (
     run_node,
     wrench_stamped,
 )
+from ffmpc_ros.message_parsing import joint_arrays, vector
 from sim_bridge.scenes import simulated_robot
 
 STATUS_EVERY = 100  # cycles between two /plant/status messages
@@ -84,7 +85,7 @@ class PlantNode(GraphNode):
     """The simulated robot on topics (see the module docstring)."""
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__("plant", **kwargs)
+        super().__init__("plant", join=False, **kwargs)
         s = self.scenario
         robot = self.robot = scenario_robot(s)  # carrying the tool (the cell's load data)
         self.joint_names = list(robot.joint_names)
@@ -142,13 +143,15 @@ class PlantNode(GraphNode):
             )
         self.started = False
         self._start_timer = self.create_timer(0.01, self._try_start, clock=self._steady)
+        self.join_graph()
 
     def _try_start(self) -> None:
-        """Start once the start handshake holds (:meth:`GraphNode.start_handshake`) and the
+        """Start once the start handshake holds
+        (:meth:`ffmpc_ros.start_barrier.StartBarrier.handshake`) and the
         metrics node is ready (``wait_for_metrics``: it has matched every topic it records):
         lockstep publishes the state of cycle 0, real time starts the wall-clock timer."""
         metrics = self.metrics_ready or not self.params["wait_for_metrics"]
-        if not self.start_handshake(self.pub_joints, self.pub_clock, metrics):
+        if not self.barrier.handshake(self.active, self.pub_joints, self.pub_clock, metrics):
             return
         self._start_timer.cancel()
         self.started = True
@@ -164,13 +167,13 @@ class PlantNode(GraphNode):
     def publish_state(self) -> None:
         """Publish the state of cycle self.k (clock first)."""
         k, s = self.k, self.state
-        stamp = self.stamp_of(k)
+        stamp = self.grid.stamp_of(k)
         self.pub_clock.publish(ClockMsg(clock=stamp))
         joints = joint_state_message(stamp, self.joint_names, s.q, s.v, self.tau_hat)
         wrench = wrench_message(stamp, s.wrench_world)
         truth = layouts.PLANT_TRUTH.pack(
             {
-                "t": self.t_of(k),
+                "t": self.grid.t_of(k),
                 "normal_force": s.normal_force,
                 "in_contact": float(s.in_contact),
                 "robot_collision": float(s.robot_collision),
@@ -193,7 +196,7 @@ class PlantNode(GraphNode):
         self.pub_status.publish(
             layouts.PLANT_STATUS.pack(
                 {
-                    "t": self.t_of(self.k),
+                    "t": self.grid.t_of(self.k),
                     "steps": self.k,
                     "done": float(self.done),
                     "lockstep": float(self.lockstep),
@@ -218,24 +221,24 @@ class PlantNode(GraphNode):
 
     def diagnostic_values(self, period: float) -> dict[str, str]:
         """The plant's cycle and simulated time (s)."""
-        return {"cycle": str(self.k), "sim_time_s": f"{self.t_of(self.k):.3f}"}
+        return {"cycle": str(self.k), "sim_time_s": f"{self.grid.t_of(self.k):.3f}"}
 
     # -- stepping -------------------------------------------------------------------------------
     def on_motor(self, msg: JointState) -> None:
         topic = self.name_of(topics.MOTOR_TORQUE)
-        k = self.check_stamp(topic, msg.header.stamp)
+        k = self.gate.check_stamp(topic, msg.header.stamp)
         if k is None:
             return
         if self.lockstep and k != self.k:
             self.reject(f"{topic}:cycle", f"motor torque of cycle {k} while at cycle {self.k}")
             return
         try:
-            (tau,) = self.joint_arrays(msg, self.joint_names, ("effort",))
+            (tau,) = joint_arrays(msg, self.joint_names, ("effort",))
             tau = self.robot.clip_torque(tau)  # an absurd torque is refused, not saturated
         except InputError as exc:
             self.reject(f"{topic}:value", str(exc))
             return
-        self.accept_cycle(topic, k)
+        self.gate.accept(topic, k)
         self._take_motor(k, tau)
 
     def on_effort(self, msg: Float64MultiArray) -> None:
@@ -245,7 +248,7 @@ class PlantNode(GraphNode):
             self.reject(f"{topic}:inactive", f"{topic} ignored: the node is {self.lifecycle_state}")
             return
         try:
-            tau = self.vector(msg.data, self.robot.nv, "effort command")
+            tau = vector(msg.data, self.robot.nv, "effort command")
             tau = self.robot.clip_torque(tau)  # an absurd torque is refused, not saturated
         except InputError as exc:
             self.reject(f"{topic}:value", str(exc))

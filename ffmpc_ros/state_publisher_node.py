@@ -39,20 +39,22 @@ from tf2_msgs.msg import TFMessage
 
 from ffmpc_core.robots import load_robot
 from ffmpc_ros import topics
-from ffmpc_ros.base import GraphNode, run_node, stamp_ns
+from ffmpc_ros.base import GraphNode, run_node
+from ffmpc_ros.message_parsing import joint_fields
 from ffmpc_ros.robot_tree import (
     Edge,
     description_with_absolute_meshes,
     edge_placements,
     robot_edges,
 )
+from ffmpc_ros.time_grid import stamp_ns
 
 
 class StatePublisherNode(GraphNode):
     """robot_description, /tf_static and /tf of the scenario's robot (module docstring)."""
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__("state_publisher", **kwargs)
+        super().__init__("state_publisher", join=False, **kwargs)
         self.robot = load_robot(self.scenario.robot)
         self.joint_names = list(self.robot.joint_names)
         self.data = self.robot.create_data()
@@ -78,6 +80,7 @@ class StatePublisherNode(GraphNode):
         self._next_ns: int | None = None  # the next grid point of /tf, ns
         self._latched_sent = False
         self.published = 0  # /tf messages
+        self.join_graph()
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         result = super().on_activate(state)
@@ -94,7 +97,9 @@ class StatePublisherNode(GraphNode):
         ns = stamp_ns(msg.header.stamp)
         if ns is not None and self._next_ns is not None and ns < self._next_ns:
             return  # between two points of the /tf grid: nothing to publish
-        got = self.receive(topics.SENSED_JOINT_STATES, msg, self.joint_fields("position"))
+        got = self.gate.receive(
+            topics.SENSED_JOINT_STATES, msg, joint_fields(self.joint_names, "position")
+        )
         if got is None:
             return
         _, (q,) = got

@@ -49,9 +49,9 @@ def run_demo(seed: int = 0) -> int:
         "50 N, 14 cm circle at 3 rad/s, tilt and actuation bias drawn from the seed, noise, "
         "delays, torque PID"
     )
-    from ffmpc_ros.bringup import run_graph  # rclpy loads only here
+    from ffmpc_ros.bringup import GraphOptions, run_graph  # rclpy loads only here
 
-    graph = run_graph(scenario, single_process=False)
+    graph = run_graph(scenario, GraphOptions(single_process=False))
     print(
         f"   ROS 2 graph, separate node processes, lockstep: simulated {graph.sim_time:.2f} s in "
         f"{graph.wall_time:.1f} s wall (real-time factor {graph.real_time_factor:.2f}), "

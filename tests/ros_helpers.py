@@ -51,7 +51,7 @@ class RosHarness:
 
         if not hasattr(self, "_clock_pub"):
             self._clock_pub = self.probe("_clock_driver").create_publisher(Clock, topics.CLOCK, 10)
-        self._clock_pub.publish(Clock(clock=node.stamp_of(k)))
+        self._clock_pub.publish(Clock(clock=node.grid.stamp_of(k)))
         target = k * node.step_ns
         assert self.spin_until(lambda: node.get_clock().now().nanoseconds >= target, timeout), (
             f"{node.get_name()} did not see /clock = cycle {k}"
@@ -88,7 +88,7 @@ def joint_state(node, k: int, q, v, effort, names=None):
     from sensor_msgs.msg import JointState
 
     msg = JointState()
-    msg.header.stamp = node.stamp_of(k)
+    msg.header.stamp = node.grid.stamp_of(k)
     msg.name = list(names if names is not None else node.joint_names)
     msg.position = [float(x) for x in q]
     msg.velocity = [float(x) for x in v]
@@ -101,7 +101,7 @@ def wrench(node, k: int, force, torque=(0.0, 0.0, 0.0), frame=topics.WRENCH_FRAM
     from geometry_msgs.msg import WrenchStamped
 
     msg = WrenchStamped()
-    msg.header.stamp = node.stamp_of(k)
+    msg.header.stamp = node.grid.stamp_of(k)
     msg.header.frame_id = frame
     msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z = map(float, force)
     msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z = map(float, torque)
@@ -112,7 +112,7 @@ def publish_clock(pub, node, k: int) -> None:
     """Publish /clock = t_k."""
     from rosgraph_msgs.msg import Clock
 
-    pub.publish(Clock(clock=node.stamp_of(k)))
+    pub.publish(Clock(clock=node.grid.stamp_of(k)))
 
 
 def mpc_command(k: int, torque, nx: int = 14, gain=None, nv: int = 7, state=None, names=()):

@@ -21,7 +21,7 @@ from ffmpc_ros.bag.machine import MACHINE_RECORD, machine_fingerprint, same_mach
 from ffmpc_ros.bag.reader import BagReader
 from ffmpc_ros.bag.rerun import RerunTolerance, compare_outputs, message_time, rerun_node
 from ffmpc_ros.bag.ros_types import message_class
-from ffmpc_ros.bringup import NODES, run_graph
+from ffmpc_ros.bringup import NODES, GraphOptions, run_graph
 
 SCENARIO = {"seed": 3, "mpc.formulation": "classical"}
 DURATION = 0.2
@@ -42,10 +42,7 @@ def single_process_run(tmp_path_factory):
     try:
         result = run_graph(
             load_scenario("polishing", SCENARIO),
-            duration=DURATION,
-            single_process=True,
-            timeout=120,
-            record=path,
+            GraphOptions(duration=DURATION, single_process=True, timeout=120, record=path),
         )
     finally:
         Publisher.publish = original
@@ -110,10 +107,7 @@ def test_multi_process_run_records_as_many_messages(single_process_run, tmp_path
     path = tmp_path / "multi"
     result = run_graph(
         load_scenario("polishing", SCENARIO),
-        duration=DURATION,
-        single_process=False,
-        timeout=120,
-        record=path,
+        GraphOptions(duration=DURATION, single_process=False, timeout=120, record=path),
     )
     with BagReader(path) as bag:
         for topic, _, _ in topics.resolved_topics():

@@ -16,7 +16,7 @@ from ffmpc_core.ft_calibration import save_calibration
 from ffmpc_core.polishing import device_generator, tool_calibration, wrist_sensor_model
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
-from ffmpc_ros.bringup import run_graph
+from ffmpc_ros.bringup import GraphOptions, run_graph
 from ffmpc_ros.ft_sensor_node import FtSensorNode
 from studies.ft_tool import BIAS, TOOL, mean_force_error, tool_study, tool_table
 from studies.polishing import run_polishing
@@ -41,7 +41,7 @@ def test_wrist_sensor_graph_equals_the_runner():
             **WRIST,
         },
     )
-    graph = run_graph(scenario, duration=1.1, single_process=True, timeout=300)
+    graph = run_graph(scenario, GraphOptions(duration=1.1, single_process=True, timeout=300))
     runner = run_polishing(scenario, duration=1.1)
     assert_same_run(graph, runner)
     assert graph.log["force_true"].max() > 5.0  # the run reached the table

@@ -26,7 +26,7 @@ from ffmpc_core.scenario import load_scenario
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.bag.reader import BagReader
 from ffmpc_ros.bag.schema import MessageDefinitions
-from ffmpc_ros.bringup import GraphError, run_graph
+from ffmpc_ros.bringup import GraphError, GraphOptions, run_graph
 from ffmpc_ros.robot_tree import WORLD_FRAME
 from ffmpc_ros.view import ViewError, check_port_free
 
@@ -129,11 +129,9 @@ def live_run(tmp_path_factory):
     try:
         result = run_graph(
             load_scenario("polishing"),
-            duration=DURATION,
-            timeout=120,
-            record=bag,
-            view=port,
-            view_wait=True,  # the run starts once the client is subscribed: nothing is missed
+            GraphOptions(
+                duration=DURATION, timeout=120, record=bag, view=port, view_wait=True
+            ),  # the run starts once the client is subscribed: nothing is missed
         )
     except GraphError as exc:  # (a graph that waited for the client: say what the client saw)
         raise GraphError(f"{exc}; the Foxglove client: error {client.error!r}") from exc
@@ -324,11 +322,7 @@ def _waiting_run(client: FoxgloveClient, port: int) -> tuple[dict, FoxgloveClien
     try:
         result = run_graph(
             load_scenario("polishing"),
-            duration=0.02,
-            single_process=True,
-            timeout=60,
-            view=port,
-            view_wait=True,
+            GraphOptions(duration=0.02, single_process=True, timeout=60, view=port, view_wait=True),
         )
     except GraphError as exc:
         raise GraphError(f"{exc}; the Foxglove client: error {client.error!r}") from exc
@@ -369,11 +363,9 @@ def test_a_run_nobody_looks_at_times_out_saying_what_the_view_waits_for():
     with pytest.raises(GraphError, match=f"the view: not started: no client .* {joint_states}"):
         run_graph(
             load_scenario("polishing"),
-            duration=0.02,
-            single_process=True,
-            timeout=5,
-            view=_free_port(),
-            view_wait=True,
+            GraphOptions(
+                duration=0.02, single_process=True, timeout=5, view=_free_port(), view_wait=True
+            ),
         )
 
 
@@ -385,7 +377,7 @@ def test_a_busy_port_is_refused_with_a_clear_error():
         with pytest.raises(ViewError, match=f"127.0.0.1:{port}.*--view-port"):
             check_port_free("127.0.0.1", port)
         with pytest.raises(ViewError, match="--view-port"):
-            run_graph(load_scenario("polishing"), duration=DURATION, view=port)
+            run_graph(load_scenario("polishing"), GraphOptions(duration=DURATION, view=port))
 
 
 def test_the_committed_layout_is_the_generated_one_and_fits_the_scenarios():

@@ -15,7 +15,7 @@ from ffmpc_core.errors import ConfigError
 from ffmpc_core.impact.scenario import load_impact_config
 from ffmpc_core.scenario import PLANT_ENGINES, load_scenario
 from ffmpc_ros import cli_args
-from ffmpc_ros.bringup import run_graph
+from ffmpc_ros.bringup import GraphOptions, run_graph
 from ffmpc_ros.cli import main
 from ffmpc_ros.impact_graph import compare_with_runner, run_impact_graph
 from sim_bridge.mujoco_plant import MujocoPlant
@@ -32,7 +32,7 @@ def test_polishing_on_mujoco_graph_equals_the_runner():
     the run reaches the table, and it is not the PyBullet run."""
     overrides = {"seed": 2, "mpc.formulation": "force_feedback", "plant.engine": "mujoco"}
     scenario = load_scenario("polishing", overrides)
-    graph = run_graph(scenario, duration=1.0, single_process=True, timeout=180)
+    graph = run_graph(scenario, GraphOptions(duration=1.0, single_process=True, timeout=180))
     runner = run_polishing(scenario, duration=1.0)
     assert_same_run(graph, runner)
     assert graph.summary()["plant_engine"] == "mujoco"

@@ -182,7 +182,7 @@ def test_two_graphs_side_by_side_on_one_domain():
     here (0.3 s runs), /arm2 finished while /arm1 stalled at cycle 16 (t = 0.016 s) until its
     stall timeout. ``ROS_DOMAIN_ID`` per graph would avoid it too, but not let two cells share
     a domain."""
-    from ffmpc_ros.bringup import run_graph
+    from ffmpc_ros.bringup import GraphOptions, run_graph
 
     # One domain for both graphs, not the one the rest of this pytest process uses: nodes of
     # earlier tests still shutting down there are no part of this test.
@@ -194,7 +194,8 @@ def test_two_graphs_side_by_side_on_one_domain():
 
     def arm1() -> None:
         results["arm1"] = run_graph(
-            _scenario(1), duration=0.2, namespace="/arm1", timeout=150, domain_id=domain
+            _scenario(1),
+            GraphOptions(duration=0.2, namespace="/arm1", timeout=150, domain_id=domain),
         )
 
     thread = threading.Thread(target=arm1)

@@ -206,10 +206,12 @@ def test_real_time_run_json_is_consistent(tmp_path):
 
 
 def _stalled_run(fault: str, overrides: dict | None = None):
-    from ffmpc_ros.bringup import run_graph
+    from ffmpc_ros.bringup import GraphOptions, run_graph
 
     scenario = load_scenario("polishing", overrides)  # the force-feedback MPC
-    return run_graph(scenario, lockstep=False, duration=1.0, faults=[fault], timeout=180.0)
+    return run_graph(
+        scenario, GraphOptions(lockstep=False, duration=1.0, faults=[fault], timeout=180.0)
+    )
 
 
 @pytest.mark.xfail(

@@ -44,10 +44,10 @@ def test_a_graph_run_over_a_limit_is_aborted_as_the_runner_s_and_ffmpc_run_exits
 
 
 def test_the_graph_s_aborted_run_is_the_runner_s_run_bit_for_bit():
-    from ffmpc_ros.bringup import run_graph
+    from ffmpc_ros.bringup import GraphOptions, run_graph
 
     scenario = load_scenario("polishing", PUSH)
-    graph = run_graph(scenario, duration=0.15, single_process=True)
+    graph = run_graph(scenario, GraphOptions(duration=0.15, single_process=True))
     runner = run_polishing(scenario, duration=0.15)
     assert graph.aborted and runner.aborted
     assert_same_run(graph, runner)

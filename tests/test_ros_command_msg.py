@@ -165,7 +165,7 @@ def test_pid_torque_from_the_typed_command_equals_the_array_layouts(ros, robot):
             solution.torque = gravity + rng.normal(0.0, 2.0, 7)
             solution.state = np.concatenate((q, v, tau)) + 0.01 * rng.standard_normal(21)
             solution.feedback_gain *= 0.5
-            stamp = node.stamp_of(k)
+            stamp = node.grid.stamp_of(k)
             pub_c.publish(command_message(stamp, "torque_feedback", [], k // 2, solution))
             reference.set_command(_legacy_command(_legacy_array(k * 1e-3, solution)), k * 1e-3)
         pub_j.publish(joint_state(node, k, q, v, tau))

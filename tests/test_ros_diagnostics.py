@@ -13,9 +13,9 @@ from ffmpc_core.lowlevel import LowLevelMode, LowLevelOutput
 from ffmpc_core.robots import load_robot
 from ffmpc_core.scenario import load_scenario
 from ffmpc_ros import topics
-from ffmpc_ros.base import DIAGNOSTICS_PERIOD, DIAGNOSTICS_TOPIC
 from ffmpc_ros.joint_sensor_node import JointSensorNode
 from ffmpc_ros.mpc_node import MpcNode
+from ffmpc_ros.node_diagnostics import DIAGNOSTICS_PERIOD, DIAGNOSTICS_TOPIC
 from ffmpc_ros.pid_node import PidNode
 
 
@@ -60,21 +60,21 @@ def test_mpc_and_pid_report_their_own_state(ros):
     scenario = load_scenario("polishing", {"mpc.formulation": "classical"})
     mpc = ros.add(MpcNode(context=ros.context, parameter_overrides=overrides("mpc", scenario)))
     mpc.solve_times.extend([0.4e-3, 0.6e-3, 0.5e-3])
-    status = mpc.diagnostic_status()
+    status = mpc.diagnostics.status()
     values = _values(status)
     assert status.level == DiagnosticStatus.OK and values["solves"] == "3"
     assert values["solve_time_p50_ms"] == "0.500" and values["solve_time_max_ms"] == "0.600"
     mpc.reject("solve", "cycle 4: the test's failed solve")
-    status = mpc.diagnostic_status()
+    status = mpc.diagnostics.status()
     assert status.level == DiagnosticStatus.ERROR and status.message == "1 solves failed"
     assert "solve_time_p50_ms" not in _values(status)  # no solve in this period
-    assert mpc.diagnostic_status().level == DiagnosticStatus.OK
+    assert mpc.diagnostics.status().level == DiagnosticStatus.OK
     pid = ros.add(PidNode(context=ros.context, parameter_overrides=overrides("pid", scenario)))
-    assert _values(pid.diagnostic_status())["mode"] == "none (no cycle yet)"
+    assert _values(pid.diagnostics.status())["mode"] == "none (no cycle yet)"
     zeros = np.zeros(7)
-    pid.last_output = LowLevelOutput(zeros, zeros, LowLevelMode.FALLBACK, 0.006, 0.0)
-    status = pid.diagnostic_status()
+    pid.report.last_output = LowLevelOutput(zeros, zeros, LowLevelMode.FALLBACK, 0.006, 0.0)
+    status = pid.diagnostics.status()
     assert status.level == DiagnosticStatus.ERROR and "safe hold" in status.message
     assert _values(status)["mode"] == "fallback"
-    pid.last_output = LowLevelOutput(zeros, zeros, LowLevelMode.TRACK, 0.001, 1.0)
-    assert pid.diagnostic_status().level == DiagnosticStatus.OK
+    pid.report.last_output = LowLevelOutput(zeros, zeros, LowLevelMode.TRACK, 0.001, 1.0)
+    assert pid.diagnostics.status().level == DiagnosticStatus.OK

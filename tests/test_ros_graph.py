@@ -9,7 +9,7 @@ import pytest
 from ros_helpers import assert_same_run
 
 from ffmpc_core.scenario import load_scenario
-from ffmpc_ros.bringup import graph_parameters, run_graph, write_params_file
+from ffmpc_ros.bringup import GraphOptions, graph_parameters, run_graph, write_params_file
 from studies.polishing import run_polishing
 
 
@@ -21,7 +21,7 @@ def test_single_process_graph_equals_the_runner_for_one_second():
     scenario = load_scenario(
         "polishing", {"seed": 0, "mpc.formulation": "force_feedback", "mpc.riccati_feedback": True}
     )
-    graph = run_graph(scenario, duration=1.0, single_process=True, timeout=120)
+    graph = run_graph(scenario, GraphOptions(duration=1.0, single_process=True, timeout=120))
     runner = run_polishing(scenario, duration=1.0)
     assert_same_run(graph, runner)
     assert graph.log["force_true"].max() > 5.0  # the run reached the table
@@ -34,7 +34,7 @@ def test_single_process_graph_equals_the_runner_for_one_second():
 
 def test_multi_process_graph_equals_the_runner():
     scenario = load_scenario("polishing", {"seed": 1, "mpc.formulation": "classical"})
-    graph = run_graph(scenario, duration=0.2, single_process=False, timeout=120)
+    graph = run_graph(scenario, GraphOptions(duration=0.2, single_process=False, timeout=120))
     runner = run_polishing(scenario, duration=0.2)
     assert_same_run(graph, runner)
 
@@ -45,9 +45,11 @@ def test_real_time_refuses_the_lockstep_only_options():
 
     scenario = load_scenario("polishing", {"mpc.formulation": "classical"})
     with pytest.raises(ConfigError, match="two processes"):
-        run_graph(scenario, duration=0.2, single_process=True, lockstep=False)
+        run_graph(scenario, GraphOptions(duration=0.2, single_process=True, lockstep=False))
     with pytest.raises(ConfigError, match="two processes"):
-        run_graph(scenario, duration=0.2, lockstep=False, record="/tmp/never_written.mcap")
+        run_graph(
+            scenario, GraphOptions(duration=0.2, lockstep=False, record="/tmp/never_written.mcap")
+        )
 
 
 def test_generated_parameter_file_is_a_ros_parameter_file(tmp_path):

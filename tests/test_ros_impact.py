@@ -114,7 +114,7 @@ def test_planner_publishes_the_core_controller_numbers_and_takes_a_confident_est
         if k == 2:  # not confident (20 % standard error): ignored
             pub_e.publish(_estimate(5000.0, 30.0, 0.2, 500, 0.001))
             assert ros.spin_until(
-                lambda: topics.resolve(topics.CONTACT_ESTIMATE) in node._last_cycle
+                lambda: node.gate.last_cycle(topics.resolve(topics.CONTACT_ESTIMATE)) >= 0
             )
         if k == 4:  # confident: the planner plans with it from this cycle on
             pub_e.publish(_estimate(5000.0, 30.0, 0.01, 500, 0.003))
@@ -130,7 +130,8 @@ def test_planner_publishes_the_core_controller_numbers_and_takes_a_confident_est
     bounds = []
     for k, (cmd, tw, st) in enumerate(zip(expected, twists, status, strict=True)):
         got = layouts.IMPACT_STATUS.unpack(st)
-        assert tw.header.stamp == node.stamp_of(k) and tw.header.frame_id == topics.COMMAND_FRAME
+        assert tw.header.stamp == node.grid.stamp_of(k)
+        assert tw.header.frame_id == topics.COMMAND_FRAME
         lin = np.array([tw.twist.linear.x, tw.twist.linear.y, tw.twist.linear.z])
         np.testing.assert_array_equal(lin, cmd.velocity)
         np.testing.assert_array_equal(got["position"], cmd.position)
@@ -188,7 +189,7 @@ def test_planner_rejects_bad_input_with_one_log_line_and_stops_safely(ros, panda
     assert node.rejected[kind] == 5 and node.log_lines[kind] == 1
     got, lin = last()
     assert got["safe_stop"] == 1.0 and got["velocity"] == 0.0 and not lin.any()
-    assert got["t"] == 6e-3 and twists[-1].header.stamp == node.stamp_of(6)
+    assert got["t"] == 6e-3 and twists[-1].header.stamp == node.grid.stamp_of(6)
     # A wrench in another frame and unknown joint names: rejected and stopped as well.
     ros.set_clock(node, 8)
     pub_w.publish(wrench(node, 7, (0.0, 0.0, 0.0), frame="tool0"))
@@ -419,21 +420,21 @@ def test_mpc_node_applies_a_learner_estimate_live_only_when_confident(ros):
     assert _contact_of(node.mpc) == {(1000.0, 100.0)}
 
     def send(msg):
-        before = node._last_cycle.get(topics.resolve(topics.CONTACT_ESTIMATE), -1)
+        before = node.gate.last_cycle(topics.resolve(topics.CONTACT_ESTIMATE))
         pub_e.publish(msg)
         assert ros.spin_until(
-            lambda: node._last_cycle.get(topics.resolve(topics.CONTACT_ESTIMATE), -1) > before
+            lambda: node.gate.last_cycle(topics.resolve(topics.CONTACT_ESTIMATE)) > before
         )
 
     # Not confident: 10 % standard errors, then too few samples → the model is unchanged.
     send(_estimate(3000.0, 40.0, 0.10, 500, 0.001))
     send(_estimate(3000.0, 40.0, 0.01, 49, 0.002))
-    assert node.contact_updates == 0 and _contact_of(node.mpc) == {(1000.0, 100.0)}
+    assert node.learned.updates == 0 and _contact_of(node.mpc) == {(1000.0, 100.0)}
     # Confident: applied to every OCP node at once, logged once (throttled).
     send(_estimate(3000.0, 40.0, 0.01, 500, 0.003))
-    assert node.contact_updates == 1 and _contact_of(node.mpc) == {(3000.0, 40.0)}
+    assert node.learned.updates == 1 and _contact_of(node.mpc) == {(3000.0, 40.0)}
     send(_estimate(3100.0, 42.0, 0.02, 600, 0.004))
-    assert node.contact_updates == 2 and _contact_of(node.mpc) == {(3100.0, 42.0)}
+    assert node.learned.updates == 2 and _contact_of(node.mpc) == {(3100.0, 42.0)}
     assert node.log_lines["contact_update"] == 1
     assert node.rejected.total() == 0
     # Bad estimates: NaN, wrong direction (x, the contact is along z), out of order.
@@ -444,7 +445,7 @@ def test_mpc_node_applies_a_learner_estimate_live_only_when_confident(ros):
         pub_e.publish(msg)  # one at a time: the subscription keeps only the newest sample
         assert ros.spin_until(lambda i=i: node.rejected.total() == i + 1)
     assert {k.rsplit(":", 1)[1] for k in node.rejected} == {"value", "direction", "order"}
-    assert node.contact_updates == 2 and _contact_of(node.mpc) == {(3100.0, 42.0)}
+    assert node.learned.updates == 2 and _contact_of(node.mpc) == {(3100.0, 42.0)}
     # The next solve uses the learned model: the command equals a core MPC with K, B set.
     rng = np.random.default_rng(3)
     q = robot.q_nominal + 0.01 * rng.standard_normal(7)

@@ -18,7 +18,7 @@ from ffmpc_core.linear_feedback import LinearFeedbackCommand, linear_feedback_to
 from ffmpc_core.lowlevel import LowLevelMode
 from ffmpc_core.scenario import load_scenario
 from ffmpc_ros import layouts, lfc_msgs, topics
-from ffmpc_ros.bringup import run_graph
+from ffmpc_ros.bringup import GraphOptions, run_graph
 from ffmpc_ros.graph_nodes import node_table
 from ffmpc_ros.lfc_node import LfcNode
 from ffmpc_ros.plant_node import PlantNode
@@ -108,8 +108,8 @@ def test_lfc_node_applies_the_law_of_each_control_and_holds_without_one(ros):
     ros.spin_for(0.2)
     assert efforts == []
     np.testing.assert_array_equal(sensors[0].joint_state.position, q)
-    assert sensors[0].header.stamp == node.stamp_of(0)
-    control = lfc_msgs.control_message(node.stamp_of(0), "classical", names, sol)
+    assert sensors[0].header.stamp == node.grid.stamp_of(0)
+    control = lfc_msgs.control_message(node.grid.stamp_of(0), "classical", names, sol)
     controls.publish(control)
     assert ros.spin_until(lambda: len(efforts) == 1 and len(records) == 1 and len(status) == 1)
     fields = lfc_msgs.control_fields(control, names)
@@ -121,7 +121,7 @@ def test_lfc_node_applies_the_law_of_each_control_and_holds_without_one(ros):
     np.testing.assert_array_equal(records[0].effort, efforts[0].data)
     assert layouts.LOWLEVEL_STATUS.unpack(status[0])["mode"] == LowLevelMode.TRACK
     # cycle 1 is no tick: the same control applies; a Control for other joints is rejected
-    bad = lfc_msgs.control_message(node.stamp_of(2), "classical", names[::-1], sol)
+    bad = lfc_msgs.control_message(node.grid.stamp_of(2), "classical", names[::-1], sol)
     controls.publish(bad)
     assert ros.spin_until(lambda: node.rejected[f"/{topics.LFC_CONTROL}:value"] == 1)
     ros.set_clock(node, 1)
@@ -148,11 +148,9 @@ def test_ros2_control_graph_with_the_pid_equals_the_runner():
     scenario = load_scenario("polishing", {"seed": 2})
     graph = run_graph(
         scenario,
-        duration=1.0,
-        single_process=True,
-        timeout=300,
-        interfaces=ROS2_CONTROL,
-        low_level="pid",
+        GraphOptions(
+            duration=1.0, single_process=True, timeout=300, interfaces=ROS2_CONTROL, low_level="pid"
+        ),
     )
     assert_same_run(graph, run_polishing(scenario, duration=1.0))
     assert graph.log["force_true"].max() > 5.0  # the run reached the table
@@ -179,11 +177,13 @@ def test_mpc_publishes_control_and_the_lfc_law_drives_the_plant_like_the_normal_
     scenario = load_scenario("polishing", {"seed": 0})
     graph = run_graph(
         scenario,
-        duration=LFC_DURATION,
-        single_process=True,
-        timeout=600,
-        interfaces=ROS2_CONTROL,
-        low_level="lfc",
+        GraphOptions(
+            duration=LFC_DURATION,
+            single_process=True,
+            timeout=600,
+            interfaces=ROS2_CONTROL,
+            low_level="lfc",
+        ),
     )
     normal = run_polishing(scenario, duration=LFC_DURATION)
     lfc, ref = graph.metrics_true.to_dict(), normal.metrics_true.to_dict()
@@ -275,8 +275,8 @@ def test_the_mpc_launch_file_drives_a_simulated_ros2_control_robot(ros, tmp_path
         tracked = ros.spin_until(
             lambda: (
                 lfc.accepted[control_topic] >= 50
-                and lfc.last_output is not None
-                and lfc.last_output.mode == LowLevelMode.TRACK
+                and lfc.report.last_output is not None
+                and lfc.report.last_output.mode == LowLevelMode.TRACK
             ),
             timeout=90.0,
         )

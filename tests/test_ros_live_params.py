@@ -87,13 +87,13 @@ def test_stiffness_set_on_a_running_mpc_changes_the_ocp_from_the_next_solve(ros,
     result = _set(ros, client, "contact.stiffness", 1500.0)
     assert result.successful, result.reason
     assert node.get_parameter("contact.stiffness").value == 1500.0
-    assert node.pending_parameters == {"contact.stiffness": 1500.0}
+    assert node.live.pending == {"contact.stiffness": 1500.0}
     assert _stiffness(node.mpc) == {1000.0}  # not before the next solve
     _solve_tick(ros, node, pub_j, pub_w, robot, 2, commands)
     assert _stiffness(node.mpc) == {1500.0}
     assert node.mpc.config.contact.stiffness == 1500.0
     assert float(node.mpc._predictor.model.nominal_stiffness[0]) == 1500.0
-    assert node.live_changes == [(2, "contact.stiffness", 1500.0)]
+    assert node.live.changes == [(2, "contact.stiffness", 1500.0)]
 
     capfd.readouterr()
     for bad in (-5.0, math.nan, "stiff"):
@@ -103,12 +103,12 @@ def test_stiffness_set_on_a_running_mpc_changes_the_ocp_from_the_next_solve(ros,
     assert "out of range" in _set(ros, client, "contact.stiffness", -5.0).reason
     reason = _set(ros, client, "contact.damping", -1).reason  # an integer: no rclpy range check
     assert "expected a number in [0, 1e+06] N·s/m" in reason
-    assert node.refused_parameters == {"contact.stiffness": 4, "contact.damping": 1}
+    assert node.live.refused == {"contact.stiffness": 4, "contact.damping": 1}
     log = capfd.readouterr().err
     assert log.count("parameter refused") == 5 and "accepted" not in log  # one line each
-    assert node.get_parameter("contact.stiffness").value == 1500.0 and not node.pending_parameters
+    assert node.get_parameter("contact.stiffness").value == 1500.0 and not node.live.pending
     _solve_tick(ros, node, pub_j, pub_w, robot, 4, commands)
-    assert _stiffness(node.mpc) == {1500.0} and len(node.live_changes) == 1
+    assert _stiffness(node.mpc) == {1500.0} and len(node.live.changes) == 1
 
     # read-only stays read-only; another formulation's weights are refused with the reason
     assert "read-only" in _set(ros, client, "horizon", 3).reason
@@ -165,8 +165,8 @@ def test_torque_limit_set_live_saturates_the_next_cycle_and_a_looser_one_is_refu
         assert np.all(np.abs(got) <= bound + 1e-12)
         if k == change - 1:
             assert np.max(np.abs(got) / limit) > 0.3  # the old limit let more through
-    assert node.live_changes == [(change, "torque_limit_fraction", 0.3)]
-    assert node.refused_parameters["torque_limit_fraction"] == 1
+    assert node.live.changes == [(change, "torque_limit_fraction", 0.3)]
+    assert node.live.refused["torque_limit_fraction"] == 1
 
 
 def test_pid_gains_change_the_motor_torque_of_the_next_cycle_as_eq_33(ros, robot):
@@ -210,7 +210,7 @@ def test_pid_gains_change_the_motor_torque_of_the_next_cycle_as_eq_33(ros, robot
             eq33 = out_old - (0.6 - 0.1) * error - (45.0 - 20.0) * integral
             np.testing.assert_allclose(got, eq33, rtol=0, atol=1e-9)
             assert np.max(np.abs(got - out_old)) > 0.05  # the gains did change the torque
-    assert node.live_changes == [(change, "kp", 0.6), (change, "ki", 45.0)]
+    assert node.live.changes == [(change, "kp", 0.6), (change, "ki", 45.0)]
     assert node.lowlevel.pid.gains.ki[0] == 45.0
 
 
@@ -259,11 +259,11 @@ def test_bad_references_are_rejected_and_counted_a_good_one_retargets(ros, robot
     }
     assert node.log_lines[f"{force}:value"] == 1  # one line per kind (throttled)
     assert list(node.get_parameter("position_offset").value) == [0.0, 0.0, 0.0]
-    assert not node.pending_parameters
+    assert not node.live.pending
 
     pub_ref.publish(pose(centre + [0.02, -0.01, 0.0]))
     pub_force.publish(Float64(data=30.0))
-    assert ros.spin_until(lambda: len(node.pending_parameters) == 2)
+    assert ros.spin_until(lambda: len(node.live.pending) == 2)
     np.testing.assert_allclose(
         node.get_parameter("position_offset").value, [0.02, -0.01, 0.0], atol=1e-12
     )
@@ -328,7 +328,7 @@ def test_force_setpoint_mid_run_retargets_a_lockstep_graph(ros):
 
     assert ros.spin_until(done, timeout=600.0), f"{len(forces)} of {steps} cycles"
     mpc = nodes["mpc"]
-    ((k, name, value),) = mpc.live_changes
+    ((k, name, value),) = mpc.live.changes
     assert name == "task.normal_force" and value == 30.0 and change <= k * 1e-3 < change + 0.02
     f = np.array([x for _, x in sorted(forces)])
     before = f[int(0.6 * 1000) : int(change * 1000)].mean()  # 50 N reached, before the change

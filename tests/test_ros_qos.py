@@ -24,10 +24,11 @@ from ffmpc_core.mpc import ModelPredictiveController, MpcMeasurement
 from ffmpc_core.polishing import build_task, mpc_config
 from ffmpc_core.scenario import load_scenario
 from ffmpc_ros import topics
-from ffmpc_ros.base import GRID_TOLERANCE_NS, MAX_FUTURE_STAMP, cycle_at, stamp_ns
 from ffmpc_ros.command_msg import command_fields
+from ffmpc_ros.input_gate import MAX_FUTURE_STAMP
 from ffmpc_ros.joint_sensor_node import JointSensorNode
 from ffmpc_ros.mpc_node import MpcNode
+from ffmpc_ros.time_grid import GRID_TOLERANCE_NS, cycle_at, stamp_ns
 
 STEP_NS = 1_000_000  # 1 ms cycles
 OFFSET_NS = 370_000  # a driver's clock 0.37 ms after the cycle
@@ -58,12 +59,12 @@ def test_an_off_grid_stamp_is_judged_by_itself_not_by_its_cycle(ros):
     )
     topic = topics.PLANT_JOINT_STATES
     ros.set_clock(node, 1000)  # 1 s
-    assert not node.check_cycle(topic, 1010, 1010 * STEP_NS + OFFSET_NS)
+    assert not node.gate.check_cycle(topic, 1010, 1010 * STEP_NS + OFFSET_NS)
     assert node.rejected[f"/{topic}:future"] == 1
     assert 1010 * STEP_NS - 1000 * STEP_NS <= MAX_FUTURE_STAMP * 1e9  # by its cycle: in time
-    assert not node.check_cycle(topic, 949, 949 * STEP_NS + 630_000)  # 50.37 ms old
+    assert not node.gate.check_cycle(topic, 949, 949 * STEP_NS + 630_000)  # 50.37 ms old
     assert node.rejected[f"/{topic}:stale"] == 1
-    assert node.check_cycle(topic, 950, 950 * STEP_NS + OFFSET_NS)  # 49.63 ms old
+    assert node.gate.check_cycle(topic, 950, 950 * STEP_NS + OFFSET_NS)  # 49.63 ms old
 
 
 # -- a driver's sensor data ------------------------------------------------------------------------

@@ -69,7 +69,7 @@ def test_confident_estimate_applies_the_one_rule() -> None:
 
 
 def test_drop_stale_cycles() -> None:
-    from ffmpc_ros.base import drop_stale_cycles
+    from ffmpc_ros.time_grid import drop_stale_cycles
 
     joints = {k: f"q{k}" for k in range(10)}
     forces = {3: "f3", 8: "f8"}

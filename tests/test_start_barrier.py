@@ -1,6 +1,7 @@
-"""The lockstep start barrier (ffmpc_ros.base ``GraphNode.writers_matched``, ffmpc_ros.topics
-``START_READY``): a node declares itself ready (a ``lockstep/ready`` reader) only once it knows
-every /clock reader of the graph and each of its writers has matched every compatible reader;
+"""The lockstep start barrier (``ffmpc_ros.start_barrier.StartBarrier.writers_matched``,
+ffmpc_ros.topics ``START_READY``): a node declares itself ready (a ``lockstep/ready`` reader)
+only once it knows every /clock reader of the graph and each of its writers has matched every
+compatible reader;
 the plant publishes cycle 0 only once every node is ready. With reliable, VOLATILE topics (no
 replay), the first sample then reaches a reader that was created after the writer."""
 
@@ -47,14 +48,14 @@ def test_a_node_is_ready_only_once_its_writer_matched_a_late_reader_and_loses_no
     watcher = ros.probe("watcher")
     ros.spin_for(1.0)
     # alone on the graph: it does not know every member yet
-    assert not node.start_ready and _ready_readers(watcher) == 0
+    assert not node.barrier.ready and _ready_readers(watcher) == 0
 
     # /clock readers of a non-member (a live view, a ros2 topic echo) do not count
     outsider = ros.probe("outsider")
     for _ in range(topics.CLOCK_READERS_PER_NODE):
         outsider.create_subscription(Clock, topics.CLOCK, lambda m: None, topics.clock_reader_qos())
     ros.spin_for(1.0)
-    assert not node.start_ready
+    assert not node.barrier.ready
     # a late member of the graph: first its data reader and an incompatible reader (transient
     # local on a volatile writer, which the barrier must not wait for), then its membership
     # marker (last, as a GraphNode's)
@@ -69,7 +70,7 @@ def test_a_node_is_ready_only_once_its_writer_matched_a_late_reader_and_loses_no
     )
     late.create_subscription(JointState, topics.SENSED_JOINT_STATES, lambda m: None, incompatible)
     late.create_subscription(Empty, topics.START_MEMBER, lambda m: None, topics.start_ready_qos())
-    assert ros.spin_until(lambda: node.start_ready, timeout=20.0)
+    assert ros.spin_until(lambda: node.barrier.ready, timeout=20.0)
     writer = node.publisher
     # the token came only after the writer had matched the compatible late reader
     assert writer.get_subscription_count() >= 1
@@ -106,7 +107,7 @@ def test_the_plant_publishes_cycle_0_only_once_every_node_passed_the_barrier(ros
         )
     )
     ros.spin_for(1.0)
-    assert not plant.start_ready  # it knows only its own /clock readers
+    assert not plant.barrier.ready  # it knows only its own /clock readers
     sensor = ros.add(
         JointSensorNode(
             context=ros.context,
@@ -115,7 +116,7 @@ def test_the_plant_publishes_cycle_0_only_once_every_node_passed_the_barrier(ros
             ),
         )
     )
-    assert ros.spin_until(lambda: plant.start_ready and sensor.start_ready, timeout=20.0)
+    assert ros.spin_until(lambda: plant.barrier.ready and sensor.barrier.ready, timeout=20.0)
     # every /clock reader matched, two tokens of three: the plant waits for the third node
     ros.spin_for(1.0)
     assert not plant.started
@@ -132,5 +133,5 @@ def test_without_a_graph_to_wait_for_a_node_is_ready_at_once(ros):
     node = ros.add(
         JointSensorNode(context=ros.context, parameter_overrides=_graph_overrides("joint_sensor"))
     )
-    assert node.start_ready
+    assert node.barrier.ready
     assert topics.resolve(topics.START_READY) not in {s.topic_name for s in node.subscriptions}

@@ -657,7 +657,7 @@ def _run(
 
         def taken(pending: list[tuple[str, int, int]] = pending) -> bool:
             return all(
-                target._last_cycle.get(topic, -1) >= kk or rejected(topic) > before
+                target.gate.last_cycle(topic) >= kk or rejected(topic) > before
                 for topic, kk, before in pending
             )
 

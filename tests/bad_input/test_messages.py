@@ -56,8 +56,8 @@ def test_a_foreign_command_never_takes_the_mpcs_tick(ros, robot):
             pub_c.publish(mpc_command(k, gravity))  # the graph's MPC
         pub_j.publish(joint_state(node, k, q, np.zeros(7), gravity))
         assert ros.spin_until(lambda k=k: len(motor) == k + 1, timeout=STEP_WAIT), k
-        assert node.last_output.mode != LowLevelMode.FALLBACK, k
-        np.testing.assert_allclose(node.last_output.desired_torque, gravity, atol=1e-9)
+        assert node.report.last_output.mode != LowLevelMode.FALLBACK, k
+        np.testing.assert_allclose(node.report.last_output.desired_torque, gravity, atol=1e-9)
     assert node.lowlevel.command_time == pytest.approx(6e-3)  # every tick took its own
     assert node.rejected[f"{topic}:value"] == 8  # the absurd and the malformed ones
     assert node.rejected[f"{topic}:tick"] == 4
@@ -88,7 +88,7 @@ def test_reference_inputs_match_a_default_publisher_and_stay_as_parameters(ros, 
         float(x) for x in centre + [0.03, 0.0, 0.0]
     )
     pub_ref.publish(target)
-    assert ros.spin_until(lambda: len(mpc.pending_parameters) == 2)
+    assert ros.spin_until(lambda: len(mpc.live.pending) == 2)
     assert mpc.get_parameter("task.normal_force").value == 30.0
     np.testing.assert_allclose(mpc.get_parameter("position_offset").value, [0.03, 0.0, 0.0])
     assert not mpc.rejected

@@ -284,7 +284,7 @@ def _check(published: list, limits: np.ndarray) -> None:
 
 def _valid(sub, node, k: int, data) -> object:
     """A plausible message of cycle k for ``sub`` (values drawn small and finite)."""
-    stamp = node.stamp_of(k)
+    stamp = node.grid.stamp_of(k)
     small = st.floats(-0.05, 0.05)
     if sub.msg_type is JointState:
         names = node_joint_names(node)
@@ -431,7 +431,7 @@ def test_no_message_crashes_a_node_or_makes_it_unsafe(case, ros):
         for i in range(data.draw(st.integers(1, 10), label="cycles")):
             # the plant checks torques against its own cycle; the others follow /clock
             k = getattr(node, "k", None) if case == "plant" else base["k"] + i
-            clock.callback(Clock(clock=node.stamp_of(k)))
+            clock.callback(Clock(clock=node.grid.stamp_of(k)))
             for sub in subs:
                 how = data.draw(st.sampled_from(HOW), label="how")
                 if how == "skip":

@@ -18,8 +18,8 @@ from sensor_msgs.msg import JointState
 
 from ffmpc_core.scenario import load_scenario
 from ffmpc_ros import topics
-from ffmpc_ros.base import MAX_FUTURE_STAMP
 from ffmpc_ros.discovery import DISCOVERY_RANGE_VARIABLE, ensure_local_discovery
+from ffmpc_ros.input_gate import MAX_FUTURE_STAMP
 from ffmpc_ros.joint_sensor_node import JointSensorNode
 from ffmpc_ros.pid_node import PidNode
 
@@ -65,9 +65,9 @@ def test_a_node_without_a_time_yet_judges_stamps_from_its_first_clock_on(ros):
     )
     ahead = int(round(MAX_FUTURE_STAMP / node.time_step)) + 1
     assert node.get_clock().now().nanoseconds == 0
-    assert node.check_cycle("plant/joint_states", ahead)  # no time yet: accepted
-    node._on_clock(Clock())  # the first /clock, t = 0
-    assert not node.check_cycle("other/topic", ahead)
+    assert node.gate.check_cycle("plant/joint_states", ahead)  # no time yet: accepted
+    node.clock_reader.on_clock(Clock())  # the first /clock, t = 0
+    assert not node.gate.check_cycle("other/topic", ahead)
     assert node.rejected[f"{node.name_of('other/topic')}:future"] == 1
 
 
@@ -91,7 +91,7 @@ def test_a_command_from_the_future_is_rejected_by_the_pid(ros, robot):
     pub_j.publish(joint_state(node, 4, robot.q_nominal, np.zeros(7), gravity))
     assert ros.spin_until(lambda: len(motor) == 1)
     assert node.lowlevel.command_time == pytest.approx(4e-3)  # the genuine one was taken
-    np.testing.assert_allclose(node.last_output.desired_torque, gravity)
+    np.testing.assert_allclose(node.report.last_output.desired_torque, gravity)
 
 
 def test_one_rejected_wrench_does_not_stall_the_riccati_feedback_loop(ros, robot):

@@ -1,0 +1,105 @@
+"""The bring-up's steps, each alone: plan_graph (checks and parameters, nothing started), then a
+GraphSession's spawn, bring_up, watch, run, stop and collect on a short single-process run, and
+stop after a failed start."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from ffmpc_core.errors import ConfigError
+from ffmpc_core.scenario import load_scenario
+from ffmpc_ros import topics
+from ffmpc_ros.bringup import GraphOptions, GraphSession, plan_graph
+from ffmpc_ros.fault_injector import FAULT_LOCKSTEP_TIMEOUT
+
+
+@pytest.fixture(scope="module")
+def scenario():
+    return load_scenario("polishing", {"mpc.formulation": "classical"})
+
+
+def test_plan_checks_options_before_anything_starts(scenario, tmp_path) -> None:
+    refused = [
+        GraphOptions(interfaces=topics.ROS2_CONTROL_INTERFACES, lockstep=False),
+        GraphOptions(node_ros_args={"pid": ["-p", "kp:=0.2"]}, single_process=True),
+        GraphOptions(node_ros_args={"nobody": ["-p", "x:=1"]}),
+        GraphOptions(lockstep=False, record=str(tmp_path / "rt.mcap")),
+        GraphOptions(lockstep=False, single_process=True),
+    ]
+    for options in refused:
+        with pytest.raises(ConfigError):
+            plan_graph(scenario, options)
+    existing = tmp_path / "there.mcap"
+    existing.write_bytes(b"")
+    from ffmpc_ros.bag.errors import BagExistsError
+
+    with pytest.raises(BagExistsError):
+        plan_graph(scenario, GraphOptions(record=str(existing)))
+
+
+def test_plan_gives_each_node_its_parameters_and_the_extra_readers_to_wait_for(
+    scenario, tmp_path
+) -> None:
+    plain = plan_graph(scenario, GraphOptions(duration=0.2, domain_id=7, namespace="arm1"))
+    assert plain.domain == 7 and plain.namespace == "/arm1" and plain.duration == 0.2
+    assert set(plain.table) <= set(plain.params) and "metrics" in plain.params
+    recorded = plan_graph(
+        scenario,
+        GraphOptions(
+            duration=0.2,
+            record=str(tmp_path / "run.mcap"),
+            faults=["mpc-dropout@0.05+0.02"],
+            fault_windows=[(0.1, 0.12)],
+        ),
+    )
+    plant, plant_recorded = plain.params["plant"], recorded.params["plant"]
+    # the recorder is one more joint-state reader the plant waits for, and two /clock readers
+    assert plant_recorded["start_subscribers"] == plant["start_subscribers"] + 1
+    for node, values in recorded.params.items():
+        before = plain.params[node]["start_clock_subscribers"]
+        assert values["start_clock_subscribers"] == before + 2
+    assert recorded.windows[0] == (0.1, 0.12)
+    assert recorded.windows[1][0] == pytest.approx(0.05)  # the fault's own window
+    # a process fault: the PID waits for a command a short while only
+    assert recorded.params["pid"]["lockstep_timeout"] == FAULT_LOCKSTEP_TIMEOUT
+    assert "lockstep_timeout" not in plain.params["pid"]
+    assert not os.path.exists(tmp_path / "run.mcap")  # nothing started
+
+
+def test_session_steps_run_a_short_single_process_graph(scenario) -> None:
+    import time
+
+    options = GraphOptions(duration=0.03, single_process=True, timeout=300.0)
+    plan = plan_graph(scenario, options)
+    session = GraphSession(plan, time.perf_counter())
+    try:
+        session.spawn()
+        assert [n.get_name() for n in session.graph_nodes] == list(plan.table)
+        assert session.children == {}  # single process: no child
+        session.bring_up()  # the in-process nodes started themselves
+        assert all(n.lifecycle_state == "active" for n in session.graph_nodes)
+        session.watch()
+        assert session.metrics.steps == 30 and session.injector is None
+        session.run()
+        assert session.metrics.finished()
+    finally:
+        outputs = session.stop()
+    assert not session.context.ok()  # everything released
+    assert set(outputs.rejected) == set(plan.table) and outputs.bag is None
+    result = session.collect(outputs)
+    assert result.single_process and result.lockstep and result.sim_time == pytest.approx(0.03)
+    assert result.safety["rejected_messages"]["metrics"] == {}
+    assert result.metrics_true.position_mae_mm > 0.0
+
+
+def test_stop_after_a_failed_start_releases_everything(scenario) -> None:
+    import time
+
+    plan = plan_graph(scenario, GraphOptions(duration=0.03))
+    session = GraphSession(plan, time.perf_counter())
+    directory = session.tmp.name
+    outputs = session.stop()  # nothing spawned (the foreign check refused, say)
+    assert outputs.rejected == {} and outputs.view is None
+    assert not session.context.ok() and not os.path.exists(directory)
