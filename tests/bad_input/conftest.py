@@ -11,6 +11,16 @@ import pytest
 from bad_input_helpers import BAG, truncate
 
 
+def _first_chunk_offset(path: Path) -> int:
+    """Byte offset of the first chunk record of an indexed MCAP file (its summary)."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.chunk_indexes
+    return min(c.chunk_start_offset for c in summary.chunk_indexes)
+
+
 @pytest.fixture(scope="module")
 def workdir(tmp_path_factory) -> Path:
     """The files of the cases: existing outputs, a truncated bag, an empty bag, scenarios."""
@@ -21,7 +31,8 @@ def workdir(tmp_path_factory) -> Path:
     shutil.copy(BAG, root / "existing.mcap")
     shutil.copy(BAG, root / "run.mcap")
     truncate(BAG, root / "trunc.mcap", 400_000)  # a few complete chunks of the reference bag
-    truncate(BAG, root / "trunc0.mcap", 100_000)  # no complete chunk: 0 readable messages
+    # inside the first chunk: no complete chunk, 0 readable messages (wherever the chunk starts)
+    truncate(BAG, root / "trunc0.mcap", _first_chunk_offset(BAG) + 64)
     recover_bag(root / "trunc0.mcap", root / "empty.mcap")  # complete, 0 messages
     (root / "empty.yaml").write_text("")
     (root / "partial.yaml").write_text("/**/mpc:\n  ros__parameters:\n    horizon: 7\n")
