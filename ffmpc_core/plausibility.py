@@ -34,9 +34,11 @@ Ranges and why:
 * **Measured joint states** (the MPC's x̂): each q_i within its data-sheet range widened by
   ``JOINT_POSITION_SLACK`` = 0.5 rad (an encoder that reads half a radian beyond a mechanical
   stop is broken; a joint without a finite range: |q_i| ≤ ``JOINT_POSITION_MAX`` = 1e3 rad),
-  |q̇_i| ≤ ``MEASURED_VELOCITY_FACTOR`` = 5 × the joint's velocity limit (the robot's reflex
-  stops it at 1×). A joint position of −1e300 rad is finite, and an OCP started from it
-  overflows inside the solver (mim_solvers' line search aborts the process on a NaN cost).
+  |q̇_i| ≤ ``MEASURED_VELOCITY_FACTOR`` = 20 × the joint's velocity limit (the robot's reflex
+  stops it at 1×; with the reflex off the simulated wrist reached 5.95× — 1 kg tool, Riccati
+  feedback, polishing seed 2 — which is a real motion to measure, not a broken sensor). A
+  joint position of −1e300 rad is finite, and an OCP started from it overflows inside the
+  solver (mim_solvers' line search aborts the process on a NaN cost).
 * **Learned contact stiffness** α̂ ∈ [``STIFFNESS_MIN``, ``STIFFNESS_MAX``] = [10, 1e6] N/m: from a
   soft foam to a stiff surface seen through the tool (the project's materials: 1e3–1e4 N/m).
   Below, the material pushes back less than 1 N per 10 cm (no contact to model); above, the
@@ -70,7 +72,7 @@ BIAS_MOMENT_MAX = 5.0
 #: without a finite range, rad.
 JOINT_POSITION_SLACK, JOINT_POSITION_MAX = 0.5, 1e3
 #: Largest plausible |q̇| measured, multiple of the joint velocity limit.
-MEASURED_VELOCITY_FACTOR = 5.0
+MEASURED_VELOCITY_FACTOR = 20.0
 #: Range of a learned contact stiffness α̂, N/m.
 STIFFNESS_MIN, STIFFNESS_MAX = 10.0, 1e6
 #: Range of a learned contact damping β̂, N·s/m.

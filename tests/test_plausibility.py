@@ -116,11 +116,11 @@ def _estimate(stiffness: float, damping: float = 20.0) -> ContactEstimate:
 def test_learned_stiffness_and_damping_outside_their_range_are_refused(stiffness, damping, ok):
     """A confident-looking estimate (1 % standard errors, 500 samples) outside the plausible
     range does not replace the prior (the MPC and impact planner nodes use this rule)."""
-    from ffmpc_ros import impact_planner_node, mpc_node
+    from ffmpc_ros import impact_planner_node, mpc_live
 
     estimate = _estimate(stiffness, damping)
     assert confident(estimate, 100, 0.2) is ok
-    assert mpc_node.confident is confident and impact_planner_node.confident is confident
+    assert mpc_live.confident is confident and impact_planner_node.confident is confident
 
 
 def test_check_functions_name_the_value_and_unit():
@@ -158,7 +158,8 @@ def test_fault_specs_parse_and_activate():
         (4, -1e300, 0.0, False),  # finite: the fuzz's state that aborted the solver's process
         (4, None, 0.0, True),  # at its upper limit
         (4, "beyond", 0.0, False),  # 0.6 rad beyond its upper limit
-        (2, 0.0, 4.9, True),  # below 5x its velocity limit (the reflex stops it at 1x)
+        (2, 0.0, 6.0, True),  # 6x its velocity limit: measured with the reflex off
+        (2, 0.0, 20.5, False),  # beyond 20x: no motion of this robot
         (2, 0.0, -1e9, False),
     ],
 )
@@ -180,7 +181,7 @@ def test_the_mpc_refuses_an_implausible_joint_state_before_solving(joint, positi
     else:
         q[joint] = position
     v = np.zeros(robot.nv)
-    v[joint] = velocity * robot.velocity_limit[joint] if abs(velocity) < 10 else velocity
+    v[joint] = velocity * robot.velocity_limit[joint] if abs(velocity) < 100 else velocity
     scenario = load_scenario("polishing")
     config: MpcConfig = mpc_config(scenario)
     mpc = ModelPredictiveController(
