@@ -62,8 +62,8 @@ from ffmpc_core.lowpass import (
 )
 from ffmpc_core.plausibility import (
     MEASURED_TORQUE_FACTOR,
+    JointStateRange,
     check_force,
-    check_joint_state,
     check_torque,
 )
 from ffmpc_core.robots import RobotModel
@@ -355,6 +355,10 @@ class ModelPredictiveController:
         q_ref = robot.q_nominal if config.q_reference is None else np.asarray(config.q_reference)
         make = node_factory or _node_factory(robot, config, q_ref)
         self.bounds = problem_bounds(robot, config)
+        #: the plausible measured (q, q̇) (:meth:`state_from`), computed once
+        self._joint_range = JointStateRange.of(
+            robot.position_lower, robot.position_upper, robot.velocity_limit
+        )
         self.nodes: list[OcpNode] = [make(False) for _ in range(config.horizon)]
         self.terminal_node: OcpNode = make(True)
         # bounds of the state-only rows at nodes 1..N as written in the nodes (constraints.py)
@@ -506,9 +510,7 @@ class ModelPredictiveController:
         force), InputError otherwise."""
         nv, robot = self.robot.nv, self.robot
         parts = [self._vector(meas.q, nv, "q"), self._vector(meas.v, nv, "v")]
-        check_joint_state(
-            parts[0], parts[1], robot.position_lower, robot.position_upper, robot.velocity_limit
-        )
+        self._joint_range.check(parts[0], parts[1])
         if self.config.formulation == "torque_feedback":
             tau = self._vector(meas.torque, nv, "torque")
             parts.append(check_torque(tau, robot.torque_limit, "torque", MEASURED_TORQUE_FACTOR))

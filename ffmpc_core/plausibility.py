@@ -50,6 +50,7 @@ Ranges and why:
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
@@ -117,30 +118,39 @@ def check_force(force: npt.ArrayLike, name: str = "force") -> np.ndarray:
     return arr
 
 
-def check_joint_state(
-    q: np.ndarray,
-    v: np.ndarray,
-    position_lower: np.ndarray,
-    position_upper: np.ndarray,
-    velocity_limit: np.ndarray,
-) -> None:
-    """InputError unless every q_i (rad) lies within [lower_i − JOINT_POSITION_SLACK, upper_i +
-    JOINT_POSITION_SLACK] (|q_i| ≤ JOINT_POSITION_MAX where the range is not finite) and every
-    |q̇_i| (rad/s) ≤ MEASURED_VELOCITY_FACTOR × velocity_limit_i; q and v finite already."""
-    finite = np.isfinite(position_lower) & np.isfinite(position_upper)
-    low = np.where(finite, position_lower - JOINT_POSITION_SLACK, -JOINT_POSITION_MAX)
-    high = np.where(finite, position_upper + JOINT_POSITION_SLACK, JOINT_POSITION_MAX)
-    if np.any(q < low) or np.any(q > high):
-        raise InputError(
-            f"joint positions {np.array2string(q, precision=3)} rad: beyond the joint ranges by "
-            f"more than {JOINT_POSITION_SLACK:g} rad (a broken encoder): refused"
-        )
-    top = MEASURED_VELOCITY_FACTOR * velocity_limit
-    if np.any(np.abs(v) > top):
-        raise InputError(
-            f"joint velocities {np.array2string(v, precision=3)} rad/s exceed "
-            f"{MEASURED_VELOCITY_FACTOR:g}× the velocity limits: refused"
-        )
+@dataclass(frozen=True)
+class JointStateRange:
+    """The plausible measured joint state of one robot, computed once: q (rad) within
+    [low, high] — each data-sheet range widened by JOINT_POSITION_SLACK, ±JOINT_POSITION_MAX
+    where the range is not finite — and |q̇| (rad/s) ≤ max_velocity = MEASURED_VELOCITY_FACTOR ×
+    the velocity limits."""
+
+    low: np.ndarray
+    high: np.ndarray
+    max_velocity: np.ndarray
+
+    @classmethod
+    def of(
+        cls, position_lower: np.ndarray, position_upper: np.ndarray, velocity_limit: np.ndarray
+    ) -> JointStateRange:
+        """The range of a robot's data-sheet limits (rad, rad/s)."""
+        finite = np.isfinite(position_lower) & np.isfinite(position_upper)
+        low = np.where(finite, position_lower - JOINT_POSITION_SLACK, -JOINT_POSITION_MAX)
+        high = np.where(finite, position_upper + JOINT_POSITION_SLACK, JOINT_POSITION_MAX)
+        return cls(low, high, MEASURED_VELOCITY_FACTOR * np.asarray(velocity_limit, float))
+
+    def check(self, q: np.ndarray, v: np.ndarray) -> None:
+        """InputError unless q and v (finite already) lie in the range."""
+        if np.any(q < self.low) or np.any(q > self.high):
+            raise InputError(
+                f"joint positions {np.array2string(q, precision=3)} rad: beyond the joint "
+                f"ranges by more than {JOINT_POSITION_SLACK:g} rad (a broken encoder): refused"
+            )
+        if np.any(np.abs(v) > self.max_velocity):
+            raise InputError(
+                f"joint velocities {np.array2string(v, precision=3)} rad/s exceed "
+                f"{MEASURED_VELOCITY_FACTOR:g}× the velocity limits: refused"
+            )
 
 
 def check_tare_offset(offset: npt.ArrayLike) -> np.ndarray:
@@ -175,7 +185,7 @@ __all__ = [
     "JOINT_POSITION_MAX",
     "JOINT_POSITION_SLACK",
     "MEASURED_VELOCITY_FACTOR",
-    "check_joint_state",
+    "JointStateRange",
     "DAMPING_MIN",
     "FORCE_MAX",
     "STIFFNESS_MAX",
