@@ -116,6 +116,11 @@ CASES: dict[str, tuple[list[str], dict[str, str], str]] = {
         {},
         "task.normal_force = inf: expected a number in [0, 500] N",
     ),
+    "set-recovery-time-negative": (
+        ["ffmpc", "run", "polishing", "--set", "mpc.constraints.recovery_time=-1"],
+        {},
+        "mpc.constraints.recovery_time = -1: expected a number in [0.0001, 10] s",
+    ),
     "scenario-file-1e4-is-a-number": (["ffmpc", "run", "sci.yaml", *LATE], {}, LATE_REFUSAL),
     "duration-5e-2": (
         ["ffmpc", "run", "polishing", "--fault", "mpc-dropout@5", "--duration", "5e-2"],
