@@ -103,3 +103,27 @@ def test_stop_after_a_failed_start_releases_everything(scenario) -> None:
     outputs = session.stop()  # nothing spawned (the foreign check refused, say)
     assert outputs.rejected == {} and outputs.view is None
     assert not session.context.ok() and not os.path.exists(directory)
+
+
+def test_node_session_release_reads_what_the_children_left() -> None:
+    """The shared steps' end (NodeSession.release, bag_report): the rejections each node process
+    wrote into the run's directory, the recorder's counts; the context released."""
+    import json
+    import time
+
+    from ffmpc_ros.bringup import NodeSession, results_path
+    from ffmpc_ros.node_results import write_node_results
+
+    domain = int(os.environ["ROS_DOMAIN_ID"])
+    session = NodeSession(topics.ROOT_NAMESPACE, domain, time.perf_counter(), "ffmpc_test_")
+    directory = session.tmp.name
+    write_node_results(results_path(directory, "pid"), "pid", {"/mpc/command:stale": 2})
+    session.logs = {"pid": "pid.log", "mpc": "mpc.log"}  # the mpc process wrote nothing (killed)
+    session.counts_path = os.path.join(directory, "recorder_counts.json")
+    with open(session.counts_path, "w", encoding="utf-8") as fh:
+        json.dump({"received": {"/clock": 3}}, fh)
+    assert session.release(quiet=True) == {"pid": {"/mpc/command:stale": 2}}
+    assert not session.context.ok()
+    assert session.bag_report(None) is None
+    assert session.bag_report("run.mcap") == {"path": "run.mcap", "received": {"/clock": 3}}
+    session.tmp.cleanup()
