@@ -750,6 +750,22 @@ class NodeSession:
         deadline = self.start + start_timeout
         _bring_up(self.probe_node, self.executor, names, self.children, self.logs, deadline, plant)
 
+    def turn(
+        self,
+        watch: ProgressWatch,
+        cycle: int,
+        now: float,
+        progress: Callable[[], str],
+        killed: Iterable[str] = (),
+    ) -> None:
+        """One turn of a run's loop at wall time ``now`` with the plant at ``cycle``: GraphError
+        for a dead child (but the ``killed`` ones) or a stall (``watch``; ``progress()`` says what
+        each stage last did), then 50 ms of spinning; RunInterrupted on a stop request."""
+        _check_children(self.children, self.logs, set(killed))
+        watch.check(cycle, now, progress)
+        self.executor.spin_once(timeout_sec=0.05)
+        _check_stop()
+
     def release(self, quiet: bool) -> dict[str, dict]:
         """Stop the children, destroy the nodes, the executor and the context; the rejections
         the node processes wrote (:func:`rejected_from_results`). ``quiet=False``: every log
@@ -897,16 +913,13 @@ class GraphSession(NodeSession):
                     f"the graph did not finish within {o.timeout} s: {metrics.recorded} of "
                     f"{metrics.steps} cycles recorded; {self._progress()}"
                 )
-            _check_children(self.children, self.logs, killed)
             if self.plan.faults and probe.cycle >= metrics.steps and metrics.metrics is None:
                 # A stopped sensor loses measurements the metrics node waits for: once the
                 # plant is done, fill them with the previous value (the real-time rule,
                 # counted in metrics_filled) rather than wait forever.
                 if now - watch.last_progress > FILL_GRACE:
                     metrics.finish_now()
-            watch.check(probe.cycle, now, self._progress)
-            self.executor.spin_once(timeout_sec=0.05)
-            _check_stop()
+            self.turn(watch, probe.cycle, now, self._progress, killed)
         self.done = time.perf_counter()
         # The final plant status (latencies, deadline misses) follows the last state.
         while (

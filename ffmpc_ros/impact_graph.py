@@ -51,7 +51,7 @@ from std_msgs.msg import Float64MultiArray, String
 from ffmpc_core.errors import ConfigError
 from ffmpc_core.scenario import Scenario
 from ffmpc_ros import layouts, topics
-from ffmpc_ros.bringup import GraphOutputs, NodeSession, ProgressWatch
+from ffmpc_ros.bringup import GraphError, GraphOutputs, NodeSession, ProgressWatch
 from ffmpc_ros.discovery import domain_id as _env_domain_id
 from ffmpc_ros.params import impact_parameter_values, node_parameter_values
 
@@ -657,8 +657,6 @@ class ImpactSession(NodeSession):
     def run(self) -> None:
         """Spin until the probe has every cycle (GraphError past the timeout, on a stall or a
         dead child)."""
-        from ffmpc_ros.bringup import GraphError, _check_children, _check_stop
-
         o, probe, steps = self.plan.options, self.probe, self.plan.steps
         end = self.start + o.timeout
         self.progress = ProgressWatch(self.start, o.stall_timeout, o.start_timeout)
@@ -673,10 +671,7 @@ class ImpactSession(NodeSession):
                     f"the impact graph did not finish within {o.timeout} s: plant at cycle "
                     f"{probe.cycle} of {steps}, {len(probe.status)} controller cycles"
                 )
-            _check_children(self.children, self.logs, set())
-            self.progress.check(probe.cycle, now, progress)
-            self.executor.spin_once(timeout_sec=0.05)
-            _check_stop()
+            self.turn(self.progress, probe.cycle, now, progress)
         self.done = time.perf_counter()
 
     def summarize(self) -> None:
