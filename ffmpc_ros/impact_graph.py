@@ -28,6 +28,11 @@ The bring-up's own node reads the plant's true state and wrench, the controller'
 the learner's estimates, computes the metrics with ``ffmpc_core.impact.metrics.run_metrics`` (the
 ROS-free run's code), and publishes them once on ``impact_graph/summary`` (std_msgs/String,
 JSON) — the last topic of the bag with ``record``.
+
+The bring-up runs in the polishing graph's steps (``ffmpc_ros.bringup.NodeSession``):
+:func:`plan_impact_graph` checks the options and works out every node's parameters before
+anything starts, then an :class:`ImpactSession` spawns, brings up, records, runs, summarizes,
+stops and collects.
 """
 
 from __future__ import annotations
