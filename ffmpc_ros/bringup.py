@@ -677,28 +677,133 @@ class GraphOutputs:
     bag: dict[str, Any] | None = None
 
 
-class GraphSession:
+class NodeSession:
+    """What every lockstep run of node processes shares (:class:`GraphSession` of the polishing
+    graph, ``ffmpc_ros.impact_graph.ImpactSession``): the bring-up's own ROS context in the
+    graph's namespace and domain, its probe node, the child processes and their logs in a
+    temporary directory.
+
+    Its steps: :meth:`open_probe`, :meth:`spawn_nodes` and :meth:`spawn_recorder`,
+    :meth:`bring_up_nodes`, then always :meth:`release` (and ``tmp.cleanup()`` once what the
+    children left there is read)."""
+
+    def __init__(self, namespace: str, domain: int, start: float, prefix: str) -> None:
+        self.namespace, self.domain = namespace, domain
+        self.start = start  # wall s (perf_counter) the run was asked for
+        # every node of this context (probe, metrics, single-process nodes, recorder) in the
+        # graph's namespace, on the graph's clock
+        self.context, self.executor = graph_context(namespace, domain)
+        self.nodes: list[Node] = []  # destroyed by release
+        self.children: dict[str, subprocess.Popen] = {}
+        self.logs: dict[str, str] = {}
+        self.tmp = tempfile.TemporaryDirectory(prefix=prefix)
+        self.probe_node: Node | None = None
+        self.counts_path: str | None = None  # the recorder process's report
+
+    def _add(self, node: Node) -> None:
+        self.nodes.append(node)
+        self.executor.add_node(node)
+
+    def open_probe(self, allow_foreign: bool) -> Node:
+        """The bring-up's own node ``ffmpc_bringup``; GraphError when other nodes already
+        publish on the graph's topics (:func:`_refuse_foreign`), unless ``allow_foreign``."""
+        self.probe_node = Node("ffmpc_bringup", context=self.context)
+        self._add(self.probe_node)
+        if not allow_foreign:
+            _refuse_foreign(self.probe_node, self.domain, self.namespace)
+        return self.probe_node
+
+    def spawn_nodes(
+        self,
+        params: dict[str, dict[str, Any]],
+        table: Mapping[str, str],
+        node_ros_args: Mapping[str, Sequence[str]] | None = None,
+    ) -> None:
+        """One child process per node of ``table`` (name → "module:class"), with its
+        parameters of ``params`` (:func:`_spawn`)."""
+        children, logs = _spawn(
+            params, self.tmp.name, self.domain, node_ros_args or {}, self.namespace, table
+        )
+        self.children.update(children)
+        self.logs.update(logs)
+
+    def spawn_recorder(self, record: str | os.PathLike, config: Mapping[str, Any]) -> None:
+        """The recorder's own process (``ffmpc_ros.bag.recorder.graph_recorder_process``)
+        recording into ``record``, with the graph's ``config`` entries (its metadata, ...)."""
+        self.counts_path = os.path.join(self.tmp.name, "recorder_counts.json")
+        full = {
+            "target": os.fspath(record),
+            "domain": self.domain,
+            "ros_args": topics.graph_ros_args(self.namespace),
+            "namespace": self.namespace,
+            **config,
+            "counts": self.counts_path,
+        }
+        self.children["recorder"], self.logs["recorder"] = _spawn_child(
+            "recorder", "ffmpc_ros.bag.recorder", full, self.tmp.name, self.domain
+        )
+
+    def bring_up_nodes(self, names: Sequence[str], start_timeout: float, plant: str) -> None:
+        """Configure, then activate, the child nodes ``names``, ``plant`` last
+        (:func:`_bring_up`), by ``start_timeout`` wall s after the start."""
+        assert self.probe_node is not None  # (open_probe)
+        deadline = self.start + start_timeout
+        _bring_up(self.probe_node, self.executor, names, self.children, self.logs, deadline, plant)
+
+    def turn(
+        self,
+        watch: ProgressWatch,
+        cycle: int,
+        now: float,
+        progress: Callable[[], str],
+        killed: Iterable[str] = (),
+    ) -> None:
+        """One turn of a run's loop at wall time ``now`` with the plant at ``cycle``: GraphError
+        for a dead child (but the ``killed`` ones) or a stall (``watch``; ``progress()`` says what
+        each stage last did), then 50 ms of spinning; RunInterrupted on a stop request."""
+        _check_children(self.children, self.logs, set(killed))
+        watch.check(cycle, now, progress)
+        self.executor.spin_once(timeout_sec=0.05)
+        _check_stop()
+
+    def release(self, quiet: bool) -> dict[str, dict]:
+        """Stop the children, destroy the nodes, the executor and the context; the rejections
+        the node processes wrote (:func:`rejected_from_results`). ``quiet=False``: every log
+        printed to stderr."""
+        _stop(self.children)
+        for node in self.nodes:
+            self.executor.remove_node(node)
+            node.destroy_node()
+        self.executor.shutdown()
+        rclpy.shutdown(context=self.context)
+        rejected = rejected_from_results(self.tmp.name, self.logs)
+        if not quiet:
+            print_logs(self.logs)
+        return rejected
+
+    def bag_report(self, record: str | os.PathLike | None) -> dict[str, Any] | None:
+        """The bag's path and the recorder process's counts (None without ``record``)."""
+        if record is None:
+            return None
+        bag: dict[str, Any] = {"path": str(record)}
+        if self.counts_path is not None:
+            bag.update(_read_json(self.counts_path) or {})
+        return bag
+
+
+class GraphSession(NodeSession):
     """One lockstep run of a :class:`GraphPlan`: its ROS context, nodes, processes, probes.
 
     Call :meth:`spawn`, :meth:`bring_up`, :meth:`watch`, :meth:`run`, then always :meth:`stop`
     (it releases everything), then :meth:`collect`."""
 
     def __init__(self, plan: GraphPlan, start: float) -> None:
+        super().__init__(plan.namespace, plan.domain, start, "ffmpc_graph_")
         self.plan = plan
-        self.start = start  # wall s (perf_counter) the run was asked for
         self.robot = load_robot(plan.scenario.robot)
-        # every node of this context (probe, metrics, single-process nodes, recorder) in the
-        # graph's namespace, on the graph's clock
-        self.context, self.executor = graph_context(plan.namespace, plan.domain)
-        self.nodes: list[Node] = []  # destroyed by stop
         self.graph_nodes: list[GraphNode] = []  # single process: the graph's nodes
-        self.children: dict[str, subprocess.Popen] = {}
-        self.logs: dict[str, str] = {}
-        self.tmp = tempfile.TemporaryDirectory(prefix="ffmpc_graph_")
-        self.probe_node: Node | None = None
         self.view_node: Any = None
         self.view_counts: str | None = None
-        self.counts_path: str | None = None
         self.injector: Any = None
         self.recorder: Any = None
         self.metrics: Any = None  # the metrics node (watch)
@@ -706,18 +811,11 @@ class GraphSession:
         self.pid_probe: _PidStatusProbe  # the low level's (watch)
         self.done = start  # wall s the metrics node finished
 
-    def _add(self, node: Node) -> None:
-        self.nodes.append(node)
-        self.executor.add_node(node)
-
     def spawn(self) -> None:
         """The bring-up's probe node (and the foreign-publisher check), then the graph's nodes:
         in this process, or one child process each (with the view and the recorder)."""
         plan, o = self.plan, self.plan.options
-        self.probe_node = Node("ffmpc_bringup", context=self.context)
-        self._add(self.probe_node)
-        if not o.allow_foreign:
-            _refuse_foreign(self.probe_node, plan.domain, plan.namespace)
+        self.open_probe(o.allow_foreign)
         if o.single_process:
             for name, path in plan.table.items():
                 overrides = parameter_overrides(plan.params[name])
@@ -737,9 +835,7 @@ class GraphSession:
                 self._add(self.view_node)
             return
         directory = self.tmp.name
-        self.children, self.logs = _spawn(
-            plan.params, directory, plan.domain, o.node_ros_args or {}, plan.namespace, plan.table
-        )
+        self.spawn_nodes(plan.params, plan.table, o.node_ros_args)
         if o.view is not None:
             self.view_counts = os.path.join(directory, "view_counts.json")
             self.children["view"], self.logs["view"] = _spawn_view(
@@ -753,26 +849,18 @@ class GraphSession:
                 plan.namespace,
             )
         if o.record is not None:
-            self.counts_path = os.path.join(directory, "recorder_counts.json")
-            self.children["recorder"], self.logs["recorder"] = _spawn_recorder(
-                o.record,
-                directory,
-                plan.domain,
-                plan.scenario,
-                plan.params,
-                self.counts_path,
-                plan.namespace,
-                o.view is not None,  # with the view, the recorder also writes /tf
-            )
+            from ffmpc_ros.bag.recorder import graph_recorder_metadata
+
+            metadata = graph_recorder_metadata(plan.scenario, plan.params, plan.namespace)
+            # with the view, the recorder also writes /tf
+            view = plan.scenario.robot if o.view is not None else None
+            self.spawn_recorder(o.record, {"metadata": metadata, "view": view})
 
     def bring_up(self) -> None:
         """Configure, then activate, every child node, the plant last (:func:`_bring_up`); the
         in-process nodes started themselves."""
         if self.children:
-            assert self.probe_node is not None
-            deadline = self.start + self.plan.options.start_timeout
-            names = list(self.plan.table)
-            _bring_up(self.probe_node, self.executor, names, self.children, self.logs, deadline)
+            self.bring_up_nodes(list(self.plan.table), self.plan.options.start_timeout, "plant")
 
     def watch(self) -> None:
         """What the bring-up watches the run with: the fault injector, the plant and low-level
@@ -825,16 +913,13 @@ class GraphSession:
                     f"the graph did not finish within {o.timeout} s: {metrics.recorded} of "
                     f"{metrics.steps} cycles recorded; {self._progress()}"
                 )
-            _check_children(self.children, self.logs, killed)
             if self.plan.faults and probe.cycle >= metrics.steps and metrics.metrics is None:
                 # A stopped sensor loses measurements the metrics node waits for: once the
                 # plant is done, fill them with the previous value (the real-time rule,
                 # counted in metrics_filled) rather than wait forever.
                 if now - watch.last_progress > FILL_GRACE:
                     metrics.finish_now()
-            watch.check(probe.cycle, now, self._progress)
-            self.executor.spin_once(timeout_sec=0.05)
-            _check_stop()
+            self.turn(watch, probe.cycle, now, self._progress, killed)
         self.done = time.perf_counter()
         # The final plant status (latencies, deadline misses) follows the last state.
         while (
@@ -858,27 +943,17 @@ class GraphSession:
         what the run left (rejections, the view's report, the bag's counts)."""
         if self.injector is not None:
             self.injector.release()
-        _stop(self.children)
         outputs = GraphOutputs({n.get_name(): dict(n.rejected) for n in self.graph_nodes})
-        for node in self.nodes:
-            self.executor.remove_node(node)
-            node.destroy_node()
-        self.executor.shutdown()
-        rclpy.shutdown(context=self.context)
-        outputs.rejected.update(rejected_from_results(self.tmp.name, self.logs))
-        if not self.plan.options.quiet:
-            print_logs(self.logs)
+        outputs.rejected.update(self.release(self.plan.options.quiet))
         if self.view_node is not None:
             outputs.view = self.view_node.report()
         elif self.view_counts is not None:
             outputs.view = _read_json(self.view_counts)
         record = self.plan.options.record
-        if record is not None:
-            outputs.bag = {"path": str(record)}
-            if self.recorder is not None:
-                outputs.bag["received"] = self.recorder.received
-            elif self.counts_path is not None:
-                outputs.bag.update(_read_json(self.counts_path) or {})
+        if self.recorder is not None:  # in process
+            outputs.bag = {"path": str(record), "received": self.recorder.received}
+        else:
+            outputs.bag = self.bag_report(record)
         self.tmp.cleanup()
         return outputs
 
@@ -1083,31 +1158,6 @@ def _spawn_child(
             process_group=0,
         )
     return child, log
-
-
-def _spawn_recorder(
-    record: str | os.PathLike,
-    directory: str,
-    domain: int,
-    scenario: Scenario,
-    params: dict,
-    counts: str,
-    namespace: str = topics.ROOT_NAMESPACE,
-    view: bool = False,
-) -> tuple[subprocess.Popen, str]:
-    """The recorder's own process (``graph_recorder_process``), in the nodes' process group."""
-    from ffmpc_ros.bag.recorder import graph_recorder_metadata
-
-    config = {
-        "target": os.fspath(record),
-        "domain": domain,
-        "ros_args": topics.graph_ros_args(namespace),
-        "namespace": namespace,
-        "metadata": graph_recorder_metadata(scenario, params, namespace),
-        "counts": counts,
-        "view": scenario.robot if view else None,
-    }
-    return _spawn_child("recorder", "ffmpc_ros.bag.recorder", config, directory, domain)
 
 
 def _stop(children: Mapping[str, subprocess.Popen]) -> None:

@@ -28,6 +28,11 @@ The bring-up's own node reads the plant's true state and wrench, the controller'
 the learner's estimates, computes the metrics with ``ffmpc_core.impact.metrics.run_metrics`` (the
 ROS-free run's code), and publishes them once on ``impact_graph/summary`` (std_msgs/String,
 JSON) — the last topic of the bag with ``record``.
+
+The bring-up runs in the polishing graph's steps (``ffmpc_ros.bringup.NodeSession``):
+:func:`plan_impact_graph` checks the options and works out every node's parameters before
+anything starts, then an :class:`ImpactSession` spawns, brings up, records, runs, summarizes,
+stops and collects.
 """
 
 from __future__ import annotations
@@ -35,14 +40,12 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields, is_dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import rclpy
 from builtin_interfaces.msg import Time as TimeMsg
 from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
@@ -53,6 +56,7 @@ from std_msgs.msg import Float64MultiArray, String
 from ffmpc_core.errors import ConfigError
 from ffmpc_core.scenario import Scenario
 from ffmpc_ros import layouts, topics
+from ffmpc_ros.bringup import GraphError, GraphOutputs, NodeSession, ProgressWatch
 from ffmpc_ros.discovery import domain_id as _env_domain_id
 from ffmpc_ros.params import impact_parameter_values, node_parameter_values
 
@@ -72,6 +76,8 @@ IMPACT_NODES: dict[str, str] = {
 }
 #: The robot of the experiment.
 ROBOT = "panda"
+#: The approach direction d (``ffmpc_core.impact.scenario.DOWN``), world frame.
+DOWN = (0.0, 0.0, -1.0)
 #: Metrics compared between the graph and the ROS-free run (``ImpactRun`` fields).
 COMPARED = (
     "contact_time",
@@ -115,6 +121,133 @@ def _same(a: Any, b: Any) -> bool:
     return bool(a == b)
 
 
+def check_approach(approach: str, regulation: str) -> None:
+    """ConfigError for an approach or a regulation the impact study does not know."""
+    from ffmpc_core.impact.controllers import APPROACHES, REGULATIONS
+
+    if approach not in APPROACHES or regulation not in REGULATIONS:
+        raise ConfigError(
+            f"approach must be one of {APPROACHES} and regulation one of {REGULATIONS}, got "
+            f"{approach!r}, {regulation!r}"
+        )
+
+
+def load_run_config(scenario: str, overrides: Sequence[str]) -> ImpactStudyConfig:
+    """The impact study's configuration of ``scenario`` with NAME=VALUE ``overrides``
+    (ConfigError: the schema's message)."""
+    from ffmpc_core.impact.scenario import IMPACT_SCHEMA, load_impact_config
+    from ffmpc_ros.cli_args import parse_overrides
+
+    items = [str(i) for i in overrides]
+    return load_impact_config(scenario, parse_overrides(items, schema=IMPACT_SCHEMA.params))
+
+
+def is_learning(approach: str, cfg: ImpactStudyConfig) -> bool:
+    """The run learns the material before the strike (maximal approach, touch-first or
+    strike-first): the planner gates the learner's samples and reports its touch."""
+    from ffmpc_core.impact.scenario import LEARNING_STRATEGIES
+
+    return approach == "maximal" and cfg.strategy in LEARNING_STRATEGIES
+
+
+def sensing_scenario(time_step: float) -> Scenario:
+    """The polishing scenario the sensor nodes take their parameters from: the ROS-free study
+    measures the true state and the whole world wrench (no delay, no noise, 3-D contact)."""
+    return Scenario(name="impact_graph").with_overrides(
+        {
+            "robot": ROBOT,
+            "plant.time_step": time_step,
+            "joint_sensor.delay_cycles": 0,
+            "joint_sensor.position_noise_std": 0.0,
+            "joint_sensor.velocity_noise_std": 0.0,
+            "ft_sensor.delay_cycles": 0,
+            "ft_sensor.force_noise_std": 0.0,
+            "mpc.contact.dimension": 3,
+        }
+    )
+
+
+def _plant_and_sensor_values(
+    cfg: ImpactStudyConfig, sensing: Scenario, record: bool
+) -> dict[str, dict]:
+    """The dice plant's, the sensors' and the state publisher's parameters."""
+    common = {"robot": ROBOT, "plant.time_step": cfg.time_step}
+    return {
+        "dice_plant": {
+            **common,
+            **impact_parameter_values("dice_plant", cfg),
+            "lockstep": True,
+            "start_delay": 0.0,
+            # the joint sensor, the bring-up's probe and the recorder
+            "start_subscribers": 2 + int(record),
+        },
+        "joint_sensor": node_parameter_values("joint_sensor", sensing),
+        "state_publisher": dict(common),
+        "ft_sensor": {**node_parameter_values("ft_sensor", sensing), "measure_moments": True},
+    }
+
+
+def _learner_values(cfg: ImpactStudyConfig, sensing: Scenario, learning: bool) -> dict:
+    """The contact learner's parameters (eq 19-21, fed by the planner's gate when
+    ``learning``)."""
+    return {
+        **node_parameter_values("contact_learner", sensing),
+        **impact_parameter_values("contact_learner", cfg),
+        "direction": list(DOWN),
+        "surface_force": 0.0,  # the last force-free sample (ImpactTaskController's rule)
+        "feed_force": 0.0,
+        "skip_onset_samples": 0,
+        "regularization": 1e-9,  # RecursiveContactLearner's default
+        # touch-first, strike-first: the planner's feeding rule selects the samples (its gate)
+        "planner_gate": learning,
+        # no node waits for the learner before the touch: in lockstep it may fall behind the
+        # plant's clock; its inputs stay usable as long as the publishers keep them (measured:
+        # 54 ms behind at 0.6 s of a 46 cm approach, then every input of the touch rejected as
+        # stale with the 0.05 s default, and the planner waited for estimates that never came)
+        "max_input_age": topics.PUBLISHER_DEPTH * cfg.time_step,
+    }
+
+
+def _controller_values(cfg: ImpactStudyConfig, approach: str, regulation: str) -> dict:
+    """The impact controller's parameters."""
+    return {
+        "robot": ROBOT,
+        "plant.time_step": cfg.time_step,
+        **impact_parameter_values("impact_controller", cfg),
+        "lockstep": True,
+        "approach": approach,
+        "regulation": regulation,
+    }
+
+
+def _planner_values(cfg: ImpactStudyConfig, sensing: Scenario) -> dict:
+    """The impact planner's parameters: the impact study's values under their IMPACT_SCHEMA
+    names, from the loaded scenario (the node rebuilds the configuration and its controller
+    from them with the ROS-free run's IMPACT_SCHEMA.build and task_config)."""
+    from ffmpc_core.impact.limits import PANDA_ACCELERATION_LIMIT
+
+    return {
+        **node_parameter_values("impact_planner", sensing),
+        **impact_parameter_values("impact_planner", cfg),
+        "lockstep": True,
+        "direction": list(DOWN),
+        # the Panda's data-sheet values, given: the bag's parameters then show the limits the
+        # run used (unset, the node takes the same values and the bag records null)
+        "acceleration_limit": [float(a) for a in PANDA_ACCELERATION_LIMIT],
+        "use_learned_material": False,  # the paper's scheme plans with the prior
+    }
+
+
+def add_start_barrier(params: dict[str, dict], record: bool) -> None:
+    """The lockstep start barrier (``ffmpc_ros.start_barrier.StartBarrier.writers_matched``):
+    every node waits to know every /clock reader, two per node (rclpy's and the node's
+    reliable one) and the recorder's two; the plant waits for every node's token."""
+    clock_readers = topics.CLOCK_READERS_PER_NODE * (len(params) + int(record))
+    for values in params.values():
+        values["start_clock_subscribers"] = clock_readers
+    params["dice_plant"]["start_nodes"] = len(params)
+
+
 def impact_node_parameters(
     approach: str,
     regulation: str,
@@ -130,95 +263,16 @@ def impact_node_parameters(
     The planner and the learner get the impact study's values under their IMPACT_SCHEMA names
     (``impact_parameter_values`` of the loaded configuration); ConfigError for a bad
     approach, regulation, scenario or override (the schema's message)."""
-    from ffmpc_core.impact.controllers import APPROACHES, REGULATIONS
-    from ffmpc_core.impact.limits import PANDA_ACCELERATION_LIMIT
-    from ffmpc_core.impact.scenario import IMPACT_SCHEMA, LEARNING_STRATEGIES, load_impact_config
-    from ffmpc_ros.cli_args import parse_overrides
-
-    if approach not in APPROACHES or regulation not in REGULATIONS:
-        raise ConfigError(
-            f"approach must be one of {APPROACHES} and regulation one of {REGULATIONS}, got "
-            f"{approach!r}, {regulation!r}"
-        )
-    items = [str(i) for i in overrides]
-    cfg = load_impact_config(scenario, parse_overrides(items, schema=IMPACT_SCHEMA.params))
-    learning = approach == "maximal" and cfg.strategy in LEARNING_STRATEGIES
-    nodes = graph_nodes(approach)
-    common = {"robot": ROBOT, "plant.time_step": cfg.time_step}
-    # the sensors: the ROS-free study measures the true state and the whole world wrench
-    sensing = Scenario(name="impact_graph").with_overrides(
-        {
-            "robot": ROBOT,
-            "plant.time_step": cfg.time_step,
-            "joint_sensor.delay_cycles": 0,
-            "joint_sensor.position_noise_std": 0.0,
-            "joint_sensor.velocity_noise_std": 0.0,
-            "ft_sensor.delay_cycles": 0,
-            "ft_sensor.force_noise_std": 0.0,
-            "mpc.contact.dimension": 3,
-        }
-    )
-    # /clock readers: two per node (rclpy's and the node's reliable one), the recorder's two
-    clock_readers = topics.CLOCK_READERS_PER_NODE * (len(nodes) + int(record))
-    d = [0.0, 0.0, -1.0]  # ffmpc_core.impact.scenario.DOWN
-    params: dict[str, dict] = {
-        "dice_plant": {
-            **common,
-            **impact_parameter_values("dice_plant", cfg),
-            "lockstep": True,
-            "start_delay": 0.0,
-            # the joint sensor, the bring-up's probe and the recorder
-            "start_subscribers": 2 + int(record),
-        },
-        "joint_sensor": node_parameter_values("joint_sensor", sensing),
-        "state_publisher": dict(common),
-        "ft_sensor": {**node_parameter_values("ft_sensor", sensing), "measure_moments": True},
-        "contact_learner": {
-            **node_parameter_values("contact_learner", sensing),
-            **impact_parameter_values("contact_learner", cfg),
-            "direction": d,
-            "surface_force": 0.0,  # the last force-free sample (ImpactTaskController's rule)
-            "feed_force": 0.0,
-            "skip_onset_samples": 0,
-            "regularization": 1e-9,  # RecursiveContactLearner's default
-            # touch-first, strike-first: the planner's feeding rule selects the samples (its
-            # gate)
-            "planner_gate": learning,
-            # no node waits for the learner before the touch: in lockstep it may fall behind
-            # the plant's clock; its inputs stay usable as long as the publishers keep them
-            # (measured: 54 ms behind at 0.6 s of a 46 cm approach, then every input of the
-            # touch rejected as stale with the 0.05 s default, and the planner waited for
-            # estimates that never came)
-            "max_input_age": topics.PUBLISHER_DEPTH * cfg.time_step,
-        },
-        "impact_controller": {
-            **common,
-            **impact_parameter_values("impact_controller", cfg),
-            "lockstep": True,
-            "approach": approach,
-            "regulation": regulation,
-        },
-    }
+    check_approach(approach, regulation)
+    cfg = load_run_config(scenario, overrides)
+    sensing = sensing_scenario(cfg.time_step)
+    params = _plant_and_sensor_values(cfg, sensing, record)
+    params["contact_learner"] = _learner_values(cfg, sensing, is_learning(approach, cfg))
+    params["impact_controller"] = _controller_values(cfg, approach, regulation)
     if approach == "maximal":
-        params["impact_planner"] = {
-            # the impact study's values under their IMPACT_SCHEMA names, from the loaded
-            # scenario (the node rebuilds the configuration and its controller from them with
-            # the ROS-free run's IMPACT_SCHEMA.build and task_config)
-            **node_parameter_values("impact_planner", sensing),
-            **impact_parameter_values("impact_planner", cfg),
-            "lockstep": True,
-            "direction": d,
-            # the Panda's data-sheet values, given: the bag's parameters then show the limits
-            # the run used (unset, the node takes the same values and the bag records null)
-            "acceleration_limit": [float(a) for a in PANDA_ACCELERATION_LIMIT],
-            "use_learned_material": False,  # the paper's scheme plans with the prior
-        }
-    # the lockstep start barrier (ffmpc_ros.start_barrier.StartBarrier.writers_matched): every
-    # node waits to know every /clock reader, the plant for every node's token
-    assert sorted(params) == sorted(nodes), (params, nodes)
-    for values in params.values():
-        values["start_clock_subscribers"] = clock_readers
-    params["dice_plant"]["start_nodes"] = len(nodes)
+        params["impact_planner"] = _planner_values(cfg, sensing)
+    assert sorted(params) == sorted(graph_nodes(approach)), params
+    add_start_barrier(params, record)
     qos = topics.graph_qos_overrides(namespace)
     params = {name: {**values, **qos} for name, values in params.items()}
     # (no shared objects: the parameter file is YAML without aliases, which rcl refuses)
@@ -486,6 +540,189 @@ def _recorder_options(nodes: Sequence[str], approach: str, namespace: str) -> di
     }
 
 
+@dataclass(frozen=True)
+class ImpactOptions:
+    """How :func:`run_impact_graph` runs the experiment (``ffmpc run impact``'s defaults).
+
+    scenario, overrides: the impact study's scenario and NAME=VALUE overrides.
+    record: record every topic and parameter to this bag (must not exist).
+    timeout: wall-time limit, s; stall_timeout: wall s without a plant cycle; start_timeout:
+    wall s to the first plant cycle (GraphError beyond).
+    domain_id: ROS domain (None: ROS_DOMAIN_ID or 0). quiet: keep the nodes' output in their
+    logs (otherwise printed to stderr at the end). namespace: of the whole graph (None: root).
+    allow_foreign: start even if other nodes publish on the graph's topics."""
+
+    scenario: str = "impact"
+    overrides: Sequence[str] = ()
+    record: str | os.PathLike | None = None
+    timeout: float = 900.0
+    stall_timeout: float = 60.0
+    start_timeout: float = 180.0
+    domain_id: int | None = None
+    quiet: bool = True
+    namespace: str | None = None
+    allow_foreign: bool = False
+
+
+@dataclass
+class ImpactPlan:
+    """What a run of the impact graph will start, checked before anything starts
+    (:func:`plan_impact_graph`)."""
+
+    approach: str
+    regulation: str
+    options: ImpactOptions
+    cfg: ImpactStudyConfig
+    params: dict[str, dict[str, Any]]  # node → its parameters
+    nodes: dict[str, str]  # node → "module:class"
+    domain: int
+    namespace: str  # normalised ("/" for the root)
+
+    @property
+    def steps(self) -> int:
+        """Plant cycles of the run."""
+        return int(round(self.cfg.duration / self.cfg.time_step))
+
+    @property
+    def learning(self) -> bool:
+        """The planner learns before the strike (:func:`is_learning`)."""
+        return is_learning(self.approach, self.cfg)
+
+
+def plan_impact_graph(approach: str, regulation: str, options: ImpactOptions) -> ImpactPlan:
+    """Every node's parameters and the run's settings; ConfigError (bad approach, regulation,
+    scenario, override or namespace) or BagExistsError before anything starts."""
+    o = options
+    domain = _env_domain_id() if o.domain_id is None else o.domain_id
+    namespace = topics.normalize_namespace(o.namespace)
+    cfg, params = impact_node_parameters(
+        approach, regulation, o.scenario, o.overrides, o.record is not None, namespace
+    )
+    if o.record is not None and os.path.exists(o.record):
+        from ffmpc_ros.bag.errors import BagExistsError
+
+        raise BagExistsError(f"{o.record} exists; a bag is never overwritten")
+    nodes = graph_nodes(approach)
+    return ImpactPlan(approach, regulation, o, cfg, params, nodes, domain, namespace)
+
+
+class ImpactSession(NodeSession):
+    """One run of an :class:`ImpactPlan`, in the steps of the polishing graph's session
+    (``ffmpc_ros.bringup.NodeSession``): :meth:`spawn`, :meth:`bring_up`, :meth:`record`,
+    :meth:`run`, :meth:`summarize`, then always :meth:`stop`, then :meth:`collect`."""
+
+    def __init__(self, plan: ImpactPlan, start: float) -> None:
+        from ffmpc_core.robots import load_robot
+
+        super().__init__(plan.namespace, plan.domain, start, "ffmpc_impact_graph_")
+        self.plan = plan
+        self.robot = load_robot(ROBOT)
+        self.probe: _Probe  # (spawn)
+        self.summary_pub: Any = None  # impact_graph/summary (spawn)
+        self.progress: ProgressWatch | None = None  # (run)
+        self.done = start  # wall s the probe had every cycle
+        self.metrics: dict[str, Any] = {}  # (summarize)
+        self.log: dict[str, np.ndarray] = {}
+        self.safe = False
+
+    def spawn(self) -> None:
+        """The bring-up's probe node (the foreign-publisher check, the summary's publisher, the
+        probe of the run), then one child process per node."""
+        plan = self.plan
+        node = self.open_probe(plan.options.allow_foreign)
+        self.summary_pub = node.create_publisher(
+            String, topics.IMPACT_SUMMARY, topics.latched_qos()
+        )
+        self.probe = _Probe(node, plan.steps, self.robot.nv, plan.cfg.time_step, plan.learning)
+        self.spawn_nodes(plan.params, plan.nodes)
+
+    def bring_up(self) -> None:
+        """Configure, then activate, every node, the dice plant last."""
+        self.bring_up_nodes(list(self.plan.nodes), self.plan.options.start_timeout, "dice_plant")
+
+    def record(self) -> None:
+        """With ``record``: the recorder's process, which waits for every topic of the run."""
+        plan, record = self.plan, self.plan.options.record
+        if record is None:
+            return
+        from ffmpc_ros.bag.recorder import graph_recorder_metadata
+
+        metadata = graph_recorder_metadata(None, plan.params, plan.namespace)
+        metadata["ffmpc_run"]["impact"] = json.dumps(
+            {
+                "approach": plan.approach,
+                "regulation": plan.regulation,
+                "scenario": plan.options.scenario,
+                "overrides": list(plan.options.overrides),
+            }
+        )
+        options = _recorder_options(list(plan.nodes), plan.approach, plan.namespace)
+        self.spawn_recorder(record, {"metadata": metadata, "options": options})
+
+    def run(self) -> None:
+        """Spin until the probe has every cycle (GraphError past the timeout, on a stall or a
+        dead child)."""
+        o, probe, steps = self.plan.options, self.probe, self.plan.steps
+        end = self.start + o.timeout
+        self.progress = ProgressWatch(self.start, o.stall_timeout, o.start_timeout)
+
+        def progress() -> str:
+            return f"plant at cycle {probe.cycle}, controller cycles {len(probe.status)}"
+
+        while not probe.complete:
+            now = time.perf_counter()
+            if now > end:
+                raise GraphError(
+                    f"the impact graph did not finish within {o.timeout} s: plant at cycle "
+                    f"{probe.cycle} of {steps}, {len(probe.status)} controller cycles"
+                )
+            self.turn(self.progress, probe.cycle, now, progress)
+        self.done = time.perf_counter()
+
+    def summarize(self) -> None:
+        """The run's metrics (:func:`_graph_metrics`) and verdict, published once on
+        ``impact_graph/summary``; then the recorder's end (it closes the bag once the summary
+        is in; at most 15 s)."""
+        plan = self.plan
+        self.metrics, self.log = _graph_metrics(plan.cfg, self.probe, self.robot)
+        peak = self.metrics["peak_penetration"]
+        self.metrics["within_max_penetration"] = peak <= plan.cfg.dice.max_penetration
+        self.safe = is_safe(self.metrics)
+        payload = {"approach": plan.approach, "regulation": plan.regulation, "safe": self.safe}
+        payload.update(metrics_summary(self.metrics))
+        self.summary_pub.publish(String(data=json.dumps(payload, default=float)))
+        if "recorder" in self.children:
+            settle = time.perf_counter() + 15.0
+            while self.children["recorder"].poll() is None and time.perf_counter() < settle:
+                self.executor.spin_once(timeout_sec=0.05)
+
+    def stop(self) -> GraphOutputs:
+        """Stop the children, release the ROS context; the rejections and the bag's counts."""
+        rejected = self.release(self.plan.options.quiet)
+        outputs = GraphOutputs(rejected, bag=self.bag_report(self.plan.options.record))
+        self.tmp.cleanup()
+        return outputs
+
+    def collect(self, outputs: GraphOutputs) -> ImpactGraphResult:
+        """The run's result: metrics, log, timing, the bag's counts and the rejections."""
+        plan, done = self.plan, self.done
+        first = self.progress.first_step if self.progress is not None else None
+        stepping = done - (first or done)
+        return ImpactGraphResult(
+            plant_engine=plan.cfg.engine,
+            approach=plan.approach,
+            regulation=plan.regulation,
+            metrics=self.metrics,
+            log=self.log,
+            sim_time=plan.steps * plan.cfg.time_step,
+            wall_time=stepping,
+            startup_time=(done - self.start) - stepping,
+            bag=outputs.bag,
+            safe=self.safe,
+            rejected=outputs.rejected,
+        )
+
+
 def run_impact_graph(
     approach: str = "maximal",
     regulation: str = "admittance",
@@ -503,150 +740,32 @@ def run_impact_graph(
 ) -> ImpactGraphResult:
     """Run the impact experiment on the node graph (module docstring) and return its metrics.
 
-    Args:
-        approach, regulation: as ``ffmpc study impact`` (maximal|baseline, admittance|ff_mpc).
-        scenario, overrides: the impact study's scenario and NAME=VALUE overrides.
-        record: record every topic and parameter to this bag (must not exist).
-        timeout: wall-time limit, s; stall_timeout: wall s without a plant cycle;
-        start_timeout: wall s to the first plant cycle (GraphError beyond).
-        domain_id: ROS domain (default ROS_DOMAIN_ID or 0). quiet: keep the nodes' output in
-            their logs (otherwise printed to stderr at the end). namespace: of the whole graph.
-        allow_foreign: start even if other nodes publish on the graph's topics.
-    """
-    from ffmpc_core.robots import load_robot
-    from ffmpc_ros.bringup import (
-        GraphError,
-        ProgressWatch,
-        _bring_up,
-        _check_children,
-        _check_stop,
-        _refuse_foreign,
-        _spawn,
-        _spawn_child,
-        _stop,
-        graph_context,
-        print_logs,
-        rejected_from_results,
-    )
-
+    approach, regulation: as ``ffmpc study impact`` (maximal|baseline, admittance|ff_mpc);
+    the keyword arguments: :class:`ImpactOptions`. The steps: :func:`plan_impact_graph`, then
+    an :class:`ImpactSession`'s."""
     start = time.perf_counter()
-    domain = _env_domain_id() if domain_id is None else domain_id
-    namespace = topics.normalize_namespace(namespace)
-    cfg, params = impact_node_parameters(
-        approach, regulation, scenario, overrides, record is not None, namespace
+    options = ImpactOptions(
+        scenario,
+        tuple(overrides),
+        record,
+        timeout,
+        stall_timeout,
+        start_timeout,
+        domain_id,
+        quiet,
+        namespace,
+        allow_foreign,
     )
-    if record is not None and os.path.exists(record):
-        from ffmpc_ros.bag.errors import BagExistsError
-
-        raise BagExistsError(f"{record} exists; a bag is never overwritten")
-    nodes = graph_nodes(approach)
-    robot = load_robot(ROBOT)
-    steps = int(round(cfg.duration / cfg.time_step))
-    context, executor = graph_context(namespace, domain)
-    children: dict = {}
-    logs: dict[str, str] = {}
-    counts_path = None
-    node = None
-    tmp = tempfile.TemporaryDirectory(prefix="ffmpc_impact_graph_")
+    session = ImpactSession(plan_impact_graph(approach, regulation, options), start)
     try:
-        node = Node("ffmpc_bringup", context=context)
-        executor.add_node(node)
-        if not allow_foreign:
-            _refuse_foreign(node, domain, namespace)
-        summary_pub = node.create_publisher(String, topics.IMPACT_SUMMARY, topics.latched_qos())
-        from ffmpc_core.impact.scenario import LEARNING_STRATEGIES
-
-        learning = approach == "maximal" and cfg.strategy in LEARNING_STRATEGIES
-        probe = _Probe(node, steps, robot.nv, cfg.time_step, learning)
-        children, logs = _spawn(params, tmp.name, domain, {}, namespace, nodes)
-        _bring_up(node, executor, list(nodes), children, logs, start + start_timeout, "dice_plant")
-        if record is not None:
-            from ffmpc_ros.bag.recorder import graph_recorder_metadata
-
-            counts_path = os.path.join(tmp.name, "recorder_counts.json")
-            metadata = graph_recorder_metadata(None, params, namespace)
-            metadata["ffmpc_run"]["impact"] = json.dumps(
-                {
-                    "approach": approach,
-                    "regulation": regulation,
-                    "scenario": scenario,
-                    "overrides": list(overrides),
-                }
-            )
-            children["recorder"], logs["recorder"] = _spawn_child(
-                "recorder",
-                "ffmpc_ros.bag.recorder",
-                {
-                    "target": os.fspath(record),
-                    "domain": domain,
-                    "ros_args": topics.graph_ros_args(namespace),
-                    "namespace": namespace,
-                    "metadata": metadata,
-                    "counts": counts_path,
-                    "options": _recorder_options(list(nodes), approach, namespace),
-                },
-                tmp.name,
-                domain,
-            )
-        end = start + timeout
-        watch = ProgressWatch(start, stall_timeout, start_timeout)
-        while not probe.complete:
-            now = time.perf_counter()
-            if now > end:
-                raise GraphError(
-                    f"the impact graph did not finish within {timeout} s: plant at cycle "
-                    f"{probe.cycle} of {steps}, {len(probe.status)} controller cycles"
-                )
-            _check_children(children, logs, set())
-            watch.check(
-                probe.cycle,
-                now,
-                lambda: f"plant at cycle {probe.cycle}, controller cycles {len(probe.status)}",
-            )
-            executor.spin_once(timeout_sec=0.05)
-            _check_stop()
-        done = time.perf_counter()
-        metrics, log = _graph_metrics(cfg, probe, robot)
-        metrics["within_max_penetration"] = metrics["peak_penetration"] <= cfg.dice.max_penetration
-        safe = is_safe(metrics)
-        payload = {"approach": approach, "regulation": regulation, "safe": safe}
-        payload.update(metrics_summary(metrics))
-        summary_pub.publish(String(data=json.dumps(payload, default=float)))
-        if "recorder" in children:  # it closes the bag once the summary is in
-            settle = time.perf_counter() + 15.0
-            while children["recorder"].poll() is None and time.perf_counter() < settle:
-                executor.spin_once(timeout_sec=0.05)
+        session.spawn()
+        session.bring_up()
+        session.record()
+        session.run()
+        session.summarize()
     finally:
-        _stop(children)
-        if node is not None:
-            executor.remove_node(node)
-            node.destroy_node()
-        executor.shutdown()
-        rclpy.shutdown(context=context)
-        rejected = rejected_from_results(tmp.name, logs)
-        if not quiet:
-            print_logs(logs)
-        bag = None
-        if record is not None:
-            bag = {"path": str(record)}
-            if counts_path is not None and os.path.exists(counts_path):
-                with open(counts_path, encoding="utf-8") as fh:
-                    bag.update(json.load(fh))
-        tmp.cleanup()
-    stepping = done - (watch.first_step or done)
-    return ImpactGraphResult(
-        plant_engine=cfg.engine,
-        approach=approach,
-        regulation=regulation,
-        metrics=metrics,
-        log=log,
-        sim_time=steps * cfg.time_step,
-        wall_time=stepping,
-        startup_time=(done - start) - stepping,
-        bag=bag,
-        safe=safe,
-        rejected=rejected,
-    )
+        outputs = session.stop()
+    return session.collect(outputs)
 
 
 def compare_with_runner(result: ImpactGraphResult, run: Any) -> dict[str, tuple[Any, Any]]:

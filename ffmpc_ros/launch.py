@@ -413,6 +413,131 @@ def _die_with_parent() -> None:
         ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGINT, 0, 0, 0)  # PR_SET_PDEATHSIG
 
 
+def prepare_launch(
+    description: LaunchDescription, log_dir: str | os.PathLike, out: IO[str]
+) -> list[tuple[LaunchNode, list[str]]]:
+    """(node, command line) of every node, before any starts (:func:`node_command`: its
+    parameter files written into ``log_dir``); one warning line on ``out`` per parameter
+    section that does not reach its node (:func:`unreached_sections`); LaunchError for a
+    missing executable or two nodes of one name."""
+    Path(log_dir).mkdir(parents=True, exist_ok=True)
+    commands = [(node, node_command(node, log_dir)) for node in description.nodes]
+    for node in description.nodes:
+        for section in unreached_sections(node):
+            print(
+                f"[launch] WARNING {node.label}: section {section} does not reach "
+                f"{node_fqn(node)} (key it /**/{node.name})",
+                file=out,
+                flush=True,
+            )
+    labels = [node.label for node in description.nodes]
+    if len(set(labels)) != len(labels):
+        raise LaunchError(f"two nodes share a name: {labels}")
+    return commands
+
+
+class LaunchSession:
+    """The processes of one launch: :meth:`spawn` them, :meth:`run` until the launch ends
+    (:meth:`pump` their output, :meth:`reap` the exits), then always :meth:`stop` (stop what
+    runs, save the rest of the output); :attr:`code` is the launch's exit code (module
+    docstring)."""
+
+    def __init__(self, log_dir: str | os.PathLike, out: IO[str]) -> None:
+        self.log_dir, self.out = log_dir, out
+        self.selector = selectors.DefaultSelector()
+        self.nodes: list[LaunchNode] = []  # in the launch file's order
+        self.children: dict[str, subprocess.Popen] = {}  # label → process
+        self.running: dict[str, subprocess.Popen] = {}
+        self.logs: dict[str, IO[str]] = {}
+        self.code = 0
+
+    def _say(self, text: str) -> None:
+        print(f"[launch] {text}", file=self.out, flush=True)
+
+    def spawn(self, commands: Sequence[tuple[LaunchNode, list[str]]]) -> None:
+        """Start every node, its output into ``<log_dir>/<label>.log`` (and :meth:`pump`)."""
+        for node, command in commands:
+            self.logs[node.label] = open(  # noqa: SIM115  (closed by stop)
+                os.path.join(self.log_dir, f"{node.label}.log"), "w", encoding="utf-8"
+            )
+            child = subprocess.Popen(
+                command,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT,
+                text=True,
+                bufsize=1,
+                preexec_fn=_die_with_parent,  # noqa: PLW1509  (no threads here)
+            )
+            self.nodes.append(node)
+            self.children[node.label] = self.running[node.label] = child
+            assert child.stdout is not None
+            self.selector.register(child.stdout, selectors.EVENT_READ, node)
+            self._say(f"started {node.label} (pid {child.pid})")
+
+    def pump(self, timeout: float = 0.1) -> None:
+        """The lines the nodes wrote (waiting at most ``timeout`` s): into their logs, and
+        prefixed ``[label]`` to the output for ``output: screen``."""
+        for key, _ in self.selector.select(timeout=timeout):
+            node = key.data
+            line = key.fileobj.readline()  # type: ignore[union-attr]
+            if not line:
+                self.selector.unregister(key.fileobj)
+                continue
+            self.logs[node.label].write(line)
+            if node.output == "screen":
+                print(f"[{node.label}] {line}", end="", file=self.out, flush=True)
+
+    def reap(self) -> bool:
+        """Report the nodes that exited; the first failure's code is kept. True when one with
+        ``on_exit: shutdown`` exited: the launch ends (its code, unless 0)."""
+        for node in self.nodes:
+            exited = self.running.get(node.label)
+            if exited is None or exited.poll() is None:
+                continue
+            del self.running[node.label]
+            self._say(f"{node.label} exited with {exited.returncode}")
+            self.code = self.code or exited.returncode  # the first failure, reported at the end
+            if node.shutdown_on_exit:
+                self.code = exited.returncode or self.code
+                self.running.clear()
+                return True
+        return False
+
+    def run(self, timeout: float | None, stop: Sequence[int]) -> int:
+        """Pump and reap until no node runs, a shutdown node exited, ``timeout`` wall s passed
+        (code 124) or a signal arrived in ``stop`` (128 + N); the launch's exit code."""
+        end = None if timeout is None else time.monotonic() + timeout
+        while self.running and not stop:
+            self.pump()
+            self.reap()  # a shutdown node's exit empties ``running``
+            if end is not None and time.monotonic() > end:
+                self._say(f"time limit {timeout} s: stopping")
+                self.code = 124
+                break
+        if stop:
+            self.code = 128 + stop[0]
+        return self.code
+
+    def stop(self) -> None:
+        """Stop every node (:func:`_stop`), then save what their pipes still hold (and show it
+        for ``output: screen``); close the logs."""
+        _stop(self.children, self.out)
+        screen = {node.label for node in self.nodes if node.output == "screen"}
+        for label, child in self.children.items():
+            if child.stdout is not None:
+                # what the pipe (or the reader's buffer: select does not see it) still holds
+                rest = child.stdout.read()
+                self.logs[label].write(rest)
+                if label in screen:
+                    for line in rest.splitlines(keepends=True):
+                        print(f"[{label}] {line}", end="", file=self.out)
+                    self.out.flush()
+                child.stdout.close()
+        for fh in self.logs.values():
+            fh.close()
+        self.selector.close()
+
+
 def run_launch(
     description: LaunchDescription,
     *,
@@ -428,97 +553,24 @@ def run_launch(
             ``{name, value}`` entries are written there too.
         out: where screen output goes (default: stdout).
         timeout: wall-time limit, s (None: none); past it every node is stopped, exit 124.
-    """
+
+    The steps: :func:`prepare_launch`, then a :class:`LaunchSession`'s; SIGINT and SIGTERM
+    end the run (the previous handlers come back at the end)."""
     out = out or sys.stdout
-    Path(log_dir).mkdir(parents=True, exist_ok=True)
-    commands = [(node, node_command(node, log_dir)) for node in description.nodes]
-    for node in description.nodes:
-        for section in unreached_sections(node):
-            print(
-                f"[launch] WARNING {node.label}: section {section} does not reach "
-                f"{node_fqn(node)} (key it /**/{node.name})",
-                file=out,
-                flush=True,
-            )
-    labels = [node.label for node in description.nodes]
-    if len(set(labels)) != len(labels):
-        raise LaunchError(f"two nodes share a name: {labels}")
+    commands = prepare_launch(description, log_dir, out)
     stop: list[int] = []
     previous = {
         s: signal.signal(s, lambda signum, _frame: stop.append(signum))
         for s in (signal.SIGINT, signal.SIGTERM)
     }
-    selector = selectors.DefaultSelector()
-    children: dict[str, subprocess.Popen] = {}
-    logs: dict[str, IO[str]] = {}
-    code = 0
+    session = LaunchSession(log_dir, out)
     try:
-        for node, command in commands:
-            logs[node.label] = open(  # noqa: SIM115  (closed below)
-                os.path.join(log_dir, f"{node.label}.log"), "w", encoding="utf-8"
-            )
-            child = subprocess.Popen(
-                command,
-                stdout=subprocess.PIPE,
-                stderr=subprocess.STDOUT,
-                text=True,
-                bufsize=1,
-                preexec_fn=_die_with_parent,  # noqa: PLW1509  (no threads here)
-            )
-            children[node.label] = child
-            assert child.stdout is not None
-            selector.register(child.stdout, selectors.EVENT_READ, node)
-            print(f"[launch] started {node.label} (pid {child.pid})", file=out, flush=True)
-        end = None if timeout is None else time.monotonic() + timeout
-        running = dict(children)
-        while running and not stop:
-            for key, _ in selector.select(timeout=0.1):
-                node = key.data
-                line = key.fileobj.readline()  # type: ignore[union-attr]
-                if not line:
-                    selector.unregister(key.fileobj)
-                    continue
-                logs[node.label].write(line)
-                if node.output == "screen":
-                    print(f"[{node.label}] {line}", end="", file=out, flush=True)
-            for node in description.nodes:
-                exited = running.get(node.label)
-                if exited is None or exited.poll() is None:
-                    continue
-                del running[node.label]
-                print(
-                    f"[launch] {node.label} exited with {exited.returncode}", file=out, flush=True
-                )
-                code = code or exited.returncode  # the first failure, reported at the end
-                if node.shutdown_on_exit:
-                    code = exited.returncode or code
-                    running.clear()
-                    break
-            if end is not None and time.monotonic() > end:
-                print(f"[launch] time limit {timeout} s: stopping", file=out, flush=True)
-                code = 124
-                break
-        if stop:
-            code = 128 + stop[0]
+        session.spawn(commands)
+        return session.run(timeout, stop)
     finally:
-        _stop(children, out)
-        screen = {node.label for node in description.nodes if node.output == "screen"}
-        for label, child in children.items():
-            if child.stdout is not None:
-                # what the pipe (or the reader's buffer: select does not see it) still holds
-                rest = child.stdout.read()
-                logs[label].write(rest)
-                if label in screen:
-                    for line in rest.splitlines(keepends=True):
-                        print(f"[{label}] {line}", end="", file=out)
-                    out.flush()
-                child.stdout.close()
-        for fh in logs.values():
-            fh.close()
-        selector.close()
+        session.stop()
         for s, handler in previous.items():
             signal.signal(s, handler)
-    return code
 
 
 def _stop(children: Mapping[str, subprocess.Popen], out: IO[str]) -> None:

@@ -103,3 +103,59 @@ def test_stop_after_a_failed_start_releases_everything(scenario) -> None:
     outputs = session.stop()  # nothing spawned (the foreign check refused, say)
     assert outputs.rejected == {} and outputs.view is None
     assert not session.context.ok() and not os.path.exists(directory)
+
+
+def test_node_session_release_reads_what_the_children_left() -> None:
+    """The shared steps' end (NodeSession.release, bag_report): the rejections each node process
+    wrote into the run's directory, the recorder's counts; the context released."""
+    import json
+    import time
+
+    from ffmpc_ros.bringup import NodeSession, results_path
+    from ffmpc_ros.node_results import write_node_results
+
+    domain = int(os.environ["ROS_DOMAIN_ID"])
+    session = NodeSession(topics.ROOT_NAMESPACE, domain, time.perf_counter(), "ffmpc_test_")
+    directory = session.tmp.name
+    write_node_results(results_path(directory, "pid"), "pid", {"/mpc/command:stale": 2})
+    session.logs = {"pid": "pid.log", "mpc": "mpc.log"}  # the mpc process wrote nothing (killed)
+    session.counts_path = os.path.join(directory, "recorder_counts.json")
+    with open(session.counts_path, "w", encoding="utf-8") as fh:
+        json.dump({"received": {"/clock": 3}}, fh)
+    assert session.release(quiet=True) == {"pid": {"/mpc/command:stale": 2}}
+    assert not session.context.ok()
+    assert session.bag_report(None) is None
+    assert session.bag_report("run.mcap") == {"path": "run.mcap", "received": {"/clock": 3}}
+    session.tmp.cleanup()
+
+
+def test_node_session_turn_stops_on_a_dead_child_or_a_stall() -> None:
+    """One turn of a run's loop (NodeSession.turn): a child that died stops the run with its
+    name, exit status and last lines (not one a fault killed); no new cycle for stall_timeout
+    wall s stops it with what each stage last did."""
+    import subprocess
+    import time
+
+    from ffmpc_ros.bringup import GraphError, NodeSession, ProgressWatch
+
+    domain = int(os.environ["ROS_DOMAIN_ID"])
+    session = NodeSession(topics.ROOT_NAMESPACE, domain, time.perf_counter(), "ffmpc_test_")
+    try:
+        log = os.path.join(session.tmp.name, "pid.log")
+        with open(log, "w", encoding="utf-8") as out:
+            child = subprocess.Popen(["sh", "-c", "echo broken; exit 4"], stdout=out)
+        child.wait()
+        session.children, session.logs = {"pid": child}, {"pid": log}
+        now = time.perf_counter()
+        watch = ProgressWatch(now, stall_timeout=0.5, start_timeout=10.0)
+        session.turn(watch, 0, now, lambda: "", killed=["pid"])  # killed by a fault: no error
+        with pytest.raises(
+            GraphError, match=r"(?s)node pid \(pid \d+\) died .*exit status 4.*broken"
+        ):
+            session.turn(watch, 1, now, lambda: "")
+        session.children = {}
+        with pytest.raises(GraphError, match="no simulated progress for 1.0 s.*: plant at 0"):
+            session.turn(watch, 0, now + 1.0, lambda: "plant at 0")
+    finally:
+        session.release(quiet=True)
+        session.tmp.cleanup()
