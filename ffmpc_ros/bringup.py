@@ -628,6 +628,8 @@ def _check_options(o: GraphOptions, table: Mapping[str, str], faults: Sequence[F
             f"per-node ROS arguments for unknown nodes {unknown}; nodes: {list(table)}"
         )
     check_unshared(o.node_ros_args or {}, [*table, "metrics"])
+    for args in (o.node_ros_args or {}).values():
+        split_parameter_args(args)  # ConfigError for a malformed -p
     if not o.lockstep:
         if o.single_process or o.record is not None or o.view is not None:
             raise ConfigError(

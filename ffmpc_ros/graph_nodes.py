@@ -196,18 +196,24 @@ def split_parameter_args(ros_args: Sequence[str]) -> tuple[dict[str, Any], list[
     (read as rcl reads them, ``ffmpc_core.values.load_yaml``), and the other arguments. The
     bring-up writes the values into the node's section of the run's file: rcl takes a ``-p``
     as a ``/**`` value, which the scenario file's ``/**/NODE`` section, given before it, wins
-    over."""
+    over. ConfigError for a ``-p`` that is not ``NAME:=VALUE`` with a YAML value."""
     from ffmpc_core.values import load_yaml
 
     values: dict[str, Any] = {}
     rest: list[str] = []
     args = iter(ros_args)
     for arg in args:
-        if arg in ("-p", "--param"):
-            name, _, text = next(args, "").partition(":=")
-            values[name] = load_yaml(text)
-        else:
+        if arg not in ("-p", "--param"):
             rest.append(arg)
+            continue
+        assignment = next(args, "")
+        name, eq, text = assignment.partition(":=")
+        try:
+            values[name] = load_yaml(text)
+        except yaml.YAMLError:
+            eq = ""
+        if not name or not eq:
+            raise ConfigError(f"{arg} {assignment!r}: expected NAME:=VALUE (a YAML value)")
     return values, rest
 
 

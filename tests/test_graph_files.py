@@ -4,13 +4,16 @@ not give it. No ROS graph here (tests/test_ros_params.py reads the files with rc
 
 from __future__ import annotations
 
+import pytest
 import yaml
 
+from ffmpc_core.errors import ConfigError
 from ffmpc_core.scenario import Scenario, load_scenario, resolve_scenario_path
 from ffmpc_ros.graph_nodes import (
     file_parameters,
     graph_parameters,
     run_file_values,
+    split_parameter_args,
     write_graph_params,
 )
 
@@ -79,3 +82,16 @@ def test_a_section_reaches_the_nodes_as_rcl_gives_it(tmp_path):
     assert run_file_values("mpc", {"contact.stiffness": -0.0}, {"contact.stiffness": 0}) == {
         "contact.stiffness": -0.0
     }
+
+
+def test_node_param_values_are_split_from_the_other_ros_arguments():
+    """`--node-param` gives `-p NAME:=VALUE` pairs: read as rcl reads them, for the node's
+    section of the run's file; other arguments stay arguments; a malformed one is refused."""
+    values, rest = split_parameter_args(
+        ["-p", "horizon:=6", "--log-level", "debug", "--param", "period:=2e-3", "-p", "x:=[1, 2]"]
+    )
+    assert values == {"horizon": 6, "period": 0.002, "x": [1, 2]}
+    assert rest == ["--log-level", "debug"]
+    for bad in (["-p", "horizon"], ["-p", ":=3"], ["-p", "x:=[1, 2"], ["-p"]):
+        with pytest.raises(ConfigError, match="expected NAME:=VALUE"):
+            split_parameter_args(bad)
