@@ -274,17 +274,29 @@ class Scenario:
     ft_sensor: ForceSensorSection = field(default_factory=ForceSensorSection)
     mpc: MpcSection = field(default_factory=MpcSection)
     pid: PidSection = field(default_factory=PidSection)
+    #: The scenario file it was read from (an absolute path; "" for one built in code): the
+    #: node graph gives this file to its nodes as it is (``ffmpc_ros.graph_nodes``). Not a
+    #: parameter, and not compared: the values are the scenario.
+    source: str = field(default="", compare=False)
 
     def with_overrides(self, overrides: dict[str, Any]) -> Scenario:
         """A copy with dotted-name overrides applied (``"mpc.formulation"``, ``"seed"``)."""
-        flat = SCENARIO_SCHEMA.flatten(self)
-        for key, value in overrides.items():
-            if not isinstance(key, str) or key not in SCHEMA:
-                raise unknown_parameter(str(key), value)
-            flat[key] = value
-        if "pid.delay_cycles" in overrides and "mpc.command_delay" not in overrides:
-            flat["mpc.command_delay"] = COMMAND_DELAY_PID  # the explicit δo in cycles wins
-        return scenario_from_flat(self.name, flat)
+        flat = with_overrides_flat(SCENARIO_SCHEMA.flatten(self), overrides)
+        return scenario_from_flat(self.name, flat, self.source)
+
+
+def with_overrides_flat(flat: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
+    """``flat`` (dotted names) with ``overrides`` put over it: an unknown name is a
+    ConfigError; ``pid.delay_cycles`` without ``mpc.command_delay`` makes δo that number of
+    cycles (``mpc.command_delay: pid``)."""
+    out = dict(flat)
+    for key, value in overrides.items():
+        if not isinstance(key, str) or key not in SCHEMA:
+            raise unknown_parameter(str(key), value)
+        out[key] = value
+    if "pid.delay_cycles" in overrides and "mpc.command_delay" not in overrides:
+        out["mpc.command_delay"] = COMMAND_DELAY_PID  # the explicit δo in cycles wins
+    return out
 
 
 # -- the schema: one declaration of every scenario parameter's type, unit and range ----------
@@ -857,11 +869,11 @@ def validate_flat(
     return out
 
 
-def scenario_from_flat(name: str, flat: dict[str, Any]) -> Scenario:
+def scenario_from_flat(name: str, flat: dict[str, Any], source: str = "") -> Scenario:
     """The :class:`Scenario` ``name`` of dotted-name values (the schema's defaults for the
     others), checked by :data:`SCENARIO_SCHEMA`, with the cross-section rules applied (the
-    wrist-only keys, a fixed δo setting the PID's delay line)."""
-    scenario = SCENARIO_SCHEMA.build(flat, Scenario(name=name))
+    wrist-only keys, a fixed δo setting the PID's delay line); ``source``: its file, if any."""
+    scenario = SCENARIO_SCHEMA.build(flat, Scenario(name=name, source=source))
     check_force_sensor(scenario.ft_sensor)
     fixed = command_delay_seconds(scenario.mpc.command_delay)
     if fixed is not None:  # a fixed δo sets the PID's delay line
@@ -1021,8 +1033,11 @@ def base_scenario_path(base: Any) -> Path:
     raise config_error(BASE_KEY, base, expected)
 
 
-def _read_sections(path: Path, sections: tuple[str, ...]) -> tuple[dict[str, Any], dict[str, str]]:
-    """``({dotted name: raw value}, {section: key as written})`` of a parameter file."""
+def read_sections(path: str | os.PathLike) -> dict[str, dict[str, Any]]:
+    """``{section key as written (``/**``, ``/**/mpc``, ``mpc``): {dotted name: raw value}}``
+    of a parameter file: each section's names as rcl gives them to a node the section reaches
+    (nested maps flattened, values read by ROS 2's rules). ConfigError for a file that is not
+    a parameter file."""
     from ffmpc_core.values import load_yaml
 
     try:
@@ -1040,20 +1055,25 @@ def _read_sections(path: Path, sections: tuple[str, ...]) -> tuple[dict[str, Any
         doc = {}
     if not isinstance(doc, dict):
         raise ConfigError(f"{path}: expected a mapping of node sections")
-    flat: dict[str, Any] = {}
-    seen: dict[str, str] = {}
+    out: dict[str, dict[str, Any]] = {}
     for key, body in doc.items():
-        section = str(key)
-        if section.startswith(ANY_NAMESPACE):
-            section = section[len(ANY_NAMESPACE) :]
-        if section in seen:
-            raise ConfigError(f"{path}: sections {seen[section]!r} and {key!r} are the same node")
-        seen[section] = str(key)
         if not isinstance(body, dict) or set(body) != {"ros__parameters"}:
             raise ConfigError(f"{path}: section {key!r} must hold only 'ros__parameters'")
         if not isinstance(body["ros__parameters"] or {}, dict):
             raise ConfigError(f"{path}: {key}.ros__parameters must be a mapping")
-        params = flatten(body["ros__parameters"] or {})
+        out[str(key)] = flatten(body["ros__parameters"] or {})
+    return out
+
+
+def _read_sections(path: Path, sections: tuple[str, ...]) -> tuple[dict[str, Any], dict[str, str]]:
+    """``({dotted name: raw value}, {section: key as written})`` of a parameter file."""
+    flat: dict[str, Any] = {}
+    seen: dict[str, str] = {}
+    for key, params in read_sections(path).items():
+        section = key.removeprefix(ANY_NAMESPACE)
+        if section in seen:
+            raise ConfigError(f"{path}: sections {seen[section]!r} and {key!r} are the same node")
+        seen[section] = key
         if section == WILDCARD:
             flat.update(params)
         elif section in sections:
@@ -1071,8 +1091,8 @@ def load_scenario(name_or_path: str | os.PathLike, overrides: dict | None = None
             f"{path.stem!r} is the scenario of 'ffmpc study {path.stem}', not of the node graph"
         )
     path, flat = read_parameter_file(path, SECTIONS)
-    scenario = scenario_from_flat(path.stem, flat)
-    return scenario.with_overrides(overrides) if overrides else scenario
+    flat = with_overrides_flat(flat, overrides or {})
+    return scenario_from_flat(path.stem, flat, str(path.resolve()))
 
 
 _ConfigT = TypeVar("_ConfigT")
@@ -1183,7 +1203,11 @@ def _replace_tree(obj: Any, values: dict[str, Any], prefix: str) -> Any:
 #: paths. :func:`load_scenario`, :meth:`Scenario.with_overrides`, ``--set``/``--set-file`` and
 #: the node parameters (``ffmpc_ros.params``) all check values with it.
 SCENARIO_SCHEMA: ConfigSchema[Scenario] = ConfigSchema.of(
-    Scenario, _TABLE, exclude=("name",), given=_scenario_given_specs(), maps=("mpc.weights",)
+    Scenario,
+    _TABLE,
+    exclude=("name", "source"),
+    given=_scenario_given_specs(),
+    maps=("mpc.weights",),
 )
 #: Every scenario parameter by dotted name: the one declaration of its kind, unit and range.
 SCHEMA: dict[str, ParamSpec] = SCENARIO_SCHEMA.params

@@ -3,12 +3,16 @@
 ``run_graph(scenario)`` starts the plant, joint-sensor, F/T-sensor, MPC and PID nodes and the
 metrics node, runs the scenario and returns the metrics (computed by the metrics node with the
 runner's code). Multi-process (the default): each node is a child process started as
-``python -m <module> --ros-args --params-file <generated file>``; the metrics node runs in this
-process. Single-process: all nodes in this process on one ``EventsExecutor``.
+``python -m <module> --ros-args --params-file <scenario file> --params-file <generated file>``;
+the metrics node runs in this process. Single-process: all nodes in this process on one
+``EventsExecutor``.
 
-The generated parameter file is the scenario itself (``scenario_parameters``) spread over the
-node sections with the other-section values each node declares (``ffmpc_ros.params``), plus
-``lockstep`` and ``duration``. Every process gets the caller's environment: set
+The scenario file (``Scenario.source``, copied as it is) gives each node its own section and
+``/**``; the generated parameter file after it gives the rest of each node's parameters
+(``ffmpc_ros.graph_nodes.write_graph_params``): the other-section values it declares
+(``ffmpc_ros.params``), the values the run changed, ``lockstep``, ``duration`` and the other
+graph parameters. A scenario built in code has no file: the generated file then holds every
+value. Every process gets the caller's environment: set
 ``ROS_DOMAIN_ID`` (and ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) to isolate a run.
 
 Namespace (``namespace="/arm1"``, ``ffmpc run --namespace /arm1``): every node of the graph —
@@ -93,7 +97,8 @@ from ffmpc_ros.graph_nodes import (
     graph_parameters,
     load_node_class,
     node_table,
-    write_params_file,
+    split_parameter_args,
+    write_graph_params,
 )
 from ffmpc_ros.node_results import read_node_results
 from ffmpc_ros.params import parameter_overrides
@@ -487,10 +492,12 @@ class GraphOptions:
             only, without record, view or faults (ConfigError).
         low_level: the low-level node: ``"pid"`` (ffmpc's torque PID) or ``"lfc"`` (the
             linear_feedback_controller's law, ``ffmpc_ros.lfc_node``; ros2_control only).
-        node_ros_args: multi-process: extra ROS arguments per node, after the parameter file
-            (e.g. ``{"pid": ["-p", "kp:=0.2"]}``); one that sets a scenario value other nodes
-            take too is refused (:func:`check_unshared`). Real time: the ``mpc`` node's only
-            (the MPC process; the loop process composes the other nodes from the file).
+        node_ros_args: multi-process: extra ROS arguments per node, after the parameter files
+            (e.g. ``{"pid": ["-p", "kp:=0.2"]}``: a ``-p`` value goes into the node's section
+            of the run's file, ``graph_nodes.split_parameter_args``); one that sets a scenario
+            value other nodes take too is refused (:func:`check_unshared`). Real time: the
+            ``mpc`` node's only (the MPC process; the loop process composes the other nodes
+            from the file).
 
     Where, and for how long:
         domain_id: ROS domain of this run (default: ROS_DOMAIN_ID or 0).
@@ -621,6 +628,8 @@ def _check_options(o: GraphOptions, table: Mapping[str, str], faults: Sequence[F
             f"per-node ROS arguments for unknown nodes {unknown}; nodes: {list(table)}"
         )
     check_unshared(o.node_ros_args or {}, [*table, "metrics"])
+    for args in (o.node_ros_args or {}).values():
+        split_parameter_args(args)  # ConfigError for a malformed -p
     if not o.lockstep:
         if o.single_process or o.record is not None or o.view is not None:
             raise ConfigError(
@@ -718,11 +727,18 @@ class NodeSession:
         params: dict[str, dict[str, Any]],
         table: Mapping[str, str],
         node_ros_args: Mapping[str, Sequence[str]] | None = None,
+        scenario_file: str = "",
     ) -> None:
-        """One child process per node of ``table`` (name → "module:class"), with its
-        parameters of ``params`` (:func:`_spawn`)."""
+        """One child process per node of ``table`` (name → "module:class"), given the
+        ``scenario_file`` (if any) and its parameters of ``params`` (:func:`_spawn`)."""
         children, logs = _spawn(
-            params, self.tmp.name, self.domain, node_ros_args or {}, self.namespace, table
+            params,
+            self.tmp.name,
+            self.domain,
+            node_ros_args or {},
+            self.namespace,
+            table,
+            scenario_file,
         )
         self.children.update(children)
         self.logs.update(logs)
@@ -835,7 +851,7 @@ class GraphSession(NodeSession):
                 self._add(self.view_node)
             return
         directory = self.tmp.name
-        self.spawn_nodes(plan.params, plan.table, o.node_ros_args)
+        self.spawn_nodes(plan.params, plan.table, o.node_ros_args, plan.scenario.source)
         if o.view is not None:
             self.view_counts = os.path.join(directory, "view_counts.json")
             self.children["view"], self.logs["view"] = _spawn_view(
@@ -1086,11 +1102,14 @@ def _spawn(
     node_ros_args: Mapping[str, Sequence[str]],
     namespace: str = topics.ROOT_NAMESPACE,
     nodes: Mapping[str, str] = NODES,
+    scenario_file: str = "",
 ) -> tuple[dict[str, subprocess.Popen], dict[str, str]]:
     """Start every node of ``nodes`` (name → "module:class"; default the polishing graph's
-    NODES) as a child in one new process group; output to log files."""
-    path = os.path.join(directory, "graph_params.yaml")
-    write_params_file({n: v for n, v in params.items() if n in nodes}, path, namespace)
+    NODES) as a child in one new process group, given the ``scenario_file`` (if any) and the
+    run's parameter file (``graph_nodes.write_graph_params``); output to log files."""
+    extra = {n: split_parameter_args(node_ros_args.get(n, ())) for n in nodes}
+    node_params = {n: {**v, **extra[n][0]} for n, v in params.items() if n in nodes}
+    files = write_graph_params(node_params, directory, namespace, scenario_file)
     graph_args = topics.graph_ros_args(namespace)
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
     children: dict[str, subprocess.Popen] = {}
@@ -1101,7 +1120,7 @@ def _spawn(
         module = target.partition(":")[0]
         logs[name] = os.path.join(directory, f"{name}.log")
         with open(logs[name], "w", encoding="utf-8") as out:
-            args = ["--ros-args", "--params-file", path, *graph_args, *node_ros_args.get(name, ())]
+            args = ["--ros-args", *files, *graph_args, *extra[name][1]]
             args += ["-p", "autostart:=false"]  # the bring-up drives the lifecycle (run_graph)
             args += ["-p", f"results_file:={results_path(directory, name)}"]
             children[name] = subprocess.Popen(  # type: ignore[call-overload]

@@ -8,15 +8,26 @@ to import another for these.
 from __future__ import annotations
 
 import importlib
-from collections.abc import Mapping
+import os
+import shutil
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import yaml
 
+from ffmpc_core.config import ContactConfig
 from ffmpc_core.errors import ConfigError
-from ffmpc_core.scenario import Scenario
+from ffmpc_core.scenario import (
+    ANY_NAMESPACE,
+    CONTACT_DIMENSION,
+    SCHEMA,
+    SECTIONS,
+    WILDCARD,
+    Scenario,
+    read_sections,
+)
 from ffmpc_ros import topics
-from ffmpc_ros.params import node_parameter_values
+from ffmpc_ros.params import NODE_SPECS, node_parameter_values, node_scenario_names, scenario_flat
 
 #: node name → "module:class"; the module's ``main`` is the executable.
 NODES: dict[str, str] = {
@@ -106,6 +117,104 @@ def graph_parameters(
     names = [*nodes, "metrics"]
     qos = topics.graph_qos_overrides(namespace)
     return {n: {**node_parameter_values(n, scenario, **graph), **qos} for n in names}
+
+
+def file_parameters(
+    path: str | os.PathLike, node: str, namespace: str | None = topics.ROOT_NAMESPACE
+) -> dict[str, Any]:
+    """``{ROS name: value as written}`` that rcl gives node ``node`` under ``namespace`` from
+    the scenario file ``path``: the names of its ``/**`` section and of the node's own section
+    (``/**/NODE`` reaches the node in any namespace, ``NODE`` at the root only). ConfigError
+    for a section a scenario file does not have (``ffmpc_core.scenario.read_parameter_file``
+    refuses it too), which could reach the node otherwise."""
+    root = topics.normalize_namespace(namespace) == topics.ROOT_NAMESPACE
+    reaching = [WILDCARD, ANY_NAMESPACE + node] + ([node] if root else [])
+    sections = read_sections(path)
+    known = {WILDCARD, *SECTIONS, *(ANY_NAMESPACE + s for s in SECTIONS)}
+    unknown = sorted(set(sections) - known)
+    if unknown:
+        raise ConfigError(f"{path}: unknown node sections {unknown}; expected {SECTIONS}")
+    out: dict[str, Any] = {}
+    for key in reaching:
+        out.update(sections.get(key, {}))
+    return out
+
+
+def run_file_values(node: str, values: Mapping[str, Any], given: Mapping[str, Any]) -> dict:
+    """``values`` (node ``node``'s ``{ROS name: value}``) without the scenario parameters that
+    ``given`` (what the node reads from the scenario file, :func:`file_parameters`) holds with
+    the same value, as the schema reads both (bit for bit: ``repr`` of the checked values)."""
+    names = node_scenario_names(NODE_SPECS[node], scenario_flat(Scenario(name="names")))
+    dimension = next(
+        (values[r] for r, name in names.items() if name == CONTACT_DIMENSION and r in values),
+        ContactConfig.dimension,
+    )
+    out = {}
+    for ros, value in values.items():
+        name = names.get(ros)
+        if name is None or ros not in given or not _same(name, given[ros], value, dimension):
+            out[ros] = value
+    return out
+
+
+def _same(name: str, a: Any, b: Any, dimension: int) -> bool:
+    """Whether scenario parameter ``name`` reads ``a`` and ``b`` as the same value."""
+    try:
+        return repr(SCHEMA[name].check(a, dimension)) == repr(SCHEMA[name].check(b, dimension))
+    except ConfigError:
+        return False
+
+
+def write_graph_params(
+    params: Mapping[str, Mapping[str, Any]],
+    directory: str,
+    namespace: str | None = topics.ROOT_NAMESPACE,
+    scenario_file: str = "",
+) -> list[str]:
+    """The run's parameter files, written into ``directory``, and the ROS arguments that give
+    them to a node, in this order: with a ``scenario_file`` (``Scenario.source``), a copy of it
+    as it is (each node reads its values there, as ``ros2 launch`` gives it), then the run's
+    file (:func:`write_params_file`) with what the copy does not give each node
+    (:func:`run_file_values`: the graph parameters, the other sections' values it declares,
+    the values the run changed); without one, the run's file with every value."""
+    path = os.path.join(directory, "graph_params.yaml")
+    if not scenario_file:
+        write_params_file(params, path, namespace)
+        return ["--params-file", path]
+    copy = os.path.join(directory, "scenario.yaml")
+    shutil.copyfile(scenario_file, copy)
+    rest = {
+        node: run_file_values(node, values, file_parameters(copy, node, namespace))
+        for node, values in params.items()
+    }
+    write_params_file(rest, path, namespace)
+    return ["--params-file", copy, "--params-file", path]
+
+
+def split_parameter_args(ros_args: Sequence[str]) -> tuple[dict[str, Any], list[str]]:
+    """The ``-p NAME:=VALUE`` (``--param``) pairs of a node's ROS arguments as ``{NAME: value}``
+    (read as rcl reads them, ``ffmpc_core.values.load_yaml``), and the other arguments. The
+    bring-up writes the values into the node's section of the run's file: rcl takes a ``-p``
+    as a ``/**`` value, which the scenario file's ``/**/NODE`` section, given before it, wins
+    over. ConfigError for a ``-p`` that is not ``NAME:=VALUE`` with a YAML value."""
+    from ffmpc_core.values import load_yaml
+
+    values: dict[str, Any] = {}
+    rest: list[str] = []
+    args = iter(ros_args)
+    for arg in args:
+        if arg not in ("-p", "--param"):
+            rest.append(arg)
+            continue
+        assignment = next(args, "")
+        name, eq, text = assignment.partition(":=")
+        try:
+            values[name] = load_yaml(text)
+        except yaml.YAMLError:
+            eq = ""
+        if not name or not eq:
+            raise ConfigError(f"{arg} {assignment!r}: expected NAME:=VALUE (a YAML value)")
+    return values, rest
 
 
 def nested_parameters(flat: Mapping[str, Any]) -> dict:

@@ -32,9 +32,9 @@ The descriptors of scenario parameters are generated from :data:`ffmpc_core.scen
 and range; the node builds its :class:`~ffmpc_core.scenario.Scenario` from its slice alone (its
 values, the schema's defaults for the rest) with the same validation as the ROS-free runner
 (:func:`scenario_from_parameters`), and a value rclpy refuses gives the same ConfigError as the
-runner's, so both accept and refuse the same experiments. The bring-up writes each node's
-``{ROS name: value}`` into the run's parameter file as it is, dotted names as dotted keys
-(``ffmpc_ros.graph_nodes.write_params_file``).
+runner's, so both accept and refuse the same experiments. ``ffmpc run`` gives each node
+process the scenario file as it is, then the run's parameter file with the rest of the node's
+``{ROS name: value}``, dotted names as dotted keys (``ffmpc_ros.graph_nodes.write_graph_params``).
 """
 
 from __future__ import annotations

@@ -9,7 +9,8 @@ import pytest
 from ros_helpers import assert_same_run
 
 from ffmpc_core.scenario import load_scenario
-from ffmpc_ros.bringup import GraphOptions, graph_parameters, run_graph, write_params_file
+from ffmpc_ros.bringup import GraphOptions, graph_parameters, run_graph
+from ffmpc_ros.graph_nodes import write_params_file
 from studies.polishing import run_polishing
 
 

@@ -89,6 +89,46 @@ def test_nodes_read_the_run_parameter_file_into_the_runner_scenario(ros, tmp_pat
     assert pid.scenario.mpc.period == reference.mpc.period
 
 
+def test_nodes_given_the_scenario_file_then_the_run_file_build_the_runner_scenario(ros, tmp_path):
+    """What ``ffmpc run`` gives a node process (``graph_nodes.write_graph_params``): the
+    scenario file as it is, then the run's file with what that file does not give the node.
+    Read by rcl, every scenario parameter of the plant, sensor, MPC and PID nodes equals the
+    runner's; K comes from the scenario file, the --set values from the run's file, and a
+    --node-param value (in the node's section of the run's file) wins over the scenario
+    file's section."""
+    from ffmpc_ros.ft_sensor_node import FtSensorNode
+    from ffmpc_ros.graph_nodes import graph_parameters, split_parameter_args, write_graph_params
+    from ffmpc_ros.params import node_scenario_names, scenario_flat
+    from ffmpc_ros.pid_node import PidNode
+
+    reference = load_scenario(
+        "polishing",
+        {"mpc.formulation": "classical", "pid.kp": 0.2, "pid.delay_cycles": 4, "seed": 3},
+    )
+    params = graph_parameters(reference, lockstep=True, duration=0.5)
+    node_param, rest = split_parameter_args(["-p", "horizon:=6", "--log-level", "warn"])
+    assert node_param == {"horizon": 6} and rest == ["--log-level", "warn"]
+    params["mpc"].update(node_param)  # as the bring-up's _spawn does
+    files = write_graph_params(params, str(tmp_path), scenario_file=reference.source)
+    run = yaml.safe_load((tmp_path / "graph_params.yaml").read_text())
+    assert "contact.stiffness" not in run["mpc"]["ros__parameters"]
+    args = ["--ros-args", *files]
+    expected = scenario_flat(reference) | {"mpc.horizon": 6}
+    for cls, node in (
+        (PlantNode, "plant"),
+        (JointSensorNode, "joint_sensor"),
+        (FtSensorNode, "ft_sensor"),
+        (MpcNode, "mpc"),
+        (PidNode, "pid"),
+    ):
+        built = ros.add(cls(context=ros.context, cli_args=args))
+        got = scenario_flat(built.scenario)
+        names = node_scenario_names(NODE_SPECS[node], expected)
+        assert names, node
+        for ros_name, name in names.items():
+            assert repr(got[name]) == repr(expected[name]), (node, ros_name)
+
+
 def test_every_parameter_has_a_description_and_numbers_a_range(ros):
     node = ros.add(
         JointSensorNode(context=ros.context, parameter_overrides=overrides("joint_sensor"))
