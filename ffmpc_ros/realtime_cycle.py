@@ -124,8 +124,9 @@ class MotorDrives:
 
     The output is what the plant is given (``motor_torque``: the applied τ^m, N·m; the desired
     torque and mode of the low level's newest output); :attr:`computed` is this cycle's own
-    output (None: missed or refused) and :attr:`fresh` whether a new torque reached the plant
-    this cycle (False: the robot's communication watchdog counts, ``ReflexPlant.step``).
+    output (None: missed or refused) and :attr:`fresh` is False on a missed cycle and on a
+    cycle whose torque was late (no new torque reached the plant in time: the robot's
+    communication watchdog counts, ``ReflexPlant.step``).
 
     Args:
         lowlevel: the low-level stage. clock: the wall clock.
@@ -166,7 +167,9 @@ class MotorDrives:
         except InputError as exc:
             self.reject("step", f"cycle {k}: {exc}")
             self.computed = None
-        out = self.computed or replace(self.last, motor_torque=self.held)
+        out = self.computed
+        if out is None:  # refused: the torque held, the newest desired torque and mode
+            out = replace(self.last, motor_torque=self.held)
         late = self.clock.periods_late()
         self.fresh = late == 0
         self._due = (k + max(late, 1), out.motor_torque)
@@ -215,13 +218,16 @@ class _DrivenPlant:
         return self.plant.state()
 
 
-class _LoggedAfterDeadline:
-    """The polishing loop as a core scenario whose record waits for :meth:`flush` (after the
-    plant's step: logging is off the deadline)."""
+class _LoggedAfterRun:
+    """The polishing loop as a core scenario whose log is written after the run (off the hot
+    path, as a lockstep run's log is, row by row in cycle order with the loop's own
+    ``record``): :meth:`record` keeps the cycle's arguments (fresh objects every cycle: the
+    plant's state, the reading, the drives' output, the actuation's τ̂), :meth:`flush` logs
+    them."""
 
     def __init__(self, loop: PolishingLoop) -> None:
         self.loop = loop
-        self.row: tuple | None = None
+        self.rows: list[tuple] = []
 
     def measure(self, k: int, t: float, state: PolishingPlantState, /) -> PolishingReading:
         return self.loop.measure(k, t, state)
@@ -232,13 +238,13 @@ class _LoggedAfterDeadline:
         return self.loop.actuate(k, t, state, command)
 
     def record(self, *row: Any) -> None:
-        self.row = row
+        self.rows.append(row)
 
     def flush(self) -> None:
-        """Log the cycle kept by :meth:`record`."""
-        assert self.row is not None
-        self.loop.record(*self.row)
-        self.row = None
+        """Log the cycles kept by :meth:`record`, in order."""
+        for row in self.rows:
+            self.loop.record(*row)
+        self.rows.clear()
 
 
 @dataclass(frozen=True)
@@ -275,7 +281,7 @@ class WallClockCycles:
         self.loop = loop
         self.clock = drives.clock
         self.drives = drives
-        self.scenario = _LoggedAfterDeadline(loop)
+        self.scenario = _LoggedAfterRun(loop)
         self.plant = _DrivenPlant(plant, drives)
         self.stages: list[Controller[Any, Any]] = [mpc, drives]
         self.held: list[Controller[Any, Any]] = [_HeldStage(drives)]
@@ -286,8 +292,9 @@ class WallClockCycles:
         after: Callable[[int], None] = _nothing,
     ) -> CycleTimes:
         """Every cycle of the clock through :func:`ffmpc_core.runner.run_cycle`: the stages on
-        time, the held torque when missed. ``before(k)`` runs at every release, ``after(k)``
-        after each on-time cycle is logged (off the deadline: the observer topics)."""
+        time, the held torque when missed; the loop's log is written after the last cycle.
+        ``before(k)`` runs at every release, ``after(k)`` after each on-time cycle's plant step
+        (off the deadline: the observer topics)."""
         n = self.clock.steps
         latency, missed = np.zeros(n), np.zeros(n, dtype=bool)
         for k, t in self.clock:
@@ -296,9 +303,9 @@ class WallClockCycles:
             missed[k] = self.clock.missed
             run_cycle(self.scenario, self.plant, self.held if missed[k] else self.stages, k, t)
             latency[k] = math.inf if missed[k] else self.clock.elapsed()
-            self.scenario.flush()
             if not missed[k]:
                 after(k)
+        self.scenario.flush()
         return CycleTimes(latency, missed)
 
 

@@ -179,3 +179,57 @@ def test_a_late_torque_and_missed_cycles_hold_the_torque_last_sent():
     assert np.array_equal(desired[12], computed[10].desired_torque)
     assert fresh[9] and not any(fresh[10:13]) and all(fresh[13:])
     assert np.all(np.isfinite(loop.log.arrays["force_measured"]))
+
+
+def test_the_command_inbox_applies_each_command_one_mpc_period_after_its_tick():
+    """The real-time MPC stage's transport (``realtime.CommandInbox``): a command is taken when
+    it arrives and handed to the low level one MPC period after the tick it was solved from,
+    never earlier (the fixed latency); a duplicate, a stamp from the future and an implausible
+    torque are rejected, each with its kind, and change nothing."""
+    from types import SimpleNamespace
+
+    from ffmpc_ros.command_msg import command_message
+    from ffmpc_ros.realtime import CommandInbox, real_time_pid_settings
+    from ffmpc_ros.time_grid import cycle_at, stamp_at, stamp_ns
+
+    scenario = load_scenario("polishing", {"mpc.formulation": "classical"})
+    robot = scenario_robot(scenario)
+    low = lowlevel_controller(real_time_pid_settings(scenario), robot)
+    names = list(robot.joint_names)
+
+    def message(tick: int, torque_scale: float = 1.0):
+        command = SimpleNamespace(
+            torque=torque_scale * robot.gravity(robot.q_nominal),
+            state=np.concatenate([robot.q_nominal, np.zeros(robot.nv)]),
+            feedback_gain=np.zeros((robot.nv, 2 * robot.nv)),
+            iterations=1,
+            kkt=0.0,
+            solve_time=4e-4,
+            converged=True,
+        )
+        return command_message(stamp_at(tick, 1_000_000), "classical", names, tick, command)
+
+    arriving = {1: [message(0)], 2: [message(2), message(0), message(9)], 3: [message(4, 1e3)]}
+    queue: list = []
+    rejected: list[str] = []
+    inbox = CommandInbox(
+        lambda: queue.pop(0) if queue else None,
+        low,
+        lambda stamp: cycle_at(stamp_ns(stamp), 1_000_000),
+        lambda kind, _message: rejected.append(kind),
+        steps=20,
+        every=2,
+        time_step=1e-3,
+        topic="/mpc/command",
+    )
+    used = {}
+    for k in range(6):
+        queue.extend(arriving.get(k, []))
+        inbox.sent(k)
+        inbox.take(k)
+        inbox.release(k)
+        used[k] = low.command_time
+    assert list(inbox.arrival[:5]) == [1, -1, 2, -1, -1]
+    assert used == {0: -np.inf, 1: -np.inf, 2: 0.0, 3: 0.0, 4: 2e-3, 5: 2e-3}
+    assert rejected == ["/mpc/command:stamp", "/mpc/command:stamp", "/mpc/command:value"]
+    assert inbox.solve_times == [4e-4, 4e-4]
