@@ -41,6 +41,7 @@ __all__ = [
     "LockstepClock",
     "LoopScenario",
     "PeriodicController",
+    "run_cycle",
     "run_scenario",
 ]
 
@@ -154,14 +155,30 @@ def run_scenario(
     if not controllers:
         raise ConfigError("a closed loop needs at least one controller")
     for k, t in clock:
-        state = plant.state()
-        measurement = scenario.measure(k, t, state)
-        command = measurement
-        for controller in controllers:
-            command = controller.step(command, t)
-        joint_input = scenario.actuate(k, t, state, command)
-        scenario.record(k, t, state, measurement, command, joint_input)
-        if joint_input is None:
+        if run_cycle(scenario, plant, controllers, k, t) is None:
             return k
-        plant.step(joint_input)
     return clock.steps
+
+
+def run_cycle(
+    scenario: LoopScenario[StateT, Any, Any],
+    plant: Plant[StateT],
+    controllers: Sequence[Controller[Any, Any]],
+    k: int,
+    t: float,
+) -> np.ndarray | None:
+    """Cycle k at t (s) of the closed loop (steps 1-6 of the module docstring): the plant's
+    state, the scenario's measurement, the controllers in cascade, the actuation, the record and
+    the plant's step. Returns the joint input (N·m) the plant was stepped with; None when the
+    scenario ended the run (the plant was not stepped). :func:`run_scenario` runs it on the
+    lockstep clock; the real-time loop (``ffmpc_ros.realtime``) on the wall clock."""
+    state = plant.state()
+    measurement = scenario.measure(k, t, state)
+    command = measurement
+    for controller in controllers:
+        command = controller.step(command, t)
+    joint_input = scenario.actuate(k, t, state, command)
+    scenario.record(k, t, state, measurement, command, joint_input)
+    if joint_input is not None:
+        plant.step(joint_input)
+    return joint_input

@@ -6,9 +6,11 @@ time"):
 * **the loop process** composes the ``plant``, ``joint_sensor``, ``ft_sensor`` and ``pid`` ROS
   nodes in one process, as ROS 2 components with intra-process communication would be: four
   rclpy nodes with their own names, parameters and publishers, but the edges between them
-  (plant → sensor models → torque loop → actuation → plant) are direct calls, not DDS. One
-  thread runs the loop on an absolute wall-clock schedule (cycle k is released at
-  t0 + k·time_step; sleep to ~``SPIN_MARGIN`` before the release, then busy-wait), with no
+  (plant → sensor models → torque loop → actuation → plant) are direct calls, not DDS: the
+  core's cycle (``ffmpc_core.runner.run_cycle``) with the ROS-free run's objects
+  (:mod:`ffmpc_ros.realtime_cycle`). One thread runs the loop on an absolute wall-clock
+  schedule (cycle k is released at t0 + k·time_step; sleep to ~``SPIN_MARGIN`` before the
+  release, then busy-wait: ``realtime_cycle.WallClock``), with no
   executor on the hot path: the MPC commands are taken straight from the subscription
   (``take_message``, ~2 µs when empty). The garbage collector is frozen and disabled for the run.
 * **the MPC process** is the ordinary ``mpc`` node (``ffmpc_ros.mpc_node``) with
@@ -83,9 +85,9 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import rclpy
@@ -102,7 +104,7 @@ from ffmpc_core.errors import FfmpcError, InputError
 from ffmpc_core.faults import REALTIME_KINDS, Fault, parse_fault, require_kinds
 from ffmpc_core.lowlevel import (
     LowLevelCommand,
-    LowLevelMeasurement,
+    LowLevelController,
     LowLevelMode,
     LowLevelOutput,
 )
@@ -117,6 +119,12 @@ from ffmpc_core.polishing import (
     scenario_robot,
     steps_per_mpc_period,
 )
+from ffmpc_core.polishing_loop import (
+    LowLevelStage,
+    MpcDecision,
+    PolishingLoop,
+    PolishingReading,
+)
 from ffmpc_core.scenario import Scenario, flatten
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import (
@@ -128,14 +136,16 @@ from ffmpc_ros.base import (
 )
 from ffmpc_ros.command_msg import command_fields
 from ffmpc_ros.params import parameter_overrides
-
-if TYPE_CHECKING:  # (sim_bridge, PyBullet, is imported only when a loop runs)
-    from sim_bridge.plant import PlantState
+from ffmpc_ros.realtime_cycle import (
+    CycleTimes,
+    MotorDrives,
+    WallClock,
+    WallClockCycles,
+    initial_output,
+)
 
 #: A run fails when more than this fraction of the loop's or the MPC's deadlines was missed.
 MAX_MISSED_FRACTION = 0.01
-#: The loop sleeps until this long before a release, then busy-waits, s.
-SPIN_MARGIN = 2.0e-4
 #: How often the loop re-checks who subscribes to its observer topics, cycles.
 SUBSCRIBER_CHECK_EVERY = 100
 #: SCHED_FIFO priority of both processes by default (where permitted; 0: normal scheduling).
@@ -382,15 +392,6 @@ def _die_with_parent() -> None:
         ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGINT, 0, 0, 0)  # PR_SET_PDEATHSIG
 
 
-def sleep_until(deadline: float) -> None:
-    """Sleep until ``SPIN_MARGIN`` before ``deadline`` (perf_counter s), then busy-wait."""
-    remaining = deadline - time.perf_counter()
-    if remaining > SPIN_MARGIN:
-        time.sleep(remaining - SPIN_MARGIN)
-    while time.perf_counter() < deadline:
-        pass
-
-
 # -- the loop process ---------------------------------------------------------------------------
 def real_time_pid_settings(scenario: Scenario) -> Scenario:
     """The scenario the real-time loop's torque PID runs: the lockstep model shifted by the fixed
@@ -422,8 +423,144 @@ def command_qos() -> QoSProfile:
     )
 
 
+class CommandInbox:
+    """The loop's side of ``/mpc/command`` (module docstring, "MPC" and "Fixed latency").
+
+    :meth:`take` takes every command that arrived, each checked whole before it may claim the
+    cycle of its stamp (fields and sizes, ``command_msg.command_fields``; a plausible torque,
+    ``LowLevelController.check_command``; a stamp on the run's grid, not from the future and not
+    taken yet: as the PID node, a rejected message is counted, logged in one line and changes
+    nothing); :meth:`release` hands the low level, in order, the commands solved at least one
+    MPC period (``every`` cycles) before the present cycle.
+
+    Per cycle k it keeps ``arrival`` (the cycle at which the command solved from k was taken,
+    −1: none), ``latency`` (wall s from :meth:`sent` of k to the take; nan: none) and the solve
+    times the commands reported (``solve_times``, s).
+
+    Args:
+        take: the next message that arrived, None when there is none.
+        lowlevel: the low-level controller the commands go to.
+        cycle_of: the cycle of a stamp (None: off the grid).
+        reject: called with (kind, message) for a rejected command.
+        steps, every, time_step: the run's cycles, cycles per MPC period, Δt (s).
+        topic: the command topic's resolved name (the rejection kinds are keyed by it).
+    """
+
+    def __init__(
+        self,
+        take: Callable[[], Any],
+        lowlevel: LowLevelController,
+        cycle_of: Callable[[TimeMsg], int | None],
+        reject: Callable[[str, str], None],
+        steps: int,
+        every: int,
+        time_step: float,
+        topic: str,
+    ) -> None:
+        self._take = take
+        self.lowlevel = lowlevel
+        self.cycle_of = cycle_of
+        self.reject = reject
+        self.steps, self.every, self.time_step = steps, every, time_step
+        self.topic = topic
+        self.arrival = np.full(steps, -1, dtype=np.int64)
+        self.latency = np.full(steps, np.nan)
+        self.published = np.zeros(steps)
+        self.solve_times: list[float] = []
+        self._pending: dict[int, LowLevelCommand] = {}
+
+    def sent(self, k: int) -> None:
+        """The measurement of cycle k was published now."""
+        self.published[k] = time.perf_counter()
+
+    def take(self, k: int) -> None:
+        """At cycle k: take every command that arrived; note the cycle at which each arrived."""
+        now = time.perf_counter()
+        robot = self.lowlevel.robot
+        while (msg := self._take()) is not None:
+            try:
+                fields = command_fields(msg, robot.nv, robot.joint_names)
+                if fields["nx"] != self.lowlevel.nx:
+                    raise InputError(f"command for nx={fields['nx']}")
+                command = self.lowlevel.check_command(
+                    LowLevelCommand(fields["torque"], fields["state"], fields["feedback_gain"])
+                )
+            except InputError as exc:
+                self.reject(f"{self.topic}:value", str(exc))
+                continue
+            kc = self.cycle_of(fields["stamp"])
+            if kc is None or kc > k or kc < 0 or kc >= self.steps or self.arrival[kc] >= 0:
+                self.reject(f"{self.topic}:stamp", f"command time {fields['t']} s")
+                continue
+            self.arrival[kc] = k
+            self.latency[kc] = now - self.published[kc]
+            self.solve_times.append(float(fields["solve_time"]))
+            self._pending[kc] = command
+
+    def release(self, k: int) -> None:
+        """Hand the low level, in order, the commands solved at least ``every`` cycles before
+        cycle k (each with the time of its measurement)."""
+        for kc in sorted(c for c in self._pending if c + self.every <= k):
+            command = self._pending.pop(kc)
+            try:
+                self.lowlevel.set_command(command, kc * self.time_step)
+            except InputError as exc:
+                self.reject(f"{self.topic}:value", str(exc))
+
+
+class TopicMpc:
+    """The MPC stage of the real-time loop, in the place of the runner's
+    :class:`~ffmpc_core.polishing_loop.MpcStage` (PolishingReading → MpcDecision): the MPC
+    solves in its own process. The stage publishes the reading as the sensors' messages, lets
+    an injected stall freeze the loop there (:class:`_StallSchedule`), then takes the commands
+    that arrived and hands the low level those due (:class:`CommandInbox`). It decides nothing
+    itself: no command of its own, no hold (the low level's stale-command rule holds the robot
+    when the MPC is late)."""
+
+    def __init__(
+        self,
+        publish: Callable[[int, PolishingReading], None],
+        inbox: CommandInbox,
+        stalls: _StallSchedule,
+        clock: WallClock,
+    ) -> None:
+        self.publish = publish
+        self.inbox = inbox
+        self.stalls = stalls
+        self.clock = clock
+
+    def reset(self) -> None:
+        """Nothing to reset (the MPC process resets itself)."""
+
+    def step(self, reading: PolishingReading, t: float, /) -> MpcDecision:
+        """Publish the reading of the present cycle (t in s), take and release the commands."""
+        k = self.clock.k
+        self.publish(k, reading)
+        self.inbox.sent(k)
+        self.stalls.inject(k)  # (an injected stall freezes this process here)
+        self.inbox.take(k)
+        self.inbox.release(k)
+        return MpcDecision(reading, None, False)
+
+
+def _subscription_taker(sub: Any) -> Callable[[], Any]:
+    """The next message of a subscription, taken without an executor (~2 µs when empty)."""
+
+    def take() -> Any:
+        with sub.handle:
+            taken = sub.handle.take_message(sub.msg_type, sub.raw)
+        return None if taken is None else taken[0]
+
+    return take
+
+
 class RealtimeLoop:
     """The plant, sensor and PID nodes composed in one process, run on the wall clock.
+
+    The cycle is the core's (:mod:`ffmpc_ros.realtime_cycle`): the same
+    :class:`~ffmpc_core.polishing_loop.PolishingLoop` (sensing, actuation, push, log) and
+    :class:`~ffmpc_core.polishing_loop.LowLevelStage` as the ROS-free runner, the reflex plant,
+    :func:`ffmpc_core.runner.run_cycle`; :class:`TopicMpc` in the MPC stage's place.
 
     Args:
         params: {node: {ROS name: value}} of ``plant``, ``joint_sensor``, ``ft_sensor``, ``pid``
@@ -451,49 +588,60 @@ class RealtimeLoop:
         self.mpc_pid = mpc_pid
         self.nodes = {n: node(n) for n in ("plant", "joint_sensor", "ft_sensor", "pid")}
         plant_node = self.nodes["plant"]
-        s = plant_node.scenario
-        self.scenario = s
+        s = self.scenario = plant_node.scenario
         robot = self.robot = scenario_robot(s)  # carrying the tool (the cell's load data)
         self.joint_names = list(robot.joint_names)
         self.time_step = plant_node.time_step
         self.step_ns = plant_node.step_ns
-        # plant (as ffmpc_ros.plant_node.PlantNode)
-        from sim_bridge.scenes import simulated_robot
-
-        self.sim = simulated_robot(
-            s, robot, device_generator(s.seed, "draws"), device_generator(s.seed, "actuation")
-        )
-        self.draws, self.task, self.actuation = self.sim.draws, self.sim.task, self.sim.actuation
-        self.plant = self.sim.plant
-        self.reflex_plant = self.sim.reflex_plant  # the robot's reflexes (module docstring)
-        duration = float(plant_node.params["duration"]) or self.task.duration
-        self.steps = int(round(duration / self.time_step))
+        duration = float(plant_node.params["duration"])
         self.start_delay = float(plant_node.params["start_delay"])
-        # sensors (as JointSensorNode, FtSensorNode)
-        js = self.nodes["joint_sensor"].scenario
-        self.joint_model = joint_sensing_model(
-            js, robot.nv, device_generator(js.seed, "joint_sensor")
-        )
-        ft = self.nodes["ft_sensor"].scenario
-        self.contact = ft.mpc.contact
-        self.force_model = force_pipeline(  # eq 32, or the wrist sensor, calibrated now
-            ft,
-            robot,
-            device_generator(ft.seed, "force_sensor"),
-            device_generator(ft.seed, "ft_calibration"),
-            time.time(),
-        )
-        self.force_axes = [self.contact.normal_axis] if self.contact.dimension == 1 else [0, 1, 2]
         # torque loop (as PidNode), with the fixed MPC latency counted (real_time_pid_settings)
         ps = real_time_pid_settings(self.nodes["pid"].scenario)
         self.every = steps_per_mpc_period(ps)
         self.modelled_delay_cycles = ps.pid.delay_cycles
         self.stale_timeout = ps.pid.stale_timeout
         self.lowlevel = lowlevel_controller(ps, robot)
-        self.needs_force = ps.mpc.riccati_feedback and ps.mpc.formulation == "force_feedback"
+        self.loop = self._polishing_loop(duration)
+        self._create_topics()
+        self._active: dict[str, bool] = {}
+        self.rejected: dict[str, int] = {}
 
+    def _polishing_loop(self, duration: float) -> PolishingLoop:
+        """The plant (as PlantNode), the sensor models (as JointSensorNode, FtSensorNode) and
+        the core's polishing loop around them."""
+        from sim_bridge.scenes import simulated_robot
+
+        s, robot = self.scenario, self.robot
+        self.sim = simulated_robot(
+            s, robot, device_generator(s.seed, "draws"), device_generator(s.seed, "actuation")
+        )
+        self.task, self.plant = self.sim.task, self.sim.plant
+        self.reflex_plant = self.sim.reflex_plant  # the robot's reflexes (module docstring)
+        self.steps = int(round((duration or self.task.duration) / self.time_step))
+        js = self.nodes["joint_sensor"].scenario
+        ft = self.nodes["ft_sensor"].scenario
+        contact = ft.mpc.contact
+        self.force_axes = [contact.normal_axis] if contact.dimension == 1 else [0, 1, 2]
+        return PolishingLoop(
+            robot,
+            contact,
+            joint_sensing_model(js, robot.nv, device_generator(js.seed, "joint_sensor")),
+            force_pipeline(  # eq 32, or the wrist sensor, calibrated now
+                ft,
+                robot,
+                device_generator(ft.seed, "force_sensor"),
+                device_generator(ft.seed, "ft_calibration"),
+                time.time(),
+            ),
+            self.sim.actuation,
+            PolishingLog(self.steps, robot, self.task),
+            self.every,
+            initial_torque=robot.gravity(robot.q_nominal),  # the motors hold the robot at start
+            disturbance=self.sim.push_if_due,
+        )
+
+    def _create_topics(self) -> None:
         pn, jn, fn, cn = (self.nodes[n] for n in ("plant", "joint_sensor", "ft_sensor", "pid"))
-
         self.pub_clock = pn.create_publisher(ClockMsg, topics.CLOCK, topics.clock_qos())
         self.pub_plant_joints = pn.graph_publisher(JointState, topics.PLANT_JOINT_STATES)
         self.pub_plant_wrench = pn.graph_publisher(WrenchStamped, topics.PLANT_WRENCH)
@@ -508,9 +656,6 @@ class RealtimeLoop:
             MpcCommandMsg, topics.MPC_COMMAND, lambda _msg: None, command_qos()
         )
         self._command_topic = cn.name_of(topics.MPC_COMMAND)  # /arm1/mpc/command, as keyed
-        self._active: dict[str, bool] = {}
-        self._pending: dict[int, LowLevelCommand] = {}
-        self.rejected: dict[str, int] = {}
 
     # -- helpers ---------------------------------------------------------------------------------
     def _refresh_subscribers(self) -> None:
@@ -531,56 +676,6 @@ class RealtimeLoop:
         self.rejected[kind] = self.rejected.get(kind, 0) + 1
         self.nodes["pid"].reject(kind, message)
 
-    def _take_commands(
-        self,
-        k: int,
-        arrival: np.ndarray,
-        latency: np.ndarray,
-        sent: np.ndarray,
-        solve: list[float],
-    ) -> None:
-        """Take every command that arrived; note the cycle at which each arrived."""
-        sub = self.sub_command
-        now = time.perf_counter()
-        while True:
-            with sub.handle:
-                taken = sub.handle.take_message(sub.msg_type, sub.raw)
-            if taken is None:
-                return
-            msg = taken[0]
-            nv = self.robot.nv
-            try:
-                fields = command_fields(msg, nv, self.robot.joint_names)
-                if fields["nx"] != self.lowlevel.nx:
-                    raise InputError(f"command for nx={fields['nx']}")
-                # checked whole before it claims its cycle (as the PID node: a rejected
-                # message from outside the graph leaves the MPC's own command usable)
-                self.lowlevel.check_command(
-                    LowLevelCommand(fields["torque"], fields["state"], fields["feedback_gain"])
-                )
-            except InputError as exc:
-                self._reject(f"{self._command_topic}:value", str(exc))
-                continue
-            kc = self.nodes["pid"].cycle_of(fields["stamp"])
-            if kc is None or kc > k or kc < 0 or kc >= self.steps or arrival[kc] >= 0:
-                self._reject(f"{self._command_topic}:stamp", f"command time {fields['t']} s")
-                continue
-            arrival[kc] = k
-            latency[kc] = now - sent[kc]
-            solve.append(float(fields["solve_time"]))
-            self._pending[kc] = LowLevelCommand(
-                fields["torque"], fields["state"], fields["feedback_gain"]
-            )
-
-    def _release_commands(self, k: int) -> None:
-        """Apply, in order, the commands solved at least one MPC period before cycle k."""
-        for kc in sorted(c for c in self._pending if c + self.every <= k):
-            command = self._pending.pop(kc)
-            try:
-                self.lowlevel.set_command(command, kc * self.time_step)
-            except InputError as exc:
-                self._reject(f"{self._command_topic}:value", str(exc))
-
     def wait_for_mpc(self, limit: float = MPC_WAIT) -> None:
         """Block until the MPC subscribes to the joint states and /clock (its time source: this
         loop's nodes read /clock too) and publishes commands, then ``start_delay`` more
@@ -600,179 +695,114 @@ class RealtimeLoop:
         time.sleep(self.start_delay)
 
     # -- the run ---------------------------------------------------------------------------------
+    def cycles(self, stalls: _StallSchedule) -> tuple[WallClockCycles, CommandInbox]:
+        """The run's closed loop on a new wall clock (:class:`WallClockCycles`) and its inbox
+        of MPC commands."""
+        clock = WallClock(self.time_step, self.steps)
+        inbox = CommandInbox(
+            _subscription_taker(self.sub_command),
+            self.lowlevel,
+            self.nodes["pid"].cycle_of,
+            self._reject,
+            self.steps,
+            self.every,
+            self.time_step,
+            self._command_topic,
+        )
+        drives = MotorDrives(
+            LowLevelStage(self.lowlevel),
+            clock,
+            initial_output(self.loop.tau_hat.copy()),
+            self._reject,
+        )
+        mpc = TopicMpc(self._publish_measurement, inbox, stalls, clock)
+        return WallClockCycles(self.loop, self.reflex_plant, mpc, drives), inbox
+
     def run(self) -> dict[str, Any]:
         """Run every cycle on the wall clock; returns the raw per-cycle records.
 
-        A cycle whose release is a whole period past when the loop gets to it is **missed**
-        (:meth:`_missed_cycle`): the physical plant does not wait for a late controller, so it
-        steps on under the motor torque last sent (zero-order hold, as motor drivers do), the
-        sensor devices keep sampling, and nothing is published or computed for that cycle.
-        A torque computed past its deadline r_{k+1} missed the start of step k: that step and
-        each later one whose start passed meanwhile run under the held torque, then it is
-        delivered. The loop resumes at the first release still ahead, on the same grid."""
-        n, nv, dt = self.steps, self.robot.nv, self.time_step
-        rec: dict[str, Any] = {
-            "q": np.zeros((n, nv)),
-            "v": np.zeros((n, nv)),
-            "force_true": np.zeros(n),
-            "force_measured": np.zeros(n),
-            "tau_desired": np.zeros((n, nv)),
-            "tau_measured": np.zeros((n, nv)),
-            "tau_motor": np.zeros((n, nv)),
-            "mode": np.zeros(n, dtype=np.int8),
-            "cycle_latency": np.zeros(n),
-            "missed": np.zeros(n, dtype=bool),
-            "command_arrival": np.full(n, -1, dtype=np.int64),
-            "command_latency": np.full(n, np.nan),
-            "published": np.zeros(n),
-        }
-        solve_times: list[float] = []
-        tau_hat = self.robot.gravity(self.robot.q_nominal)  # the motors hold the robot at start
-        last_motor = tau_hat.copy()
-        f_hat = np.zeros(len(self.force_axes))
-        out: LowLevelOutput | None = None
-        state = self.reflex_plant.state()
-        stalls = _StallSchedule(self.stalls, dt, self.mpc_pid)
+        A cycle whose release is a whole period past when the loop gets to it is **missed**:
+        the physical plant does not wait for a late controller, so it steps on under the motor
+        torque last sent (zero-order hold, as motor drivers do), the sensor devices keep
+        sampling, and nothing is published or computed for that cycle. A torque computed past
+        its deadline r_{k+1} missed the start of step k: that step and each later one whose
+        start passed meanwhile run under the held torque, then it is delivered
+        (:class:`~ffmpc_ros.realtime_cycle.MotorDrives`). A step without a new torque (missed,
+        or late) tells the robot's communication reflex so (``fresh=False``). The loop resumes
+        at the first release still ahead, on the same grid."""
+        stalls = _StallSchedule(self.stalls, self.time_step, self.mpc_pid)
+        cycles, inbox = self.cycles(stalls)
+        clock, drives = cycles.clock, cycles.drives
+        next_check = SUBSCRIBER_CHECK_EVERY
+
+        def before(k: int) -> None:
+            nonlocal next_check
+            stalls.resume_due()
+            if not clock.missed and k >= next_check:  # every 100 cycles run
+                next_check = k + SUBSCRIBER_CHECK_EVERY
+                if not self.context.ok():  # SIGINT (rclpy's handler shuts the context)
+                    raise KeyboardInterrupt
+                self._refresh_subscribers()
+
         gc.collect()
         gc.freeze()
         gc.disable()
         set_timer_slack()
-        pid_node = self.nodes["pid"]
         self._refresh_subscribers()  # (cycle 0 may be missed: the first check is not on it)
-        next_check = SUBSCRIBER_CHECK_EVERY
         try:
-            t0 = time.perf_counter() + 0.01
-            k = 0
-            while k < n:
-                release = t0 + k * dt
-                sleep_until(release)
-                stalls.resume_due()
-                if time.perf_counter() - release >= dt:  # a whole period late: missed
-                    tau_hat, state = self._missed_cycle(rec, k, last_motor, state, f_hat)
-                    k += 1
-                    continue
-                if k >= next_check:  # every 100 cycles run (a missed cycle does not skip it)
-                    next_check = k + SUBSCRIBER_CHECK_EVERY
-                    if not self.context.ok():  # SIGINT (rclpy's handler shuts the context)
-                        raise KeyboardInterrupt
-                    self._refresh_subscribers()
-                act = self._active
-                t = k * dt
-                stamp = stamp_at(k, self.step_ns)
-                # sensing (eq 30, 32) and the measurement the MPC reads, first: the MPC's time
-                q_hat, v_hat, _ = self.joint_model.step(state.q, state.v)
-                f_hat = self.force_model.measure(state.q, state.v, state.wrench_world, q_hat, v_hat)
-                if act["clock"]:
-                    self.pub_clock.publish(ClockMsg(clock=stamp))
-                self.pub_joints.publish(
-                    joint_state_message(stamp, self.joint_names, q_hat, v_hat, tau_hat)
-                )
-                if act["wrench"]:
-                    full = force_on_axes(self.force_axes, f_hat)
-                    self.pub_wrench.publish(wrench_stamped(stamp, full))
-                rec["published"][k] = time.perf_counter()
-                stalls.inject(k)  # (an injected stall freezes this process here)
-                self._take_commands(
-                    k, rec["command_arrival"], rec["command_latency"], rec["published"], solve_times
-                )
-                self._release_commands(k)
-                # the torque loop, actuation (eq 31) and one physics step
-                try:
-                    out = self.lowlevel.step(LowLevelMeasurement(q_hat, v_hat, tau_hat, f_hat), t)
-                except InputError as exc:  # keeps the previous motor torque
-                    self._reject("step", f"cycle {k}: {exc}")
-                    out = None
-                motor = out.motor_torque if out is not None else last_motor
-                # A torque past its deadline (r_{k+1}) reaches the motors after step k, and after
-                # every later step whose start it missed: those steps run under the held one.
-                late = int((time.perf_counter() - release) / dt)
-                applied = motor if late == 0 else last_motor
-                self.sim.push_if_due(k)
-                q_true, v_true, force_true = state.q, state.v, state.normal_force
-                tau_hat = self.actuation.step(applied, state.v)
-                # a torque past its deadline: the drives hold the one before (not a new command)
-                self.reflex_plant.step(tau_hat, fresh=late == 0)
-                state = self.reflex_plant.state()
-                rec["cycle_latency"][k] = time.perf_counter() - release
-                # records and the observer topics (off the deadline)
-                self._record(rec, k, q_true, v_true, force_true, f_hat, tau_hat, applied)
-                if out is not None:
-                    rec["tau_desired"][k] = out.desired_torque
-                    rec["mode"][k] = int(out.mode)
-                else:
-                    rec["tau_desired"][k] = rec["tau_desired"][k - 1]
-                    rec["mode"][k] = rec["mode"][k - 1]
-                self._publish_observers(k, stamp, q_true, force_true, out, tau_hat, state)
-                k += 1
-                for _ in range(min(late - 1, n - k)):  # the later steps the torque missed
-                    tau_hat, state = self._missed_cycle(rec, k, applied, state, f_hat)
-                    k += 1
-                last_motor = motor  # delivered now
+            times = cycles.run(before, lambda k: self._publish_observers(k, drives.computed))
         finally:
             stalls.release()
             gc.enable()
             gc.unfreeze()
-        rec["solve_times"] = np.array(solve_times)
-        rec["wall_time"] = time.perf_counter() - t0
-        rec["table_normal"] = self.plant.table_normal
-        rec["rejected"] = dict(self.rejected) | {
-            k: v for k, v in pid_node.rejected.items() if k not in self.rejected
+        wall_time = time.perf_counter() - clock.t0
+        return self._records(times, inbox, stalls, wall_time)
+
+    def _records(
+        self, times: CycleTimes, inbox: CommandInbox, stalls: _StallSchedule, wall_time: float
+    ) -> dict[str, Any]:
+        """The raw records of a run (:meth:`results` reads them)."""
+        log = self.loop.log.arrays
+        pid_rejected = self.nodes["pid"].rejected
+        return {
+            "log": log,
+            "v": self.loop.trace_v,
+            "mode": self.loop.trace_mode.astype(np.int8),
+            "tau_motor": log["tau_motor"],
+            "tau_measured": log["tau_measured"],
+            "cycle_latency": times.latency,
+            "missed": times.missed,
+            "command_arrival": inbox.arrival,
+            "command_latency": inbox.latency,
+            "solve_times": np.array(inbox.solve_times),
+            "wall_time": wall_time,
+            "table_normal": self.plant.table_normal,
+            "rejected": dict(self.rejected)
+            | {k: v for k, v in pid_rejected.items() if k not in self.rejected},
+            "stalls": stalls.report(),
         }
-        rec["stalls"] = stalls.report()
-        return rec
 
-    def _missed_cycle(
-        self, rec: dict[str, Any], k: int, held: np.ndarray, state: PlantState, f_hat: np.ndarray
-    ) -> tuple[np.ndarray, PlantState]:
-        """Cycle k missed by the loop: the sensor devices sample (their delay lines keep time,
-        nothing is published), the plant steps under the held motor torque through the actuation
-        model (eq 31), and the cycle is recorded as missed (the mode and desired torque of the
-        previous cycle, latency inf). Returns (τ̂ applied, N·m; the plant state after the step)."""
-        q_true, v_true, force_true = state.q, state.v, state.normal_force
-        q_hat, v_hat, _ = self.joint_model.step(state.q, state.v)
-        self.force_model.measure(state.q, state.v, state.wrench_world, q_hat, v_hat)
-        self.sim.push_if_due(k)
-        tau_hat = self.actuation.step(held, state.v)
-        self.reflex_plant.step(tau_hat, fresh=False)  # no new command: the communication reflex
-        self._record(rec, k, q_true, v_true, force_true, f_hat, tau_hat, held)
-        rec["tau_desired"][k] = rec["tau_desired"][k - 1] if k else 0.0
-        rec["mode"][k] = rec["mode"][k - 1] if k else int(LowLevelMode.HOLD)
-        rec["cycle_latency"][k] = math.inf
-        rec["missed"][k] = True
-        return tau_hat, self.reflex_plant.state()
-
-    @staticmethod
-    def _record(
-        rec: dict[str, Any],
-        k: int,
-        q_true: np.ndarray,
-        v_true: np.ndarray,
-        force_true: float,
-        f_hat: np.ndarray,
-        tau_hat: np.ndarray,
-        motor: np.ndarray,
-    ) -> None:
-        rec["q"][k] = q_true
-        rec["v"][k] = v_true
-        rec["force_true"][k] = force_true
-        rec["force_measured"][k] = f_hat[-1]
-        rec["tau_measured"][k] = tau_hat
-        rec["tau_motor"][k] = motor
-
-    def _publish_observers(
-        self,
-        k: int,
-        stamp: TimeMsg,
-        q_true: np.ndarray,
-        force_true: float,
-        out: LowLevelOutput | None,
-        tau_hat: np.ndarray,
-        state: PlantState,
-    ) -> None:
-        """The topics no controller reads, only while someone subscribes."""
+    def _publish_measurement(self, k: int, reading: PolishingReading) -> None:
+        """The measurement of cycle k on the topics the MPC reads (and /clock: its time)."""
         act = self._active
+        stamp = stamp_at(k, self.step_ns)
+        if act["clock"]:
+            self.pub_clock.publish(ClockMsg(clock=stamp))
+        self.pub_joints.publish(
+            joint_state_message(stamp, self.joint_names, reading.q, reading.v, reading.torque)
+        )
+        if act["wrench"]:
+            full = force_on_axes(self.force_axes, reading.force)
+            self.pub_wrench.publish(wrench_stamped(stamp, full))
+
+    def _publish_observers(self, k: int, out: LowLevelOutput | None) -> None:
+        """The topics no controller reads, only while someone subscribes: the plant's of cycle
+        k+1 (the state after this step; effort: τ̂ applied over it) and the torque loop's
+        output of cycle k (none when the low level refused the step)."""
+        act = self._active
+        stamp = stamp_at(k, self.step_ns)
+        state, tau_hat = self.reflex_plant.state(), self.loop.tau_hat
         if act["plant_joints"] or act["plant_wrench"] or act["truth"]:
-            # /plant/* of cycle k+1 (the state after this step; effort: τ̂ applied over it)
             nxt = stamp_at(k + 1, self.step_ns)
             if act["plant_joints"]:
                 self.pub_plant_joints.publish(
@@ -794,8 +824,11 @@ class RealtimeLoop:
                         }
                     )
                 )
-        if out is None:
-            return
+        if out is not None:
+            self._publish_low_level(stamp, k, out)
+
+    def _publish_low_level(self, stamp: TimeMsg, k: int, out: LowLevelOutput) -> None:
+        act = self._active
         if act["motor"]:
             self.pub_motor.publish(
                 joint_state_message(stamp, self.joint_names, None, None, out.motor_torque)
@@ -854,19 +887,7 @@ class RealtimeLoop:
         command solved from this cycle was taken, −1 for none), ``missed`` (the loop missed
         the cycle: the plant stepped under the held torque, :meth:`run`) and ``v`` (the true
         joint velocity, rad/s: where :meth:`safety`'s velocity ratios come from)."""
-        log = PolishingLog(self.steps, self.robot, self.task)
-        for k in range(self.steps):
-            log.record(
-                k,
-                k * self.time_step,
-                rec["q"][k],
-                rec["force_true"][k],
-                rec["force_measured"][k],
-                rec["tau_desired"][k],
-                rec["tau_measured"][k],
-                rec["tau_motor"][k],
-            )
-        true, measured = polishing_run_metrics(log.arrays, self.task, rec["table_normal"])
+        true, measured = polishing_run_metrics(rec["log"], self.task, rec["table_normal"])
         timing = timing_report(
             time_step=self.time_step,
             every=self.every,
@@ -885,7 +906,7 @@ class RealtimeLoop:
         }
         timing["rejected"] = rec["rejected"]
         timing["loop"]["missed_cycles"] = int(np.count_nonzero(rec["missed"]))
-        arrays = dict(log.arrays)
+        arrays = dict(rec["log"])
         for name in ("mode", "cycle_latency", "command_arrival", "missed", "v"):  # per cycle
             arrays[name] = rec[name]
         summary = {

@@ -156,4 +156,13 @@ def test_run_scenario_is_the_only_closed_loop_of_the_library_and_the_studies() -
         for path in sorted((ROOT / package).rglob("*.py"))
         for hit in _plant_steps(path)
     ]
-    assert stepping == ["ffmpc_core/reflex.py:step", "ffmpc_core/runner.py:run_scenario"]
+    assert stepping == ["ffmpc_core/reflex.py:step", "ffmpc_core/runner.py:run_cycle"]
+
+
+def test_the_real_time_loop_steps_its_plant_through_the_cores_cycle_only() -> None:
+    """The real-time loop (``ffmpc_ros/realtime*.py``) steps no plant itself: its cycles run
+    through ``run_cycle``, whose plant is a wrapper that passes the drives' ``fresh`` flag on
+    (``_DrivenPlant.step``: one step of the plant it wraps, no loop)."""
+    paths = sorted((ROOT / "ffmpc_ros").glob("realtime*.py"))
+    stepping = [hit for path in paths for hit in _plant_steps(path)]
+    assert stepping == ["ffmpc_ros/realtime_cycle.py:step"]

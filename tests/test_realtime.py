@@ -52,7 +52,7 @@ def test_fallback_time_counts_cycles_and_excuses_fault_windows():
 def _real_time_modes(skipped_ticks: set[int], cycles: int = 40) -> dict[int, LowLevelMode]:
     """Modes of the real-time loop's low-level controller when the MPC solves every tick but
     ``skipped_ticks`` (cycles) and each command is applied ``every`` cycles after its tick,
-    stamped with its tick's time (as ``RealtimeLoop._release_commands`` does)."""
+    stamped with its tick's time (as ``realtime.CommandInbox.release`` does)."""
     scenario = load_scenario("polishing", {"mpc.formulation": "classical"})
     robot = load_robot(scenario.robot)
     settings = real_time_pid_settings(scenario)
@@ -345,18 +345,18 @@ def test_a_loop_late_from_its_first_cycle_runs_on(monkeypatch):
     import rclpy
     from rclpy.context import Context
 
-    from ffmpc_ros import realtime
+    from ffmpc_ros import realtime, realtime_cycle
     from ffmpc_ros.graph_nodes import graph_parameters
 
     late = {"first": True}
-    sleep_until = realtime.sleep_until
+    sleep_until = realtime_cycle.sleep_until
 
     def _late_start(deadline: float) -> None:
         if late.pop("first", False):
             deadline += 0.0025  # 2.5 periods past the first release
         sleep_until(deadline)
 
-    monkeypatch.setattr(realtime, "sleep_until", _late_start)
+    monkeypatch.setattr(realtime_cycle, "sleep_until", _late_start)
     params = graph_parameters(load_scenario("polishing"), lockstep=False, duration=0.03)
     context = Context()
     rclpy.init(context=context)
