@@ -19,6 +19,7 @@ import numpy as np
 import numpy.typing as npt
 import pinocchio as pin
 
+from ffmpc_core.declaration import param
 from ffmpc_core.errors import ConfigError
 
 FORMULATIONS = ("classical", "torque_feedback", "force_feedback")
@@ -123,16 +124,32 @@ class ContactConfig:
         friction_velocity: v_s of that friction's tanh, m/s.
     """
 
-    dimension: int = 1
-    frame_type: str = "LOCAL_WORLD_ALIGNED"
-    normal_axis: int = 2
-    stiffness: float | tuple[float, ...] = 1e3
-    damping: float | tuple[float, ...] = 1e2
+    dimension: int = param(1, "", [1, 3], "contact force entries: 1 (normal) or 3")
+    frame_type: str = param(
+        "LOCAL_WORLD_ALIGNED", "", ["LOCAL_WORLD_ALIGNED", "LOCAL"], "frame of the force"
+    )
+    normal_axis: int = param(2, "", [0, 1, 2], "axis of the 1-D force: 0 x, 1 y, 2 z")
+    stiffness: float | tuple[float, ...] = param(
+        1e3, "N/m", (0.0, 1e9), "K of the visco-elastic contact (eq 16)"
+    )
+    damping: float | tuple[float, ...] = param(
+        1e2, "N·s/m", (0.0, 1e6), "B of the visco-elastic contact (eq 16)"
+    )
     #: K_d of the rigid contact's Baumgarte stabilisation (classical and torque-feedback), 1/s:
     #: the contact acceleration constraint is a_c + K_d·v_c = 0. The authors' code uses 10.
-    baumgarte_velocity_gain: float = 50.0
-    friction_coefficient: float = 0.0
-    friction_velocity: float = 0.01
+    baumgarte_velocity_gain: float = param(
+        50.0,
+        "1/s",
+        (0.0, 1e4),
+        "K_d of the rigid contact's Baumgarte stabilisation (classical, torque-feedback)",
+    )
+    friction_coefficient: float = param(
+        0.0,
+        "",
+        (0.0, 10.0),
+        "Coulomb friction μ of the surface in the δo predictor (0: the paper's sliding contact)",
+    )
+    friction_velocity: float = param(0.01, "m/s", (1e-6, 10.0), "v_s of that friction's tanh")
 
     def __post_init__(self) -> None:
         if self.dimension not in (1, 3):

@@ -55,6 +55,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ffmpc_core.config import FORMULATIONS, ContactConfig
+from ffmpc_core.declaration import param
 from ffmpc_core.errors import ConfigError, SolverError
 from ffmpc_core.robots import RobotModel
 
@@ -146,22 +147,73 @@ class ConstraintConfig:
             excess well inside every margin.
     """
 
-    enabled: bool = True
-    position_margin: float = 0.05
-    position_braking_time: float = 0.1
-    velocity_margin: float = 0.10
-    recovery_time: float = 0.01
-    torque_margin: float = 0.05
-    max_force: float = 150.0
-    friction_coefficient: float = 0.5
-    max_qp_iterations: int = 100
-    eps_abs: float = 1e-3
-    eps_rel: float = 1e-3
-    rho_update_interval: int = 25
-    kkt_tolerance: float = 1e-3
-    unconstrained_first: bool = True
-    max_solve_time: float = 0.0
-    violation_tolerance: float = 0.01
+    enabled: bool = param(
+        True, "", None, "hard constraints on (mim_solvers SolverCSQP); off: unconstrained SolverSQP"
+    )
+    position_margin: float = param(
+        0.05,
+        "",
+        (0.0, 0.99),
+        "fraction of each joint's half range kept free by the joint-position box",
+    )
+    position_braking_time: float = param(
+        0.1,
+        "s",
+        (0.0, 10.0),
+        "T_b of the joint-position rows q + T_b·q̇ (a joint brakes smoothly near its bound)",
+    )
+    velocity_margin: float = param(
+        0.10, "", (0.0, 0.99), "fraction of the joint velocity limits kept free by the velocity box"
+    )
+    recovery_time: float = param(
+        0.01,
+        "s",
+        (1e-4, 10.0),
+        "T_r: a row that starts beyond its bound is planned back inside, exp(−t/T_r)",
+    )
+    torque_margin: float = param(
+        0.05,
+        "",
+        (0.0, 0.99),
+        "fraction of the joint torque limits kept free by the torque box (u; τ state)",
+    )
+    max_force: float = param(
+        150.0,
+        "N",
+        (1e-3, 1e5),
+        "largest normal force of the force-feedback state (its box is [0, this])",
+    )
+    friction_coefficient: float = param(
+        0.5,
+        "",
+        (0.0, 10.0),
+        "μ of the friction cone on the 3-D force state (inscribed pyramid, μ/√2 per axis)",
+    )
+    max_qp_iterations: int = param(100, "", (1, 100000), "ADMM iterations per SQP iteration")
+    eps_abs: float = param(1e-3, "", (1e-12, 1.0), "ADMM absolute tolerance")
+    eps_rel: float = param(1e-3, "", (1e-12, 1.0), "ADMM relative tolerance")
+    rho_update_interval: int = param(
+        25, "", (1, 100000), "ADMM iterations between convergence checks and penalty updates"
+    )
+    kkt_tolerance: float = param(1e-3, "", (1e-12, 1.0), "KKT tolerance of the constrained SQP")
+    unconstrained_first: bool = param(
+        True,
+        "",
+        None,
+        "solve unconstrained (SolverSQP) first; SolverCSQP only when that breaks a bound",
+    )
+    max_solve_time: float = param(
+        0.0,
+        "s",
+        (0.0, 10.0),
+        "wall-clock cap of a solve in real-time runs only (lockstep runs ignore it); 0: none",
+    )
+    violation_tolerance: float = param(
+        0.01,
+        "",
+        (1e-9, 1.0),
+        "largest excess over a bound (fraction of its limit) before a solve is refused",
+    )
 
     def __post_init__(self) -> None:
         for name in ("position_margin", "velocity_margin", "torque_margin"):

@@ -25,7 +25,7 @@ file with neither is a partial scenario and is refused with the sections it lack
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field, fields, is_dataclass, replace
+from dataclasses import Field, dataclass, field, fields, is_dataclass, replace
 from pathlib import Path
 from types import UnionType
 from typing import Any, Generic, TypeVar, Union, get_args, get_origin, get_type_hints
@@ -35,6 +35,7 @@ import yaml
 
 from ffmpc_core.config import BACKENDS, FORMULATIONS, TORQUE_STATES, ContactConfig, CostWeights
 from ffmpc_core.constraints import ConstraintConfig
+from ffmpc_core.declaration import FieldDecl, declaration, param
 from ffmpc_core.errors import ConfigError
 
 SECTIONS = ("plant", "joint_sensor", "ft_sensor", "mpc", "pid")
@@ -87,19 +88,26 @@ PAPER_SCHEDULE: dict[str, float] = {
 class TaskSection:
     """The task of the run (shared by every node). Durations in s, forces in N."""
 
-    name: str = "polishing"  # "polishing" | "force_square"
-    normal_force: float = 50.0
-    circle_radius: float = 0.07
-    angular_velocity: float = 3.0
-    circles: float = 2.0
+    # "polishing" | "force_square"
+    name: str = param("polishing", "", ["polishing", "force_square"], "task")
+    normal_force: float = param(50.0, "N", (0.0, 500.0), "polishing normal force reference")
+    circle_radius: float = param(0.07, "m", (0.0, 0.5), "circle radius")
+    angular_velocity: float = param(3.0, "rad/s", (0.0, 50.0), "angular velocity along the circle")
+    circles: float = param(2.0, "", (0.0, 100.0), "number of turns")
     # s, minimum-jerk ramp of the angular velocity at the circle's start and end (0: the
     # paper's step; ffmpc_core.tasks.PolishingTask.circle_angle). 0.2 s by default: with the
     # step, the tangential velocity jumps at the circle's start and the elbow (joint 3) runs
     # over its speed limit on some seeds (measured: issue 23 report)
-    circle_ramp: float = 0.2
-    start_height: float = 0.05  # m above the believed table at the circle start
-    still: float = 0.1
-    reach: float = 0.4
+    circle_ramp: float = param(
+        0.2,
+        "s",
+        (0.0, 10.0),
+        "minimum-jerk ramp of the angular velocity at the circle's start and end (0: a step)",
+    )
+    # m above the believed table at the circle start
+    start_height: float = param(0.05, "m", (0.0, 0.5), "start height above the believed table")
+    still: float = param(0.1, "s", (0.0, 60.0), "phase duration: stand still")
+    reach: float = param(0.4, "s", (0.0, 60.0), "phase duration: reach the table")
     #: the touch phase (ffmpc_core.tasks): the reach ends approach_clearance (m) above the
     #: believed table, then the nodes are in contact with the force reference touch_force (N)
     #: for touch (s) before the force ramp; 0, 0, 0: the paper's schedule. The defaults: 1 cm
@@ -107,58 +115,93 @@ class TaskSection:
     #: 7 cm), 1 N keeps the force-feedback MPC's descent slow (its 15 ms horizon asks for the
     #: speed that makes the reference force within it: ~0.07 m/s at 1 N, ~0.3 m/s at 5 N, which
     #: bounces the tool off the 10 kN/m table), 0.3 s lets the tool settle in contact
-    approach_clearance: float = 0.01
-    touch: float = 0.3
-    touch_force: float = 1.0
-    force_ramp: float = 0.5
-    stop: float = 0.3
-    low_force: float = 20.0  # force_square
-    high_force: float = 50.0
-    square_period: float = 2.0
-    square_cycles: int = 2
+    approach_clearance: float = param(
+        0.01, "m", (0.0, 0.5), "the reach ends this far above the table"
+    )
+    touch: float = param(0.3, "s", (0.0, 60.0), "phase duration: touch the table under touch_force")
+    touch_force: float = param(1.0, "N", (0.0, 500.0), "force reference of the touch phase")
+    force_ramp: float = param(0.5, "s", (0.0, 60.0), "phase duration: ramp the force")
+    stop: float = param(0.3, "s", (0.0, 60.0), "phase duration after the circle")
+    low_force: float = param(20.0, "N", (0.0, 500.0), "force_square low level")  # force_square
+    high_force: float = param(50.0, "N", (0.0, 500.0), "force_square high level")
+    square_period: float = param(2.0, "s", (0.0, 60.0), "force_square period")
+    square_cycles: int = param(2, "", (0, 1000), "force_square number of periods")
     #: z entry of the in-contact activation Q4 of the position cost (polishing): 0 gives the
     #: paper's Q4 = diag(1, 1, 0) (eq 25.4, the normal direction belongs to the force task).
-    ee_z_weight_in_contact: float = 0.0
+    ee_z_weight_in_contact: float = param(
+        0.0,
+        "",
+        (0.0, 1e6),
+        "z entry of the in-contact Q4 of the position cost (0: the paper's diag(1, 1, 0))",
+    )
 
 
 @dataclass(frozen=True)
 class PlantSection:
     """The simulated plant: step, table, actuation model (eq 31) and pushes."""
 
-    engine: str = "pybullet"  # PLANT_ENGINES
-    time_step: float = 1e-3
-    table_tilt_deg: float = 0.0
-    table_tilt_axis: tuple[float, float, float] = (0.0, 1.0, 0.0)
-    random_tilt_deg: float = 0.0  # θ ~ U(−this, +this) per seed when > 0
-    table_stiffness: float = 1e4
-    table_damping: float = 1e2
-    table_friction: float = 0.5
-    actuation_random_bias: bool = True
-    actuation_delay_cycles: int = 1
-    actuation_noise_fraction: float = 1e-4  # the authors' σ_τ (README "Simulation settings")
-    static_friction: float = 1.0
-    viscous_friction: float = 0.5
-    friction_velocity: float = 1.0
-    push_enabled: bool = False
-    push_time: float = 0.0
-    push_force: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    push_duration: float = 0.0
+    # PLANT_ENGINES
+    engine: str = param(
+        "pybullet", "", list(PLANT_ENGINES), "simulator of the plant: pybullet | mujoco"
+    )
+    time_step: float = param(
+        1e-3, "s", (1e-5, 0.01), "physics step = control cycle; stamps are multiples"
+    )
+    table_tilt_deg: float = param(
+        0.0, "deg", (-45.0, 45.0), "table tilt θ when random_tilt_deg is 0"
+    )
+    table_tilt_axis: tuple[float, float, float] = param(
+        (0.0, 1.0, 0.0), "", (-1.0, 1.0), "horizontal tilt axis, world frame"
+    )
+    # θ ~ U(−this, +this) per seed when > 0
+    random_tilt_deg: float = param(0.0, "deg", (0.0, 45.0), "θ ~ U(−this, +this) per seed when > 0")
+    table_stiffness: float = param(1e4, "N/m", (1.0, 1e9), "table contact stiffness")
+    table_damping: float = param(1e2, "N·s/m", (0.0, 1e6), "table contact damping")
+    table_friction: float = param(0.5, "", (0.0, 10.0), "table Coulomb friction coefficient")
+    actuation_random_bias: bool = param(
+        True, "", None, "draw the actuation bias (a, b) per seed (eq 31)"
+    )
+    actuation_delay_cycles: int = param(1, "cycles", (0, 1000), "actuation delay δs (eq 31)")
+    # the authors' σ_τ (README "Simulation settings")
+    actuation_noise_fraction: float = param(1e-4, "", (0.0, 0.99), "σ_τ / torque limit (eq 31)")
+    static_friction: float = param(1.0, "N·m", (0.0, 100.0), "μs (eq 31)")
+    viscous_friction: float = param(0.5, "N·m·s/rad", (0.0, 100.0), "μv (eq 31)")
+    friction_velocity: float = param(1.0, "rad/s", (1e-6, 100.0), "v_s of the tanh friction")
+    push_enabled: bool = param(False, "", None, "apply an external push on the tool")
+    push_time: float = param(0.0, "s", (0.0, 3600.0), "push start")
+    push_force: tuple[float, float, float] = param(
+        (0.0, 0.0, 0.0), "N", (-1e4, 1e4), "push force, world frame"
+    )
+    push_duration: float = param(0.0, "s", (0.0, 60.0), "push duration")
     #: The tool on the flange (behind the wrist F/T sensor): the plant simulates it and the
     #: controllers' robot model carries it (the cell's load data); kg, and m in the flange frame.
-    tool_mass: float = 0.0
-    tool_center_of_mass: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    tool_mass: float = param(
+        0.0,
+        "kg",
+        (0.0, 20.0),
+        "mass of the tool on the flange (simulated; the controllers' load data)",
+    )
+    tool_center_of_mass: tuple[float, float, float] = param(
+        (0.0, 0.0, 0.0), "m", (-0.5, 0.5), "the tool's centre of mass, flange frame"
+    )
     #: The robot's own reflexes (ffmpc_core.reflex): stop on a data-sheet limit or missing
     #: commands and abort the run; off: the crossings are reported, nothing is stopped.
-    reflex: bool = True
+    reflex: bool = param(
+        True,
+        "",
+        None,
+        "the robot's own reflexes: stop on a data-sheet limit or missing commands, run aborted "
+        "(false: crossings reported only)",
+    )
 
 
 @dataclass(frozen=True)
 class JointSensorSection:
     """The joint measurement model (eq 30): delay and noise."""
 
-    delay_cycles: int = 1
-    position_noise_std: float = 1e-3
-    velocity_noise_std: float = 1e-3
+    delay_cycles: int = param(1, "cycles", (0, 1000), "sensing delay δs (eq 30)")
+    position_noise_std: float = param(1e-3, "rad", (0.0, 1.0), "σ_q (eq 30)")
+    velocity_noise_std: float = param(1e-3, "rad/s", (0.0, 10.0), "σ_q̇ (eq 30)")
 
 
 @dataclass(frozen=True)
@@ -166,56 +209,109 @@ class ForceSensorSection:
     """The force measurement model (eq 32) and the F/T sensor node's filter, contact detection
     and tare."""
 
-    delay_cycles: int = 1
-    force_noise_std: float = 0.01  # N, the authors' σ_λ
+    delay_cycles: int = param(1, "cycles", (0, 1000), "sensing delay δs (eq 32)")
+    force_noise_std: float = param(0.01, "N", (0.0, 100.0), "σ_λ (eq 32)")  # N, the authors' σ_λ
     # Outputs of the F/T sensor node beside the eq-32 measurement (the runner does not use them):
-    filter_cutoff_frequency: float = 20.0  # Hz, first-order low-pass of the filtered wrench
-    contact_on_force: float = 5.0  # N, filtered normal force that starts a contact
-    contact_off_force: float = 2.0  # N, filtered normal force that ends it (hysteresis)
-    tare_samples: int = 50  # measurements averaged by the tare service
+    # Hz, first-order low-pass of the filtered wrench
+    filter_cutoff_frequency: float = param(
+        20.0, "Hz", (0.0, 1e4), "filtered wrench cut-off (0: none)"
+    )
+    # N, filtered normal force that starts a contact
+    contact_on_force: float = param(
+        5.0, "N", (0.0, 1e4), "filtered normal force starting a contact"
+    )
+    # N, filtered normal force that ends it (hysteresis)
+    contact_off_force: float = param(2.0, "N", (0.0, 1e4), "filtered normal force ending it")
+    # measurements averaged by the tare service
+    tare_samples: int = param(50, "", (1, 100000), "measurements averaged by the tare service")
     #: "contact": the paper's sensor (eq 32: the contact force + noise on the MPC's axes);
     #: "wrist": a 6-axis sensor on the flange that also reads the tool's weight and its bias,
     #: calibrated and compensated (ffmpc_core.wrist_ft, ffmpc_core.ft_calibration). The keys
     #: below apply to the wrist sensor only (a changed one with "contact" is refused).
-    model: str = "contact"
-    bias: tuple[float, float, float, float, float, float] = (0.0,) * 6  # N, N·m, sensor frame
-    moment_noise_std: float = 0.0005  # N·m, σ_m of the wrist sensor's moments
+    model: str = param(
+        "contact",
+        "",
+        list(FT_MODELS),
+        "contact: the paper's sensor (eq 32); wrist: 6 axes on the flange, tool weight and bias",
+    )
+    # N, N·m, sensor frame
+    bias: tuple[float, float, float, float, float, float] = param(
+        (0.0,) * 6, "N, N·m", (-100.0, 100.0), "wrist sensor bias (fx fy fz mx my mz), its frame"
+    )
+    # N·m, σ_m of the wrist sensor's moments
+    moment_noise_std: float = param(0.0005, "N·m", (0.0, 10.0), "wrist sensor: σ of the moments")
     #: "startup": calibrate at the start of the run; "file": load calibration_file; "none": no
     #: compensation (the raw reading, bias and tool weight included, reaches the MPC)
-    calibration: str = "startup"
-    calibration_file: str = ""
-    calibration_samples: int = 100  # readings averaged per calibration pose
-    calibration_max_age: float = 28800.0  # s: an older calibration file is refused (8 h)
+    calibration: str = param(
+        "startup",
+        "",
+        list(FT_CALIBRATIONS),
+        "wrist sensor: calibrate at startup, load calibration_file, or none (no compensation)",
+    )
+    calibration_file: str = param(
+        "", "", None, "wrist sensor: calibration file (calibration: file)"
+    )
+    # readings averaged per calibration pose
+    calibration_samples: int = param(100, "", (1, 100000), "wrist sensor: readings per pose")
+    # s: an older calibration file is refused (8 h)
+    calibration_max_age: float = param(
+        28800.0, "s", (0.0, 1e9), "wrist sensor: oldest calibration taken"
+    )
     #: the sensor also reads the tool's inertial wrench (from the plant's motion), and the
     #: compensation removes it with the measured q̂, q̇̂; false: the tool is weighed as at rest
-    inertial_wrench: bool = False
+    inertial_wrench: bool = param(
+        False,
+        "",
+        None,
+        "wrist sensor: also read the tool's inertial wrench, compensated with q̂ and q̇̂",
+    )
 
 
 @dataclass(frozen=True)
 class MpcSection:
     """The MPC: formulation, horizon, solver, δo, contact model and cost weights."""
 
-    formulation: str = "force_feedback"
-    horizon: int = 5
-    dt: float = 0.003
-    period: float = 0.002
-    max_iterations: int = 8
-    kkt_tolerance: float = 1e-4
-    cutoff_frequency: float = 50.0
-    riccati_feedback: bool = False
-    delay_compensation: bool = True  # send the plan for t + δo (δo = pid.delay_cycles)
+    formulation: str = param("force_feedback", "", list(FORMULATIONS), "OCP formulation")
+    horizon: int = param(5, "nodes", (1, 1000), "OCP nodes N")
+    dt: float = param(0.003, "s", (1e-5, 1.0), "OCP node duration")
+    period: float = param(
+        0.002, "s", (1e-5, 1.0), "re-planning period (a multiple of plant.time_step)"
+    )
+    max_iterations: int = param(8, "", (1, 1000), "SQP iterations per solve")
+    kkt_tolerance: float = param(1e-4, "", (1e-12, 1.0), "SQP KKT tolerance")
+    cutoff_frequency: float = param(50.0, "Hz", (1e-3, 1e4), "low-pass actuation cut-off f_c")
+    riccati_feedback: bool = param(False, "", None, "low level applies τ* + G·Δx between solves")
+    # send the plan for t + δo (δo = pid.delay_cycles)
+    delay_compensation: bool = param(
+        True, "", None, "plan for t + δo (δo = pid.delay_cycles cycles)"
+    )
     #: δo, the delay between a measurement and the moment its command acts (eq 33's delay line
     #: and the MPC's prediction): "pid" = pid.delay_cycles plant steps (the default), a number of
     #: seconds (a whole number of plant steps; it sets pid.delay_cycles), or "measured" = the
     #: median MPC step time of a short calibration run of this MPC on this machine, rounded up
     #: to the plant step (:func:`ffmpc_core.polishing.resolve_command_delay`; the studies do it).
-    command_delay: str = COMMAND_DELAY_PID
+    command_delay: str = param(
+        COMMAND_DELAY_PID, "s", None, "δo: pid (pid.delay_cycles), seconds, or measured"
+    )
     #: τ of the torque-feedback state: "measured" τ̂ (eq 10/15) | "commanded" (the last τ̃ sent)
-    torque_state: str = "measured"
-    backend: str = "native"  # action models: native (C++) | python (reference), MpcConfig.backend
+    torque_state: str = param(
+        "measured",
+        "",
+        list(TORQUE_STATES),
+        "τ of the torque-feedback state: measured τ̂ (eq 10/15) or the last commanded τ̃",
+    )
+    # action models: native (C++) | python (reference), MpcConfig.backend
+    backend: str = param(
+        "native", "", list(BACKENDS), "action models: native (C++, default) | python (reference)"
+    )
     #: o, m, world frame: the MPC tracks p̄(t) + o (ffmpc_core.tasks.LiveTask); the plant's table
     #: stays where the task puts it. Live on the MPC node (parameter ``position_offset``).
-    position_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    position_offset: tuple[float, float, float] = param(
+        (0.0, 0.0, 0.0),
+        "m",
+        (-0.1, 0.1),
+        "offset o added to the task's position reference (the MPC tracks p̄(t) + o), world frame",
+    )
     contact: ContactConfig = field(default_factory=ContactConfig)
     #: the hard constraints and their solver (ffmpc_core.constraints.ConstraintConfig)
     constraints: ConstraintConfig = field(default_factory=ConstraintConfig)
@@ -243,22 +339,42 @@ class MpcSection:
 class PidSection:
     """The torque PID (eq 33) and the low-level loop around it (safe hold, blend, limits)."""
 
-    enabled: bool = True
-    kp: float = 0.1
-    ki: float = 20.0  # 1/s; see ffmpc_core/pid.py for why these gains
-    kd: float = 0.0
-    integral_fraction: float = 0.3
-    delay_cycles: int = 5  # δo = 5 ms at 1 kHz
+    enabled: bool = param(True, "", None, "torque PID on (off: τ^m = τ^d(t − δo))")
+    kp: float = param(0.1, "", (0.0, 100.0), "K_P (eq 33)")
+    # 1/s; see ffmpc_core/pid.py for why these gains
+    ki: float = param(20.0, "1/s", (0.0, 1e5), "K_I (eq 33)")
+    kd: float = param(0.0, "s", (0.0, 100.0), "K_D (eq 33)")
+    integral_fraction: float = param(
+        0.3, "", (0.0, 1.0), "anti-windup bound on K_I·∫e / torque limit"
+    )
+    delay_cycles: int = param(5, "cycles", (0, 1000), "δo (eq 33)")  # δo = 5 ms at 1 kHz
     # Low-level loop around the PID (ffmpc_core.lowlevel); inactive while the MPC is on time.
-    stale_timeout: float = 0.004  # s without a new MPC command → safe hold (2 MPC periods)
-    blend_duration: float = 0.1  # s, hold → MPC torque blend (minimum jerk)
-    hold_frequency: float = 4.0  # Hz, natural frequency of the safe hold PD (full mass matrix)
-    hold_damping_ratio: float = 1.0
+    # s without a new MPC command → safe hold (2 MPC periods)
+    stale_timeout: float = param(
+        0.004, "s", (1e-5, 10.0), "MPC command age that triggers the safe hold"
+    )
+    # s, hold → MPC torque blend (minimum jerk)
+    blend_duration: float = param(0.1, "s", (0.0, 10.0), "hold → MPC blend")
+    # Hz, natural frequency of the safe hold PD (full mass matrix)
+    hold_frequency: float = param(4.0, "Hz", (0.0, 100.0), "natural frequency of the hold PD")
+    hold_damping_ratio: float = param(1.0, "", (0.0, 10.0), "damping ratio of the hold PD")
     # Fraction of the data-sheet torque limits τ^d and τ^m are saturated to (live on the pid node).
-    torque_limit_fraction: float = 1.0
+    torque_limit_fraction: float = param(
+        1.0,
+        "",
+        (0.01, 1.0),
+        "fraction of the robot's data-sheet torque limits the low level saturates τ^d and τ^m to "
+        "(never above the data sheet)",
+    )
     # Fraction of the velocity limits above which a measured joint speed engages the safe hold
     # (ffmpc_core.lowlevel; 0: off, the paper's scheme).
-    velocity_guard: float = 0.0
+    velocity_guard: float = param(
+        0.0,
+        "",
+        (0.0, 1.0),
+        "fraction of the velocity limits above which a measured joint speed engages the safe "
+        "hold (0: off)",
+    )
 
 
 @dataclass(frozen=True)
@@ -266,8 +382,10 @@ class Scenario:
     """A whole experiment: what every node runs with."""
 
     name: str
-    robot: str = "iiwa"
-    seed: int = 0
+    robot: str = param("iiwa", "", ["iiwa", "panda"], "robot model")
+    seed: int = param(
+        0, "", (0, 2**31 - 1), "seed of every random draw of the run (numpy Generator spawn)"
+    )
     task: TaskSection = field(default_factory=TaskSection)
     plant: PlantSection = field(default_factory=PlantSection)
     joint_sensor: JointSensorSection = field(default_factory=JointSensorSection)
@@ -443,229 +561,6 @@ def unknown_parameter(
 
 INF = float("inf")
 _NONNEG = (0.0, INF)
-#: name: (unit, (low, high) range or [choices], description). Kinds come from the dataclass
-#: defaults (tuples: lists); dataclass_schema checks that this table and the dataclasses agree.
-_TABLE: dict[str, tuple[str, Any, str]] = {
-    "robot": ("", ["iiwa", "panda"], "robot model"),
-    "seed": ("", (0, 2**31 - 1), "seed of every random draw of the run (numpy Generator spawn)"),
-    "task.name": ("", ["polishing", "force_square"], "task"),
-    "task.normal_force": ("N", (0.0, 500.0), "polishing normal force reference"),
-    "task.circle_radius": ("m", (0.0, 0.5), "circle radius"),
-    "task.angular_velocity": ("rad/s", (0.0, 50.0), "angular velocity along the circle"),
-    "task.circles": ("", (0.0, 100.0), "number of turns"),
-    "task.circle_ramp": (
-        "s",
-        (0.0, 10.0),
-        "minimum-jerk ramp of the angular velocity at the circle's start and end (0: a step)",
-    ),
-    "task.start_height": ("m", (0.0, 0.5), "start height above the believed table"),
-    "task.still": ("s", (0.0, 60.0), "phase duration: stand still"),
-    "task.reach": ("s", (0.0, 60.0), "phase duration: reach the table"),
-    "task.approach_clearance": ("m", (0.0, 0.5), "the reach ends this far above the table"),
-    "task.touch": ("s", (0.0, 60.0), "phase duration: touch the table under touch_force"),
-    "task.touch_force": ("N", (0.0, 500.0), "force reference of the touch phase"),
-    "task.force_ramp": ("s", (0.0, 60.0), "phase duration: ramp the force"),
-    "task.stop": ("s", (0.0, 60.0), "phase duration after the circle"),
-    "task.low_force": ("N", (0.0, 500.0), "force_square low level"),
-    "task.high_force": ("N", (0.0, 500.0), "force_square high level"),
-    "task.square_period": ("s", (0.0, 60.0), "force_square period"),
-    "task.square_cycles": ("", (0, 1000), "force_square number of periods"),
-    "task.ee_z_weight_in_contact": (
-        "",
-        (0.0, 1e6),
-        "z entry of the in-contact Q4 of the position cost (0: the paper's diag(1, 1, 0))",
-    ),
-    "plant.engine": ("", list(PLANT_ENGINES), "simulator of the plant: pybullet | mujoco"),
-    "plant.time_step": ("s", (1e-5, 0.01), "physics step = control cycle; stamps are multiples"),
-    "plant.table_tilt_deg": ("deg", (-45.0, 45.0), "table tilt θ when random_tilt_deg is 0"),
-    "plant.table_tilt_axis": ("", (-1.0, 1.0), "horizontal tilt axis, world frame"),
-    "plant.random_tilt_deg": ("deg", (0.0, 45.0), "θ ~ U(−this, +this) per seed when > 0"),
-    "plant.table_stiffness": ("N/m", (1.0, 1e9), "table contact stiffness"),
-    "plant.table_damping": ("N·s/m", (0.0, 1e6), "table contact damping"),
-    "plant.table_friction": ("", (0.0, 10.0), "table Coulomb friction coefficient"),
-    "plant.actuation_random_bias": ("", None, "draw the actuation bias (a, b) per seed (eq 31)"),
-    "plant.actuation_delay_cycles": ("cycles", (0, 1000), "actuation delay δs (eq 31)"),
-    "plant.actuation_noise_fraction": ("", (0.0, 0.99), "σ_τ / torque limit (eq 31)"),
-    "plant.static_friction": ("N·m", (0.0, 100.0), "μs (eq 31)"),
-    "plant.viscous_friction": ("N·m·s/rad", (0.0, 100.0), "μv (eq 31)"),
-    "plant.friction_velocity": ("rad/s", (1e-6, 100.0), "v_s of the tanh friction"),
-    "plant.push_enabled": ("", None, "apply an external push on the tool"),
-    "plant.push_time": ("s", (0.0, 3600.0), "push start"),
-    "plant.push_force": ("N", (-1e4, 1e4), "push force, world frame"),
-    "plant.push_duration": ("s", (0.0, 60.0), "push duration"),
-    "plant.tool_mass": (
-        "kg",
-        (0.0, 20.0),
-        "mass of the tool on the flange (simulated; the controllers' load data)",
-    ),
-    "plant.tool_center_of_mass": ("m", (-0.5, 0.5), "the tool's centre of mass, flange frame"),
-    "plant.reflex": (
-        "",
-        None,
-        "the robot's own reflexes: stop on a data-sheet limit or missing commands, run aborted "
-        "(false: crossings reported only)",
-    ),
-    "joint_sensor.delay_cycles": ("cycles", (0, 1000), "sensing delay δs (eq 30)"),
-    "joint_sensor.position_noise_std": ("rad", (0.0, 1.0), "σ_q (eq 30)"),
-    "joint_sensor.velocity_noise_std": ("rad/s", (0.0, 10.0), "σ_q̇ (eq 30)"),
-    "ft_sensor.delay_cycles": ("cycles", (0, 1000), "sensing delay δs (eq 32)"),
-    "ft_sensor.force_noise_std": ("N", (0.0, 100.0), "σ_λ (eq 32)"),
-    "ft_sensor.filter_cutoff_frequency": ("Hz", (0.0, 1e4), "filtered wrench cut-off (0: none)"),
-    "ft_sensor.contact_on_force": ("N", (0.0, 1e4), "filtered normal force starting a contact"),
-    "ft_sensor.contact_off_force": ("N", (0.0, 1e4), "filtered normal force ending it"),
-    "ft_sensor.tare_samples": ("", (1, 100000), "measurements averaged by the tare service"),
-    "ft_sensor.model": (
-        "",
-        list(FT_MODELS),
-        "contact: the paper's sensor (eq 32); wrist: 6 axes on the flange, tool weight and bias",
-    ),
-    "ft_sensor.bias": (
-        "N, N·m",
-        (-100.0, 100.0),
-        "wrist sensor bias (fx fy fz mx my mz), its frame",
-    ),
-    "ft_sensor.moment_noise_std": ("N·m", (0.0, 10.0), "wrist sensor: σ of the moments"),
-    "ft_sensor.calibration": (
-        "",
-        list(FT_CALIBRATIONS),
-        "wrist sensor: calibrate at startup, load calibration_file, or none (no compensation)",
-    ),
-    "ft_sensor.calibration_file": ("", None, "wrist sensor: calibration file (calibration: file)"),
-    "ft_sensor.calibration_samples": ("", (1, 100000), "wrist sensor: readings per pose"),
-    "ft_sensor.calibration_max_age": ("s", (0.0, 1e9), "wrist sensor: oldest calibration taken"),
-    "ft_sensor.inertial_wrench": (
-        "",
-        None,
-        "wrist sensor: also read the tool's inertial wrench, compensated with q̂ and q̇̂",
-    ),
-    "mpc.formulation": ("", list(FORMULATIONS), "OCP formulation"),
-    "mpc.backend": (
-        "",
-        list(BACKENDS),
-        "action models: native (C++, default) | python (reference)",
-    ),
-    "mpc.torque_state": (
-        "",
-        list(TORQUE_STATES),
-        "τ of the torque-feedback state: measured τ̂ (eq 10/15) or the last commanded τ̃",
-    ),
-    "mpc.horizon": ("nodes", (1, 1000), "OCP nodes N"),
-    "mpc.dt": ("s", (1e-5, 1.0), "OCP node duration"),
-    "mpc.period": ("s", (1e-5, 1.0), "re-planning period (a multiple of plant.time_step)"),
-    "mpc.max_iterations": ("", (1, 1000), "SQP iterations per solve"),
-    "mpc.kkt_tolerance": ("", (1e-12, 1.0), "SQP KKT tolerance"),
-    "mpc.cutoff_frequency": ("Hz", (1e-3, 1e4), "low-pass actuation cut-off f_c"),
-    "mpc.riccati_feedback": ("", None, "low level applies τ* + G·Δx between solves"),
-    "mpc.delay_compensation": ("", None, "plan for t + δo (δo = pid.delay_cycles cycles)"),
-    "mpc.command_delay": ("s", None, "δo: pid (pid.delay_cycles), seconds, or measured"),
-    "mpc.position_offset": (
-        "m",
-        (-0.1, 0.1),
-        "offset o added to the task's position reference (the MPC tracks p̄(t) + o), world frame",
-    ),
-    "mpc.contact.dimension": ("", [1, 3], "contact force entries: 1 (normal) or 3"),
-    "mpc.contact.frame_type": ("", ["LOCAL_WORLD_ALIGNED", "LOCAL"], "frame of the force"),
-    "mpc.contact.normal_axis": ("", [0, 1, 2], "axis of the 1-D force: 0 x, 1 y, 2 z"),
-    "mpc.contact.stiffness": ("N/m", (0.0, 1e9), "K of the visco-elastic contact (eq 16)"),
-    "mpc.contact.damping": ("N·s/m", (0.0, 1e6), "B of the visco-elastic contact (eq 16)"),
-    "mpc.contact.baumgarte_velocity_gain": (
-        "1/s",
-        (0.0, 1e4),
-        "K_d of the rigid contact's Baumgarte stabilisation (classical, torque-feedback)",
-    ),
-    "mpc.contact.friction_coefficient": (
-        "",
-        (0.0, 10.0),
-        "Coulomb friction μ of the surface in the δo predictor (0: the paper's sliding contact)",
-    ),
-    "mpc.contact.friction_velocity": ("m/s", (1e-6, 10.0), "v_s of that friction's tanh"),
-    "mpc.constraints.enabled": (
-        "",
-        None,
-        "hard constraints on (mim_solvers SolverCSQP); off: unconstrained SolverSQP",
-    ),
-    "mpc.constraints.position_margin": (
-        "",
-        (0.0, 0.99),
-        "fraction of each joint's half range kept free by the joint-position box",
-    ),
-    "mpc.constraints.position_braking_time": (
-        "s",
-        (0.0, 10.0),
-        "T_b of the joint-position rows q + T_b·q̇ (a joint brakes smoothly near its bound)",
-    ),
-    "mpc.constraints.velocity_margin": (
-        "",
-        (0.0, 0.99),
-        "fraction of the joint velocity limits kept free by the velocity box",
-    ),
-    "mpc.constraints.recovery_time": (
-        "s",
-        (1e-4, 10.0),
-        "T_r: a row that starts beyond its bound is planned back inside, exp(−t/T_r)",
-    ),
-    "mpc.constraints.torque_margin": (
-        "",
-        (0.0, 0.99),
-        "fraction of the joint torque limits kept free by the torque box (u; τ state)",
-    ),
-    "mpc.constraints.max_force": (
-        "N",
-        (1e-3, 1e5),
-        "largest normal force of the force-feedback state (its box is [0, this])",
-    ),
-    "mpc.constraints.friction_coefficient": (
-        "",
-        (0.0, 10.0),
-        "μ of the friction cone on the 3-D force state (inscribed pyramid, μ/√2 per axis)",
-    ),
-    "mpc.constraints.max_qp_iterations": ("", (1, 100000), "ADMM iterations per SQP iteration"),
-    "mpc.constraints.eps_abs": ("", (1e-12, 1.0), "ADMM absolute tolerance"),
-    "mpc.constraints.eps_rel": ("", (1e-12, 1.0), "ADMM relative tolerance"),
-    "mpc.constraints.rho_update_interval": (
-        "",
-        (1, 100000),
-        "ADMM iterations between convergence checks and penalty updates",
-    ),
-    "mpc.constraints.kkt_tolerance": ("", (1e-12, 1.0), "KKT tolerance of the constrained SQP"),
-    "mpc.constraints.unconstrained_first": (
-        "",
-        None,
-        "solve unconstrained (SolverSQP) first; SolverCSQP only when that breaks a bound",
-    ),
-    "mpc.constraints.max_solve_time": (
-        "s",
-        (0.0, 10.0),
-        "wall-clock cap of a solve in real-time runs only (lockstep runs ignore it); 0: none",
-    ),
-    "mpc.constraints.violation_tolerance": (
-        "",
-        (1e-9, 1.0),
-        "largest excess over a bound (fraction of its limit) before a solve is refused",
-    ),
-    "pid.enabled": ("", None, "torque PID on (off: τ^m = τ^d(t − δo))"),
-    "pid.kp": ("", (0.0, 100.0), "K_P (eq 33)"),
-    "pid.ki": ("1/s", (0.0, 1e5), "K_I (eq 33)"),
-    "pid.kd": ("s", (0.0, 100.0), "K_D (eq 33)"),
-    "pid.integral_fraction": ("", (0.0, 1.0), "anti-windup bound on K_I·∫e / torque limit"),
-    "pid.delay_cycles": ("cycles", (0, 1000), "δo (eq 33)"),
-    "pid.stale_timeout": ("s", (1e-5, 10.0), "MPC command age that triggers the safe hold"),
-    "pid.blend_duration": ("s", (0.0, 10.0), "hold → MPC blend"),
-    "pid.hold_frequency": ("Hz", (0.0, 100.0), "natural frequency of the hold PD"),
-    "pid.hold_damping_ratio": ("", (0.0, 10.0), "damping ratio of the hold PD"),
-    "pid.torque_limit_fraction": (
-        "",
-        (0.01, 1.0),
-        "fraction of the robot's data-sheet torque limits the low level saturates τ^d and τ^m to "
-        "(never above the data sheet)",
-    ),
-    "pid.velocity_guard": (
-        "",
-        (0.0, 1.0),
-        "fraction of the velocity limits above which a measured joint speed engages the safe "
-        "hold (0: off)",
-    ),
-}
 #: List lengths of the CostWeights activation diagonals (a number broadcasts).
 _DIAG_LENGTH: dict[str, int | str] = {
     "posture": N_JOINTS,
@@ -697,16 +592,11 @@ _WEIGHT_FRACTIONS = {
 
 
 # -- one schema builder for any tree of frozen dataclasses (every scenario and study) ---------
-#: One parameter's declaration in a schema table: (unit, (low, high) range or [choices] or
-#: None, description). The kind and the list length come from the dataclass annotation.
-FieldDecl = tuple[str, Any, str]
-
-
-def dataclass_leaves(root: type, exclude: tuple[str, ...] = ()) -> dict[str, Any]:
-    """``{field path: type annotation}`` of every non-dataclass field of the dataclass tree
-    ``root`` (nested dataclass fields are walked, ``"dice.stiffness"``); ``exclude``: paths
-    left out, with everything under them."""
-    out: dict[str, Any] = {}
+def _leaf_fields(root: type, exclude: tuple[str, ...] = ()) -> dict[str, tuple[Any, Field[Any]]]:
+    """``{field path: (type annotation, field)}`` of every non-dataclass field of the
+    dataclass tree ``root`` (nested dataclass fields are walked, ``"dice.stiffness"``);
+    ``exclude``: paths left out, with everything under them."""
+    out: dict[str, tuple[Any, Field[Any]]] = {}
 
     def walk(cls: type, prefix: str) -> None:
         hints = get_type_hints(cls)
@@ -718,10 +608,17 @@ def dataclass_leaves(root: type, exclude: tuple[str, ...] = ()) -> dict[str, Any
             if isinstance(hint, type) and is_dataclass(hint):
                 walk(hint, path + ".")
             else:
-                out[path] = hint
+                out[path] = (hint, f)
 
     walk(root, "")
     return out
+
+
+def dataclass_leaves(root: type, exclude: tuple[str, ...] = ()) -> dict[str, Any]:
+    """``{field path: type annotation}`` of every non-dataclass field of the dataclass tree
+    ``root`` (nested dataclass fields are walked, ``"dice.stiffness"``); ``exclude``: paths
+    left out, with everything under them."""
+    return {path: hint for path, (hint, _) in _leaf_fields(root, exclude).items()}
 
 
 def _leaf_kind(hint: Any, path: str) -> tuple[str, int | None, bool]:
@@ -748,17 +645,26 @@ def _leaf_kind(hint: Any, path: str) -> tuple[str, int | None, bool]:
     raise AssertionError(f"schema: no parameter kind for {path}: {hint}")
 
 
-def _spec_from_table(
+def _spec_from_decl(
     name: str,
     kind: str,
     length: int | str | None,
-    table: dict[str, FieldDecl],
+    decl: FieldDecl,
     optional: bool = False,
 ) -> ParamSpec:
-    unit, limits, description = table[name]
+    unit, limits, description = decl
     choices = tuple(limits) if isinstance(limits, list) else ()
     span = limits if isinstance(limits, tuple) else None
     return ParamSpec(name, kind, description, unit, span, choices, length, optional)
+
+
+def field_declaration(cls: type, name: str) -> FieldDecl:
+    """The declaration (:func:`~ffmpc_core.declaration.param`) of field ``name`` of the
+    dataclass ``cls`` (AssertionError if it has none)."""
+    decl = declaration(next(f for f in fields(cls) if f.name == name))
+    if decl is None:
+        raise AssertionError(f"schema: {cls.__name__}.{name} is not declared (param)")
+    return decl
 
 
 def public_name(path: str, names: dict[str, str]) -> str:
@@ -771,32 +677,32 @@ def public_name(path: str, names: dict[str, str]) -> str:
 
 def dataclass_schema(
     root: type,
-    table: dict[str, FieldDecl],
     names: dict[str, str] | None = None,
     exclude: tuple[str, ...] = (),
     given: dict[str, ParamSpec] | None = None,
 ) -> dict[str, ParamSpec]:
     """``{dotted name: ParamSpec}`` of the dataclass tree ``root``: one entry per leaf field
     (:func:`dataclass_leaves`), named by :func:`public_name`, its kind from the annotation
-    and its unit, range or choices and description from ``table`` (keyed by dotted name).
-    ``given``: ready specs that replace a leaf's or add names (dict-valued fields). The table
-    must cover exactly the leaves that ``given`` does not (AssertionError otherwise)."""
+    and its unit, range or choices and description from the field's declaration
+    (:func:`ffmpc_core.declaration.param`). ``given``: ready specs that replace a leaf's or
+    add names (dict-valued fields). Every leaf that ``given`` does not replace must be
+    declared (AssertionError otherwise)."""
     given = given or {}
     schema: dict[str, ParamSpec] = {}
-    for path, hint in dataclass_leaves(root, exclude).items():
+    for path, (hint, f) in _leaf_fields(root, exclude).items():
         name = public_name(path, names or {})
         if name in schema:
             raise AssertionError(f"schema: two fields named {name}")
         if name in given:
             schema[name] = given[name]
             continue
-        if name not in table:
-            raise AssertionError(f"schema: {name} ({root.__name__}.{path}) is not declared")
+        decl = declaration(f)
+        if decl is None:
+            raise AssertionError(
+                f"schema: {name} ({root.__name__}.{path}) is not declared (param in its field)"
+            )
         kind, length, optional = _leaf_kind(hint, path)
-        schema[name] = _spec_from_table(name, kind, length, table, optional)
-    extra = set(table) - set(schema)
-    if extra:
-        raise AssertionError(f"schema: declared names that are no field: {sorted(extra)}")
+        schema[name] = _spec_from_decl(name, kind, length, decl, optional)
     schema.update({k: v for k, v in given.items() if k not in schema})
     return schema
 
@@ -835,10 +741,14 @@ def _scenario_given_specs() -> dict[str, ParamSpec]:
     per-formulation weights of ``mpc.weights`` (a dict field: :class:`CostWeights`' fields
     plus the phase weights c6, c4)."""
     given: dict[str, ParamSpec] = {
-        "mpc.command_delay": _spec_from_table("mpc.command_delay", DELAY, None, _TABLE),
+        "mpc.command_delay": _spec_from_decl(
+            "mpc.command_delay", DELAY, None, field_declaration(MpcSection, "command_delay")
+        ),
     }
-    for name in ("mpc.contact.stiffness", "mpc.contact.damping"):
-        given[name] = _spec_from_table(name, FLOAT_OR_FLOATS, CONTACT_DIMENSION, _TABLE)
+    for entry in ("stiffness", "damping"):
+        decl = field_declaration(ContactConfig, entry)
+        name = f"mpc.contact.{entry}"
+        given[name] = _spec_from_decl(name, FLOAT_OR_FLOATS, CONTACT_DIMENSION, decl)
     for form in FORMULATIONS:
         prefix = f"mpc.weights.{form}."
         given.update(cost_weight_specs(prefix, CONTACT_DIMENSION))
@@ -1119,7 +1029,6 @@ class ConfigSchema(Generic[_ConfigT]):
     def of(
         cls,
         root: type[_ConfigT],
-        table: dict[str, FieldDecl],
         names: dict[str, str] | None = None,
         exclude: tuple[str, ...] = (),
         given: dict[str, ParamSpec] | None = None,
@@ -1127,7 +1036,7 @@ class ConfigSchema(Generic[_ConfigT]):
     ) -> ConfigSchema[_ConfigT]:
         """The schema of ``root`` (arguments of :func:`dataclass_schema`; ``maps``: the
         dict-valued fields, :attr:`maps`)."""
-        params = dataclass_schema(root, table, names, exclude + maps, given)
+        params = dataclass_schema(root, names, exclude + maps, given)
         paths = {public_name(p, names or {}): p for p in dataclass_leaves(root, exclude + maps)}
         in_maps = {n for n in params if n.startswith(tuple(m + "." for m in maps))}
         if set(paths) != set(params) - in_maps:
@@ -1204,7 +1113,6 @@ def _replace_tree(obj: Any, values: dict[str, Any], prefix: str) -> Any:
 #: the node parameters (``ffmpc_ros.params``) all check values with it.
 SCENARIO_SCHEMA: ConfigSchema[Scenario] = ConfigSchema.of(
     Scenario,
-    _TABLE,
     exclude=("name", "source"),
     given=_scenario_given_specs(),
     maps=("mpc.weights",),

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import pytest
 import yaml
 
+from ffmpc_core.declaration import param
 from ffmpc_core.errors import ConfigError
 from ffmpc_core.impact.scenario import (
     EXPLORATION_SCHEMA,
@@ -41,35 +42,33 @@ ONE_LINE = re.compile(r"^[\w.]+ = .+: (expected .+|unknown scenario parameter.*)
 
 @dataclass(frozen=True)
 class _Inner:
-    gain: float = 2.0
-    count: int = 3
-    axis: tuple[float, float] = (0.0, 1.0)
+    gain: float = param(2.0, "1/s", (0.0, 10.0), "a gain")
+    count: int = param(3, "", (1, 5), "a count")
+    axis: tuple[float, float] = param((0.0, 1.0), "", (-1.0, 1.0), "an axis")
 
 
 @dataclass(frozen=True)
 class _Outer:
-    name: str = "a"
-    enabled: bool = True
+    name: str = param("a", "", ["a", "b"], "a choice")
+    enabled: bool = param(True, "", None, "a switch")
     inner: _Inner = field(default_factory=_Inner)
-    speeds: tuple[float, ...] | None = None
-    diag: float | tuple[float, ...] = 1.0
+    speeds: tuple[float, ...] | None = param(None, "m/s", (0.0, 1.0), "speeds")
+    diag: float | tuple[float, ...] = param(1.0, "", (0.0, 5.0), "a diagonal")
 
 
-_TOY_TABLE = {
-    "name": ("", ["a", "b"], "a choice"),
-    "enabled": ("", None, "a switch"),
-    "ctl.gain": ("1/s", (0.0, 10.0), "a gain"),
-    "ctl.count": ("", (1, 5), "a count"),
-    "ctl.axis": ("", (-1.0, 1.0), "an axis"),
-    "speeds": ("m/s", (0.0, 1.0), "speeds"),
-    "diag": ("", (0.0, 5.0), "a diagonal"),
-}
-_TOY = ConfigSchema.of(_Outer, _TOY_TABLE, {"inner.": "ctl."})
+@dataclass(frozen=True)
+class _Undeclared:
+    declared: float = param(1.0, "", (0.0, 2.0), "a declared field")
+    plain: float = 1.0
+
+
+_TOY_NAMES = ("name", "enabled", "ctl.gain", "ctl.count", "ctl.axis", "speeds", "diag")
+_TOY = ConfigSchema.of(_Outer, {"inner.": "ctl."})
 
 
 def test_schema_kinds_ranges_and_names_from_the_annotations():
     p = _TOY.params
-    assert set(p) == set(_TOY_TABLE)
+    assert tuple(p) == _TOY_NAMES
     assert (p["name"].kind, p["name"].choices) == (STR, ("a", "b"))
     assert p["enabled"].kind == BOOL
     assert (p["ctl.gain"].kind, p["ctl.gain"].unit, p["ctl.gain"].range) == (FLOAT, "1/s", (0, 10))
@@ -104,11 +103,15 @@ def test_schema_builds_checks_and_refuses_with_the_scenario_messages():
         assert expected in str(info.value)
 
 
-def test_schema_table_must_match_the_fields():
-    with pytest.raises(AssertionError, match="not declared"):
-        dataclass_schema(_Outer, {k: v for k, v in _TOY_TABLE.items() if k != "diag"}, {})
-    with pytest.raises(AssertionError, match="no field"):
-        dataclass_schema(_Outer, _TOY_TABLE | {"ctl.extra": ("", None, "")}, {"inner.": "ctl."})
+def test_schema_refuses_a_field_without_a_declaration():
+    with pytest.raises(AssertionError, match=r"plain \(_Undeclared.plain\) is not declared"):
+        dataclass_schema(_Undeclared)
+    assert list(dataclass_schema(_Undeclared, given={"plain": _TOY.params["diag"]})) == [
+        "declared",
+        "plain",
+    ]
+    with pytest.raises(AssertionError, match="two fields named ctl.gain"):
+        dataclass_schema(_Outer, {"inner.": "ctl.", "diag": "ctl.gain"})
 
 
 @pytest.mark.parametrize(

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
+from ffmpc_core.declaration import param
 from ffmpc_core.errors import ConfigError, InputError, SolverError
 from ffmpc_core.impact.deformation import (
     SoftMaterial,
@@ -58,11 +59,11 @@ class AdmittanceForceController:
     on a 1200 N/m dice the tool sat 1.1 mm below its reference).
     """
 
-    admittance: float = 2e-3
-    max_velocity: float = 0.1
-    velocity_filter: float = 0.8
-    nominal_dt: float = 1e-3
-    depth_margin: float = 0.002
+    admittance: float = param(2e-3, "m/(N·s)", (1e-9, 1.0), "admittance G")
+    max_velocity: float = param(0.1, "m/s", (1e-6, 10.0), "v_max")
+    velocity_filter: float = param(0.8, "", (0.0, 1.0), "γ per nominal_dt, in [0, 1)")
+    nominal_dt: float = param(1e-3, "s", (1e-6, 1.0), "step of γ")
+    depth_margin: float = param(0.002, "m", (0.0, 0.5), "the depth bound is this far above z̄")
 
     def __post_init__(self) -> None:
         if not (self.admittance > 0 and self.max_velocity > 0 and self.nominal_dt > 0):

@@ -30,6 +30,7 @@ counted in ``ImpactPlanner.stats``), so the returned velocity is always an exact
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import daqp
@@ -38,6 +39,7 @@ import osqp
 import scipy.sparse as sp
 from scipy.optimize import linprog
 
+from ffmpc_core.declaration import param
 from ffmpc_core.errors import ConfigError, InputError, SolverError
 from ffmpc_core.impact.deformation import DeformationDynamics, SoftMaterial, simulate_deformation
 from ffmpc_core.impact.limits import (
@@ -99,19 +101,21 @@ class PlannerConfig:
             similar magnitude; rows are also normalised. Does not change the solution.
     """
 
-    horizon: int = 20
-    dt: float = 0.025
-    cost: str = "qp"
-    control_effort_weight: float = 1e-2
-    force_tracking_weight: float = 0.0
-    target_force: float = 0.0
-    velocity_weight: float = 1e3
-    velocity_regularization: float = 1e-2
-    max_halfplanes: int = 8
-    solver: str = "daqp"
-    eps: float = 1e-4
-    primal_tol: float = 1e-7
-    input_scale: float = 100.0
+    horizon: int = param(20, "steps", (2, 1000), "h of eq 12-14")
+    dt: float = param(0.025, "s", (1e-4, 1.0), "Δt of eq 12-14")
+    cost: str = param("qp", "", ["qp", "lp"], "eq 14 (qp) or its LP variant")
+    control_effort_weight: float = param(
+        1e-2, "s⁴/m²", (1e-12, math.inf), "weight of Σ u_i² (eq 12)"
+    )
+    force_tracking_weight: float = param(0.0, "1/N²", (0.0, math.inf), "ω_f of eq 12")
+    target_force: float = param(0.0, "N", (0.0, 500.0), "f_des of eq 12 (with ω_f > 0)")
+    velocity_weight: float = param(1e3, "s/m", (1e-12, math.inf), "−r of eq 14")
+    velocity_regularization: float = param(1e-2, "s/m", (1e-12, math.inf), "R of eq 14")
+    max_halfplanes: int = param(8, "", (3, 1000), "eq 11 rows per step")
+    solver: str = param("daqp", "", ["daqp", "osqp"], "QP solver of eq 9-14")
+    eps: float = param(1e-4, "", (1e-12, 1.0), "OSQP tolerance")
+    primal_tol: float = param(1e-7, "", (1e-15, 1.0), "DAQP primal feasibility tolerance")
+    input_scale: float = param(100.0, "m/s²", (1e-6, 1e6), "internal scaling of u")
 
     def __post_init__(self) -> None:
         if int(self.horizon) != self.horizon or self.horizon < 2:

@@ -22,6 +22,7 @@ object exerts on the tool (N, > 0 when pressing).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -29,6 +30,7 @@ import numpy as np
 import pinocchio as pin
 
 from ffmpc_core.config import CostWeights
+from ffmpc_core.declaration import param
 from ffmpc_core.errors import ConfigError
 from ffmpc_core.impact.control import AdmittanceForceController, ImpactControllerConfig
 from ffmpc_core.impact.controllers import (
@@ -48,7 +50,7 @@ from ffmpc_core.impact.strike_first import StrikeFirstConfig, remembered_interva
 from ffmpc_core.impact.task_space import JointLimitGuardConfig, TaskSpaceGains
 from ffmpc_core.impact.touch_first import TouchFirstConfig
 from ffmpc_core.robots import RobotModel
-from ffmpc_core.scenario import PLANT_ENGINES, ConfigSchema, FieldDecl, cost_weight_specs
+from ffmpc_core.scenario import PLANT_ENGINES, ConfigSchema, cost_weight_specs
 
 # -- the impact experiment ----------------------------------------------------------------------
 #: How the maximal approach treats the unknown material: ``strike_first`` (the first contact
@@ -91,15 +93,19 @@ class DiceConfig:
             force-feedback MPC then broke the wrist's acceleration limit on the 7200/7.5 dice).
     """
 
-    stiffness: float = 3000.0
-    damping: float = 20.0
-    size: float = 0.16
-    mass: float = 0.1
-    position_xy: tuple[float, float] = (0.6, 0.0)
-    top_height: float = 0.08
-    max_penetration: float = 0.03
-    lateral_friction: float = 0.5
-    collision_margin: float = 0.05
+    stiffness: float = param(
+        3000.0, "N/m", (1.0, 1e7), "true stiffness of the dice set in the plant"
+    )
+    damping: float = param(20.0, "N·s/m", (0.0, 1e5), "true damping of the dice set in the plant")
+    size: float = param(0.16, "m", (0.01, 1.0), "edge length of the dice")
+    mass: float = param(0.1, "kg", (0.0, 100.0), "recorded only: the dice is fixed")
+    position_xy: tuple[float, float] = param(
+        (0.6, 0.0), "m", (-2.0, 2.0), "centre of the dice, horizontal, world frame"
+    )
+    top_height: float = param(0.08, "m", (-1.0, 2.0), "height of the top face, world frame")
+    max_penetration: float = param(0.03, "m", (1e-4, 0.5), "z̄, the elastic-domain bound kept")
+    lateral_friction: float = param(0.5, "", (0.0, 10.0), "Coulomb friction of the dice")
+    collision_margin: float = param(0.05, "m", (1e-4, 0.5), "Bullet's collision margin of the dice")
 
     def __post_init__(self) -> None:
         for name in ("stiffness", "size", "max_penetration"):
@@ -171,39 +177,85 @@ class ImpactStudyConfig:
     """
 
     dice: DiceConfig = field(default_factory=DiceConfig)
-    prior_stiffness: float = HandoverConfig.prior_stiffness
-    prior_damping: float = HandoverConfig.prior_damping
-    approach_height: float = 0.46
-    target_force: float = HandoverConfig.target_force
-    contact_threshold: float = 2.0
-    duration: float = 4.0
-    time_step: float = 1e-3
-    replan_period: float = 0.0
+    prior_stiffness: float = param(
+        HandoverConfig.prior_stiffness, "N/m", (1.0, 1e7), "prior α of the planner and the MPC"
+    )
+    prior_damping: float = param(
+        HandoverConfig.prior_damping, "N·s/m", (0.0, 1e5), "prior β of the planner and the MPC"
+    )
+    approach_height: float = param(
+        0.46, "m", (0.01, 1.0), "tool height above the top face at the start"
+    )
+    target_force: float = param(
+        HandoverConfig.target_force, "N", (0.1, 500.0), "force held after contact"
+    )
+    contact_threshold: float = param(2.0, "N", (0.01, 100.0), "force that declares the contact")
+    duration: float = param(4.0, "s", (0.01, 600.0), "simulated time per run")
+    time_step: float = param(1e-3, "s", (1e-5, 0.01), "plant step = control period")
+    replan_period: float = param(0.0, "s", (0.0, 10.0), "between eq 9-14 solves (0: every cycle)")
     planner: PlannerConfig = field(default_factory=PlannerConfig)
-    limit_margin: float = 0.9
-    lateral_weight: float = 100.0
-    baseline_frequency: float = 5.0
-    baseline_target_depth: float = 0.005
+    limit_margin: float = param(
+        0.9, "", (0.01, 1.0), "fraction of the data-sheet q̈ and q̇ limits used"
+    )
+    lateral_weight: float = param(
+        100.0, "", (1e-6, 1e6), "weight of the 5 other task directions in the guard"
+    )
+    baseline_frequency: float = param(5.0, "rad/s", (0.01, 1000.0), "ω of the baseline's reference")
+    baseline_target_depth: float = param(
+        0.005, "m", (0.0, 0.5), "baseline's static target below the top"
+    )
     admittance: AdmittanceForceController = field(default_factory=AdmittanceForceController)
     # the hand-over MPC's settings: HandoverConfig's defaults, declared there once
-    handover_speed: float = HandoverConfig.handover_speed
-    mpc_period: float = HandoverConfig.mpc_period
-    mpc_horizon: int = HandoverConfig.mpc_horizon
-    mpc_dt: float = HandoverConfig.mpc_dt
-    mpc_force_weight: float = HandoverConfig.mpc_force_weight
+    handover_speed: float = param(
+        HandoverConfig.handover_speed,
+        "m/s",
+        (1e-6, 10.0),
+        "in-contact speed below which the MPC takes over",
+    )
+    mpc_period: float = param(
+        HandoverConfig.mpc_period, "s", (1e-5, 1.0), "force-feedback MPC period (whole plant steps)"
+    )
+    mpc_horizon: int = param(HandoverConfig.mpc_horizon, "nodes", (1, 1000), "OCP nodes N")
+    mpc_dt: float = param(HandoverConfig.mpc_dt, "s", (1e-5, 1.0), "OCP node duration")
+    mpc_force_weight: float = param(
+        HandoverConfig.mpc_force_weight, "1/N²", (0.0, math.inf), "c6 of the pressing nodes"
+    )
     mpc_weights: CostWeights = field(default_factory=handover_mpc_weights)
-    mpc_constraints: bool = HandoverConfig.mpc_constraints
-    learner_min_samples: int = HandoverConfig.learner_min_samples
-    learner_max_relative_std: float = HandoverConfig.learner_max_relative_std
-    steady_band: float = 0.05
-    steady_hold: float = 0.2
-    strategy: str = "strike_first"
+    mpc_constraints: bool = param(
+        HandoverConfig.mpc_constraints,
+        "",
+        None,
+        "the hand-over MPC's hard constraints (off: see docs)",
+    )
+    learner_min_samples: int = param(
+        HandoverConfig.learner_min_samples,
+        "",
+        (3, 10**6),
+        "samples before the estimate replaces the prior",
+    )
+    learner_max_relative_std: float = param(
+        HandoverConfig.learner_max_relative_std,
+        "",
+        (1e-9, 10.0),
+        "largest relative std error of α̂, β̂",
+    )
+    steady_band: float = param(
+        0.05, "", (1e-6, 1.0), "|f − target| ≤ this · target counts as steady"
+    )
+    steady_hold: float = param(0.2, "s", (1e-6, 60.0), "... for at least this long")
+    strategy: str = param(
+        "strike_first", "", list(STRATEGIES), "maximal approach: strike_first, touch_first or prior"
+    )
     touch: TouchFirstConfig = field(default_factory=TouchFirstConfig)
     strike: StrikeFirstConfig = field(default_factory=StrikeFirstConfig)
-    handover_blend: float = HandoverConfig.blend
-    tool_radius: float = 0.01
-    engine: str = "pybullet"
-    reflex: bool = True
+    handover_blend: float = param(
+        HandoverConfig.blend, "s", (0.0, 10.0), "admittance → MPC torque blend (0: switch)"
+    )
+    tool_radius: float = param(0.01, "m", (1e-3, 0.2), "radius of the spherical tool")
+    engine: str = param(
+        "pybullet", "", list(PLANT_ENGINES), "simulator of the plant: pybullet | mujoco"
+    )
+    reflex: bool = param(True, "", None, "the robot's own reflexes: stop on a limit, run aborted")
 
     def __post_init__(self) -> None:
         positive = (
@@ -282,90 +334,9 @@ IMPACT_NAMES: dict[str, str] = {
     "mpc_": "mpc.",
     "learner_": "learner.",
 }
-_INF = float("inf")
-#: Unit, range or choices and meaning of every impact-study parameter (kinds: the annotations).
-IMPACT_TABLE: dict[str, FieldDecl] = {
-    "plant.dice_stiffness": ("N/m", (1.0, 1e7), "true stiffness of the dice set in the plant"),
-    "plant.dice_damping": ("N·s/m", (0.0, 1e5), "true damping of the dice set in the plant"),
-    "plant.dice_size": ("m", (0.01, 1.0), "edge length of the dice"),
-    "plant.dice_mass": ("kg", (0.0, 100.0), "recorded only: the dice is fixed"),
-    "plant.dice_position_xy": ("m", (-2.0, 2.0), "centre of the dice, horizontal, world frame"),
-    "plant.dice_top_height": ("m", (-1.0, 2.0), "height of the top face, world frame"),
-    "plant.dice_max_penetration": ("m", (1e-4, 0.5), "z̄, the elastic-domain bound kept"),
-    "plant.dice_lateral_friction": ("", (0.0, 10.0), "Coulomb friction of the dice"),
-    "plant.dice_collision_margin": ("m", (1e-4, 0.5), "Bullet's collision margin of the dice"),
-    "plant.time_step": ("s", (1e-5, 0.01), "plant step = control period"),
-    "plant.tool_radius": ("m", (1e-3, 0.2), "radius of the spherical tool"),
-    "plant.engine": ("", list(PLANT_ENGINES), "simulator of the plant: pybullet | mujoco"),
-    "plant.reflex": ("", None, "the robot's own reflexes: stop on a limit, run aborted"),
-    "planner.prior_stiffness": ("N/m", (1.0, 1e7), "prior α of the planner and the MPC"),
-    "planner.prior_damping": ("N·s/m", (0.0, 1e5), "prior β of the planner and the MPC"),
-    "planner.horizon": ("steps", (2, 1000), "h of eq 12-14"),
-    "planner.dt": ("s", (1e-4, 1.0), "Δt of eq 12-14"),
-    "planner.cost": ("", ["qp", "lp"], "eq 14 (qp) or its LP variant"),
-    "planner.control_effort_weight": ("s⁴/m²", (1e-12, _INF), "weight of Σ u_i² (eq 12)"),
-    "planner.force_tracking_weight": ("1/N²", (0.0, _INF), "ω_f of eq 12"),
-    "planner.target_force": ("N", (0.0, 500.0), "f_des of eq 12 (with ω_f > 0)"),
-    "planner.velocity_weight": ("s/m", (1e-12, _INF), "−r of eq 14"),
-    "planner.velocity_regularization": ("s/m", (1e-12, _INF), "R of eq 14"),
-    "planner.max_halfplanes": ("", (3, 1000), "eq 11 rows per step"),
-    "planner.solver": ("", ["daqp", "osqp"], "QP solver of eq 9-14"),
-    "planner.eps": ("", (1e-12, 1.0), "OSQP tolerance"),
-    "planner.primal_tol": ("", (1e-15, 1.0), "DAQP primal feasibility tolerance"),
-    "planner.input_scale": ("m/s²", (1e-6, 1e6), "internal scaling of u"),
-    "approach_height": ("m", (0.01, 1.0), "tool height above the top face at the start"),
-    "target_force": ("N", (0.1, 500.0), "force held after contact"),
-    "contact_threshold": ("N", (0.01, 100.0), "force that declares the contact"),
-    "duration": ("s", (0.01, 600.0), "simulated time per run"),
-    "replan_period": ("s", (0.0, 10.0), "between eq 9-14 solves (0: every cycle)"),
-    "limit_margin": ("", (0.01, 1.0), "fraction of the data-sheet q̈ and q̇ limits used"),
-    "lateral_weight": ("", (1e-6, 1e6), "weight of the 5 other task directions in the guard"),
-    "baseline_frequency": ("rad/s", (0.01, 1000.0), "ω of the baseline's reference"),
-    "baseline_target_depth": ("m", (0.0, 0.5), "baseline's static target below the top"),
-    "admittance.admittance": ("m/(N·s)", (1e-9, 1.0), "admittance G"),
-    "admittance.max_velocity": ("m/s", (1e-6, 10.0), "v_max"),
-    "admittance.velocity_filter": ("", (0.0, 1.0), "γ per nominal_dt, in [0, 1)"),
-    "admittance.nominal_dt": ("s", (1e-6, 1.0), "step of γ"),
-    "admittance.depth_margin": ("m", (0.0, 0.5), "the depth bound is this far above z̄"),
-    "handover_speed": ("m/s", (1e-6, 10.0), "in-contact speed below which the MPC takes over"),
-    "mpc.period": ("s", (1e-5, 1.0), "force-feedback MPC period (whole plant steps)"),
-    "mpc.horizon": ("nodes", (1, 1000), "OCP nodes N"),
-    "mpc.dt": ("s", (1e-5, 1.0), "OCP node duration"),
-    "mpc.force_weight": ("1/N²", (0.0, _INF), "c6 of the pressing nodes"),
-    "mpc.constraints": ("", None, "the hand-over MPC's hard constraints (off: see docs)"),
-    "learner.min_samples": ("", (3, 10**6), "samples before the estimate replaces the prior"),
-    "learner.max_relative_std": ("", (1e-9, 10.0), "largest relative std error of α̂, β̂"),
-    "steady_band": ("", (1e-6, 1.0), "|f − target| ≤ this · target counts as steady"),
-    "steady_hold": ("s", (1e-6, 60.0), "... for at least this long"),
-    "strategy": ("", list(STRATEGIES), "maximal approach: strike_first, touch_first or prior"),
-    "touch.stiffness_factors": ("", (1e-3, 1e3), "plausible α range, factors of the prior"),
-    "touch.damping_factors": ("", (1e-3, 1e3), "plausible β range, factors of the prior"),
-    "touch.touch_force": ("N", (0.01, 500.0), "force regulated during the touch"),
-    "touch.touch_dwell": ("s", (0.0, 60.0), "minimal time in contact during the touch"),
-    "touch.max_touch_time": ("s", (0.0, 60.0), "longest touch"),
-    "touch.learner_min_samples": ("", (3, 10**6), "samples before confident"),
-    "touch.learner_max_relative_std": ("", (1e-9, 10.0), "relative std errors at most this"),
-    "touch.sigmas": ("", (0.0, 100.0), "k of the learned interval α̂ ± k σ"),
-    "touch.stiffness_floor": ("", (0.0, 10.0), "least relative half-width of the α interval"),
-    "touch.damping_floor": ("", (0.0, 10.0), "least relative half-width of the β interval"),
-    "touch.retract_height": ("m", (0.0, 1.0), "height above the surface the strike starts"),
-    "touch.retract_acceleration_fraction": ("", (0.0, 1.0), "peak of the retract profile"),
-    "touch.impact_force_factor": ("", (0.0, 100.0), "κ of the guard's impact force"),
-    "touch.penetration_margin": ("m", (0.0, 0.5), "off z̄ in eq 12 for touch and strike"),
-    "strike.surface_known": ("", None, "the approach is given the dice's surface"),
-    "strike.surface_tolerance": ("m", (0.0, 10.0), "contact possible this far above it"),
-    "strike.surface_offset": ("m", (-1.0, 1.0), "expected surface above the dice's top face"),
-    "strike.braking_fraction": ("", (1e-6, 1.0), "of the deceleration bound, before the band"),
-    "strike.settle_time": ("s", (0.0, 10.0), "at the eq 14 bound before the band"),
-    "strike.max_decision_time": ("s", (1e-3, 60.0), "decide by then after the contact"),
-    "strike.remembered_stiffness": ("N/m", (0.0, 1e7), "[lo, hi] a previous run learned"),
-    "strike.remembered_damping": ("N·s/m", (0.0, 1e5), "[lo, hi] a previous run learned"),
-    "handover_blend": ("s", (0.0, 10.0), "admittance → MPC torque blend (0: switch)"),
-}
 #: The impact study's schema: ``ffmpc study impact --scenario/--set`` and impact.yaml.
 IMPACT_SCHEMA: ConfigSchema[ImpactStudyConfig] = ConfigSchema.of(
     ImpactStudyConfig,
-    IMPACT_TABLE,
     IMPACT_NAMES,
     given=cost_weight_specs("mpc.weights.", 1),  # the MPC's contact is 1-D (normal)
 )
@@ -615,24 +586,42 @@ class ExplorationConfig:
     """
 
     material: Material = field(default_factory=lambda: MATERIALS["dice"])
-    start_clearance: float = 0.003
-    approach_speed: float = 0.005
-    contact_threshold: float = 2.0
-    max_approach_time: float = 3.0
-    sine_frequency: float = 1.0
-    sine_cycles: int = 4
-    impact_velocities: tuple[float, ...] | None = None
-    impact_height: float = 0.05
-    dwell: float = 0.3
-    time_step: float = 1e-3
-    limit_margin: float = 0.9
-    lateral_weight: float = 100.0
+    start_clearance: float = param(
+        0.003, "m", (1e-5, 1.0), "tool height above the top face at the start"
+    )
+    approach_speed: float = param(0.005, "m/s", (1e-5, 1.0), "guarded-approach speed")
+    contact_threshold: float = param(
+        2.0, "N", (0.01, 100.0), "force that ends the guarded approach"
+    )
+    max_approach_time: float = param(3.0, "s", (1e-3, 600.0), "no contact by then: ConfigError")
+    sine_frequency: float = param(
+        1.0, "Hz", (1e-3, 100.0), "frequency of the sinusoidal penetration"
+    )
+    sine_cycles: int = param(4, "", (1, 1000), "periods of the sinusoidal penetration")
+    impact_velocities: tuple[float, ...] | None = param(
+        None, "m/s", (1e-6, 10.0), "pre-impact velocities (null: the material's)"
+    )
+    impact_height: float = param(
+        0.05, "m", (1e-5, 1.0), "the impacts start from rest this far above"
+    )
+    dwell: float = param(0.3, "s", (0.0, 60.0), "at the stop depth after each impact")
+    time_step: float = param(1e-3, "s", (1e-5, 0.01), "plant step = control period")
+    limit_margin: float = param(
+        0.9, "", (0.01, 1.0), "fraction of the data-sheet q̈ and q̇ limits used"
+    )
+    lateral_weight: float = param(100.0, "", (1e-6, 1e6), "weight of the 5 directions other than d")
     gains: TaskSpaceGains = field(default_factory=TaskSpaceGains)
-    prior_stiffness: float = 2e4
-    prior_damping: float = 100.0
-    learner_min_samples: int = 50
-    learner_max_relative_std: float = 0.05
-    reflex: bool = True
+    prior_stiffness: float = param(2e4, "N/m", (1.0, 1e7), "α the guard assumes before confidence")
+    prior_damping: float = param(
+        100.0, "N·s/m", (0.0, 1e5), "β the guard assumes before confidence"
+    )
+    learner_min_samples: int = param(
+        50, "", (3, 10**6), "samples before the learner predicts the force"
+    )
+    learner_max_relative_std: float = param(
+        0.05, "", (1e-9, 10.0), "... and relative standard errors at most"
+    )
+    reflex: bool = param(True, "", None, "the robot's own reflexes: stop on a limit, run aborted")
 
     def __post_init__(self) -> None:
         positive = (
@@ -698,35 +687,9 @@ EXPLORATION_NAMES: dict[str, str] = {
     "lateral_weight": "guard.lateral_weight",
     "learner_": "learner.",
 }
-#: Unit, range or choices and meaning of every exploration parameter (kinds: the annotations).
-EXPLORATION_TABLE: dict[str, FieldDecl] = {
-    "start_clearance": ("m", (1e-5, 1.0), "tool height above the top face at the start"),
-    "approach_speed": ("m/s", (1e-5, 1.0), "guarded-approach speed"),
-    "contact_threshold": ("N", (0.01, 100.0), "force that ends the guarded approach"),
-    "max_approach_time": ("s", (1e-3, 600.0), "no contact by then: ConfigError"),
-    "sine_frequency": ("Hz", (1e-3, 100.0), "frequency of the sinusoidal penetration"),
-    "sine_cycles": ("", (1, 1000), "periods of the sinusoidal penetration"),
-    "impact_velocities": ("m/s", (1e-6, 10.0), "pre-impact velocities (null: the material's)"),
-    "impact_height": ("m", (1e-5, 1.0), "the impacts start from rest this far above"),
-    "dwell": ("s", (0.0, 60.0), "at the stop depth after each impact"),
-    "plant.time_step": ("s", (1e-5, 0.01), "plant step = control period"),
-    "plant.reflex": ("", None, "the robot's own reflexes: stop on a limit, run aborted"),
-    "guard.limit_margin": ("", (0.01, 1.0), "fraction of the data-sheet q̈ and q̇ limits used"),
-    "guard.lateral_weight": ("", (1e-6, 1e6), "weight of the 5 directions other than d"),
-    "gains.position": ("1/s²", (0.0, 1e6), "task-space PD: position gain"),
-    "gains.velocity": ("1/s", (0.0, 1e6), "task-space PD: velocity gain"),
-    "gains.orientation": ("1/s²", (0.0, 1e6), "task-space PD: orientation gain"),
-    "gains.angular_velocity": ("1/s", (0.0, 1e6), "task-space PD: angular velocity gain"),
-    "gains.null_damping": ("1/s", (0.0, 1e6), "null-space joint damping"),
-    "gains.pinv_damping": ("", (0.0, 1.0), "damping of the task Jacobian pseudo-inverse"),
-    "guard.prior_stiffness": ("N/m", (1.0, 1e7), "α the guard assumes before confidence"),
-    "guard.prior_damping": ("N·s/m", (0.0, 1e5), "β the guard assumes before confidence"),
-    "learner.min_samples": ("", (3, 10**6), "samples before the learner predicts the force"),
-    "learner.max_relative_std": ("", (1e-9, 10.0), "... and relative standard errors at most"),
-}
 #: The exploration study's schema: ``ffmpc study explore --scenario/--set`` and explore.yaml.
 EXPLORATION_SCHEMA: ConfigSchema[ExplorationConfig] = ConfigSchema.of(
-    ExplorationConfig, EXPLORATION_TABLE, EXPLORATION_NAMES, exclude=("material",)
+    ExplorationConfig, EXPLORATION_NAMES, exclude=("material",)
 )
 
 

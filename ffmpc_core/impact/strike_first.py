@@ -55,6 +55,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ffmpc_core.declaration import param
 from ffmpc_core.errors import ConfigError, SolverError
 from ffmpc_core.impact.control import (
     CartesianCommand,
@@ -110,14 +111,22 @@ class StrikeFirstConfig:
             learned on this object, the knowledge before contact (None: none, both or neither).
     """
 
-    surface_known: bool = True
-    surface_tolerance: float = 0.02
-    surface_offset: float = 0.0
-    braking_fraction: float = 0.8
-    settle_time: float = 0.05
-    max_decision_time: float = 0.5
-    remembered_stiffness: tuple[float, float] | None = None
-    remembered_damping: tuple[float, float] | None = None
+    surface_known: bool = param(True, "", None, "the approach is given the dice's surface")
+    surface_tolerance: float = param(0.02, "m", (0.0, 10.0), "contact possible this far above it")
+    surface_offset: float = param(
+        0.0, "m", (-1.0, 1.0), "expected surface above the dice's top face"
+    )
+    braking_fraction: float = param(
+        0.8, "", (1e-6, 1.0), "of the deceleration bound, before the band"
+    )
+    settle_time: float = param(0.05, "s", (0.0, 10.0), "at the eq 14 bound before the band")
+    max_decision_time: float = param(0.5, "s", (1e-3, 60.0), "decide by then after the contact")
+    remembered_stiffness: tuple[float, float] | None = param(
+        None, "N/m", (0.0, 1e7), "[lo, hi] a previous run learned"
+    )
+    remembered_damping: tuple[float, float] | None = param(
+        None, "N·s/m", (0.0, 1e5), "[lo, hi] a previous run learned"
+    )
 
     def __post_init__(self) -> None:
         tol = self.surface_tolerance

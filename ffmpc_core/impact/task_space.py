@@ -36,6 +36,7 @@ import osqp
 import pinocchio as pin
 from scipy.optimize import lsq_linear
 
+from ffmpc_core.declaration import param
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.impact.control import CartesianCommand
 from ffmpc_core.impact.limits import JointLimits, _SparsePattern
@@ -69,12 +70,12 @@ def external_joint_torque(jacobian: np.ndarray, external: np.ndarray) -> np.ndar
 class TaskSpaceGains:
     """Gains of the law (see the module docstring for units)."""
 
-    position: float = 400.0
-    velocity: float = 40.0
-    orientation: float = 400.0
-    angular_velocity: float = 40.0
-    null_damping: float = 10.0
-    pinv_damping: float = 1e-6
+    position: float = param(400.0, "1/s²", (0.0, 1e6), "task-space PD: position gain")
+    velocity: float = param(40.0, "1/s", (0.0, 1e6), "task-space PD: velocity gain")
+    orientation: float = param(400.0, "1/s²", (0.0, 1e6), "task-space PD: orientation gain")
+    angular_velocity: float = param(40.0, "1/s", (0.0, 1e6), "task-space PD: angular velocity gain")
+    null_damping: float = param(10.0, "1/s", (0.0, 1e6), "null-space joint damping")
+    pinv_damping: float = param(1e-6, "", (0.0, 1.0), "damping of the task Jacobian pseudo-inverse")
 
     def __post_init__(self) -> None:
         for name, value in self.__dict__.items():

@@ -49,6 +49,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ffmpc_core.declaration import param
 from ffmpc_core.errors import ConfigError, InfeasibleTargetError, InputError, SolverError
 from ffmpc_core.impact.control import (
     CartesianCommand,
@@ -175,20 +176,32 @@ class TouchFirstConfig:
             check uses the full z̄.
     """
 
-    stiffness_factors: tuple[float, float] = (0.4, 4.0)
-    damping_factors: tuple[float, float] = (0.4, 4.0)
-    touch_force: float = 15.0
-    touch_dwell: float = 0.15
-    max_touch_time: float = 1.0
-    learner_min_samples: int = 50
-    learner_max_relative_std: float = 0.05
-    sigmas: float = 3.0
-    stiffness_floor: float = 0.1
-    damping_floor: float = 0.25
-    retract_height: float = 0.06
-    retract_acceleration_fraction: float = 0.5
-    impact_force_factor: float = 1.5
-    penetration_margin: float = 0.004
+    stiffness_factors: tuple[float, float] = param(
+        (0.4, 4.0), "", (1e-3, 1e3), "plausible α range, factors of the prior"
+    )
+    damping_factors: tuple[float, float] = param(
+        (0.4, 4.0), "", (1e-3, 1e3), "plausible β range, factors of the prior"
+    )
+    touch_force: float = param(15.0, "N", (0.01, 500.0), "force regulated during the touch")
+    touch_dwell: float = param(0.15, "s", (0.0, 60.0), "minimal time in contact during the touch")
+    max_touch_time: float = param(1.0, "s", (0.0, 60.0), "longest touch")
+    learner_min_samples: int = param(50, "", (3, 10**6), "samples before confident")
+    learner_max_relative_std: float = param(
+        0.05, "", (1e-9, 10.0), "relative std errors at most this"
+    )
+    sigmas: float = param(3.0, "", (0.0, 100.0), "k of the learned interval α̂ ± k σ")
+    stiffness_floor: float = param(
+        0.1, "", (0.0, 10.0), "least relative half-width of the α interval"
+    )
+    damping_floor: float = param(
+        0.25, "", (0.0, 10.0), "least relative half-width of the β interval"
+    )
+    retract_height: float = param(
+        0.06, "m", (0.0, 1.0), "height above the surface the strike starts"
+    )
+    retract_acceleration_fraction: float = param(0.5, "", (0.0, 1.0), "peak of the retract profile")
+    impact_force_factor: float = param(1.5, "", (0.0, 100.0), "κ of the guard's impact force")
+    penetration_margin: float = param(0.004, "m", (0.0, 0.5), "off z̄ in eq 12 for touch and strike")
 
     def __post_init__(self) -> None:
         for name in (
