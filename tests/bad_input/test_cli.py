@@ -169,6 +169,16 @@ CASES: dict[str, tuple[list[str], dict[str, str], str]] = {
         {},
         "kp = -1.0: expected a number in [0, 100]",
     ),
+    "run-node-param-no-value": (
+        ["ffmpc", "run", "polishing", "--node-param", "mpc:horizon"],
+        {},
+        "--node-param expects NODE:NAME:=VALUE, got 'mpc:horizon'",
+    ),
+    "run-node-param-not-yaml": (
+        ["ffmpc", "run", "polishing", "--node-param", "mpc:horizon:=[1"],
+        {},
+        "'[1' is not a YAML value",
+    ),
     "study-empty-scenario": (
         ["ffmpc", "study", "polishing", "--scenario", "empty.yaml"],
         {},
