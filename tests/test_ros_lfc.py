@@ -234,8 +234,8 @@ def test_the_mpc_launch_file_drives_a_simulated_ros2_control_robot(ros, tmp_path
     terms) against a simulated robot that speaks those terms: the plant in real time (it
     publishes /clock), the sensor models and the LFC-law node in the agimus controller's place.
     The robot's side receives the MPC's Controls on the launch file's default topics and tracks
-    them (TRACK mode), with nothing rejected. Wiring and real-time behaviour only: the timing of
-    a Python plant in one executor is not a real robot's."""
+    them (TRACK mode), with nothing rejected but a few Controls that arrived too late. Wiring and
+    real-time behaviour only: the timing of a Python plant in one executor is not a real robot's."""
     import os
     import signal
     import subprocess
@@ -285,5 +285,10 @@ def test_the_mpc_launch_file_drives_a_simulated_ros2_control_robot(ros, tmp_path
         out, _ = launch.communicate(timeout=30)
     print(dict(lfc.accepted), dict(lfc.rejected), robot_side[0].deadline_misses, robot_side[0].k)
     assert tracked, (dict(lfc.accepted), dict(lfc.rejected), out[-3000:])
-    assert not lfc.rejected, dict(lfc.rejected)
+    # A Control older than max_input_age when it arrives is refused, as it must be in real time;
+    # on a loaded 2-core CI machine one such late Control was seen (1 against >= 50 accepted).
+    # Anything else refused (order, future stamp, value, layout) is a wiring fault.
+    late = {key: n for key, n in lfc.rejected.items() if key.endswith(":stale")}
+    assert not {key: n for key, n in lfc.rejected.items() if key not in late}, dict(lfc.rejected)
+    assert sum(late.values()) <= 0.05 * lfc.accepted[control_topic], (late, dict(lfc.accepted))
     assert "[launch] started mpc" in out
