@@ -325,6 +325,38 @@ def _add_paper_study_parser(study_sub: SubParsers) -> None:
     p.set_defaults(study_main=_cmd_study_paper)
 
 
+def _cmd_study_compare(args: argparse.Namespace) -> int:
+    from studies.compare import compare
+
+    table = compare(args.results, args.labels)
+    if args.out is not None:
+        out = Path(args.out)
+        if out.exists() and not args.force:
+            raise ConfigError(f"--out {args.out}: exists; never overwritten without --force")
+        out.write_text(table)
+    print(table)
+    return 0
+
+
+def _add_compare_parser(study_sub: SubParsers) -> None:
+    """``ffmpc study compare``: studies run the same way on two plants, side by side."""
+    p = study_sub.add_parser(
+        "compare",
+        help="two or more studies of one kind side by side (e.g. PyBullet vs MuJoCo)",
+        description="Reads the results.json of two or more paper studies (or impact studies) "
+        "run with the same seeds and settings, e.g. with --plant pybullet and --plant mujoco, "
+        "and prints one markdown table: per experiment, PID, delta_o and MPC, E_lambda, E_P, "
+        "lambda_max, aborted runs and runs over a joint limit for each study, and the MPCs' "
+        "order in E_lambda (impact: pre-impact velocity, contact time, penetration, peak "
+        "force, violations per run). Refuses studies that differ in seeds or settings.",
+    )
+    p.add_argument("results", nargs="+", help="results.json files (or their directories)")
+    p.add_argument("--labels", nargs="+", help="column labels (default: each plant engine)")
+    p.add_argument("--out", help="also write the table to this markdown file")
+    p.add_argument("--force", action="store_true", help="replace an existing --out file")
+    p.set_defaults(study_main=_cmd_study_compare)
+
+
 def _add_study_arguments(p: argparse.ArgumentParser, seeds: int, pid: str) -> None:
     p.add_argument("--scenario", help="shipped scenario name or path to a scenario file")
     p.add_argument(
@@ -754,6 +786,7 @@ class StudyCommand(CommandExtension):
         _add_paper_study_parser(study_sub)
         _add_impact_study_parser(study_sub)
         _add_explore_study_parser(study_sub)
+        _add_compare_parser(study_sub)
 
     def main(self, args: argparse.Namespace) -> int:
         return int(args.study_main(args) or 0)

@@ -189,6 +189,21 @@ CASES: dict[str, tuple[list[str], dict[str, str], str]] = {
         {},
         "cannot write in '/proc'",
     ),
+    "study-compare-missing": (
+        ["ffmpc", "study", "compare", "nowhere.json", "existing.json"],
+        {},
+        "nowhere.json: no such results file",
+    ),
+    "study-compare-not-a-study": (
+        ["ffmpc", "study", "compare", "existing.json", "existing.json"],
+        {},
+        "existing.json: not the results.json of a paper or impact study",
+    ),
+    "study-compare-one-file": (
+        ["ffmpc", "study", "compare", "existing.json"],
+        {},
+        "compare needs two results files or more",
+    ),
     "tune-out-exists": (
         ["ffmpc", "tune", "classical", "--out", "existing.json"],
         {},
