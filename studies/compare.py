@@ -175,13 +175,13 @@ def _sources(docs: Sequence[dict[str, Any]], labels: Sequence[str]) -> list[str]
     lines = []
     for label, doc in zip(labels, docs, strict=True):
         engine = doc.get("plant_engine") or doc.get("config", {}).get("engine") or "?"
-        commit = (doc.get("source") or {}).get("commit") or "?"
+        commit = (doc.get("source") or {}).get("commit")
         overrides = doc.get("overrides") or {}
-        extra = f", {len(overrides)} overrides" if overrides else ""
-        lines.append(
-            f"- **{label}**: {engine}, `{doc.get('command_line', '?')}` (commit {commit[:10]}"
-            f"{extra})"
+        notes = ([f"commit {commit[:10]}"] if commit else []) + (
+            [f"{len(overrides)} overrides"] if overrides else []
         )
+        extra = f" ({', '.join(notes)})" if notes else ""
+        lines.append(f"- **{label}**: {engine}, `{doc.get('command_line', '?')}`{extra}")
     return [*lines, ""]
 
 
