@@ -3,7 +3,8 @@
 
 Two kinds of study document are compared, each with its own kind of the same:
 
-* ``ffmpc study paper`` (``kind: paper``): per section, PID mode, command delay δo and MPC, for
+* ``ffmpc study paper`` (``kind: paper``; or ``ffmpc study polishing``, its Tables II–III
+  alone): per section, PID mode, command delay δo and MPC, for
   each document E_λ (N, mean over the runs a reflex did not abort), E_P (mm, the same runs),
   λmax (N, largest over every run), the aborted runs and the runs over a joint velocity or
   motor torque limit (any sample above 1× the robot's limit), then the order of the three MPCs
@@ -15,7 +16,7 @@ Two kinds of study document are compared, each with its own kind of the same:
 Nothing is recomputed from logs: the numbers are the ones the studies wrote. The documents
 must be comparable — the same seeds, formulations and δo settings for the paper study, the
 same runs for the impact study — or :class:`~ffmpc_core.errors.ConfigError` says which
-differ; each study's plant, command line, commit and overrides head the table.
+differ; each study's plant, command line and overrides head the table.
 """
 
 from __future__ import annotations
@@ -32,6 +33,22 @@ from studies.study import LABELS, delta_o_groups, delta_o_label
 
 #: Short names of the formulations in the order strings ("FF < TF < C").
 SHORT = {"classical": "C", "torque_feedback": "TF", "force_feedback": "FF"}
+#: The paper's name of each section's table, by PID mode (the simulation study is Table II
+#: without the PID and Table III with it).
+TABLE_NAMES: dict[str, str | dict[bool, str]] = {
+    "simulation": {False: "Table II", True: "Table III"},
+    "experiment_1": "Exp. 1",
+    "experiment_2": "Table V",
+    "experiment_3_1": "Table VI",
+    "experiment_3_2": "Table VII",
+    "experiment_3_3": "Exp. 3.3 (push)",
+}
+
+
+def table_name(section: str, pid: bool) -> str:
+    """The paper's name of a section's table ("Table III"), or the section key."""
+    name = TABLE_NAMES.get(section, section)
+    return name[pid] if isinstance(name, dict) else name
 
 
 def load_results(path: str | Path) -> dict[str, Any]:
@@ -51,8 +68,17 @@ def load_results(path: str | Path) -> dict[str, Any]:
 
 
 def study_kind(doc: dict[str, Any]) -> str:
-    """``"paper"`` or ``"impact"``."""
-    return "paper" if doc.get("kind") == "paper" else "impact"
+    """``"paper"`` (a paper study, or a polishing study: compared as its one table) or
+    ``"impact"``."""
+    return "paper" if doc.get("kind") in ("paper", "polishing") else "impact"
+
+
+def _sections(doc: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """``{section key: study document}`` of a paper study; a polishing study is its one
+    ``simulation`` section (the same tables, Table II/III)."""
+    if doc.get("kind") == "polishing":
+        return {"simulation": doc}
+    return {key: section["study"] for key, section in doc["sections"].items()}
 
 
 def over_limit(run: dict[str, Any]) -> bool:
@@ -83,13 +109,14 @@ def cell_summary(runs: Sequence[dict[str, Any]]) -> dict[str, Any]:
 def paper_cells(doc: dict[str, Any]) -> dict[tuple[str, bool, str | None, str], dict[str, Any]]:
     """``{(section, PID on, δo setting, formulation): cell_summary}`` of a paper study."""
     cells = {}
+    sections = _sections(doc)
     for section in SECTIONS:
-        if section.key not in doc["sections"]:
+        if section.key not in sections:
             continue
-        study = doc["sections"][section.key]["study"]
+        study = sections[section.key]
         for setting, group in delta_o_groups(study):
             for run_pid in sorted({bool(r["pid_enabled"]) for r in group["runs"]}, reverse=True):
-                for form in doc["formulations"]:
+                for form in doc.get("grid", doc)["formulations"]:
                     runs = [
                         r
                         for r in group["runs"]
@@ -110,58 +137,74 @@ def _check_comparable(docs: Sequence[dict[str, Any]], keys: Sequence[str]) -> No
                 )
 
 
+def _delta_text(setting: str | None) -> str:
+    """δo of a row: "5 ms", "measured", or "—" (the scenario's own)."""
+    if setting is None:
+        return "—"
+    try:
+        return f"{1e3 * float(setting):g} ms"
+    except ValueError:
+        return delta_o_label(setting)
+
+
 def _number(value: float, digits: int = 2) -> str:
     return "—" if math.isnan(value) else f"{value:.{digits}f}"
 
 
 def _order(cells: dict, key: tuple, forms: Sequence[str]) -> str:
-    """The formulations in increasing E_λ ("FF < C < TF"); ``?`` if one has no kept run."""
+    """The formulations in increasing E_λ ("FF < C < TF"); one with every run aborted is named
+    after it ("FF < C (TF: every run aborted)")."""
     values = {f: cells[(*key, f)]["force_mae"] for f in forms}
-    if any(math.isnan(v) for v in values.values()):
-        return "?"
-    return " < ".join(SHORT[f] for f in sorted(forms, key=lambda f: values[f]))
+    ranked = sorted((f for f in forms if not math.isnan(values[f])), key=lambda f: values[f])
+    order = " < ".join(SHORT[f] for f in ranked)
+    missing = [SHORT[f] for f in forms if math.isnan(values[f])]
+    if missing:
+        order += f" ({', '.join(missing)}: every run aborted)"
+    return order
 
 
 def paper_comparison(docs: Sequence[dict[str, Any]], labels: Sequence[str]) -> str:
     """The markdown side-by-side table of paper studies (see the module docstring)."""
-    _check_comparable(docs, ("seeds", "formulations", "command_delays"))
-    forms = docs[0]["formulations"]
+    grids = [doc.get("grid", doc) for doc in docs]
+    _check_comparable(grids, ("seeds", "formulations", "command_delays"))
+    forms = grids[0]["formulations"]
     all_cells = [paper_cells(doc) for doc in docs]
-    header = ["experiment", "PID", "δo", "MPC"]
+    header = ["table", "PID", "δo", "MPC"]
     for label in labels:
-        header += [f"{label}: E_λ (N)", "E_P (mm)", "λmax (N)", "aborted", "over a limit"]
+        header += [f"{label}: E_λ (N)", "E_P (mm)", "λmax (N)", "aborted / over"]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     groups = list(dict.fromkeys(key[:3] for key in all_cells[0]))
     orders = []
     for group in groups:
         section, pid, setting = group
-        title = next(s.title.split(":")[0] for s in SECTIONS if s.key == section)
-        delta = "—" if setting is None else delta_o_label(setting)
+        title = table_name(section, pid)
+        delta = _delta_text(setting)
         for form in forms:
-            row = [title, "on" if pid else "off", delta, LABELS[form]]
+            row = [title, "on" if pid else "off", delta, SHORT[form]]
             for cells in all_cells:
                 c = cells.get((*group, form))
                 if c is None:
-                    row += ["—"] * 5
+                    row += ["—"] * 4
                     continue
                 row += [
                     _number(c["force_mae"]),
                     _number(c["position_mae_mm"]),
                     _number(c["max_force"], 1),
-                    f"{c['aborted']}/{c['runs']}",
-                    f"{c['over_limit']}/{c['runs']}",
+                    f"{c['aborted']} / {c['over_limit']}",
                 ]
             lines.append("| " + " | ".join(row) + " |")
         order = " · ".join(
             f"{label} {_order(cells, group, forms)}"
             for label, cells in zip(labels, all_cells, strict=True)
         )
-        where = f"PID {'on' if pid else 'off'}" + ("" if setting is None else f", {delta}")
+        where = f"PID {'on' if pid else 'off'}" + ("" if setting is None else f", δo {delta}")
         orders.append(f"- {title}, {where}: {order}")
-    seeds = docs[0]["seeds"]
+    seeds = grids[0]["seeds"]
+    names = ", ".join(f"{SHORT[f]} {LABELS[f].lower()}" for f in forms)
     intro = [
-        f"Seeds {seeds[0]}–{seeds[-1]} ({len(seeds)}); E_λ and E_P are means over the runs "
-        "a reflex did not abort, λmax the largest over every run; over a limit: a joint "
+        f"Seeds {seeds[0]}–{seeds[-1]}: {len(seeds)} runs per row and study. MPC: {names}. "
+        "E_λ and E_P are means over the runs a reflex did not abort, λmax the largest over "
+        "every run; aborted: runs the robot's reflexes stopped; over: runs with a joint "
         "velocity or motor torque sample above 1× the robot's limit.",
         "",
     ]
@@ -171,15 +214,16 @@ def paper_comparison(docs: Sequence[dict[str, Any]], labels: Sequence[str]) -> s
 
 
 def _sources(docs: Sequence[dict[str, Any]], labels: Sequence[str]) -> list[str]:
-    """One line per study: its label, plant, command line and code commit."""
+    """One line per study: its label, plant, command line and the values it set."""
     lines = []
     for label, doc in zip(labels, docs, strict=True):
         engine = doc.get("plant_engine") or doc.get("config", {}).get("engine") or "?"
-        commit = (doc.get("source") or {}).get("commit")
         overrides = doc.get("overrides") or {}
-        notes = ([f"commit {commit[:10]}"] if commit else []) + (
-            [f"{len(overrides)} overrides"] if overrides else []
-        )
+        if len(overrides) <= 3:
+            changed = [f"{k}={v}" for k, v in overrides.items()]
+        else:
+            changed = [f"{len(overrides)} values set"]
+        notes = changed
         extra = f" ({', '.join(notes)})" if notes else ""
         lines.append(f"- **{label}**: {engine}, `{doc.get('command_line', '?')}`{extra}")
     return [*lines, ""]

@@ -78,13 +78,19 @@ def test_two_paper_studies_side_by_side_with_the_order_of_each(tmp_path):
         tmp_path, "b", _paper("mujoco", {"classical": 4, "torque_feedback": 6, "force_feedback": 2})
     )
     table = compare([a, b.parent])  # a directory is read as its results.json
-    row = next(line for line in table.splitlines() if "| Torque-feedback |" in line)
+    row = next(line for line in table.splitlines() if "| TF |" in line)
     cells = [c.strip() for c in row.strip("|").split("|")]
     # seeds 1, 2: E_λ = base + 0.15 on average, both studies in one row
-    assert cells[4:9] == ["3.15", "2.00", "60.0", "0/2", "0/2"]
-    assert cells[9:14] == ["6.15", "2.00", "60.0", "0/2", "0/2"]
+    assert cells[:4] == ["Table III", "on", "0 ms", "TF"]
+    assert cells[4:8] == ["3.15", "2.00", "60.0", "0 / 0"]
+    assert cells[8:12] == ["6.15", "2.00", "60.0", "0 / 0"]
     assert "pybullet FF < TF < C · mujoco FF < C < TF" in table
-    assert "**mujoco**: mujoco, `ffmpc study paper --plant mujoco` (commit 0123456789)" in table
+    doc = _paper("mujoco", {"classical": 4, "torque_feedback": 6, "force_feedback": 2})
+    for run in doc["sections"]["simulation"]["study"]["runs"]:
+        run["aborted"] = run["aborted"] or run["formulation"] == "torque_feedback"
+    table = compare([a, _write(tmp_path, "c", doc)])
+    assert "mujoco FF < C (TF: every run aborted)" in table
+    assert "- **mujoco**: mujoco, `ffmpc study paper --plant mujoco`\n" in table
 
 
 def test_studies_of_other_seeds_or_kinds_are_refused(tmp_path):
@@ -128,9 +134,29 @@ def test_the_cli_prints_and_writes_the_table_and_never_overwrites(tmp_path, caps
     out = tmp_path / "table.md"
     assert main(["study", "compare", str(a), str(b), "--out", str(out)]) == 0
     printed = capsys.readouterr().out
-    assert out.read_text() in printed and "| Simulation study (VI-C) | on |" in printed
+    assert out.read_text() in printed and "| Table III | on | 0 ms |" in printed
     assert main(["study", "compare", str(a), str(b), "--out", str(out)]) == 2
     assert "exists; never overwritten without --force" in capsys.readouterr().err
     out.write_text("old")
     assert main(["study", "compare", str(a), str(b), "--out", str(out), "--force"]) == 0
     assert out.read_text() != "old"
+
+
+def test_polishing_studies_are_compared_as_their_one_table(tmp_path):
+    paper = _paper("pybullet", {"classical": 5, "torque_feedback": 3, "force_feedback": 1})
+    study = paper["sections"]["simulation"]["study"]
+    polishing = {
+        "kind": "polishing",
+        "grid": {"formulations": FORMS, "seeds": [1, 2], "command_delays": ["0.0"]},
+        "runs": study["runs"],
+        "failures": [],
+        "plant_engine": "mujoco",
+        "command_line": "ffmpc study polishing --plant mujoco",
+    }
+    a = _write(tmp_path, "a", {**polishing, "plant_engine": "pybullet"})
+    table = compare([a, _write(tmp_path, "b", polishing)])
+    assert "| Table III | on | 0 ms | FF | 1.15 | 2.00 | 60.0 | 0 / 0 | 1.15 |" in table
+    with pytest.raises(ConfigError, match="differs from study 1 in 'seeds'"):
+        compare(
+            [a, _write(tmp_path, "c", {**polishing, "grid": {**polishing["grid"], "seeds": [1]}})]
+        )
