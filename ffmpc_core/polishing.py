@@ -41,10 +41,9 @@ from ffmpc_core.metrics import (
     push_phase_windows,
 )
 from ffmpc_core.mpc import MpcConfig
-from ffmpc_core.pid import TorquePid, TorquePidGains
 from ffmpc_core.robots import RobotModel, ToolLoad, load_robot, with_tool_load
 from ffmpc_core.scenario import COMMAND_DELAY_MEASURED, COMMAND_DELAY_PID, Scenario
-from ffmpc_core.sensing import ForceSensingModel, SensingModel, SensingParams
+from ffmpc_core.sensing import ForceSensingModel, JointSensingModel
 from ffmpc_core.sensing import measured_force as measured_force  # (its home until issue 27)
 from ffmpc_core.tasks import ForceSquareTask, LiveTask, PhaseWeights, PolishingTask
 from ffmpc_core.wrist_ft import (
@@ -154,11 +153,7 @@ def draw_run(scenario: Scenario, robot: RobotModel, rng: np.random.Generator) ->
     tilt = np.deg2rad(plant.table_tilt_deg)
     if plant.random_tilt_deg > 0:
         tilt = np.deg2rad(rng.uniform(-plant.random_tilt_deg, plant.random_tilt_deg))
-    if plant.actuation_random_bias:
-        params = ActuationParams.with_random_bias(rng, robot.torque_limit)
-        gain, offset = params.gain, params.offset
-    else:
-        gain, offset = np.ones(robot.nv), np.zeros(robot.nv)
+    gain, offset = plant.actuation.draw_bias(rng, robot.nv)
     return RunDraws(float(tilt), tuple(map(float, gain)), tuple(map(float, offset)))
 
 
@@ -355,15 +350,11 @@ def force_pipeline(
     return WristForceSensing(sensor, wrist_compensator(scenario, robot, calibration), contact)
 
 
-def joint_sensing_model(scenario: Scenario, nv: int, rng: np.random.Generator) -> SensingModel:
-    """Eq 30: the joint sensor (δs, σ_q, σ_q̇ of the ``joint_sensor`` section)."""
-    js = scenario.joint_sensor
-    params = SensingParams(
-        delay_cycles=js.delay_cycles,
-        position_noise_std=js.position_noise_std,
-        velocity_noise_std=js.velocity_noise_std,
-    )
-    return SensingModel(params, nv, 0, rng)
+def joint_sensing_model(
+    scenario: Scenario, nv: int, rng: np.random.Generator
+) -> JointSensingModel:
+    """Eq 30: the joint sensor of the ``joint_sensor`` section (δs, σ_q, σ_q̇)."""
+    return JointSensingModel(scenario.joint_sensor, nv, rng)
 
 
 def force_sensing_model(scenario: Scenario, rng: np.random.Generator) -> ForceSensingModel:
@@ -376,55 +367,34 @@ def force_sensing_model(scenario: Scenario, rng: np.random.Generator) -> ForceSe
 def actuation_model(
     scenario: Scenario, robot: RobotModel, draws: RunDraws, rng: np.random.Generator
 ) -> ActuationModel:
-    """Eq 31 with the run's drawn bias (a, b) and the ``plant`` section's noise and friction."""
-    p = scenario.plant
-    return ActuationModel(
-        ActuationParams(
-            gain=np.array(draws.actuation_gain),
-            offset=np.array(draws.actuation_offset),
-            torque_noise_std=p.actuation_noise_fraction * robot.torque_limit,
-            delay_cycles=p.actuation_delay_cycles,
-            static_friction=p.static_friction,
-            viscous_friction=p.viscous_friction,
-            friction_velocity=p.friction_velocity,
-        ),
-        rng,
+    """Eq 31 of the ``plant`` section's actuation, with the run's drawn bias (a, b) and σ_τ
+    scaled by the robot's torque limits."""
+    params = ActuationParams.from_config(
+        scenario.plant.actuation,
+        robot.torque_limit,
+        np.array(draws.actuation_gain),
+        np.array(draws.actuation_offset),
     )
-
-
-def torque_pid(scenario: Scenario, robot: RobotModel) -> TorquePid:
-    """Eq 33 with the ``pid`` section's gains and δo."""
-    c = scenario.pid
-    gains = TorquePidGains.default(robot.torque_limit, c.kp, c.ki, c.kd, c.integral_fraction)
-    return TorquePid(
-        gains,
-        scenario.plant.time_step,
-        delay_cycles=c.delay_cycles,
-        enabled=c.enabled,
-        torque_limit=robot.torque_limit,
-    )
+    return ActuationModel(params, rng)
 
 
 def lowlevel_config(scenario: Scenario) -> LowLevelConfig:
-    """The low-level loop's parameters (``pid`` section, and the MPC's formulation/feedback)."""
-    c, m = scenario.pid, scenario.mpc
+    """The low-level loop's parameters: the ``pid`` section as it is, with the MPC's
+    formulation, period, force dimension and Riccati feedback."""
+    m = scenario.mpc
     return LowLevelConfig(
         formulation=m.formulation,
         force_dimension=m.contact.dimension,
         riccati_feedback=m.riccati_feedback,
-        stale_timeout=c.stale_timeout,
         mpc_period=m.period,
-        blend_duration=c.blend_duration,
-        hold_frequency=c.hold_frequency,
-        hold_damping_ratio=c.hold_damping_ratio,
-        torque_limit_fraction=c.torque_limit_fraction,
-        velocity_guard=c.velocity_guard,
+        pid=scenario.pid,
     )
 
 
 def lowlevel_controller(scenario: Scenario, robot: RobotModel) -> LowLevelController:
-    """The low-level loop (hold/blend/track/fallback) around the scenario's torque PID."""
-    return LowLevelController(robot, lowlevel_config(scenario), torque_pid(scenario, robot))
+    """The low-level loop (hold/blend/track/fallback) around the scenario's torque PID (eq 33,
+    scaled by the robot's torque limits)."""
+    return LowLevelController.from_config(robot, lowlevel_config(scenario), scenario.plant.time_step)
 
 
 class PolishingLog:

@@ -65,7 +65,7 @@ def test_force_feedback_mpc_reaches_and_holds_the_force_target() -> None:
         {**EARLY_CONTACT, "task.circle_radius": 0.0, "seed": seed, "pid.enabled": True},
     )
     assert scenario.mpc.formulation == "force_feedback"
-    assert scenario.ft_sensor.force_noise_std == 0.01 and scenario.plant.actuation_random_bias
+    assert scenario.ft_sensor.force_noise_std == 0.01 and scenario.plant.actuation.random_bias
     result = run_polishing(scenario, duration=1.0)
     t, force = result.log["t"], result.log["force_true"]
     assert np.all(result.log["force_reference"][t >= 0.4] == pytest.approx(50.0))
