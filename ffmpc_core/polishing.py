@@ -86,7 +86,7 @@ def device_generator(seed: int, device: str) -> np.random.Generator:
 
 def steps_per_mpc_period(scenario: Scenario) -> int:
     """mpc.period in plant steps (ConfigError unless a whole number >= 1)."""
-    every = scenario.mpc.period / scenario.plant.time_step
+    every = scenario.mpc.ocp.period / scenario.plant.time_step
     if abs(every - round(every)) > 1e-9 or round(every) < 1:
         raise ConfigError("mpc.period must be a whole number of plant steps")
     return int(round(every))
@@ -172,21 +172,13 @@ def mpc_config(scenario: Scenario, real_time: bool = False) -> MpcConfig:
             "studies and `ffmpc run` do)"
         )
     return MpcConfig(
-        formulation=m.formulation,
-        horizon=m.horizon,
-        dt=m.dt,
-        period=m.period,
+        ocp=m.ocp,
         contact=m.contact,
         weights=m.cost_weights(),
-        cutoff_frequency=m.cutoff_frequency,
-        max_iterations=m.max_iterations,
-        kkt_tolerance=m.kkt_tolerance,
         backend=m.backend,
         torque_state=m.torque_state,
         constraints=m.constraints if real_time else replace(m.constraints, max_solve_time=0.0),
-        command_delay=scenario.pid.delay_cycles * scenario.plant.time_step
-        if m.delay_compensation
-        else 0.0,
+        command_delay=command_delay(scenario) if m.delay_compensation else 0.0,
     )
 
 
@@ -214,7 +206,7 @@ def measure_mpc_step_time(scenario: Scenario, robot: RobotModel, steps: int = 60
     config = mpc_config(provisional)
     p0 = robot.contact_placement(robot.q_nominal).translation
     task = PolishingTask.pressing(p0, force_ramp=0.1, circle=10.0, stop=0.0)
-    log = run_model_closed_loop(robot, config, task, duration=steps * config.period)
+    log = run_model_closed_loop(robot, config, task, duration=steps * config.ocp.period)
     return float(np.median(log.step_time[1:]))
 
 
@@ -245,7 +237,7 @@ def resolve_command_delay(
         cycles = int(math.ceil(measured / dt - 1e-9))  # 0.004 / 0.001 is 4.000000000000001
         if cycles * dt < measured:
             cycles += 1
-        horizon = scenario.mpc.horizon * scenario.mpc.dt
+        horizon = scenario.mpc.ocp.horizon * scenario.mpc.ocp.dt
         if scenario.mpc.delay_compensation and cycles * dt >= horizon:
             raise ConfigError(
                 f"measured δo {measured * 1e3:.2f} ms rounds up to {cycles * dt * 1e3:.0f} ms, "
@@ -350,9 +342,7 @@ def force_pipeline(
     return WristForceSensing(sensor, wrist_compensator(scenario, robot, calibration), contact)
 
 
-def joint_sensing_model(
-    scenario: Scenario, nv: int, rng: np.random.Generator
-) -> JointSensingModel:
+def joint_sensing_model(scenario: Scenario, nv: int, rng: np.random.Generator) -> JointSensingModel:
     """Eq 30: the joint sensor of the ``joint_sensor`` section (δs, σ_q, σ_q̇)."""
     return JointSensingModel(scenario.joint_sensor, nv, rng)
 
@@ -383,10 +373,10 @@ def lowlevel_config(scenario: Scenario) -> LowLevelConfig:
     formulation, period, force dimension and Riccati feedback."""
     m = scenario.mpc
     return LowLevelConfig(
-        formulation=m.formulation,
+        formulation=m.ocp.formulation,
         force_dimension=m.contact.dimension,
         riccati_feedback=m.riccati_feedback,
-        mpc_period=m.period,
+        mpc_period=m.ocp.period,
         pid=scenario.pid,
     )
 
@@ -394,7 +384,9 @@ def lowlevel_config(scenario: Scenario) -> LowLevelConfig:
 def lowlevel_controller(scenario: Scenario, robot: RobotModel) -> LowLevelController:
     """The low-level loop (hold/blend/track/fallback) around the scenario's torque PID (eq 33,
     scaled by the robot's torque limits)."""
-    return LowLevelController.from_config(robot, lowlevel_config(scenario), scenario.plant.time_step)
+    return LowLevelController.from_config(
+        robot, lowlevel_config(scenario), scenario.plant.time_step
+    )
 
 
 class PolishingLog:

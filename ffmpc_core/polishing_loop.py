@@ -108,7 +108,7 @@ class MpcStage:
     def __init__(self, mpc: ModelPredictiveController, robot: RobotModel) -> None:
         self.mpc = mpc
         self.robot = robot
-        self.formulation = mpc.config.formulation
+        self.formulation = mpc.config.ocp.formulation
         self.failures = 0
         self.constraint_failures = 0
         self.relaxed_solves = 0  # solves from an x̂ beyond a bound (relaxed bounds)

@@ -34,7 +34,14 @@ import numpy as np
 import yaml
 
 from ffmpc_core.actuation import ActuationConfig
-from ffmpc_core.config import BACKENDS, FORMULATIONS, TORQUE_STATES, ContactConfig, CostWeights
+from ffmpc_core.config import (
+    BACKENDS,
+    FORMULATIONS,
+    TORQUE_STATES,
+    ContactConfig,
+    CostWeights,
+    OcpConfig,
+)
 from ffmpc_core.constraints import ConstraintConfig
 from ffmpc_core.declaration import FieldDecl, declaration, param
 from ffmpc_core.errors import ConfigError
@@ -164,7 +171,7 @@ class PlantSection:
     table_friction: float = param(0.5, "", (0.0, 10.0), "table Coulomb friction coefficient")
     #: eq 31 (ffmpc_core.actuation.ActuationConfig); its parameters are named
     #: plant.actuation_random_bias, plant.actuation_delay_cycles, plant.actuation_noise_fraction,
-    #: plant.static_friction, plant.viscous_friction, plant.friction_velocity (ACTUATION_NAMES)
+    #: plant.static_friction, plant.viscous_friction, plant.friction_velocity (SECTION_NAMES)
     actuation: ActuationConfig = field(default_factory=ActuationConfig)
     push_enabled: bool = param(False, "", None, "apply an external push on the tool")
     push_time: float = param(0.0, "s", (0.0, 3600.0), "push start")
@@ -259,17 +266,14 @@ class ForceSensorSection:
 
 @dataclass(frozen=True)
 class MpcSection:
-    """The MPC: formulation, horizon, solver, δo, contact model and cost weights."""
+    """The MPC: its problem and solver (``ocp``), δo, contact model, constraints and the cost
+    weights of every formulation; :func:`ffmpc_core.polishing.mpc_config` makes the
+    :class:`~ffmpc_core.mpc.MpcConfig` of the chosen formulation from it."""
 
-    formulation: str = param("force_feedback", "", list(FORMULATIONS), "OCP formulation")
-    horizon: int = param(5, "nodes", (1, 1000), "OCP nodes N")
-    dt: float = param(0.003, "s", (1e-5, 1.0), "OCP node duration")
-    period: float = param(
-        0.002, "s", (1e-5, 1.0), "re-planning period (a multiple of plant.time_step)"
-    )
-    max_iterations: int = param(8, "", (1, 1000), "SQP iterations per solve")
-    kkt_tolerance: float = param(1e-4, "", (1e-12, 1.0), "SQP KKT tolerance")
-    cutoff_frequency: float = param(50.0, "Hz", (1e-3, 1e4), "low-pass actuation cut-off f_c")
+    #: the problem and its solver (ffmpc_core.config.OcpConfig, which MpcConfig holds); its
+    #: parameters are mpc.formulation, mpc.horizon, mpc.dt, mpc.period, mpc.max_iterations,
+    #: mpc.kkt_tolerance, mpc.cutoff_frequency (SECTION_NAMES)
+    ocp: OcpConfig = field(default_factory=OcpConfig)
     riccati_feedback: bool = param(False, "", None, "low level applies τ* + G·Δx between solves")
     # send the plan for t + δo (δo = pid.delay_cycles)
     delay_compensation: bool = param(
@@ -311,7 +315,7 @@ class MpcSection:
     def cost_weights(self, formulation: str | None = None) -> CostWeights:
         """The :class:`~ffmpc_core.config.CostWeights` of ``formulation`` (default: the
         section's)."""
-        values = dict(self.weights.get(formulation or self.formulation, {}))
+        values = dict(self.weights.get(formulation or self.ocp.formulation, {}))
         values.pop("force_phase", None)
         values.pop("ee_position_phase", None)
         try:
@@ -322,7 +326,7 @@ class MpcSection:
     def phase_weight(self, name: str, default: float, formulation: str | None = None) -> float:
         """A task phase weight (``force_phase`` c6, ``ee_position_phase`` c4) of
         ``formulation``, or ``default``."""
-        return float(self.weights.get(formulation or self.formulation, {}).get(name, default))
+        return float(self.weights.get(formulation or self.ocp.formulation, {}).get(name, default))
 
 
 @dataclass(frozen=True)
@@ -1056,24 +1060,27 @@ def _replace_tree(obj: Any, values: dict[str, Any], prefix: str) -> Any:
     return replace(obj, **changes) if changes else obj
 
 
-#: The polishing scenario's schema: its tree is :class:`Scenario` (the sections, with the core's
-#: configuration classes as they are: the MPC's :class:`~ffmpc_core.config.ContactConfig` and
-#: :class:`~ffmpc_core.constraints.ConstraintConfig`, the joint sensor's
-#: :class:`~ffmpc_core.sensing.JointSensorConfig`, the PID's :class:`~ffmpc_core.pid.PidConfig`,
-#: the plant's :class:`~ffmpc_core.actuation.ActuationConfig`), its names the dotted field
-#: paths (those of ``plant.actuation``: :data:`ACTUATION_NAMES`). :func:`load_scenario`, :meth:`Scenario.with_overrides`, ``--set``/``--set-file`` and
-#: the node parameters (``ffmpc_ros.params``) all check values with it.
-#: The parameter names of the fields of ``plant.actuation`` (:class:`PlantSection`): the
-#: ``plant`` section's flat names (:func:`public_name`).
-ACTUATION_NAMES = {
+#: The parameter names of the fields of the core classes that a section holds besides its own
+#: fields (``mpc.ocp``, ``plant.actuation``): the section's flat names (:func:`public_name`).
+SECTION_NAMES = {
+    "mpc.ocp.": "mpc.",
     "plant.actuation.": "plant.actuation_",
     "plant.actuation.static_friction": "plant.static_friction",
     "plant.actuation.viscous_friction": "plant.viscous_friction",
     "plant.actuation.friction_velocity": "plant.friction_velocity",
 }
+#: The polishing scenario's schema: its tree is :class:`Scenario` (the sections, with the core's
+#: configuration classes as they are: the MPC's :class:`~ffmpc_core.config.OcpConfig`,
+#: :class:`~ffmpc_core.config.ContactConfig` and
+#: :class:`~ffmpc_core.constraints.ConstraintConfig`, the joint sensor's
+#: :class:`~ffmpc_core.sensing.JointSensorConfig`, the PID's :class:`~ffmpc_core.pid.PidConfig`,
+#: the plant's :class:`~ffmpc_core.actuation.ActuationConfig`), its names the dotted field
+#: paths (those of ``mpc.ocp`` and ``plant.actuation``: :data:`SECTION_NAMES`).
+#: :func:`load_scenario`, :meth:`Scenario.with_overrides`, ``--set``/``--set-file`` and the
+#: node parameters (``ffmpc_ros.params``) all check values with it.
 SCENARIO_SCHEMA: ConfigSchema[Scenario] = ConfigSchema.of(
     Scenario,
-    names=ACTUATION_NAMES,
+    names=SECTION_NAMES,
     exclude=("name", "source"),
     given=_scenario_given_specs(),
     maps=("mpc.weights",),

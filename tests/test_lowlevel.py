@@ -355,7 +355,8 @@ def test_missing_force_is_held_for_force_hold_time_then_the_feedback_goes_withou
     uses the newest finite λ̂ while it is at most ``force_hold_time`` old, then τ* alone."""
     rng = np.random.default_rng(3)
     cfg = LowLevelConfig(
-        formulation="force_feedback", riccati_feedback=True,
+        formulation="force_feedback",
+        riccati_feedback=True,
         pid=PidConfig(stale_timeout=1.0),
         force_hold_time=3e-3,
     )

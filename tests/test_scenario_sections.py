@@ -27,7 +27,7 @@ def test_the_sections_are_the_core_classes_and_the_objects_hold_them(robot):
     assert type(s.plant.actuation) is ActuationConfig
     low = lowlevel_controller(s, robot)
     assert low.config.pid is s.pid
-    assert low.config.mpc_period == s.mpc.period
+    assert low.config.mpc_period == s.mpc.ocp.period
     assert low.config.force_dimension == s.mpc.contact.dimension
     sensing = joint_sensing_model(s, robot.nv, np.random.default_rng(0))
     assert sensing.config is s.joint_sensor
@@ -61,7 +61,7 @@ def test_live_limits_replace_the_pid_config_and_keep_the_timeout_above_the_perio
     assert low.config.pid == PidConfig(torque_limit_fraction=0.5, stale_timeout=0.01)
     assert np.array_equal(low.torque_limit, 0.5 * robot.torque_limit)
     with pytest.raises(ConfigError, match="stale_timeout"):
-        low.set_limits(stale_timeout=s.mpc.period)
+        low.set_limits(stale_timeout=s.mpc.ocp.period)
     assert low.config.pid.stale_timeout == 0.01  # nothing changed
 
 

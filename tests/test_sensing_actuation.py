@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from ffmpc_core.actuation import (
-    ActuationModel,
     ActuationConfig,
+    ActuationModel,
     ActuationParams,
     actuation_torque,
     joint_friction,
