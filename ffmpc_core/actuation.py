@@ -41,9 +41,10 @@ from ffmpc_core.declaration import param
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.sensing import DelayLine
 
-#: Spans of the per-run draw of the affine bias of eq 31 (paper VI-C): the gain a in
-#: [0.8, 1.2] and the offset b in [−2, 2] N·m, uniformly per joint.
+#: Span of the per-run draw of the gain a of eq 31's affine bias (paper VI-C: uniform per joint).
 GAIN_RANGE = (0.8, 1.2)
+#: Span of the per-run draw of the offset b of eq 31's affine bias, N·m (paper VI-C: uniform per
+#: joint).
 OFFSET_RANGE = (-2.0, 2.0)
 
 
