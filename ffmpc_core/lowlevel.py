@@ -227,7 +227,8 @@ class LowLevelController:
 
     Shape: ``reset()``, ``set_command(command, t_command)`` when an MPC output arrives (t_command:
     the time of the measurement it was solved from, s), ``step(measurement, t) -> output`` once
-    per plant cycle; ``engage_hold()`` when the MPC failed.
+    per plant cycle; ``engage_hold()`` when the MPC failed. ``pid`` is the torque PID of eq 33
+    that ``config.pid`` states (:meth:`from_config` builds it so; a test may hand in another).
     """
 
     @classmethod
@@ -281,6 +282,23 @@ class LowLevelController:
         config = replace(self.config, pid=pid)  # checks stale_timeout against the MPC period
         self.config = config
         self._torque_limit = config.pid.torque_limit_fraction * self.robot.torque_limit
+
+    def set_gains(
+        self, kp: float | None = None, ki: float | None = None, kd: float | None = None
+    ) -> None:
+        """Change the PID's K_P, K_I and/or K_D (the same for every joint; None keeps one) from
+        the next :meth:`step` on (:meth:`~ffmpc_core.pid.TorquePid.set_gains`), and
+        ``config.pid`` with them. ConfigError (nothing changed) for a value that is not finite
+        and >= 0."""
+        c = self.config.pid
+        pid = replace(  # validates (__post_init__)
+            c,
+            kp=c.kp if kp is None else float(kp),
+            ki=c.ki if ki is None else float(ki),
+            kd=c.kd if kd is None else float(kd),
+        )
+        self.pid.set_gains(kp=kp, ki=ki, kd=kd)
+        self.config = replace(self.config, pid=pid)
 
     @property
     def torque_limit(self) -> np.ndarray:

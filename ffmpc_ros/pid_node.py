@@ -316,9 +316,7 @@ class PidNode(GraphNode):
 
     def apply_live(self, changes: dict, k: int) -> None:
         """New PID gains and limits from cycle k on (module docstring)."""
-        self.lowlevel.pid.set_gains(
-            kp=changes.get("kp"), ki=changes.get("ki"), kd=changes.get("kd")
-        )
+        self.lowlevel.set_gains(kp=changes.get("kp"), ki=changes.get("ki"), kd=changes.get("kd"))
         self.lowlevel.set_limits(
             torque_limit_fraction=changes.get("torque_limit_fraction"),
             stale_timeout=changes.get("stale_timeout"),

@@ -63,6 +63,14 @@ def test_live_limits_replace_the_pid_config_and_keep_the_timeout_above_the_perio
     with pytest.raises(ConfigError, match="stale_timeout"):
         low.set_limits(stale_timeout=s.mpc.ocp.period)
     assert low.config.pid.stale_timeout == 0.01  # nothing changed
+    # live gains: the PID's arrays and the config that states them change together
+    low.set_gains(kp=0.3, ki=12.0)
+    assert (low.config.pid.kp, low.config.pid.ki, low.config.pid.kd) == (0.3, 12.0, 0.0)
+    assert np.array_equal(low.pid.gains.kp, np.full(7, 0.3))
+    assert np.array_equal(low.pid.gains.ki, np.full(7, 12.0))
+    with pytest.raises(ConfigError):
+        low.set_gains(kd=-1.0)
+    assert low.config.pid.kd == 0.0 and np.array_equal(low.pid.gains.kd, np.zeros(7))
 
 
 def test_the_actuation_section_gives_the_run_bias_and_sigma_tau_in_newton_metres(robot):
