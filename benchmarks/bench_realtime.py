@@ -38,7 +38,7 @@ def main() -> int:
     args = parser.parse_args()
     scenario = load_scenario(args.scenario, parse_overrides(args.set))
     print(
-        f"{args.scenario} {' '.join(args.set)} ({scenario.mpc.formulation}), "
+        f"{args.scenario} {' '.join(args.set)} ({scenario.mpc.ocp.formulation}), "
         f"{args.duration:.1f} s per run, {os.cpu_count()} CPUs, load average "
         f"{' '.join(f'{x:.1f}' for x in os.getloadavg())}"
     )

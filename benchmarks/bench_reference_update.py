@@ -17,6 +17,7 @@ import time
 
 import numpy as np
 
+from ffmpc_core.config import OcpConfig
 from ffmpc_core.model_plant import ModelPlant
 from ffmpc_core.mpc import ModelPredictiveController, MpcConfig
 from ffmpc_core.robots import load_robot
@@ -35,7 +36,7 @@ def main() -> int:
     print(f"{'formulation':16} {'N':>3} {'update ms':>9} {'warm start ms':>13}  (thread CPU time)")
     for formulation in FORMULATIONS:
         for horizon, dt in CONFIGURATIONS:
-            config = MpcConfig(formulation=formulation, horizon=horizon, dt=dt)
+            config = MpcConfig(ocp=OcpConfig(formulation=formulation, horizon=horizon, dt=dt))
             task = PolishingTask.pressing(p0, force_ramp=0.1, circle=10.0, stop=0.0)
             mpc = ModelPredictiveController(robot, config, task)
             plant = ModelPlant(robot, formulation, config.contact)
@@ -44,7 +45,7 @@ def main() -> int:
             mpc.step(measurement, 0.0)
             update, warm = [], []
             for k in range(args.steps):
-                t = config.period * (k + 1)
+                t = config.ocp.period * (k + 1)
                 x0 = mpc.predict(mpc.state_from(measurement), t)
                 a = time.thread_time()
                 mpc._update_references(t)

@@ -23,22 +23,29 @@ accept 0.1 rad/s). The price: below ~1 rad/s the "static" friction grows gradual
 (tanh(0.3) = 0.29 of μs at 0.3 rad/s) instead of jumping to μs.
 
 Noise σ_τ. The paper says "a small percentage of the joint torque limits"; the authors' code
-(force_feedback_mpc, demos/polishing) uses 0.01–0.03 N·m. ``noise_fraction`` here defaults to
-1 %; the scenario files use 1e-4 of the limits (``plant.actuation_noise_fraction``: 0.004–0.032
-N·m on the iiwa), the authors' order of magnitude (README "Simulation settings": on seeds
-100–104 the two levels gave the same task errors within 0.1 N).
+(force_feedback_mpc, demos/polishing) uses 0.01–0.03 N·m. ``ActuationConfig.noise_fraction``
+(``plant.actuation_noise_fraction``) is 1e-4 of the limits by default (0.004–0.032 N·m on the
+iiwa), the authors' order of magnitude (README "Simulation settings": on seeds 100–104 it and
+1 % of the limits gave the same task errors within 0.1 N).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, cast
+from typing import cast
 
 import numpy as np
 import numpy.typing as npt
 
+from ffmpc_core.declaration import param
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.sensing import DelayLine
+
+#: Span of the per-run draw of the gain a of eq 31's affine bias (paper VI-C: uniform per joint).
+GAIN_RANGE = (0.8, 1.2)
+#: Span of the per-run draw of the offset b of eq 31's affine bias, N·m (paper VI-C: uniform per
+#: joint).
+OFFSET_RANGE = (-2.0, 2.0)
 
 
 def joint_friction(
@@ -94,6 +101,56 @@ def _per_joint(value: npt.ArrayLike, nv: int, name: str, positive: bool = False)
     return arr
 
 
+@dataclass(frozen=True)
+class ActuationConfig:
+    """Eq 31 as a scenario states it, the same for every joint (the ``plant`` section's
+    ``actuation`` part: ``plant.actuation_random_bias``, ``plant.actuation_delay_cycles``,
+    ``plant.actuation_noise_fraction``, ``plant.static_friction``, ``plant.viscous_friction``,
+    ``plant.friction_velocity``). A run's :class:`ActuationParams` are made from it by
+    :meth:`ActuationParams.from_config` with the bias drawn by :meth:`draw_bias` and σ_τ
+    scaled by the robot's torque limits."""
+
+    random_bias: bool = param(True, "", None, "draw the actuation bias (a, b) per seed (eq 31)")
+    delay_cycles: int = param(1, "cycles", (0, 1000), "actuation delay δs (eq 31)")
+    # the authors' σ_τ (README "Simulation settings")
+    noise_fraction: float = param(1e-4, "", (0.0, 0.99), "σ_τ / torque limit (eq 31)")
+    static_friction: float = param(1.0, "N·m", (0.0, 100.0), "μs (eq 31)")
+    viscous_friction: float = param(0.5, "N·m·s/rad", (0.0, 100.0), "μv (eq 31)")
+    friction_velocity: float = param(1.0, "rad/s", (1e-6, 100.0), "v_s of the tanh friction")
+
+    def __post_init__(self) -> None:
+        if isinstance(self.delay_cycles, bool) or int(self.delay_cycles) != self.delay_cycles:
+            raise ConfigError(f"delay_cycles must be an integer, got {self.delay_cycles!r}")
+        if self.delay_cycles < 0:
+            raise ConfigError("delay_cycles must be >= 0")
+        if not 0.0 <= self.noise_fraction < 1.0:
+            raise ConfigError(f"noise_fraction must lie in [0, 1), got {self.noise_fraction}")
+
+    def draw_bias(self, rng: np.random.Generator, nv: int) -> tuple[np.ndarray, np.ndarray]:
+        """The bias (a, b N·m) of one run, per joint: with ``random_bias``, drawn from ``rng``
+        uniformly in :data:`GAIN_RANGE` × :data:`OFFSET_RANGE` (all gains, then all offsets);
+        without, (1, 0) and nothing drawn."""
+        if not self.random_bias:
+            return np.ones(nv), np.zeros(nv)
+        return draw_bias(rng, nv, GAIN_RANGE, OFFSET_RANGE)
+
+
+def draw_bias(
+    rng: np.random.Generator,
+    nv: int,
+    gain_range: tuple[float, float],
+    offset_range: tuple[float, float],
+) -> tuple[np.ndarray, np.ndarray]:
+    """(a, b) per joint drawn uniformly from ``gain_range × offset_range`` (b in N·m): all
+    gains, then all offsets."""
+    if not isinstance(rng, np.random.Generator):
+        raise ConfigError("rng must be a numpy.random.Generator")
+    (a_lo, a_hi), (b_lo, b_hi) = gain_range, offset_range
+    if not (0.0 < a_lo <= a_hi and b_lo <= b_hi):
+        raise ConfigError(f"bad ranges {gain_range}, {offset_range}")
+    return rng.uniform(a_lo, a_hi, nv), rng.uniform(b_lo, b_hi, nv)
+
+
 @dataclass(frozen=True, eq=False)
 class ActuationParams:
     """Parameters of eq 31, one entry per joint (scalars broadcast).
@@ -143,29 +200,26 @@ class ActuationParams:
             object.__setattr__(self, name, value)
 
     @classmethod
-    def with_random_bias(
+    def from_config(
         cls,
-        rng: np.random.Generator,
+        config: ActuationConfig,
         torque_limit: np.ndarray,
-        gain_range: tuple[float, float] = (0.8, 1.2),
-        offset_range: tuple[float, float] = (-2.0, 2.0),
-        noise_fraction: float = 0.01,
-        **kwargs: Any,
+        gain: np.ndarray,
+        offset: np.ndarray,
     ) -> ActuationParams:
-        """Draw (a, b) per joint uniformly from ``gain_range × offset_range`` (paper: [0.8, 1.2]
-        × [−2, 2] N·m), with σ_τ = ``noise_fraction`` × torque limit (N·m).
-
-        Draw order: all gains, then all offsets.
-        """
-        if not isinstance(rng, np.random.Generator):
-            raise ConfigError("rng must be a numpy.random.Generator")
+        """The per-joint parameters of ``config`` for one run: the bias (a, b N·m) drawn for
+        it (:meth:`ActuationConfig.draw_bias`) and σ_τ = ``noise_fraction`` × the robot's
+        ``torque_limit`` (N·m)."""
         limit = _per_joint(torque_limit, np.size(torque_limit), "torque_limit", positive=True)
-        (a_lo, a_hi), (b_lo, b_hi) = gain_range, offset_range
-        if not (0.0 < a_lo <= a_hi and b_lo <= b_hi) or not 0.0 <= noise_fraction < 1.0:
-            raise ConfigError(f"bad ranges {gain_range}, {offset_range} or {noise_fraction}")
-        gain = rng.uniform(a_lo, a_hi, limit.size)
-        offset = rng.uniform(b_lo, b_hi, limit.size)
-        return cls(gain=gain, offset=offset, torque_noise_std=noise_fraction * limit, **kwargs)
+        return cls(
+            gain=gain,
+            offset=offset,
+            torque_noise_std=config.noise_fraction * limit,
+            delay_cycles=config.delay_cycles,
+            static_friction=config.static_friction,
+            viscous_friction=config.viscous_friction,
+            friction_velocity=config.friction_velocity,
+        )
 
     @classmethod
     def ideal(cls, nv: int, delay_cycles: int = 0) -> ActuationParams:

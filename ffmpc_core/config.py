@@ -106,6 +106,43 @@ LIVE_COST_WEIGHTS = ("posture", "joint_velocity", "torque", "ee_velocity", "forc
 
 
 @dataclass(frozen=True)
+class OcpConfig:
+    """The optimal control problem an MPC solves and how often and how far it solves it (paper
+    VI-B3 and VII-A4 defaults). :class:`~ffmpc_core.mpc.MpcConfig` holds it (``ocp``); the
+    scenario's ``mpc`` section holds it too (``mpc.formulation``, ``mpc.horizon``, …).
+
+    Attributes:
+        formulation: ``"classical"``, ``"torque_feedback"`` or ``"force_feedback"``.
+        horizon: number of OCP nodes N (paper: 5).
+        dt: OCP node duration Δt, s (paper: 3 ms).
+        period: re-planning period of the MPC, s (paper: 500 Hz → 2 ms).
+        max_iterations: SQP iterations per solve (paper: 8).
+        kkt_tolerance: SQP termination tolerance on the KKT residual (paper: 1e-4).
+        cutoff_frequency: low-pass actuation cut-off f_c, Hz (torque-feedback; paper: 50 Hz).
+    """
+
+    formulation: str = param("force_feedback", "", list(FORMULATIONS), "OCP formulation")
+    horizon: int = param(5, "nodes", (1, 1000), "OCP nodes N")
+    dt: float = param(0.003, "s", (1e-5, 1.0), "OCP node duration")
+    period: float = param(
+        0.002, "s", (1e-5, 1.0), "re-planning period (a multiple of plant.time_step)"
+    )
+    max_iterations: int = param(8, "", (1, 1000), "SQP iterations per solve")
+    kkt_tolerance: float = param(1e-4, "", (1e-12, 1.0), "SQP KKT tolerance")
+    cutoff_frequency: float = param(50.0, "Hz", (1e-3, 1e4), "low-pass actuation cut-off f_c")
+
+    def __post_init__(self) -> None:
+        if self.formulation not in FORMULATIONS:
+            raise ConfigError(
+                f"formulation must be one of {FORMULATIONS}, got {self.formulation!r}"
+            )
+        if self.horizon < 1 or self.dt <= 0 or self.period <= 0:
+            raise ConfigError("horizon must be >= 1 and dt, period > 0")
+        if self.cutoff_frequency <= 0 or self.max_iterations < 1 or self.kkt_tolerance <= 0:
+            raise ConfigError("cutoff_frequency, max_iterations, kkt_tolerance must be > 0")
+
+
+@dataclass(frozen=True)
 class ContactConfig:
     """The contact model the OCP assumes at the robot's ``contact`` frame.
 

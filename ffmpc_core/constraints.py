@@ -127,7 +127,7 @@ class ConstraintConfig:
             used all 8 SQP iterations in 74 % of its solves, with 25 in 2.5 % (README).
         kkt_tolerance: termination tolerance of ``SolverCSQP`` on its KKT residual, which
             contains the ADMM's multipliers: at ``eps_abs`` 1e-3 they keep it near 1e-3; with
-            the unconstrained 1e-4 (``MpcConfig.kkt_tolerance``) more solves with an active
+            the unconstrained 1e-4 (``MpcConfig.ocp.kkt_tolerance``) more solves with an active
             bound use all 8 SQP iterations (README: 7.0 % against 2.5 % of the force-capped
             bench case's).
         unconstrained_first: solve with ``SolverSQP`` first and call ``SolverCSQP`` only when

@@ -74,7 +74,7 @@ along −M·q̇ dissipates at any saturation scale.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from enum import IntEnum
 from typing import Protocol
 
@@ -84,7 +84,7 @@ import pinocchio as pin
 
 from ffmpc_core.config import FORMULATIONS
 from ffmpc_core.errors import ConfigError, InputError
-from ffmpc_core.pid import TorquePid
+from ffmpc_core.pid import PidConfig, TorquePid
 from ffmpc_core.plausibility import check_torque
 from ffmpc_core.robots import RobotModel, mass_matrix
 from ffmpc_core.tasks import min_jerk
@@ -107,37 +107,42 @@ class LowLevelMode(IntEnum):
 
 @dataclass(frozen=True)
 class LowLevelConfig:
-    """Parameters of the low-level loop.
+    """Parameters of the low-level loop: the ``pid`` section (:class:`~ffmpc_core.pid.PidConfig`,
+    as it is) with what the loop takes from the MPC, and the safe hold's constants.
 
     Attributes:
         formulation: the MPC's formulation; decides the state x̂ = (q, q̇), (q, q̇, τ̂) or
             (q, q̇, λ̂) the Riccati feedback is computed on.
-        force_dimension: entries of λ̂ (force-feedback).
+        force_dimension: entries of λ̂ (force-feedback; the MPC's ``contact.dimension``).
         riccati_feedback: apply τ* + G·(x̂ − x̂_solve) between solves (off: the paper's scheme).
-        stale_timeout: age of the newest command (s, simulated) beyond which the loop falls back
-            to the safe hold; must exceed the MPC period. The default, 4 ms = two MPC periods,
-            tolerates ONE missed solve: a command is stamped with the time of the measurement
-            it was solved from and, in the graph, arrives up to one period later, so a
-            one-period timeout would trip on every on-time command with any jitter. The hold
-            then engages on the first loop cycle past the timeout: at most 5 ms after the last
-            good command's measurement. An invalid command engages it on the next cycle.
         mpc_period: the MPC's re-planning period, s (only checked against ``stale_timeout``).
-        blend_duration: hold → MPC blend duration, s (minimum-jerk weight).
-        hold_frequency: natural frequency ω/2π of the hold PD, Hz (K_p = ω², K_d = 2ζω).
-        hold_damping_ratio: its damping ratio ζ (1: critically damped).
+        pid: the torque PID and the loop's settings (:class:`~ffmpc_core.pid.PidConfig`), read
+            here:
+
+            * ``stale_timeout``: age of the newest command (s, simulated) beyond which the loop
+              falls back to the safe hold; must exceed ``mpc_period``. The default, 4 ms = two
+              MPC periods, tolerates ONE missed solve: a command is stamped with the time of
+              the measurement it was solved from and, in the graph, arrives up to one period
+              later, so a one-period timeout would trip on every on-time command with any
+              jitter. The hold then engages on the first loop cycle past the timeout: at most
+              5 ms after the last good command's measurement. An invalid command engages it on
+              the next cycle.
+            * ``blend_duration``: hold → MPC blend duration, s (minimum-jerk weight).
+            * ``hold_frequency``: natural frequency ω/2π of the hold PD, Hz (K_p = ω²,
+              K_d = 2ζω); ``hold_damping_ratio``: its damping ratio ζ (1: critically damped).
+            * ``torque_limit_fraction``: fraction of each joint's data-sheet torque limit that
+              τ^d and τ^m are saturated to, in (0, 1] (a cell's own, lower limit; live on the
+              pid node: :meth:`LowLevelController.set_limits`).
+            * ``velocity_guard``: fraction of each joint's velocity limit above which a
+              measured joint speed engages the safe hold (module docstring), in [0, 1]; 0 turns
+              the guard off (the paper's scheme, and the studies' default: a run over a limit
+              is reported, not hidden). Why (README "Faults, the safe hold and plausibility
+              limits"): on the real-time graph the force-feedback MPC's wrist chatter reached
+              1.05× joint A5's velocity limit on a CI machine.
         hold_settle_energy: kinetic energy ½q̇ᵀMq̇ (J) under which the hold latches its posture
             (brake above it; back to brake above 4× it). 2e-3 J: 0.04 rad/s on the iiwa's
             shoulder (M₁₁ ≈ 2.2 kg·m²), far above the wrist's noise jitter (~1e-4 J).
         hold_torque_fraction: fraction of each joint's torque limit the hold may use, in (0, 1].
-        torque_limit_fraction: fraction of each joint's data-sheet torque limit that τ^d and τ^m
-            are saturated to, in (0, 1] (a cell's own, lower limit; live on the pid node:
-            :meth:`LowLevelController.set_limits`).
-        velocity_guard: fraction of each joint's velocity limit above which a measured joint
-            speed engages the safe hold (module docstring), in [0, 1]; 0 turns the guard off
-            (the paper's scheme, and the studies' default: a run over a limit is reported, not
-            hidden). Why (README "Faults, the safe hold and plausibility limits"): on the
-            real-time graph the force-feedback MPC's wrist chatter reached 1.05× joint A5's
-            velocity limit on a CI machine.
         force_hold_time: simulated s a plausible λ̂ is held for the Riccati feedback of
             force-feedback (sample and hold): on a cycle whose λ̂ is missing (None: lost or
             rejected) or not finite, the newest λ̂ at most this old is used; beyond, the cycle
@@ -149,47 +154,30 @@ class LowLevelConfig:
     formulation: str = "force_feedback"
     force_dimension: int = 1
     riccati_feedback: bool = False
-    stale_timeout: float = 0.004
     mpc_period: float = 0.002
-    blend_duration: float = 0.1
-    hold_frequency: float = 4.0
-    hold_damping_ratio: float = 1.0
+    pid: PidConfig = field(default_factory=PidConfig)
     hold_settle_energy: float = 2e-3
     hold_torque_fraction: float = 0.75
     force_hold_time: float = 0.05
-    torque_limit_fraction: float = 1.0
-    velocity_guard: float = 0.0
 
     def __post_init__(self) -> None:
         if self.formulation not in FORMULATIONS:
             raise ConfigError(f"formulation must be one of {FORMULATIONS}")
         if self.force_dimension not in (1, 3):
             raise ConfigError("force_dimension must be 1 or 3")
-        values = (self.stale_timeout, self.mpc_period, self.blend_duration, self.hold_frequency)
-        if not all(math.isfinite(v) for v in values) or self.mpc_period <= 0:
-            raise ConfigError("stale_timeout, mpc_period, blend_duration, hold_frequency: finite")
-        if self.stale_timeout <= self.mpc_period:
+        if not math.isfinite(self.mpc_period) or self.mpc_period <= 0:
+            raise ConfigError(f"mpc_period must be a finite number of s > 0, got {self.mpc_period}")
+        if self.pid.stale_timeout <= self.mpc_period:
             raise ConfigError(
-                f"stale_timeout ({self.stale_timeout} s) must exceed the MPC period "
+                f"stale_timeout ({self.pid.stale_timeout} s) must exceed the MPC period "
                 f"({self.mpc_period} s): an on-time MPC would otherwise look stale"
             )
-        if self.blend_duration < 0 or self.hold_frequency < 0 or self.hold_damping_ratio < 0:
-            raise ConfigError("blend_duration, hold_frequency, hold_damping_ratio must be >= 0")
         if not (math.isfinite(self.hold_settle_energy) and self.hold_settle_energy > 0):
             raise ConfigError("hold_settle_energy must be > 0 J")
         if not 0.0 < self.hold_torque_fraction <= 1.0:
             raise ConfigError("hold_torque_fraction must lie in (0, 1]")
-        if not 0.0 < self.torque_limit_fraction <= 1.0:
-            raise ConfigError(
-                f"torque_limit_fraction must lie in (0, 1] (never above the data sheet), got "
-                f"{self.torque_limit_fraction}"
-            )
         if not (math.isfinite(self.force_hold_time) and self.force_hold_time >= 0):
             raise ConfigError("force_hold_time must be a finite number of s >= 0")
-        if not 0.0 <= self.velocity_guard <= 1.0:
-            raise ConfigError(
-                f"velocity_guard must lie in [0, 1] (0: off), got {self.velocity_guard}"
-            )
 
 
 @dataclass
@@ -239,8 +227,18 @@ class LowLevelController:
 
     Shape: ``reset()``, ``set_command(command, t_command)`` when an MPC output arrives (t_command:
     the time of the measurement it was solved from, s), ``step(measurement, t) -> output`` once
-    per plant cycle; ``engage_hold()`` when the MPC failed.
+    per plant cycle; ``engage_hold()`` when the MPC failed. ``pid`` is the torque PID of eq 33
+    that ``config.pid`` states (:meth:`from_config` builds it so; a test may hand in another).
     """
+
+    @classmethod
+    def from_config(
+        cls, robot: RobotModel, config: LowLevelConfig, dt: float
+    ) -> LowLevelController:
+        """The loop around the torque PID that ``config.pid`` states
+        (:meth:`~ffmpc_core.pid.TorquePid.from_config`: scaled by the robot's torque limits);
+        ``dt``: the control cycle, s."""
+        return cls(robot, config, TorquePid.from_config(config.pid, dt, robot.torque_limit))
 
     def __init__(self, robot: RobotModel, config: LowLevelConfig, pid: TorquePid) -> None:
         if pid.gains.nv != robot.nv:
@@ -255,14 +253,14 @@ class LowLevelController:
             "force_feedback": 2 * nv + config.force_dimension,
         }[config.formulation]
         self._data = robot.create_data()
-        omega = 2.0 * math.pi * config.hold_frequency
-        self._kp, self._kd = omega * omega, 2.0 * config.hold_damping_ratio * omega
+        omega = 2.0 * math.pi * config.pid.hold_frequency
+        self._kp, self._kd = omega * omega, 2.0 * config.pid.hold_damping_ratio * omega
         self._hold_budget = config.hold_torque_fraction * robot.torque_limit
-        self._torque_limit = config.torque_limit_fraction * robot.torque_limit
+        self._torque_limit = config.pid.torque_limit_fraction * robot.torque_limit
         # rad/s, the speeds that engage the safe hold (None: guard off)
         self._guard_speed = (
-            config.velocity_guard * np.abs(robot.velocity_limit)
-            if config.velocity_guard > 0.0
+            config.pid.velocity_guard * np.abs(robot.velocity_limit)
+            if config.pid.velocity_guard > 0.0
             else None
         )
         self.reset()
@@ -273,16 +271,34 @@ class LowLevelController:
         """Change the saturation (fraction of the data-sheet torque limits) and/or the command
         timeout of the safe hold (s) from the next :meth:`step` on; None keeps one. ConfigError
         (nothing changed) for a value :class:`LowLevelConfig` refuses."""
-        c = self.config
-        config = replace(  # validates (__post_init__)
+        c = self.config.pid
+        pid = replace(  # validates (__post_init__)
             c,
             torque_limit_fraction=c.torque_limit_fraction
             if torque_limit_fraction is None
             else float(torque_limit_fraction),
             stale_timeout=c.stale_timeout if stale_timeout is None else float(stale_timeout),
         )
+        config = replace(self.config, pid=pid)  # checks stale_timeout against the MPC period
         self.config = config
-        self._torque_limit = config.torque_limit_fraction * self.robot.torque_limit
+        self._torque_limit = config.pid.torque_limit_fraction * self.robot.torque_limit
+
+    def set_gains(
+        self, kp: float | None = None, ki: float | None = None, kd: float | None = None
+    ) -> None:
+        """Change the PID's K_P, K_I and/or K_D (the same for every joint; None keeps one) from
+        the next :meth:`step` on (:meth:`~ffmpc_core.pid.TorquePid.set_gains`), and
+        ``config.pid`` with them. ConfigError (nothing changed) for a value that is not finite
+        and >= 0."""
+        c = self.config.pid
+        pid = replace(  # validates (__post_init__)
+            c,
+            kp=c.kp if kp is None else float(kp),
+            ki=c.ki if ki is None else float(ki),
+            kd=c.kd if kd is None else float(kd),
+        )
+        self.pid.set_gains(kp=kp, ki=ki, kd=kd)
+        self.config = replace(self.config, pid=pid)
 
     @property
     def torque_limit(self) -> np.ndarray:
@@ -484,7 +500,7 @@ class LowLevelController:
                 self.velocity_guard_trips += 1
                 self.engage_hold()  # too fast: the brake, then a blend from the next command
         age = t - self._command_t
-        fresh = self._command is not None and age <= self.config.stale_timeout + TIME_EPS
+        fresh = self._command is not None and age <= self.config.pid.stale_timeout + TIME_EPS
         blend = 1.0
         if fresh:
             try:
@@ -496,12 +512,12 @@ class LowLevelController:
                 fresh = False
         if fresh:
             if self._mode in (LowLevelMode.HOLD, LowLevelMode.FALLBACK):
-                if self._sent_any and self.config.blend_duration > 0.0:
+                if self._sent_any and self.config.pid.blend_duration > 0.0:
                     self._mode, self._blend_start = LowLevelMode.BLEND, t
                 else:
                     self._mode = LowLevelMode.TRACK
             if self._mode == LowLevelMode.BLEND:
-                blend = min_jerk((t - self._blend_start) / self.config.blend_duration)
+                blend = min_jerk((t - self._blend_start) / self.config.pid.blend_duration)
                 if blend >= 1.0:
                     self._mode = LowLevelMode.TRACK
             if self._mode == LowLevelMode.BLEND:

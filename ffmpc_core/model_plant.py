@@ -272,17 +272,21 @@ def run_model_closed_loop(
 ) -> ClosedLoopLog:
     """Run an MPC against its own formulation's dynamics for ``duration`` s; return the log.
 
-    The MPC re-plans every ``mpc_config.period`` (a whole number of plant steps) and its
+    The MPC re-plans every ``mpc_config.ocp.period`` (a whole number of plant steps) and its
     command is held (zero-order hold) in between. The loop is :func:`ffmpc_core.runner.
     run_scenario`.
     """
     from ffmpc_core.runner import LockstepClock, PeriodicController, run_scenario
 
-    ratio = mpc_config.period / plant_dt
+    ratio = mpc_config.ocp.period / plant_dt
     if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
         raise ConfigError("the MPC period must be a whole number of plant steps")
     plant = ModelPlant(
-        robot, mpc_config.formulation, mpc_config.contact, plant_dt, mpc_config.cutoff_frequency
+        robot,
+        mpc_config.ocp.formulation,
+        mpc_config.contact,
+        plant_dt,
+        mpc_config.ocp.cutoff_frequency,
     )
     plant.reset(robot.q_nominal if q0 is None else q0)
     mpc = ModelPredictiveController(robot, mpc_config, schedule, node_factory=node_factory)

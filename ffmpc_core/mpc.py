@@ -39,12 +39,12 @@ import numpy.typing as npt
 
 from ffmpc_core.config import (
     BACKENDS,
-    FORMULATIONS,
     LIVE_COST_WEIGHTS,
     TORQUE_STATES,
     ContactConfig,
     CostWeights,
     NodeReference,
+    OcpConfig,
 )
 from ffmpc_core.constraints import (
     ConstraintConfig,
@@ -153,18 +153,14 @@ class Schedule(Protocol):
 
 @dataclass(frozen=True)
 class MpcConfig:
-    """Parameters of one MPC (paper VI-B3 and VII-A4 defaults).
+    """Parameters of one MPC.
 
     Attributes:
-        formulation: ``"classical"``, ``"torque_feedback"`` or ``"force_feedback"``.
-        horizon: number of OCP nodes N (paper: 5).
-        dt: OCP node duration Δt, s (paper: 3 ms).
-        period: re-planning period of the MPC, s (paper: 500 Hz → 2 ms).
+        ocp: the problem and its solver: formulation, horizon N, Δt, re-planning period, SQP
+            iterations and tolerance, low-pass cut-off f_c
+            (:class:`~ffmpc_core.config.OcpConfig`; the scenario's ``mpc`` section holds it).
         contact: the contact model the OCP assumes (K, B used by force-feedback only).
         weights: cost weights (eq 25, 28, 29).
-        cutoff_frequency: low-pass actuation cut-off f_c, Hz (torque-feedback; paper: 50 Hz).
-        max_iterations: SQP iterations per solve (paper: 8).
-        kkt_tolerance: SQP termination tolerance on the KKT residual (paper: 1e-4).
         q_reference: posture q̄ of eq 25.1, rad (None: the robot's nominal posture).
         command_delay: known delay between the measurement and the moment the command acts,
             s (the paper's δo = 5 ms). With a delay, the MPC predicts the state at t + δo by
@@ -185,23 +181,17 @@ class MpcConfig:
             ``max_solve_time`` is applied as given: :func:`ffmpc_core.polishing.mpc_config`
             passes it for real-time runs only.
         constrained_iterations: SQP iterations of ``SolverCSQP`` per solve, at most (0:
-            ``max_iterations``, as every lockstep run). The real-time MPC node sets 1 (its graph
-            parameter ``real_time_iterations``, :mod:`ffmpc_ros.mpc_node`): one SQP iteration
-            per tick, the real-time iteration scheme (Diehl et al. 2005), whose QP is still
-            solved to the ADMM's tolerances, so that its plan keeps the linear bounds. The
+            ``ocp.max_iterations``, as every lockstep run). The real-time MPC node sets 1 (its
+            graph parameter ``real_time_iterations``, :mod:`ffmpc_ros.mpc_node`): one SQP
+            iteration per tick, the real-time iteration scheme (Diehl et al. 2005), whose QP is
+            still solved to the ADMM's tolerances, so that its plan keeps the linear bounds. The
             unconstrained ``SolverSQP`` (the screen of ``unconstrained_first``, or the solve
-            with the constraints off) keeps ``max_iterations``.
+            with the constraints off) keeps ``ocp.max_iterations``.
     """
 
-    formulation: str = "force_feedback"
-    horizon: int = 5
-    dt: float = 0.003
-    period: float = 0.002
+    ocp: OcpConfig = field(default_factory=OcpConfig)
     contact: ContactConfig = field(default_factory=ContactConfig)
     weights: CostWeights = field(default_factory=CostWeights)
-    cutoff_frequency: float = 50.0
-    max_iterations: int = 8
-    kkt_tolerance: float = 1e-4
     q_reference: tuple[float, ...] | None = None
     command_delay: float = 0.0
     prediction_step: float = 0.001
@@ -217,16 +207,9 @@ class MpcConfig:
             )
         if self.backend not in BACKENDS:
             raise ConfigError(f"backend must be one of {BACKENDS}, got {self.backend!r}")
-        if self.formulation not in FORMULATIONS:
-            raise ConfigError(
-                f"formulation must be one of {FORMULATIONS}, got {self.formulation!r}"
-            )
-        if self.horizon < 1 or self.dt <= 0 or self.period <= 0:
-            raise ConfigError("horizon must be >= 1 and dt, period > 0")
-        if not 0.0 <= self.command_delay < self.horizon * self.dt or self.prediction_step <= 0:
+        horizon = self.ocp.horizon * self.ocp.dt
+        if not 0.0 <= self.command_delay < horizon or self.prediction_step <= 0:
             raise ConfigError("command_delay must be in [0, horizon·dt), prediction_step > 0")
-        if self.cutoff_frequency <= 0 or self.max_iterations < 1 or self.kkt_tolerance <= 0:
-            raise ConfigError("cutoff_frequency, max_iterations, kkt_tolerance must be > 0")
         if self.constrained_iterations < 0:
             raise ConfigError(
                 f"constrained_iterations must be >= 0 (0: max_iterations), "
@@ -291,28 +274,28 @@ def problem_bounds(robot: RobotModel, config: MpcConfig) -> OcpBounds | None:
     """The hard constraints of ``config``'s formulation (None when they are off)."""
     if not config.constraints.enabled:
         return None
-    return ocp_bounds(robot, config.formulation, config.contact, config.constraints)
+    return ocp_bounds(robot, config.ocp.formulation, config.contact, config.constraints)
 
 
 def _node_factory(
     robot: RobotModel, config: MpcConfig, q_ref: np.ndarray | None
 ) -> Callable[[bool], OcpNode]:
     """A function terminal -> node for the configured formulation (with its constraints)."""
-    args = (robot, config.contact, config.weights, config.dt)
+    args = (robot, config.contact, config.weights, config.ocp.dt)
     bounds = problem_bounds(robot, config)
-    if config.formulation == "classical":
+    if config.ocp.formulation == "classical":
         from ffmpc_core.rigid_contact import make_rigid_contact_node
 
         return lambda terminal: make_rigid_contact_node(
             *args, terminal, q_reference=q_ref, backend=config.backend, bounds=bounds
         )
-    if config.formulation == "torque_feedback":
+    if config.ocp.formulation == "torque_feedback":
         from ffmpc_core.lowpass import make_lowpass_node
 
         return lambda terminal: make_lowpass_node(
             *args,
             terminal,
-            config.cutoff_frequency,
+            config.ocp.cutoff_frequency,
             q_reference=q_ref,
             backend=config.backend,
             bounds=bounds,
@@ -359,7 +342,7 @@ class ModelPredictiveController:
         self._joint_range = JointStateRange.of(
             robot.position_lower, robot.position_upper, robot.velocity_limit
         )
-        self.nodes: list[OcpNode] = [make(False) for _ in range(config.horizon)]
+        self.nodes: list[OcpNode] = [make(False) for _ in range(config.ocp.horizon)]
         self.terminal_node: OcpNode = make(True)
         # bounds of the state-only rows at nodes 1..N as written in the nodes (constraints.py)
         self._node_bounds: np.ndarray | None = None
@@ -372,18 +355,18 @@ class ModelPredictiveController:
             # x₀ = x̂ is fixed: node 0's state-only rows are constants, never constraints.
             free = np.full(self.bounds.n_state_rows, np.inf)
             self.nodes[0].set_state_bounds(-free, free)
-            self._margin_bounds = self.bounds.node_bounds(config.horizon)[0]
+            self._margin_bounds = self.bounds.node_bounds(config.ocp.horizon)[0]
             self._write_node_bounds(self._margin_bounds)
         self.nx = {
             "classical": 2 * nv,
             "torque_feedback": 3 * nv,
             "force_feedback": 2 * nv + self.nc,
-        }[config.formulation]
+        }[config.ocp.formulation]
         self._x0 = np.zeros(self.nx)
         self._x0[:nv] = q_ref
         self._make_problem()
         # One preallocated reference per node (+ terminal, + predictor), filled in place.
-        self._refs = [NodeReference.empty(self.nc) for _ in range(config.horizon + 1)]
+        self._refs = [NodeReference.empty(self.nc) for _ in range(config.ocp.horizon + 1)]
         self._predictor_ref = NodeReference.empty(self.nc)
         self._reference_into = getattr(schedule, "reference_into", None)
         self._predictor = None
@@ -391,19 +374,23 @@ class ModelPredictiveController:
             # Torque-feedback: what acts during the delay is the torque τ̃ already sent, so (q, v)
             # are predicted with the rigid-contact dynamics driven by τ̃; τ is the measured τ̂
             # (torque_state "measured", eq 10/15) or the last τ̃ ("commanded").
-            pred_form = "classical" if config.formulation == "torque_feedback" else None
+            pred_form = "classical" if config.ocp.formulation == "torque_feedback" else None
+            pred_ocp = replace(
+                config.ocp,
+                dt=config.prediction_step,
+                formulation=pred_form or config.ocp.formulation,
+            )
             pred_cfg = replace(
                 config,
-                dt=config.prediction_step,
+                ocp=pred_ocp,
                 command_delay=0.0,
-                formulation=pred_form or config.formulation,
                 constraints=replace(config.constraints, enabled=False),  # only integrated
             )
             self._predictor = _node_factory(robot, pred_cfg, q_ref)(False)
             self._predictor_data = self._predictor.model.createData()
             self._friction_data = robot.create_data()  # the predictor's table friction
-        self._epsilon = interpolation_epsilon(config.period, config.dt)  # eq 15
-        self._alpha = lowpass_alpha(config.cutoff_frequency, config.dt)  # eq 13
+        self._epsilon = interpolation_epsilon(config.ocp.period, config.ocp.dt)  # eq 15
+        self._alpha = lowpass_alpha(config.ocp.cutoff_frequency, config.ocp.dt)  # eq 13
         self.reset()
 
     def _make_problem(self) -> None:
@@ -437,7 +424,7 @@ class ModelPredictiveController:
             if solver is not None:
                 solver.use_filter_line_search = True
                 solver.with_callbacks = False
-        self.unconstrained_solver.termination_tolerance = self.config.kkt_tolerance
+        self.unconstrained_solver.termination_tolerance = self.config.ocp.kkt_tolerance
         #: the solver that gave the last solution (its K, iter, KKT are the command's)
         self.solver: Any = self.constrained_solver or self.unconstrained_solver
 
@@ -459,7 +446,7 @@ class ModelPredictiveController:
         """Change the force-feedback model's K (N/m) and B (N·s/m) in place, for every node and
         the δo predictor, from the next solve (no rebuild of the problem). ``config.contact``
         reads the new values back. ConfigError (nothing changed) for a bad value."""
-        if self.config.formulation != "force_feedback":
+        if self.config.ocp.formulation != "force_feedback":
             raise ConfigError("only the force-feedback formulation has a visco-elastic contact")
         contact = replace(
             self.config.contact,
@@ -488,7 +475,7 @@ class ModelPredictiveController:
             raise ConfigError(
                 f"cost weight {name!r} cannot change in place; these can: {LIVE_COST_WEIGHTS}"
             )
-        if name == "force_rate" and self.config.formulation != "force_feedback":
+        if name == "force_rate" and self.config.ocp.formulation != "force_feedback":
             raise ConfigError("only the force-feedback formulation has the force-rate cost")
         value = float(value)
         if not (np.isfinite(value) and value >= 0.0):
@@ -511,10 +498,10 @@ class ModelPredictiveController:
         nv, robot = self.robot.nv, self.robot
         parts = [self._vector(meas.q, nv, "q"), self._vector(meas.v, nv, "v")]
         self._joint_range.check(parts[0], parts[1])
-        if self.config.formulation == "torque_feedback":
+        if self.config.ocp.formulation == "torque_feedback":
             tau = self._vector(meas.torque, nv, "torque")
             parts.append(check_torque(tau, robot.torque_limit, "torque", MEASURED_TORQUE_FACTOR))
-        elif self.config.formulation == "force_feedback":
+        elif self.config.ocp.formulation == "force_feedback":
             parts.append(check_force(self._vector(meas.force, self.nc, "force")))
         return np.concatenate(parts)
 
@@ -530,9 +517,12 @@ class ModelPredictiveController:
         resuming at full speed from a robot at rest took joint 3 to 1.14× its velocity limit
         after a 50 ms stall of the MPC process mid-circle (real time, ``mpc-stall@1.0+0.05``).
         """
-        if self._prev_t is not None and t - self._prev_t > RESUME_GAP_PERIODS * self.config.period:
+        if (
+            self._prev_t is not None
+            and t - self._prev_t > RESUME_GAP_PERIODS * self.config.ocp.period
+        ):
             lag = self._prev_t - self.task_time(self._prev_t)  # the outages' lag so far
-            pause = lag + (t - self._prev_t) - self.config.period
+            pause = lag + (t - self._prev_t) - self.config.ocp.period
             self.reset()
             self.task_pause = pause
             self._resumed_at = t
@@ -561,7 +551,7 @@ class ModelPredictiveController:
             self._prev_xs = self._prev_us = None
             raise
         if self._predictor is not None:
-            sent = torque if self.config.formulation == "torque_feedback" else us_opt[0]
+            sent = torque if self.config.ocp.formulation == "torque_feedback" else us_opt[0]
             self._sent.append((t, sent.copy()))
         return MpcCommand(
             torque=clipped,
@@ -598,7 +588,7 @@ class ModelPredictiveController:
         for k, x in enumerate(xs):
             pin.framesForwardKinematics(robot.model, data, x[: robot.nq])
             positions[k] = data.oMf[robot.contact_frame_id].translation
-        if self.config.formulation == "force_feedback":
+        if self.config.ocp.formulation == "force_feedback":
             forces = xs[:, 2 * nv : 2 * nv + nc].copy()
         else:
             datas = [*self.problem.runningDatas, self.problem.terminalData]
@@ -612,7 +602,7 @@ class ModelPredictiveController:
         start = self._prev_t + self.config.command_delay
         references = np.array(
             [
-                self._reference(start + k * self.config.dt, NodeReference.empty(nc)).force
+                self._reference(start + k * self.config.ocp.dt, NodeReference.empty(nc)).force
                 for k in range(xs.shape[0])
             ]
         )
@@ -636,7 +626,7 @@ class ModelPredictiveController:
         self._sent = acting + [c for c in self._sent if c[0] > cut]
         steps = int(round(delay / h))
         nv = self.robot.nv
-        torque_feedback = self.config.formulation == "torque_feedback"
+        torque_feedback = self.config.ocp.formulation == "torque_feedback"
         x_full, x = x, (x[: 2 * nv].copy() if torque_feedback else x.copy())
         friction = self.config.contact.friction_coefficient > 0.0
         rigid_force: float | None = None  # the rigid model's normal force of the last step, N
@@ -650,7 +640,7 @@ class ModelPredictiveController:
             if self._predictor.set_reference(ref):
                 self._predictor_data = self._predictor.model.createData()
             if friction:
-                if self.config.formulation == "force_feedback":
+                if self.config.ocp.formulation == "force_feedback":
                     normal_force = self._normal_component(x[2 * nv : 2 * nv + self.nc])
                 else:
                     if rigid_force is None:  # the first step: the force without the drag
@@ -666,7 +656,7 @@ class ModelPredictiveController:
                     self.config.contact,
                 )
             self._predictor.model.calc(self._predictor_data, x, u)
-            if friction and self.config.formulation != "force_feedback":
+            if friction and self.config.ocp.formulation != "force_feedback":
                 rigid_force = self._predicted_rigid_normal_force()
             x = np.array(self._predictor_data.xnext)
         if torque_feedback:
@@ -687,7 +677,7 @@ class ModelPredictiveController:
         beyond the bounds made the ADMM fail to converge), with at most
         ``config.constrained_iterations`` SQP iterations when set (the real-time budget).
         ``self.solver`` is the solver that gave the solution."""
-        maxiter = self.config.max_iterations
+        maxiter = self.config.ocp.max_iterations
         csqp = self.constrained_solver
         screened = 0
         if csqp is None or (self.config.constraints.unconstrained_first and not self._active):
@@ -720,13 +710,15 @@ class ModelPredictiveController:
         if bounds is None:
             return False
         x1 = None
-        if self.config.formulation == "torque_feedback":
+        if self.config.ocp.formulation == "torque_feedback":
             x1 = self._first_step(x0)
         if not bounds.beyond(x0, x1):
             if self._node_bounds is not self._margin_bounds:
                 self._write_node_bounds(self._margin_bounds)
             return False
-        node_bounds, relaxed = bounds.node_bounds(self.config.horizon, x0, x1, self.config.dt)
+        node_bounds, relaxed = bounds.node_bounds(
+            self.config.ocp.horizon, x0, x1, self.config.ocp.dt
+        )
         self._write_node_bounds(node_bounds)
         return relaxed
 
@@ -805,7 +797,7 @@ class ModelPredictiveController:
 
     def _update_references(self, t: float) -> None:
         """Node k gets the reference at t + kΔt, the terminal node the one at t + NΔt."""
-        dt = self.config.dt
+        dt = self.config.ocp.dt
         changed = False
         refs = self._refs
         for k, node in enumerate(self.nodes):
@@ -817,14 +809,18 @@ class ModelPredictiveController:
 
     def _warm_start(self, x0: np.ndarray, t: float) -> tuple[list, list]:
         """Previous solution shifted by the elapsed time (in node units), x₀ replaced by x̂."""
-        n = self.config.horizon
+        n = self.config.ocp.horizon
         if self._prev_xs is None:
             gravity = self.robot.gravity(x0[: self.robot.nq])
             xs = [x0.copy() for _ in range(n + 1)]
-            u0 = gravity if self.config.formulation != "torque_feedback" else x0[-self.robot.nv :]
+            u0 = (
+                gravity
+                if self.config.ocp.formulation != "torque_feedback"
+                else x0[-self.robot.nv :]
+            )
             return xs, [u0.copy() for _ in range(n)]
         assert self._prev_t is not None and self._prev_us is not None  # set with _prev_xs
-        shift = (t - self._prev_t) / self.config.dt
+        shift = (t - self._prev_t) / self.config.ocp.dt
         grid = np.arange(n + 1) + shift
         xs_arr = _interp_rows(self._prev_xs, grid)
         us_arr = _interp_rows(self._prev_us, grid[:n])
@@ -837,7 +833,7 @@ class ModelPredictiveController:
         nv = self.robot.nv
         K0 = np.array(self.solver.K[0])
         u0 = us[0]
-        if self.config.formulation != "torque_feedback":
+        if self.config.ocp.formulation != "torque_feedback":
             return u0, -K0
         tau0 = x0[2 * nv :]
         tau1 = lowpass_filter_step(tau0, u0, self._alpha)  # eq 13: τ₁* = ατ₀ + (1 − α)w₀*

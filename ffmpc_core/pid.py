@@ -42,9 +42,82 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from ffmpc_core.declaration import param
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.plausibility import MEASURED_TORQUE_FACTOR
 from ffmpc_core.sensing import DelayLine
+
+
+@dataclass(frozen=True)
+class PidConfig:
+    """The torque PID (eq 33) as the scenario states it, and the low-level loop around it
+    (:class:`ffmpc_core.lowlevel.LowLevelController`: safe hold, blend, limits). The scenario's
+    ``pid`` section is this class.
+
+    The gains are the same for every joint; :meth:`TorquePidGains.from_config` makes them
+    per-joint arrays and the anti-windup bound N·m from the robot's torque limits.
+    """
+
+    enabled: bool = param(True, "", None, "torque PID on (off: τ^m = τ^d(t − δo))")
+    kp: float = param(0.1, "", (0.0, 100.0), "K_P (eq 33)")
+    # 1/s; see the module docstring for why these gains
+    ki: float = param(20.0, "1/s", (0.0, 1e5), "K_I (eq 33)")
+    kd: float = param(0.0, "s", (0.0, 100.0), "K_D (eq 33)")
+    integral_fraction: float = param(
+        0.3, "", (0.0, 1.0), "anti-windup bound on K_I·∫e / torque limit"
+    )
+    delay_cycles: int = param(5, "cycles", (0, 1000), "δo (eq 33)")  # δo = 5 ms at 1 kHz
+    # The low-level loop around the PID (ffmpc_core.lowlevel.LowLevelConfig holds this class
+    # and reads these; its docstring says what each does). Inactive while the MPC is on time.
+    # s without a new MPC command → safe hold (2 MPC periods)
+    stale_timeout: float = param(
+        0.004, "s", (1e-5, 10.0), "MPC command age that triggers the safe hold"
+    )
+    # s, hold → MPC torque blend (minimum jerk)
+    blend_duration: float = param(0.1, "s", (0.0, 10.0), "hold → MPC blend")
+    # Hz, natural frequency of the safe hold PD (full mass matrix)
+    hold_frequency: float = param(4.0, "Hz", (0.0, 100.0), "natural frequency of the hold PD")
+    hold_damping_ratio: float = param(1.0, "", (0.0, 10.0), "damping ratio of the hold PD")
+    # Fraction of the data-sheet torque limits τ^d and τ^m are saturated to (live on the pid node).
+    torque_limit_fraction: float = param(
+        1.0,
+        "",
+        (0.01, 1.0),
+        "fraction of the robot's data-sheet torque limits the low level saturates τ^d and τ^m to "
+        "(never above the data sheet)",
+    )
+    # Fraction of the velocity limits above which a measured joint speed engages the safe hold
+    # (ffmpc_core.lowlevel; 0: off, the paper's scheme).
+    velocity_guard: float = param(
+        0.0,
+        "",
+        (0.0, 1.0),
+        "fraction of the velocity limits above which a measured joint speed engages the safe "
+        "hold (0: off)",
+    )
+
+    def __post_init__(self) -> None:
+        if isinstance(self.delay_cycles, bool) or int(self.delay_cycles) != self.delay_cycles:
+            raise ConfigError(f"delay_cycles must be an integer, got {self.delay_cycles!r}")
+        if self.delay_cycles < 0:
+            raise ConfigError(f"delay_cycles must be >= 0, got {self.delay_cycles}")
+        gains = (self.kp, self.ki, self.kd, self.integral_fraction)
+        if not all(math.isfinite(g) and g >= 0.0 for g in gains):
+            raise ConfigError(f"kp, ki, kd, integral_fraction must be finite and >= 0: {gains}")
+        times = (self.stale_timeout, self.blend_duration, self.hold_frequency)
+        if not all(math.isfinite(v) for v in times):
+            raise ConfigError("stale_timeout, blend_duration, hold_frequency: finite")
+        if self.blend_duration < 0 or self.hold_frequency < 0 or self.hold_damping_ratio < 0:
+            raise ConfigError("blend_duration, hold_frequency, hold_damping_ratio must be >= 0")
+        if not 0.0 < self.torque_limit_fraction <= 1.0:
+            raise ConfigError(
+                f"torque_limit_fraction must lie in (0, 1] (never above the data sheet), got "
+                f"{self.torque_limit_fraction}"
+            )
+        if not 0.0 <= self.velocity_guard <= 1.0:
+            raise ConfigError(
+                f"velocity_guard must lie in [0, 1] (0: off), got {self.velocity_guard}"
+            )
 
 
 def _per_joint(value: npt.ArrayLike, nv: int, name: str) -> np.ndarray:
@@ -83,6 +156,13 @@ class TorquePidGains:
     def nv(self) -> int:
         """Number of joints the gains are for."""
         return int(self.kp.size)
+
+    @classmethod
+    def from_config(cls, config: PidConfig, torque_limit: np.ndarray) -> TorquePidGains:
+        """The gains of ``config`` for a robot whose joints' torque limits are
+        ``torque_limit`` (N·m): the same K_P, K_I, K_D per joint, integral limit =
+        ``integral_fraction`` × torque limit."""
+        return cls.default(torque_limit, config.kp, config.ki, config.kd, config.integral_fraction)
 
     @classmethod
     def default(
@@ -145,6 +225,19 @@ class TorquePid:
         self._integral_bound = self._bound(gains)
         self._previous_measured = np.zeros(nv)
         self._t_previous: float | None = None
+
+    @classmethod
+    def from_config(cls, config: PidConfig, dt: float, torque_limit: np.ndarray) -> TorquePid:
+        """Eq 33 as ``config`` states it (gains, δo, on/off) on a robot with these joint torque
+        limits (N·m; they scale the anti-windup bound and the plausibility check); ``dt``: the
+        cycle, s."""
+        return cls(
+            TorquePidGains.from_config(config, torque_limit),
+            dt,
+            delay_cycles=config.delay_cycles,
+            enabled=config.enabled,
+            torque_limit=torque_limit,
+        )
 
     @staticmethod
     def _bound(gains: TorquePidGains) -> np.ndarray:

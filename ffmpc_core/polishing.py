@@ -41,10 +41,9 @@ from ffmpc_core.metrics import (
     push_phase_windows,
 )
 from ffmpc_core.mpc import MpcConfig
-from ffmpc_core.pid import TorquePid, TorquePidGains
 from ffmpc_core.robots import RobotModel, ToolLoad, load_robot, with_tool_load
 from ffmpc_core.scenario import COMMAND_DELAY_MEASURED, COMMAND_DELAY_PID, Scenario
-from ffmpc_core.sensing import ForceSensingModel, SensingModel, SensingParams
+from ffmpc_core.sensing import ForceSensingModel, JointSensingModel
 from ffmpc_core.sensing import measured_force as measured_force  # (its home until issue 27)
 from ffmpc_core.tasks import ForceSquareTask, LiveTask, PhaseWeights, PolishingTask
 from ffmpc_core.wrist_ft import (
@@ -87,7 +86,7 @@ def device_generator(seed: int, device: str) -> np.random.Generator:
 
 def steps_per_mpc_period(scenario: Scenario) -> int:
     """mpc.period in plant steps (ConfigError unless a whole number >= 1)."""
-    every = scenario.mpc.period / scenario.plant.time_step
+    every = scenario.mpc.ocp.period / scenario.plant.time_step
     if abs(every - round(every)) > 1e-9 or round(every) < 1:
         raise ConfigError("mpc.period must be a whole number of plant steps")
     return int(round(every))
@@ -154,11 +153,7 @@ def draw_run(scenario: Scenario, robot: RobotModel, rng: np.random.Generator) ->
     tilt = np.deg2rad(plant.table_tilt_deg)
     if plant.random_tilt_deg > 0:
         tilt = np.deg2rad(rng.uniform(-plant.random_tilt_deg, plant.random_tilt_deg))
-    if plant.actuation_random_bias:
-        params = ActuationParams.with_random_bias(rng, robot.torque_limit)
-        gain, offset = params.gain, params.offset
-    else:
-        gain, offset = np.ones(robot.nv), np.zeros(robot.nv)
+    gain, offset = plant.actuation.draw_bias(rng, robot.nv)
     return RunDraws(float(tilt), tuple(map(float, gain)), tuple(map(float, offset)))
 
 
@@ -177,21 +172,13 @@ def mpc_config(scenario: Scenario, real_time: bool = False) -> MpcConfig:
             "studies and `ffmpc run` do)"
         )
     return MpcConfig(
-        formulation=m.formulation,
-        horizon=m.horizon,
-        dt=m.dt,
-        period=m.period,
+        ocp=m.ocp,
         contact=m.contact,
         weights=m.cost_weights(),
-        cutoff_frequency=m.cutoff_frequency,
-        max_iterations=m.max_iterations,
-        kkt_tolerance=m.kkt_tolerance,
         backend=m.backend,
         torque_state=m.torque_state,
         constraints=m.constraints if real_time else replace(m.constraints, max_solve_time=0.0),
-        command_delay=scenario.pid.delay_cycles * scenario.plant.time_step
-        if m.delay_compensation
-        else 0.0,
+        command_delay=command_delay(scenario) if m.delay_compensation else 0.0,
     )
 
 
@@ -219,7 +206,7 @@ def measure_mpc_step_time(scenario: Scenario, robot: RobotModel, steps: int = 60
     config = mpc_config(provisional)
     p0 = robot.contact_placement(robot.q_nominal).translation
     task = PolishingTask.pressing(p0, force_ramp=0.1, circle=10.0, stop=0.0)
-    log = run_model_closed_loop(robot, config, task, duration=steps * config.period)
+    log = run_model_closed_loop(robot, config, task, duration=steps * config.ocp.period)
     return float(np.median(log.step_time[1:]))
 
 
@@ -250,7 +237,7 @@ def resolve_command_delay(
         cycles = int(math.ceil(measured / dt - 1e-9))  # 0.004 / 0.001 is 4.000000000000001
         if cycles * dt < measured:
             cycles += 1
-        horizon = scenario.mpc.horizon * scenario.mpc.dt
+        horizon = scenario.mpc.ocp.horizon * scenario.mpc.ocp.dt
         if scenario.mpc.delay_compensation and cycles * dt >= horizon:
             raise ConfigError(
                 f"measured δo {measured * 1e3:.2f} ms rounds up to {cycles * dt * 1e3:.0f} ms, "
@@ -355,15 +342,9 @@ def force_pipeline(
     return WristForceSensing(sensor, wrist_compensator(scenario, robot, calibration), contact)
 
 
-def joint_sensing_model(scenario: Scenario, nv: int, rng: np.random.Generator) -> SensingModel:
-    """Eq 30: the joint sensor (δs, σ_q, σ_q̇ of the ``joint_sensor`` section)."""
-    js = scenario.joint_sensor
-    params = SensingParams(
-        delay_cycles=js.delay_cycles,
-        position_noise_std=js.position_noise_std,
-        velocity_noise_std=js.velocity_noise_std,
-    )
-    return SensingModel(params, nv, 0, rng)
+def joint_sensing_model(scenario: Scenario, nv: int, rng: np.random.Generator) -> JointSensingModel:
+    """Eq 30: the joint sensor of the ``joint_sensor`` section (δs, σ_q, σ_q̇)."""
+    return JointSensingModel(scenario.joint_sensor, nv, rng)
 
 
 def force_sensing_model(scenario: Scenario, rng: np.random.Generator) -> ForceSensingModel:
@@ -376,55 +357,36 @@ def force_sensing_model(scenario: Scenario, rng: np.random.Generator) -> ForceSe
 def actuation_model(
     scenario: Scenario, robot: RobotModel, draws: RunDraws, rng: np.random.Generator
 ) -> ActuationModel:
-    """Eq 31 with the run's drawn bias (a, b) and the ``plant`` section's noise and friction."""
-    p = scenario.plant
-    return ActuationModel(
-        ActuationParams(
-            gain=np.array(draws.actuation_gain),
-            offset=np.array(draws.actuation_offset),
-            torque_noise_std=p.actuation_noise_fraction * robot.torque_limit,
-            delay_cycles=p.actuation_delay_cycles,
-            static_friction=p.static_friction,
-            viscous_friction=p.viscous_friction,
-            friction_velocity=p.friction_velocity,
-        ),
-        rng,
+    """Eq 31 of the ``plant`` section's actuation, with the run's drawn bias (a, b) and σ_τ
+    scaled by the robot's torque limits."""
+    params = ActuationParams.from_config(
+        scenario.plant.actuation,
+        robot.torque_limit,
+        np.array(draws.actuation_gain),
+        np.array(draws.actuation_offset),
     )
-
-
-def torque_pid(scenario: Scenario, robot: RobotModel) -> TorquePid:
-    """Eq 33 with the ``pid`` section's gains and δo."""
-    c = scenario.pid
-    gains = TorquePidGains.default(robot.torque_limit, c.kp, c.ki, c.kd, c.integral_fraction)
-    return TorquePid(
-        gains,
-        scenario.plant.time_step,
-        delay_cycles=c.delay_cycles,
-        enabled=c.enabled,
-        torque_limit=robot.torque_limit,
-    )
+    return ActuationModel(params, rng)
 
 
 def lowlevel_config(scenario: Scenario) -> LowLevelConfig:
-    """The low-level loop's parameters (``pid`` section, and the MPC's formulation/feedback)."""
-    c, m = scenario.pid, scenario.mpc
+    """The low-level loop's parameters: the ``pid`` section as it is, with the MPC's
+    formulation, period, force dimension and Riccati feedback."""
+    m = scenario.mpc
     return LowLevelConfig(
-        formulation=m.formulation,
+        formulation=m.ocp.formulation,
         force_dimension=m.contact.dimension,
         riccati_feedback=m.riccati_feedback,
-        stale_timeout=c.stale_timeout,
-        mpc_period=m.period,
-        blend_duration=c.blend_duration,
-        hold_frequency=c.hold_frequency,
-        hold_damping_ratio=c.hold_damping_ratio,
-        torque_limit_fraction=c.torque_limit_fraction,
-        velocity_guard=c.velocity_guard,
+        mpc_period=m.ocp.period,
+        pid=scenario.pid,
     )
 
 
 def lowlevel_controller(scenario: Scenario, robot: RobotModel) -> LowLevelController:
-    """The low-level loop (hold/blend/track/fallback) around the scenario's torque PID."""
-    return LowLevelController(robot, lowlevel_config(scenario), torque_pid(scenario, robot))
+    """The low-level loop (hold/blend/track/fallback) around the scenario's torque PID (eq 33,
+    scaled by the robot's torque limits)."""
+    return LowLevelController.from_config(
+        robot, lowlevel_config(scenario), scenario.plant.time_step
+    )
 
 
 class PolishingLog:

@@ -35,7 +35,7 @@ from ffmpc_core.mpc import ModelPredictiveController, MpcCommand, MpcMeasurement
 from ffmpc_core.plausibility import check_force, torque_plausible
 from ffmpc_core.polishing import PolishingLog
 from ffmpc_core.robots import RobotModel
-from ffmpc_core.sensing import SensingModel
+from ffmpc_core.sensing import JointSensingModel
 from ffmpc_core.wrist_ft import ForcePipeline
 
 __all__ = ["LowLevelStage", "MpcDecision", "MpcStage", "PolishingLoop", "PolishingReading"]
@@ -108,7 +108,7 @@ class MpcStage:
     def __init__(self, mpc: ModelPredictiveController, robot: RobotModel) -> None:
         self.mpc = mpc
         self.robot = robot
-        self.formulation = mpc.config.formulation
+        self.formulation = mpc.config.ocp.formulation
         self.failures = 0
         self.constraint_failures = 0
         self.relaxed_solves = 0  # solves from an x̂ beyond a bound (relaxed bounds)
@@ -208,7 +208,7 @@ class PolishingLoop:
         self,
         robot: RobotModel,
         contact: ContactConfig,
-        joint_sensing: SensingModel,
+        joint_sensing: JointSensingModel,
         force_sensing: ForcePipeline,
         actuation: ActuationModel,
         log: PolishingLog,
@@ -239,7 +239,7 @@ class PolishingLoop:
         """What the controllers read at cycle k (t in s): the sensing models of eq 30 and 32
         applied to the plant's state, with the injected faults."""
         active = active_kinds(self.faults, t) if self.faults else {}
-        q_hat, v_hat, _ = self.joint_sensing.step(state.q, state.v)
+        q_hat, v_hat = self.joint_sensing.step(state.q, state.v)
         f_hat = self.force_sensing.measure(state.q, state.v, state.wrench_world, q_hat, v_hat)
         # What the controllers read this cycle (faults change only this).
         tau_read, f_read = self.tau_hat, f_hat

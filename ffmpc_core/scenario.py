@@ -33,10 +33,20 @@ from typing import Any, Generic, TypeVar, Union, get_args, get_origin, get_type_
 import numpy as np
 import yaml
 
-from ffmpc_core.config import BACKENDS, FORMULATIONS, TORQUE_STATES, ContactConfig, CostWeights
+from ffmpc_core.actuation import ActuationConfig
+from ffmpc_core.config import (
+    BACKENDS,
+    FORMULATIONS,
+    TORQUE_STATES,
+    ContactConfig,
+    CostWeights,
+    OcpConfig,
+)
 from ffmpc_core.constraints import ConstraintConfig
 from ffmpc_core.declaration import FieldDecl, declaration, param
 from ffmpc_core.errors import ConfigError
+from ffmpc_core.pid import PidConfig
+from ffmpc_core.sensing import JointSensorConfig
 
 SECTIONS = ("plant", "joint_sensor", "ft_sensor", "mpc", "pid")
 #: Simulators of the plant (``plant.engine``): the PyBullet plant (:class:`sim_bridge.plant.Plant`)
@@ -138,7 +148,8 @@ class TaskSection:
 
 @dataclass(frozen=True)
 class PlantSection:
-    """The simulated plant: step, table, actuation model (eq 31) and pushes."""
+    """The simulated plant: engine, step, table, actuation model (eq 31), pushes, tool and
+    reflexes."""
 
     # PLANT_ENGINES
     engine: str = param(
@@ -158,15 +169,10 @@ class PlantSection:
     table_stiffness: float = param(1e4, "N/m", (1.0, 1e9), "table contact stiffness")
     table_damping: float = param(1e2, "N·s/m", (0.0, 1e6), "table contact damping")
     table_friction: float = param(0.5, "", (0.0, 10.0), "table Coulomb friction coefficient")
-    actuation_random_bias: bool = param(
-        True, "", None, "draw the actuation bias (a, b) per seed (eq 31)"
-    )
-    actuation_delay_cycles: int = param(1, "cycles", (0, 1000), "actuation delay δs (eq 31)")
-    # the authors' σ_τ (README "Simulation settings")
-    actuation_noise_fraction: float = param(1e-4, "", (0.0, 0.99), "σ_τ / torque limit (eq 31)")
-    static_friction: float = param(1.0, "N·m", (0.0, 100.0), "μs (eq 31)")
-    viscous_friction: float = param(0.5, "N·m·s/rad", (0.0, 100.0), "μv (eq 31)")
-    friction_velocity: float = param(1.0, "rad/s", (1e-6, 100.0), "v_s of the tanh friction")
+    #: eq 31 (ffmpc_core.actuation.ActuationConfig); its parameters are named
+    #: plant.actuation_random_bias, plant.actuation_delay_cycles, plant.actuation_noise_fraction,
+    #: plant.static_friction, plant.viscous_friction, plant.friction_velocity (SECTION_NAMES)
+    actuation: ActuationConfig = field(default_factory=ActuationConfig)
     push_enabled: bool = param(False, "", None, "apply an external push on the tool")
     push_time: float = param(0.0, "s", (0.0, 3600.0), "push start")
     push_force: tuple[float, float, float] = param(
@@ -193,15 +199,6 @@ class PlantSection:
         "the robot's own reflexes: stop on a data-sheet limit or missing commands, run aborted "
         "(false: crossings reported only)",
     )
-
-
-@dataclass(frozen=True)
-class JointSensorSection:
-    """The joint measurement model (eq 30): delay and noise."""
-
-    delay_cycles: int = param(1, "cycles", (0, 1000), "sensing delay δs (eq 30)")
-    position_noise_std: float = param(1e-3, "rad", (0.0, 1.0), "σ_q (eq 30)")
-    velocity_noise_std: float = param(1e-3, "rad/s", (0.0, 10.0), "σ_q̇ (eq 30)")
 
 
 @dataclass(frozen=True)
@@ -269,17 +266,14 @@ class ForceSensorSection:
 
 @dataclass(frozen=True)
 class MpcSection:
-    """The MPC: formulation, horizon, solver, δo, contact model and cost weights."""
+    """The MPC: its problem and solver (``ocp``), δo, contact model, constraints and the cost
+    weights of every formulation; :func:`ffmpc_core.polishing.mpc_config` makes the
+    :class:`~ffmpc_core.mpc.MpcConfig` of the chosen formulation from it."""
 
-    formulation: str = param("force_feedback", "", list(FORMULATIONS), "OCP formulation")
-    horizon: int = param(5, "nodes", (1, 1000), "OCP nodes N")
-    dt: float = param(0.003, "s", (1e-5, 1.0), "OCP node duration")
-    period: float = param(
-        0.002, "s", (1e-5, 1.0), "re-planning period (a multiple of plant.time_step)"
-    )
-    max_iterations: int = param(8, "", (1, 1000), "SQP iterations per solve")
-    kkt_tolerance: float = param(1e-4, "", (1e-12, 1.0), "SQP KKT tolerance")
-    cutoff_frequency: float = param(50.0, "Hz", (1e-3, 1e4), "low-pass actuation cut-off f_c")
+    #: the problem and its solver (ffmpc_core.config.OcpConfig, which MpcConfig holds); its
+    #: parameters are mpc.formulation, mpc.horizon, mpc.dt, mpc.period, mpc.max_iterations,
+    #: mpc.kkt_tolerance, mpc.cutoff_frequency (SECTION_NAMES)
+    ocp: OcpConfig = field(default_factory=OcpConfig)
     riccati_feedback: bool = param(False, "", None, "low level applies τ* + G·Δx between solves")
     # send the plan for t + δo (δo = pid.delay_cycles)
     delay_compensation: bool = param(
@@ -321,7 +315,7 @@ class MpcSection:
     def cost_weights(self, formulation: str | None = None) -> CostWeights:
         """The :class:`~ffmpc_core.config.CostWeights` of ``formulation`` (default: the
         section's)."""
-        values = dict(self.weights.get(formulation or self.formulation, {}))
+        values = dict(self.weights.get(formulation or self.ocp.formulation, {}))
         values.pop("force_phase", None)
         values.pop("ee_position_phase", None)
         try:
@@ -332,49 +326,7 @@ class MpcSection:
     def phase_weight(self, name: str, default: float, formulation: str | None = None) -> float:
         """A task phase weight (``force_phase`` c6, ``ee_position_phase`` c4) of
         ``formulation``, or ``default``."""
-        return float(self.weights.get(formulation or self.formulation, {}).get(name, default))
-
-
-@dataclass(frozen=True)
-class PidSection:
-    """The torque PID (eq 33) and the low-level loop around it (safe hold, blend, limits)."""
-
-    enabled: bool = param(True, "", None, "torque PID on (off: τ^m = τ^d(t − δo))")
-    kp: float = param(0.1, "", (0.0, 100.0), "K_P (eq 33)")
-    # 1/s; see ffmpc_core/pid.py for why these gains
-    ki: float = param(20.0, "1/s", (0.0, 1e5), "K_I (eq 33)")
-    kd: float = param(0.0, "s", (0.0, 100.0), "K_D (eq 33)")
-    integral_fraction: float = param(
-        0.3, "", (0.0, 1.0), "anti-windup bound on K_I·∫e / torque limit"
-    )
-    delay_cycles: int = param(5, "cycles", (0, 1000), "δo (eq 33)")  # δo = 5 ms at 1 kHz
-    # Low-level loop around the PID (ffmpc_core.lowlevel); inactive while the MPC is on time.
-    # s without a new MPC command → safe hold (2 MPC periods)
-    stale_timeout: float = param(
-        0.004, "s", (1e-5, 10.0), "MPC command age that triggers the safe hold"
-    )
-    # s, hold → MPC torque blend (minimum jerk)
-    blend_duration: float = param(0.1, "s", (0.0, 10.0), "hold → MPC blend")
-    # Hz, natural frequency of the safe hold PD (full mass matrix)
-    hold_frequency: float = param(4.0, "Hz", (0.0, 100.0), "natural frequency of the hold PD")
-    hold_damping_ratio: float = param(1.0, "", (0.0, 10.0), "damping ratio of the hold PD")
-    # Fraction of the data-sheet torque limits τ^d and τ^m are saturated to (live on the pid node).
-    torque_limit_fraction: float = param(
-        1.0,
-        "",
-        (0.01, 1.0),
-        "fraction of the robot's data-sheet torque limits the low level saturates τ^d and τ^m to "
-        "(never above the data sheet)",
-    )
-    # Fraction of the velocity limits above which a measured joint speed engages the safe hold
-    # (ffmpc_core.lowlevel; 0: off, the paper's scheme).
-    velocity_guard: float = param(
-        0.0,
-        "",
-        (0.0, 1.0),
-        "fraction of the velocity limits above which a measured joint speed engages the safe "
-        "hold (0: off)",
-    )
+        return float(self.weights.get(formulation or self.ocp.formulation, {}).get(name, default))
 
 
 @dataclass(frozen=True)
@@ -388,10 +340,12 @@ class Scenario:
     )
     task: TaskSection = field(default_factory=TaskSection)
     plant: PlantSection = field(default_factory=PlantSection)
-    joint_sensor: JointSensorSection = field(default_factory=JointSensorSection)
+    #: the joint sensor of eq 30 (ffmpc_core.sensing.JointSensorConfig)
+    joint_sensor: JointSensorConfig = field(default_factory=JointSensorConfig)
     ft_sensor: ForceSensorSection = field(default_factory=ForceSensorSection)
     mpc: MpcSection = field(default_factory=MpcSection)
-    pid: PidSection = field(default_factory=PidSection)
+    #: the torque PID and the low-level loop (ffmpc_core.pid.PidConfig)
+    pid: PidConfig = field(default_factory=PidConfig)
     #: The scenario file it was read from (an absolute path; "" for one built in code): the
     #: node graph gives this file to its nodes as it is (``ffmpc_ros.graph_nodes``). Not a
     #: parameter, and not compared: the values are the scenario.
@@ -1106,13 +1060,27 @@ def _replace_tree(obj: Any, values: dict[str, Any], prefix: str) -> Any:
     return replace(obj, **changes) if changes else obj
 
 
-#: The polishing scenario's schema: its tree is :class:`Scenario` (the sections, the MPC's
+#: The parameter names of the fields of the core classes that a section holds besides its own
+#: fields (``mpc.ocp``, ``plant.actuation``): the section's flat names (:func:`public_name`).
+SECTION_NAMES = {
+    "mpc.ocp.": "mpc.",
+    "plant.actuation.": "plant.actuation_",
+    "plant.actuation.static_friction": "plant.static_friction",
+    "plant.actuation.viscous_friction": "plant.viscous_friction",
+    "plant.actuation.friction_velocity": "plant.friction_velocity",
+}
+#: The polishing scenario's schema: its tree is :class:`Scenario` (the sections, with the core's
+#: configuration classes as they are: the MPC's :class:`~ffmpc_core.config.OcpConfig`,
 #: :class:`~ffmpc_core.config.ContactConfig` and
-#: :class:`~ffmpc_core.constraints.ConstraintConfig` as they are), its names the dotted field
-#: paths. :func:`load_scenario`, :meth:`Scenario.with_overrides`, ``--set``/``--set-file`` and
-#: the node parameters (``ffmpc_ros.params``) all check values with it.
+#: :class:`~ffmpc_core.constraints.ConstraintConfig`, the joint sensor's
+#: :class:`~ffmpc_core.sensing.JointSensorConfig`, the PID's :class:`~ffmpc_core.pid.PidConfig`,
+#: the plant's :class:`~ffmpc_core.actuation.ActuationConfig`), its names the dotted field
+#: paths (those of ``mpc.ocp`` and ``plant.actuation``: :data:`SECTION_NAMES`).
+#: :func:`load_scenario`, :meth:`Scenario.with_overrides`, ``--set``/``--set-file`` and the
+#: node parameters (``ffmpc_ros.params``) all check values with it.
 SCENARIO_SCHEMA: ConfigSchema[Scenario] = ConfigSchema.of(
     Scenario,
+    names=SECTION_NAMES,
     exclude=("name", "source"),
     given=_scenario_given_specs(),
     maps=("mpc.weights",),

@@ -6,8 +6,9 @@ simulation cycle to get the paper's δs = 1 simulation cycle.
 
 Noise parameters are STANDARD DEVIATIONS: ν ~ N(0, σ²) with σ in the signal's unit (the paper
 calls σ_q, σ_q̇ "variances" but writes ν_λ ~ N(0, σ_λ²); we read every σ as a standard
-deviation). Every random number comes from the ``numpy.random.Generator`` handed in; the draws
-happen in a fixed order (q, then q̇, then λ) so the same seed gives the same streams.
+deviation). Every random number comes from the ``numpy.random.Generator`` handed in (the joint
+sensor and the force sensor are separate devices, each with its own); the joint sensor draws in a
+fixed order (q, then q̇) so the same seed gives the same streams.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ffmpc_core.config import ContactConfig
+from ffmpc_core.declaration import param
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.plausibility import check_force, check_tare_offset
 
@@ -131,79 +133,64 @@ def measured_force(wrench_world: np.ndarray, contact: ContactConfig) -> np.ndarr
 
 
 @dataclass(frozen=True)
-class SensingParams:
-    """Parameters of the sensing model (paper VI-B2).
+class JointSensorConfig:
+    """The joint sensor of eq 30 (paper VI-B2); the scenario's ``joint_sensor`` section is this
+    class. The force sensor of eq 32 is :class:`ForceSensingModel` (its σ_λ: the ``ft_sensor``
+    section).
 
     Attributes:
-        delay_cycles: δs in cycles of :meth:`SensingModel.step` (paper: 1 simulation cycle).
-        position_noise_std: σ_q, rad (paper: 1e-3).
-        velocity_noise_std: σ_q̇, rad/s (paper: 1e-3).
-        force_noise_std: σ_λ, N. The paper gives no value; 0.5 N here (1 % of its 50 N
-            force reference); the scenario files use the authors' code's 0.01 N
-            (``ft_sensor.force_noise_std``).
+        delay_cycles: δs in cycles of :meth:`JointSensingModel.step` (paper: 1 simulation cycle).
+        position_noise_std: σ_q, rad, every joint (paper: 1e-3).
+        velocity_noise_std: σ_q̇, rad/s, every joint (paper: 1e-3).
     """
 
-    delay_cycles: int = 1
-    position_noise_std: float | tuple[float, ...] = 1e-3
-    velocity_noise_std: float | tuple[float, ...] = 1e-3
-    force_noise_std: float | tuple[float, ...] = 0.5
+    delay_cycles: int = param(1, "cycles", (0, 1000), "sensing delay δs (eq 30)")
+    position_noise_std: float = param(1e-3, "rad", (0.0, 1.0), "σ_q (eq 30)")
+    velocity_noise_std: float = param(1e-3, "rad/s", (0.0, 10.0), "σ_q̇ (eq 30)")
 
     def __post_init__(self) -> None:
         if isinstance(self.delay_cycles, bool) or int(self.delay_cycles) != self.delay_cycles:
             raise ConfigError(f"delay_cycles must be an integer, got {self.delay_cycles!r}")
         if self.delay_cycles < 0:
             raise ConfigError("delay_cycles must be >= 0")
-        for name in ("position_noise_std", "velocity_noise_std", "force_noise_std"):
-            arr = np.asarray(getattr(self, name), dtype=float)
-            if arr.ndim > 1 or np.any(arr < 0.0) or not np.all(np.isfinite(arr)):
+        for name in ("position_noise_std", "velocity_noise_std"):
+            value = float(getattr(self, name))
+            if not (math.isfinite(value) and value >= 0.0):
                 raise ConfigError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}")
 
 
-class SensingModel:
-    """Delays and noises the true joint state and contact force (eq 30, 32).
+class JointSensingModel:
+    """Delays and noises the true joint state (eq 30).
 
-    ``step(q, v, force)`` is called once per cycle with the simulator's true values and
-    returns the measurements (q̂, q̇̂, λ̂). ``force_dim`` = 0 senses no force (λ̂ is empty).
+    ``step(q, v)`` is called once per cycle with the simulator's true values and returns the
+    measurements (q̂, q̇̂); the noises are drawn from ``rng`` (ν_q, then ν_q̇).
     """
 
-    def __init__(
-        self, params: SensingParams, nv: int, force_dim: int, rng: np.random.Generator
-    ) -> None:
-        if nv <= 0 or force_dim < 0:
-            raise ConfigError(f"need nv > 0 and force_dim >= 0, got {nv}, {force_dim}")
+    def __init__(self, config: JointSensorConfig, nv: int, rng: np.random.Generator) -> None:
+        if nv <= 0:
+            raise ConfigError(f"need nv > 0, got {nv}")
         if not isinstance(rng, np.random.Generator):
             raise ConfigError("rng must be a numpy.random.Generator")
-        self.params = params
+        self.config = config
         self.nv = nv
-        self.force_dim = force_dim
         self.rng = rng
-        self.position_noise_std = _as_std(params.position_noise_std, nv, "position_noise_std")
-        self.velocity_noise_std = _as_std(params.velocity_noise_std, nv, "velocity_noise_std")
-        self.force_noise_std = _as_std(params.force_noise_std, force_dim, "force_noise_std")
-        k = params.delay_cycles
-        self._q = DelayLine(k, nv)
-        self._v = DelayLine(k, nv)
-        self._force = DelayLine(k, force_dim)
+        self.position_noise_std = _as_std(config.position_noise_std, nv, "position_noise_std")
+        self.velocity_noise_std = _as_std(config.velocity_noise_std, nv, "velocity_noise_std")
+        self._q = DelayLine(config.delay_cycles, nv)
+        self._v = DelayLine(config.delay_cycles, nv)
 
     def reset(self) -> None:
         """Forget the history (the next sample fills the delay lines)."""
-        for line in (self._q, self._v, self._force):
-            line.reset()
+        self._q.reset()
+        self._v.reset()
 
-    def step(
-        self, q: np.ndarray, v: np.ndarray, force: np.ndarray | None = None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Measurements (q̂ rad, q̇̂ rad/s, λ̂ N) from the true (q, q̇, λ) of this cycle."""
-        force = np.zeros(0) if force is None and self.force_dim == 0 else force
-        if force is None:
-            raise InputError(f"a force of size {self.force_dim} is required")
+    def step(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Measurements (q̂ rad, q̇̂ rad/s) from the true (q, q̇) of this cycle."""
         q_d = self._q.step(q)
         v_d = self._v.step(v)
-        f_d = self._force.step(force)
-        q_hat, v_hat = joint_state_measurement(
+        return joint_state_measurement(
             q_d, v_d, self.position_noise_std, self.velocity_noise_std, self.rng
         )
-        return q_hat, v_hat, force_measurement(f_d, self.force_noise_std, self.rng)
 
 
 class ForceSensingModel:

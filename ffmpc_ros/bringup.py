@@ -999,7 +999,7 @@ class GraphSession(NodeSession):
         }
         return GraphResult(
             plant_engine=scenario.plant.engine,
-            formulation=scenario.mpc.formulation,
+            formulation=scenario.mpc.ocp.formulation,
             seed=scenario.seed,
             single_process=plan.options.single_process,
             lockstep=True,
@@ -1072,7 +1072,7 @@ def _run_real_time(plan: GraphPlan) -> GraphResult:
     }
     return GraphResult(
         plant_engine=scenario.plant.engine,
-        formulation=scenario.mpc.formulation,
+        formulation=scenario.mpc.ocp.formulation,
         seed=scenario.seed,
         single_process=False,
         lockstep=False,

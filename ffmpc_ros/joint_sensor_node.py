@@ -2,7 +2,7 @@
 
 Subscribes ``/plant/joint_states`` (true q, q̇ and the applied torque τ̂), publishes
 ``/joint_sensor/joint_states`` with the same stamp: q̂ = q(t − δs) + ν_q, q̇̂ = q̇(t − δs) + ν_q̇
-(ffmpc_core.sensing.SensingModel, the generator of the ``joint_sensor`` device), and the effort
+(ffmpc_core.sensing.JointSensingModel, the generator of the ``joint_sensor`` device), and the effort
 τ̂ passed through undelayed (the joint torque sensor is part of the actuation model, eq 31).
 """
 
@@ -49,7 +49,7 @@ class JointSensorNode(GraphNode):
         if got is None:
             return
         _, (q, v, effort) = got
-        q_hat, v_hat, _ = self.model.step(q, v)
+        q_hat, v_hat = self.model.step(q, v)
         out = JointState()
         out.header.stamp = msg.header.stamp
         out.name = self.joint_names

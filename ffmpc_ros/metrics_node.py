@@ -218,7 +218,7 @@ class MetricsNode(GraphNode):
         self.metrics = polishing_run_metrics(self.log.arrays, self.task, table_normal)
         true, measured = self.metrics
         summary = {
-            "formulation": self.scenario.mpc.formulation,
+            "formulation": self.scenario.mpc.ocp.formulation,
             "seed": self.scenario.seed,
             "cycles": self.steps,
             "filled": self.filled,

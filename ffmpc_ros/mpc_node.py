@@ -142,7 +142,7 @@ class MpcNode(GraphNode):
             centre() if centre is not None else np.asarray(self.task.contact_position, float)
         )
         self.every = steps_per_mpc_period(s)
-        self.needs_force = self.config.formulation == "force_feedback"
+        self.needs_force = self.config.ocp.formulation == "force_feedback"
         self._joints: dict[int, tuple] = {}
         self._forces: dict[int, np.ndarray] = {}
         self._last_solve: int | None = None
@@ -265,13 +265,13 @@ class MpcNode(GraphNode):
         task = self.scenario.task
         nominal = bool(self.schedule.nominal_force)
         return live_refusal(
-            name, value, self.config.formulation, task.name, nominal, task.normal_force
+            name, value, self.config.ocp.formulation, task.name, nominal, task.normal_force
         )
 
     def apply_live(self, changes: dict, k: int) -> None:
         """Apply accepted live parameters before the solve of tick k
         (:func:`ffmpc_ros.mpc_live.apply_live_changes`)."""
-        form = self.config.formulation
+        form = self.config.ocp.formulation
 
         def phase_weights() -> tuple[float, float]:
             force = self.get_parameter(f"weights.{form}.force_phase").value
@@ -360,7 +360,7 @@ class MpcNode(GraphNode):
             return
         self._last_solve = k
         self.solve_times.append(command.solve_time)
-        stamp, formulation = self.grid.stamp_of(k), self.config.formulation
+        stamp, formulation = self.grid.stamp_of(k), self.config.ocp.formulation
         self.publisher.publish(
             control_message(stamp, formulation, self.joint_names, command, self.force_axes)
             if self.ros2_control
@@ -380,7 +380,7 @@ class MpcNode(GraphNode):
                 {
                     "t": t,
                     "nodes": positions.shape[0],
-                    "dt": self.config.dt,
+                    "dt": self.config.ocp.dt,
                     "normal_axis": contact.normal_axis,
                     "normal_force": forces[:, column],
                     "reference_force": references[:, column],

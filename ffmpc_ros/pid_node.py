@@ -105,7 +105,7 @@ class PidNode(GraphNode):
         self.every = steps_per_mpc_period(s)
         self.lockstep = bool(self.params["lockstep"])
         self.lockstep_timeout = float(self.params["lockstep_timeout"])
-        self.needs_force = s.mpc.riccati_feedback and s.mpc.formulation == "force_feedback"
+        self.needs_force = s.mpc.riccati_feedback and s.mpc.ocp.formulation == "force_feedback"
         self._joints: dict[int, tuple] = {}
         self._forces: dict[int, np.ndarray] = {}
         self._commands: dict[int, LowLevelCommand] = {}
@@ -207,7 +207,7 @@ class PidNode(GraphNode):
         try:
             fields = control_fields(msg, self.joint_names, self.robot.model.nq, self.force_axes)
             fields.update(
-                low_level_command(fields, self.scenario.mpc.formulation, self.lowlevel.nx)
+                low_level_command(fields, self.scenario.mpc.ocp.formulation, self.lowlevel.nx)
             )
             command = self._checked_command(fields)
         except InputError as exc:
@@ -316,9 +316,7 @@ class PidNode(GraphNode):
 
     def apply_live(self, changes: dict, k: int) -> None:
         """New PID gains and limits from cycle k on (module docstring)."""
-        self.lowlevel.pid.set_gains(
-            kp=changes.get("kp"), ki=changes.get("ki"), kd=changes.get("kd")
-        )
+        self.lowlevel.set_gains(kp=changes.get("kp"), ki=changes.get("ki"), kd=changes.get("kd"))
         self.lowlevel.set_limits(
             torque_limit_fraction=changes.get("torque_limit_fraction"),
             stale_timeout=changes.get("stale_timeout"),

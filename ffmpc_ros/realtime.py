@@ -910,7 +910,7 @@ class RealtimeLoop:
         for name in ("mode", "cycle_latency", "command_arrival", "missed", "v"):  # per cycle
             arrays[name] = rec[name]
         summary = {
-            "formulation": self.scenario.mpc.formulation,
+            "formulation": self.scenario.mpc.ocp.formulation,
             "seed": self.scenario.seed,
             "cycles": self.steps,
             "metrics_true": true.to_dict(),

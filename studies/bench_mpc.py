@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ffmpc_core.config import FORMULATIONS
+from ffmpc_core.config import FORMULATIONS, OcpConfig
 from ffmpc_core.constraints import ConstraintConfig
 from ffmpc_core.errors import ConfigError
 from ffmpc_core.model_plant import run_model_closed_loop
@@ -79,7 +79,9 @@ def case_config(case: str, horizon: int, dt: float) -> MpcConfig:
         max_force=CAPPED_FORCE if case == CAPPED else ConstraintConfig.max_force,
     )
     return MpcConfig(
-        formulation=formulation, horizon=horizon, dt=dt, backend=backend, constraints=constraints
+        ocp=OcpConfig(formulation=formulation, horizon=horizon, dt=dt),
+        backend=backend,
+        constraints=constraints,
     )
 
 
@@ -108,7 +110,7 @@ def bench_case(case: str, horizon: int, dt: float, solves: int) -> dict:
 
     task = _task(robot)
     log = run_model_closed_loop(
-        robot, config, task, duration=solves * config.period, node_factory=factory
+        robot, config, task, duration=solves * config.ocp.period, node_factory=factory
     )
     steps = np.asarray(log.step_time[1:]) * 1e3  # the first step starts cold
     solve = np.asarray(log.solve_time[1:]) * 1e3
@@ -128,8 +130,8 @@ def bench_case(case: str, horizon: int, dt: float, solves: int) -> dict:
         "solve_p90_ms": float(np.percentile(solve, 90)),
         "iterations_median": float(np.median(iters)),
         "iterations_max": int(iters.max()),
-        "cap_hit_fraction": float(np.mean(iters >= config.max_iterations)),
-        "max_iterations": config.max_iterations,
+        "cap_hit_fraction": float(np.mean(iters >= config.ocp.max_iterations)),
+        "max_iterations": config.ocp.max_iterations,
         "final_force_N": float(log.force[-1][-1]),
         "csqp_fraction": float(np.mean(qp > 0)),
         "qp_iterations_median": float(np.median(qp[qp > 0])) if np.any(qp > 0) else 0.0,

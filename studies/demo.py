@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ffmpc_core.config import FORMULATIONS
+from ffmpc_core.config import FORMULATIONS, OcpConfig
 from ffmpc_core.metrics import PolishingMetrics
 from ffmpc_core.model_plant import run_model_closed_loop
 from ffmpc_core.mpc import MpcConfig
@@ -34,7 +34,9 @@ def run_demo(seed: int = 0) -> int:
         f"{'solve median ms':>16} {'iterations max':>15}"
     )
     for formulation in FORMULATIONS:
-        log = run_model_closed_loop(robot, MpcConfig(formulation=formulation), task, task.duration)
+        log = run_model_closed_loop(
+            robot, MpcConfig(ocp=OcpConfig(formulation=formulation)), task, task.duration
+        )
         a = log.arrays()
         held = a["t"] > task.duration - 0.3
         err = np.abs(a["force"][held, -1] - 50.0).max()

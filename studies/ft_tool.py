@@ -64,7 +64,7 @@ def tool_specs(
         for seed in seeds:
             spec = RunSpec(
                 scenario,
-                base.mpc.formulation,
+                base.mpc.ocp.formulation,
                 base.pid.enabled,
                 int(seed),
                 duration,

@@ -260,7 +260,7 @@ def run_polishing(
     pushes = polishing_push_metrics(log.arrays, scenario, task, normal)
     return RunResult(
         scenario=scenario.name,
-        formulation=config.formulation,
+        formulation=config.ocp.formulation,
         pid_enabled=scenario.pid.enabled,
         seed=scenario.seed,
         draws=draws,

@@ -15,7 +15,7 @@ import crocoddyl
 import numpy as np
 import pytest
 
-from ffmpc_core.config import FORMULATIONS, ContactConfig, CostWeights, NodeReference
+from ffmpc_core.config import FORMULATIONS, ContactConfig, CostWeights, NodeReference, OcpConfig
 from ffmpc_core.constraints import (
     CONE_ROWS,
     ConstraintConfig,
@@ -208,7 +208,9 @@ def test_native_constraint_rows_equal_python(robot, formulation, contact, termin
 
 def test_unconstrained_models_have_no_rows(robot):
     for formulation in FORMULATIONS:
-        config = MpcConfig(formulation=formulation, constraints=ConstraintConfig(enabled=False))
+        config = MpcConfig(
+            ocp=OcpConfig(formulation=formulation), constraints=ConstraintConfig(enabled=False)
+        )
         assert problem_bounds(robot, config) is None
         mpc = ModelPredictiveController(robot, config, PolishingTask.pressing(_tool(robot)))
         assert all(n.model.ng == 0 for n in (*mpc.nodes, mpc.terminal_node))
@@ -282,7 +284,9 @@ def test_torque_feedback_solve_from_a_fast_torque_state_is_feasible(robot):
     w₀: the solve must not be infeasible by construction (the first solve of test_mpc's eq-15
     test, refused before the node-2 rule)."""
     mpc = ModelPredictiveController(
-        robot, MpcConfig(formulation="torque_feedback"), PolishingTask.pressing(_tool(robot))
+        robot,
+        MpcConfig(ocp=OcpConfig(formulation="torque_feedback")),
+        PolishingTask.pressing(_tool(robot)),
     )
     q = robot.q_nominal
     cmd = mpc.step(MpcMeasurement(q=q, v=np.zeros(7), torque=robot.gravity(q) + 1.0), 0.1)
@@ -381,7 +385,7 @@ def test_posture_beyond_the_limits_is_stopped_at_the_bounds(robot, formulation):
     meas = MpcMeasurement(
         q=robot.q_nominal, v=v, force=np.array([0.0]), torque=robot.gravity(robot.q_nominal)
     )
-    config = MpcConfig(formulation=formulation, weights=weights)
+    config = MpcConfig(ocp=OcpConfig(formulation=formulation), weights=weights)
     free = replace(config, constraints=replace(config.constraints, enabled=False))
     _, unconstrained = _solve(robot, free, schedule, meas)
     assert b.violation(unconstrained.xs, unconstrained.us)[0] > 0.3  # active, by far
@@ -431,8 +435,7 @@ def _joint4_closed_loop(robot, recovery_time, disturbance, duration=0.1):
     97 % of its velocity limit (its bound: 90 %) and the cost driving it outward: joint 4's
     |q̇|/limit after each step."""
     config = MpcConfig(
-        formulation="classical",
-        period=0.003,
+        ocp=OcpConfig(formulation="classical", period=0.003),
         weights=CostWeights(posture=1.0, state_limit=0.0),
         constraints=ConstraintConfig(recovery_time=recovery_time),
     )
@@ -445,8 +448,8 @@ def _joint4_closed_loop(robot, recovery_time, disturbance, duration=0.1):
     push = np.zeros(nv)
     push[3] = disturbance
     ratios = []
-    for k in range(round(duration / config.period)):
-        cmd = mpc.step(MpcMeasurement(q=x[:nv], v=x[nv:]), k * config.period)
+    for k in range(round(duration / config.ocp.period)):
+        cmd = mpc.step(MpcMeasurement(q=x[:nv], v=x[nv:]), k * config.ocp.period)
         plant.calc(data, x, cmd.torque + push)
         x = np.array(data.xnext)
         ratios.append(x[nv + 3] / limit)
@@ -491,7 +494,7 @@ def test_one_sqp_iteration_per_solve_bounds_the_solve_and_keeps_the_bounds(robot
     capped = replace(full, constrained_iterations=1)
     mpc = ModelPredictiveController(robot, full, schedule)
     reference = [mpc.step(meas, 0.002 * k) for k in range(10)]
-    assert reference[0].iterations == full.max_iterations  # the cap is what bounds it
+    assert reference[0].iterations == full.ocp.max_iterations  # the cap is what bounds it
     mpc = ModelPredictiveController(robot, capped, schedule)
     with pytest.raises(ConstraintViolationError) as info:
         mpc.step(meas, 0.0)

@@ -71,7 +71,7 @@ def test_a_section_reaches_the_nodes_as_rcl_gives_it(tmp_path):
         "mpc:\n  ros__parameters: {contact: {stiffness: 1000}, horizon: 7}\n"
     )
     scenario = load_scenario(path)
-    assert scenario.mpc.contact.stiffness == 1000.0 and scenario.mpc.horizon == 7
+    assert scenario.mpc.contact.stiffness == 1000.0 and scenario.mpc.ocp.horizon == 7
     assert file_parameters(path, "mpc")["contact.stiffness"] == 1000
     assert "contact.stiffness" not in file_parameters(path, "mpc", "/arm1")
     assert file_parameters(path, "pid", "/arm1") == {"base": "polishing", "seed": 3}

@@ -94,7 +94,7 @@ def test_a_value_entry_overrides_the_scenario_files_node_section(tmp_path):
         node = Node("mpc", context=context, automatically_declare_parameters_from_overrides=True)
         assert node.get_parameter("formulation").value == "classical"
         assert node.get_parameter("lockstep").value is True
-        assert node.get_parameter("horizon").value == load_scenario("polishing").mpc.horizon
+        assert node.get_parameter("horizon").value == load_scenario("polishing").mpc.ocp.horizon
         node.destroy_node()
     finally:
         rclpy.shutdown(context=context)
@@ -116,7 +116,7 @@ def test_under_a_namespace_the_node_still_reads_the_scenario_files_section(tmp_p
         assert node.get_fully_qualified_name() == "/arm1/mpc"
         assert node.resolve_topic_name("/clock") == "/arm1/clock"
         assert node.get_parameter("formulation").value == "classical"
-        horizon = load_scenario("polishing").mpc.horizon
+        horizon = load_scenario("polishing").mpc.ocp.horizon
         assert node.get_parameter("horizon").value == horizon  # the file's mpc section
         node.destroy_node()
     finally:
@@ -304,7 +304,7 @@ def test_launch_ros_builds_the_same_nodes_as_ffmpc_launch(tmp_path, name, argume
         assert ("Shutdown" in theirs["on_exit"]) == node.shutdown_on_exit, node.label
         assert mine[1], node.label  # parameters reached the node
         if node.name == "mpc":  # the scenario file's section reached it, in any namespace
-            assert mine[1]["horizon"] == load_scenario("polishing").mpc.horizon
+            assert mine[1]["horizon"] == load_scenario("polishing").mpc.ocp.horizon
 
 
 @needs_launch_ros

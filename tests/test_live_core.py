@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ffmpc_core.config import FORMULATIONS, NodeReference
+from ffmpc_core.config import FORMULATIONS, NodeReference, OcpConfig
 from ffmpc_core.errors import ConfigError, InputError, SolverError
 from ffmpc_core.mpc import ModelPredictiveController, MpcConfig, MpcMeasurement
 from ffmpc_core.pid import TorquePid, TorquePidGains
@@ -66,7 +66,7 @@ def test_live_task_refuses_what_it_cannot_do(robot):
 def test_cost_weights_change_in_place_in_every_formulation(robot, formulation):
     """set_cost_weight changes the cost of the next solve without rebuilding the problem: the
     problem's cost at the same (xs, us) moves, and the model objects stay the same."""
-    config = MpcConfig(formulation=formulation, command_delay=0.005)
+    config = MpcConfig(ocp=OcpConfig(formulation=formulation), command_delay=0.005)
     mpc = ModelPredictiveController(robot, config, _task(robot))
     force = np.array([10.0]) if formulation == "force_feedback" else None
     meas = MpcMeasurement(robot.q_nominal, np.full(7, 0.1), force, robot.gravity(robot.q_nominal))
@@ -117,7 +117,7 @@ def test_a_diverged_solve_or_prediction_never_reaches_the_next_command(robot):
     """A solve whose torque is non-finite raises and records nothing as sent (the δo prediction
     never integrates it) and the next solve starts cold; a non-finite prediction raises, forgets
     the commands in flight, and the next solve starts from the measured state."""
-    config = MpcConfig(formulation="force_feedback", command_delay=0.005)
+    config = MpcConfig(ocp=OcpConfig(formulation="force_feedback"), command_delay=0.005)
     mpc = ModelPredictiveController(robot, config, _task(robot))
     q = robot.q_nominal
     meas = MpcMeasurement(q, np.zeros(7), np.array([5.0]), robot.gravity(q))

@@ -226,7 +226,7 @@ def test_prediction_description_and_markers_decode_with_sane_values(live_run):
     _, client, _ = live_run
     scenario = load_scenario("polishing")
     robot = load_robot(scenario.robot)
-    horizon = mpc_config(scenario).horizon
+    horizon = mpc_config(scenario).ocp.horizon
     predictions = client.messages[topics.resolve(topics.MPC_PREDICTION)]
     assert len(predictions) >= 10
     contact_now = {}
@@ -386,7 +386,7 @@ def test_the_committed_layout_is_the_generated_one_and_fits_the_scenarios():
 
     committed = json.loads(foxglove_layout_path().read_text(encoding="utf-8"))
     assert committed == foxglove_layout()
-    assert mpc_config(load_scenario("polishing")).horizon + 1 == NODES
+    assert mpc_config(load_scenario("polishing")).ocp.horizon + 1 == NODES
     text = json.dumps(committed)
     for topic in (
         topics.resolve(topics.ROBOT_DESCRIPTION),

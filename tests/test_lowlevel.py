@@ -16,7 +16,7 @@ from ffmpc_core.lowlevel import (
     LowLevelMeasurement,
     LowLevelMode,
 )
-from ffmpc_core.pid import TorquePid, TorquePidGains
+from ffmpc_core.pid import PidConfig, TorquePid, TorquePidGains
 from ffmpc_core.tasks import min_jerk
 
 DT = 1e-3
@@ -70,7 +70,9 @@ def test_hold_before_the_first_command_brakes_then_holds_with_the_full_mass_matr
     τ = g + M_h·(−K_p·(q̂ − q_h) − K_d·q̇̂) with the FULL mass matrix M_h = M(q_h); the hold
     torque goes straight to the motors (the PID's δo delay line is bypassed)."""
     rng = np.random.default_rng(2)
-    cfg = LowLevelConfig(formulation="classical", hold_frequency=2.0, hold_damping_ratio=0.7)
+    cfg = LowLevelConfig(
+        formulation="classical", pid=PidConfig(hold_frequency=2.0, hold_damping_ratio=0.7)
+    )
     low = LowLevelController(robot, cfg, _pid(robot, delay=5))
     omega = 2 * np.pi * 2.0
     kp, kd = omega**2, 2 * 0.7 * omega
@@ -124,7 +126,7 @@ def test_hold_braking_is_scaled_within_the_torque_budget(robot):
 
 def test_blend_from_hold_to_mpc_is_a_minimum_jerk_ramp(robot):
     rng = np.random.default_rng(3)
-    cfg = LowLevelConfig(formulation="classical", blend_duration=0.02)
+    cfg = LowLevelConfig(formulation="classical", pid=PidConfig(blend_duration=0.02))
     low = LowLevelController(robot, cfg, _pid(robot))
     q = robot.q_nominal.copy()
     still = LowLevelMeasurement(q, np.zeros(7), robot.gravity(q))
@@ -152,7 +154,9 @@ def test_stale_mpc_falls_back_to_hold_within_two_control_periods(robot):
     """MPC period 2 ms, stale_timeout 2 periods: after the last command at t_c the loop tracks
     until t_c + 4 ms and holds from the next cycle on; fresh commands blend back in."""
     rng = np.random.default_rng(4)
-    cfg = LowLevelConfig(formulation="classical", stale_timeout=0.004, mpc_period=0.002)
+    cfg = LowLevelConfig(
+        formulation="classical", pid=PidConfig(stale_timeout=0.004), mpc_period=0.002
+    )
     low = LowLevelController(robot, cfg, _pid(robot))
     modes = {}
     last_command = 0.020
@@ -246,11 +250,11 @@ def test_desired_and_motor_torques_are_saturated(robot):
 
 def test_config_is_validated():
     with pytest.raises(ConfigError, match="must exceed the MPC period"):
-        LowLevelConfig(stale_timeout=0.002, mpc_period=0.002)
+        LowLevelConfig(pid=PidConfig(stale_timeout=0.002), mpc_period=0.002)
     with pytest.raises(ConfigError):
         LowLevelConfig(formulation="rigid")
     with pytest.raises(ConfigError):
-        LowLevelConfig(blend_duration=-1.0)
+        PidConfig(blend_duration=-1.0)
 
 
 def _in_pybullet(robot, overrides: dict, seed: int, cycles: int, command=None):
@@ -279,7 +283,7 @@ def _in_pybullet(robot, overrides: dict, seed: int, cycles: int, command=None):
         tau_hat = robot.gravity(robot.q_nominal)
         for k in range(cycles):
             s = plant.state()
-            q_hat, v_hat, _ = sensing.step(s.q, s.v)
+            q_hat, v_hat = sensing.step(s.q, s.v)
             sent = None if command is None else command(k, q_hat, v_hat)
             if sent is not None:
                 low.set_command(sent, k * DT)
@@ -351,7 +355,10 @@ def test_missing_force_is_held_for_force_hold_time_then_the_feedback_goes_withou
     uses the newest finite λ̂ while it is at most ``force_hold_time`` old, then τ* alone."""
     rng = np.random.default_rng(3)
     cfg = LowLevelConfig(
-        formulation="force_feedback", riccati_feedback=True, stale_timeout=1.0, force_hold_time=3e-3
+        formulation="force_feedback",
+        riccati_feedback=True,
+        pid=PidConfig(stale_timeout=1.0),
+        force_hold_time=3e-3,
     )
     low = LowLevelController(robot, cfg, _pid(robot))
     cmd = _command(robot, rng, nx=15)
@@ -385,7 +392,7 @@ def test_velocity_guard_drops_a_command_when_a_joint_is_too_fast(robot):
     fast = robot.velocity_limit * np.array([0, 0, 0, 0, 0.95, 0, 0])
     modes = {}
     for guard in (0.0, 0.9):
-        cfg = LowLevelConfig(formulation="classical", velocity_guard=guard)
+        cfg = LowLevelConfig(formulation="classical", pid=PidConfig(velocity_guard=guard))
         low = LowLevelController(robot, cfg, _pid(robot))
         for k in range(8):
             if k % 2 == 0:
@@ -404,7 +411,7 @@ def test_velocity_guard_drops_a_command_when_a_joint_is_too_fast(robot):
         LowLevelMode.BLEND
     ] * 2
     with pytest.raises(ConfigError, match="velocity_guard"):
-        LowLevelConfig(velocity_guard=1.5)
+        PidConfig(velocity_guard=1.5)
 
 
 def _runaway_peak(robot, guard: float) -> tuple[float, int]:

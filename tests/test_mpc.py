@@ -5,7 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from ffmpc_core.config import FORMULATIONS
+from ffmpc_core.config import FORMULATIONS, OcpConfig
 from ffmpc_core.constraints import ConstraintConfig
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.model_plant import ModelPlant, run_model_closed_loop
@@ -31,7 +31,9 @@ HOLD_TOLERANCE = {"classical": 0.05, "torque_feedback": 0.05, "force_feedback": 
 @pytest.mark.parametrize("formulation", FORMULATIONS)
 def test_reaches_and_holds_50_newtons_on_its_own_dynamics(robot, formulation):
     task = press_task(robot)
-    log = run_model_closed_loop(robot, MpcConfig(formulation=formulation), task, task.duration)
+    log = run_model_closed_loop(
+        robot, MpcConfig(ocp=OcpConfig(formulation=formulation)), task, task.duration
+    )
     a = log.arrays()
     held = a["t"] > task.duration - 0.3
     force = a["force"][held, -1]
@@ -53,9 +55,7 @@ def test_feedback_gain_matches_finite_differences_of_the_policy(robot, formulati
     off along v3 with ``constraints.enabled``), so the constraints are off in this test."""
     task = press_task(robot)
     config = MpcConfig(
-        formulation=formulation,
-        max_iterations=100,
-        kkt_tolerance=1e-12,
+        ocp=OcpConfig(formulation=formulation, max_iterations=100, kkt_tolerance=1e-12),
         constraints=ConstraintConfig(enabled=False),
     )
     mpc = ModelPredictiveController(robot, config, task)
@@ -84,13 +84,13 @@ def test_feedback_gain_matches_finite_differences_of_the_policy(robot, formulati
 
 def test_torque_feedback_command_is_eq15(robot):
     task = press_task(robot)
-    config = MpcConfig(formulation="torque_feedback")
+    config = MpcConfig(ocp=OcpConfig(formulation="torque_feedback"))
     mpc = ModelPredictiveController(robot, config, task)
     q = robot.q_nominal
     tau = robot.gravity(q) + 1.0
     cmd = mpc.step(MpcMeasurement(q=q, v=np.zeros(7), torque=tau), 0.1)
-    alpha = np.exp(-2 * np.pi * config.cutoff_frequency * config.dt)
-    epsilon = config.period / config.dt
+    alpha = np.exp(-2 * np.pi * config.ocp.cutoff_frequency * config.ocp.dt)
+    epsilon = config.ocp.period / config.ocp.dt
     tau1 = alpha * tau + (1 - alpha) * cmd.us[0]
     np.testing.assert_allclose(cmd.torque, robot.clip_torque(tau + epsilon * (tau1 - tau)))
     # the gain maps a torque-state deviation through the interpolation
@@ -107,7 +107,7 @@ def test_delay_predictor_integrates_the_commands_in_flight(robot, formulation, t
     Torque-feedback: τ of the prediction is the measured τ̂ (eq 10/15) or the last τ̃ sent."""
     task = press_task(robot)
     config = MpcConfig(
-        formulation=formulation,
+        ocp=OcpConfig(formulation=formulation),
         command_delay=0.004,
         prediction_step=0.001,
         torque_state=torque_state,
@@ -145,7 +145,9 @@ def test_delay_predictor_after_a_tick_without_a_solve(robot, formulation):
     sent within one period before t − δo applied the 6 ms command from 8 ms: with one tick in
     five dropped, joint 5 reached 9× its velocity limit in the polishing run.)"""
     task = press_task(robot)
-    config = MpcConfig(formulation=formulation, command_delay=0.004, prediction_step=0.001)
+    config = MpcConfig(
+        ocp=OcpConfig(formulation=formulation), command_delay=0.004, prediction_step=0.001
+    )
     mpc = ModelPredictiveController(robot, config, task)
     q0 = robot.q_nominal
     meas = MpcMeasurement(q=q0, v=np.full(7, 0.05), force=np.array([5.0]))
@@ -170,7 +172,9 @@ def test_warm_start_shift_interpolates():
 
 def test_force_feedback_contact_parameters_change_live(robot):
     task = press_task(robot)
-    mpc = ModelPredictiveController(robot, MpcConfig(formulation="force_feedback"), task)
+    mpc = ModelPredictiveController(
+        robot, MpcConfig(ocp=OcpConfig(formulation="force_feedback")), task
+    )
     meas = MpcMeasurement(q=robot.q_nominal, v=np.zeros(7), force=np.array([10.0]))
     soft = mpc.step(meas, 0.1).torque
     mpc.set_contact_parameters(5e3, 2e2)
@@ -179,7 +183,7 @@ def test_force_feedback_contact_parameters_change_live(robot):
     assert np.linalg.norm(stiff - soft) > 1e-3
     with pytest.raises(ConfigError):
         ModelPredictiveController(
-            robot, MpcConfig(formulation="classical"), task
+            robot, MpcConfig(ocp=OcpConfig(formulation="classical")), task
         ).set_contact_parameters(1e3, 1e2)
 
 
@@ -195,7 +199,7 @@ def test_bad_measurements_are_rejected(robot):
         with pytest.raises(InputError):
             mpc.step(MpcMeasurement(**{**good, **bad}), 0.0)
     with pytest.raises(ConfigError):
-        MpcConfig(formulation="rigid")
+        MpcConfig(ocp=OcpConfig(formulation="rigid"))
     with pytest.raises(ConfigError):
         replace(MpcConfig(), command_delay=1.0)
 
@@ -211,7 +215,7 @@ def test_schedule_without_reference_into_gives_the_same_commands(robot):
             return self.task.reference(t, dimension)
 
     task = press_task(robot, circle=0.2)
-    config = MpcConfig(formulation="force_feedback", command_delay=0.004)
+    config = MpcConfig(ocp=OcpConfig(formulation="force_feedback"), command_delay=0.004)
     a = ModelPredictiveController(robot, config, task)
     b = ModelPredictiveController(robot, config, AllocatingSchedule(task))
     plant = ModelPlant(robot, "force_feedback", config.contact)

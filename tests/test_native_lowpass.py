@@ -25,7 +25,7 @@ from ocp_helpers import (
 )
 
 from ffmpc_core import _native
-from ffmpc_core.config import BACKENDS, ContactConfig, CostWeights
+from ffmpc_core.config import BACKENDS, ContactConfig, CostWeights, OcpConfig
 from ffmpc_core.errors import ConfigError, InputError, ModelError
 from ffmpc_core.lowpass import IntegratedActionModelLPF, make_lowpass_model, make_lowpass_node
 from ffmpc_core.model_plant import run_model_closed_loop
@@ -306,7 +306,7 @@ def test_closed_loop_on_own_dynamics_native_equals_python(formulation):
     robot = load_robot("iiwa")
     p0 = robot.contact_placement(robot.q_nominal).translation
     task = PolishingTask.pressing(p0, force_ramp=0.1, circle=10.0, stop=0.0)
-    config = MpcConfig(formulation=formulation)
+    config = MpcConfig(ocp=OcpConfig(formulation=formulation))
     mpc = ModelPredictiveController(robot, config, task)
     native_type = {
         "classical": crocoddyl.IntegratedActionModelEuler,
@@ -321,10 +321,12 @@ def test_closed_loop_on_own_dynamics_native_equals_python(formulation):
     bounds = problem_bounds(robot, config)  # the constraints are on by default
 
     def python_nodes(terminal):
-        args = (robot, config.contact, config.weights, config.dt, terminal)
+        args = (robot, config.contact, config.weights, config.ocp.dt, terminal)
         if formulation == "classical":
             return make_rigid_contact_node(*args, backend="python", bounds=bounds)
-        return make_lowpass_node(*args, config.cutoff_frequency, backend="python", bounds=bounds)
+        return make_lowpass_node(
+            *args, config.ocp.cutoff_frequency, backend="python", bounds=bounds
+        )
 
     duration = 0.2
     logs = {

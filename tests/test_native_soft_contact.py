@@ -13,7 +13,7 @@ import crocoddyl
 import numpy as np
 import pytest
 
-from ffmpc_core.config import ContactConfig, NodeReference
+from ffmpc_core.config import ContactConfig, NodeReference, OcpConfig
 from ffmpc_core.errors import ConfigError, FfmpcError, InputError
 from ffmpc_core.model_plant import run_model_closed_loop
 from ffmpc_core.mpc import ModelPredictiveController, MpcConfig
@@ -235,7 +235,7 @@ def test_native_matches_numdiff(robots, robot_name, dim, frame, axis, terminal):
 def test_native_model_is_the_solvers_object_and_updates_in_place(robots):
     """The shooting problem holds the very Python object; in-place updates reach the solver."""
     robot = robots["iiwa"]
-    config = MpcConfig(formulation="force_feedback")
+    config = MpcConfig(ocp=OcpConfig(formulation="force_feedback"))
     p0 = robot.contact_placement(robot.q_nominal).translation
     mpc = ModelPredictiveController(robot, config, PolishingTask.pressing(p0))
     node = mpc.nodes[0]
@@ -264,7 +264,10 @@ def test_native_and_python_backends_give_the_same_closed_loop(robots):
     task = PolishingTask.pressing(p0)
     logs = {
         backend: run_model_closed_loop(
-            robot, MpcConfig(formulation="force_feedback", backend=backend), task, 0.2
+            robot,
+            MpcConfig(ocp=OcpConfig(formulation="force_feedback"), backend=backend),
+            task,
+            0.2,
         ).arrays()
         for backend in ("native", "python")
     }
@@ -279,7 +282,7 @@ def test_native_closed_loop_reaches_and_holds_50_newtons(robots):
     robot = robots["iiwa"]
     p0 = robot.contact_placement(robot.q_nominal).translation
     task = PolishingTask.pressing(p0)
-    config = MpcConfig(formulation="force_feedback", backend="native")
+    config = MpcConfig(ocp=OcpConfig(formulation="force_feedback"), backend="native")
     a = run_model_closed_loop(robot, config, task, task.duration).arrays()
     held = a["t"] > task.duration - 0.3
     force = a["force"][held, -1]

@@ -11,7 +11,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from ffmpc_core.config import ContactConfig, CostWeights
+from ffmpc_core.config import ContactConfig, CostWeights, OcpConfig
 from ffmpc_core.errors import ConfigError
 from ffmpc_core.lowpass import make_lowpass_node
 from ffmpc_core.mpc import ModelPredictiveController, MpcConfig, MpcMeasurement
@@ -39,7 +39,7 @@ def test_measured_torque_state_is_eq10_and_eq15_step_by_step(robot, delay):
     """torque_state "measured": every solve starts from τ₀ = τ̂ (eq 10: the measured joint torque
     is the state) and sends τ̃ = τ̂ + ε(τ₁* − τ̂) with τ₁* = ατ̂ + (1 − α)w₀* (eq 13, 15), with
     or without the δo prediction of (q, v)."""
-    config = MpcConfig(formulation="torque_feedback", command_delay=delay)
+    config = MpcConfig(ocp=OcpConfig(formulation="torque_feedback"), command_delay=delay)
     assert config.torque_state == "measured"  # the paper's choice is the default
     mpc = ModelPredictiveController(robot, config, _press(robot))
     q, v = robot.q_nominal, np.zeros(robot.nv)
@@ -58,7 +58,9 @@ def test_measured_torque_state_is_eq10_and_eq15_step_by_step(robot, delay):
 
 def test_commanded_torque_state_uses_the_last_torque_sent(robot):
     """torque_state "commanded" (the former behaviour): with a δo, τ₀ is the last τ̃ sent."""
-    config = MpcConfig(formulation="torque_feedback", command_delay=0.004, torque_state="commanded")
+    config = MpcConfig(
+        ocp=OcpConfig(formulation="torque_feedback"), command_delay=0.004, torque_state="commanded"
+    )
     mpc = ModelPredictiveController(robot, config, _press(robot))
     q, v = robot.q_nominal, np.zeros(robot.nv)
     tau_hat = robot.gravity(q) + 1.0
@@ -69,7 +71,7 @@ def test_commanded_torque_state_uses_the_last_torque_sent(robot):
     np.testing.assert_allclose(second.state[2 * nv :], first.torque, atol=1e-12)
     assert np.abs(first.torque - tau_hat).max() > 1e-3
     with pytest.raises(ConfigError):
-        MpcConfig(formulation="torque_feedback", torque_state="predicted")
+        MpcConfig(ocp=OcpConfig(formulation="torque_feedback"), torque_state="predicted")
 
 
 def _running_cost(node, x, u) -> float:

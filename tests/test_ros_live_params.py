@@ -142,7 +142,7 @@ def test_torque_limit_set_live_saturates_the_next_cycle_and_a_looser_one_is_refu
     assert not refused.successful and "torque_limit_fraction" in refused.reason
     refused = _set(ros, client, "stale_timeout", 0.001)
     assert not refused.successful and "MPC period" in refused.reason
-    assert node.lowlevel.config.stale_timeout == scenario.pid.stale_timeout
+    assert node.lowlevel.config.pid.stale_timeout == scenario.pid.stale_timeout
     reference = lowlevel_controller(scenario, robot)
     limit = robot.torque_limit
     q, v = robot.q_nominal, np.zeros(7)

@@ -86,7 +86,7 @@ def test_nodes_read_the_run_parameter_file_into_the_runner_scenario(ros, tmp_pat
     assert mpc.scenario.task == reference.task
     assert mpc.scenario.pid.delay_cycles == 4
     assert pid.scenario.pid == reference.pid
-    assert pid.scenario.mpc.period == reference.mpc.period
+    assert pid.scenario.mpc.ocp.period == reference.mpc.ocp.period
 
 
 def test_nodes_given_the_scenario_file_then_the_run_file_build_the_runner_scenario(ros, tmp_path):
@@ -206,5 +206,5 @@ def test_every_shipped_scenario_reaches_every_node_unchanged(name):
     assert mpc.mpc.cost_weights() == scenario.mpc.cost_weights()
     assert mpc.pid.delay_cycles == scenario.pid.delay_cycles
     pid = scenario_from_parameters(NODE_SPECS["pid"], node_parameter_values("pid", scenario), "p")
-    assert pid.mpc.period == scenario.mpc.period
+    assert pid.mpc.ocp.period == scenario.mpc.ocp.period
     assert pid.mpc.riccati_feedback == scenario.mpc.riccati_feedback

@@ -39,7 +39,7 @@ def test_joint_sensor_reproduces_eq_30_with_its_generator(ros):
     assert ros.spin_until(lambda: len(out) == 6)
     model = joint_sensing_model(scenario, 7, device_generator(7, "joint_sensor"))
     for k, msg in enumerate(out):
-        q_hat, v_hat, _ = model.step(q[k], v[k])
+        q_hat, v_hat = model.step(q[k], v[k])
         assert node.cycle_of(msg.header.stamp) == k and list(msg.name) == names
         np.testing.assert_array_equal(msg.position, q_hat)
         np.testing.assert_array_equal(msg.velocity, v_hat)

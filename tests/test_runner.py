@@ -64,8 +64,8 @@ def test_force_feedback_mpc_reaches_and_holds_the_force_target() -> None:
         "polishing",
         {**EARLY_CONTACT, "task.circle_radius": 0.0, "seed": seed, "pid.enabled": True},
     )
-    assert scenario.mpc.formulation == "force_feedback"
-    assert scenario.ft_sensor.force_noise_std == 0.01 and scenario.plant.actuation_random_bias
+    assert scenario.mpc.ocp.formulation == "force_feedback"
+    assert scenario.ft_sensor.force_noise_std == 0.01 and scenario.plant.actuation.random_bias
     result = run_polishing(scenario, duration=1.0)
     t, force = result.log["t"], result.log["force_true"]
     assert np.all(result.log["force_reference"][t >= 0.4] == pytest.approx(50.0))
@@ -87,7 +87,7 @@ def test_default_polishing_keeps_every_joint_below_its_velocity_limit() -> None:
     (rotation 20, angular velocity 0.05) and c_lim 0.01, 1.36; the defaults (rotation 5,
     c_lim 1): 0.841 (docs/explanation/mpc.md). ~5 s wall."""
     scenario = load_scenario("polishing")
-    assert scenario.seed == 0 and scenario.mpc.formulation == "force_feedback"
+    assert scenario.seed == 0 and scenario.mpc.ocp.formulation == "force_feedback"
     assert scenario.mpc.cost_weights().state_limit > 0.0
     result = run_polishing(scenario, duration=5.0)
     assert result.log["t"][-1] >= 4.99

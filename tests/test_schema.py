@@ -118,7 +118,7 @@ def test_a_node_section_is_keyed_by_its_name_or_for_any_namespace(tmp_path):
     bare.write_text(BASED + "mpc:\n" + section)
     anywhere.write_text(BASED + "/**/mpc:\n" + section)
     both.write_text(BASED + "mpc:\n" + section + "/**/mpc:\n" + section)
-    assert load_scenario(anywhere).mpc.horizon == load_scenario(bare).mpc.horizon == 7
+    assert load_scenario(anywhere).mpc.ocp.horizon == load_scenario(bare).mpc.ocp.horizon == 7
     with pytest.raises(ConfigError, match=r"sections 'mpc' and '/\*\*/mpc' are the same node"):
         load_scenario(both)
     with pytest.raises(ConfigError, match=r"unknown node section '/\*\*/planet'"):

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from ffmpc_core.actuation import (
+    ActuationConfig,
     ActuationModel,
     ActuationParams,
     actuation_torque,
@@ -16,7 +17,13 @@ from ffmpc_core.actuation import (
 )
 from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.robots import load_robot
-from ffmpc_core.sensing import DelayLine, SensingModel, SensingParams, delay_cycles
+from ffmpc_core.sensing import (
+    DelayLine,
+    ForceSensingModel,
+    JointSensingModel,
+    JointSensorConfig,
+    delay_cycles,
+)
 
 NV = 7
 
@@ -62,13 +69,13 @@ def test_delay_cycles_of_seconds():
 
 @pytest.mark.parametrize("k", [0, 1, 3])
 def test_sensing_delays_q_v_and_force_by_exactly_k_cycles(k):
-    params = SensingParams(
-        delay_cycles=k, position_noise_std=0.0, velocity_noise_std=0.0, force_noise_std=0.0
-    )
-    model = SensingModel(params, NV, force_dim=3, rng=np.random.default_rng(0))
+    config = JointSensorConfig(delay_cycles=k, position_noise_std=0.0, velocity_noise_std=0.0)
+    model = JointSensingModel(config, NV, rng=np.random.default_rng(0))
+    force = ForceSensingModel(k, 0.0, 3, np.random.default_rng(0))
     signal = [np.arange(NV) + 10.0 * n for n in range(10)]
     for n in range(10):
-        q_hat, v_hat, f_hat = model.step(signal[n], -signal[n], signal[n][:3] + 1.0)
+        q_hat, v_hat = model.step(signal[n], -signal[n])
+        f_hat = force.step(signal[n][:3] + 1.0)
         source = signal[max(n - k, 0)]
         assert np.array_equal(q_hat, source)
         assert np.array_equal(v_hat, -source)
@@ -76,16 +83,15 @@ def test_sensing_delays_q_v_and_force_by_exactly_k_cycles(k):
 
 
 def test_sensing_noise_has_the_given_standard_deviations():
-    params = SensingParams(
-        delay_cycles=0, position_noise_std=1e-3, velocity_noise_std=2e-3, force_noise_std=0.5
-    )
-    model = SensingModel(params, NV, force_dim=1, rng=np.random.default_rng(1))
+    config = JointSensorConfig(delay_cycles=0, position_noise_std=1e-3, velocity_noise_std=2e-3)
+    model = JointSensingModel(config, NV, rng=np.random.default_rng(1))
+    force = ForceSensingModel(0, 0.5, 1, np.random.default_rng(2))
     n = 20000
     q0 = np.linspace(-1.0, 1.0, NV)
-    samples = [model.step(q0, np.zeros(NV), np.array([50.0])) for _ in range(n)]
+    samples = [model.step(q0, np.zeros(NV)) for _ in range(n)]
     q_err = np.array([s[0] for s in samples]) - q0
     v_err = np.array([s[1] for s in samples])
-    f_err = np.array([s[2] for s in samples]) - 50.0
+    f_err = np.array([force.step(np.array([50.0])) for _ in range(n)]) - 50.0
     # The sample std of n Gaussian draws has a relative std of 1/sqrt(2n) = 0.5 %: 3 % is
     # six sigma; the mean's std is σ/sqrt(n).
     for err, sigma in ((q_err, 1e-3), (v_err, 2e-3), (f_err, 0.5)):
@@ -97,12 +103,10 @@ def test_sensing_noise_has_the_given_standard_deviations():
 
 
 def test_same_seed_same_measurements_different_seed_different():
-    params = SensingParams()
-
     def run(seed):
-        model = SensingModel(params, NV, force_dim=3, rng=np.random.default_rng(seed))
+        model = JointSensingModel(JointSensorConfig(), NV, rng=np.random.default_rng(seed))
         return np.concatenate(
-            [np.concatenate(model.step(np.zeros(NV), np.ones(NV), np.ones(3))) for _ in range(50)]
+            [np.concatenate(model.step(np.zeros(NV), np.ones(NV))) for _ in range(50)]
         )
 
     assert np.array_equal(run(4), run(4))
@@ -110,15 +114,15 @@ def test_same_seed_same_measurements_different_seed_different():
 
 
 def test_sensing_rejects_bad_input():
-    model = SensingModel(SensingParams(), NV, force_dim=1, rng=np.random.default_rng(0))
+    model = JointSensingModel(JointSensorConfig(), NV, rng=np.random.default_rng(0))
     with pytest.raises(InputError):
-        model.step(np.zeros(NV), np.zeros(NV))  # missing force
-    with pytest.raises(InputError):
-        model.step(np.zeros(NV - 1), np.zeros(NV), np.zeros(1))
+        model.step(np.zeros(NV - 1), np.zeros(NV))
     with pytest.raises(ConfigError):
-        SensingParams(position_noise_std=-1.0)
+        JointSensorConfig(position_noise_std=-1.0)
     with pytest.raises(ConfigError):
-        SensingModel(SensingParams(), NV, force_dim=1, rng=np.random.RandomState(0))
+        JointSensorConfig(delay_cycles=-1)
+    with pytest.raises(ConfigError):
+        JointSensingModel(JointSensorConfig(), NV, rng=np.random.RandomState(0))
 
 
 def test_joint_friction_matches_its_formula():
@@ -137,7 +141,13 @@ def test_joint_friction_matches_its_formula():
 
 def test_bias_draws_are_uniform_in_the_paper_ranges():
     limit = load_robot("iiwa").torque_limit
-    draws = [ActuationParams.with_random_bias(np.random.default_rng(s), limit) for s in range(400)]
+    config = ActuationConfig(noise_fraction=0.01)
+
+    def draw(seed):
+        gain, offset = config.draw_bias(np.random.default_rng(seed), limit.size)
+        return ActuationParams.from_config(config, limit, gain, offset)
+
+    draws = [draw(s) for s in range(400)]
     gains = np.array([d.gain for d in draws])
     offsets = np.array([d.offset for d in draws])
     assert gains.min() >= 0.8 and gains.max() <= 1.2
@@ -148,9 +158,14 @@ def test_bias_draws_are_uniform_in_the_paper_ranges():
     assert offsets.mean() == pytest.approx(0.0, abs=0.05)
     assert offsets.std() == pytest.approx(4.0 / math.sqrt(12), rel=0.05)
     assert np.allclose(draws[0].torque_noise_std, 0.01 * limit)
-    again = ActuationParams.with_random_bias(np.random.default_rng(0), limit)
+    again = draw(0)
     assert np.array_equal(again.gain, draws[0].gain)
     assert np.array_equal(again.offset, draws[0].offset)
+    # without random_bias: a = 1, b = 0, and nothing is drawn
+    rng = np.random.default_rng(0)
+    gain, offset = ActuationConfig(random_bias=False).draw_bias(rng, limit.size)
+    assert np.array_equal(gain, np.ones(7)) and np.array_equal(offset, np.zeros(7))
+    assert rng.bit_generator.state == np.random.default_rng(0).bit_generator.state
 
 
 @pytest.mark.parametrize("k", [0, 1, 4])

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from ffmpc_core.config import ContactConfig, CostWeights
+from ffmpc_core.config import ContactConfig, CostWeights, OcpConfig
 from ffmpc_core.constraints import ConstraintConfig
 from ffmpc_core.errors import ConfigError, InputError, SolverError
 from ffmpc_core.impact.control import (
@@ -512,10 +512,12 @@ class ForceFeedbackHandover:
         return ModelPredictiveController(
             self.robot,
             MpcConfig(
-                formulation="force_feedback",
-                horizon=cfg.mpc_horizon,
-                dt=cfg.mpc_dt,
-                period=cfg.mpc_period,
+                ocp=OcpConfig(
+                    formulation="force_feedback",
+                    horizon=cfg.mpc_horizon,
+                    dt=cfg.mpc_dt,
+                    period=cfg.mpc_period,
+                ),
                 contact=ContactConfig(stiffness=cfg.prior_stiffness, damping=cfg.prior_damping),
                 weights=cfg.mpc_weights,
                 q_reference=tuple(float(x) for x in measurement.q),

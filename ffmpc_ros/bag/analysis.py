@@ -120,7 +120,7 @@ def bag_study(path: str | os.PathLike) -> BagStudy:
             true, measured = node.metrics if node.metrics is not None else (None, None)
             return BagStudy(
                 bag=str(path),
-                formulation=node.scenario.mpc.formulation,
+                formulation=node.scenario.mpc.ocp.formulation,
                 seed=node.scenario.seed,
                 cycles=node.steps,
                 recorded_cycles=node.recorded,

@@ -107,7 +107,7 @@ def test_a_scenario_file_reads_the_same_in_the_runner_and_in_a_node(tmp_path):
         "/**/mpc:\n  ros__parameters:\n    horizon: 7\n    contact: {stiffness: 1e4}\n"
     )
     runner = load_scenario(path)
-    assert runner.mpc.contact.stiffness == 10000.0 and runner.mpc.horizon == 7
+    assert runner.mpc.contact.stiffness == 10000.0 and runner.mpc.ocp.horizon == 7
     assert runner.plant.random_tilt_deg == load_scenario("polishing").plant.random_tilt_deg
     context = Context()
     rclpy.init(context=context, domain_id=int(os.environ["ROS_DOMAIN_ID"]))

@@ -157,7 +157,7 @@ def test_an_outage_pauses_the_task_clock_of_the_mpc():
 
     mpc = ModelPredictiveController(robot, mpc_config(scenario), Spy())
     meas = MpcMeasurement(q=robot.q_nominal, v=np.zeros(7), force=np.zeros(1))
-    period = mpc.config.period
+    period = mpc.config.ocp.period
     mpc.step(meas, 0.0)
     mpc.step(meas, period)
     assert mpc.task_pause == 0.0
@@ -214,7 +214,7 @@ def test_after_an_outage_the_force_reference_blends_in_from_the_measured_force()
     task = build_task(scenario, robot)
     mpc = ModelPredictiveController(robot, mpc_config(scenario), task)
     t0 = task.circle_start + 0.5  # in contact at 50 N
-    period = mpc.config.period
+    period = mpc.config.ocp.period
     meas = MpcMeasurement(q=robot.q_nominal, v=np.zeros(7), force=np.array([2.0]))
     mpc.step(meas, t0)
     mpc.step(meas, t0 + period)

@@ -324,7 +324,7 @@ def _valid(sub, node, k: int, data) -> object:
             solve_time=0.0,
             converged=True,
         )
-        formulation = node.scenario.mpc.formulation
+        formulation = node.scenario.mpc.ocp.formulation
         return command_message(stamp, formulation, robot.joint_names, k // 2, solution)
     layout = TOPIC_LAYOUTS[sub.topic_name]
     nv = _robot(node).nv
