@@ -29,7 +29,12 @@ from std_msgs.msg import Bool, Float64MultiArray, String
 
 from ffmpc_core.errors import InputError
 from ffmpc_core.metrics import PolishingMetrics
-from ffmpc_core.polishing import PolishingLog, build_task, polishing_run_metrics
+from ffmpc_core.polishing import (
+    PolishingLog,
+    build_task,
+    polishing_run_metrics,
+    steps_per_mpc_period,
+)
 from ffmpc_core.robots import load_robot
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import GraphNode, run_node
@@ -214,7 +219,11 @@ class MetricsNode(GraphNode):
             self._put(self.cycle_of(msg.header.stamp), "tau_motor", arrays[0])
 
     def _finish(self, table_normal: np.ndarray) -> None:
-        """The metrics (``table_normal``: the table's unit normal, world) and the summary."""
+        """The metrics (``table_normal``: the table's unit normal, world) and the summary. A
+        guarded approach's phases are read from the logged measured force at the MPC's ticks
+        (:meth:`~ffmpc_core.polishing.PolishingLog.replay_contact`: the MPC node detected the
+        contact from the same λ̂)."""
+        self.log.replay_contact(steps_per_mpc_period(self.scenario))
         self.metrics = polishing_run_metrics(self.log.arrays, self.task, table_normal)
         true, measured = self.metrics
         summary = {

@@ -761,7 +761,10 @@ class RealtimeLoop:
     def _records(
         self, times: CycleTimes, inbox: CommandInbox, stalls: _StallSchedule, wall_time: float
     ) -> dict[str, Any]:
-        """The raw records of a run (:meth:`results` reads them)."""
+        """The raw records of a run (:meth:`results` reads them). A guarded approach's
+        contact was detected in the MPC process: its phases are read again from the logged
+        measured force (:meth:`~ffmpc_core.polishing.PolishingLog.replay_contact`)."""
+        self.loop.log.replay_contact(self.every)
         log = self.loop.log.arrays
         pid_rejected = self.nodes["pid"].rejected
         return {
