@@ -512,7 +512,6 @@ class PolishingLog:
         log["tau_measured"][k] = tau_measured
         log["tau_motor"][k] = tau_motor
 
-
     def replay_contact(self, every: int) -> float | None:
         """A guarded approach recorded away from its MPC (the graph's metrics node, the
         real-time loop): detect the contact from the logged measured force at the MPC's ticks

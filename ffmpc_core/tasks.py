@@ -469,9 +469,9 @@ class GuardedTask:
     schedule resumes with its contact time moved to t_d, so every later phase (touch, force
     ramp, circle or square signal, stop), its references and its evaluation window
     (:meth:`in_circle`) are shifted by t_d − ``contact_time``. (A release level that re-armed
-    the descent when λ̂ fell back in the touch phase was measured and not kept: the force
-    dips in the first milliseconds of the touch, and the MPC then alternated between its free
-    and contact models for seconds, seed 110 at δo = 0 reaching the circle 5.5 s late.) Phase
+    the descent when λ̂ fell back in the touch phase was measured and not kept: the MPC then
+    alternated between its free and contact models for seconds; seed 110 at δo = 0 started
+    its contact phases at 6.65 s instead of 1.05 s.) Phase
     times read through the wrapper (``circle_start``, …) are the wrapped task's, unshifted.
 
     A contact that never comes (the table lower than ``depth`` below the belief) leaves the

@@ -82,8 +82,8 @@ from ffmpc_core.polishing import (
 from ffmpc_core.polishing_loop import LowLevelStage, MpcStage, PolishingLoop
 from ffmpc_core.robots import RobotModel
 from ffmpc_core.runner import LockstepClock
-from ffmpc_core.tasks import GuardedTask
 from ffmpc_core.scenario import Scenario
+from ffmpc_core.tasks import GuardedTask
 from sim_bridge.scenes import simulated_robot
 
 __all__ = ["RunResult", "run_polishing"]
@@ -303,5 +303,6 @@ def run_polishing(
         push_metrics=pushes,
         reflex=sim.reflex_plant.reflex.report(),
         contact_time=task.detected_at if isinstance(task, GuardedTask) else None,
-        contact_missed=isinstance(task, GuardedTask) and task.contact_missed(mpc.task_time(duration)),
+        contact_missed=isinstance(task, GuardedTask)
+        and task.contact_missed(mpc.task_time(duration)),
     )

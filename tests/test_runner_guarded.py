@@ -14,9 +14,9 @@ import math
 import numpy as np
 import pytest
 
+from ffmpc_core.errors import InputError
 from ffmpc_core.mpc import ModelPredictiveController, MpcMeasurement
 from ffmpc_core.polishing import build_task, mpc_config, scenario_robot
-from ffmpc_core.errors import InputError
 from ffmpc_core.scenario import load_scenario
 from ffmpc_core.tasks import GuardedTask
 from studies.polishing import run_polishing
