@@ -564,6 +564,13 @@ class GuardedTask:
         )
 
     # -- schedule ---------------------------------------------------------------------------
+    def _inner_time(self, t: float) -> float:
+        """The wrapped task's time at t (s): shifted from the detection on, t itself before
+        (the stand-still and the reach are never shifted)."""
+        if self.detected_at is not None and t >= self.detected_at:
+            return t - self.shift
+        return t
+
     def _guarding(self, t: float) -> bool:
         """Whether t (s) is in the descent: after the reach, without a detection before t."""
         if t < self.task.contact_time:
@@ -578,7 +585,7 @@ class GuardedTask:
 
     def in_contact(self, t: float) -> bool:
         """Whether the nodes at t (s) use the contact model."""
-        return not self._guarding(t) and self.task.in_contact(t - self.shift)
+        return not self._guarding(t) and self.task.in_contact(self._inner_time(t))
 
     def ee_position(self, t: float) -> np.ndarray:
         """p̄(t), m, world frame."""
@@ -586,11 +593,11 @@ class GuardedTask:
             out = np.array(self.task.contact_position, dtype=float)
             out[2] = self.descent_height(t)
             return out
-        return self.task.ee_position(t - self.shift)
+        return self.task.ee_position(self._inner_time(t))
 
     def force(self, t: float) -> float:
         """λ̄(t), N: 0 during the descent."""
-        return 0.0 if self._guarding(t) else self.task.force(t - self.shift)
+        return 0.0 if self._guarding(t) else self.task.force(self._inner_time(t))
 
     def in_circle(self, t: np.ndarray) -> np.ndarray:
         """The evaluation window, shifted with the contact phases (empty without a contact)."""
@@ -611,7 +618,7 @@ class GuardedTask:
         """The node reference at t (s) written into ``ref``; returns it. During the descent:
         free space, p̄ on the descending line, all three axes of the position cost active."""
         if not self._guarding(t):
-            return self.task.reference_into(t - self.shift, ref)
+            return self.task.reference_into(self._inner_time(t), ref)
         self.task.reference_into(self.task.contact_time - 1e-9, ref)  # a free node's weights
         ref.ee_position[:] = self.task.contact_position
         ref.ee_position[2] = self.descent_height(t)

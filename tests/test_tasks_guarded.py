@@ -120,8 +120,11 @@ def test_contact_phases_shift_with_the_detection_time():
     window = task.in_circle(t)
     assert t[window][0] == pytest.approx(inner.circle_start + 0.37, abs=1.5e-3)
     assert t[window][-1] == pytest.approx(inner.circle_end + 0.37, abs=1.5e-3)
-    # before the detection the references stay the descent's
+    # before the detection the references stay the descent's, and the reach is not shifted
     assert not task.in_contact(t_d - 1e-3)
+    for t_before in np.linspace(0.0, inner.contact_time - 1e-3, 23):
+        np.testing.assert_array_equal(task.ee_position(t_before), inner.ee_position(t_before))
+        assert task.force(t_before) == 0.0 and not task.in_contact(t_before)
     # a later task reads the run's detection back
     again = make_task()
     again.restore_detection(task.detected_at)
