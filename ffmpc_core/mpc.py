@@ -369,6 +369,10 @@ class ModelPredictiveController:
         self._refs = [NodeReference.empty(self.nc) for _ in range(config.ocp.horizon + 1)]
         self._predictor_ref = NodeReference.empty(self.nc)
         self._reference_into = getattr(schedule, "reference_into", None)
+        #: a guarded approach's contact detection (tasks.GuardedTask.observe_force), or None
+        self._observe_force: Callable[[float, float], bool] | None = getattr(
+            schedule, "observe_force", None
+        )
         self._predictor = None
         if config.command_delay > 0.0:
             # Torque-feedback: what acts during the delay is the torque τ̃ already sent, so (q, v)
@@ -529,6 +533,7 @@ class ModelPredictiveController:
             if meas.force is not None and len(meas.force) == self.nc:
                 force = np.asarray(meas.force, dtype=float)
                 self._resumed_force = force.copy() if np.all(np.isfinite(force)) else None
+        self._observe_contact(meas, t)
         x0 = self.predict(self.state_from(meas), t)
         if not np.all(np.isfinite(x0)):
             self._sent.clear()  # the next solve starts from the measured state itself
@@ -761,6 +766,21 @@ class ModelPredictiveController:
                 where,
             )
         return violation
+
+    def _observe_contact(self, meas: MpcMeasurement, t: float) -> None:
+        """Feed a guarded approach (:class:`~ffmpc_core.tasks.GuardedTask`) the measured normal
+        force of ``meas`` at the task time of t (s), before the references are written: its
+        detection switches the nodes to the contact model. A non-finite λ̂ (a faulty reading)
+        is not fed (the detection stays as it is); InputError without a force or with the
+        wrong number of entries: every formulation needs λ̂ to detect the contact."""
+        if self._observe_force is None:
+            return
+        if meas.force is None:
+            raise InputError("measurement has no force (the guarded approach detects with it)")
+        force = np.asarray(meas.force, dtype=float).reshape(-1)
+        if force.shape != (self.nc,):
+            raise InputError(f"measurement force has {force.size} entries, expected {self.nc}")
+        self._observe_force(self._normal_component(force), self.task_time(t))
 
     def _normal_component(self, force: np.ndarray) -> float:
         """The normal entry of a contact force in the contact configuration's layout, N."""

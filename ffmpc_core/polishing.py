@@ -45,7 +45,14 @@ from ffmpc_core.robots import RobotModel, ToolLoad, load_robot, with_tool_load
 from ffmpc_core.scenario import COMMAND_DELAY_MEASURED, COMMAND_DELAY_PID, Scenario
 from ffmpc_core.sensing import ForceSensingModel, JointSensingModel
 from ffmpc_core.sensing import measured_force as measured_force  # (its home until issue 27)
-from ffmpc_core.tasks import ForceSquareTask, LiveTask, PhaseWeights, PolishingTask
+from ffmpc_core.tasks import (
+    ForceSquareTask,
+    GuardedApproach,
+    GuardedTask,
+    LiveTask,
+    PhaseWeights,
+    PolishingTask,
+)
 from ffmpc_core.wrist_ft import (
     ContactForceSensing,
     WristCompensator,
@@ -54,7 +61,7 @@ from ffmpc_core.wrist_ft import (
 )
 
 #: The task schedules of a scenario (:func:`build_task`).
-PolishingSchedule = PolishingTask | ForceSquareTask
+PolishingSchedule = PolishingTask | ForceSquareTask | GuardedTask
 
 #: The devices owning a generator, in spawn order (see :func:`spawn_generators`); the wrist
 #: F/T sensor's calibration run draws from ``ft_calibration`` (its joint and sensor readings).
@@ -97,7 +104,20 @@ def build_task(scenario: Scenario, robot: RobotModel) -> PolishingSchedule:
 
     The tool starts at ``robot.q_nominal``; the controller believes the table is horizontal,
     ``task.start_height`` below the start position, and the circle starts right below it.
+    With ``task.approach_speed`` > 0 the schedule is a guarded approach
+    (:class:`~ffmpc_core.tasks.GuardedTask`): its contact phases start when the MPC measures
+    the contact. A new object per call: a run's MPC, log and metrics must share one.
     """
+    timed = _timed_task(scenario, robot)
+    task = scenario.task
+    if task.approach_speed <= 0.0:
+        return timed
+    approach = GuardedApproach(task.approach_speed, task.approach_depth, task.contact_force)
+    return GuardedTask(timed, approach)
+
+
+def _timed_task(scenario: Scenario, robot: RobotModel) -> PolishingTask | ForceSquareTask:
+    """The time-based schedule of :func:`build_task` (the contact phases at fixed times)."""
     task = scenario.task
     start = robot.contact_placement(robot.q_nominal).translation.copy()
     contact = start - np.array([0.0, 0.0, task.start_height])
@@ -453,6 +473,22 @@ class PolishingLog:
         log["tau_desired"][k] = tau_desired
         log["tau_measured"][k] = tau_measured
         log["tau_motor"][k] = tau_motor
+
+    def replay_contact(self, every: int) -> float | None:
+        """A guarded approach recorded away from its MPC (the graph's metrics node, the
+        real-time loop): detect the contact from the logged measured force at the MPC's ticks
+        (every ``every`` cycles, :meth:`GuardedTask.replay`) and write the references of every
+        row again with the phases shifted to it. Returns the detection time (s; None: none,
+        or a time-based task, whose log is left as it is)."""
+        task = self.task
+        if not isinstance(task, GuardedTask):
+            return None
+        log = self.arrays
+        detected = task.replay(log["t"], log["force_measured"], every)
+        for k, t in enumerate(log["t"]):
+            log["ee_reference"][k] = task.ee_position(float(t))
+            log["force_reference"][k] = task.force(float(t))
+        return detected
 
 
 def polishing_run_metrics(

@@ -90,6 +90,7 @@ PAPER_SCHEDULE: dict[str, float] = {
     "task.approach_clearance": 0.0,
     "task.touch": 0.0,
     "task.touch_force": 0.0,
+    "task.approach_speed": 0.0,
     "task.circle_ramp": 0.0,
 }
 
@@ -130,6 +131,27 @@ class TaskSection:
     )
     touch: float = param(0.3, "s", (0.0, 60.0), "phase duration: touch the table under touch_force")
     touch_force: float = param(1.0, "N", (0.0, 500.0), "force reference of the touch phase")
+    #: The guarded approach (ffmpc_core.tasks.GuardedTask): after the reach the reference
+    #: descends at approach_speed (m/s) in free space, at most approach_depth (m) below the
+    #: believed table, until the MPC's measured normal force exceeds contact_force (N); the
+    #: touch, force ramp and circle then start from that time. approach_speed 0: the
+    #: time-based switch (the contact phases at fixed times). The defaults: 0.03 m/s meets the
+    #: 10 kN/m, 100 N·s/m table with a 3 N damping step (the time-based touch met it at
+    #: ~0.2 m/s: 25 N in 2 ms) and costs at most (clearance + depth) / speed = 0.67 s;
+    #: 1 cm below the belief clears the table's height at the circle start under the study's
+    #: ±6° tilt (7.3 mm); 2 N is 200 σ_λ above the sensor's noise and above the 1 N touch force
+    approach_speed: float = param(
+        0.03,
+        "m/s",
+        (0.0, 1.0),
+        "guarded approach: descent speed until the contact is measured (0: time-based switch)",
+    )
+    approach_depth: float = param(
+        0.01, "m", (0.0, 0.5), "guarded approach: the descent stops this far below the table"
+    )
+    contact_force: float = param(
+        2.0, "N", (1e-3, 500.0), "guarded approach: measured normal force detecting the contact"
+    )
     force_ramp: float = param(0.5, "s", (0.0, 60.0), "phase duration: ramp the force")
     stop: float = param(0.3, "s", (0.0, 60.0), "phase duration after the circle")
     low_force: float = param(20.0, "N", (0.0, 500.0), "force_square low level")  # force_square

@@ -429,6 +429,202 @@ class PressTask:
         return ref
 
 
+@dataclass(frozen=True)
+class GuardedApproach:
+    """The guarded approach of a real cell: descend slowly until the force sensor feels the
+    table, then start the contact phases (:class:`GuardedTask`).
+
+    Attributes:
+        speed: approach speed of the reference along the world −z after the reach, m/s.
+        depth: the reference descends at most this far below the believed table, m (then it
+            holds there: the contact never came, :meth:`GuardedTask.contact_missed`).
+        contact_force: measured normal force λ̂ above which the contact is detected, N.
+    """
+
+    speed: float
+    depth: float
+    contact_force: float
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.speed) and self.speed > 0.0):
+            raise ConfigError(f"the approach speed must be finite and > 0 m/s, got {self.speed}")
+        if not (math.isfinite(self.depth) and self.depth >= 0.0):
+            raise ConfigError(f"the approach depth must be finite and >= 0 m, got {self.depth}")
+        if not (math.isfinite(self.contact_force) and self.contact_force > 0.0):
+            raise ConfigError(
+                f"the contact force threshold must be finite and > 0 N, got {self.contact_force}"
+            )
+
+
+class GuardedTask:
+    """An approach-then-contact task (:class:`PolishingTask`, :class:`ForceSquareTask`) whose
+    contact phases start when the contact is MEASURED, not at a fixed time.
+
+    Until the contact is detected every node is out of contact (the OCP's free-space model):
+    the wrapped task's stand-still and reach, then, from its ``contact_time`` on, a descent of
+    the reference along the world −z at ``approach.speed`` from the reach's end
+    (``clearance`` above the believed table) down to ``approach.depth`` below it, where it
+    holds. The MPC feeds every measured normal force λ̂ to :meth:`observe_force`; the first
+    one above ``contact_force`` is the detection, at t_d, and it is final: the wrapped task's
+    schedule resumes with its contact time moved to t_d, so every later phase (touch, force
+    ramp, circle or square signal, stop), its references and its evaluation window
+    (:meth:`in_circle`) are shifted by t_d − ``contact_time``. (A release level that re-armed
+    the descent when λ̂ fell back in the touch phase was measured and not kept: the MPC then
+    alternated between its free and contact models for seconds; seed 110 at δo = 0 started
+    its contact phases at 6.65 s instead of 1.05 s.) Phase
+    times read through the wrapper (``circle_start``, …) are the wrapped task's, unshifted.
+
+    A contact that never comes (the table lower than ``depth`` below the belief) leaves the
+    reference holding at that depth in free space, the force reference 0: no contact phase
+    starts, and :meth:`contact_missed` says so from the time the descent has reached the bound.
+
+    State: the detection time and the descent's origin, set by :meth:`observe_force` (the
+    only schedule with a state; :meth:`reset` forgets it). Every reader of the task (the
+    MPC through :class:`LiveTask`, the run's log, the metrics) must share the one object.
+
+    Args:
+        task: the wrapped task (its phases are those of the time-based schedule).
+        approach: the guarded approach's parameters.
+    """
+
+    def __init__(self, task: PolishingTask | ForceSquareTask, approach: GuardedApproach) -> None:
+        self.task = task
+        self.approach = approach
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the detection: the descent starts again at the reach's end."""
+        self.detected_at: float | None = None  # task time of the detection, s
+
+    def __getattr__(self, name: str) -> Any:
+        if name == "task":  # (not set yet: copy and pickle look attributes up before __init__)
+            raise AttributeError(name)
+        return getattr(self.task, name)
+
+    # -- detection ------------------------------------------------------------------------------
+    def restore_detection(self, detected_at: float | None) -> None:
+        """Set the detection time of a finished run (its result's ``contact_time``, task time,
+        s; None: none) on a new task, to read that run's references and window afterwards."""
+        self.reset()
+        if detected_at is not None:
+            if not (math.isfinite(detected_at) and detected_at >= self.task.contact_time):
+                raise InputError(
+                    f"a detection time must be finite and >= {self.task.contact_time} s, "
+                    f"got {detected_at}"
+                )
+            self.detected_at = float(detected_at)
+
+    @property
+    def shift(self) -> float:
+        """How far the contact phases moved, s: t_d − ``contact_time`` (0 before a detection)."""
+        return 0.0 if self.detected_at is None else self.detected_at - self.task.contact_time
+
+    def observe_force(self, normal_force: float, t: float) -> bool:
+        """Feed the measured normal force λ̂ (N, the table pushing the tool: > 0) read at task
+        time t (s); returns whether the task is in its contact phases. Before the reach's end
+        and for a non-finite λ̂ nothing changes; after a detection neither."""
+        if self.detected_at is None and t >= self.task.contact_time:
+            if math.isfinite(normal_force) and normal_force > self.approach.contact_force:
+                self.detected_at = float(t)
+        return self.detected_at is not None
+
+    def replay(self, t: npt.ArrayLike, normal_force: npt.ArrayLike, every: int) -> float | None:
+        """Detect the contact again from a run's log: reset, then :meth:`observe_force` the
+        measured normal force (N) of every ``every``-th sample (the MPC's ticks) at its time t
+        (s). Returns the detection time (s; None: none). A process that did not run the MPC
+        (the graph's metrics node, the real-time loop) reads the run's phases so; it is the
+        MPC's own detection when the MPC read those samples (no fault hid one from it)."""
+        times = np.asarray(t, dtype=float)
+        forces = np.asarray(normal_force, dtype=float)
+        if times.shape != forces.shape or every < 1:
+            raise InputError("replay needs times and forces of one shape and every >= 1")
+        self.reset()
+        for k in range(0, times.size, every):
+            self.observe_force(float(forces[k]), float(times[k]))
+        return self.detected_at
+
+    def descent_height(self, t: float) -> float:
+        """z of the descending reference at task time t (s), m, world frame (without contact)."""
+        start = float(self.task.contact_position[2]) + self.task.clearance
+        height = start - self.approach.speed * max(t - self.task.contact_time, 0.0)
+        return max(height, float(self.task.contact_position[2]) - self.approach.depth)
+
+    @property
+    def max_descent_time(self) -> float:
+        """Time of the longest descent, from the reach's end to the bound, s."""
+        return (self.task.clearance + self.approach.depth) / self.approach.speed
+
+    def contact_missed(self, t: float) -> bool:
+        """Whether the descent reached its bound by task time t (s) without a contact."""
+        floor = float(self.task.contact_position[2]) - self.approach.depth
+        return (
+            self.detected_at is None
+            and t >= self.task.contact_time
+            and self.descent_height(t) <= floor
+        )
+
+    # -- schedule ---------------------------------------------------------------------------
+    def _inner_time(self, t: float) -> float:
+        """The wrapped task's time at t (s): shifted from the detection on, t itself before
+        (the stand-still and the reach are never shifted)."""
+        if self.detected_at is not None and t >= self.detected_at:
+            return t - self.shift
+        return t
+
+    def _guarding(self, t: float) -> bool:
+        """Whether t (s) is in the descent: after the reach, without a detection before t."""
+        if t < self.task.contact_time:
+            return False
+        return self.detected_at is None or t < self.detected_at
+
+    @property
+    def duration(self) -> float:
+        """The run's length, s: the wrapped task's plus the longest descent (the contact
+        phases end that late when the table is at the bound)."""
+        return self.task.duration + self.max_descent_time
+
+    def in_contact(self, t: float) -> bool:
+        """Whether the nodes at t (s) use the contact model."""
+        return not self._guarding(t) and self.task.in_contact(self._inner_time(t))
+
+    def ee_position(self, t: float) -> np.ndarray:
+        """p̄(t), m, world frame."""
+        if self._guarding(t):
+            out = np.array(self.task.contact_position, dtype=float)
+            out[2] = self.descent_height(t)
+            return out
+        return self.task.ee_position(self._inner_time(t))
+
+    def force(self, t: float) -> float:
+        """λ̄(t), N: 0 during the descent."""
+        return 0.0 if self._guarding(t) else self.task.force(self._inner_time(t))
+
+    def in_circle(self, t: np.ndarray) -> np.ndarray:
+        """The evaluation window, shifted with the contact phases (empty without a contact)."""
+        t = np.asarray(t, dtype=float)
+        if self.detected_at is None:
+            return np.zeros(t.shape, dtype=bool)
+        return np.asarray(self.task.in_circle(t - self.shift))
+
+    def set_phase_weights(self, weights: PhaseWeights) -> None:
+        """Replace the wrapped task's per-phase c4 and c6 (the detection is kept)."""
+        self.task = replace(self.task, weights=weights)
+
+    def reference(self, t: float, dimension: int = 1) -> NodeReference:
+        """A new reference of a node at t (s); ``dimension``: force entries."""
+        return self.reference_into(t, NodeReference.empty(dimension))
+
+    def reference_into(self, t: float, ref: NodeReference) -> NodeReference:
+        """The node reference at t (s) written into ``ref``; returns it. During the descent:
+        free space, p̄ on the descending line, all three axes of the position cost active."""
+        if not self._guarding(t):
+            return self.task.reference_into(self._inner_time(t), ref)
+        self.task.reference_into(self.task.contact_time - 1e-9, ref)  # a free node's weights
+        ref.ee_position[:] = self.task.contact_position
+        ref.ee_position[2] = self.descent_height(t)
+        return ref
+
+
 #: Time over which a live retarget (:class:`LiveTask`) blends from the old to the new target, s
 #: (minimum jerk). A 0.1 m offset change then moves p̄ at most 0.375 m/s, below twice the
 #: polishing circle's own speed (0.07 m × 6 rad/s on the fast variant).
@@ -538,6 +734,9 @@ class LiveTask:
 
     def set_phase_weights(self, weights: PhaseWeights) -> None:
         """Replace the wrapped task's per-phase c4 and c6 (applies to every later reference)."""
+        if isinstance(self.task, GuardedTask):  # in place: the log and metrics share it
+            self.task.set_phase_weights(weights)
+            return
         if not hasattr(self.task, "weights"):
             raise InputError(f"{type(self.task).__name__} has no phase weights")
         self.task = replace(self.task, weights=weights)
@@ -561,6 +760,8 @@ class LiveTask:
 
 def _task_force(task: Any) -> float | None:
     """The single force set-point of a task, N (None for a task without one)."""
+    if isinstance(task, GuardedTask):
+        task = task.task
     if isinstance(task, PolishingTask):
         return float(task.normal_force)
     if isinstance(task, PressTask):

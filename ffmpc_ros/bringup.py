@@ -993,6 +993,9 @@ class GraphSession(NodeSession):
             "max_torque_ratio_at_s": probe.worst_torque_t,
             "safe_hold_s": float(np.count_nonzero(hold) * time_step),
             "metrics_filled": int(metrics.filled),
+            # the guarded approach (ffmpc_core.tasks.GuardedTask): detection time, s, or None
+            "contact_time_s": metrics.contact_time,
+            "contact_missed": metrics.contact_missed,
             "faults": [] if self.injector is None else self.injector.report(),
             "rejected_messages": {name: rejected.get(name) for name in [*plan.table, "metrics"]},
             **reflex_summary(status, self.robot.joint_names),

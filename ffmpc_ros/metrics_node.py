@@ -29,8 +29,14 @@ from std_msgs.msg import Bool, Float64MultiArray, String
 
 from ffmpc_core.errors import InputError
 from ffmpc_core.metrics import PolishingMetrics
-from ffmpc_core.polishing import PolishingLog, build_task, polishing_run_metrics
+from ffmpc_core.polishing import (
+    PolishingLog,
+    build_task,
+    polishing_run_metrics,
+    steps_per_mpc_period,
+)
 from ffmpc_core.robots import load_robot
+from ffmpc_core.tasks import GuardedTask
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import GraphNode, run_node
 from ffmpc_ros.message_parsing import joint_arrays, wrench_array
@@ -60,6 +66,7 @@ class MetricsNode(GraphNode):
         self.recorded = 0
         self.table_normal: np.ndarray | None = None
         self.metrics: tuple[PolishingMetrics, PolishingMetrics] | None = None
+        self.contact_time: float | None = None  # the guarded approach's detection, s (_finish)
         self.lockstep = bool(self.params["lockstep"])
         self.filled = 0
         self._recorded = np.zeros(self.steps, dtype=bool)
@@ -214,7 +221,11 @@ class MetricsNode(GraphNode):
             self._put(self.cycle_of(msg.header.stamp), "tau_motor", arrays[0])
 
     def _finish(self, table_normal: np.ndarray) -> None:
-        """The metrics (``table_normal``: the table's unit normal, world) and the summary."""
+        """The metrics (``table_normal``: the table's unit normal, world) and the summary. A
+        guarded approach's phases are read from the logged measured force at the MPC's ticks
+        (:meth:`~ffmpc_core.polishing.PolishingLog.replay_contact`: the MPC node detected the
+        contact from the same λ̂)."""
+        self.contact_time = self.log.replay_contact(steps_per_mpc_period(self.scenario))
         self.metrics = polishing_run_metrics(self.log.arrays, self.task, table_normal)
         true, measured = self.metrics
         summary = {
@@ -224,9 +235,18 @@ class MetricsNode(GraphNode):
             "filled": self.filled,
             "metrics_true": true.to_dict(),
             "metrics_measured": measured.to_dict(),
+            "contact_time_s": self.contact_time,
+            "contact_missed": self.contact_missed,
         }
         self.pub_summary.publish(String(data=json.dumps(summary)))
         self.get_logger().info(f"metrics: {json.dumps(summary)}")
+
+    @property
+    def contact_missed(self) -> bool:
+        """A guarded approach whose descent reached its bound by the log's end, no contact."""
+        task = self.task
+        end = float(self.log.arrays["t"][-1])
+        return isinstance(task, GuardedTask) and task.contact_missed(end)
 
     def finished(self) -> bool:
         return self.metrics is not None

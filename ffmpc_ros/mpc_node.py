@@ -1,7 +1,8 @@
 """The MPC node: one of the three OCP formulations (parameter ``formulation``) in receding horizon.
 
-Subscribes ``/joint_sensor/joint_states`` (q̂, q̇̂, τ̂) and, for force-feedback,
-``/ft_sensor/wrench`` (λ̂); publishes ``/mpc/command`` (``ffmpc_msgs/MpcCommand``:
+Subscribes ``/joint_sensor/joint_states`` (q̂, q̇̂, τ̂) and, for force-feedback or a guarded
+approach (``task.approach_speed`` > 0: its contact detection), ``/ft_sensor/wrench`` (λ̂);
+publishes ``/mpc/command`` (``ffmpc_msgs/MpcCommand``:
 ``ffmpc_ros.command_msg``) and, after the command and only while something subscribes,
 ``/mpc/prediction`` (layout ``mpc_prediction``: the horizon's contact positions and normal
 forces, for the live view).
@@ -142,7 +143,11 @@ class MpcNode(GraphNode):
             centre() if centre is not None else np.asarray(self.task.contact_position, float)
         )
         self.every = steps_per_mpc_period(s)
-        self.needs_force = self.config.ocp.formulation == "force_feedback"
+        # λ̂: the force-feedback state, and every formulation's guarded approach (its contact
+        # detection, ffmpc_core.tasks.GuardedTask)
+        self.needs_force = self.config.ocp.formulation == "force_feedback" or hasattr(
+            self.task, "observe_force"
+        )
         self._joints: dict[int, tuple] = {}
         self._forces: dict[int, np.ndarray] = {}
         self._last_solve: int | None = None
@@ -155,7 +160,7 @@ class MpcNode(GraphNode):
         contact = self.config.contact
         self.force_axes = [contact.normal_axis] if contact.dimension == 1 else [0, 1, 2]
         self.use_learned_contact = bool(self.params["use_learned_contact"])
-        if self.use_learned_contact and not self.needs_force:
+        if self.use_learned_contact and self.config.ocp.formulation != "force_feedback":
             self.refuse("use_learned_contact needs the force_feedback formulation")
         self.learned = LearnedContact(
             self.config,

@@ -761,11 +761,15 @@ class RealtimeLoop:
     def _records(
         self, times: CycleTimes, inbox: CommandInbox, stalls: _StallSchedule, wall_time: float
     ) -> dict[str, Any]:
-        """The raw records of a run (:meth:`results` reads them)."""
+        """The raw records of a run (:meth:`results` reads them). A guarded approach's
+        contact was detected in the MPC process: its phases are read again from the logged
+        measured force (:meth:`~ffmpc_core.polishing.PolishingLog.replay_contact`)."""
+        contact_time = self.loop.log.replay_contact(self.every)
         log = self.loop.log.arrays
         pid_rejected = self.nodes["pid"].rejected
         return {
             "log": log,
+            "contact_time": contact_time,
             "v": self.loop.trace_v,
             "mode": self.loop.trace_mode.astype(np.int8),
             "tau_motor": log["tau_motor"],
@@ -915,6 +919,7 @@ class RealtimeLoop:
             "cycles": self.steps,
             "metrics_true": true.to_dict(),
             "metrics_measured": measured.to_dict(),
+            "contact_time_s": rec["contact_time"],  # the guarded approach's detection, s
             "wall_time_s": rec["wall_time"],
             "timing": timing,
             "safety": self.safety(rec) | ({"faults": rec["stalls"]} if rec["stalls"] else {}),

@@ -83,6 +83,7 @@ from ffmpc_core.polishing_loop import LowLevelStage, MpcStage, PolishingLoop
 from ffmpc_core.robots import RobotModel
 from ffmpc_core.runner import LockstepClock
 from ffmpc_core.scenario import Scenario
+from ffmpc_core.tasks import GuardedTask
 from sim_bridge.scenes import simulated_robot
 
 __all__ = ["RunResult", "run_polishing"]
@@ -146,6 +147,12 @@ class RunResult:
     push_metrics: list[dict] = field(default_factory=list)
     #: The robot's reflexes (:meth:`ffmpc_core.reflex.RobotReflex.report`); empty if not run.
     reflex: dict = field(default_factory=dict)
+    #: The guarded approach (``task.approach_speed`` > 0, :class:`ffmpc_core.tasks.GuardedTask`):
+    #: the task time the MPC detected the contact, s (None: never, or no guarded approach), and
+    #: whether the descent reached its bound without a contact (the contact phases never
+    #: started: the tool held in free space; the metrics then cover the whole run).
+    contact_time: float | None = None
+    contact_missed: bool = False
 
     @property
     def aborted(self) -> bool:
@@ -178,6 +185,8 @@ class RunResult:
             "command_delay_s": self.command_delay,
             "aborted": self.aborted,
             "reflex": self.reflex,
+            "contact_time_s": self.contact_time,
+            "contact_missed": self.contact_missed,
             **({"push_true": self.push_metrics} if self.push_metrics else {}),
             **(
                 {"velocity_guard_trips": self.velocity_guard_trips}
@@ -293,4 +302,7 @@ def run_polishing(
         command_delay=round(command_delay(scenario), 12),
         push_metrics=pushes,
         reflex=sim.reflex_plant.reflex.report(),
+        contact_time=task.detected_at if isinstance(task, GuardedTask) else None,
+        contact_missed=isinstance(task, GuardedTask)
+        and task.contact_missed(mpc.task_time(duration)),
     )

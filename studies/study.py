@@ -274,12 +274,15 @@ def plot_log(result: RunResult, scenario: Scenario, step: float) -> dict[str, np
     """
     from ffmpc_core.polishing import build_task
     from ffmpc_core.robots import load_robot
+    from ffmpc_core.tasks import GuardedTask
     from sim_bridge.scenes import polishing_plant_config as plant_config
 
     log = result.log
     dt = scenario.plant.time_step
     every = max(1, int(round(step / dt)))
     task = build_task(scenario, load_robot(scenario.robot))
+    if isinstance(task, GuardedTask):  # the run's contact phases, shifted by its detection
+        task.restore_detection(result.contact_time)
     table = plant_config(scenario, task, result.draws.tilt_angle).table
     assert table is not None  # plant_config always builds the tilted table
     normal = table.normal

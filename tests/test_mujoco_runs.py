@@ -30,7 +30,12 @@ def test_polishing_on_mujoco_graph_equals_the_runner():
     """1 s of the force-feedback polishing run (seed 2) on MuJoCo: the single-process node
     graph's plant node builds the same MuJoCo plant as the runner, every logged signal equal;
     the run reaches the table, and it is not the PyBullet run."""
-    overrides = {"seed": 2, "mpc.formulation": "force_feedback", "plant.engine": "mujoco"}
+    overrides = {
+        "seed": 2,
+        "mpc.formulation": "force_feedback",
+        "plant.engine": "mujoco",
+        "task.approach_speed": 0.0,  # the time-based switch: the table within the second
+    }
     scenario = load_scenario("polishing", overrides)
     graph = run_graph(scenario, GraphOptions(duration=1.0, single_process=True, timeout=180))
     runner = run_polishing(scenario, duration=1.0)

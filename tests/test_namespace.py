@@ -154,7 +154,11 @@ def test_ffmpc_run_namespace_equals_the_runner_and_records_namespaced_names(tmp_
     assert study.metrics_true == runner.metrics_true and study.matches_recorded is True
     report = rerun_node(bag, "mpc")
     assert report.identical and report.ok, report.describe()
-    assert report.inputs == {"/arm1/joint_sensor/joint_states": 201}
+    # the classical MPC reads λ̂ too: the guarded approach's contact detection
+    assert report.inputs == {
+        "/arm1/joint_sensor/joint_states": 201,
+        "/arm1/ft_sensor/wrench": 201,
+    }
     # bag play: the recorded names; with a clock rate, the player drives the bag's clock
     from ros_helpers import RosHarness
 

@@ -205,7 +205,8 @@ def test_lowpass_terminal_torque_regularisation_by_hand(robot, backend):
 def test_scenario_options_reach_the_models(robot):
     """mpc.torque_state, mpc.contact.baumgarte_velocity_gain, the new weights and
     task.ee_z_weight_in_contact flow from the scenario file into the MPC and the task."""
-    s = load_scenario("polishing", {"mpc.formulation": "torque_feedback"})
+    # the time-based switch: in contact at the circle's start without a measured force
+    s = load_scenario("polishing", {"mpc.formulation": "torque_feedback", "task.approach_speed": 0})
     assert s.mpc.torque_state == "measured"
     assert s.task.ee_z_weight_in_contact == 0.0
     ref = build_task(s, robot).reference(build_task(s, robot).circle_start + 0.1)

@@ -20,6 +20,10 @@ from ffmpc_ros.command_msg import command_fields
 from ffmpc_ros.mpc_node import MpcNode
 from ffmpc_ros.pid_node import PidNode
 
+#: The time-based switch to contact: these MPC nodes are fed joint states only (a guarded
+#: approach's MPC node also waits for the wrench, its contact detection's input).
+TIMED = {"task.approach_speed": 0.0}
+
 
 def _measurements(robot, n, seed=0):
     rng = np.random.default_rng(seed)
@@ -74,7 +78,7 @@ def test_mpc_node_solves_every_period_with_the_runner_numbers(ros, robot):
 def test_mpc_node_stays_on_the_tick_grid_after_an_outage(ros, robot):
     """Lockstep, after cycles it never heard (a frozen and resumed process): the next solve is
     the next tick k = j·every the PID waits on, never the first cycle that completes (5, 7)."""
-    scenario = load_scenario("polishing", {"mpc.formulation": "classical"})
+    scenario = load_scenario("polishing", {"mpc.formulation": "classical", **TIMED})
     node = ros.add(MpcNode(context=ros.context, parameter_overrides=overrides("mpc", scenario)))
     probe = ros.probe()
     out = recorder(probe, MpcCommand, topics.MPC_COMMAND)
@@ -197,7 +201,7 @@ def test_mpc_node_real_time_path_solves_on_ticks_only(ros, robot):
     import rclpy
     from rclpy.context import Context
 
-    scenario = load_scenario("polishing", {"mpc.formulation": "classical"})
+    scenario = load_scenario("polishing", {"mpc.formulation": "classical", **TIMED})
     context = Context()
     rclpy.init(context=context, domain_id=int(os.environ["ROS_DOMAIN_ID"]))
     node = MpcNode(context=context, parameter_overrides=overrides("mpc", scenario, lockstep=False))

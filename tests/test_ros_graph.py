@@ -18,10 +18,16 @@ def test_single_process_graph_equals_the_runner_for_one_second():
     """Force-feedback with the Riccati feedback on (the PID node then also reads λ̂), seed 0:
     1 s of simulated time, through first contact and the force ramp — and the robot's velocity
     reflex: joint A4 crosses the LBR iiwa 14's 75°/s at 0.634 s, the robot stops itself in both
-    (one reflex model), the nodes and the runner's loop run on to the end."""
-    scenario = load_scenario(
-        "polishing", {"seed": 0, "mpc.formulation": "force_feedback", "mpc.riccati_feedback": True}
-    )
+    (one reflex model), the nodes and the runner's loop run on to the end. With the time-based
+    switch to contact (``task.approach_speed`` 0), under which this run reaches the table
+    within the second; the guarded approach's graph against the runner: ``make demo``."""
+    overrides = {
+        "seed": 0,
+        "mpc.formulation": "force_feedback",
+        "mpc.riccati_feedback": True,
+        "task.approach_speed": 0.0,
+    }
+    scenario = load_scenario("polishing", overrides)
     graph = run_graph(scenario, GraphOptions(duration=1.0, single_process=True, timeout=120))
     runner = run_polishing(scenario, duration=1.0)
     assert_same_run(graph, runner)

@@ -43,6 +43,10 @@ class BagStudy:
     metrics_true: PolishingMetrics | None
     metrics_measured: PolishingMetrics | None
     recorded_summary: dict | None  # the /metrics/summary recorded in the bag, if any
+    #: the guarded approach (ffmpc_core.tasks.GuardedTask): the detection time read from the
+    #: bag's measured force, s (None: none), and whether the descent reached its bound
+    contact_time: float | None = None
+    contact_missed: bool = False
 
     def summary(self) -> dict:
         """The metrics node's summary, computed from the bag."""
@@ -55,6 +59,8 @@ class BagStudy:
             "metrics_measured": None
             if self.metrics_measured is None
             else self.metrics_measured.to_dict(),
+            "contact_time_s": self.contact_time,
+            "contact_missed": self.contact_missed,
         }
 
     @property
@@ -132,6 +138,8 @@ def bag_study(path: str | os.PathLike) -> BagStudy:
                 metrics_true=true,
                 metrics_measured=measured,
                 recorded_summary=recorded,
+                contact_time=node.contact_time,
+                contact_missed=node.metrics is not None and node.contact_missed,
             )
         finally:
             if node is not None:

@@ -209,7 +209,8 @@ def test_after_an_outage_the_force_reference_blends_in_from_the_measured_force()
     values = [resume_force_reference(np.array([50.0]), measured, t)[0] for t in ts]
     assert np.all(np.diff(values) > 0.0)
 
-    scenario = load_scenario("polishing")
+    # the time-based schedule: in contact at fixed times (a guarded approach waits for a force)
+    scenario = load_scenario("polishing", {"task.approach_speed": 0.0})
     robot = load_robot(scenario.robot)
     task = build_task(scenario, robot)
     mpc = ModelPredictiveController(robot, mpc_config(scenario), task)
