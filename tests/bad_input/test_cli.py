@@ -189,6 +189,16 @@ CASES: dict[str, tuple[list[str], dict[str, str], str]] = {
         {},
         "cannot write in '/proc'",
     ),
+    "run-approach-speed-negative": (
+        ["ffmpc", "run", "polishing", "--set", "task.approach_speed=-1"],
+        {},
+        "task.approach_speed = -1: expected a number in [0, 1] m/s",
+    ),
+    "run-contact-force-zero": (
+        ["ffmpc", "run", "polishing", "--set", "task.contact_force=0"],
+        {},
+        "task.contact_force = 0: expected a number in [0.001, 500] N",
+    ),
     "study-compare-missing": (
         ["ffmpc", "study", "compare", "nowhere.json", "existing.json"],
         {},
