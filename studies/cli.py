@@ -144,22 +144,29 @@ def _polishing_overrides(args: argparse.Namespace) -> dict:
     schema (ConfigError naming the file or the pair), then ``--plant``."""
     import json
 
-    import yaml
-
-    from ffmpc_core.values import load_yaml
-
     items: list[str] = []
     for path in args.set_file or []:
-        try:  # read as ROS 2 reads values (1e4 is a number), like scenario files
-            doc = load_yaml(Path(path).read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, yaml.YAMLError, ConfigError) as exc:
-            raise ConfigError(f"--set-file {path}: not a readable YAML file ({exc})") from None
-        if not isinstance(doc, dict) or not all(isinstance(k, str) for k in doc):
-            raise ConfigError(f"--set-file {path}: expected a mapping NAME: VALUE")
+        doc = _read_set_file(path)
         items += [f"{name}={json.dumps(value)}" for name, value in doc.items()]
     return with_plant_engine(
         _parse_overrides(items + list(args.set or [])), getattr(args, "plant", None)
     )
+
+
+def _read_set_file(path: str | Path) -> dict:
+    """A ``--set-file`` (or ``--start-from``) YAML mapping NAME: VALUE, read as ROS 2 reads values
+    (1e4 is a number); ConfigError naming the file when it is not one."""
+    import yaml
+
+    from ffmpc_core.values import load_yaml
+
+    try:
+        doc = load_yaml(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, ConfigError) as exc:
+        raise ConfigError(f"{path}: not a readable YAML file ({exc})") from None
+    if not isinstance(doc, dict) or not all(isinstance(k, str) for k in doc):
+        raise ConfigError(f"{path}: expected a mapping NAME: VALUE")
+    return doc
 
 
 def _add_execution_arguments(p: argparse.ArgumentParser, cache_dir: bool = False) -> None:
@@ -418,7 +425,7 @@ def _cmd_tune(args: argparse.Namespace) -> int:
         velocity_penalty=args.velocity_penalty,
     )
     result = tune(
-        args.scenario,
+        args.scenario or ["polishing"],
         args.formulation,
         seeds,
         args.trials,
@@ -433,6 +440,7 @@ def _cmd_tune(args: argparse.Namespace) -> int:
         workers=args.workers,
         scheduler=args.scheduler,
         cache_dir=args.cache_dir,
+        start_from=[_read_set_file(path) for path in args.start_from or []],
     )
     resumed = len(result.values) - result.trials_run
     print(
@@ -451,7 +459,21 @@ def _cmd_tune(args: argparse.Namespace) -> int:
 def _add_tune_arguments(p: argparse.ArgumentParser) -> None:
     """``ffmpc tune``'s flags (studies/tune.py: Optuna search of one controller's cost weights)."""
     p.add_argument("formulation", choices=STUDY_FORMULATIONS)
-    p.add_argument("--scenario", default="polishing", help="shipped scenario name or a path")
+    p.add_argument(
+        "--scenario",
+        action="append",
+        help="shipped scenario name or a path (repeatable: J is the mean over every scenario "
+        "and seed; default polishing)",
+    )
+    p.add_argument(
+        "--start-from",
+        action="append",
+        type=existing_file,
+        metavar="FILE",
+        help="a YAML mapping NAME: VALUE (e.g. an earlier search's tuned_weights.yaml) whose "
+        "mpc.weights.<formulation>.* a new search tries right after the scenario's own "
+        "(repeatable)",
+    )
     p.add_argument("--seeds", type=positive_int, default=3, help="number of training seeds")
     p.add_argument(
         "--first-seed",

@@ -1,10 +1,11 @@
 """``ffmpc tune``: search one controller's cost weights with Optuna, the same way for all three.
 
-The objective of a set of weights is the mean over the training seeds of one polishing run each
-(:func:`studies.polishing.run_polishing`, torque PID as in the scenario, metrics from the true
-normal force over the circle phase), each run a job of :func:`studies.execute.execute_jobs` (on
-the search's Dask cluster, ``--workers``/``--scheduler``, or in this process; cached with
-``--cache-dir``):
+The objective of a set of weights is the mean over the training scenarios and seeds of one
+polishing run each (:func:`studies.polishing.run_polishing`, torque PID as in each scenario,
+metrics from the true normal force over the circle phase; ``--scenario`` repeated searches one
+set of weights for several scenarios at once, e.g. the slow and fast circles and the push),
+each run a job of :func:`studies.execute.execute_jobs` (on the search's Dask cluster,
+``--workers``/``--scheduler``, or in this process; cached with ``--cache-dir``):
 
     J = E_λ + W·E_P + P_break·t_break + P_force·max(0, λmax − λ_limit) + P_vel·max(0, r_v − 1)
 
@@ -20,7 +21,9 @@ remembers its objective and is not resumed with another.
 The search (seeded TPE sampler) keeps its trials in an Optuna RDB storage (an SQLite file by
 default), so a search that is stopped resumes where it stood: the same ``--storage`` and
 ``--study-name`` load the trials already run, and ``--trials`` more are added. The first trial of
-a new search is the scenario's own weights, so the best trial is never worse than them. Trials
+a new search is the (first) scenario's own weights, so the best trial is never worse than them;
+``--start-from`` files (``--set-file`` mappings such as an earlier search's
+``tuned_weights.yaml``) add their weights as the next trials. Trials
 run ``--jobs`` at a time (Optuna threads). The best weights are written into a copy of the
 scenario file (``--out``), under ``mpc.weights.<formulation>``.
 
@@ -32,6 +35,7 @@ a formulation does not have: the low-pass input weight c_w (eq 28) and the force
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -141,7 +145,7 @@ def current_weights(scenario: Scenario, formulation: str) -> dict[str, float]:
 
 
 def evaluate(
-    scenario_name: str,
+    scenario_names: str | Sequence[str],
     formulation: str,
     weights: dict[str, float],
     seeds: list[int],
@@ -149,30 +153,32 @@ def evaluate(
     duration: float | None = None,
     overrides: dict[str, Any] | None = None,
     *,
-    pid_enabled: bool | None = None,
+    pid_enabled: dict[str, bool] | None = None,
     client: Client | None = None,
     cache: RunCache | None = None,
 ) -> float:
-    """Mean J over ``seeds`` of the scenario run with ``formulation`` and ``weights``: one
-    polishing job per seed (:class:`studies.study.RunSpec`, PID as in the scenario) through
-    :func:`studies.execute.execute_jobs`, on the Dask ``client``'s workers (None: in this
-    process), reading and writing the run ``cache``. ``pid_enabled``: the scenario's (loaded
-    when not given; a search passes it once)."""
+    """Mean J over ``scenario_names`` × ``seeds`` of the runs with ``formulation`` and
+    ``weights``: one polishing job per scenario and seed (:class:`studies.study.RunSpec`, PID as
+    in its scenario) through :func:`studies.execute.execute_jobs`, on the Dask ``client``'s
+    workers (None: in this process), reading and writing the run ``cache``. ``pid_enabled``:
+    each scenario's (loaded when not given; a search passes it once)."""
     from studies.study import RunSpec, execute_specs
 
+    names = _scenario_list(scenario_names)
     if pid_enabled is None:
-        pid_enabled = load_scenario(scenario_name, overrides or {}).pid.enabled
+        pid_enabled = {n: load_scenario(n, overrides or {}).pid.enabled for n in names}
     prefix = f"mpc.weights.{formulation}."
     settings = dict(overrides or {}) | {prefix + k: float(v) for k, v in weights.items()}
     specs = [
         RunSpec(
-            scenario_name,
+            name,
             formulation,
-            pid_enabled,
+            pid_enabled[name],
             seed,
             duration,
             overrides=tuple(settings.items()),
         )
+        for name in names
         for seed in seeds
     ]
     batch = execute_specs(specs, 1 if client is None else None, False, cache=cache, client=client)
@@ -191,11 +197,44 @@ def evaluate(
             max(outcome.summary["max_velocity_ratio"], default=0.0),
         )
         total += value if math.isfinite(value) else FAILED_RUN_COST
-    return total / len(seeds)
+    return total / len(specs)
+
+
+def _scenario_list(scenario_names: str | Sequence[str]) -> list[str]:
+    """The training scenarios as a list (one name or several; ConfigError for none or a
+    repeated one)."""
+    names = [scenario_names] if isinstance(scenario_names, str) else list(scenario_names)
+    if not names:
+        raise ConfigError("tune needs at least one training scenario")
+    if len(set(names)) != len(names):
+        raise ConfigError(f"a training scenario is given twice: {names}")
+    return names
+
+
+def start_weights(
+    doc: dict[str, Any], formulation: str, base: dict[str, float]
+) -> dict[str, float]:
+    """A starting trial from a ``--set-file`` mapping (``mpc.weights.<formulation>.<name>:
+    value``): its weights of ``formulation`` over ``base`` (the scenario's), each clipped to its
+    search bounds. ConfigError when the mapping holds none of them."""
+    prefix = f"mpc.weights.{formulation}."
+    found = {k[len(prefix) :]: v for k, v in doc.items() if k.startswith(prefix)}
+    names = searched_names(formulation)
+    if not any(n in found for n in names):
+        raise ConfigError(f"no searched {prefix}* weight in the starting point ({sorted(doc)})")
+    out = dict(base)
+    for name in names:
+        if name in found:
+            value = float(found[name])
+            if not math.isfinite(value):
+                raise ConfigError(f"{prefix}{name} = {found[name]!r}: not a finite number")
+            low, high, _ = SEARCH_SPACE[name]
+            out[name] = min(max(value, low), high)
+    return out
 
 
 def tune(
-    scenario_name: str,
+    scenario_name: str | Sequence[str],
     formulation: str,
     seeds: list[int],
     trials: int,
@@ -211,11 +250,14 @@ def tune(
     workers: int | None = None,
     scheduler: str | None = None,
     cache_dir: str | Path | None = None,
+    start_from: Sequence[dict[str, Any]] = (),
 ) -> TuneResult:
     """Run (or resume) the search and write the best weights to ``out`` (if given).
 
     Args:
-        scenario_name: a shipped scenario name or a scenario file.
+        scenario_name: a shipped scenario name or a scenario file, or several (the objective
+            is the mean over every scenario and seed; the first gives the starting weights, the
+            default search name and the ``out`` file's base).
         formulation: the controller whose weights are searched.
         seeds: training seeds (keep them disjoint from the evaluation seeds).
         trials: trials to add in this call (≥ 1).
@@ -232,6 +274,8 @@ def tune(
             workers of a running ``scheduler``, or this process with ``workers=1``).
         cache_dir: a run cache shared by the trials (and with studies): a run already done,
             the same scenario, weights, seed and duration, is read back, not run again.
+        start_from: ``--set-file`` mappings whose weights of ``formulation``
+            (:func:`start_weights`) a new search runs right after the scenario's own.
     """
     import optuna
 
@@ -242,12 +286,14 @@ def tune(
     out_path = Path(out) if out is not None else None
     if out_path is not None and out_path.exists():
         raise ConfigError(f"{out_path} exists: choose another --out")
-    scenario = load_scenario(scenario_name, overrides or {})
+    names_run = _scenario_list(scenario_name)
+    scenarios = {n: load_scenario(n, overrides or {}) for n in names_run}
+    scenario = scenarios[names_run[0]]
     if formulation not in SEARCH_SPACE["force_phase"][2]:
         raise ConfigError(f"unknown formulation {formulation!r}")
     objective = objective or Objective()
     url = storage if "://" in storage else f"sqlite:///{Path(storage).resolve()}"
-    name = study_name or f"{scenario.name}-{formulation}"
+    name = study_name or "+".join(s.name for s in scenarios.values()) + f"-{formulation}"
     optuna.logging.set_verbosity(optuna.logging.WARNING)
 
     def open_study(seed: int) -> optuna.Study:
@@ -260,8 +306,10 @@ def tune(
         )
 
     study = open_study(sampler_seed)
-    stated = {**asdict(objective), "training_seeds": list(seeds)}
+    stated = {**asdict(objective), "training_seeds": list(seeds), "scenarios": names_run}
     stored = study.user_attrs.get("objective")
+    if stored is not None and "scenarios" not in stored and len(names_run) == 1:
+        stored = {**stored, "scenarios": names_run}  # a search stored before several scenarios
     if stored is None and not study.trials:
         study.set_user_attr("objective", stated)
     elif stored is not None and stored != stated:
@@ -274,7 +322,10 @@ def tune(
         # random start-up repeats them); seeded with the number of trials stored, it goes on.
         study = open_study(sampler_seed + len(study.trials))
     if not study.trials:  # a new search starts from the scenario's own weights
-        study.enqueue_trial(current_weights(scenario, formulation))
+        own = current_weights(scenario, formulation)
+        study.enqueue_trial(own)
+        for doc in start_from:
+            study.enqueue_trial(start_weights(doc, formulation, own), skip_if_exists=True)
     names = searched_names(formulation)
 
     cache = None if cache_dir is None else RunCache(cache_dir)
@@ -286,14 +337,14 @@ def tune(
                 for n in names
             }
             return evaluate(
-                scenario_name,
+                names_run,
                 formulation,
                 weights,
                 seeds,
                 objective,
                 duration,
                 overrides,
-                pid_enabled=scenario.pid.enabled,
+                pid_enabled={n: s.pid.enabled for n, s in scenarios.items()},
                 client=client,
                 cache=cache,
             )
@@ -304,7 +355,7 @@ def tune(
     best_value = float(best.value) if best.value is not None else math.inf
     best_weights = {k: float(v) for k, v in best.params.items()}
     if out_path is not None:
-        write_tuned_scenario(scenario_name, formulation, best_weights, out_path, best_value, seeds)
+        write_tuned_scenario(names_run[0], formulation, best_weights, out_path, best_value, seeds)
     return TuneResult(
         formulation=formulation,
         best_weights=best_weights,

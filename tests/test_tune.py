@@ -11,7 +11,14 @@ import pytest
 from ffmpc_core.errors import ConfigError
 from ffmpc_core.scenario import load_scenario
 from ffmpc_ros.cli import main
-from studies.tune import Objective, current_weights, searched_names, tune
+from studies.tune import (
+    SEARCH_SPACE,
+    Objective,
+    current_weights,
+    searched_names,
+    start_weights,
+    tune,
+)
 
 #: 0.6 s of the circle (it starts 1.0 s in): short runs, the objective still sees the circle.
 DURATION = 1.6
@@ -125,3 +132,75 @@ def test_a_few_trials_improve_the_objective_and_the_search_resumes(tmp_path, cap
         with pytest.raises(ConfigError, match="objective"):
             tune("polishing", "classical", trials=1, storage=str(db), workers=1, **args)
     assert len(list((tmp_path / "cache").glob("*.json"))) == runs
+
+
+def test_start_weights_take_the_formulations_keys_clipped_to_the_search_bounds():
+    base = current_weights(load_scenario("polishing"), "classical")
+    doc = {
+        "mpc.weights.classical.ee_rotation": 5e4,  # above the bound 1e3
+        "mpc.weights.classical.joint_velocity": 0.5,
+        "mpc.weights.force_feedback.ee_rotation": 43.0,  # another formulation's: ignored
+    }
+    start = start_weights(doc, "classical", base)
+    assert start["ee_rotation"] == SEARCH_SPACE["ee_rotation"][1]
+    assert start["joint_velocity"] == 0.5
+    assert start["force_phase"] == base["force_phase"]  # not in the file: the scenario's
+    with pytest.raises(ConfigError, match="no searched"):
+        start_weights({"mpc.weights.force_feedback.ee_rotation": 43.0}, "classical", base)
+    with pytest.raises(ConfigError, match="finite"):
+        start_weights({"mpc.weights.classical.ee_rotation": math.nan}, "classical", base)
+
+
+def test_a_search_over_two_scenarios_averages_both_and_tries_the_start_points(tmp_path):
+    """J over two scenarios is the mean of each scenario's J (runs read back from the cache);
+    a ``--start-from`` file's weights are the second trial, right after the scenario's own."""
+    from studies.execute import RunCache
+    from studies.tune import evaluate
+
+    db, cache = tmp_path / "tune.db", tmp_path / "cache"
+    start = tmp_path / "start.yaml"
+    start.write_text("mpc.weights.classical.ee_rotation: 200.0\n", encoding="utf-8")
+    code = main(
+        [
+            "tune",
+            "classical",
+            "--scenario",
+            "polishing",
+            "--scenario",
+            "tilt",
+            "--start-from",
+            str(start),
+            "--seeds",
+            "1",
+            "--first-seed",
+            "1000",
+            "--trials",
+            "2",
+            "--storage",
+            str(db),
+            "--duration",
+            str(DURATION),
+            "--workers",
+            "1",
+            "--cache-dir",
+            str(cache),
+            *(f"--set={name}={value}" for name, value in UNTUNED.items()),
+        ]
+    )
+    assert code == 0
+    assert len(list(cache.glob("*.json"))) == 4  # 2 trials x 2 scenarios x 1 seed
+    import optuna
+
+    study = optuna.load_study(study_name="polishing+tilt-classical", storage=f"sqlite:///{db}")
+    own = current_weights(load_scenario("polishing", UNTUNED), "classical")
+    assert study.trials[0].params == pytest.approx(own)
+    assert study.trials[1].params == pytest.approx({**own, "ee_rotation": 200.0})
+    args = ([1000], Objective(), DURATION, UNTUNED)
+    run_cache = RunCache(cache)
+    both = evaluate(["polishing", "tilt"], "classical", own, *args, cache=run_cache)
+    each = [evaluate(n, "classical", own, *args, cache=run_cache) for n in ("polishing", "tilt")]
+    assert len(list(cache.glob("*.json"))) == 4  # all read back
+    assert both == pytest.approx(study.trials[0].value)
+    assert both == pytest.approx(sum(each) / 2) and each[0] != pytest.approx(each[1])
+    with pytest.raises(ConfigError, match="twice"):
+        evaluate(["polishing", "polishing"], "classical", own, *args, cache=run_cache)
