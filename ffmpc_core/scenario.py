@@ -201,6 +201,12 @@ class PlantSection:
         (0.0, 0.0, 0.0), "N", (-1e4, 1e4), "push force, world frame"
     )
     push_duration: float = param(0.0, "s", (0.0, 60.0), "push duration")
+    #: A hand's push builds up and lets go over tens of ms, not within one 1 ms physics step:
+    #: the force rises from 0 to ``push_force`` along a raised cosine over this time and falls
+    #: back the same way before the push ends (0: a step on and off; ``push_envelope``).
+    push_rise_time: float = param(
+        0.0, "s", (0.0, 30.0), "raised-cosine rise and fall of the push force (0: a step)"
+    )
     #: The tool on the flange (behind the wrist F/T sensor): the plant simulates it and the
     #: controllers' robot model carries it (the cell's load data); kg, and m in the flange frame.
     tool_mass: float = param(
@@ -761,6 +767,7 @@ def scenario_from_flat(name: str, flat: dict[str, Any], source: str = "") -> Sce
     wrist-only keys, a fixed δo setting the PID's delay line); ``source``: its file, if any."""
     scenario = SCENARIO_SCHEMA.build(flat, Scenario(name=name, source=source))
     check_force_sensor(scenario.ft_sensor)
+    check_push(scenario.plant)
     fixed = command_delay_seconds(scenario.mpc.command_delay)
     if fixed is not None:  # a fixed δo sets the PID's delay line
         cycles = delay_in_plant_steps(fixed, scenario.plant.time_step)
@@ -791,6 +798,18 @@ def check_force_sensor(section: ForceSensorSection) -> None:
             raise ConfigError(f"{names}: only with ft_sensor.model: wrist (the model is contact)")
     if section.calibration == "file" and not section.calibration_file:
         raise ConfigError("ft_sensor.calibration: file needs ft_sensor.calibration_file")
+
+
+def check_push(section: PlantSection) -> None:
+    """ConfigError for a push whose rise and fall (``plant.push_rise_time`` each) do not fit in
+    its ``plant.push_duration``."""
+    if 2.0 * section.push_rise_time > section.push_duration + 1e-12 and section.push_enabled:
+        raise config_error(
+            "plant.push_rise_time",
+            section.push_rise_time,
+            f"at most half of plant.push_duration ({section.push_duration:g} s): the force "
+            "rises and falls within the push",
+        )
 
 
 def _command_delay_setting(value: Any, spec: ParamSpec) -> str:

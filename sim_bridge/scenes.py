@@ -16,6 +16,7 @@ Units: m, s, N/m, N·s/m; positions in the world frame.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
@@ -190,11 +191,29 @@ class SimulatedRobot:
     push_at: int
     push_steps: int
     push_force: np.ndarray
+    push_rise_steps: int = 0
 
     def push_if_due(self, k: int) -> None:
-        """Start the external push when cycle k is its cycle."""
-        if k == self.push_at:
-            self.plant.apply_external_push(self.push_force, self.push_steps)
+        """Apply the external push of cycle k: the whole push at its first cycle when it is a
+        step (``push_rise_steps`` 0), else this cycle's share of its envelope
+        (:func:`push_envelope`)."""
+        if self.push_rise_steps == 0:
+            if k == self.push_at:
+                self.plant.apply_external_push(self.push_force, self.push_steps)
+        elif 0 <= self.push_at <= k < self.push_at + self.push_steps:
+            scale = push_envelope(k - self.push_at, self.push_steps, self.push_rise_steps)
+            self.plant.apply_external_push(scale * self.push_force, 1)
+
+
+def push_envelope(step: int, steps: int, rise_steps: int) -> float:
+    """The push force's fraction (0–1) at physics step ``step`` of a push of ``steps`` steps
+    whose force rises and falls along a raised cosine over ``rise_steps`` steps each
+    (``plant.push_rise_time``), sampled at the middle of the step; 1 throughout when
+    ``rise_steps`` is 0."""
+    if rise_steps <= 0:
+        return 1.0
+    edge = min(step + 0.5, steps - step - 0.5) / rise_steps
+    return 0.5 - 0.5 * math.cos(math.pi * min(1.0, max(0.0, edge)))
 
 
 def simulated_robot(
@@ -221,4 +240,5 @@ def simulated_robot(
         push_at=int(round(p.push_time / dt)) if p.push_enabled else -1,
         push_steps=int(round(p.push_duration / dt)),
         push_force=np.array(p.push_force, dtype=float),
+        push_rise_steps=int(round(p.push_rise_time / dt)),
     )

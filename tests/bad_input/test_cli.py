@@ -199,6 +199,11 @@ CASES: dict[str, tuple[list[str], dict[str, str], str]] = {
         {},
         "task.contact_force = 0: expected a number in [0.001, 500] N",
     ),
+    "run-push-rise-longer-than-half": (
+        ["ffmpc", "run", "push", "--set", "plant.push_rise_time=0.15"],
+        {},
+        "plant.push_rise_time = 0.15: expected at most half of plant.push_duration (0.2 s)",
+    ),
     "study-compare-missing": (
         ["ffmpc", "study", "compare", "nowhere.json", "existing.json"],
         {},
