@@ -240,6 +240,7 @@ SHORT_PUSH = {
     "task.start_height": 0.0,
     "plant.push_time": 0.2,
     "plant.push_duration": 0.05,
+    "plant.push_rise_time": 0.01,  # the scenario's 0.05 s does not fit twice in 0.05 s
     "plant.push_force": [0.0, 80.0, 0.0],
 }
 
