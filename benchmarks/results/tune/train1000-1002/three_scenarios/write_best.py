@@ -1,0 +1,41 @@
+"""Write each search's best weights among its first N completed trials (the same budget for the
+three searches) as ``best_<formulation>.txt`` and, for the three together, ``tuned_weights.yaml``
+(a ``--set-file`` mapping, 4 significant digits), from the searches' Optuna storage.
+
+    python benchmarks/results/tune/train1000-1002/three_scenarios/write_best.py DB N
+"""
+
+import sys
+from pathlib import Path
+
+import optuna
+
+FORMULATIONS = ("classical", "torque_feedback", "force_feedback")
+
+db, budget = sys.argv[1], int(sys.argv[2])
+here = Path(__file__).parent
+optuna.logging.set_verbosity(optuna.logging.WARNING)
+weights: list[str] = []
+for form in FORMULATIONS:
+    name = f"three-scenarios-{form}"
+    study = optuna.load_study(study_name=name, storage=f"sqlite:///{db}")
+    done = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
+    done = sorted(done, key=lambda t: t.number)[:budget]
+    best = min(done, key=lambda t: t.value)
+    lines = [
+        f"search {name} ({Path(db).name}): the first {len(done)} completed trials",
+        f"  trial 0 (the scenario files' weights): J = {done[0].value:.4f}",
+        f"  best: trial {best.number}, J = {best.value:.4f}",
+        *(f"    mpc.weights.{form}.{k} = {v:.6g}" for k, v in best.params.items()),
+        f"  J per trial: {', '.join(f'{t.value:.3f}' for t in done)}",
+    ]
+    (here / f"best_{form}.txt").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    weights += [f"mpc.weights.{form}.{k}: {float(f'{v:.4g}')!r}" for k, v in best.params.items()]
+header = (
+    "# The cost weights of the three MPCs tuned alike by `ffmpc tune` on the slow circle, the fast\n"
+    "# circle and the push at once (tune.sh here: training seeds 1000-1002, sampler seed 0, the\n"
+    "# hard constraints and the robot's reflexes on): the best of each search's first "
+    f"{budget}\n# completed trials, 4 significant digits, as `--set-file` overrides.\n\n"
+)
+(here / "tuned_weights.yaml").write_text(header + "\n".join(weights) + "\n")
