@@ -33,9 +33,10 @@ for form in FORMULATIONS:
     print("\n".join(lines))
     weights += [f"mpc.weights.{form}.{k}: {float(f'{v:.4g}')!r}" for k, v in best.params.items()]
 header = (
-    "# The cost weights of the three MPCs tuned alike by `ffmpc tune` on the slow circle, the fast\n"
-    "# circle and the push at once (tune.sh here: training seeds 1000-1002, sampler seed 0, the\n"
-    "# hard constraints and the robot's reflexes on): the best of each search's first "
+    "# The cost weights of the three MPCs tuned alike by `ffmpc tune` on the slow circle, the\n"
+    "# fast circle and the push at once (tune.sh here: training seeds 1000-1002, sampler seed 0,\n"
+    "# the"
+    " hard constraints and the robot's reflexes on): the best of each search's first "
     f"{budget}\n# completed trials, 4 significant digits, as `--set-file` overrides.\n\n"
 )
 (here / "tuned_weights.yaml").write_text(header + "\n".join(weights) + "\n")
