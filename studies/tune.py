@@ -225,9 +225,11 @@ def start_weights(
     out = dict(base)
     for name in names:
         if name in found:
-            value = float(found[name])
+            raw = found[name]
+            number = isinstance(raw, int | float) and not isinstance(raw, bool)
+            value = float(raw) if number else math.nan
             if not math.isfinite(value):
-                raise ConfigError(f"{prefix}{name} = {found[name]!r}: not a finite number")
+                raise ConfigError(f"{prefix}{name} = {raw!r}: not a finite number")
             low, high, _ = SEARCH_SPACE[name]
             out[name] = min(max(value, low), high)
     return out
@@ -292,6 +294,8 @@ def tune(
     if formulation not in SEARCH_SPACE["force_phase"][2]:
         raise ConfigError(f"unknown formulation {formulation!r}")
     objective = objective or Objective()
+    own = current_weights(scenario, formulation)
+    starts = [start_weights(doc, formulation, own) for doc in start_from]  # checked before any run
     url = storage if "://" in storage else f"sqlite:///{Path(storage).resolve()}"
     name = study_name or "+".join(s.name for s in scenarios.values()) + f"-{formulation}"
     optuna.logging.set_verbosity(optuna.logging.WARNING)
@@ -322,10 +326,9 @@ def tune(
         # random start-up repeats them); seeded with the number of trials stored, it goes on.
         study = open_study(sampler_seed + len(study.trials))
     if not study.trials:  # a new search starts from the scenario's own weights
-        own = current_weights(scenario, formulation)
         study.enqueue_trial(own)
-        for doc in start_from:
-            study.enqueue_trial(start_weights(doc, formulation, own), skip_if_exists=True)
+        for point in starts:
+            study.enqueue_trial(point, skip_if_exists=True)
     names = searched_names(formulation)
 
     cache = None if cache_dir is None else RunCache(cache_dir)

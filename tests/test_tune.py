@@ -147,8 +147,9 @@ def test_start_weights_take_the_formulations_keys_clipped_to_the_search_bounds()
     assert start["force_phase"] == base["force_phase"]  # not in the file: the scenario's
     with pytest.raises(ConfigError, match="no searched"):
         start_weights({"mpc.weights.force_feedback.ee_rotation": 43.0}, "classical", base)
-    with pytest.raises(ConfigError, match="finite"):
-        start_weights({"mpc.weights.classical.ee_rotation": math.nan}, "classical", base)
+    for bad in (math.nan, "big", True):
+        with pytest.raises(ConfigError, match="finite"):
+            start_weights({"mpc.weights.classical.ee_rotation": bad}, "classical", base)
 
 
 def test_a_search_over_two_scenarios_averages_both_and_tries_the_start_points(tmp_path):

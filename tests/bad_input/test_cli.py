@@ -204,6 +204,11 @@ CASES: dict[str, tuple[list[str], dict[str, str], str]] = {
         {},
         "plant.push_rise_time = 0.15: expected at most half of plant.push_duration (0.2 s)",
     ),
+    "tune-start-from-without-weights": (
+        ["ffmpc", "tune", "classical", "--start-from", "existing.json"],
+        {},
+        "no searched mpc.weights.classical.* weight in the starting point (['keep'])",
+    ),
     "study-compare-missing": (
         ["ffmpc", "study", "compare", "nowhere.json", "existing.json"],
         {},
