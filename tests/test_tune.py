@@ -33,6 +33,12 @@ UNTUNED = {
 }
 
 
+def _two_trials(db) -> list[str]:
+    """``ffmpc tune classical``: 2 trials on training seed 1000, stored in ``db``."""
+    return ["tune", "classical", "--seeds", "1", "--first-seed", "1000", "--trials", "2",
+            "--storage", str(db)]  # fmt: skip
+
+
 def test_objective_is_the_stated_sum():
     j = Objective(position_weight=0.5, break_penalty=10.0, force_limit=150.0, force_penalty=1.0)
     assert j.of(4.0, 6.0, 0.0, 100.0) == pytest.approx(4.0 + 3.0)
@@ -84,16 +90,7 @@ def test_a_few_trials_improve_the_objective_and_the_search_resumes(tmp_path, cap
     # Resumed through the command line: the 4 trials are loaded, 2 more are added.
     code = main(
         [
-            "tune",
-            "classical",
-            "--seeds",
-            "1",
-            "--first-seed",
-            "1000",
-            "--trials",
-            "2",
-            "--storage",
-            str(db),
+            *_two_trials(db),
             "--sampler-seed",
             "3",
             "--duration",
@@ -163,22 +160,13 @@ def test_a_search_over_two_scenarios_averages_both_and_tries_the_start_points(tm
     start.write_text("mpc.weights.classical.ee_rotation: 200.0\n", encoding="utf-8")
     code = main(
         [
-            "tune",
-            "classical",
+            *_two_trials(db),
             "--scenario",
             "polishing",
             "--scenario",
             "tilt",
             "--start-from",
             str(start),
-            "--seeds",
-            "1",
-            "--first-seed",
-            "1000",
-            "--trials",
-            "2",
-            "--storage",
-            str(db),
             "--duration",
             str(DURATION),
             "--workers",
