@@ -209,6 +209,11 @@ CASES: dict[str, tuple[list[str], dict[str, str], str]] = {
         {},
         "no searched mpc.weights.classical.* weight in the starting point (['keep'])",
     ),
+    "tune-scenario-twice": (
+        ["ffmpc", "tune", "classical", "--scenario", "polishing", "--scenario", "polishing"],
+        {},
+        "a training scenario is given twice: ['polishing', 'polishing']",
+    ),
     "study-compare-missing": (
         ["ffmpc", "study", "compare", "nowhere.json", "existing.json"],
         {},
