@@ -50,7 +50,6 @@ from ffmpc_core.tasks import (
     GuardedApproach,
     GuardedTask,
     LiveTask,
-    PhaseWeights,
     PolishingTask,
 )
 from ffmpc_core.wrist_ft import (
@@ -121,12 +120,7 @@ def _timed_task(scenario: Scenario, robot: RobotModel) -> PolishingTask | ForceS
     task = scenario.task
     start = robot.contact_placement(robot.q_nominal).translation.copy()
     contact = start - np.array([0.0, 0.0, task.start_height])
-    mpc = scenario.mpc
-    weights = PhaseWeights(
-        free_ee_position=mpc.phase_weight("ee_position_phase", PhaseWeights.free_ee_position),
-        contact_ee_position=mpc.phase_weight("ee_position_phase", 1e3),
-        force=mpc.phase_weight("force_phase", PhaseWeights.force),
-    )
+    weights = scenario.mpc.phase_weights()
     common: dict[str, Any] = dict(
         start_position=start,
         contact_position=contact,

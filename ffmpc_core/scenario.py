@@ -47,6 +47,7 @@ from ffmpc_core.declaration import FieldDecl, declaration, param
 from ffmpc_core.errors import ConfigError
 from ffmpc_core.pid import PidConfig
 from ffmpc_core.sensing import JointSensorConfig
+from ffmpc_core.tasks import PhaseWeights
 
 SECTIONS = ("plant", "joint_sensor", "ft_sensor", "mpc", "pid")
 #: Simulators of the plant (``plant.engine``): the PyBullet plant (:class:`sim_bridge.plant.Plant`)
@@ -292,6 +293,15 @@ class ForceSensorSection:
     )
 
 
+#: The task's phase weights a ``mpc.weights.<formulation>`` block may set beside the
+#: CostWeights fields (:meth:`MpcSection.phase_weights`), and what each is.
+PHASE_WEIGHT_NAMES: dict[str, str] = {
+    "force_phase": "c6 of the contact phases (ffmpc_core.tasks)",
+    "ee_position_phase": "c4 of the contact phases (and of free space without ee_position_free)",
+    "ee_position_free": "c4 in free space: the stand-still, the reach, the guarded descent",
+}
+
+
 @dataclass(frozen=True)
 class MpcSection:
     """The MPC: its problem and solver (``ocp``), δo, contact model, constraints and the cost
@@ -337,15 +347,18 @@ class MpcSection:
     contact: ContactConfig = field(default_factory=ContactConfig)
     #: the hard constraints and their solver (ffmpc_core.constraints.ConstraintConfig)
     constraints: ConstraintConfig = field(default_factory=ConstraintConfig)
-    #: per formulation: CostWeights fields plus ``force_phase`` (c6) and ``ee_position_phase``
+    #: per formulation: CostWeights fields plus the task's phase weights: ``force_phase`` (c6),
+    #: ``ee_position_phase`` (c4 in contact, and in free space unless ``ee_position_free`` is
+    #: given) and ``ee_position_free`` (c4 while the tool is in the air: the stand-still, the
+    #: reach and the guarded descent)
     weights: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def cost_weights(self, formulation: str | None = None) -> CostWeights:
         """The :class:`~ffmpc_core.config.CostWeights` of ``formulation`` (default: the
         section's)."""
         values = dict(self.weights.get(formulation or self.ocp.formulation, {}))
-        values.pop("force_phase", None)
-        values.pop("ee_position_phase", None)
+        for phase in PHASE_WEIGHT_NAMES:
+            values.pop(phase, None)
         try:
             return CostWeights(**values)
         except TypeError as exc:
@@ -355,6 +368,19 @@ class MpcSection:
         """A task phase weight (``force_phase`` c6, ``ee_position_phase`` c4) of
         ``formulation``, or ``default``."""
         return float(self.weights.get(formulation or self.ocp.formulation, {}).get(name, default))
+
+    def phase_weights(self, formulation: str | None = None) -> PhaseWeights:
+        """The task's :class:`~ffmpc_core.tasks.PhaseWeights` of ``formulation``: c4 in free
+        space is ``ee_position_free`` when given, else ``ee_position_phase`` (1/m²); c4 in
+        contact ``ee_position_phase``; c6 ``force_phase`` (1/N²); the task's defaults for
+        what is left out."""
+        default = PhaseWeights.contact_ee_position
+        contact = self.phase_weight("ee_position_phase", default, formulation)
+        return PhaseWeights(
+            free_ee_position=self.phase_weight("ee_position_free", contact, formulation),
+            contact_ee_position=contact,
+            force=self.phase_weight("force_phase", PhaseWeights.force, formulation),
+        )
 
 
 @dataclass(frozen=True)
@@ -734,10 +760,8 @@ def _scenario_given_specs() -> dict[str, ParamSpec]:
     for form in FORMULATIONS:
         prefix = f"mpc.weights.{form}."
         given.update(cost_weight_specs(prefix, CONTACT_DIMENSION))
-        for phase, what in (("force_phase", "c6"), ("ee_position_phase", "c4")):
-            given[prefix + phase] = ParamSpec(
-                prefix + phase, FLOAT, f"{what} of the task phases (ffmpc_core.tasks)", "", _NONNEG
-            )
+        for phase, what in PHASE_WEIGHT_NAMES.items():
+            given[prefix + phase] = ParamSpec(prefix + phase, FLOAT, what, "", _NONNEG)
     return given
 
 

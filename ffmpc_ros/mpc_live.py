@@ -11,7 +11,7 @@ import numpy as np
 
 from ffmpc_core.impact.learner import confident
 from ffmpc_core.mpc import ModelPredictiveController, MpcConfig
-from ffmpc_core.scenario import SCHEMA
+from ffmpc_core.scenario import PHASE_WEIGHT_NAMES, SCHEMA
 from ffmpc_core.tasks import PhaseWeights
 from ffmpc_ros.impact_common import DIRECTION_TOLERANCE
 from ffmpc_ros.input_gate import MAX_FUTURE_STAMP
@@ -53,11 +53,11 @@ def apply_live_changes(
     schedule: Any,
     changes: dict[str, Any],
     t_task: float,
-    phase_weights: Callable[[], tuple[float, float]],
+    phase_weights: Callable[[], PhaseWeights],
 ) -> None:
     """Apply accepted live parameters ``{ROS name: value}`` in place, before a solve at task
     time ``t_task`` (s): contact K (N/m), B (N·s/m), cost weights, the phase weights
-    (``phase_weights()``: the node's (force, ee_position) phase weights now), the force set-point
+    (``phase_weights()``: the node's phase weights now), the force set-point
     (N) and the position offset (m, world), both blended in from ``t_task``. FfmpcError when
     the core refuses a value."""
     contact = mpc.config.contact
@@ -70,15 +70,12 @@ def apply_live_changes(
     for name, value in changes.items():
         if name.startswith("weights."):
             term = name.rpartition(".")[2]
-            if term in ("force_phase", "ee_position_phase"):
+            if term in PHASE_WEIGHT_NAMES:
                 phase = True
             else:
                 mpc.set_cost_weight(term, value)
     if phase:
-        force, ee = phase_weights()
-        schedule.set_phase_weights(
-            PhaseWeights(free_ee_position=ee, contact_ee_position=ee, force=force)
-        )
+        schedule.set_phase_weights(phase_weights())
     if "task.normal_force" in changes:
         schedule.set_force(changes["task.normal_force"], t_task)
     if "position_offset" in changes:

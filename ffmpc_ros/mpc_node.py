@@ -43,7 +43,8 @@ rebuild of the OCP):
   with ``use_learned_contact`` the learner's next confident estimate overrides the normal entry;
 * ``weights.<formulation>.{posture,joint_velocity,torque,ee_velocity,force_rate}``: the cost
   weights c (``set_cost_weight``), of the formulation the node runs only;
-  ``weights.<formulation>.{force_phase,ee_position_phase}``: the task's phase weights c6, c4;
+  ``weights.<formulation>.{force_phase,ee_position_phase,ee_position_free}``: the task's phase
+  weights c6, c4 in contact, c4 in free space;
 * ``task.normal_force`` (N) and ``position_offset`` (m, world): the force set-point and the offset
   of the position reference (:class:`ffmpc_core.tasks.LiveTask`), blended in with a minimum jerk
   over ``RETARGET_BLEND`` s from the time of the solve that applies them.
@@ -96,6 +97,7 @@ from ffmpc_core.polishing import (
     scenario_robot,
     steps_per_mpc_period,
 )
+from ffmpc_core.tasks import PhaseWeights
 from ffmpc_ros import layouts, topics
 from ffmpc_ros.base import GraphNode, interfaces_of, run_node
 from ffmpc_ros.command_msg import command_message
@@ -278,9 +280,15 @@ class MpcNode(GraphNode):
         (:func:`ffmpc_ros.mpc_live.apply_live_changes`)."""
         form = self.config.ocp.formulation
 
-        def phase_weights() -> tuple[float, float]:
-            force = self.get_parameter(f"weights.{form}.force_phase").value
-            return force, self.get_parameter(f"weights.{form}.ee_position_phase").value
+        def phase_weights() -> PhaseWeights:
+            def value(name: str) -> float:
+                return float(self.get_parameter(f"weights.{form}.{name}").value)
+
+            return PhaseWeights(
+                free_ee_position=value("ee_position_free"),
+                contact_ee_position=value("ee_position_phase"),
+                force=value("force_phase"),
+            )
 
         t_task = self.mpc.task_time(self.grid.t_of(k))
         try:

@@ -58,6 +58,7 @@ from ffmpc_core.scenario import (
     FLOAT_OR_FLOATS,
     FLOATS,
     INT,
+    PHASE_WEIGHT_NAMES,
     SCENARIO_SCHEMA,
     SCHEMA,
     ParamSpec,
@@ -355,7 +356,7 @@ MPC_LIVE: tuple[str, ...] = (
     "contact.damping",
     "task.normal_force",
     "position_offset",
-    *(f"weights.*.{name}" for name in (*LIVE_COST_WEIGHTS, "force_phase", "ee_position_phase")),
+    *(f"weights.*.{name}" for name in (*LIVE_COST_WEIGHTS, *PHASE_WEIGHT_NAMES)),
 )
 #: The PID's live parameters: the gains of eq 33 and the low level's limits (the saturation, a
 #: fraction of the data-sheet torque limits, and the command timeout of the safe hold).
@@ -496,7 +497,8 @@ def _weight_defaults() -> dict[str, Any]:
         for f in fields(CostWeights):
             out[f"mpc.weights.{form}.{f.name}"] = getattr(CostWeights(), f.name)
         out[f"mpc.weights.{form}.force_phase"] = PhaseWeights.force
-        out[f"mpc.weights.{form}.ee_position_phase"] = PhaseWeights.free_ee_position
+        out[f"mpc.weights.{form}.ee_position_phase"] = PhaseWeights.contact_ee_position
+        out[f"mpc.weights.{form}.ee_position_free"] = PhaseWeights.free_ee_position
     return out
 
 
@@ -506,6 +508,10 @@ def scenario_flat(scenario: Scenario) -> dict[str, Any]:
     flat = SCENARIO_SCHEMA.flatten(scenario)
     weights = _weight_defaults()
     weights.update({k: v for k, v in flat.items() if k.startswith("mpc.weights.")})
+    for form in FORMULATIONS:  # c4 in free space follows c4 in contact unless set
+        weights[f"mpc.weights.{form}.ee_position_free"] = scenario.mpc.phase_weights(
+            form
+        ).free_ee_position
     flat.update(weights)
     return flat
 

@@ -120,11 +120,33 @@ def test_stiffness_set_on_a_running_mpc_changes_the_ocp_from_the_next_solve(ros,
     assert {n.model.weight("posture") for n in node.mpc.nodes} == {0.5}
 
 
+def test_free_space_position_weight_set_live_changes_only_free_space(ros, robot):
+    """weights.force_feedback.ee_position_free through the service: from the next solve, c4 of
+    the stand-still (free space) is the new value and c4 in contact keeps the scenario's."""
+    node = ros.add(MpcNode(context=ros.context, parameter_overrides=overrides("mpc")))
+    probe = ros.probe()
+    commands = recorder(probe, MpcCommand, topics.MPC_COMMAND)
+    pub_j = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
+    pub_w = probe.create_publisher(WrenchStamped, topics.SENSED_WRENCH, topics.publisher_qos())
+    client = _client(ros, "mpc")
+    _solve_tick(ros, node, pub_j, pub_w, robot, 0, commands)
+    before = node.schedule.task.weights
+    assert before.free_ee_position == before.contact_ee_position  # the scenario sets neither
+    assert _set(ros, client, "weights.force_feedback.ee_position_free", 250.0).successful
+    assert node.schedule.task.weights == before  # not before the next solve
+    _solve_tick(ros, node, pub_j, pub_w, robot, 2, commands)
+    after = node.schedule.task.weights
+    assert after.free_ee_position == 250.0
+    assert (after.contact_ee_position, after.force) == (before.contact_ee_position, before.force)
+    assert node.schedule.reference(0.01).ee_position_weight == 250.0
+    assert not _set(ros, client, "weights.force_feedback.ee_position_free", -1.0).successful
+
+
 def test_live_parameters_are_exactly_the_declared_ones(ros):
     """Every node's writable parameters are its NodeSpec.live ones (the one table)."""
     mpc = ros.add(MpcNode(context=ros.context, parameter_overrides=overrides("mpc")))
     pid = ros.add(PidNode(context=ros.context, parameter_overrides=overrides("pid")))
-    for node, expected in ((mpc, 2 + 1 + 1 + 3 * 7), (pid, 5)):
+    for node, expected in ((mpc, 2 + 1 + 1 + 3 * 8), (pid, 5)):
         writable = [d.name for d in node.describe_parameters(list(node.params)) if not d.read_only]
         assert all(node.spec.is_live(n) for n in writable)
         assert len(writable) == expected, writable

@@ -43,10 +43,7 @@ def test_nodes_load_the_scenario_file_into_the_runner_scenario(ros):
     assert replace(got, weights={}) == replace(reference.mpc, weights={})
     for form in FORMULATIONS:  # the node holds every weight; the values are the file's
         assert got.cost_weights(form) == reference.mpc.cost_weights(form)
-        for phase, default in (("force_phase", 1e-2), ("ee_position_phase", 1e3)):
-            assert got.phase_weight(phase, -1, form) == reference.mpc.phase_weight(
-                phase, default, form
-            )
+        assert got.phase_weights(form) == reference.mpc.phase_weights(form)
     assert mpc.scenario.task == reference.task
     raw = yaml.safe_load(resolve_scenario_path("polishing").read_text())
     ff = raw["/**/mpc"]["ros__parameters"]["weights"]["force_feedback"]  # the file, as text

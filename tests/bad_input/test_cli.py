@@ -204,6 +204,11 @@ CASES: dict[str, tuple[list[str], dict[str, str], str]] = {
         {},
         "plant.push_rise_time = 0.15: expected at most half of plant.push_duration (0.2 s)",
     ),
+    "run-negative-free-space-weight": (
+        ["ffmpc", "run", "polishing", "--set", "mpc.weights.force_feedback.ee_position_free=-3"],
+        {},
+        "mpc.weights.force_feedback.ee_position_free = -3: expected a number >= 0",
+    ),
     "tune-start-from-without-weights": (
         ["ffmpc", "tune", "classical", "--start-from", "existing.json"],
         {},
