@@ -498,7 +498,6 @@ def _weight_defaults() -> dict[str, Any]:
             out[f"mpc.weights.{form}.{f.name}"] = getattr(CostWeights(), f.name)
         out[f"mpc.weights.{form}.force_phase"] = PhaseWeights.force
         out[f"mpc.weights.{form}.ee_position_phase"] = PhaseWeights.contact_ee_position
-        out[f"mpc.weights.{form}.ee_position_free"] = PhaseWeights.free_ee_position
     return out
 
 
