@@ -51,6 +51,17 @@ def _solve_tick(ros, node, pub_j, pub_w, robot, k, commands, force=20.0):
     assert ros.spin_until(lambda: len(commands) == n + 1), f"no command for tick {k}"
 
 
+def _mpc_under_test(ros):
+    """An MPC node of the polishing scenario, the list its commands go to, publishers of its
+    joint-state and wrench inputs, and a parameter client of it."""
+    node = ros.add(MpcNode(context=ros.context, parameter_overrides=overrides("mpc")))
+    probe = ros.probe()
+    commands = recorder(probe, MpcCommand, topics.MPC_COMMAND)
+    pub_j = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
+    pub_w = probe.create_publisher(WrenchStamped, topics.SENSED_WRENCH, topics.publisher_qos())
+    return node, commands, pub_j, pub_w, _client(ros, "mpc")
+
+
 def _pid_under_test(ros, scenario):
     """A PID node of ``scenario``, publishers of its joint-state and command inputs, the list its
     motor torques go to, and a parameter client of it."""
@@ -72,12 +83,7 @@ def test_stiffness_set_on_a_running_mpc_changes_the_ocp_from_the_next_solve(ros,
     """contact.stiffness 1000 → 1500 N/m through the service: accepted, the OCP's K is still 1000
     until the next solve and 1500 in every node (and the δo predictor) after it; -5 N/m, NaN and
     a string are refused with a reason, one log line each, and change nothing."""
-    node = ros.add(MpcNode(context=ros.context, parameter_overrides=overrides("mpc")))
-    probe = ros.probe()
-    commands = recorder(probe, MpcCommand, topics.MPC_COMMAND)
-    pub_j = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
-    pub_w = probe.create_publisher(WrenchStamped, topics.SENSED_WRENCH, topics.publisher_qos())
-    client = _client(ros, "mpc")
+    node, commands, pub_j, pub_w, client = _mpc_under_test(ros)
     (desc,) = _call(ros, client.describe_parameters(["contact.stiffness"])).descriptors
     assert not desc.read_only and desc.floating_point_range[0].from_value == 0.0
     assert desc.floating_point_range[0].to_value == pytest.approx(1e9)
@@ -123,12 +129,7 @@ def test_stiffness_set_on_a_running_mpc_changes_the_ocp_from_the_next_solve(ros,
 def test_free_space_position_weight_set_live_changes_only_free_space(ros, robot):
     """weights.force_feedback.ee_position_free through the service: from the next solve, c4 of
     the stand-still (free space) is the new value and c4 in contact keeps the scenario's."""
-    node = ros.add(MpcNode(context=ros.context, parameter_overrides=overrides("mpc")))
-    probe = ros.probe()
-    commands = recorder(probe, MpcCommand, topics.MPC_COMMAND)
-    pub_j = probe.create_publisher(JointState, topics.SENSED_JOINT_STATES, topics.publisher_qos())
-    pub_w = probe.create_publisher(WrenchStamped, topics.SENSED_WRENCH, topics.publisher_qos())
-    client = _client(ros, "mpc")
+    node, commands, pub_j, pub_w, client = _mpc_under_test(ros)
     _solve_tick(ros, node, pub_j, pub_w, robot, 0, commands)
     before = node.schedule.task.weights
     assert before.free_ee_position == before.contact_ee_position  # the scenario sets neither
