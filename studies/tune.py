@@ -48,6 +48,7 @@ from ffmpc_core.scenario import ANY_NAMESPACE, Scenario, load_scenario, resolve_
 from studies.execute import RunCache, dask_cluster
 
 if TYPE_CHECKING:
+    import optuna
     from distributed import Client
 
 #: Cost of a trial whose run failed (an FfmpcError), in the objective's units.
@@ -367,6 +368,34 @@ def tune(
         trials_run=trials,
         out=out_path,
     )
+
+
+def first_completed(study: optuna.Study, budget: int) -> tuple[list[Any], Any]:
+    """The first ``budget`` completed trials of a search (by trial number) and the best of them
+    (lowest J): searches compared alike get the same budget however far each has run."""
+    import optuna
+
+    done = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
+    done = sorted(done, key=lambda t: t.number)[:budget]
+    if not done:
+        raise ConfigError(f"search {study.study_name!r} has no completed trial")
+    return done, min(done, key=lambda t: t.value)
+
+
+def best_trial_report(
+    study: optuna.Study, source: str, formulation: str, budget: int, trial0: str
+) -> list[str]:
+    """The lines of ``best_<formulation>.txt``: the best of the first ``budget`` completed
+    trials (:func:`first_completed`), its weights as dotted names, J of trial 0 (``trial0``
+    says what it tried) and of every trial; ``source`` names the storage."""
+    done, best = first_completed(study, budget)
+    return [
+        f"search {study.study_name} ({source}): the first {len(done)} completed trials",
+        f"  trial 0 ({trial0}): J = {done[0].value:.4f}",
+        f"  best: trial {best.number}, J = {best.value:.4f}",
+        *(f"    mpc.weights.{formulation}.{k} = {v:.6g}" for k, v in best.params.items()),
+        f"  J per trial: {', '.join(f'{t.value:.3f}' for t in done)}",
+    ]
 
 
 def write_tuned_scenario(

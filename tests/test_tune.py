@@ -193,3 +193,32 @@ def test_a_search_over_two_scenarios_averages_both_and_tries_the_start_points(tm
     assert both == pytest.approx(sum(each) / 2) and each[0] != pytest.approx(each[1])
     with pytest.raises(ConfigError, match="twice"):
         evaluate(["polishing", "polishing"], "classical", own, *args, cache=run_cache)
+
+
+def test_the_best_of_the_first_completed_trials_and_its_report():
+    """first_completed: the budget counts completed trials in trial order (a failed one is
+    skipped); best_trial_report names the best of them and lists J of each."""
+    import optuna
+
+    from studies.tune import best_trial_report, first_completed
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    study = optuna.create_study(study_name="demo")
+    values = [3.0, None, 2.0, 2.5, 1.0]  # None: a failed trial; 1.0 is past the budget of 3
+    for value in values:
+        trial = study.ask()
+        trial.suggest_float("force_phase", 0.1, 10.0)
+        if value is None:
+            study.tell(trial, state=optuna.trial.TrialState.FAIL)
+        else:
+            study.tell(trial, value)
+    done, best = first_completed(study, 3)
+    assert [t.number for t in done] == [0, 2, 3] and best.number == 2
+    lines = best_trial_report(study, "demo.db", "classical", 3, "the scenario's weights")
+    assert lines[0] == "search demo (demo.db): the first 3 completed trials"
+    assert lines[1] == "  trial 0 (the scenario's weights): J = 3.0000"
+    assert lines[2] == "  best: trial 2, J = 2.0000"
+    assert lines[3].startswith("    mpc.weights.classical.force_phase = ")
+    assert lines[-1] == "  J per trial: 3.000, 2.000, 2.500"
+    with pytest.raises(ConfigError, match="no completed trial"):
+        first_completed(optuna.create_study(study_name="empty"), 3)

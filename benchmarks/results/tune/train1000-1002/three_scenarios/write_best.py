@@ -10,6 +10,8 @@ from pathlib import Path
 
 import optuna
 
+from studies.tune import best_trial_report, first_completed
+
 FORMULATIONS = ("classical", "torque_feedback", "force_feedback")
 
 db, budget = sys.argv[1], int(sys.argv[2])
@@ -17,20 +19,11 @@ here = Path(__file__).parent
 optuna.logging.set_verbosity(optuna.logging.WARNING)
 weights: list[str] = []
 for form in FORMULATIONS:
-    name = f"three-scenarios-{form}"
-    study = optuna.load_study(study_name=name, storage=f"sqlite:///{db}")
-    done = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
-    done = sorted(done, key=lambda t: t.number)[:budget]
-    best = min(done, key=lambda t: t.value)
-    lines = [
-        f"search {name} ({Path(db).name}): the first {len(done)} completed trials",
-        f"  trial 0 (the scenario files' weights): J = {done[0].value:.4f}",
-        f"  best: trial {best.number}, J = {best.value:.4f}",
-        *(f"    mpc.weights.{form}.{k} = {v:.6g}" for k, v in best.params.items()),
-        f"  J per trial: {', '.join(f'{t.value:.3f}' for t in done)}",
-    ]
+    study = optuna.load_study(study_name=f"three-scenarios-{form}", storage=f"sqlite:///{db}")
+    lines = best_trial_report(study, Path(db).name, form, budget, "the scenario files' weights")
     (here / f"best_{form}.txt").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
+    _, best = first_completed(study, budget)
     weights += [f"mpc.weights.{form}.{k}: {float(f'{v:.4g}')!r}" for k, v in best.params.items()]
 header = (
     "# The cost weights of the three MPCs tuned alike by `ffmpc tune` on the slow circle, the\n"
