@@ -50,6 +50,7 @@ from studies.execute import RunCache, dask_cluster
 if TYPE_CHECKING:
     import optuna
     from distributed import Client
+    from optuna.trial import FrozenTrial
 
 #: Cost of a trial whose run failed (an FfmpcError), in the objective's units.
 FAILED_RUN_COST = 1e4
@@ -370,7 +371,7 @@ def tune(
     )
 
 
-def first_completed(study: optuna.Study, budget: int) -> tuple[list[Any], Any]:
+def first_completed(study: optuna.Study, budget: int) -> tuple[list[FrozenTrial], FrozenTrial]:
     """The first ``budget`` completed trials of a search (by trial number) and the best of them
     (lowest J): searches compared alike get the same budget however far each has run."""
     import optuna
@@ -379,7 +380,7 @@ def first_completed(study: optuna.Study, budget: int) -> tuple[list[Any], Any]:
     done = sorted(done, key=lambda t: t.number)[:budget]
     if not done:
         raise ConfigError(f"search {study.study_name!r} has no completed trial")
-    return done, min(done, key=lambda t: t.value)
+    return done, min(done, key=lambda t: math.inf if t.value is None else t.value)
 
 
 def best_trial_report(
