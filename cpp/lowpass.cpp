@@ -33,7 +33,7 @@ IntegratedActionModelLPF::IntegratedActionModelLPF(
     std::shared_ptr<DifferentialActionModelAbstract> differential, double dt,
     double cutoff_frequency, double lowpass_input_weight, const std::string& torque_cost,
     const Eigen::MatrixXd& constraint_matrix, const Eigen::VectorXd& control_scale,
-    bool control_rows)
+    bool control_rows, const std::string& torque_integration)
     : Base(std::make_shared<crocoddyl::StateVector>(3 * differential->get_state()->get_nv()),
            differential->get_state()->get_nv(), 0,
            ConstraintRows(constraint_matrix, control_scale,
@@ -47,6 +47,9 @@ IntegratedActionModelLPF::IntegratedActionModelLPF(
       alpha_(0.0),
       lowpass_input_weight_(lowpass_input_weight),
       torque_cost_(torque_cost),
+      next_torque_(torque_integration == "next"),
+      state_gain_(1.0),
+      control_gain_(0.0),
       nv_(differential->get_state()->get_nv()),
       constraint_rows_(constraint_matrix, control_scale, 3 * nv_, nv_, control_rows) {
   if (differential->get_state()->get_nq() != nv_) {
@@ -65,7 +68,14 @@ IntegratedActionModelLPF::IntegratedActionModelLPF(
   if (!std::isfinite(lowpass_input_weight) || lowpass_input_weight < 0.0) {
     throw ConfigError("IntegratedActionModelLPF: lowpass_input_weight must be >= 0");
   }
+  if (torque_integration != "current" && torque_integration != "next") {
+    throw ConfigError("IntegratedActionModelLPF: torque_integration must be 'current' or 'next'");
+  }
   alpha_ = std::exp(-2.0 * M_PI * cutoff_frequency * dt);  // eq 13
+  if (next_torque_) {
+    state_gain_ = alpha_;
+    control_gain_ = 1.0 - alpha_;
+  }
 }
 
 void IntegratedActionModelLPF::require_torque_residual(const IntegratedActionDataLPF& d) const {
@@ -82,15 +92,16 @@ void IntegratedActionModelLPF::calc(const std::shared_ptr<ActionDataAbstract>& d
   auto* d = static_cast<IntegratedActionDataLPF*>(data.get());
   require_torque_residual(*d);
   const std::size_t nv = nv_;
-  const auto tau = x.tail(nv);
+  // τ_a = s_x·τ + s_u·w: τ ("current", eq 14a) or τ⁺ = α·τ + (1 − α)·w ("next")
+  d->applied_torque = state_gain_ * x.tail(nv) + control_gain_ * u;
   const auto& dd = d->differential;
-  differential_->calc(dd, x.head(2 * nv), tau);
+  differential_->calc(dd, x.head(2 * nv), d->applied_torque);
   // v⁺ = v + Δt·q̈; q⁺ = q + Δt·v⁺; τ⁺ = α·τ + (1 − α)·w (eq 13–14a)
   d->xnext.segment(nv, nv) = x.segment(nv, nv) + dt_ * dd->xout;
   d->xnext.head(nv) = x.head(nv) + dt_ * d->xnext.segment(nv, nv);
-  d->xnext.tail(nv) = alpha_ * tau + (1.0 - alpha_) * u;
-  // eq 28: r_w = w − τ_g(q, λ^r), τ_g = τ − r_torque
-  d->lowpass_residual = u - (tau - d->torque_residual->r);
+  d->xnext.tail(nv) = alpha_ * x.tail(nv) + (1.0 - alpha_) * u;
+  // eq 28: r_w = w − τ_g(q, λ^r), τ_g = τ_a − r_torque
+  d->lowpass_residual = u - (d->applied_torque - d->torque_residual->r);
   d->cost = dt_ * (dd->cost + 0.5 * lowpass_input_weight_ * d->lowpass_residual.squaredNorm());
   constraint_rows_.calc(d->g, x, u);
 }
@@ -118,48 +129,71 @@ void IntegratedActionModelLPF::calcDiff(const std::shared_ptr<ActionDataAbstract
   auto* d = static_cast<IntegratedActionDataLPF*>(data.get());
   require_torque_residual(*d);
   const std::size_t nv = nv_, n2 = 2 * nv;
-  const auto tau = x.tail(nv);
+  const double sx = state_gain_, su = control_gain_;
+  d->applied_torque = sx * x.tail(nv) + su * u;
   const auto& dd = d->differential;
-  differential_->calcDiff(dd, x.head(n2), tau);
+  differential_->calcDiff(dd, x.head(n2), d->applied_torque);
 
-  // v⁺ = v + Δt·q̈(q, v, τ): rows nv..2nv; q⁺ = q + Δt·v⁺: rows 0..nv; τ⁺ = α·τ + (1 − α)·w.
+  // v⁺ = v + Δt·q̈(q, v, τ_a): rows nv..2nv; q⁺ = q + Δt·v⁺: rows 0..nv; τ⁺ = α·τ + (1 − α)·w;
+  // τ_a = s_x·τ + s_u·w.
   auto Fv = d->Fx.middleRows(nv, nv);
   Fv.leftCols(n2) = dt_ * dd->Fx;
-  Fv.rightCols(nv) = dt_ * dd->Fu;
+  Fv.rightCols(nv) = (dt_ * sx) * dd->Fu;
   Fv.middleCols(nv, nv).diagonal().array() += 1.0;
   d->Fx.topRows(nv) = dt_ * Fv;
   d->Fx.topLeftCorner(nv, nv).diagonal().array() += 1.0;
   d->Fx.bottomRows(nv).setZero();
   d->Fx.bottomRightCorner(nv, nv).diagonal().setConstant(alpha_);
   d->Fu.setZero();
+  if (next_torque_) {
+    d->Fu.middleRows(nv, nv) = (dt_ * su) * dd->Fu;
+    d->Fu.topRows(nv) = dt_ * d->Fu.middleRows(nv, nv);
+  }
   d->Fu.bottomRows(nv).diagonal().setConstant(1.0 - alpha_);
 
-  // ℓ0 with u = τ (its control derivatives are τ-state derivatives), then eq 28:
-  // r_w = w − τ_g(q, λ^r(q, v, τ)), ∂τ_g/∂(q, v) = −R_x, ∂τ_g/∂τ = I − R_u.
+  // In y = (q, v, τ_a): ℓ0 with u = τ_a, then eq 28 r_w = w − τ_g(y), ∂τ_g/∂(q, v) = −R_x,
+  // ∂τ_g/∂τ_a = I − R_u: M = H0 + c_w·GᵀG, h = g0 − c_w·Gᵀr_w. Mapped to (x, w) through
+  // J = ∂y/∂x = diag(I, s_x·I), ∂y/∂w = s_u·E_τ: Lxx = Δt·JᵀMJ, Lx = Δt·Jᵀh,
+  // Lxu = Δt·Jᵀ(s_u·M_{:,τ} − c_w·Gᵀ), Lu = Δt·(s_u·h_τ + c_w·r_w),
+  // Luu = Δt·(s_u²·M_ττ − c_w·s_u·(G_τ + G_τᵀ) + c_w·I).
   const double cw = lowpass_input_weight_;
   const auto& residual = *d->torque_residual;
-  d->lowpass_residual = u - tau + residual.r;
+  d->lowpass_residual = u - d->applied_torque + residual.r;
   auto& G = d->dtau_g_dx;
   G.leftCols(n2) = -residual.Rx;
   G.rightCols(nv) = -residual.Ru;
   G.rightCols(nv).diagonal().array() += 1.0;
 
-  auto& Lxx = d->Lxx;
-  Lxx.topLeftCorner(n2, n2) = dd->Lxx;
-  Lxx.topRightCorner(n2, nv) = dd->Lxu;
-  Lxx.bottomLeftCorner(nv, n2) = dd->Lxu.transpose();
-  Lxx.bottomRightCorner(nv, nv) = dd->Luu;
+  auto& M = d->hessian;
+  M.topLeftCorner(n2, n2) = dd->Lxx;
+  M.topRightCorner(n2, nv) = dd->Lxu;
+  M.bottomLeftCorner(nv, n2) = dd->Lxu.transpose();
+  M.bottomRightCorner(nv, nv) = dd->Luu;
   d->cw_gtg.noalias() = G.transpose() * G;
-  Lxx.noalias() += cw * d->cw_gtg;
-  Lxx *= dt_;
-  d->Lx.head(n2) = dd->Lx;
-  d->Lx.tail(nv) = dd->Lu;
-  d->Lx.noalias() -= cw * (G.transpose() * d->lowpass_residual);
-  d->Lx *= dt_;
+  M.noalias() += cw * d->cw_gtg;
+  auto& h = d->gradient;
+  h.head(n2) = dd->Lx;
+  h.tail(nv) = dd->Lu;
+  h.noalias() -= cw * (G.transpose() * d->lowpass_residual);
+
+  d->Lxx = dt_ * M;
+  d->Lx = dt_ * h;
   d->Lxu.noalias() = (-cw * dt_) * G.transpose();
   d->Lu = (cw * dt_) * d->lowpass_residual;
   d->Luu.setZero();
   d->Luu.diagonal().setConstant(cw * dt_);
+  if (next_torque_) {
+    d->Lxu.noalias() += (dt_ * su) * M.rightCols(nv);
+    d->Lu.noalias() += (dt_ * su) * h.tail(nv);
+    d->Luu.noalias() += (dt_ * su * su) * M.bottomRightCorner(nv, nv);
+    d->Luu.noalias() -= (dt_ * cw * su) * G.rightCols(nv);
+    d->Luu.noalias() -= (dt_ * cw * su) * G.rightCols(nv).transpose();
+    // rows and columns of τ scaled by s_x = α (J = diag(I, α·I))
+    d->Lxx.bottomRows(nv) *= sx;
+    d->Lxx.rightCols(nv) *= sx;
+    d->Lx.tail(nv) *= sx;
+    d->Lxu.bottomRows(nv) *= sx;
+  }
   constraint_rows_.calcDiff(d->Gx, d->Gu);
 }
 
@@ -210,15 +244,18 @@ std::shared_ptr<crocoddyl::ActionModelBase> IntegratedActionModelLPF::cloneAsFlo
 void IntegratedActionModelLPF::print(std::ostream& os) const {
   os << "IntegratedActionModelLPF {dt=" << dt_ << ", cutoff_frequency=" << cutoff_frequency_
      << ", alpha=" << alpha_ << ", lowpass_input_weight=" << lowpass_input_weight_
-     << ", ng=" << ng_ << "}";
+     << ", torque_integration=" << get_torque_integration() << ", ng=" << ng_ << "}";
 }
 
 IntegratedActionDataLPF::IntegratedActionDataLPF(IntegratedActionModelLPF* const model)
     : Base(model),
       differential(model->get_differential()->createData()),
       lowpass_residual(VectorXd::Zero(model->get_nv())),
+      applied_torque(VectorXd::Zero(model->get_nv())),
       dtau_g_dx(MatrixXd::Zero(model->get_nv(), 3 * model->get_nv())),
-      cw_gtg(MatrixXd::Zero(3 * model->get_nv(), 3 * model->get_nv())) {
+      cw_gtg(MatrixXd::Zero(3 * model->get_nv(), 3 * model->get_nv())),
+      hessian(MatrixXd::Zero(3 * model->get_nv(), 3 * model->get_nv())),
+      gradient(VectorXd::Zero(3 * model->get_nv())) {
   const std::shared_ptr<crocoddyl::CostDataSum> costs = cost_data_of(differential);
   if (costs) {
     const auto it = costs->costs.find(model->get_torque_cost());

@@ -23,14 +23,17 @@ void expose_lowpass() {
       "Eq 13-14 and 28 as a crocoddyl action model on x = (q, v, tau), u = w (C++ port of\n"
       "ffmpc_core.lowpass.IntegratedActionModelLPF: same step, cost and derivatives).",
       bp::init<std::shared_ptr<crocoddyl::DifferentialActionModelAbstract>, double, double, double,
-               std::string, Eigen::MatrixXd, Eigen::VectorXd, bool>(
+               std::string, Eigen::MatrixXd, Eigen::VectorXd, bool, bp::optional<std::string>>(
           bp::args("self", "differential", "dt", "cutoff_frequency", "lowpass_input_weight",
-                   "torque_cost", "constraint_matrix", "control_scale", "control_rows"),
+                   "torque_cost", "constraint_matrix", "control_scale", "control_rows",
+                   "torque_integration"),
           "differential: control tau (nu == nv == nq); dt: s; cutoff_frequency: f_c, Hz;\n"
           "lowpass_input_weight: c_w, 1/(N.m)^2; torque_cost: name of the eq 25.3 cost whose\n"
           "residual tau - tau_g gives tau_g (running nodes); constraint_matrix: the\n"
           "state-only constraint rows S on (q, v, tau) (0 rows: none); control_rows: also the\n"
-          "rows control_scale .* w (running). Bounds in g_lb, g_ub."))
+          "rows control_scale .* w (running). Bounds in g_lb, g_ub. torque_integration:\n"
+          "'current' (qdd at the state's tau, eq 14a) or 'next' (at tau+ = alpha tau +\n"
+          "(1 - alpha) w, the authors' tau_plus_integration)."))
       .def<void (Model::*)(const std::shared_ptr<ActionDataAbstract>&, const ConstRef&,
                            const ConstRef&)>("calc", &Model::calc,
                                              bp::args("self", "data", "x", "u"),
@@ -62,6 +65,8 @@ void expose_lowpass() {
       .add_property("ng_T", +[](const Model& m) { return m.get_ng_T(); },
                     "Constraint rows of a call without a control (a terminal node).")
       .add_property("nv", &Model::get_nv, "Joint-velocity dimension.")
+      .add_property("torque_integration", &Model::get_torque_integration,
+                    "'current' or 'next': the torque qdd is computed at.")
       .add_property(
           "constraint_matrix",
           +[](const Model& m) { return Eigen::MatrixXd(m.get_constraint_rows().state_matrix); },
@@ -87,6 +92,9 @@ void expose_lowpass() {
       .add_property("lowpass_residual",
                     bp::make_getter(&Data::lowpass_residual, bp::return_internal_reference<>()),
                     "w - tau_g of eq 28 after calc, N.m.")
+      .add_property("applied_torque",
+                    bp::make_getter(&Data::applied_torque, bp::return_internal_reference<>()),
+                    "tau_a, the torque qdd was computed at, after calc, N.m.")
       .add_property("dtau_g_dx",
                     bp::make_getter(&Data::dtau_g_dx, bp::return_internal_reference<>()),
                     "d tau_g / dx (nv x 3nv) after calcDiff.");

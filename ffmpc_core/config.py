@@ -23,6 +23,8 @@ from ffmpc_core.declaration import param
 from ffmpc_core.errors import ConfigError
 
 FORMULATIONS = ("classical", "torque_feedback", "force_feedback")
+#: The torque q̈ of a torque-feedback node is computed at (OcpConfig.torque_integration).
+TORQUE_INTEGRATIONS = ("current", "next")
 #: Implementations of the project's own action models: C++ (ffmpc_core.native) or the Python
 #: reference (MpcConfig.backend, scenario mpc.backend).
 BACKENDS = ("native", "python")
@@ -119,6 +121,11 @@ class OcpConfig:
         max_iterations: SQP iterations per solve (paper: 8).
         kkt_tolerance: SQP termination tolerance on the KKT residual (paper: 1e-4).
         cutoff_frequency: low-pass actuation cut-off f_c, Hz (torque-feedback; paper: 50 Hz).
+        torque_integration: the torque q̈ of a torque-feedback node is computed at:
+            ``"current"``, the node's filtered torque τ (eq 14a, the paper), or ``"next"``,
+            τ⁺ = α·τ + (1 − α)·w (the authors' ``tau_plus_integration``), with which the MPC
+            sends τ₁* (ε = 1 in eq 15: τ₁* is the torque its plan applies from now on).
+            :func:`ffmpc_core.lowpass.applied_torque_gains`.
     """
 
     formulation: str = param("force_feedback", "", list(FORMULATIONS), "OCP formulation")
@@ -130,6 +137,12 @@ class OcpConfig:
     max_iterations: int = param(8, "", (1, 1000), "SQP iterations per solve")
     kkt_tolerance: float = param(1e-4, "", (1e-12, 1.0), "SQP KKT tolerance")
     cutoff_frequency: float = param(50.0, "Hz", (1e-3, 1e4), "low-pass actuation cut-off f_c")
+    torque_integration: str = param(
+        "current",
+        "",
+        list(TORQUE_INTEGRATIONS),
+        "torque-feedback q̈ at the state's τ (current, eq 14a) or at τ⁺ (next, tau_plus)",
+    )
 
     def __post_init__(self) -> None:
         if self.formulation not in FORMULATIONS:
@@ -140,6 +153,11 @@ class OcpConfig:
             raise ConfigError("horizon must be >= 1 and dt, period > 0")
         if self.cutoff_frequency <= 0 or self.max_iterations < 1 or self.kkt_tolerance <= 0:
             raise ConfigError("cutoff_frequency, max_iterations, kkt_tolerance must be > 0")
+        if self.torque_integration not in TORQUE_INTEGRATIONS:
+            raise ConfigError(
+                f"torque_integration must be one of {TORQUE_INTEGRATIONS}, "
+                f"got {self.torque_integration!r}"
+            )
 
 
 @dataclass(frozen=True)

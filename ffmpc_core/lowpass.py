@@ -18,11 +18,15 @@ data ``differential``, ``torque_residual``, ``lowpass_residual``), held equal to
 ``tests/test_native_lowpass.py``. :func:`make_lowpass_model` picks one by ``backend``
 (``"native"`` by default, as every node builder here; see :mod:`ffmpc_core.rigid_contact`).
 
-Discrete dynamics (eq 14a): q̈ from the differential model at (q, v, τ); semi-implicit Euler
+Discrete dynamics (eq 14a): q̈ from the differential model at (q, v, τ_a); semi-implicit Euler
 v⁺ = v + Δt·q̈, q⁺ = q + Δt·v⁺; the filter under zero-order hold τ⁺ = α·τ + (1 − α)·w with
-α = exp(−ω_c·Δt) (eq 13).
+α = exp(−ω_c·Δt) (eq 13). τ_a, the torque the joints accelerate under during the interval, is
+chosen by ``torque_integration`` (:func:`applied_torque_gains`): ``"current"`` τ_a = τ, the paper's
+eq 14a, in which the control w of node k first moves the joints at node k + 1; or ``"next"``
+τ_a = τ⁺, the authors' ``tau_plus_integration`` option, in which w acts in its own interval as
+the classical MPC's control does (docs/results/tuning.md measures both).
 
-Running cost: Δt·[ℓ0(q, v, τ) + c_w·½·‖w − τ_g(q, λ^r)‖²] (eq 28, Q_w = I: ``CostWeights`` has
+Running cost: Δt·[ℓ0(q, v, τ_a) + c_w·½·‖w − τ_g(q, λ^r)‖²] (eq 28, Q_w = I: ``CostWeights`` has
 no diagonal for it), with τ_g = g(q) − J(q)ᵀλ^r the same gravity-under-contact torque as in
 eq 25.3. Terminal cost: the state terms of ℓ0 on (q, v) (no Δt factor) plus, as in the authors'
 configuration (``ctrlRegGravWeightTerminal``), c3_T·½‖τ − g(q)‖²_Q3 on the filtered torque τ of
@@ -43,7 +47,7 @@ import math
 import crocoddyl
 import numpy as np
 
-from ffmpc_core.config import ContactConfig, CostWeights
+from ffmpc_core.config import TORQUE_INTEGRATIONS, ContactConfig, CostWeights
 from ffmpc_core.constraints import ConstraintRows, OcpBounds
 from ffmpc_core.errors import ConfigError, InputError, ModelError
 from ffmpc_core.rigid_contact import (
@@ -83,6 +87,17 @@ def lowpass_filter_step(tau: np.ndarray, w: np.ndarray, alpha: float) -> np.ndar
     return alpha * tau + (1.0 - alpha) * w
 
 
+def applied_torque_gains(torque_integration: str, alpha: float) -> tuple[float, float]:
+    """(s_x, s_u) of τ_a = s_x·τ + s_u·w: (1, 0) for ``"current"`` (τ_a = τ, eq 14a), (α, 1 − α)
+    for ``"next"`` (τ_a = τ⁺ of eq 13, the authors' ``tau_plus_integration``).
+    ConfigError for another name."""
+    if torque_integration not in TORQUE_INTEGRATIONS:
+        raise ConfigError(
+            f"torque_integration must be one of {TORQUE_INTEGRATIONS}, got {torque_integration!r}"
+        )
+    return (1.0, 0.0) if torque_integration == "current" else (alpha, 1.0 - alpha)
+
+
 def check_lowpass_arguments(
     differential: crocoddyl.DifferentialActionModelAbstract,
     dt: float,
@@ -110,6 +125,7 @@ def make_lowpass_model(
     constraint_matrix: np.ndarray | None = None,
     control_rows: bool = True,
     control_scale: np.ndarray | None = None,
+    torque_integration: str = "current",
 ) -> crocoddyl.ActionModelAbstract:
     """The low-pass integrator (eq 13–14, 28) around ``differential``: the C++ port
     (``backend="native"``) or the Python :class:`IntegratedActionModelLPF` (``"python"``).
@@ -125,8 +141,10 @@ def make_lowpass_model(
             constraint_matrix,
             control_rows,
             control_scale,
+            torque_integration,
         )
     check_lowpass_arguments(differential, dt, cutoff_frequency, lowpass_input_weight)
+    applied_torque_gains(torque_integration, 0.0)  # validates the name
     nv = differential.state.nv
     matrix = np.zeros((0, 3 * nv)) if constraint_matrix is None else constraint_matrix
     return native_module().IntegratedActionModelLPF(
@@ -138,6 +156,7 @@ def make_lowpass_model(
         np.asarray(matrix, dtype=np.float64),
         np.ones(nv) if control_scale is None else np.asarray(control_scale, np.float64),
         bool(control_rows),
+        torque_integration,
     )
 
 
@@ -156,6 +175,8 @@ class IntegratedActionModelLPF(crocoddyl.ActionModelAbstract):
             ``g_lb``/``g_ub``).
         control_rows: whether g also has the rows c ∘ w (a running node; False: terminal).
         control_scale: c (nv; default 1), see ``constraint_matrix``.
+        torque_integration: ``"current"`` (q̈ and ℓ0 at the state's τ, eq 14a) or ``"next"``
+            (at τ⁺ = α·τ + (1 − α)·w, the authors' ``tau_plus_integration``).
 
     Called as ``calc(data, x)`` (a terminal node) it evaluates the differential model's cost on
     (q, v) only and leaves x unchanged, as crocoddyl's own integrators do; when that (terminal)
@@ -173,6 +194,7 @@ class IntegratedActionModelLPF(crocoddyl.ActionModelAbstract):
         constraint_matrix: np.ndarray | None = None,
         control_rows: bool = True,
         control_scale: np.ndarray | None = None,
+        torque_integration: str = "current",
     ) -> None:
         check_lowpass_arguments(differential, dt, cutoff_frequency, lowpass_input_weight)
         nv = differential.state.nv
@@ -184,13 +206,13 @@ class IntegratedActionModelLPF(crocoddyl.ActionModelAbstract):
         self.cutoff_frequency = float(cutoff_frequency)
         self.alpha = lowpass_alpha(cutoff_frequency, dt)
         self.lowpass_input_weight = float(lowpass_input_weight)
+        self.torque_integration = torque_integration
+        #: τ_a = state_gain·τ + control_gain·w (:func:`applied_torque_gains`)
+        self.state_gain, self.control_gain = applied_torque_gains(torque_integration, self.alpha)
         self.nv = nv
         self._eye = np.eye(nv)
         self._dtau_next_dx = np.zeros((nv, 3 * nv))
         self._dtau_next_dx[:, 2 * nv :] = self.alpha * self._eye
-        self._dx_next_du = np.zeros((3 * nv, nv))
-        self._dx_next_du[2 * nv :] = (1.0 - self.alpha) * self._eye
-        self._luu = (self.lowpass_input_weight * self.dt) * self._eye
 
     def createData(self) -> IntegratedActionDataLPF:  # noqa: N802 (crocoddyl API)
         return IntegratedActionDataLPF(self)
@@ -210,19 +232,21 @@ class IntegratedActionModelLPF(crocoddyl.ActionModelAbstract):
             self.constraint_rows.calc(data.g, x)
             return
         tau = x[2 * nv :]
-        self.differential.calc(dd, x[: 2 * nv], tau)
+        tau_a = data.applied_torque
+        tau_a[:] = self.state_gain * tau + self.control_gain * u
+        self.differential.calc(dd, x[: 2 * nv], tau_a)
         v_next = x[nv : 2 * nv] + dt * dd.xout
         xnext = data.xnext
         xnext[:nv] = x[:nv] + dt * v_next
         xnext[nv : 2 * nv] = v_next
         xnext[2 * nv :] = lowpass_filter_step(tau, u, self.alpha)
         r_w = data.lowpass_residual
-        r_w[:] = u - self._gravity_torque(data, tau)
+        r_w[:] = u - self._gravity_torque(data, tau_a)
         data.cost = dt * (dd.cost + 0.5 * self.lowpass_input_weight * float(r_w @ r_w))
         self.constraint_rows.calc(data.g, x, u)
 
     def _gravity_torque(self, data: IntegratedActionDataLPF, tau: np.ndarray) -> np.ndarray:
-        """τ_g(q, λ^r(x)) = τ − r_torque after the differential calc, N·m."""
+        """τ_g(q, λ^r) = τ_a − r_torque after the differential calc at τ_a = ``tau``, N·m."""
         if data.torque_residual is None:
             raise ModelError("a running low-pass model needs the 'torque' cost (eq 25.3)")
         return tau - data.torque_residual.r
@@ -250,11 +274,13 @@ class IntegratedActionModelLPF(crocoddyl.ActionModelAbstract):
             data.Lxx[:n2, :n2] = dd.Lxx
             self.constraint_rows.calc_diff(data.Gx, data.Gu)
             return
-        tau = x[2 * nv :]
-        self.differential.calcDiff(dd, x[: 2 * nv], tau)
         n2 = 2 * nv
-        # v⁺ = v + Δt·q̈(q, v, τ); q⁺ = q + Δt·v⁺; τ⁺ = α·τ + (1 − α)·w
-        dv_next = np.concatenate((dd.Fx, dd.Fu), axis=1)
+        sx, su = self.state_gain, self.control_gain
+        tau_a = data.applied_torque
+        tau_a[:] = sx * x[n2:] + su * u
+        self.differential.calcDiff(dd, x[:n2], tau_a)
+        # v⁺ = v + Δt·q̈(q, v, τ_a); q⁺ = q + Δt·v⁺; τ⁺ = α·τ + (1 − α)·w; τ_a = s_x·τ + s_u·w
+        dv_next = np.concatenate((dd.Fx, sx * dd.Fu), axis=1)
         dv_next *= dt
         dv_next[:, nv:n2] += self._eye
         dq_next = dt * dv_next
@@ -263,36 +289,43 @@ class IntegratedActionModelLPF(crocoddyl.ActionModelAbstract):
         Fx[:nv] = dq_next
         Fx[nv:n2] = dv_next
         Fx[n2:] = self._dtau_next_dx
-        data.Fu[:, :] = self._dx_next_du
+        Fu = data.Fu
+        Fu[nv:n2] = (dt * su) * dd.Fu
+        Fu[:nv] = dt * Fu[nv:n2]
+        Fu[n2:] = (1.0 - self.alpha) * self._eye
 
-        # ℓ0 with u = τ (its control derivatives are τ-state derivatives), then eq 28:
-        # r_w = w − τ_g(q, λ^r(q, v, τ)), ∂τ_g/∂(q, v) = −R_x, ∂τ_g/∂τ = I − R_u.
+        # In y = (q, v, τ_a): ℓ0 with u = τ_a (its control derivatives are τ_a derivatives), then
+        # eq 28: r_w = w − τ_g(y), ∂τ_g/∂(q, v) = −R_x, ∂τ_g/∂τ_a = I − R_u (G = ∂τ_g/∂y);
+        # M = H0 + c_w·GᵀG and h = g0 − c_w·Gᵀr_w, mapped to (x, w) by J = ∂y/∂x =
+        # diag(I, s_x·I) and ∂y/∂w = s_u·E_τ (Gauss-Newton in r_w).
         cw = self.lowpass_input_weight
         residual = data.torque_residual
         if residual is None:
             raise ModelError("a running low-pass model needs the 'torque' cost (eq 25.3)")
-        r_w = u - tau + residual.r
-        dtau_g = data.dtau_g_dx
-        dtau_g[:, :n2] = residual.Rx
-        dtau_g[:, n2:] = residual.Ru
-        dtau_g *= -1.0
-        dtau_g[:, n2:] += self._eye
-        hess = data.hessian
-        hess[:n2, :n2] = dd.Lxx
-        lxu = dd.Lxu
-        hess[:n2, n2:] = lxu
-        hess[n2:, :n2] = lxu.T
-        hess[n2:, n2:] = dd.Luu
-        hess += cw * (dtau_g.T @ dtau_g)
-        hess *= dt
-        data.Lxx[:, :] = hess
-        grad = np.concatenate((dd.Lx, dd.Lu))
-        grad -= cw * (dtau_g.T @ r_w)
-        grad *= dt
-        data.Lx[:] = grad
-        data.Lxu[:, :] = (-cw * dt) * dtau_g.T
-        data.Lu[:] = (cw * dt) * r_w
-        data.Luu[:, :] = self._luu
+        r_w = u - tau_a + residual.r
+        G = data.dtau_g_dx
+        G[:, :n2] = residual.Rx
+        G[:, n2:] = residual.Ru
+        G *= -1.0
+        G[:, n2:] += self._eye
+        M = data.hessian
+        M[:n2, :n2] = dd.Lxx
+        M[:n2, n2:] = dd.Lxu
+        M[n2:, :n2] = dd.Lxu.T
+        M[n2:, n2:] = dd.Luu
+        M += cw * (G.T @ G)
+        h = np.concatenate((dd.Lx, dd.Lu))
+        h -= cw * (G.T @ r_w)
+        scale = np.ones(3 * nv)
+        scale[n2:] = sx  # J as a diagonal
+        G_tau = G[:, n2:]
+        data.Lxx[:, :] = (dt * scale[:, None] * scale[None, :]) * M
+        data.Lx[:] = (dt * scale) * h
+        data.Lxu[:, :] = (dt * scale[:, None]) * (su * M[:, n2:] - cw * G.T)
+        data.Lu[:] = dt * (su * h[n2:] + cw * r_w)
+        data.Luu[:, :] = dt * (
+            su * su * M[n2:, n2:] - (cw * su) * (G_tau + G_tau.T) + cw * self._eye
+        )
         self.constraint_rows.calc_diff(data.Gx, data.Gu)
 
 
@@ -303,6 +336,7 @@ class IntegratedActionDataLPF(crocoddyl.ActionDataAbstract):
         differential: the differential model's data (holds q̈, λ^r, ℓ0 after calc).
         torque_residual: that data's eq 25.3 residual data (None for a terminal model).
         lowpass_residual: w − τ_g of eq 28 after calc, N·m.
+        applied_torque: τ_a, the torque q̈ and ℓ0 were computed at, after calc, N·m.
     """
 
     def __init__(self, model: IntegratedActionModelLPF) -> None:
@@ -312,6 +346,7 @@ class IntegratedActionDataLPF(crocoddyl.ActionDataAbstract):
         costs = self.differential.costs.costs
         self.torque_residual = costs[COST_TORQUE].residual if COST_TORQUE in costs else None
         self.lowpass_residual = np.zeros(nv)
+        self.applied_torque = np.zeros(nv)
         self.dtau_g_dx = np.zeros((nv, 3 * nv))
         self.hessian = np.zeros((3 * nv, 3 * nv))
 
@@ -342,9 +377,11 @@ class LowPassNode(SwitchableContactNode):
         baumgarte_velocity_gain: float | None,
         backend: str = DEFAULT_BACKEND,
         bounds: OcpBounds | None = None,
+        torque_integration: str = "current",
     ) -> None:
         check_backend(backend)
         self.backend = backend
+        self.torque_integration = torque_integration
         self.bounds = bounds
         self.robot = robot
         self.contact = contact
@@ -375,6 +412,7 @@ class LowPassNode(SwitchableContactNode):
                 None if bounds is None else bounds.state_matrix,
                 not self.terminal,
                 None if bounds is None else bounds.control_scale,
+                torque_integration,
             )
             self._handles[status] = CommonCostHandles(dam, robot.nv, weights.diag("ee_position", 3))
         self.in_contact = bool(in_contact) and not self.terminal
@@ -411,6 +449,7 @@ def make_lowpass_node(
     baumgarte_velocity_gain: float | None = None,
     backend: str = DEFAULT_BACKEND,
     bounds: OcpBounds | None = None,
+    torque_integration: str = "current",
 ) -> LowPassNode:
     """Build a node of the torque-feedback OCP (eq 10–14, cost eq 28).
 
@@ -423,6 +462,8 @@ def make_lowpass_node(
         backend: ``"native"`` (C++) or ``"python"`` (the reference classes).
         bounds: the hard constraints (:func:`ffmpc_core.constraints.ocp_bounds` of the
             torque-feedback formulation: rows on (q, v, τ) and on w; None: none).
+        torque_integration: ``"current"`` (eq 14a) or ``"next"`` (q̈ at τ⁺: the authors'
+            ``tau_plus_integration``; :func:`applied_torque_gains`).
     """
     if not math.isfinite(dt) or dt <= 0:
         raise ConfigError(f"dt must be > 0 s, got {dt}")
@@ -438,6 +479,7 @@ def make_lowpass_node(
         baumgarte_velocity_gain,
         backend,
         bounds,
+        torque_integration,
     )
 
 

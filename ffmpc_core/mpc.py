@@ -299,6 +299,7 @@ def _node_factory(
             q_reference=q_ref,
             backend=config.backend,
             bounds=bounds,
+            torque_integration=config.ocp.torque_integration,
         )
     if config.backend == "native":
         from ffmpc_core.native import make_native_soft_contact_node as make_soft_contact_node
@@ -393,7 +394,12 @@ class ModelPredictiveController:
             self._predictor = _node_factory(robot, pred_cfg, q_ref)(False)
             self._predictor_data = self._predictor.model.createData()
             self._friction_data = robot.create_data()  # the predictor's table friction
-        self._epsilon = interpolation_epsilon(config.ocp.period, config.ocp.dt)  # eq 15
+        # eq 15; τ₁* as it is (ε = 1) when q̈ is at τ⁺: the plan applies τ₁* from node 0 on
+        self._epsilon = (
+            1.0
+            if config.ocp.torque_integration == "next"
+            else interpolation_epsilon(config.ocp.period, config.ocp.dt)
+        )
         self._alpha = lowpass_alpha(config.ocp.cutoff_frequency, config.ocp.dt)  # eq 13
         self.reset()
 

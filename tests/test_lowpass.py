@@ -18,7 +18,7 @@ from ocp_helpers import (
     solve,
 )
 
-from ffmpc_core.config import ContactConfig, CostWeights, NodeReference
+from ffmpc_core.config import TORQUE_INTEGRATIONS, ContactConfig, CostWeights, NodeReference
 from ffmpc_core.errors import ConfigError, InputError, ModelError
 from ffmpc_core.lowpass import (
     PAPER_CUTOFF_FREQUENCY,
@@ -39,6 +39,8 @@ CONTACTS = {
     "3d_local": ContactConfig(dimension=3, frame_type="LOCAL"),
 }
 MODES = ("contact", "free", "terminal")
+#: (mode, torque_integration): a terminal node has no control, the same model in both
+MODE_INTEGRATIONS = [(m, "current") for m in MODES] + [("contact", "next"), ("free", "next")]
 
 
 @pytest.fixture(scope="module", params=["iiwa", "panda"])
@@ -47,9 +49,10 @@ def robot(request):
 
 
 @pytest.mark.parametrize("contact_name", list(CONTACTS))
-@pytest.mark.parametrize("mode", MODES)
-def test_derivatives_match_numdiff(robot, contact_name, mode):
-    rng = np.random.default_rng(zlib.crc32(f"{robot.name}/{contact_name}/{mode}".encode()))
+@pytest.mark.parametrize(("mode", "torque_integration"), MODE_INTEGRATIONS)
+def test_derivatives_match_numdiff(robot, contact_name, mode, torque_integration):
+    key = f"{robot.name}/{contact_name}/{mode}/{torque_integration}"
+    rng = np.random.default_rng(zlib.crc32(key.encode()))
     contact = CONTACTS[contact_name]
     for isotropic in (True, False):
         weights = rich_weights(
@@ -63,6 +66,7 @@ def test_derivatives_match_numdiff(robot, contact_name, mode):
             mode == "terminal",
             PAPER_CUTOFF_FREQUENCY,
             in_contact=mode == "contact",
+            torque_integration=torque_integration,
         )
         node.set_reference(random_reference(rng, robot, contact, mode == "contact"))
         model = node.model
@@ -93,13 +97,26 @@ def test_derivatives_match_numdiff(robot, contact_name, mode):
 
 @pytest.mark.parametrize("contact_name", ["1d_lwa_z", "3d_local"])
 @pytest.mark.parametrize("in_contact", [True, False])
-def test_step_and_cost_match_classical_model_plus_eq28(robot, contact_name, in_contact):
-    """Eq 13–14 and 28 against the classical node driven by the filtered torque."""
+@pytest.mark.parametrize("torque_integration", TORQUE_INTEGRATIONS)
+def test_step_and_cost_match_classical_model_plus_eq28(
+    robot, contact_name, in_contact, torque_integration
+):
+    """Eq 13–14 and 28 against the classical node driven by the filtered torque: the state's τ
+    ("current", eq 14a) or τ⁺ = α·τ + (1 − α)·w ("next", the authors' tau_plus_integration)."""
     rng = np.random.default_rng(5)
     contact = CONTACTS[contact_name]
     weights = rich_weights(rng, contact.dimension, lowpass_input=0.3)
     ref = random_reference(rng, robot, contact, in_contact)
-    lpf = make_lowpass_node(robot, contact, weights, DT, False, 50.0, in_contact=in_contact)
+    lpf = make_lowpass_node(
+        robot,
+        contact,
+        weights,
+        DT,
+        False,
+        50.0,
+        in_contact=in_contact,
+        torque_integration=torque_integration,
+    )
     classical = make_rigid_contact_node(robot, contact, weights, DT, False, in_contact=in_contact)
     lpf.set_reference(ref)
     classical.set_reference(ref)
@@ -112,10 +129,13 @@ def test_step_and_cost_match_classical_model_plus_eq28(robot, contact_name, in_c
         x = random_state(rng, robot, with_torque=True)
         w = 20.0 * rng.standard_normal(nv)
         q, tau = x[:nv], x[2 * nv :]
+        tau_next = alpha * tau + (1 - alpha) * w
+        tau_a = tau if torque_integration == "current" else tau_next
         lpf.model.calc(lpf_data, x, w)
-        classical.model.calc(cl_data, x[: 2 * nv], tau)
+        classical.model.calc(cl_data, x[: 2 * nv], tau_a)
+        np.testing.assert_array_equal(lpf_data.applied_torque, tau_a)
         np.testing.assert_allclose(lpf_data.xnext[: 2 * nv], cl_data.xnext, atol=1e-12)
-        np.testing.assert_allclose(lpf_data.xnext[2 * nv :], alpha * tau + (1 - alpha) * w)
+        np.testing.assert_allclose(lpf_data.xnext[2 * nv :], tau_next)
         lam = lpf.contact_force(lpf_data)
         np.testing.assert_allclose(lam, classical.contact_force(cl_data), atol=1e-10)
         # τ_g(q, λ) = g(q) − Jᵀλ, independently
@@ -162,6 +182,90 @@ def test_gauss_newton_hessian_of_eq28():
     assert_close_rel(d1.Lxu - d0.Lxu, -DT * cw * G.T, 1e-6, "Lxu")
     np.testing.assert_allclose(d1.Luu, DT * cw * np.eye(robot.nv), rtol=1e-14)
     np.testing.assert_allclose(d1.Lxx, d1.Lxx.T, atol=1e-12)
+
+
+def test_gauss_newton_hessian_next_torque():
+    """With q̈ at τ⁺ ("next"): Lxx, Lxu, Luu = Δt·Jᵀ·H0·J of the differential model's
+    Gauss-Newton Hessian H0 at (q, v, τ⁺), J = ∂(q, v, τ⁺)/∂(x, w), plus Δt·c_w·DᵀD of eq 28,
+    D = ∂r_w/∂(x, w) by central differences."""
+    robot = load_robot("iiwa")
+    contact = CONTACTS["1d_lwa_z"]
+    rng = np.random.default_rng(19)
+    cw = 0.3
+    weights = rich_weights(rng, 1, lowpass_input=cw)
+    nodes = [
+        make_lowpass_node(
+            robot,
+            contact,
+            weights.with_(lowpass_input=c),
+            DT,
+            False,
+            50.0,
+            in_contact=True,
+            torque_integration="next",
+        )
+        for c in (cw, 0.0)
+    ]
+    ref = random_reference(rng, robot, contact, True)
+    for node in nodes:
+        node.set_reference(ref)
+    model1, model0 = nodes[0].model, nodes[1].model
+    d1, d0 = model1.createData(), model0.createData()
+    nv, alpha = robot.nv, nodes[0].alpha
+    x = random_state(rng, robot, with_torque=True)
+    w = x[2 * nv :] + 10.0 * rng.standard_normal(nv)
+    z = np.concatenate((x, w))
+
+    def r_w(zz):
+        model1.calc(d1, zz[: 3 * nv], zz[3 * nv :])
+        return d1.lowpass_residual.copy()
+
+    h = 1e-6
+    D = np.column_stack([(r_w(z + h * e) - r_w(z - h * e)) / (2 * h) for e in np.eye(z.size)])
+    for model, data in ((model1, d1), (model0, d0)):
+        model.calc(data, x, w)
+        model.calcDiff(data, x, w)
+    # ℓ0's part: the differential model at (q, v, τ⁺), mapped by J
+    dam = model0.differential
+    dd = dam.createData()
+    tau_next = alpha * x[2 * nv :] + (1 - alpha) * w
+    dam.calc(dd, x[: 2 * nv], tau_next)
+    dam.calcDiff(dd, x[: 2 * nv], tau_next)
+    H0 = np.block([[dd.Lxx, dd.Lxu], [dd.Lxu.T, dd.Luu]])
+    J = np.zeros((3 * nv, 4 * nv))
+    J[: 2 * nv, : 2 * nv] = np.eye(2 * nv)
+    J[2 * nv :, 2 * nv : 3 * nv] = alpha * np.eye(nv)
+    J[2 * nv :, 3 * nv :] = (1 - alpha) * np.eye(nv)
+    full0 = DT * J.T @ H0 @ J
+    m = 3 * nv
+    assert_close_rel(d0.Lxx, full0[:m, :m], 1e-12, "Lxx (c_w = 0)")
+    assert_close_rel(d0.Lxu, full0[:m, m:], 1e-12, "Lxu (c_w = 0)")
+    assert_close_rel(d0.Luu, full0[m:, m:], 1e-12, "Luu (c_w = 0)")
+    gn = DT * cw * D.T @ D
+    assert_close_rel(d1.Lxx - d0.Lxx, gn[:m, :m], 1e-6, "Lxx")
+    assert_close_rel(d1.Lxu - d0.Lxu, gn[:m, m:], 1e-6, "Lxu")
+    assert_close_rel(d1.Luu - d0.Luu, gn[m:, m:], 1e-6, "Luu")
+    np.testing.assert_allclose(d1.Lxx, d1.Lxx.T, atol=1e-12)
+    np.testing.assert_allclose(d1.Luu, d1.Luu.T, atol=1e-12)
+
+
+def test_torque_integration_is_checked():
+    robot = load_robot("iiwa")
+    with pytest.raises(ConfigError, match="torque_integration"):
+        make_lowpass_node(
+            robot, CONTACTS["1d_lwa_z"], CostWeights(), DT, False, 50.0, torque_integration="late"
+        )
+    with pytest.raises(ConfigError, match="torque_integration"):
+        make_lowpass_node(
+            robot,
+            CONTACTS["1d_lwa_z"],
+            CostWeights(),
+            DT,
+            False,
+            50.0,
+            backend="python",
+            torque_integration="tau_plus",
+        )
 
 
 def test_footnote2_limits_of_the_filter():

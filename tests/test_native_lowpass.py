@@ -25,7 +25,12 @@ from ocp_helpers import (
 )
 
 from ffmpc_core import _native
-from ffmpc_core.config import BACKENDS, ContactConfig, CostWeights, OcpConfig
+from ffmpc_core.config import (
+    BACKENDS,
+    ContactConfig,
+    CostWeights,
+    OcpConfig,
+)
 from ffmpc_core.errors import ConfigError, InputError, ModelError
 from ffmpc_core.lowpass import IntegratedActionModelLPF, make_lowpass_model, make_lowpass_node
 from ffmpc_core.model_plant import run_model_closed_loop
@@ -52,6 +57,8 @@ CONTACTS = {
     "3d_local": ContactConfig(dimension=3, frame_type="LOCAL"),
 }
 MODES = ("contact", "free", "terminal")
+#: (mode, torque_integration): a terminal node has no control, the same model in both
+MODE_INTEGRATIONS = [(m, "current") for m in MODES] + [("contact", "next"), ("free", "next")]
 ACTION_FIELDS = ("xnext", "Fx", "Fu", "Lx", "Lu", "Lxx", "Lxu", "Luu")
 DIFFERENTIAL_FIELDS = ("xout", "Fx", "Fu", "Lx", "Lu", "Lxx", "Lxu", "Luu")
 
@@ -73,10 +80,11 @@ def _assert_same(native, python, fields, what) -> None:
 
 
 @pytest.mark.parametrize("contact_name", list(CONTACTS))
-@pytest.mark.parametrize("mode", MODES)
-def test_lowpass_native_equals_python(robot, contact_name, mode):
-    """calc/calcDiff of the C++ integrator = the Python reference (xnext, cost, F*, L*)."""
-    rng = _rng(robot.name, contact_name, mode)
+@pytest.mark.parametrize(("mode", "torque_integration"), MODE_INTEGRATIONS)
+def test_lowpass_native_equals_python(robot, contact_name, mode, torque_integration):
+    """calc/calcDiff of the C++ integrator = the Python reference (xnext, cost, F*, L*), with
+    q̈ at the state's τ (eq 14a) and at τ⁺ (tau_plus)."""
+    rng = _rng(robot.name, contact_name, mode, torque_integration)
     contact = CONTACTS[contact_name]
     terminal, in_contact = mode == "terminal", mode == "contact"
     nv = robot.nv
@@ -87,7 +95,15 @@ def test_lowpass_native_equals_python(robot, contact_name, mode):
         ref = random_reference(rng, robot, contact, in_contact)
         nodes = {
             b: make_lowpass_node(
-                robot, contact, weights, DT, terminal, CUTOFF, in_contact=in_contact, backend=b
+                robot,
+                contact,
+                weights,
+                DT,
+                terminal,
+                CUTOFF,
+                in_contact=in_contact,
+                backend=b,
+                torque_integration=torque_integration,
             )
             for b in BACKENDS
         }
@@ -98,6 +114,7 @@ def test_lowpass_native_equals_python(robot, contact_name, mode):
         native, python = nodes["native"].model, nodes["python"].model
         assert native.alpha == python.alpha and native.dt == python.dt
         assert native.lowpass_input_weight == python.lowpass_input_weight
+        assert native.torque_integration == python.torque_integration == torque_integration
         d_nat, d_py = native.createData(), python.createData()
         for k in range(3):
             x = random_state(rng, robot, with_torque=True)
@@ -119,6 +136,7 @@ def test_lowpass_native_equals_python(robot, contact_name, mode):
             assert_close_rel(
                 np.asarray(d_nat.lowpass_residual), d_py.lowpass_residual, RTOL, "w - tau_g"
             )
+            assert_close_rel(np.asarray(d_nat.applied_torque), d_py.applied_torque, RTOL, "tau_a")
             assert_close_rel(
                 nodes["native"].contact_force(d_nat),
                 nodes["python"].contact_force(d_py),
@@ -236,18 +254,26 @@ def test_native_residual_jacobians_match_finite_differences(robot, contact_name)
 
 
 @pytest.mark.parametrize("contact_name", ["1d_lwa_z", "3d_local"])
-@pytest.mark.parametrize("mode", MODES)
-def test_native_models_match_numdiff(robot, contact_name, mode):
+@pytest.mark.parametrize(("mode", "torque_integration"), MODE_INTEGRATIONS)
+def test_native_models_match_numdiff(robot, contact_name, mode, torque_integration):
     """crocoddyl's NumDiff on the C++ integrator (Fx, Fu, Lx, Lu) and on a differential model
     with the C++ residuals (Fx, Fu, Lx, Lu)."""
-    rng = _rng("numdiff", robot.name, contact_name, mode)
+    rng = _rng("numdiff", robot.name, contact_name, mode, torque_integration)
     contact = CONTACTS[contact_name]
     terminal, in_contact = mode == "terminal", mode == "contact"
     weights = rich_weights(
         rng, contact.dimension, isotropic_velocity=False, lowpass_input=0.3, authors_terms=True
     )
     node = make_lowpass_node(
-        robot, contact, weights, DT, terminal, CUTOFF, in_contact=in_contact, backend="native"
+        robot,
+        contact,
+        weights,
+        DT,
+        terminal,
+        CUTOFF,
+        in_contact=in_contact,
+        backend="native",
+        torque_integration=torque_integration,
     )
     node.set_reference(random_reference(rng, robot, contact, in_contact))
     model = node.model
@@ -299,14 +325,19 @@ def test_classical_node_native_equals_python(robot):
         _assert_same(data["native"], data["python"], ACTION_FIELDS, "classical")
 
 
-@pytest.mark.parametrize("formulation", ["classical", "torque_feedback"])
-def test_closed_loop_on_own_dynamics_native_equals_python(formulation):
+@pytest.mark.parametrize(
+    ("formulation", "torque_integration"),
+    [("classical", "current"), ("torque_feedback", "current"), ("torque_feedback", "next")],
+)
+def test_closed_loop_on_own_dynamics_native_equals_python(formulation, torque_integration):
     """The MPC on its own dynamics (press to 50 N) runs the native nodes by default, and gives
     the same run as with the Python reference nodes."""
     robot = load_robot("iiwa")
     p0 = robot.contact_placement(robot.q_nominal).translation
     task = PolishingTask.pressing(p0, force_ramp=0.1, circle=10.0, stop=0.0)
-    config = MpcConfig(ocp=OcpConfig(formulation=formulation))
+    config = MpcConfig(
+        ocp=OcpConfig(formulation=formulation, torque_integration=torque_integration)
+    )
     mpc = ModelPredictiveController(robot, config, task)
     native_type = {
         "classical": crocoddyl.IntegratedActionModelEuler,
@@ -325,7 +356,11 @@ def test_closed_loop_on_own_dynamics_native_equals_python(formulation):
         if formulation == "classical":
             return make_rigid_contact_node(*args, backend="python", bounds=bounds)
         return make_lowpass_node(
-            *args, config.ocp.cutoff_frequency, backend="python", bounds=bounds
+            *args,
+            config.ocp.cutoff_frequency,
+            backend="python",
+            bounds=bounds,
+            torque_integration=torque_integration,
         )
 
     duration = 0.2

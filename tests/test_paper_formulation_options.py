@@ -56,6 +56,36 @@ def test_measured_torque_state_is_eq10_and_eq15_step_by_step(robot, delay):
         assert np.abs(w0 - tau_hat).max() > 1e-3  # the example is not trivial
 
 
+def test_next_torque_integration_sends_the_first_filtered_torque(robot):
+    """torque_integration "next" (the authors' tau_plus_integration): q̈ of node 0 is computed at
+    τ₁* = ατ̂ + (1 − α)w₀*, the torque the plan applies from now on, and that is what the MPC
+    sends (ε = 1 in eq 15); the first predicted state is the classical step driven by τ₁*."""
+    config = MpcConfig(
+        ocp=OcpConfig(formulation="torque_feedback", torque_integration="next"),
+        command_delay=0.0,
+    )
+    mpc = ModelPredictiveController(robot, config, _press(robot))
+    q, v = robot.q_nominal, np.zeros(robot.nv)
+    nv = robot.nv
+    alpha = np.exp(-2.0 * np.pi * config.ocp.cutoff_frequency * config.ocp.dt)
+    tau_hat = robot.gravity(q) + 2.0 * np.linspace(-1.0, 1.0, nv)
+    cmd = mpc.step(MpcMeasurement(q=q, v=v, torque=tau_hat), 0.0)
+    w0 = cmd.us[0]
+    tau1 = alpha * tau_hat + (1.0 - alpha) * w0
+    np.testing.assert_allclose(cmd.torque, tau1, rtol=0, atol=1e-9 * (1 + abs(w0).max()))
+    np.testing.assert_allclose(cmd.xs[1][2 * nv :], tau1, rtol=0, atol=1e-9)
+    # the free-space classical step at τ₁* gives the plan's (q₁, v₁)
+    classical = make_rigid_contact_node(
+        robot, config.contact, config.weights, config.ocp.dt, False, in_contact=False
+    )
+    data = classical.model.createData()
+    classical.model.calc(data, np.concatenate((q, v)), tau1)
+    np.testing.assert_allclose(cmd.xs[1][: 2 * nv], data.xnext, atol=1e-6)  # SQP gaps
+    assert np.abs(w0 - tau_hat).max() > 1e-3  # the example is not trivial
+    with pytest.raises(ConfigError, match="torque_integration"):
+        OcpConfig(formulation="torque_feedback", torque_integration="plus")
+
+
 def test_commanded_torque_state_uses_the_last_torque_sent(robot):
     """torque_state "commanded" (the former behaviour): with a δo, τ₀ is the last τ̃ sent."""
     config = MpcConfig(
