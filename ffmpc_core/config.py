@@ -177,6 +177,10 @@ class ContactConfig:
             which the δo predictor applies (:mod:`ffmpc_core.contact_friction`); 0 = the
             paper's pure sliding contact. The OCPs never model it.
         friction_velocity: v_s of that friction's tanh, m/s.
+        friction_in_measured_force: the force-feedback MPC removes that friction's share along
+            the assumed normal from the measured normal force (a tilted surface).
+        sliding_filter_time, sliding_min_speed: the sliding direction's filter time constant
+            (s) and the speed from which that correction applies (m/s).
     """
 
     dimension: int = param(1, "", [1, 3], "contact force entries: 1 (normal) or 3")
@@ -205,6 +209,23 @@ class ContactConfig:
         "Coulomb friction μ of the surface in the δo predictor (0: the paper's sliding contact)",
     )
     friction_velocity: float = param(0.01, "m/s", (1e-6, 10.0), "v_s of that friction's tanh")
+    #: The force-feedback MPC's measured normal force without the friction's share: on a
+    #: surface tilted away from the assumed normal the Coulomb drag (μ =
+    #: ``friction_coefficient``) has a part along that normal, which the 1-D force state would
+    #: take for pressing (:func:`ffmpc_core.contact_friction.normal_force_without_friction`;
+    #: measured in docs/results/paper.md). The normal entry of the force (1-D or 3-D contact).
+    friction_in_measured_force: bool = param(
+        False, "", None, "remove the friction drag's share from the measured normal force (FF)"
+    )
+    #: Time constant of the sliding velocity's low-pass filter for that correction, s
+    #: (:class:`ffmpc_core.contact_friction.SlidingDirectionEstimator`).
+    sliding_filter_time: float = param(
+        0.02, "s", (0.0, 10.0), "low-pass time constant of the sliding direction"
+    )
+    #: Filtered sliding speed below which the correction is off (direction unknown), m/s.
+    sliding_min_speed: float = param(
+        0.05, "m/s", (1e-6, 10.0), "sliding speed from which the friction correction applies"
+    )
 
     def __post_init__(self) -> None:
         if self.dimension not in (1, 3):
@@ -213,6 +234,7 @@ class ContactConfig:
             raise ConfigError(f"frame_type must be one of {tuple(_FRAME_TYPES)}")
         if self.normal_axis not in (0, 1, 2):
             raise ConfigError("normal_axis must be 0, 1 or 2")
+
         self.stiffness_vector()
         self.damping_vector()
         kd = float(self.baumgarte_velocity_gain)

@@ -52,7 +52,11 @@ from ffmpc_core.constraints import (
     OcpBounds,
     ocp_bounds,
 )
-from ffmpc_core.contact_friction import coulomb_friction_torque
+from ffmpc_core.contact_friction import (
+    SlidingDirectionEstimator,
+    coulomb_friction_torque,
+    normal_force_without_friction,
+)
 from ffmpc_core.errors import ConfigError, InputError, SolverError
 from ffmpc_core.lowpass import (
     interpolate_torque,
@@ -394,6 +398,16 @@ class ModelPredictiveController:
             self._predictor = _node_factory(robot, pred_cfg, q_ref)(False)
             self._predictor_data = self._predictor.model.createData()
             self._friction_data = robot.create_data()  # the predictor's table friction
+        #: the sliding direction for the force-feedback MPC's friction correction of λ̂
+        #: (ContactConfig.friction_in_measured_force), else None
+        self._sliding: SlidingDirectionEstimator | None = None
+        if config.ocp.formulation == "force_feedback" and config.contact.friction_in_measured_force:
+            self._sliding = SlidingDirectionEstimator(
+                robot,
+                config.contact,
+                config.contact.sliding_filter_time,
+                config.contact.sliding_min_speed,
+            )
         # eq 15; τ₁* as it is (ε = 1) when q̈ is at τ⁺: the plan applies τ₁* from node 0 on
         self._epsilon = (
             1.0
@@ -451,6 +465,8 @@ class ModelPredictiveController:
         self._active = False  # the last constrained solution had a bound active
         self._first_step_data: dict[int, crocoddyl.ActionDataAbstract] = {}
         self._excess = 0.0  # the last solution's largest signed excess over a bound
+        if self._sliding is not None:
+            self._sliding.reset()
 
     def set_contact_parameters(self, stiffness: npt.ArrayLike, damping: npt.ArrayLike) -> None:
         """Change the force-feedback model's K (N/m) and B (N·s/m) in place, for every node and
@@ -540,7 +556,10 @@ class ModelPredictiveController:
                 force = np.asarray(meas.force, dtype=float)
                 self._resumed_force = force.copy() if np.all(np.isfinite(force)) else None
         self._observe_contact(meas, t)
-        x0 = self.predict(self.state_from(meas), t)
+        x_hat = self.state_from(meas)
+        if self._sliding is not None:
+            self._remove_friction_share(x_hat, t)
+        x0 = self.predict(x_hat, t)
         if not np.all(np.isfinite(x0)):
             self._sent.clear()  # the next solve starts from the measured state itself
             raise SolverError(f"the δo prediction from t = {t} s is not finite")
@@ -772,6 +791,23 @@ class ModelPredictiveController:
                 where,
             )
         return violation
+
+    def _remove_friction_share(self, x_hat: np.ndarray, t: float) -> None:
+        """Filter the contact point's sliding velocity of x̂'s (q, v) at t (s) in, and replace the
+        normal entry of x̂'s measured force by the normal force without the friction drag's
+        share along the assumed normal, in place
+        (:func:`~ffmpc_core.contact_friction.normal_force_without_friction`). Unchanged while
+        the sliding direction is unknown (slow or at rest)."""
+        assert self._sliding is not None
+        nv = self.robot.nv
+        self._sliding.update(x_hat[:nv], x_hat[nv : 2 * nv], t)
+        direction = self._sliding.direction()
+        if direction is None:
+            return
+        index = 2 * nv + (0 if self.nc == 1 else self.config.contact.normal_axis)
+        x_hat[index] = normal_force_without_friction(
+            x_hat[index], direction, self._sliding.normal, self.config.contact.friction_coefficient
+        )
 
     def _observe_contact(self, meas: MpcMeasurement, t: float) -> None:
         """Feed a guarded approach (:class:`~ffmpc_core.tasks.GuardedTask`) the measured normal
