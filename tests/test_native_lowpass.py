@@ -72,6 +72,21 @@ def _rng(*keys) -> np.random.Generator:
     return np.random.default_rng(zlib.crc32("/".join(map(str, keys)).encode()))
 
 
+def _node(robot, contact, weights, mode: str, torque_integration: str, backend: str):
+    """A torque-feedback node of ``mode`` (contact, free or terminal) at Δt = DT, f_c = CUTOFF."""
+    return make_lowpass_node(
+        robot,
+        contact,
+        weights,
+        DT,
+        mode == "terminal",
+        CUTOFF,
+        in_contact=mode == "contact",
+        backend=backend,
+        torque_integration=torque_integration,
+    )
+
+
 def _assert_same(native, python, fields, what) -> None:
     for name in fields:
         expected = np.asarray(getattr(python, name))
@@ -93,20 +108,7 @@ def test_lowpass_native_equals_python(robot, contact_name, mode, torque_integrat
             rng, contact.dimension, isotropic, lowpass_input=0.3, authors_terms=True
         )
         ref = random_reference(rng, robot, contact, in_contact)
-        nodes = {
-            b: make_lowpass_node(
-                robot,
-                contact,
-                weights,
-                DT,
-                terminal,
-                CUTOFF,
-                in_contact=in_contact,
-                backend=b,
-                torque_integration=torque_integration,
-            )
-            for b in BACKENDS
-        }
+        nodes = {b: _node(robot, contact, weights, mode, torque_integration, b) for b in BACKENDS}
         assert isinstance(nodes["native"].model, _native.IntegratedActionModelLPF)
         assert isinstance(nodes["python"].model, IntegratedActionModelLPF)
         for node in nodes.values():
@@ -264,17 +266,7 @@ def test_native_models_match_numdiff(robot, contact_name, mode, torque_integrati
     weights = rich_weights(
         rng, contact.dimension, isotropic_velocity=False, lowpass_input=0.3, authors_terms=True
     )
-    node = make_lowpass_node(
-        robot,
-        contact,
-        weights,
-        DT,
-        terminal,
-        CUTOFF,
-        in_contact=in_contact,
-        backend="native",
-        torque_integration=torque_integration,
-    )
+    node = _node(robot, contact, weights, mode, torque_integration, "native")
     node.set_reference(random_reference(rng, robot, contact, in_contact))
     model = node.model
     numdiff = crocoddyl.ActionModelNumDiff(model, False)
