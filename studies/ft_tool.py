@@ -85,7 +85,9 @@ def tool_study(
     duration: float | None = None,
 ) -> dict[str, dict[str, Any]]:
     """Run the variants on the seeds; {variant: {"seeds", "force_mae" (N), "position_mae_mm",
-    "max_force" (N), "failed"}} with one entry per seed (a failed run: NaN and its error)."""
+    "max_force" (N), "contact_missed", "failed"}} with one entry per seed (a failed run: NaN
+    and its error; a run whose guarded approach never detected the contact: its metrics NaN,
+    ``contact_missed`` True, since it never polished)."""
     seeds = list(seeds)
     specs = tool_specs(scenario, seeds, variants, overrides, duration)
     outcomes = run_specs([s for _, s in specs], workers=workers, progress=progress)
@@ -93,10 +95,20 @@ def tool_study(
     for (name, spec), outcome in zip(specs, outcomes, strict=True):
         row = result.setdefault(
             name,
-            {"seeds": [], "force_mae": [], "position_mae_mm": [], "max_force": [], "failed": []},
+            {
+                "seeds": [],
+                "force_mae": [],
+                "position_mae_mm": [],
+                "max_force": [],
+                "contact_missed": [],
+                "failed": [],
+            },
         )
         row["seeds"].append(spec.seed)
-        metrics = outcome.summary["metrics_true"] if outcome.summary else None
+        summary = outcome.summary or {}
+        missed = bool(summary.get("contact_missed", False))
+        row["contact_missed"].append(missed)
+        metrics = summary.get("metrics_true") if not missed else None
         for key in ("force_mae", "position_mae_mm", "max_force"):
             row[key].append(float(metrics[key]) if metrics else float("nan"))
         if outcome.error:
@@ -105,13 +117,15 @@ def tool_study(
 
 
 def mean_force_error(result: dict[str, dict[str, Any]], variant: str) -> float:
-    """The mean E_λ (N) of a variant over its seeds."""
+    """The mean E_λ (N) of a variant over its seeds (NaN if a run failed or missed the
+    contact)."""
     return float(np.mean(result[variant]["force_mae"]))
 
 
 def tool_table(result: dict[str, dict[str, Any]]) -> str:
     """E_λ per seed and its mean (N, true normal force), E_P and λmax means, and the change of
-    the mean E_λ against ``no tool`` (markdown)."""
+    the mean E_λ against ``no tool`` (markdown). A seed whose run never touched the table (the
+    guarded approach missed the contact) reads "no contact", its means "—"."""
     seeds = next(iter(result.values()))["seeds"]
     head = ["variant", *(f"E_λ seed {s}" for s in seeds), "E_λ mean", "vs no tool"]
     head += ["E_P mean (mm)", "λmax max (N)"]
@@ -119,10 +133,24 @@ def tool_table(result: dict[str, dict[str, Any]]) -> str:
     reference = mean_force_error(result, "no tool") if "no tool" in result else None
     for name, row in result.items():
         mean = float(np.mean(row["force_mae"]))
-        change = "" if reference is None else f"{100.0 * (mean / reference - 1.0):+.1f} %"
-        cells = [name, *(f"{x:.3f}" for x in row["force_mae"]), f"{mean:.3f}", change]
-        cells += [f"{np.mean(row['position_mae_mm']):.2f}", f"{np.max(row['max_force']):.1f}"]
+        if not np.isfinite(mean):
+            change = "—"
+        else:
+            change = "" if reference is None else f"{100.0 * (mean / reference - 1.0):+.1f} %"
+        missed = row.get("contact_missed", [False] * len(row["force_mae"]))
+        pairs = zip(row["force_mae"], missed, strict=True)
+        values = ["no contact" if m else f"{x:.3f}" for x, m in pairs]
+        cells = [name, *values, _number(mean, 3), change]
+        cells += [
+            _number(np.mean(row["position_mae_mm"]), 2),
+            _number(np.max(row["max_force"]), 1),
+        ]
         lines.append("| " + " | ".join(cells) + " |")
     failed = [f for row in result.values() for f in row["failed"]]
     lines += [f"failed: {f}" for f in failed]
     return "\n".join(lines)
+
+
+def _number(value: float, digits: int) -> str:
+    """``value`` with ``digits`` decimals, "—" when it is not a number (a missed contact)."""
+    return f"{value:.{digits}f}" if np.isfinite(value) else "—"

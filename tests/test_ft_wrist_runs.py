@@ -1,7 +1,7 @@
 """The wrist F/T sensor in closed loop (issue 27): the node graph equals the ROS-free runner bit for
 bit with the wrist sensor, the tool and a bias; the F/T node refuses to configure with a stale
 calibration file; and the polishing runs with a 1 kg tool (``studies.ft_tool``): E_λ with the
-compensation within 10 % of the tool-less runs, and the error without it."""
+compensation within 5 % of the same tool seen by an ideal sensor, and the error without it."""
 
 from __future__ import annotations
 
@@ -71,13 +71,16 @@ def test_ft_node_refuses_to_configure_with_a_stale_calibration(ros, tmp_path):
 @pytest.mark.slow
 def test_polishing_with_a_one_kilogram_tool():
     """Seeds 0-4 of the polishing scenario (force-feedback MPC, torque PID): the mean E_λ with
-    the 1 kg tool (centre of mass 30/-20/80 mm, sensor bias) compensated is within 10 % of the
-    tool-less runs'; without the compensation the tool's weight (9.81 N) and the 3 N bias reach
-    the MPC, and E_λ is above 8 N on every seed."""
+    the 1 kg tool (centre of mass 30/-20/80 mm, sensor bias) compensated is within 5 % of the
+    same tool seen by an ideal sensor (what a perfect compensation gives); without the
+    compensation the tool's weight (9.81 N) and the 3 N bias reach the MPC, and E_λ is above
+    8 N on every seed. The tool-less runs are printed beside them, not compared: the tool
+    changes the robot's dynamics too (a heavier wrist that shakes less), which no sensor
+    compensation removes (docs/explanation/simulation.md measures it)."""
     result = tool_study(
         "polishing",
         range(5),
-        ("no tool", "tool, compensated", "tool, not compensated"),
+        ("no tool", "tool, compensated", "tool, not compensated", "tool, ideal sensor"),
         # the time-based switch: the guarded approach detects the contact from the same
         # uncompensated λ̂ (the tool's weight and the bias), so it never detects it
         overrides={"task.approach_speed": 0.0},
@@ -85,7 +88,36 @@ def test_polishing_with_a_one_kilogram_tool():
     )
     print("\n" + tool_table(result))
     assert not any(row["failed"] for row in result.values())
-    reference = mean_force_error(result, "no tool")
+    ideal = mean_force_error(result, "tool, ideal sensor")
     compensated = mean_force_error(result, "tool, compensated")
-    assert abs(compensated / reference - 1.0) <= 0.10
+    assert abs(compensated / ideal - 1.0) <= 0.05
     assert np.min(result["tool, not compensated"]["force_mae"]) > 8.0
+
+
+def test_tool_table_says_when_a_run_never_touched_the_table():
+    """A run whose guarded approach missed the contact has no polishing to measure: its E_λ
+    reads "no contact" and the variant's means "—", never a 0 that looks like a perfect run."""
+    nan = float("nan")
+    result = {
+        "no tool": {
+            "seeds": [0, 1],
+            "force_mae": [1.0, 0.5],
+            "position_mae_mm": [3.0, 3.0],
+            "max_force": [52.0, 53.0],
+            "contact_missed": [False, False],
+            "failed": [],
+        },
+        "tool, not compensated": {
+            "seeds": [0, 1],
+            "force_mae": [nan, nan],
+            "position_mae_mm": [nan, nan],
+            "max_force": [nan, nan],
+            "contact_missed": [True, True],
+            "failed": [],
+        },
+    }
+    lines = tool_table(result).splitlines()
+    assert lines[2].split(" | ")[1:4] == ["1.000", "0.500", "0.750"]
+    missed = lines[3].split(" | ")
+    assert missed[1:3] == ["no contact", "no contact"]
+    assert missed[3:7] == ["—", "—", "—", "— |"]
