@@ -97,9 +97,9 @@ def normal_force_without_friction(
 
         N = λ̂ / (1 − μ·(d·n̂)),
 
-    the factor kept within 1 ± :data:`MAX_FRICTION_CORRECTION`. ``sliding_direction`` d and
-    ``normal`` n̂: world frame (d a unit vector or shorter: the estimator's tanh-smoothed
-    direction). λ̂ ≤ 0 (no contact) is returned as it is.
+    the factor kept within 1 ± :data:`MAX_FRICTION_CORRECTION`. ``sliding_direction`` d (a unit
+    vector, :class:`SlidingDirectionEstimator`) and ``normal`` n̂: world frame. λ̂ ≤ 0 (no
+    contact) is returned as it is.
     """
     lam = float(measured_normal_force)
     if lam <= 0.0:
