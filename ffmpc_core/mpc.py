@@ -58,6 +58,7 @@ from ffmpc_core.contact_friction import (
     normal_force_without_friction,
 )
 from ffmpc_core.errors import ConfigError, InputError, SolverError
+from ffmpc_core.joint_observer import JointPositionObserver, position_observer_gain
 from ffmpc_core.lowpass import (
     interpolate_torque,
     interpolation_epsilon,
@@ -184,6 +185,9 @@ class MpcConfig:
             (:class:`~ffmpc_core.constraints.ConstraintConfig`; on by default). Its
             ``max_solve_time`` is applied as given: :func:`ffmpc_core.polishing.mpc_config`
             passes it for real-time runs only.
+        position_observer_time: T of the joint-position observer, s
+            (:mod:`ffmpc_core.joint_observer`): the solve starts from q̂, the measured q with
+            its noise filtered by the measured q̇; 0 = the measured q as it is.
         constrained_iterations: SQP iterations of ``SolverCSQP`` per solve, at most (0:
             ``ocp.max_iterations``, as every lockstep run). The real-time MPC node sets 1 (its
             graph parameter ``real_time_iterations``, :mod:`ffmpc_ros.mpc_node`): one SQP
@@ -203,6 +207,7 @@ class MpcConfig:
     backend: str = "native"
     constraints: ConstraintConfig = field(default_factory=ConstraintConfig)
     constrained_iterations: int = 0
+    position_observer_time: float = 0.0
 
     def __post_init__(self) -> None:
         if self.torque_state not in TORQUE_STATES:
@@ -214,6 +219,7 @@ class MpcConfig:
         horizon = self.ocp.horizon * self.ocp.dt
         if not 0.0 <= self.command_delay < horizon or self.prediction_step <= 0:
             raise ConfigError("command_delay must be in [0, horizon·dt), prediction_step > 0")
+        position_observer_gain(self.position_observer_time, self.ocp.period)  # validates T
         if self.constrained_iterations < 0:
             raise ConfigError(
                 f"constrained_iterations must be >= 0 (0: max_iterations), "
@@ -408,6 +414,15 @@ class ModelPredictiveController:
                 config.contact.sliding_filter_time,
                 config.contact.sliding_min_speed,
             )
+        #: the joint-position observer of x̂'s q (MpcConfig.position_observer_time), else None;
+        #: it starts again after an outage (the same gap as the controller's resumption)
+        self._observer: JointPositionObserver | None = None
+        if config.position_observer_time > 0.0:
+            self._observer = JointPositionObserver(
+                robot,
+                config.position_observer_time,
+                max_gap=RESUME_GAP_PERIODS * config.ocp.period,
+            )
         # eq 15; τ₁* as it is (ε = 1) when q̈ is at τ⁺: the plan applies τ₁* from node 0 on
         self._epsilon = (
             1.0
@@ -467,6 +482,8 @@ class ModelPredictiveController:
         self._excess = 0.0  # the last solution's largest signed excess over a bound
         if self._sliding is not None:
             self._sliding.reset()
+        if self._observer is not None:
+            self._observer.reset()
 
     def set_contact_parameters(self, stiffness: npt.ArrayLike, damping: npt.ArrayLike) -> None:
         """Change the force-feedback model's K (N/m) and B (N·s/m) in place, for every node and
@@ -557,6 +574,9 @@ class ModelPredictiveController:
                 self._resumed_force = force.copy() if np.all(np.isfinite(force)) else None
         self._observe_contact(meas, t)
         x_hat = self.state_from(meas)
+        if self._observer is not None:
+            nq = self.robot.nq
+            x_hat[:nq] = self._observer.update(x_hat[:nq], x_hat[nq : nq + self.robot.nv], t)
         if self._sliding is not None:
             self._remove_friction_share(x_hat, t)
         x0 = self.predict(x_hat, t)

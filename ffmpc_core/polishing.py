@@ -191,6 +191,7 @@ def mpc_config(scenario: Scenario, real_time: bool = False) -> MpcConfig:
         weights=m.cost_weights(),
         backend=m.backend,
         torque_state=m.torque_state,
+        position_observer_time=m.position_observer_time,
         constraints=m.constraints if real_time else replace(m.constraints, max_solve_time=0.0),
         command_delay=command_delay(scenario) if m.delay_compensation else 0.0,
     )

@@ -332,6 +332,14 @@ class MpcSection:
         list(TORQUE_STATES),
         "τ of the torque-feedback state: measured τ̂ (eq 10/15) or the last commanded τ̃",
     )
+    #: T of the joint-position observer (ffmpc_core.joint_observer): the solve starts from the
+    #: measured q with its noise filtered by the measured q̇; 0: the measured q as it is
+    position_observer_time: float = param(
+        0.0,
+        "s",
+        (0.0, 10.0),
+        "joint-position observer time constant T (q̂ from q and ∫q̇; 0: the measured q)",
+    )
     # action models: native (C++) | python (reference), MpcConfig.backend
     backend: str = param(
         "native", "", list(BACKENDS), "action models: native (C++, default) | python (reference)"
