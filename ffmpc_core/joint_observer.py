@@ -17,7 +17,7 @@ without noise; the measured position gives its slow changes (no drift). With α 
 
     q̂_k = q_k ⊕ α·((q̂_{k−1} ⊕ Δt·(q̇_k + q̇_{k−1})/2) ⊖ q_k)
 
-(pinocchio's integrate and difference; plain sums for the arms' revolute joints). For white
+(pinocchio's integrate and interpolate; plain sums for the arms' revolute joints). For white
 position noise σ_q the estimate's noise is σ_q·√((1 − α)/(1 + α)) (×0.10 at T = 0.1 s,
 Δt = 2 ms), plus the integrated velocity noise, about σ_q̇·√(T·Δt/2) for T ≫ Δt (10⁻⁵ rad there). The
 trapezoid integrates a linearly changing velocity exactly, so at constant acceleration the
@@ -40,11 +40,17 @@ from ffmpc_core.errors import ConfigError, InputError
 from ffmpc_core.robots import RobotModel
 
 
+def check_time_constant(time_constant: float) -> float:
+    """T (s) as a float; ConfigError unless finite and >= 0."""
+    if not (math.isfinite(time_constant) and time_constant >= 0.0):
+        raise ConfigError(f"the observer time constant must be >= 0 s, got {time_constant!r}")
+    return float(time_constant)
+
+
 def position_observer_gain(time_constant: float, dt: float) -> float:
     """α = exp(−Δt/T) of the observer: the weight of the velocity-integrated position (0 for
     T = 0: the measured position alone). T, Δt in s; ConfigError for T < 0 or Δt ≤ 0."""
-    if not (math.isfinite(time_constant) and time_constant >= 0.0):
-        raise ConfigError(f"the observer time constant must be >= 0 s, got {time_constant!r}")
+    check_time_constant(time_constant)
     if not (math.isfinite(dt) and dt > 0.0):
         raise ConfigError(f"the observer step must be > 0 s, got {dt!r}")
     return 0.0 if time_constant == 0.0 else math.exp(-dt / time_constant)
@@ -61,11 +67,10 @@ class JointPositionObserver:
     """
 
     def __init__(self, robot: RobotModel, time_constant: float, max_gap: float) -> None:
-        position_observer_gain(time_constant, 1.0)  # validates T
         if not (math.isfinite(max_gap) and max_gap > 0.0):
             raise ConfigError(f"max_gap must be > 0 s, got {max_gap!r}")
         self.robot = robot
-        self.time_constant = float(time_constant)
+        self.time_constant = check_time_constant(time_constant)
         self.max_gap = float(max_gap)
         self.reset()
 
@@ -102,6 +107,6 @@ class JointPositionObserver:
         dt = t - previous_t
         alpha = position_observer_gain(self.time_constant, dt)
         predicted = pin.integrate(model, previous_q, 0.5 * dt * (v + previous_v))
-        estimate = pin.integrate(model, q, alpha * pin.difference(model, q, predicted))
+        estimate = pin.interpolate(model, q, predicted, alpha)  # q ⊕ α·(predicted ⊖ q)
         self._q = estimate
         return estimate.copy()

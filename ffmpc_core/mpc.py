@@ -58,7 +58,7 @@ from ffmpc_core.contact_friction import (
     normal_force_without_friction,
 )
 from ffmpc_core.errors import ConfigError, InputError, SolverError
-from ffmpc_core.joint_observer import JointPositionObserver, position_observer_gain
+from ffmpc_core.joint_observer import JointPositionObserver, check_time_constant
 from ffmpc_core.lowpass import (
     interpolate_torque,
     interpolation_epsilon,
@@ -219,7 +219,7 @@ class MpcConfig:
         horizon = self.ocp.horizon * self.ocp.dt
         if not 0.0 <= self.command_delay < horizon or self.prediction_step <= 0:
             raise ConfigError("command_delay must be in [0, horizon·dt), prediction_step > 0")
-        position_observer_gain(self.position_observer_time, self.ocp.period)  # validates T
+        check_time_constant(self.position_observer_time)
         if self.constrained_iterations < 0:
             raise ConfigError(
                 f"constrained_iterations must be >= 0 (0: max_iterations), "

@@ -137,8 +137,7 @@ def tool_table(result: dict[str, dict[str, Any]]) -> str:
             change = "—"
         else:
             change = "" if reference is None else f"{100.0 * (mean / reference - 1.0):+.1f} %"
-        missed = row.get("contact_missed", [False] * len(row["force_mae"]))
-        pairs = zip(row["force_mae"], missed, strict=True)
+        pairs = zip(row["force_mae"], row["contact_missed"], strict=True)
         values = ["no contact" if m else f"{x:.3f}" for x, m in pairs]
         cells = [name, *values, _number(mean, 3), change]
         cells += [
