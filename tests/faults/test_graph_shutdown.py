@@ -113,9 +113,9 @@ def test_sigterm_closes_the_bag_and_a_second_graph_is_refused(tmp_path):
         assert "foreign nodes on this graph's topics" in second.stderr, second.stderr
         # Discovery is incremental: the refusal names the running graph's nodes discovered so far
         # (all of them on a quiet machine; two in one fresh-clone run on a busy one, only the
-        # metrics node in another).
+        # metrics node in another, only the recorder in a third).
         graph = ("/plant", "/joint_sensor", "/ft_sensor", "/mpc", "/pid", "/metrics")
-        named = [n for n in (*graph, "/state_publisher") if n in second.stderr]
+        named = [n for n in (*graph, "/state_publisher", "/ffmpc_recorder") if n in second.stderr]
         assert named, second.stderr
         assert refused_in < 60.0  # never a silent hang
         proc.send_signal(signal.SIGTERM)
