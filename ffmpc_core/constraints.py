@@ -95,11 +95,13 @@ class ConstraintConfig:
             bound the quadratic barrier had). The MPC bounds its predicted velocities, but the
             robot moves with what the prediction does not see (δo, sensing delay, actuation
             bias, contact transients): the margin is the room for that. The polishing
-            scenarios set 0.30: with 0.10 the elbow (joint 3) overshot its bound by ~13 % at
+            scenarios set 0.35: with 0.10 the elbow (joint 3) overshot its bound by ~13 % at
             the circle's start and the robot's velocity reflex stopped it (1.015×, seed 101);
             0.20 left it at 0.90× there, but on the paper study's 20 seeds the reflex still
             stopped 22 of its 420 runs with the PID (mostly the torque-feedback MPC after the
-            push, on A6), and 0.30 stops 2. The impact's force-feedback MPC keeps 0.10 (with
+            push, on A6), and 0.30 stops 2; at the searched weights 0.30 let the push drive A3
+            to 1.003× (force-feedback, seed 119), 0.35 to 0.976× (docs: tuning results, "The
+            defaults from the searches"). The impact's force-feedback MPC keeps 0.10 (with
             0.20 it brakes harder at the handover and breaks the Panda's acceleration limits).
         recovery_time: T_r, s: a row whose value at the state it starts from lies beyond its
             bound is asked back inside with this time constant, its bound at node k

@@ -564,8 +564,8 @@ def test_constraints_are_on_by_default_everywhere():
     assert ConstraintConfig().enabled and MpcConfig().constraints.enabled
     for name in ("polishing", "polishing_fast", "force_square", "perfect_table", "push", "tilt"):
         scenario = load_scenario(name)
-        # the polishing files keep 30 % of the velocity limits free (ConstraintConfig's docstring)
-        assert scenario.mpc.constraints == ConstraintConfig(velocity_margin=0.3), name
+        # the polishing files keep 35 % of the velocity limits free (ConstraintConfig's docstring)
+        assert scenario.mpc.constraints == ConstraintConfig(velocity_margin=0.35), name
         assert mpc_config(scenario).constraints.enabled, name
 
 

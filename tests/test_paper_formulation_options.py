@@ -237,20 +237,20 @@ def test_scenario_options_reach_the_models(robot):
     task.ee_z_weight_in_contact flow from the scenario file into the MPC and the task."""
     # the time-based switch: in contact at the circle's start without a measured force
     s = load_scenario("polishing", {"mpc.formulation": "torque_feedback", "task.approach_speed": 0})
-    assert s.mpc.torque_state == "measured"
+    assert s.mpc.torque_state == "commanded"  # the polishing files' (MpcConfig: "measured")
     assert s.task.ee_z_weight_in_contact == 0.0
     ref = build_task(s, robot).reference(build_task(s, robot).circle_start + 0.1)
     np.testing.assert_array_equal(ref.ee_position_diag, [1.0, 1.0, 0.0])  # the paper's Q4
     s = s.with_overrides(
         {
-            "mpc.torque_state": "commanded",
+            "mpc.torque_state": "measured",
             "mpc.contact.baumgarte_velocity_gain": 12.5,
             "mpc.weights.torque_feedback.ee_rotation": 3.0,
             "task.ee_z_weight_in_contact": 1.0,
         }
     )
     config = mpc_config(s)
-    assert config.torque_state == "commanded"
+    assert config.torque_state == "measured"
     assert config.weights.ee_rotation == 3.0
     task = build_task(s, robot)
     np.testing.assert_array_equal(task.reference(task.circle_start).ee_position_diag, [1, 1, 1])

@@ -9,7 +9,10 @@ from ffmpc_core.polishing import build_task, scenario_robot
 from ffmpc_core.scenario import load_scenario
 from ffmpc_core.tasks import PhaseWeights
 
-W = "mpc.weights.force_feedback."
+#: The torque-feedback MPC's weights: the polishing files set neither c4 for it (the classical
+#: and force-feedback blocks set both, from the searches), so its free-space c4 follows.
+TF = {"mpc.formulation": "torque_feedback"}
+W = "mpc.weights.torque_feedback."
 
 
 def _free_and_contact_weights(scenario):
@@ -22,16 +25,22 @@ def _free_and_contact_weights(scenario):
 
 
 def test_free_space_weight_follows_the_contact_weight_unless_set():
-    base = load_scenario("polishing", {W + "ee_position_phase": 5e3})
+    base = load_scenario("polishing", {**TF, W + "ee_position_phase": 5e3})
     assert base.mpc.phase_weights() == PhaseWeights(5e3, 5e3, base.mpc.phase_weights().force)
     assert _free_and_contact_weights(base) == (5e3, 5e3)
-    split = load_scenario("polishing", {W + "ee_position_phase": 5e3, W + "ee_position_free": 800})
+    split = load_scenario(
+        "polishing", {**TF, W + "ee_position_phase": 5e3, W + "ee_position_free": 800}
+    )
     assert split.mpc.phase_weights().free_ee_position == 800.0
     assert split.mpc.phase_weights().contact_ee_position == 5e3
     assert _free_and_contact_weights(split) == (800.0, 5e3)
-    # the other formulations keep the task's defaults
-    other = split.mpc.phase_weights("classical")
-    assert other.free_ee_position == other.contact_ee_position == PhaseWeights.free_ee_position
+    # the other formulations keep their file's weights (the force-feedback MPC: both set)
+    other = split.mpc.phase_weights("force_feedback")
+    assert other == load_scenario("polishing").mpc.phase_weights("force_feedback")
+    assert (other.free_ee_position, other.contact_ee_position) == (1000.0, 46070.0)
+    untouched = load_scenario("polishing", TF).mpc.phase_weights()
+    assert untouched.free_ee_position == untouched.contact_ee_position
+    assert untouched.contact_ee_position == PhaseWeights.contact_ee_position
 
 
 @pytest.mark.parametrize("value", [-1.0, "heavy"])

