@@ -21,8 +21,8 @@ def test_single_process_graph_equals_the_runner_for_one_second():
     (one reflex model), the nodes and the runner's loop run on to the end. With the time-based
     switch to contact (``task.approach_speed`` 0), under which this run reaches the table
     within the second; the guarded approach's graph against the runner: ``make demo``. At the
-    force-feedback MPC's untuned weights, without the observer: at the searched weights (c4
-    46070 in contact) the Riccati gains stop the robot on A5 at 0.248 s, before the table."""
+    force-feedback MPC's untuned weights, without the observer: at the scenario defaults the
+    Riccati feedback drives A5 past its limit at 0.248 s, in the reach, before the table."""
     overrides = {
         "seed": 0,
         "mpc.formulation": "force_feedback",
