@@ -5,13 +5,23 @@ exactly —, same times t = k·time_step, same generators). Real time: tests/tes
 
 from __future__ import annotations
 
+import argparse
+from pathlib import Path
+
 import pytest
 from ros_helpers import assert_same_run
 
 from ffmpc_core.scenario import load_scenario
 from ffmpc_ros.bringup import GraphOptions, graph_parameters, run_graph
 from ffmpc_ros.graph_nodes import write_params_file
+from studies.cli import _polishing_overrides
 from studies.polishing import run_polishing
+
+#: The polishing scenarios' settings before the searched weights, as a ``--set-file``.
+UNTUNED = (
+    Path(__file__).resolve().parents[1]
+    / "benchmarks/results/paper/seeds100-119-friction/untuned.yaml"
+)
 
 
 def test_single_process_graph_equals_the_runner_for_one_second():
@@ -21,27 +31,15 @@ def test_single_process_graph_equals_the_runner_for_one_second():
     (one reflex model), the nodes and the runner's loop run on to the end. With the time-based
     switch to contact (``task.approach_speed`` 0), under which this run reaches the table
     within the second; the guarded approach's graph against the runner: ``make demo``. At the
-    force-feedback MPC's untuned weights, without the observer: at the scenario defaults the
-    Riccati feedback drives A5 past its limit at 0.248 s, in the reach, before the table."""
+    settings before the searched weights (``UNTUNED``: untuned weights, no observer): at the
+    scenario defaults the Riccati feedback drives A5 past its limit at 0.248 s, in the reach,
+    before the table."""
     overrides = {
+        **_polishing_overrides(argparse.Namespace(set_file=[str(UNTUNED)], set=None)),
         "seed": 0,
         "mpc.formulation": "force_feedback",
         "mpc.riccati_feedback": True,
         "task.approach_speed": 0.0,
-        "mpc.position_observer_time": 0.0,
-        "mpc.constraints.velocity_margin": 0.3,
-        **{
-            f"mpc.weights.force_feedback.{name}": value
-            for name, value in (
-                ("force_phase", 3.0),
-                ("ee_position_phase", 1000.0),
-                ("ee_position_free", 1000.0),
-                ("ee_velocity", 1.0),
-                ("force_rate", 1e-6),
-                ("ee_rotation", 5.0),
-                ("joint_velocity", 0.01),
-            )
-        },
     }
     scenario = load_scenario("polishing", overrides)
     graph = run_graph(scenario, GraphOptions(duration=1.0, single_process=True, timeout=120))
